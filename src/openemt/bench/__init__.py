@@ -1,0 +1,1 @@
+"""openemt.bench (see docs/architecture in README)."""

@@ -1,0 +1,1 @@
+"""openemt.calibrate (see docs/architecture in README)."""

@@ -1,0 +1,1 @@
+"""openemt.correct (see docs/architecture in README)."""

@@ -1,0 +1,88 @@
+"""The in-memory calibration: a coupling model plus the fixture transforms of the rig.
+
+Its on-disk form is a schema-versioned JSON file (``docs/calibration-format.md``); ILEMT
+``.mat`` calibrations import into the same object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ..field import DipoleModel
+from ..geometry import pose_from_vector
+
+__all__ = ["Calibration"]
+
+
+def _vec6(v, name):
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (6,):
+        raise ValueError(f"expected `{name}` to be a pose vector of shape (6,), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"expected finite `{name}`, got NaN or inf")
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """A coupling model with the rig's fixture transforms and optional output correction.
+
+    Attributes
+    ----------
+    model : DipoleModel
+        Source and sensor coil parameters (SI units, gain units for moments).
+    source_fixture, stage_fixture, sensor_fixture : ndarray, shape (6,)
+        F_so, F_st, F_se as pose vectors ``[x, y, z, rx, ry, rz]`` (m, rad); zeros if unknown.
+    linear_correction : ndarray, shape (4, 4), optional
+        Homogeneous DLT output correction applied to solved positions (ilemt-format.md §10.3).
+    mode : str
+        Calibration mode that produced it (``XYZ``, ``concentric``, ``truth``, ``ilemt``, ...).
+    free, frozen : tuple of str
+        Named parameter groups that were fitted / held.
+    standard_errors : dict of str -> ndarray, optional
+        Standard errors with the shapes of the values they belong to (``L_so``, ``F_so``, ...).
+    stats : dict
+        Fit statistics (``rms_residue``, ``sum_squared_residue``, ``num_points``, ...).
+    provenance : dict
+        openemt version, input file hashes, the calibration it started from, ...
+    extra : dict
+        Model terms beyond the dipole (e.g. quadrupoles) and anything else, JSON-serialisable.
+    """
+
+    model: DipoleModel
+    source_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    stage_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    sensor_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    linear_correction: np.ndarray | None = None
+    mode: str = ""
+    free: tuple[str, ...] = ()
+    frozen: tuple[str, ...] = ()
+    standard_errors: dict[str, np.ndarray] = field(default_factory=dict)
+    stats: dict[str, Any] = field(default_factory=dict)
+    provenance: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not isinstance(self.model, DipoleModel):
+            raise TypeError(f"expected `model` to be a DipoleModel, got {type(self.model).__name__}")
+        for name in ("source_fixture", "stage_fixture", "sensor_fixture"):
+            object.__setattr__(self, name, _vec6(getattr(self, name), name))
+        if self.linear_correction is not None:
+            L = np.asarray(self.linear_correction, dtype=np.float64)
+            if L.shape != (4, 4) or not np.all(np.isfinite(L)):
+                raise ValueError(f"expected a finite (4, 4) `linear_correction`, got {L.shape}")
+            object.__setattr__(self, "linear_correction", L)
+        object.__setattr__(self, "free", tuple(self.free))
+        object.__setattr__(self, "frozen", tuple(self.frozen))
+
+    @property
+    def fixture_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(F_so, F_st, F_se) as (4, 4) poses."""
+        return tuple(pose_from_vector(v) for v in
+                     (self.source_fixture, self.stage_fixture, self.sensor_fixture))
+
+    def replace(self, **changes) -> "Calibration":
+        return replace(self, **changes)

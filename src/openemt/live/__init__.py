@@ -1,0 +1,1 @@
+"""openemt.live (see docs/architecture in README)."""

@@ -1,0 +1,1 @@
+"""openemt.report (see docs/architecture in README)."""

@@ -1,0 +1,1 @@
+"""openemt.signal (see docs/architecture in README)."""

@@ -1,0 +1,1 @@
+"""openemt.simulate (see docs/architecture in README)."""

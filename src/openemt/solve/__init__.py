@@ -1,0 +1,1 @@
+"""openemt.solve (see docs/architecture in README)."""
