@@ -1,1 +1,28 @@
-"""openemt.calibrate (see docs/architecture in README)."""
+"""Calibration of coupling models and rig fixtures: layout, objective, staged fits, uncertainty."""
+
+from ._fit import CalibrationFit, calibrate, fit, residue_stats
+from ._identifiability import Identifiability, IdentifiabilityWarning, analyse_identifiability
+from ._layout import FIELD_NAMES, ParameterLayout
+from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, get_mode, select_rows
+from ._objective import CalibrationProblem, build_problem, fixture_twist_map
+
+__all__ = [
+    "DEFAULT_FREEZE",
+    "DEFAULT_OPTIMIZE",
+    "FIELD_NAMES",
+    "MODES",
+    "CalibrationFit",
+    "CalibrationMode",
+    "CalibrationProblem",
+    "Identifiability",
+    "IdentifiabilityWarning",
+    "ParameterLayout",
+    "analyse_identifiability",
+    "build_problem",
+    "calibrate",
+    "fit",
+    "fixture_twist_map",
+    "get_mode",
+    "residue_stats",
+    "select_rows",
+]

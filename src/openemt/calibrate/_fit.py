@@ -1,0 +1,199 @@
+"""Fitting a calibration with ``scipy.optimize.least_squares`` and the analytic Jacobian."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .. import __version__
+from ..io import Calibration, Dataset
+from ._identifiability import Identifiability, analyse_identifiability
+from ._layout import ParameterLayout
+from ._modes import CalibrationMode, get_mode, select_rows
+from ._objective import CalibrationProblem, build_problem
+
+__all__ = ["CalibrationFit", "fit", "calibrate", "residue_stats"]
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationFit:
+    """Everything about one calibration fit.
+
+    Attributes
+    ----------
+    calibration : Calibration
+        The fitted calibration (mode, free/frozen groups, standard errors, stats filled in).
+    mode : CalibrationMode
+    layout : ParameterLayout
+    problem : CalibrationProblem
+        The rows that were fitted.
+    x : ndarray, shape (layout.size,)
+        Full parameter vector at the solution.
+    free : ndarray of int
+        Full-vector indices of the fitted parameters.
+    residuals : ndarray, shape (m,)
+        Normalised residuals at the solution.
+    identifiability : Identifiability or None
+    nfev : int
+        Residual evaluations.
+    seconds : float
+        Wall time of the optimisation.
+    """
+
+    calibration: Calibration
+    mode: CalibrationMode
+    layout: ParameterLayout
+    problem: CalibrationProblem
+    x: np.ndarray
+    free: np.ndarray
+    residuals: np.ndarray
+    identifiability: Identifiability | None
+    nfev: int
+    seconds: float
+
+
+def _check_inputs(dataset, start):
+    if not isinstance(dataset, Dataset):
+        raise TypeError(f"expected `dataset` to be an openemt.io.Dataset, got "
+                        f"{type(dataset).__name__}")
+    if not isinstance(start, Calibration):
+        raise TypeError(f"expected `start` to be an openemt.io.Calibration, got "
+                        f"{type(start).__name__}")
+    if (dataset.n_source, dataset.n_sensor) != (start.model.n_source, start.model.n_sensor):
+        raise ValueError(f"expected a dataset with {start.model.n_source} x "
+                         f"{start.model.n_sensor} coils like the start calibration, got "
+                         f"{dataset.n_source} x {dataset.n_sensor}")
+
+
+def _rows(dataset, mode, select):
+    if not select:
+        return dataset
+    mask = select_rows(dataset, mode)
+    if not mask.any():
+        raise ValueError(f"expected rows for mode {mode.name!r} (source fixtures "
+                         f"{mode.source_fixtures}, sensor fixtures {mode.sensor_fixtures}, "
+                         f"patterns {mode.patterns}), got none")
+    return dataset.select(mask)
+
+
+def _stats(r: np.ndarray, n_rows: int) -> dict:
+    ss = float(r @ r)
+    return {"rms_residue": float(np.sqrt(ss / n_rows)), "sum_squared_residue": ss,
+            "num_points": int(n_rows)}
+
+
+def residue_stats(dataset, calibration, mode="XYZ", *, select=True) -> dict:
+    """``rms_residue``, ``sum_squared_residue`` and ``num_points`` of a calibration on the rows
+    of ``dataset`` a mode uses (ilemt-format.md §8.2; N counts rows, not entries)."""
+    _check_inputs(dataset, calibration)
+    mode = get_mode(mode)
+    data = _rows(dataset, mode, select)
+    layout = ParameterLayout.for_model(calibration.model)
+    prob = build_problem(data, layout, calibration.model.gain)
+    return _stats(prob.residuals(layout.pack_calibration(calibration)), prob.n_rows)
+
+
+def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freeze=None,
+        max_nfev: int = 200, tol: float = 1e-12, uncertainty: bool = True, warn: bool = True
+        ) -> CalibrationFit:
+    """Fit a calibration to a dataset, starting from another calibration.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Couplings (signs applied) with stage vectors and fixture codes.
+    start : Calibration
+        Starting values; every parameter that is not free keeps its value from here.
+    mode : str or CalibrationMode
+        One of :data:`~openemt.calibrate.MODES` (``XYZ``, ``concentric``, ``XYZ_all``, ...).
+    select : bool
+        Use only the rows the mode names (fixtures, patterns); ``False`` uses every row.
+    optimize, freeze : sequence of str, optional
+        Override the mode's free and frozen groups.
+    max_nfev, tol : int, float
+        Passed to ``least_squares`` (``ftol = xtol = gtol = tol``).
+    uncertainty : bool
+        Compute rank, condition and standard errors at the solution.
+    warn : bool
+        Warn when a free group is not determined by the data.
+
+    Returns
+    -------
+    CalibrationFit
+
+    References
+    ----------
+    MacLachlan et al., IEEE Sensors J. 2025 (seed 000) §VI; ilemt-format.md §6, §8.
+    """
+    _check_inputs(dataset, start)
+    mode = get_mode(mode)
+    opt = tuple(mode.optimize if optimize is None else optimize)
+    frz = tuple(mode.freeze if freeze is None else freeze)
+    data = _rows(dataset, mode, select)
+    layout = ParameterLayout.for_model(start.model)
+    x0 = layout.pack_calibration(start)
+    if mode.concentric:
+        x0[layout.slices["L_so"]] = 0.0
+        x0[layout.slices["L_se"]] = 0.0
+        opt = tuple(g for g in opt if g not in ("d_so_pos", "d_se_pos"))
+    free = layout.free_indices(opt, frz)
+    if free.size == 0:
+        raise ValueError(f"expected at least one free parameter, got none (optimize {opt}, "
+                         f"freeze {frz})")
+    prob = build_problem(data, layout, start.model.gain)
+
+    def full(xf):
+        x = x0.copy()
+        x[free] = xf
+        return x
+
+    def fun(xf):
+        return prob.residuals(full(xf))
+
+    def jac(xf):
+        return prob.residuals_and_jacobian(full(xf))[1][:, free]
+
+    t0 = time.perf_counter()
+    res = least_squares(fun, x0[free], jac=jac, method="trf", x_scale="jac", ftol=tol,
+                        xtol=tol, gtol=tol, max_nfev=max_nfev)
+    seconds = time.perf_counter() - t0
+    x = full(res.x)
+    r, J = prob.residuals_and_jacobian(x)
+    ident = None
+    se_full = np.zeros(layout.size)
+    if uncertainty:
+        groups = [g for g in opt if g not in frz]
+        ident = analyse_identifiability(J[:, free], r, free, layout, groups, warn=warn)
+        se_full[free] = ident.standard_errors
+    stats = _stats(r, prob.n_rows)
+    stats.update(nfev=int(res.nfev), optimizer_status=int(res.status), fit_seconds=seconds)
+    if ident is not None:
+        stats.update(jacobian_rank=ident.rank, n_free=ident.n_free,
+                     condition=ident.summary()["condition"],
+                     undetermined_groups=list(ident.undetermined))
+    F_so, F_st, F_se = layout.fixtures(x)
+    files = sorted(set(data.file_names().tolist()) - {""})
+    provenance = {
+        "openemt_version": __version__,
+        "mode": mode.name,
+        "start": {"mode": start.mode, "provenance": start.provenance},
+        "input_files": files,
+        "inputs": dataset.meta.get("provenance", {}),
+    }
+    se = {k: v for k, v in layout.as_fields(se_full).items()} if uncertainty else {}
+    cal = Calibration(model=layout.model(x, start.model.gain), source_fixture=F_so,
+                      stage_fixture=F_st, sensor_fixture=F_se, linear_correction=None,
+                      mode=mode.name, free=tuple(g for g in opt if g not in frz), frozen=frz,
+                      standard_errors=se, stats=stats, provenance=provenance,
+                      extra=dict(start.extra))
+    return CalibrationFit(calibration=cal, mode=mode, layout=layout, problem=prob, x=x,
+                          free=free, residuals=r, identifiability=ident, nfev=int(res.nfev),
+                          seconds=seconds)
+
+
+def calibrate(dataset, start, mode="XYZ", **kwargs) -> Calibration:
+    """Fit a calibration and return it; see :func:`fit` for the parameters."""
+    return fit(dataset, start, mode, **kwargs).calibration

@@ -1,0 +1,160 @@
+"""Normalised calibration residuals and their analytic Jacobian (seed 000 §VI; ilemt-format.md §8.2).
+
+For each row ``n`` the residual is ``(C_meas,n - C_pred(P_n, rho)) / ||C_meas,n||_2`` over all
+``n_so * n_se`` entries, with the spectral norm of the measured matrix (the stored ILEMT
+residuals are reproduced only with the spectral norm, not the Frobenius norm). The pose is
+``P = F_so . so_J . F_st . st_J . F_se`` (seed 000 eq. 6).
+
+Fixture derivatives use left twists ``xi = (rho, phi)`` (``P -> exp(xi) P``): a change
+``(dt, dr)`` of a fixture pose vector ``v = (t, r)`` is the twist ``phi = J_l(r) dr``,
+``rho = dt + t x phi`` on that fixture; it reaches ``P`` through the adjoint of everything to
+the fixture's left, and a twist on ``P`` changes its translation by ``rho + phi x t_P`` and
+rotates it by ``phi`` -- the quantities the dipole kernel differentiates against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..field import coupling_jacobians
+from ..geometry import (
+    adjoint,
+    left_jacobian_so3,
+    pose_from_vector,
+    skew,
+    source_fixture_rotation,
+    stage_joint,
+)
+from ._layout import ParameterLayout
+
+__all__ = ["CalibrationProblem", "build_problem", "fixture_twist_map"]
+
+
+def fixture_twist_map(v) -> np.ndarray:
+    """``(6, 6)`` map from a pose-vector change ``(dt, dr)`` to the left twist ``(rho, phi)``."""
+    v = np.asarray(v, dtype=np.float64)
+    Jl = left_jacobian_so3(v[3:])
+    T = np.zeros((6, 6))
+    T[:3, :3] = np.eye(3)
+    T[:3, 3:] = skew(v[:3]) @ Jl
+    T[3:, 3:] = Jl
+    return T
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationProblem:
+    """Measured couplings and known motions of the rows used in a fit.
+
+    Attributes
+    ----------
+    layout : ParameterLayout
+    C_meas : ndarray, shape (N, n_so, n_se)
+        Signed real measured couplings.
+    weight : ndarray, shape (N,)
+        ``1 / ||C_meas,n||_2`` (spectral norm).
+    so_J : ndarray, shape (N, 4, 4)
+        Known source-fixture motions (rotation only).
+    st_J : ndarray, shape (N, 4, 4)
+        Known stage-and-sensor-fixture motions.
+    gain : float
+        Coupling scale of the model (``1/250`` for ILEMT).
+    """
+
+    layout: ParameterLayout
+    C_meas: np.ndarray
+    weight: np.ndarray
+    so_J: np.ndarray
+    st_J: np.ndarray
+    gain: float
+
+    @property
+    def n_rows(self) -> int:
+        return self.C_meas.shape[0]
+
+    @property
+    def n_residuals(self) -> int:
+        return self.C_meas.size
+
+    def poses(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Ground-truth poses ``P (N, 4, 4)`` plus the partial products needed by the Jacobian:
+        ``A = F_so so_J`` (left of F_st), ``D = A F_st st_J`` (left of F_se), and ``F_se``."""
+        F_so, F_st, F_se = (pose_from_vector(f) for f in self.layout.fixtures(x))
+        A = F_so @ self.so_J
+        D = A @ F_st @ self.st_J
+        return D @ F_se, A, D, F_se
+
+    def predict(self, x) -> np.ndarray:
+        """Predicted couplings ``(N, n_so, n_se)``."""
+        P = self.poses(x)[0]
+        return self.layout.model(x, self.gain).coupling(P)
+
+    def residuals(self, x) -> np.ndarray:
+        """Normalised residual vector ``(N * n_so * n_se,)``."""
+        return ((self.C_meas - self.predict(x)) * self.weight[:, None, None]).ravel()
+
+    def residuals_and_jacobian(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals ``(m,)`` and their Jacobian ``(m, layout.size)`` w.r.t. the full vector."""
+        lay = self.layout
+        P, A, D, _ = self.poses(x)
+        jac = coupling_jacobians(lay.model(x, self.gain), P)
+        n, ns, ne = jac.C.shape
+        w = self.weight[:, None, None, None]
+        J = np.zeros((n, ns, ne, lay.size))
+
+        # model parameters: C[i, j] depends on source coil i and sensor coil j only
+        for name, d, by_source in (("L_so", jac.d_L_so, True), ("M_so", jac.d_M_so, True),
+                                   ("L_se", jac.d_L_se, False), ("M_se", jac.d_M_se, False)):
+            s = lay.slices[name]
+            blk = J[..., s].reshape(n, ns, ne, -1, 3)  # view on J
+            if by_source:
+                for i in range(ns):
+                    blk[:, i, :, i, :] = d[:, i, :, :]
+            else:
+                for j in range(ne):
+                    blk[:, :, j, j, :] = d[:, :, j, :]
+            J[..., s] = blk.reshape(n, ns, ne, -1)
+
+        # pose -> left twist on P: dt_P = rho + phi x t_P, i.e. d/dphi gains -G_t [t_P]x
+        G_t = jac.d_translation
+        H = np.concatenate(
+            [G_t, jac.d_rotation - np.einsum("kija,kab->kijb", G_t, skew(P[:, :3, 3]))], axis=-1)
+        F_so_v, F_st_v, F_se_v = lay.fixtures(x)
+        J[..., lay.slices["F_so"]] = H @ fixture_twist_map(F_so_v)
+        J[..., lay.slices["F_st"]] = np.einsum("kijb,kbc->kijc", H,
+                                               adjoint(A) @ fixture_twist_map(F_st_v))
+        J[..., lay.slices["F_se"]] = np.einsum("kijb,kbc->kijc", H,
+                                               adjoint(D) @ fixture_twist_map(F_se_v))
+        r = (self.C_meas - jac.C) * self.weight[:, None, None]
+        J *= -w
+        return r.ravel(), J.reshape(n * ns * ne, lay.size)
+
+
+def _spectral_norms(C: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(C, ord=2, axis=(1, 2))
+
+
+def build_problem(dataset, layout: ParameterLayout, gain: float) -> CalibrationProblem:
+    """Assemble a :class:`CalibrationProblem` from every row of ``dataset``.
+
+    The target and the normalisation both use the signed real coupling (ilemt-format.md §8.2).
+    """
+    C = dataset.signed_real()
+    if (C.shape[1], C.shape[2]) != (layout.n_source, layout.n_sensor):
+        raise ValueError(f"expected couplings with {layout.n_source} x {layout.n_sensor} coils, "
+                         f"got {C.shape[1]} x {C.shape[2]}")
+    n = C.shape[0]
+    if n == 0:
+        raise ValueError("expected at least one calibration row, got 0")
+    norms = _spectral_norms(C)
+    if not np.all(np.isfinite(norms)) or np.any(norms <= 0):
+        raise ValueError("expected finite, non-zero coupling matrices, got zero or NaN rows")
+    so_J = np.zeros((n, 4, 4))
+    so_J[:, 3, 3] = 1.0
+    codes = np.asarray(dataset.source_fixture)
+    for code in np.unique(codes):
+        so_J[codes == code, :3, :3] = source_fixture_rotation(str(code))
+    st_J = stage_joint(dataset.stage, [str(c) for c in dataset.sensor_fixture])
+    return CalibrationProblem(layout=layout, C_meas=C, weight=1.0 / norms,
+                              so_J=so_J, st_J=st_J, gain=float(gain))
