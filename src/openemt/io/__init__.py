@@ -5,8 +5,15 @@ from ._calibration import Calibration
 from ._dataset import Dataset, signed_real
 from ._ilemt import (compensate_stage, file_sha256, import_ilemt_folder, parse_sign_options,
                      read_ilemt_dat)
+from ._ilemt_mat import read_ilemt_calibration
+from ._calfile import read_calibration, write_calibration
+from ._hdf5 import CouplingReader, open_dataset_couplings, read_dataset, write_dataset
+from ._csv import export_csv, import_csv
 
 __all__ = ["Calibration", "Dataset", "atomic_path", "signed_real"]
 
 __all__ += ["compensate_stage", "file_sha256", "import_ilemt_folder", "parse_sign_options",
             "read_ilemt_dat"]
+__all__ += ["CouplingReader", "export_csv", "import_csv", "open_dataset_couplings",
+            "read_calibration", "read_dataset", "read_ilemt_calibration", "write_calibration",
+            "write_dataset"]

@@ -1,0 +1,264 @@
+"""Calibration files: schema-versioned JSON (``docs/calibration-format.md``).
+
+Numbers are written with Python's shortest round-trip ``repr``, so float64 values read back
+bit-for-bit. ``read_calibration`` also accepts ILEMT ``.mat`` calibrations.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..field import DipoleModel
+from ._atomic import atomic_path
+from ._calibration import Calibration
+
+__all__ = ["CALIBRATION_SCHEMA", "CALIBRATION_SCHEMA_VERSION", "calibration_to_dict",
+           "calibration_from_dict", "read_calibration", "write_calibration"]
+
+CALIBRATION_SCHEMA = "openemt.calibration"
+CALIBRATION_SCHEMA_VERSION = 1
+
+_UNITS = {
+    "model.L_so": "m", "model.L_se": "m",
+    "model.M_so": "gain units (coil moment relative to model.gain)",
+    "model.M_se": "gain units (coil moment relative to model.gain)",
+    "model.gain": "coupling scale (ILEMT: 1/250)",
+    "fixtures": "pose vector [x, y, z, rx, ry, rz]: m and rotation vector in rad",
+    "linear_correction": "homogeneous 4x4 acting on positions [x, y, z, 1] in m",
+    "stats": "SI (m, rad) unless the key says otherwise",
+}
+
+
+# -- encoding --------------------------------------------------------------------------------
+def _arr_to_json(a) -> list | float | None:
+    a = np.asarray(a, dtype=np.float64)
+    return _free_to_json(a.tolist())
+
+
+def _free_to_json(v):
+    """Free-form values (stats, provenance, extra) -> JSON types; non-finite floats -> null."""
+    if isinstance(v, dict):
+        return {str(k): _free_to_json(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_free_to_json(x) for x in v]
+    if isinstance(v, np.ndarray):
+        if v.dtype.kind == "c":
+            return {"real": _free_to_json(v.real.tolist()), "imag": _free_to_json(v.imag.tolist())}
+        return _free_to_json(v.tolist())
+    if isinstance(v, np.generic):
+        return _free_to_json(v.item())
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, (bool, int, str)) or v is None:
+        return v
+    if hasattr(v, "__fspath__"):
+        return str(v)
+    raise TypeError(f"expected JSON-serialisable calibration metadata, got {type(v).__name__}")
+
+
+def calibration_to_dict(cal: Calibration) -> dict:
+    """The JSON document of a calibration (plain dicts/lists, see docs/calibration-format.md)."""
+    if not isinstance(cal, Calibration):
+        raise TypeError(f"expected a Calibration, got {type(cal).__name__}")
+    m = cal.model
+    return {
+        "schema": CALIBRATION_SCHEMA,
+        "schema_version": CALIBRATION_SCHEMA_VERSION,
+        "written_by": f"openemt {__version__}",
+        "units": dict(_UNITS),
+        "mode": cal.mode,
+        "model": {
+            "kind": "dipole",
+            "n_source": m.n_source,
+            "n_sensor": m.n_sensor,
+            "gain": m.gain,
+            "L_so": _arr_to_json(m.L_so),
+            "M_so": _arr_to_json(m.M_so),
+            "L_se": _arr_to_json(m.L_se),
+            "M_se": _arr_to_json(m.M_se),
+        },
+        "fixtures": {
+            "source": _arr_to_json(cal.source_fixture),
+            "stage": _arr_to_json(cal.stage_fixture),
+            "sensor": _arr_to_json(cal.sensor_fixture),
+        },
+        "linear_correction": (None if cal.linear_correction is None
+                              else _arr_to_json(cal.linear_correction)),
+        "free": list(cal.free),
+        "frozen": list(cal.frozen),
+        "standard_errors": {k: _arr_to_json(v) for k, v in cal.standard_errors.items()},
+        "stats": _free_to_json(dict(cal.stats)),
+        "provenance": _free_to_json(dict(cal.provenance)),
+        "extra": _free_to_json(dict(cal.extra)),
+    }
+
+
+# -- decoding --------------------------------------------------------------------------------
+def _where(src: str) -> str:
+    return f"calibration file {src}: " if src else "calibration: "
+
+
+def _array(doc, key: str, shape, src: str, allow_nan: bool = False) -> np.ndarray:
+    """Nested list -> float64 array of the given shape (None entries -> NaN if allowed)."""
+    try:
+        a = np.array(doc, dtype=np.float64) if allow_nan else np.array(doc)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.dtype == object or (a.dtype.kind not in "iuf" and not allow_nan):
+        raise ValueError(f"{_where(src)}expected `{key}` as a list of numbers of shape "
+                         f"{_shape_text(shape)}, got {_describe(doc)}")
+    a = a.astype(np.float64)
+    if shape is not None and (len(shape) != a.ndim or any(
+            s is not None and s != n for s, n in zip(shape, a.shape))):
+        raise ValueError(f"{_where(src)}expected `{key}` of shape {_shape_text(shape)}, "
+                         f"got shape {a.shape}")
+    if not allow_nan and not np.all(np.isfinite(a)):
+        raise ValueError(f"{_where(src)}expected finite numbers in `{key}`, got null/NaN")
+    return a
+
+
+def _shape_text(shape) -> str:
+    if shape is None:
+        return "(any)"
+    return "(" + ", ".join("n" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+
+
+def _describe(v) -> str:
+    text = json.dumps(v) if not isinstance(v, str) else repr(v)
+    return f"{type(v).__name__} {text[:40]}"
+
+
+def _get(doc: dict, key: str, src: str, kinds, path: str | None = None):
+    name = path or key
+    if key not in doc:
+        raise ValueError(f"{_where(src)}expected field `{name}`, got no such field "
+                         f"(fields: {sorted(doc)})")
+    v = doc[key]
+    if kinds is not None and not isinstance(v, kinds):
+        want = " or ".join(k.__name__ if k is not type(None) else "null" for k in
+                           (kinds if isinstance(kinds, tuple) else (kinds,)))
+        raise ValueError(f"{_where(src)}expected `{name}` to be {want}, got {_describe(v)}")
+    return v
+
+
+def calibration_from_dict(doc, source: str = "") -> Calibration:
+    """Validate a calibration JSON document and build the :class:`Calibration`."""
+    src = source
+    if not isinstance(doc, dict):
+        raise ValueError(f"{_where(src)}expected a JSON object, got {_describe(doc)}")
+    schema = doc.get("schema")
+    if schema != CALIBRATION_SCHEMA:
+        raise ValueError(f"{_where(src)}expected schema {CALIBRATION_SCHEMA!r}, got {schema!r}")
+    version = doc.get("schema_version")
+    if not isinstance(version, int) or isinstance(version, bool) or not (
+            1 <= version <= CALIBRATION_SCHEMA_VERSION):
+        raise ValueError(f"{_where(src)}expected schema_version 1..{CALIBRATION_SCHEMA_VERSION}, "
+                         f"got {version!r}")
+    model = _get(doc, "model", src, dict)
+    kind = model.get("kind", "dipole")
+    if kind != "dipole":
+        raise ValueError(f"{_where(src)}expected `model.kind` 'dipole', got {kind!r}")
+    gain = _get(model, "gain", src, (int, float), "model.gain")
+    arrays = {}
+    for key, rows in (("L_so", 3), ("M_so", 3), ("L_se", 3), ("M_se", 3)):
+        arrays[key] = _array(_get(model, key, src, list, f"model.{key}"), f"model.{key}",
+                             (rows, None), src)
+    for key, n_key, coil_key in (("n_source", "n_source", "L_so"), ("n_sensor", "n_sensor", "L_se")):
+        if n_key in model and model[n_key] != arrays[coil_key].shape[1]:
+            raise ValueError(f"{_where(src)}expected `model.{n_key}` = {arrays[coil_key].shape[1]} "
+                             f"(columns of model.{coil_key}), got {model[n_key]!r}")
+    try:
+        dm = DipoleModel(gain=float(gain), **arrays)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{_where(src)}{exc}") from None
+    fix = _get(doc, "fixtures", src, dict)
+    fixtures = {f"{k}_fixture": _array(_get(fix, k, src, list, f"fixtures.{k}"), f"fixtures.{k}",
+                                       (6,), src)
+                for k in ("source", "stage", "sensor")}
+    L = doc.get("linear_correction")
+    if L is not None:
+        L = _array(L, "linear_correction", (4, 4), src)
+    se_doc = doc.get("standard_errors") or {}
+    if not isinstance(se_doc, dict):
+        raise ValueError(f"{_where(src)}expected `standard_errors` to be an object, "
+                         f"got {_describe(se_doc)}")
+    std = {str(k): _array(v, f"standard_errors.{k}", None, src, allow_nan=True)
+           for k, v in se_doc.items()}
+    for name in ("free", "frozen"):
+        v = doc.get(name) or []
+        if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+            raise ValueError(f"{_where(src)}expected `{name}` to be a list of strings, "
+                             f"got {_describe(v)}")
+    for name in ("stats", "provenance", "extra"):
+        v = doc.get(name)
+        if v is not None and not isinstance(v, dict):
+            raise ValueError(f"{_where(src)}expected `{name}` to be an object, got {_describe(v)}")
+    mode = doc.get("mode") or ""
+    if not isinstance(mode, str):
+        raise ValueError(f"{_where(src)}expected `mode` to be a string, got {_describe(mode)}")
+    return Calibration(model=dm, linear_correction=L, mode=mode,
+                       free=tuple(doc.get("free") or ()), frozen=tuple(doc.get("frozen") or ()),
+                       standard_errors=std, stats=dict(doc.get("stats") or {}),
+                       provenance=dict(doc.get("provenance") or {}),
+                       extra=dict(doc.get("extra") or {}), **fixtures)
+
+
+# -- files -------------------------------------------------------------------------------------
+def _is_numeric_list(v) -> bool:
+    return isinstance(v, list) and all(
+        x is None or (isinstance(x, (int, float)) and not isinstance(x, bool))
+        or _is_numeric_list(x) for x in v)
+
+
+def _dumps(v, level: int = 0) -> str:
+    """JSON with objects indented and numeric arrays kept on one line (matrices row by row)."""
+    pad = "  " * (level + 1)
+    if isinstance(v, dict):
+        if not v:
+            return "{}"
+        items = [f"{pad}{json.dumps(k)}: {_dumps(x, level + 1)}" for k, x in v.items()]
+        return "{\n" + ",\n".join(items) + "\n" + "  " * level + "}"
+    if _is_numeric_list(v) and v and all(isinstance(x, list) for x in v):
+        rows = [json.dumps(x, allow_nan=False) for x in v]
+        return "[\n" + ",\n".join(pad + r for r in rows) + "\n" + "  " * level + "]"
+    return json.dumps(v, allow_nan=False)
+
+
+def write_calibration(cal: Calibration, path) -> Path:
+    """Write a calibration as JSON (atomically). Returns the path written."""
+    doc = calibration_to_dict(cal)
+    text = _dumps(doc) + "\n"
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
+def read_calibration(path) -> Calibration:
+    """Read a calibration: openemt JSON, or an ILEMT ``.mat`` file (by suffix).
+
+    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` with a one-line message
+    naming the field, what was expected and what arrived for an invalid one.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".mat":
+        from ._ilemt_mat import read_ilemt_calibration
+        return read_ilemt_calibration(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"expected a calibration file (.json or ILEMT .mat), "
+                                f"got missing file {str(path)!r}")
+    try:
+        text = path.read_text(encoding="utf-8")
+        doc = json.loads(text)
+    except UnicodeDecodeError:
+        raise ValueError(f"expected an openemt calibration JSON file, got binary data in "
+                         f"{path.name}") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"expected an openemt calibration JSON file, got invalid JSON in "
+                         f"{path.name} (line {exc.lineno}: {exc.msg})") from None
+    return calibration_from_dict(doc, path.name)
