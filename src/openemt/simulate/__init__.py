@@ -1,1 +1,37 @@
-"""openemt.simulate (see docs/architecture in README)."""
+"""The simulated tracker: ILEMT-style calibration apparatus, coil presets and error sources.
+
+``simulate(preset, pattern, ...)`` returns a :class:`openemt.io.Dataset` with known true poses;
+``truth_calibration(preset)`` gives the matching dipole-equivalent calibration.
+"""
+
+from ._apparatus import STAGE_SIGMA, fixture_combinations, simulate, truth_calibration
+from ._errors import (
+    Distortion,
+    add_noise,
+    distortion_coupling,
+    drift_factors,
+    noise_sigma,
+    polarizability,
+)
+from ._patterns import GRID_PITCH, PATTERNS, STAGE_Z_LIMIT, stage_pattern
+from ._presets import PRESETS, Preset, get_preset
+
+__all__ = [
+    "Distortion",
+    "GRID_PITCH",
+    "PATTERNS",
+    "PRESETS",
+    "Preset",
+    "STAGE_SIGMA",
+    "STAGE_Z_LIMIT",
+    "add_noise",
+    "distortion_coupling",
+    "drift_factors",
+    "fixture_combinations",
+    "get_preset",
+    "noise_sigma",
+    "polarizability",
+    "simulate",
+    "stage_pattern",
+    "truth_calibration",
+]

@@ -1,0 +1,244 @@
+"""The simulated calibration apparatus: fixtures, stage, kinematics and the ``simulate`` entry.
+
+A simulated run visits, for each manual fixture combination (source fixture outer, sensor
+fixture inner) and each stage pattern (innermost), the pattern's stage poses, like the ILEMT
+data collection (ilemt-format.md §8.1). The true pose of every row is the kinematic chain
+``P = F_so . so_J . F_st . st_J . F_se`` (seed 000 eq. 6) evaluated at the stage pose actually
+reached (commanded + stage error); the dataset's ``stage`` keeps the commanded values, like a
+real log.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import __version__
+from ..geometry import ground_truth_poses, pose_from_vector, source_fixture_rotation
+from ..io import Calibration, Dataset
+from ._errors import (
+    Distortion,
+    add_noise,
+    distortion_coupling,
+    drift_factors,
+    noise_sigma,
+    polarizability,
+)
+from ._patterns import STAGE_Z_LIMIT, stage_pattern
+from ._presets import Preset, get_preset
+
+__all__ = ["fixture_combinations", "simulate", "truth_calibration", "STAGE_SIGMA"]
+
+#: Default stage position uncertainty per axis after compensation (m), seed 000 supplement.
+STAGE_SIGMA = 107e-6
+
+
+def _codes(value, supported: tuple[str, ...], name: str) -> list[str]:
+    if value is None or (isinstance(value, str) and value == "all"):
+        return list(supported)
+    codes = [value] if isinstance(value, str) else list(value)
+    if not codes:
+        raise ValueError(f"expected at least one {name} code or 'all', got none")
+    for c in codes:
+        if c not in supported:
+            raise ValueError(f"expected {name} codes in {list(supported)} or 'all', got {c!r}")
+    if len(set(codes)) != len(codes):
+        raise ValueError(f"expected distinct {name} codes, got {codes}")
+    return codes
+
+
+def fixture_combinations(preset, source_fixtures="all", sensor_fixtures="all", *,
+                         combinations: str = "paper") -> list[tuple[str, str]]:
+    """The (source fixture, sensor fixture) pairs a run visits, source outer, sensor inner.
+
+    ``combinations="paper"``: when both lists contain the home fixture (``YoutZup``, the first of
+    the preset's supported codes), every source fixture with the home sensor fixture plus the
+    home source fixture with every sensor fixture, as collected for seed 000 (6 combinations for
+    "all" x "all" with the ILEMT rig). Otherwise (one of the lists lacks its home fixture) the
+    full cross product of the two lists. ``combinations="cross"``: always the cross product
+    (12 for the ILEMT rig).
+    """
+    p = get_preset(preset)
+    so = _codes(source_fixtures, p.source_fixtures, "source fixture")
+    se = _codes(sensor_fixtures, p.sensor_fixtures, "sensor fixture")
+    if combinations not in ("paper", "cross"):
+        raise ValueError(f"expected combinations 'paper' or 'cross', got {combinations!r}")
+    home_so, home_se = p.source_fixtures[0], p.sensor_fixtures[0]
+    paper = combinations == "paper" and home_so in so and home_se in se
+    return [(s, e) for s in so for e in se if not paper or s == home_so or e == home_se]
+
+
+def _patterns(pattern, preset: Preset) -> list[str]:
+    if pattern is None:
+        return [preset.default_pattern]
+    names = [p.strip() for p in pattern.split(",")] if isinstance(pattern, str) else list(pattern)
+    if not names or any(not isinstance(n, str) or not n for n in names):
+        raise ValueError(f"expected one or more stage pattern names, got {pattern!r}")
+    return names
+
+
+def _distortions(distortion) -> list[Distortion]:
+    if distortion is None:
+        return []
+    if isinstance(distortion, (Distortion, dict)):
+        distortion = [distortion]
+    return [Distortion.from_any(d) for d in distortion]
+
+
+def _nonneg(value, name):
+    v = float(value)
+    if not np.isfinite(v) or v < 0:
+        raise ValueError(f"expected a finite {name} >= 0, got {value!r}")
+    return v
+
+
+def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="all",
+             combinations: str = "paper", snr_db=None, noise_abs=None,
+             stage_sigma=STAGE_SIGMA, drift=None, distortion=None, clip_z: bool = True,
+             seed=0) -> Dataset:
+    """Simulate an ILEMT-style calibration/test data collection with known ground truth.
+
+    Parameters
+    ----------
+    preset : str or Preset
+        ``concentric``, ``dipole-approx`` or ``anser`` (see :func:`get_preset`).
+    pattern : str or sequence of str, optional
+        Stage pattern name(s) (:func:`stage_pattern`); a string may hold several names separated
+        by commas. Default: the preset's default pattern (``md``; ``grid`` for anser).
+    source_fixtures, sensor_fixtures : "all", str or sequence of str
+        Manual fixture codes; combined as described in :func:`fixture_combinations`.
+    combinations : {"paper", "cross"}
+        How the two fixture lists combine.
+    snr_db : float, optional
+        Measurement noise by signal-to-noise ratio: white Gaussian noise on every coupling entry
+        with per-sample ``sigma = rms(|C_true|) / 10**(snr_db/20)`` (see :func:`noise_sigma`).
+    noise_abs : float, optional
+        Measurement noise with a fixed sigma (coupling units). Not together with ``snr_db``.
+    stage_sigma : float, default 107e-6
+        Standard deviation (m) of the stage position error on each of x, y, z; the true poses use
+        commanded + error, ``stage`` keeps the commanded values. 0 disables it.
+    drift : float or array (n_source,), optional
+        Relative source gain change over the run (linear in acquisition order), e.g. 3e-4.
+    distortion : Distortion, dict or list of them, optional
+        Objects that distort the field (induced dipoles, see :class:`Distortion`). Couplings are
+        complex when a conductive object is present, else real.
+    clip_z : bool, default True
+        Log commanded Z below -46.2 mm as -46.2 mm, like the real stage (:func:`stage_pattern`).
+    seed : int or None
+        Seed of ``np.random.default_rng``; stage errors and noise use separate child streams, so
+        switching noise on or off does not change the stage errors.
+
+    Returns
+    -------
+    Dataset
+        ``couplings`` (N, n_source, n_sensor); ``stage`` = commanded stage (m, rad), also in
+        ``stage_logged``; ``poses`` = true poses; fixture codes; ``pattern``; ``files`` naming each
+        simulated block like the ILEMT files (``soYoutZup_seZinYup_md``); ``extra`` with
+        ``stage_true`` (N, 6) and ``noise_sigma`` (N,); ``meta`` with the preset, the truth, the
+        seed and every error setting, and provenance.
+    """
+    p = get_preset(preset)
+    names = _patterns(pattern, p)
+    stages = {n: stage_pattern(n, clip_z=clip_z) for n in dict.fromkeys(names)}
+    combos = fixture_combinations(p, source_fixtures, sensor_fixtures, combinations=combinations)
+    stage_sigma = _nonneg(stage_sigma, "stage_sigma")
+    if snr_db is not None and noise_abs is not None:
+        raise ValueError(f"expected at most one of snr_db and noise_abs, got snr_db={snr_db!r} "
+                         f"and noise_abs={noise_abs!r}")
+    if noise_abs is not None:
+        _nonneg(noise_abs, "noise_abs")
+    objects = _distortions(distortion)
+
+    blocks, files, so_codes, se_codes, pats, file_index = [], [], [], [], [], []
+    for s, e in combos:
+        for n in names:
+            rows = stages[n]
+            file_index.append(np.full(len(rows), len(files)))
+            files.append(f"so{s}_se{e}_{n}")
+            blocks.append(rows)
+            so_codes += [s] * len(rows)
+            se_codes += [e] * len(rows)
+            pats += [n] * len(rows)
+    stage = np.vstack(blocks)
+    n_rows = stage.shape[0]
+
+    stage_rng, noise_rng = np.random.default_rng(seed).spawn(2)
+    stage_true = stage.copy()
+    if stage_sigma > 0:
+        stage_true[:, :3] += stage_sigma * stage_rng.standard_normal((n_rows, 3))
+    poses = ground_truth_poses(p.source_fixture, p.stage_fixture, p.sensor_fixture, so_codes,
+                               stage_true, se_codes)
+
+    C = p.model.coupling(poses)
+    if objects:
+        C = C.astype(np.complex128)
+        F_so = pose_from_vector(p.source_fixture)
+        so_J = {c: source_fixture_rotation(c) for c in set(so_codes)}
+        # bench (source-fixture base) frame -> source frame: F_so . so_J
+        M = np.stack([so_J[c] for c in so_codes])                   # (N, 3, 3)
+        A = np.einsum("ab,kbc->kac", F_so[:3, :3], M)                # rotation of F_so so_J
+        for d in objects:
+            q = np.einsum("kab,b->ka", A, np.asarray(d.position)) + F_so[:3, 3]
+            C += distortion_coupling(p.dipole, poses, q, polarizability(d, p.frequencies),
+                                     d.radius)
+        if not any(d.kind == "conductive" for d in objects):
+            C = C.real.copy()
+    if drift is not None:
+        C = C * drift_factors(drift, n_rows, p.n_source)[:, :, None]
+    if snr_db is not None or noise_abs is not None:
+        sigma = noise_sigma(C, snr_db=snr_db, noise_abs=noise_abs)
+        C = add_noise(C, sigma, noise_rng)
+    else:
+        sigma = np.zeros(n_rows)
+
+    meta = {
+        "generator": "openemt.simulate",
+        "preset": p.name,
+        "description": p.description,
+        "source": p.source,
+        "sensor": p.sensor,
+        "seed": seed if seed is None else int(seed),
+        "patterns": names,
+        "fixture_combinations": [list(c) for c in combos],
+        "combinations": combinations,
+        "clip_z": bool(clip_z),
+        "stage_z_limit_m": STAGE_Z_LIMIT,
+        "errors": {
+            "snr_db": None if snr_db is None else float(snr_db),
+            "noise_abs": None if noise_abs is None else float(noise_abs),
+            "noise_definition": "per-sample sigma = rms(|C_true|) / 10**(snr_db/20), white "
+                                "Gaussian on each entry (and on the quadrature part if complex)",
+            "stage_sigma_m": stage_sigma,
+            "drift": None if drift is None else np.atleast_1d(drift).astype(float).tolist(),
+            "distortion": [d.to_dict() for d in objects],
+        },
+        "truth": {
+            "finite_coils": bool(p.finite),
+            "source_fixture": p.source_fixture.tolist(),
+            "stage_fixture": p.stage_fixture.tolist(),
+            "sensor_fixture": p.sensor_fixture.tolist(),
+            "frequencies_hz": p.frequencies.tolist(),
+        },
+        "units": {"stage": "m, rad", "couplings": "dimensionless (gain 1/250 convention)"},
+        "provenance": {"openemt_version": __version__, "simulated": True},
+    }
+    return Dataset(couplings=C, stage=stage, source_fixture=np.array(so_codes),
+                   sensor_fixture=np.array(se_codes), pattern=np.array(pats),
+                   file_index=np.concatenate(file_index), files=tuple(files),
+                   stage_logged=stage.copy(), poses=poses,
+                   extra={"stage_true": stage_true, "noise_sigma": sigma}, meta=meta)
+
+
+def truth_calibration(preset) -> Calibration:
+    """The preset's dipole-equivalent model with the true fixtures, as a ``Calibration``.
+
+    Mode ``"truth"``. Solving simulated data with it gives the error that is due to the dipole
+    approximation of the finite coils alone (no calibration error).
+    """
+    p = get_preset(preset)
+    return Calibration(
+        model=p.dipole, source_fixture=p.source_fixture.copy(),
+        stage_fixture=p.stage_fixture.copy(), sensor_fixture=p.sensor_fixture.copy(),
+        mode="truth",
+        provenance={"openemt_version": __version__, "preset": p.name,
+                    "generator": "openemt.simulate.truth_calibration"},
+        extra={"preset": p.name, "finite_coils": bool(p.finite)})

@@ -1,0 +1,211 @@
+"""Error sources of the simulated apparatus: measurement noise, source drift, field distortion.
+
+All functions are pure array functions; the randomness comes from a ``np.random.Generator``
+passed in. Stage position error is applied in :func:`openemt.simulate.simulate` (it changes the
+true pose, not the couplings' model).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..field import DipoleModel
+
+__all__ = [
+    "Distortion",
+    "noise_sigma",
+    "add_noise",
+    "drift_factors",
+    "polarizability",
+    "distortion_coupling",
+    "MU0",
+]
+
+MU0 = 4e-7 * np.pi  # vacuum permeability (H/m)
+
+
+def noise_sigma(C, *, snr_db=None, noise_abs=None) -> np.ndarray:
+    """Per-sample noise standard deviation, shape (N,).
+
+    With ``snr_db``: ``sigma_k = rms(C[k]) / 10**(snr_db / 20)``, where ``rms(C[k])`` is the root
+    mean square of the magnitudes of the sample's noise-free couplings (all n_source x n_sensor
+    entries). With ``noise_abs``: ``sigma_k = noise_abs`` for every sample. Exactly one of the two
+    must be given.
+    """
+    C = np.asarray(C)
+    if (snr_db is None) == (noise_abs is None):
+        raise ValueError(f"expected exactly one of snr_db and noise_abs, got snr_db={snr_db!r}, "
+                         f"noise_abs={noise_abs!r}")
+    if snr_db is not None:
+        snr = float(snr_db)
+        if not np.isfinite(snr):
+            raise ValueError(f"expected a finite snr_db, got {snr_db!r}")
+        rms = np.sqrt(np.mean(np.abs(C) ** 2, axis=(1, 2)))
+        return rms / 10.0 ** (snr / 20.0)
+    s = float(noise_abs)
+    if not np.isfinite(s) or s < 0:
+        raise ValueError(f"expected a finite noise_abs >= 0, got {noise_abs!r}")
+    return np.full(C.shape[0], s)
+
+
+def add_noise(C, sigma, rng: np.random.Generator) -> np.ndarray:
+    """``C`` plus white Gaussian noise of standard deviation ``sigma[k]`` on every entry.
+
+    For complex couplings the in-phase (real) and quadrature (imaginary) parts each get
+    independent noise of standard deviation ``sigma`` (as two demodulator channels would).
+    """
+    C = np.asarray(C)
+    s = np.asarray(sigma, dtype=np.float64)[:, None, None]
+    out = C + s * rng.standard_normal(C.shape)
+    if np.iscomplexobj(C):
+        out = out + 1j * s * rng.standard_normal(C.shape)
+    return out
+
+
+def drift_factors(drift, n_samples: int, n_source: int) -> np.ndarray:
+    """Source gain factors ``1 + drift_i * k / (N - 1)`` for rows k of the run, shape (N, n_source).
+
+    ``drift`` is the relative change of each source coil's gain between the first and the last
+    row of the run (acquisition order): a scalar for all coils or an array (n_source,).
+    """
+    d = np.asarray(drift, dtype=np.float64)
+    if d.ndim == 0:
+        d = np.full(n_source, float(d))
+    if d.shape != (n_source,) or not np.all(np.isfinite(d)):
+        raise ValueError(f"expected a finite drift scalar or array of shape ({n_source},), "
+                         f"got {np.asarray(drift).shape}")
+    ramp = np.linspace(0.0, 1.0, n_samples) if n_samples > 1 else np.zeros(n_samples)
+    return 1.0 + ramp[:, None] * d[None, :]
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """A small object near the tracker that distorts the field (an induced magnetic dipole).
+
+    Attributes
+    ----------
+    kind : str
+        ``"conductive"`` (non-magnetic metal, eddy currents: complex polarizability, gives an
+        in-phase change and a quadrature component) or ``"ferromagnetic"`` (non-conducting
+        permeable material such as ferrite: real positive polarizability).
+    position : tuple of float
+        Centre of the object (m) in the bench frame, i.e. the base frame of the source fixture
+        (the frame into which ``F_so . so_J`` maps source coordinates). The object stays put when
+        the source fixture is turned.
+    radius : float
+        Radius of the equivalent sphere (m).
+    conductivity : float
+        Electrical conductivity (S/m) for ``conductive`` (default aluminium, 3.5e7).
+    mu_r : float
+        Relative permeability for ``ferromagnetic`` (default 1000).
+    """
+
+    kind: str
+    position: tuple[float, float, float]
+    radius: float
+    conductivity: float = 3.5e7
+    mu_r: float = 1000.0
+
+    def __post_init__(self):
+        if self.kind not in ("conductive", "ferromagnetic"):
+            raise ValueError(f"expected distortion kind 'conductive' or 'ferromagnetic', "
+                             f"got {self.kind!r}")
+        pos = np.asarray(self.position, dtype=np.float64)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            raise ValueError(f"expected a finite distortion position of shape (3,), got "
+                             f"{self.position!r}")
+        object.__setattr__(self, "position", tuple(float(v) for v in pos))
+        for name in ("radius", "conductivity", "mu_r"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"expected a positive finite distortion {name}, got "
+                                 f"{getattr(self, name)!r}")
+            object.__setattr__(self, name, v)
+
+    @classmethod
+    def from_any(cls, obj) -> "Distortion":
+        """A ``Distortion`` from itself or a dict of its fields."""
+        if isinstance(obj, cls):
+            return obj
+        if isinstance(obj, dict):
+            try:
+                return cls(**obj)
+            except TypeError as exc:
+                raise TypeError(f"expected distortion keys kind, position, radius[, "
+                                f"conductivity, mu_r], got {sorted(obj)}") from exc
+        raise TypeError(f"expected a Distortion or a dict, got {type(obj).__name__}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["position"] = list(self.position)
+        return d
+
+
+def polarizability(d: Distortion, frequency) -> np.ndarray:
+    """Dimensionless magnetic polarizability ``kappa`` of the object's sphere at ``frequency``.
+
+    The induced moment is ``m = kappa * a**3 * B`` in the units of the dipole model (where the
+    field of moment M is ``(3 (M.u) u - M) / d**3``). For a permeable sphere
+    ``kappa = (mu_r - 1) / (mu_r + 2)``. For a non-magnetic conducting sphere (time dependence
+    ``exp(+i w t)``, skin depth ``delta = sqrt(2 / (w mu0 sigma))``, ``k = (1 - i) / delta``)
+    ``kappa = -(1/2) [1 - 3/(ka)^2 + 3 cot(ka)/(ka)]``: about ``-i w mu0 sigma a^2 / 30`` at low
+    frequency and ``-1/2`` (perfect conductor) when the skin depth is small.
+
+    Returns complex ``kappa`` with the shape of ``frequency``.
+
+    References
+    ----------
+    J. D. Jackson, *Classical Electrodynamics*, 3rd ed., problems 5.34/8.x (eddy-current sphere);
+    L. D. Landau and E. M. Lifshitz, *Electrodynamics of Continuous Media*, §59.
+    """
+    f = np.asarray(frequency, dtype=np.float64)
+    if d.kind == "ferromagnetic":
+        return np.full(f.shape, (d.mu_r - 1.0) / (d.mu_r + 2.0), dtype=np.complex128)
+    w = 2.0 * np.pi * f
+    delta = np.sqrt(2.0 / (w * MU0 * d.conductivity))
+    x = (1.0 - 1.0j) * d.radius / delta
+    small = np.abs(x) < 1e-2
+    large = np.abs(x.imag) > 30.0  # cot(x) = i to double precision (Im x < 0)
+    xs = np.where(small | large, 1.0, x)
+    cot = np.where(large, 1.0j, 1.0 / np.tan(xs))
+    xs = np.where(small, 1.0, x)
+    exact = -0.5 * (1.0 - 3.0 / xs**2 + 3.0 * cot / xs)
+    series = x**2 / 30.0 + 2.0 * x**4 / 630.0  # -(1/2)(-x^2/15 - 2 x^4/315)
+    return np.where(small, series, exact)
+
+
+def _dipole_field(M, r):
+    """Field ``(3 (M.u) u - M) / |r|^3`` of moments M (..., 3) at offsets r (..., 3)."""
+    d = np.linalg.norm(r, axis=-1, keepdims=True)
+    u = r / d
+    return (3.0 * np.sum(M * u, axis=-1, keepdims=True) * u - M) / d**3
+
+
+def distortion_coupling(model: DipoleModel, poses, position, kappa, radius) -> np.ndarray:
+    """Coupling change from an induced dipole at ``position`` (source frame), (N, n_so, n_se).
+
+    Source coil i's field at the object, ``B_i``, induces ``m_i = kappa[i] * radius**3 * B_i``
+    (``kappa`` per source coil: it depends on the coil's drive frequency); its field at sensor
+    coil j adds ``gain * m_sensor_j . B(m_i)``. ``position`` is ``(3,)`` or ``(N, 3)`` (the object
+    is fixed in the bench frame, so its source-frame position depends on the source fixture).
+    Coils are taken as their dipole equivalents (the object is a small perturbation).
+    """
+    P = np.asarray(poses, dtype=np.float64)
+    R, t = P[:, :3, :3], P[:, :3, 3]
+    n = P.shape[0]
+    q = np.broadcast_to(np.asarray(position, dtype=np.float64), (n, 3))
+    kappa = np.asarray(kappa, dtype=np.complex128)
+    # field of each source coil at the object: (N, n_so, 3)
+    B = _dipole_field(model.M_so.T[None], q[:, None, :] - model.L_so.T[None])
+    m_ind = kappa[None, :, None] * radius**3 * B
+    # sensor coil positions and moments in the source frame: (N, n_se, 3)
+    p = np.einsum("kab,bj->kja", R, model.L_se) + t[:, None, :]
+    ms = np.einsum("kab,bj->kja", R, model.M_se)
+    r = p[:, None, :, :] - q[:, None, None, :]                     # (N, 1, n_se, 3)
+    d = np.linalg.norm(r, axis=-1, keepdims=True)
+    u = r / d
+    mi = m_ind[:, :, None, :]                                      # (N, n_so, 1, 3)
+    Bi = (3.0 * np.sum(mi * u, axis=-1, keepdims=True) * u - mi) / d**3
+    return model.gain * np.sum(Bi * ms[:, None, :, :], axis=-1)

@@ -1,0 +1,231 @@
+"""Simulated trackers: finite-coil source and sensor models with true fixture transforms.
+
+A preset is the ground truth of a simulated apparatus: the coil geometry that generates the
+couplings (finite coils, so the dipole model used by calibration and solving is only an
+approximation of it, as for real hardware), the dipole-equivalent model, and the true fixture
+transforms F_so, F_st, F_se of the calibration rig (seed 000 eq. 6).
+
+The dipole-equivalent parameters of the ILEMT-style presets follow the gauge of seed 000 eq. 7
+(Z coils at their frame origins along +z, source Z gain 1, no Y component in the X-coil
+moments), so a calibration of simulated data can be compared with the truth entry by entry.
+Their values are chosen near the ILEMT calibrations quoted in ilemt-format.md §7.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .. import field as _field
+from ..field import ILEMT_GAIN, DipoleModel
+from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
+
+__all__ = ["Preset", "PRESETS", "get_preset"]
+
+
+@dataclass(frozen=True, eq=False)
+class Preset:
+    """Ground truth of a simulated tracker and calibration rig.
+
+    Attributes
+    ----------
+    name : str
+        Preset name (``concentric``, ``dipole-approx``, ``anser``).
+    description : str
+        One line for reports.
+    model : object
+        Coupling model that generates the simulated couplings; has ``.coupling(poses (N, 4, 4))
+        -> (N, n_source, n_sensor)``, ``.n_source`` and ``.n_sensor`` (a finite-coil model).
+    dipole : DipoleModel
+        The dipole-equivalent model of ``model`` (its far-field limit).
+    source_fixture, stage_fixture, sensor_fixture : ndarray, shape (6,)
+        True F_so, F_st, F_se as pose vectors ``[x, y, z, rx, ry, rz]`` (m, rad).
+    source_fixtures, sensor_fixtures : tuple of str
+        Manual fixture codes the rig supports, home first.
+    default_pattern : str
+        Stage pattern used when none is given.
+    frequencies : ndarray, shape (n_source,)
+        Drive frequency of each source coil (Hz); sets the response of conductive objects.
+    source, sensor : dict
+        JSON-serialisable descriptions of the coils (geometry, gains).
+    """
+
+    name: str
+    description: str
+    model: Any
+    dipole: DipoleModel
+    source_fixture: np.ndarray
+    stage_fixture: np.ndarray
+    sensor_fixture: np.ndarray
+    source_fixtures: tuple[str, ...]
+    sensor_fixtures: tuple[str, ...]
+    default_pattern: str
+    frequencies: np.ndarray
+    source: dict = field(default_factory=dict)
+    sensor: dict = field(default_factory=dict)
+
+    @property
+    def n_source(self) -> int:
+        return self.dipole.n_source
+
+    @property
+    def n_sensor(self) -> int:
+        return self.dipole.n_sensor
+
+    @property
+    def finite(self) -> bool:
+        """True when ``model`` is a finite-coil model (not the dipole model itself)."""
+        return self.model is not self.dipole
+
+
+# ILEMT high-rate carriers of source X, Y, Z (seed 000 §V-E).
+_ILEMT_FREQUENCIES = (7500.0, 10500.0, 13500.0)
+
+
+def _solenoids(L, M, radius, length):
+    """Finite coils (thin solenoids) at columns of L with moments = columns of M."""
+    coils = []
+    for j in range(L.shape[1]):
+        g = float(np.linalg.norm(M[:, j]))
+        coils.append(_field.circular_coil(L[:, j], M[:, j] / g, radius=float(radius[j]),
+                                          length=float(length[j]), gain=g))
+    return tuple(coils)
+
+
+def _coil_desc(kind, L, M, radius, length):
+    return {"kind": kind, "positions_m": np.round(L, 9).tolist(),
+            "moments": np.round(M, 9).tolist(), "radius_m": list(map(float, radius)),
+            "length_m": list(map(float, length))}
+
+
+def _finite_model(sources, sensors) -> tuple[Any, DipoleModel]:
+    model = _field.FiniteCoilModel(sources, sensors, gain=ILEMT_GAIN)
+    return model, model.dipole_equivalent()
+
+
+def _tri_axial_preset(name, description, L_so, M_so, r_so, l_so, L_se, M_se, r_se, l_se,
+                      F_so, F_st, F_se, source_kind, sensor_kind) -> Preset:
+    L_so, M_so, L_se, M_se = (np.asarray(a, dtype=np.float64) for a in (L_so, M_so, L_se, M_se))
+    if hasattr(_field, "FiniteCoilModel"):
+        model, dipole = _finite_model(_solenoids(L_so, M_so, r_so, l_so),
+                                      _solenoids(L_se, M_se, r_se, l_se))
+    else:  # TEMPORARY until openemt.field.FiniteCoilModel lands
+        warnings.warn("openemt.field.FiniteCoilModel is not available; preset "
+                      f"{name!r} uses the dipole model as ground truth", stacklevel=3)
+        model = dipole = DipoleModel(L_so, M_so, L_se, M_se, ILEMT_GAIN)
+    return Preset(
+        name=name, description=description, model=model, dipole=dipole,
+        source_fixture=np.asarray(F_so, dtype=np.float64),
+        stage_fixture=np.asarray(F_st, dtype=np.float64),
+        sensor_fixture=np.asarray(F_se, dtype=np.float64),
+        source_fixtures=SOURCE_FIXTURES, sensor_fixtures=SENSOR_FIXTURES,
+        default_pattern="md", frequencies=np.array(_ILEMT_FREQUENCIES),
+        source=_coil_desc(source_kind, L_so, M_so, r_so, l_so),
+        sensor=_coil_desc(sensor_kind, L_se, M_se, r_se, l_se))
+
+
+# A Premo-like 3-axis sensor: three concentric ~10 mm windings, nearly orthogonal, with
+# sub-millimetre offsets. Columns are coils X, Y, Z.
+_SENSOR_L = [[0.00008, -0.00002, 0.0], [0.00016, 0.00013, 0.0], [-0.00011, -0.00009, 0.0]]
+_SENSOR_R = (0.0050, 0.0048, 0.0046)
+_SENSOR_LEN = (0.0100, 0.0100, 0.0100)
+# 180 deg about (-1, -1, 0)/sqrt2 (sensor mounted upside down, X <-> Y) with a small tilt
+_F_SE = [-0.00034, 0.00026, -0.00030, -2.2078, -2.2263, -0.0032]
+
+
+def _concentric() -> Preset:
+    k = 0.40  # sensor gain near the cal_9_15 Premo fit
+    return _tri_axial_preset(
+        "concentric",
+        "ferrite-cube style concentric tri-axial source (~40 mm) with a Premo-like sensor",
+        L_so=[[-0.0024, 0.0002, 0.0], [0.0013, -0.0003, 0.0], [0.0011, 0.0010, 0.0]],
+        M_so=[[0.82, -0.0155, 0.0], [0.0, 0.898, 0.0], [0.0016, 0.0015, 1.0]],
+        # nested windings around a 40 mm cube: 30 mm long, radius 20-22 mm (l/d != 0.866, so
+        # the quadrupole-order deviation from a dipole does not cancel)
+        r_so=(0.0200, 0.0210, 0.0220), l_so=(0.030, 0.030, 0.030),
+        L_se=_SENSOR_L,
+        M_se=[[0.993 * k, 0.0022 * k, 0.0], [0.0, 0.988 * k, 0.0], [0.0155 * k, 0.0115 * k, k]],
+        r_se=_SENSOR_R, l_se=_SENSOR_LEN,
+        F_so=[0.0012, -0.0004, -0.0088, 0.035, 0.041, -1.5701],       # ~ Rz(-90 deg)
+        F_st=[0.0126, 0.2424, 0.0086, -0.0150, 0.0011, 0.0128],       # ~ 242 mm along +Y
+        F_se=_F_SE,
+        source_kind="concentric tri-axial (ferrite cube style)", sensor_kind="tri-axial")
+
+
+def _dipole_approx() -> Preset:
+    k = 0.16  # sensor gain near the cal_9_24 Premo fit
+    r = 0.020
+    return _tri_axial_preset(
+        "dipole-approx",
+        "three separate dipole-approximating air coils (45 mm offsets) with a Premo-like sensor",
+        # seed 000 Table I / cal_9_24: X and Y coils ~45 mm from the Z coil
+        L_so=[[0.0453, -0.0008, 0.0], [0.0014, 0.0454, 0.0], [-0.0437, -0.0430, 0.0]],
+        M_so=[[0.951, -0.0007, 0.0], [0.0, 0.949, 0.0], [-0.0259, 0.0005, 1.0]],
+        # each coil 40 mm across with length/diameter = sqrt(3)/2, the solenoid shape whose
+        # leading (octupole) deviation from a dipole field vanishes
+        r_so=(r, r, r), l_so=(np.sqrt(3.0) * r,) * 3,
+        L_se=[[0.00014, 0.00006, 0.0], [0.00012, 0.00012, 0.0], [-0.00022, -0.00019, 0.0]],
+        M_se=[[0.984 * k, 0.0024 * k, 0.0], [0.0, 0.979 * k, 0.0], [0.0152 * k, 0.0120 * k, k]],
+        r_se=_SENSOR_R, l_se=_SENSOR_LEN,
+        # deliberately rotated source (63 deg) so the sensor is in the +X+Y+Z octant (cal_9_24)
+        F_so=[-0.0117, -0.0094, -0.0643, 0.7571, -0.3127, -0.7452],
+        F_st=[-0.0002, 0.2436, 0.0128, 0.0017, 0.0032, 0.0093],
+        F_se=[-0.00033, 0.00020, -0.00037, -2.2079, -2.2263, -0.0043],
+        source_kind="three separate air coils (dipole approximating)", sensor_kind="tri-axial")
+
+
+# Anser-style board: the sensor is carried over the board on the 7 x 7 test grid about 72 mm
+# up, its coil axis along the board's -z. Drive frequencies are assumed (evenly spaced).
+_ANSER_HEIGHT = 0.072
+_ANSER_FREQUENCIES = tuple(np.linspace(2500.0, 20000.0, 8))
+
+
+def _anser() -> Preset:
+    sources = _field.anser_field_generator(gain=1.0)
+    gain_se = 0.01  # couplings of order 0.1 at the test height
+    radius, length = 0.0003, 0.008  # 0.6 mm x 8 mm 5-DOF sensor coil
+    sensor = _field.circular_coil(np.zeros(3), np.array([0.0, 0.0, 1.0]), radius=radius,
+                                  length=length, gain=gain_se)
+    model, dipole = _finite_model(tuple(sources), (sensor,))
+    return Preset(
+        name="anser",
+        description="Anser-style planar 8-coil field generator with a single-coil 5-DOF sensor",
+        model=model, dipole=dipole,
+        source_fixture=np.array([0.0004, -0.0003, 0.0, 0.0, 0.0, 0.0021]),
+        stage_fixture=np.array([0.0007, -0.0005, _ANSER_HEIGHT, 0.0015, -0.0012, 0.0]),
+        sensor_fixture=np.array([0.0, 0.0, 0.0, np.pi, 0.0, 0.0]),  # coil axis along -z
+        # the board can only be turned in its own plane; ZoutYup/XinYup would put the sensor
+        # path through the board
+        source_fixtures=("YoutZup", "XoutZup"), sensor_fixtures=SENSOR_FIXTURES,
+        default_pattern="grid", frequencies=np.array(_ANSER_FREQUENCIES),
+        source={"kind": "Anser-style planar board, 8 square spiral coils",
+                "positions_m": np.round(dipole.L_so, 9).tolist(),
+                "moments": np.round(dipole.M_so, 9).tolist()},
+        sensor={"kind": "single coil (5-DOF)", "radius_m": radius, "length_m": length,
+                "gain": gain_se})
+
+
+_BUILDERS = {"concentric": _concentric, "dipole-approx": _dipole_approx, "anser": _anser}
+#: Names accepted by :func:`get_preset`.
+PRESETS = tuple(_BUILDERS)
+
+
+@functools.lru_cache(maxsize=None)
+def _cached(name: str) -> Preset:
+    return _BUILDERS[name]()
+
+
+def get_preset(name) -> Preset:
+    """The simulated tracker named ``name`` (``concentric``, ``dipole-approx`` or ``anser``).
+
+    A :class:`Preset` passed in is returned unchanged.
+    """
+    if isinstance(name, Preset):
+        return name
+    if not isinstance(name, str) or name not in _BUILDERS:
+        raise ValueError(f"expected a preset name in {list(PRESETS)}, got {name!r}")
+    return _cached(name)
