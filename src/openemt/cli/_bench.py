@@ -1,0 +1,40 @@
+"""``openemt bench NAME``: benchmarks that print JSON (speed and accuracy targets live here).
+
+Each benchmark is a module ``openemt.bench._<name>`` with ``add_arguments(parser)`` and
+``run(args) -> dict``; the dict is the JSON summary.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+
+from ._common import add_common, emit, to_jsonable
+
+#: name -> (module, one-line help)
+BENCHMARKS = {
+}
+
+
+def register(sub) -> None:
+    p = sub.add_parser("bench", help="run a benchmark and print its JSON summary",
+                       description=__doc__.splitlines()[0])
+    bsub = p.add_subparsers(dest="bench", metavar="NAME")
+    bsub.required = True
+    for name, (module, help_) in BENCHMARKS.items():
+        bp = bsub.add_parser(name, help=help_)
+        add_common(bp)
+        mod = importlib.import_module(module)
+        mod.add_arguments(bp)
+        bp.set_defaults(func=_runner(mod))
+
+
+def _runner(mod):
+    def run(args) -> int:
+        summary = mod.run(args)
+        # without --json the same summary goes to stderr, readable
+        human = json.dumps(to_jsonable(summary), indent=2).splitlines()
+        emit(args, summary, human)
+        return 0
+
+    return run

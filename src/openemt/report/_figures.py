@@ -1,0 +1,113 @@
+"""matplotlib figures of tracker errors (seed 000 Figs. 8 and 10 style) and error histograms.
+
+Every function takes plain arrays in SI units, returns a ``matplotlib.figure.Figure`` and never
+shows it; mm and degrees appear only on the axes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["error_vector_figure", "error_histogram_figure", "sweep_figure"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def error_vector_figure(positions, errors, *, exaggeration: float | None = None,
+                        title: str = "Translation error across the workspace"):
+    """3-D error vectors at the reference positions (seed 000 Fig. 8 style).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (N, 3)
+        Reference positions (m).
+    errors : ndarray, shape (N, 3)
+        Measured minus reference position (m).
+    exaggeration : float, optional
+        Scale applied to the error vectors; by default chosen so the largest vector is a quarter
+        of the workspace extent.
+    """
+    plt = _plt()
+    p = np.asarray(positions, dtype=float) * 1e3
+    e = np.asarray(errors, dtype=float) * 1e3
+    ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(e), axis=1)
+    p, e = p[ok], e[ok]
+    emax = np.linalg.norm(e, axis=1).max() if len(e) else 0.0
+    if exaggeration is None:
+        extent = np.ptp(p, axis=0).max() if len(p) else 1.0
+        exaggeration = 0.25 * extent / emax if emax > 0 else 1.0
+    fig = plt.figure(figsize=(7.5, 6.5))
+    ax = fig.add_subplot(projection="3d")
+    mag = np.linalg.norm(e, axis=1)
+    ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=4, c="k")
+    if len(p):
+        colors = plt.get_cmap("viridis")(mag / (emax or 1.0))
+        ax.quiver(p[:, 0], p[:, 1], p[:, 2], e[:, 0] * exaggeration, e[:, 1] * exaggeration,
+                  e[:, 2] * exaggeration, colors=colors, linewidth=0.8, arrow_length_ratio=0.15)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    ax.set_title(f"{title}\n(vectors exaggerated {exaggeration:.0f}x; max {emax:.3f} mm)")
+    return fig
+
+
+def error_histogram_figure(trans_err, rot_err, *, title: str = "Error distribution"):
+    """Histograms of translation (mm) and rotation (deg) error magnitudes (inputs m and rad)."""
+    plt = _plt()
+    t = np.asarray(trans_err, dtype=float) * 1e3
+    r = np.rad2deg(np.asarray(rot_err, dtype=float))
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    for ax, x, label in ((axes[0], t, "translation error (mm)"),
+                         (axes[1], r, "rotation error (deg)")):
+        x = x[np.isfinite(x)]
+        ax.hist(x, bins=40, color="#4878a8")
+        if x.size:
+            rms = np.sqrt(np.mean(x ** 2))
+            ax.axvline(rms, color="k", ls="--", label=f"RMS {rms:.3f}")
+            ax.legend()
+        ax.set_xlabel(label)
+        ax.set_ylabel("count")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def sweep_figure(curves, *, title: str = "Axis sweeps: absolute error and nonlinearity"):
+    """Seed 000 Fig. 10 style: one panel per quantity, one line per swept axis.
+
+    Parameters
+    ----------
+    curves : dict
+        ``{axis_name: {"position": (n,), "position_unit": "mm"|"deg", "panels": {panel_title:
+        (n,) values}}}``; panels with the same title across axes share a subplot.
+    """
+    plt = _plt()
+    titles: list[str] = []
+    for c in curves.values():
+        for k in c["panels"]:
+            if k not in titles:
+                titles.append(k)
+    n = max(len(titles), 1)
+    cols = 2
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(10, 3.2 * rows), squeeze=False)
+    for idx, ttl in enumerate(titles):
+        ax = axes[idx // cols][idx % cols]
+        for axis_name, c in curves.items():
+            if ttl in c["panels"]:
+                ax.plot(c["position"], c["panels"][ttl], label=axis_name, lw=1)
+        ax.set_title(ttl, fontsize=10)
+        ax.set_xlabel("swept axis position (mm or deg)")
+        ax.legend(fontsize=8)
+    for idx in range(len(titles), rows * cols):
+        axes[idx // cols][idx % cols].axis("off")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
