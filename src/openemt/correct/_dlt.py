@@ -39,6 +39,10 @@ def _check_matrix(L) -> np.ndarray:
     return arr.astype(np.float64, copy=False)
 
 
+def _float_or_nan(x) -> float:
+    return float("nan") if x is None else float(x)
+
+
 def _apply(L: np.ndarray, xyz: np.ndarray) -> np.ndarray:
     q = xyz @ L[:3, :3].T + L[:3, 3]
     w = xyz @ L[3, :3] + L[3, 3]
@@ -140,6 +144,25 @@ class DltFit:
     def apply(self, xyz) -> np.ndarray:
         """Corrected positions, shape of ``xyz``."""
         return apply_linear_correction(self.matrix, xyz)
+
+    def predict(self, xyz, R=None):
+        """Corrected positions (N, 3); rotations are returned unchanged (position-only)."""
+        return _apply(self.matrix, np.asarray(xyz, dtype=np.float64)), R
+
+    def to_params(self) -> dict:
+        return {"matrix": self.matrix, "rms_uncorrected": self.rms_uncorrected,
+                "rms_corrected": self.rms_corrected, "method": self.method,
+                "refined": self.refined, "candidates": self.candidates,
+                "n_points": self.n_points}
+
+    @classmethod
+    def from_params(cls, p: dict) -> "DltFit":
+        return cls(matrix=_check_matrix(p["matrix"]),
+                   rms_uncorrected=_float_or_nan(p.get("rms_uncorrected")),
+                   rms_corrected=_float_or_nan(p.get("rms_corrected")),
+                   method=str(p.get("method", "dlt")), refined=bool(p.get("refined", False)),
+                   candidates=dict(p.get("candidates") or {}),
+                   n_points=int(p.get("n_points", 0)))
 
 
 def fit_dlt(measured_xyz, reference_xyz, *, refine: bool = True) -> DltFit:

@@ -1,0 +1,103 @@
+"""Cross-validation helpers: k-fold / leave-one-group-out splits and held-out residuals.
+
+Corrections are judged on data not used in the fit. ``kfold_splits`` makes the splits;
+``held_out_predictions`` fits on each training part and predicts the held-out part, so every
+row gets exactly one prediction from a model that never saw it.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["kfold_splits", "held_out_predictions", "position_errors", "rotation_errors",
+           "rotation_offsets", "apply_rotation_offsets", "normalizer"]
+
+
+def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Training/test index pairs for k-fold or leave-one-group-out cross-validation.
+
+    Parameters
+    ----------
+    n : int
+        Number of rows.
+    k : int
+        Number of folds (ignored when ``groups`` is given). ``2 <= k <= n``.
+    seed : int
+        Seed of the ``np.random.default_rng`` permutation that assigns rows to folds.
+    groups : array_like, shape (n,), optional
+        Group label per row (e.g. the file a row came from). Each group is held out once.
+
+    Returns
+    -------
+    list of (train, test) integer index arrays; the tests partition ``range(n)``.
+    """
+    if groups is not None:
+        g = np.asarray(groups)
+        if g.shape != (n,):
+            raise ValueError(f"expected `groups` of shape ({n},), got {g.shape}")
+        labels = np.unique(g)
+        if len(labels) < 2:
+            raise ValueError(f"expected at least 2 groups to hold out, got {len(labels)}")
+        return [(np.flatnonzero(g != lab), np.flatnonzero(g == lab)) for lab in labels]
+    k = int(k)
+    if not 2 <= k <= n:
+        raise ValueError(f"expected 2 <= k <= n = {n} folds, got k = {k}")
+    perm = np.random.default_rng(seed).permutation(n)
+    folds = np.array_split(perm, k)
+    out = []
+    for i in range(k):
+        test = np.sort(folds[i])
+        train = np.sort(np.concatenate([folds[j] for j in range(k) if j != i]))
+        out.append((train, test))
+    return out
+
+
+def held_out_predictions(fit: Callable, predict: Callable, n: int, splits) -> list:
+    """Run ``model = fit(train)`` and ``predict(model, test)`` over the splits.
+
+    Returns the list of ``(test, prediction)`` pairs in split order. ``n`` is only used to check
+    that the test parts cover every row once.
+    """
+    seen = np.zeros(n, dtype=int)
+    out = []
+    for train, test in splits:
+        seen[test] += 1
+        model = fit(train)
+        out.append((test, predict(model, test)))
+    if not np.all(seen == 1):
+        raise ValueError("expected the test folds to partition the rows, got overlaps or gaps")
+    return out
+
+
+def position_errors(xyz, reference_xyz) -> np.ndarray:
+    """Euclidean distances ``|xyz - reference_xyz|``, shape (N,)."""
+    return np.linalg.norm(np.asarray(xyz) - np.asarray(reference_xyz), axis=-1)
+
+
+def rotation_errors(R, reference_R) -> np.ndarray:
+    """Angles (rad) of ``R^T @ reference_R`` for rotation matrices (N, 3, 3), shape (N,)."""
+    E = np.swapaxes(R, -1, -2) @ reference_R
+    return np.linalg.norm(Rotation.from_matrix(E.reshape(-1, 3, 3)).as_rotvec(), axis=-1)
+
+
+def rotation_offsets(R, reference_R) -> np.ndarray:
+    """Rotation vectors ``rho`` with ``exp([rho]x) @ R = reference_R`` (left, source frame), (N, 3)."""
+    D = reference_R @ np.swapaxes(R, -1, -2)
+    return Rotation.from_matrix(D.reshape(-1, 3, 3)).as_rotvec()
+
+
+def apply_rotation_offsets(rho, R) -> np.ndarray:
+    """``exp([rho]x) @ R`` for rotation vectors (N, 3) and rotations (N, 3, 3)."""
+    return Rotation.from_rotvec(np.asarray(rho).reshape(-1, 3)).as_matrix() @ R
+
+
+def normalizer(xyz) -> tuple[np.ndarray, float]:
+    """Centre (3,) and scale (float) that map the points into about [-1, 1]^3."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
+    scale = float(np.max(np.abs(xyz - center)))
+    return center, (scale if scale > 0 else 1.0)

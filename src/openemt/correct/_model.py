@@ -1,0 +1,258 @@
+"""The serialisable ``Correction`` object, its fit with held-out errors, and JSON read/write.
+
+``fit_correction`` fits one method (``dlt``, ``poly``, ``grid``, ``rbf``) to pose pairs and
+always reports the error on data not used in the fit (k-fold or leave-one-group-out, with the
+whole fit, including any order/smoothing selection, repeated inside each fold) next to the
+in-sample error, so overfitting is visible.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..evaluate import error_summary, pose_error_magnitudes
+from ..geometry import check_poses, pose_from_rt
+from ..io import atomic_path
+from ._crossval import held_out_predictions, kfold_splits, position_errors
+from ._dlt import DltFit, check_points, fit_dlt
+from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
+from ._poly import PolynomialCorrection, fit_polynomial
+
+__all__ = ["Correction", "fit_correction", "evaluate_correction", "write_correction",
+           "read_correction", "CORRECTION_METHODS"]
+
+#: Correction methods: name -> (fit function, fitted-model class).
+CORRECTION_METHODS = {
+    "dlt": (lambda m, d, Rm, Rd, **kw: fit_dlt(m, d, **kw), DltFit),
+    "poly": (fit_polynomial, PolynomialCorrection),
+    "grid": (fit_grid, GridCorrection),
+    "rbf": (fit_rbf, RbfCorrection),
+}
+
+_FORMAT = "openemt.correction"
+_VERSION = 1
+
+
+def _split_pairs(measured, reference):
+    """Validate pairs; return (m_xyz, m_R or None, d_xyz, d_R or None, is_pose)."""
+    a = np.asarray(measured)
+    if a.ndim == 3:
+        M = check_poses(measured, "measured")
+        D = check_poses(reference, "reference")
+        if D.shape != M.shape:
+            raise ValueError(f"expected `reference` of shape {M.shape}, got {D.shape}")
+        return M[:, :3, 3], M[:, :3, :3], D[:, :3, 3], D[:, :3, :3], True
+    m = check_points(measured, "measured")
+    d = check_points(reference, "reference")
+    if m.ndim != 2:
+        raise ValueError(f"expected `measured` of shape (N, 3) or (N, 4, 4), got {m.shape}")
+    if d.shape != m.shape:
+        raise ValueError(f"expected `reference` of shape {m.shape}, got {d.shape}")
+    return m, None, d, None, False
+
+
+def _summary(xyz, R, d_xyz, d_R) -> dict:
+    """``error_summary`` of the pose errors (position-only pairs: translation keys only)."""
+    if R is None or d_R is None:
+        s = error_summary(position_errors(xyz, d_xyz), np.zeros(len(xyz)))
+        return {k: v for k, v in s.items() if not k.startswith("rot_")}
+    return error_summary(*pose_error_magnitudes(pose_from_rt(R, xyz), pose_from_rt(d_R, d_xyz)))
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+@dataclass(frozen=True)
+class Correction:
+    """A fitted output correction of positions (and orientations for poly/grid/rbf).
+
+    Attributes
+    ----------
+    method : str
+        ``"dlt"``, ``"poly"``, ``"grid"`` or ``"rbf"``.
+    params : dict
+        The fitted parameters (SI units; arrays), as the method's ``to_params`` gives them.
+    stats : dict
+        Fit statistics: ``in_sample`` and ``held_out`` error summaries (mm/deg keys of
+        :func:`openemt.evaluate.error_summary`) of the uncorrected and corrected pairs.
+    meta : dict
+        Free-form provenance (input files, options).
+    """
+
+    method: str
+    params: dict
+    stats: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.method not in CORRECTION_METHODS:
+            raise ValueError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
+                             f"got {self.method!r}")
+
+    @property
+    def model(self):
+        """The fitted model object (``DltFit``, ``PolynomialCorrection``, ...)."""
+        cache = self.__dict__.get("_model")
+        if cache is None:
+            cache = CORRECTION_METHODS[self.method][1].from_params(self.params)
+            object.__setattr__(self, "_model", cache)
+        return cache
+
+    @property
+    def corrects_orientation(self) -> bool:
+        p = self.params
+        if self.method == "dlt":
+            return False
+        if self.method == "poly":
+            return p.get("rot_coef") is not None
+        return np.shape(p["values"])[-1] == 6
+
+    def apply(self, measured) -> np.ndarray:
+        """Correct measured poses ``(N, 4, 4)`` or positions ``(N, 3)``; returns the same shape.
+
+        Orientation is corrected only by methods fitted with orientations
+        (``corrects_orientation``); otherwise it is passed through.
+        """
+        a = np.asarray(measured)
+        if a.ndim == 3:
+            P = check_poses(measured, "measured")
+            xyz, R = self.model.predict(P[:, :3, 3], P[:, :3, :3])
+            return pose_from_rt(R, xyz)
+        m = check_points(measured, "measured")
+        single = m.ndim == 1
+        xyz, _ = self.model.predict(m.reshape(-1, 3), None)
+        return xyz[0] if single else xyz
+
+    def to_dict(self) -> dict:
+        return {"format": _FORMAT, "version": _VERSION, "method": self.method,
+                "params": _jsonable(self.params), "stats": _jsonable(self.stats),
+                "meta": _jsonable(self.meta)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Correction":
+        if d.get("format") != _FORMAT:
+            raise ValueError(f"expected a {_FORMAT!r} document, got format {d.get('format')!r}")
+        obj = cls(method=str(d["method"]), params=dict(d["params"]),
+                  stats=dict(d.get("stats") or {}), meta=dict(d.get("meta") or {}))
+        # normalise params through the model so arrays have their numpy types again
+        return cls(method=obj.method, params=obj.model.to_params(), stats=obj.stats,
+                   meta=obj.meta)
+
+
+def _fit_model(method, m, Rm, d, Rd, options):
+    fit = CORRECTION_METHODS[method][0]
+    return fit(m, d, Rm, Rd, **options)
+
+
+def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, seed: int = 0,
+                   groups=None, cross_validate: bool = True, meta: dict | None = None,
+                   **options) -> Correction:
+    """Fit an output correction to (measured, reference) pairs and report held-out errors.
+
+    Parameters
+    ----------
+    measured, reference : array_like, shape (N, 4, 4) or (N, 3)
+        Measured and reference poses (or positions only), SI units.
+    method : {"dlt", "poly", "grid", "rbf"}
+    k : int
+        Folds of the held-out evaluation (k-fold, rows shuffled with ``seed``).
+    seed : int
+    groups : array_like, shape (N,), optional
+        Hold out one group (e.g. file) at a time instead of k random folds.
+    cross_validate : bool
+        Compute the held-out statistics (default). Disable only for speed.
+    meta : dict, optional
+        Provenance stored in the result.
+    **options
+        Passed to the method's fit (e.g. ``order``, ``rot_order`` for poly; ``shape``,
+        ``smoothing`` for grid; ``smoothing`` for rbf; ``refine`` for dlt).
+
+    Returns
+    -------
+    Correction
+        ``stats["in_sample"]`` and ``stats["held_out"]`` hold ``uncorrected`` and ``corrected``
+        error summaries (mm, deg).
+    """
+    if method not in CORRECTION_METHODS:
+        raise ValueError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
+                         f"got {method!r}")
+    m, Rm, d, Rd, _ = _split_pairs(measured, reference)
+    ok = np.all(np.isfinite(m), axis=1) & np.all(np.isfinite(d), axis=1)
+    if Rm is not None:
+        ok &= np.all(np.isfinite(Rm), axis=(1, 2)) & np.all(np.isfinite(Rd), axis=(1, 2))
+    n_dropped = int((~ok).sum())
+    if n_dropped:
+        m, d = m[ok], d[ok]
+        Rm = None if Rm is None else Rm[ok]
+        Rd = None if Rd is None else Rd[ok]
+        groups = None if groups is None else np.asarray(groups)[ok]
+    if method != "dlt":  # inner selection (order / smoothing) uses the same folds setting
+        options = {"k": k, "seed": seed, **options}
+    model = _fit_model(method, m, Rm, d, Rd, options)
+    params = model.to_params()
+    xyz_fit, R_fit = model.predict(m, Rm)
+    stats = {"n": int(len(m)), "n_dropped_nonfinite": n_dropped,
+             "in_sample": {"uncorrected": _summary(m, Rm, d, Rd),
+                           "corrected": _summary(xyz_fit, R_fit, d, Rd)}}
+    if cross_validate:
+        splits = kfold_splits(len(m), min(k, len(m)), seed=seed, groups=groups)
+
+        def fit_rows(rows):
+            return _fit_model(method, m[rows], None if Rm is None else Rm[rows], d[rows],
+                              None if Rd is None else Rd[rows], options)
+
+        def predict_rows(mod, rows):
+            return mod.predict(m[rows], None if Rm is None else Rm[rows])
+
+        xyz_ho = np.empty_like(m)
+        R_ho = None if Rm is None else np.empty_like(Rm)
+        for rows, (px, pR) in held_out_predictions(fit_rows, predict_rows, len(m), splits):
+            xyz_ho[rows] = px
+            if R_ho is not None:
+                R_ho[rows] = pR
+        stats["held_out"] = {
+            "scheme": "leave-one-group-out" if groups is not None else f"{len(splits)}-fold",
+            "n_folds": len(splits), "seed": int(seed),
+            "uncorrected": _summary(m, Rm, d, Rd),
+            "corrected": _summary(xyz_ho, R_ho, d, Rd)}
+    return Correction(method=method, params=params, stats=stats, meta=dict(meta or {}))
+
+
+def evaluate_correction(correction: Correction, measured, reference) -> dict:
+    """Error summaries of held-out pairs before and after applying ``correction``."""
+    m, Rm, d, Rd, _ = _split_pairs(measured, reference)
+    xyz, R = correction.model.predict(m, Rm)
+    return {"uncorrected": _summary(m, Rm, d, Rd), "corrected": _summary(xyz, R, d, Rd)}
+
+
+def write_correction(correction: Correction, path) -> None:
+    """Write a correction as JSON (atomically)."""
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(correction.to_dict(), indent=1) + "\n")
+
+
+def read_correction(path) -> Correction:
+    """Read a correction written by :func:`write_correction`."""
+    try:
+        d = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"expected a JSON correction file, got invalid JSON in {path}: "
+                         f"{exc.msg}") from None
+    if not isinstance(d, dict):
+        raise ValueError(f"expected a JSON object in {path}, got {type(d).__name__}")
+    return Correction.from_dict(d)
