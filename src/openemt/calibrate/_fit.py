@@ -157,7 +157,7 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
         return prob.residuals_and_jacobian(full(xf))[1][:, free]
 
     t0 = time.perf_counter()
-    res = least_squares(fun, x0[free], jac=jac, method="trf", x_scale="jac", ftol=tol,
+    res = least_squares(fun, x0[free], jac=jac, method="lm", x_scale="jac", ftol=tol,
                         xtol=tol, gtol=tol, max_nfev=max_nfev)
     seconds = time.perf_counter() - t0
     x = full(res.x)
@@ -176,12 +176,16 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
                      undetermined_groups=list(ident.undetermined))
     F_so, F_st, F_se = layout.fixtures(x)
     files = sorted(set(data.file_names().tolist()) - {""})
+    hashes = dict(dataset.meta.get("provenance", {}).get("inputs", {}))
+    sp = start.provenance
     provenance = {
         "openemt_version": __version__,
         "mode": mode.name,
-        "start": {"mode": start.mode, "provenance": start.provenance},
-        "input_files": files,
-        "inputs": dataset.meta.get("provenance", {}),
+        "optimizer": "scipy.optimize.least_squares(lm), analytic Jacobian",
+        "inputs": {f: hashes.get(f) for f in files},
+        "num_rows": int(prob.n_rows),
+        "start": {"mode": start.mode, "file": sp.get("file"), "inputs": sp.get("inputs"),
+                  "start_mode": (sp.get("start") or {}).get("mode")},
     }
     se = {k: v for k, v in layout.as_fields(se_full).items()} if uncertainty else {}
     cal = Calibration(model=layout.model(x, start.model.gain), source_fixture=F_so,

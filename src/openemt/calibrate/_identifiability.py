@@ -98,7 +98,9 @@ def analyse_identifiability(J, residuals, free, layout: ParameterLayout, groups=
     scale = np.linalg.norm(J, axis=0)
     zero_col = scale == 0.0
     scale = np.where(zero_col, 1.0, scale)
-    _, s, Vt = np.linalg.svd(J / scale, full_matrices=False)
+    # the SVD of the triangular factor has the same singular values and right vectors as J's
+    R = np.linalg.qr(J / scale, mode="r") if m > n else J / scale
+    _, s, Vt = np.linalg.svd(R, full_matrices=False)
     smax = s[0] if s.size else 0.0
     keep = s > rtol * smax
     rank = int(keep.sum())

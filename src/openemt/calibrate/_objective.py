@@ -24,8 +24,9 @@ from ..geometry import (
     left_jacobian_so3,
     pose_from_vector,
     skew,
+    sensor_fixture_rotation,
     source_fixture_rotation,
-    stage_joint,
+    stage_transform,
 )
 from ._layout import ParameterLayout
 
@@ -155,6 +156,11 @@ def build_problem(dataset, layout: ParameterLayout, gain: float) -> CalibrationP
     codes = np.asarray(dataset.source_fixture)
     for code in np.unique(codes):
         so_J[codes == code, :3, :3] = source_fixture_rotation(str(code))
-    st_J = stage_joint(dataset.stage, [str(c) for c in dataset.sensor_fixture])
+    # st_J = stage transform . S(code): one fixture rotation per distinct code
+    st_J = stage_transform(dataset.stage)
+    se_codes = np.asarray(dataset.sensor_fixture)
+    for code in np.unique(se_codes):
+        rows = se_codes == code
+        st_J[rows, :3, :3] = st_J[rows, :3, :3] @ sensor_fixture_rotation(str(code))
     return CalibrationProblem(layout=layout, C_meas=C, weight=1.0 / norms,
                               so_J=so_J, st_J=st_J, gain=float(gain))
