@@ -93,7 +93,9 @@ def write_dataset(ds: Dataset, path) -> Path:
             f.attrs["n_sensor"] = ds.n_sensor
             f.attrs["couplings_complex"] = bool(np.iscomplexobj(ds.couplings))
             f.attrs["meta"] = meta_json
-            _write_array(f, "couplings", ds.couplings, _UNITS["couplings"])
+            # couplings_real always exists; couplings_imag only for complex couplings
+            _write_array(f, "couplings" if np.iscomplexobj(ds.couplings) else "couplings_real",
+                         ds.couplings, _UNITS["couplings"])
             _write_array(f, "stage", ds.stage, _UNITS["stage"])
             for name in ("source_fixture", "sensor_fixture", "pattern"):
                 _write_array(f, name, getattr(ds, name))
