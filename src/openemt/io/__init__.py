@@ -9,6 +9,8 @@ from ._ilemt_mat import read_ilemt_calibration
 from ._calfile import read_calibration, write_calibration
 from ._hdf5 import CouplingReader, open_dataset_couplings, read_dataset, write_dataset
 from ._csv import export_csv, import_csv
+from ._ndi import NdiRecording, NdiTool, read_ndi_tsv
+from ._poses_csv import PoseTable, StaticAverage, average_static, read_poses_csv, write_poses_csv
 
 __all__ = ["Calibration", "Dataset", "atomic_path", "signed_real"]
 
@@ -17,3 +19,5 @@ __all__ += ["compensate_stage", "file_sha256", "import_ilemt_folder", "parse_sig
 __all__ += ["CouplingReader", "export_csv", "import_csv", "open_dataset_couplings",
             "read_calibration", "read_dataset", "read_ilemt_calibration", "write_calibration",
             "write_dataset"]
+__all__ += ["NdiRecording", "NdiTool", "PoseTable", "StaticAverage", "average_static",
+            "read_ndi_tsv", "read_poses_csv", "write_poses_csv"]

@@ -1,0 +1,301 @@
+"""Generic CSV of tracker poses (optionally with reference poses), and static averaging.
+
+For trackers that give only poses (NDI Aurora, Polhemus, ...). One row per sample; the header
+names the columns (case-insensitive, any order, extra columns ignored)::
+
+    pose_id,time,x_mm,y_mm,z_mm,qw,qx,qy,qz,ref_x_mm,ref_y_mm,ref_z_mm,ref_qw,ref_qx,ref_qy,ref_qz
+
+* position: ``x, y, z`` with an optional unit suffix ``_m`` or ``_mm`` (no suffix: metres,
+  unless ``length_unit`` says otherwise);
+* orientation, one of: rotation vector ``rx, ry, rz`` (suffix ``_rad`` or ``_deg``; no suffix:
+  radians) or scalar-first quaternion ``qw, qx, qy, qz``; none: position-only rows (identity
+  rotation, ``has_orientation`` False);
+* reference pose: the same columns with the prefix ``ref_``;
+* ``pose_id`` (or ``group``): label of the static pose a sample belongs to; ``time`` (s).
+
+:func:`average_static` averages the samples of each static pose and reports their jitter.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..geometry import check_poses, pose_from_rt, vector_from_pose
+from ._atomic import atomic_path
+
+__all__ = ["PoseTable", "StaticAverage", "read_poses_csv", "write_poses_csv", "average_static"]
+
+_LEN = {"m": 1.0, "mm": 1e-3}
+_ANG = {"rad": 1.0, "deg": np.pi / 180}
+
+
+@dataclass(frozen=True, eq=False)
+class PoseTable:
+    """Poses read from a CSV file.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (N, 4, 4)
+        Measured poses (m).
+    reference : ndarray, shape (N, 4, 4) or None
+        Reference (ground-truth) poses if the file has ``ref_`` columns.
+    group : ndarray of str, shape (N,) or None
+        Static-pose label per row (``pose_id`` column).
+    time : ndarray, shape (N,) or None
+    has_orientation, reference_has_orientation : bool
+        False when the file gives positions only (rotations are then identity).
+    source : str
+        File the table was read from.
+    """
+
+    poses: np.ndarray
+    reference: np.ndarray | None = None
+    group: np.ndarray | None = None
+    time: np.ndarray | None = None
+    has_orientation: bool = True
+    reference_has_orientation: bool = False
+    source: str = ""
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
+@dataclass(frozen=True, eq=False)
+class StaticAverage:
+    """Per-pose averages of static recordings and their jitter.
+
+    Attributes
+    ----------
+    labels : ndarray, shape (G,)
+        Group labels, in order of first appearance.
+    poses : ndarray, shape (G, 4, 4)
+        Mean pose of each group: mean position, chordal-L2 mean rotation
+        (``scipy Rotation.mean``).
+    counts : ndarray of int, shape (G,)
+    jitter_trans_rms, jitter_trans_max : ndarray, shape (G,)
+        RMS and max distance (m) of the samples from the mean position.
+    jitter_rot_rms, jitter_rot_max : ndarray, shape (G,)
+        RMS and max angle (rad) of the samples from the mean rotation.
+    """
+
+    labels: np.ndarray
+    poses: np.ndarray
+    counts: np.ndarray
+    jitter_trans_rms: np.ndarray
+    jitter_trans_max: np.ndarray
+    jitter_rot_rms: np.ndarray
+    jitter_rot_max: np.ndarray
+
+    def summary(self) -> dict:
+        """Overall jitter in mm/deg: RMS over all samples and the worst group maximum."""
+        n = self.counts.astype(float)
+        return {
+            "n_groups": int(len(self.labels)), "n_samples": int(n.sum()),
+            "jitter_trans_rms_mm": float(1e3 * np.sqrt(np.sum(n * self.jitter_trans_rms ** 2)
+                                                       / n.sum())),
+            "jitter_trans_max_mm": float(1e3 * self.jitter_trans_max.max()),
+            "jitter_rot_rms_deg": float(np.rad2deg(np.sqrt(np.sum(n * self.jitter_rot_rms ** 2)
+                                                           / n.sum()))),
+            "jitter_rot_max_deg": float(np.rad2deg(self.jitter_rot_max.max())),
+        }
+
+
+def average_static(poses, groups=None) -> StaticAverage:
+    """Average static recordings per pose and report their jitter.
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 4, 4)
+        Samples (non-finite rows are ignored).
+    groups : array_like, shape (N,), optional
+        Label of the static pose each sample belongs to; ``None``: all samples are one pose.
+
+    Returns
+    -------
+    StaticAverage
+    """
+    P = check_poses(poses, "poses")
+    if P.ndim != 3:
+        raise ValueError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+    g = np.zeros(len(P), dtype=int) if groups is None else np.asarray(groups)
+    if g.shape != (len(P),):
+        raise ValueError(f"expected `groups` of shape ({len(P)},), got {g.shape}")
+    ok = np.all(np.isfinite(P), axis=(1, 2))
+    P, g = P[ok], g[ok]
+    if len(P) == 0:
+        raise ValueError("expected at least one finite pose to average, got none")
+    _, first = np.unique(g, return_index=True)
+    labels = g[np.sort(first)]
+    out = {k: [] for k in ("P", "n", "tr", "tm", "rr", "rm")}
+    for lab in labels:
+        sel = P[g == lab]
+        t = sel[:, :3, 3]
+        rot = Rotation.from_matrix(sel[:, :3, :3])
+        mean_rot = rot.mean()
+        mean_t = t.mean(axis=0)
+        dt = np.linalg.norm(t - mean_t, axis=1)
+        dr = np.linalg.norm((mean_rot.inv() * rot).as_rotvec(), axis=-1)
+        out["P"].append(pose_from_rt(mean_rot.as_matrix(), mean_t))
+        out["n"].append(len(sel))
+        out["tr"].append(np.sqrt(np.mean(dt ** 2)))
+        out["tm"].append(dt.max())
+        out["rr"].append(np.sqrt(np.mean(dr ** 2)))
+        out["rm"].append(dr.max())
+    return StaticAverage(labels=labels, poses=np.stack(out["P"]),
+                         counts=np.array(out["n"], dtype=np.int64),
+                         jitter_trans_rms=np.array(out["tr"]), jitter_trans_max=np.array(out["tm"]),
+                         jitter_rot_rms=np.array(out["rr"]), jitter_rot_max=np.array(out["rm"]))
+
+
+def _find(cols: dict, name: str, suffixes: dict):
+    """Column index and unit factor for ``name`` (with optional unit suffix), else (None, None)."""
+    if name in cols:
+        return cols[name], None
+    for suf, fac in suffixes.items():
+        if f"{name}_{suf}" in cols:
+            return cols[f"{name}_{suf}"], fac
+    return None, None
+
+
+def _poses_from_columns(cols, data, prefix, length_unit, angle_unit, path):
+    idx, facs = [], []
+    for a in "xyz":
+        i, f = _find(cols, f"{prefix}{a}", _LEN)
+        if i is None:
+            return None, False
+        idx.append(i)
+        facs.append(_LEN[length_unit] if f is None else f)
+    if len(set(facs)) != 1:
+        raise ValueError(f"expected one length unit for the {prefix or 'measured '}position in "
+                         f"{path}, got several")
+    t = data[:, idx] * facs[0]
+    q_idx = [cols.get(f"{prefix}q{a}") for a in "wxyz"]
+    r_idx = [_find(cols, f"{prefix}r{a}", _ANG) for a in "xyz"]
+    if all(i is not None for i in q_idx):
+        q = data[:, q_idx]
+        norm = np.linalg.norm(q, axis=1, keepdims=True)
+        bad = ~(norm[:, 0] > 0)
+        q = np.where(bad[:, None], [1.0, 0, 0, 0], q / np.where(norm > 0, norm, 1.0))
+        R = Rotation.from_quat(q, scalar_first=True).as_matrix()
+        R[bad] = np.nan
+        return pose_from_rt(R, t), True
+    if all(i is not None for i, _ in r_idx):
+        fac = {_ANG[angle_unit] if f is None else f for _, f in r_idx}
+        if len(fac) != 1:
+            raise ValueError(f"expected one angle unit for the {prefix or 'measured '}rotation in "
+                             f"{path}, got several")
+        rv = data[:, [i for i, _ in r_idx]] * fac.pop()
+        rv_ok = np.where(np.isfinite(rv), rv, 0.0)
+        R = Rotation.from_rotvec(rv_ok).as_matrix()
+        R[~np.all(np.isfinite(rv), axis=1)] = np.nan
+        return pose_from_rt(R, t), True
+    return pose_from_rt(np.broadcast_to(np.eye(3), (len(t), 3, 3)), t), False
+
+
+def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> PoseTable:
+    """Read a generic pose CSV (see the module docstring for the columns).
+
+    Parameters
+    ----------
+    path : path-like
+    length_unit : {"m", "mm"}
+        Unit of position columns without a unit suffix.
+    angle_unit : {"rad", "deg"}
+        Unit of rotation-vector columns without a unit suffix.
+
+    Returns
+    -------
+    PoseTable
+        Poses in metres. Empty fields read as NaN.
+    """
+    if length_unit not in _LEN:
+        raise ValueError(f"expected length_unit in {sorted(_LEN)}, got {length_unit!r}")
+    if angle_unit not in _ANG:
+        raise ValueError(f"expected angle_unit in {sorted(_ANG)}, got {angle_unit!r}")
+    path = Path(path)
+    with open(path, newline="") as fh:
+        lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise ValueError(f"expected a header line in {path}, got an empty file")
+    delim = "\t" if "\t" in lines[0] else ","
+    rows = list(csv.reader(lines, delimiter=delim))
+    header = [h.strip().lower() for h in rows[0]]
+    cols = {h: i for i, h in enumerate(header)}
+    body = rows[1:]
+    gcol = cols.get("pose_id", cols.get("group"))
+    tcol = cols.get("time", cols.get("t"))
+    num_idx = [i for i, h in enumerate(header) if i != gcol]
+    data = np.full((len(body), len(header)), np.nan)
+    for r, row in enumerate(body):
+        if len(row) > len(header):
+            raise ValueError(f"expected at most {len(header)} fields on line {r + 2} of {path}, "
+                             f"got {len(row)}")
+        for i in num_idx:
+            if i < len(row) and row[i].strip():
+                try:
+                    data[r, i] = float(row[i])
+                except ValueError:
+                    if header[i] in _ALL_POSE_NAMES:
+                        raise ValueError(f"expected a number in column {header[i]!r} on line "
+                                         f"{r + 2} of {path}, got {row[i]!r}") from None
+    P, has_rot = _poses_from_columns(cols, data, "", length_unit, angle_unit, path)
+    if P is None:
+        raise ValueError(f"expected columns x, y, z (optionally _m/_mm) in {path}, "
+                         f"got {', '.join(header)}")
+    Pref, ref_rot = _poses_from_columns(cols, data, "ref_", length_unit, angle_unit, path)
+    group = None
+    if gcol is not None:
+        group = np.array([row[gcol].strip() if gcol < len(row) else "" for row in body], dtype=str)
+    time = data[:, tcol] if tcol is not None else None
+    return PoseTable(poses=P, reference=Pref, group=group, time=time, has_orientation=has_rot,
+                     reference_has_orientation=bool(Pref is not None and ref_rot),
+                     source=str(path))
+
+
+_ALL_POSE_NAMES = {f"{p}{n}{s}" for p in ("", "ref_") for n in
+                   ("x", "y", "z", "rx", "ry", "rz", "qw", "qx", "qy", "qz")
+                   for s in ("", "_m", "_mm", "_rad", "_deg")} | {"time", "t"}
+
+
+def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
+    """Write poses (and reference poses) as CSV in metres and rotation vectors (rad), atomically.
+
+    Columns: ``[pose_id,][time,]x_m,y_m,z_m,rx_rad,ry_rad,rz_rad[,ref_x_m,...,ref_rz_rad]``;
+    numbers use shortest round-trip precision. Returns the path.
+    """
+    P = check_poses(poses, "poses")
+    if P.ndim != 3:
+        raise ValueError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+    names = ["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"]
+    blocks = [vector_from_pose(P)]
+    header = list(names)
+    if reference is not None:
+        D = check_poses(reference, "reference")
+        if D.shape != P.shape:
+            raise ValueError(f"expected `reference` of shape {P.shape}, got {D.shape}")
+        blocks.append(vector_from_pose(D))
+        header += ["ref_" + n for n in names]
+    num = np.hstack(blocks)
+    pre_h, pre = [], []
+    if time is not None:
+        pre_h.append("time")
+        pre.append(np.asarray(time, dtype=float).reshape(-1))
+    if group is not None:
+        g = np.asarray(group).astype(str)
+        if g.shape != (len(P),):
+            raise ValueError(f"expected `group` of shape ({len(P)},), got {g.shape}")
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow((["pose_id"] if group is not None else []) + pre_h + header)
+        for k in range(len(P)):
+            row = [str(g[k])] if group is not None else []
+            row += [repr(float(c[k])) for c in pre]
+            row += [repr(float(v)) for v in num[k]]
+            w.writerow(row)
+    return path
