@@ -1,0 +1,441 @@
+"""Raw-signal simulator of a frequency-multiplexed (FDM) AC tracker, and the raw HDF5 file.
+
+Each source coil ``i`` carries a sinusoidal current at its own carrier frequency ``f_i``
+(ILEMT: 7.5, 10.5 and 13.5 kHz, seed 000 §V-C). Sensor coil ``j`` sees
+
+    v_j(t) = sensor_gain * sum_i Re{ Ct[i, j](t) * I_i(t - delay) } + mains(t) + noise
+
+where ``I_i(t) = A_i (1 + drift(t)) exp(j (2 pi f_i t + phi_i))`` is the analytic drive
+current and ``Ct = C * (1 + eddy_i)`` is the coupling of the field model, perturbed by the
+eddy currents of a conductive object (first-order response ``kappa * j w tau / (1 + j w tau)``,
+which adds an in-phase error and a quadrature part). The sensor front end is taken to return
+a voltage proportional to coupling times current (the induction's ``j w`` is equalised by the
+preamplifier), optionally delayed by ``delay`` seconds (anti-alias filter group delay), which
+appears as a per-carrier phase that a "Ref cal" removes (:func:`openemt.signal.phase_calibration`).
+Reference channel ``i`` records ``reference_gain * Re I_i(t)`` plus its own noise, so the
+demodulator takes amplitude, sign and phase of each carrier from the measured current.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+import numpy as np
+
+__all__ = [
+    "ILEMT_FREQUENCIES",
+    "ChannelLayout",
+    "RawSignalConfig",
+    "RawSignal",
+    "RawSimulator",
+    "eddy_factor",
+    "simulate_raw",
+    "write_raw",
+    "read_raw",
+    "RAW_FORMAT",
+]
+
+#: ILEMT's high-rate carrier frequencies for source X, Y, Z (Hz), seed 000 §V-C.
+ILEMT_FREQUENCIES = (7500.0, 10500.0, 13500.0)
+#: The ``format`` attribute of a raw HDF5 file written by :func:`write_raw`.
+RAW_FORMAT = "openemt-raw"
+_RAW_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ChannelLayout:
+    """Where the carriers and channels are in a raw sample array.
+
+    Attributes
+    ----------
+    frequencies : tuple of float, length n_source
+        Carrier frequency of source coil i (Hz).
+    sample_rate : float
+        ADC rate (samples per second).
+    sensor_channels : tuple of int, length n_sensor
+        Column of the raw array holding sensor coil j.
+    reference_channels : tuple of int, length n_source
+        Column holding the drive-current reference of source coil i.
+    sensor_gain : float
+        Volts per (coupling x ampere) of the sensor chain.
+    reference_gain : float
+        Volts per ampere of the current-sense chain.
+    """
+
+    frequencies: tuple = ILEMT_FREQUENCIES
+    sample_rate: float = 96000.0
+    sensor_channels: tuple = (0, 1, 2)
+    reference_channels: tuple = (3, 4, 5)
+    sensor_gain: float = 1.0
+    reference_gain: float = 1.0
+
+    def __post_init__(self):
+        f = tuple(float(x) for x in np.atleast_1d(self.frequencies))
+        se = tuple(int(x) for x in np.atleast_1d(self.sensor_channels))
+        ref = tuple(int(x) for x in np.atleast_1d(self.reference_channels))
+        fs = float(self.sample_rate)
+        if not (np.isfinite(fs) and fs > 0):
+            raise ValueError(f"expected a positive `sample_rate`, got {self.sample_rate!r}")
+        if not f or any(not (0 < x < fs / 2) for x in f) or len(set(f)) != len(f):
+            raise ValueError(f"expected distinct carrier `frequencies` in (0, {fs / 2:g}) Hz, "
+                             f"got {f}")
+        if len(ref) != len(f):
+            raise ValueError(f"expected one reference channel per carrier ({len(f)}), "
+                             f"got {len(ref)}")
+        if not se:
+            raise ValueError("expected at least one sensor channel, got none")
+        chans = se + ref
+        if min(chans) < 0 or len(set(chans)) != len(chans):
+            raise ValueError(f"expected distinct non-negative channel indices, got sensor {se} "
+                             f"and reference {ref}")
+        for name in ("sensor_gain", "reference_gain"):
+            g = float(getattr(self, name))
+            if not np.isfinite(g) or g == 0:
+                raise ValueError(f"expected a finite non-zero `{name}`, got {g!r}")
+            object.__setattr__(self, name, g)
+        object.__setattr__(self, "frequencies", f)
+        object.__setattr__(self, "sensor_channels", se)
+        object.__setattr__(self, "reference_channels", ref)
+        object.__setattr__(self, "sample_rate", fs)
+
+    @property
+    def n_source(self) -> int:
+        return len(self.frequencies)
+
+    @property
+    def n_sensor(self) -> int:
+        return len(self.sensor_channels)
+
+    @property
+    def n_channels(self) -> int:
+        return max(self.sensor_channels + self.reference_channels) + 1
+
+
+@dataclass(frozen=True)
+class RawSignalConfig:
+    """Drive, front end and error sources of the raw-signal simulator (SI units, volts).
+
+    Attributes
+    ----------
+    layout : ChannelLayout
+        Carriers, ADC rate and channel order (default: 3 sensor then 3 reference channels).
+    drive_amplitude : float
+        Peak drive current of every source coil (A).
+    drive_phase : tuple of float or None
+        Start phase of each carrier (rad); None draws them from the seed (the demodulator
+        must not depend on them).
+    noise_rms : float
+        White noise on each sensor channel (V rms).
+    reference_noise_rms : float
+        White noise on each reference channel (V rms).
+    mains_frequency : float
+        50 or 60 Hz.
+    mains_amplitudes : tuple of float
+        Peak amplitude (V) on the sensor channels of mains harmonics 1, 2, 3, ...
+    drift_amplitude, drift_period : float
+        Slow relative drive-gain drift ``a sin(2 pi t / T)`` common to a coil's current (it
+        appears in the reference too, so normalisation cancels it).
+    eddy_strength, eddy_time_constant : float
+        Conductive-object perturbation ``kappa`` and time constant ``tau`` (s); see the module
+        docstring.
+    delay : float
+        Sensor-chain delay relative to the reference chain (s).
+    """
+
+    layout: ChannelLayout = field(default_factory=ChannelLayout)
+    drive_amplitude: float = 1.0
+    drive_phase: tuple | None = None
+    noise_rms: float = 1e-4
+    reference_noise_rms: float = 1e-5
+    mains_frequency: float = 50.0
+    mains_amplitudes: tuple = ()
+    drift_amplitude: float = 0.0
+    drift_period: float = 10.0
+    eddy_strength: float = 0.0
+    eddy_time_constant: float = 20e-6
+    delay: float = 0.0
+
+    def __post_init__(self):
+        if not isinstance(self.layout, ChannelLayout):
+            raise TypeError(f"expected `layout` to be a ChannelLayout, got "
+                            f"{type(self.layout).__name__}")
+        for name in ("noise_rms", "reference_noise_rms", "drift_amplitude", "eddy_strength",
+                     "eddy_time_constant", "delay"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"expected a finite non-negative `{name}`, got {v!r}")
+        if not (float(self.drive_amplitude) > 0):
+            raise ValueError(f"expected a positive `drive_amplitude`, got "
+                             f"{self.drive_amplitude!r}")
+        if self.drive_phase is not None and len(self.drive_phase) != self.layout.n_source:
+            raise ValueError(f"expected {self.layout.n_source} drive phases, got "
+                             f"{len(self.drive_phase)}")
+        object.__setattr__(self, "mains_amplitudes",
+                           tuple(float(a) for a in self.mains_amplitudes))
+
+
+def eddy_factor(frequencies, strength: float, time_constant: float) -> np.ndarray:
+    """Complex factor ``kappa j w tau / (1 + j w tau)`` per carrier, shape ``(n_source,)``.
+
+    The coupling seen through a conductive object is ``C * (1 + eddy_factor)``: its real part
+    shifts the in-phase coupling, its imaginary part is the quadrature distortion indicator.
+    """
+    jwt = 1j * 2 * np.pi * np.asarray(frequencies, dtype=np.float64) * float(time_constant)
+    return float(strength) * jwt / (1 + jwt)
+
+
+@dataclass(frozen=True, eq=False)
+class RawSignal:
+    """Raw ADC samples plus their layout and (for simulations) the truth.
+
+    Attributes
+    ----------
+    samples : ndarray, shape (n_samples, n_channels)
+        Volts.
+    layout : ChannelLayout
+    t0 : float
+        Time of the first sample (s).
+    truth_times : ndarray, shape (n_truth,) or None
+        Times (s) at which the truth is tabulated.
+    truth_couplings : ndarray, shape (n_truth, n_source, n_sensor), complex, or None
+        Couplings at ``truth_times`` including the eddy perturbation (real part = coupling,
+        imaginary part = quadrature).
+    truth_poses : ndarray, shape (n_truth, 4, 4) or None
+        Sensor poses (m) at ``truth_times``.
+    """
+
+    samples: np.ndarray
+    layout: ChannelLayout
+    t0: float = 0.0
+    truth_times: np.ndarray | None = None
+    truth_couplings: np.ndarray | None = None
+    truth_poses: np.ndarray | None = None
+
+    @property
+    def n_samples(self) -> int:
+        return self.samples.shape[0]
+
+    @property
+    def duration(self) -> float:
+        return self.n_samples / self.layout.sample_rate
+
+
+class RawSimulator:
+    """Stateful generator of consecutive raw chunks along a pose trajectory.
+
+    Parameters
+    ----------
+    model : object with ``coupling(poses (N, 4, 4)) -> (N, n_source, n_sensor)``
+        A coupling model, e.g. :class:`openemt.field.DipoleModel`.
+    trajectory : callable or ndarray
+        ``trajectory(times (N,)) -> poses (N, 4, 4)`` in metres, or a fixed pose ``(4, 4)``.
+    config : RawSignalConfig
+    seed : int
+        Seeds the noise and (if not given) the drive phases.
+    coupling_stride : int
+        Couplings are evaluated every ``coupling_stride`` samples and interpolated linearly
+        in between (1 = every sample). Motion is slow against the 96 kS/s rate.
+    """
+
+    def __init__(self, model, trajectory, config: RawSignalConfig | None = None, *, seed=0,
+                 coupling_stride: int = 4):
+        self.config = RawSignalConfig() if config is None else config
+        if not isinstance(self.config, RawSignalConfig):
+            raise TypeError(f"expected `config` to be a RawSignalConfig, got "
+                            f"{type(self.config).__name__}")
+        lay = self.config.layout
+        if (model.n_source, model.n_sensor) != (lay.n_source, lay.n_sensor):
+            raise ValueError(f"expected a model with {lay.n_source} sources and {lay.n_sensor} "
+                             f"sensors (the layout), got {model.n_source} and {model.n_sensor}")
+        self.model = model
+        if callable(trajectory):
+            self._trajectory = trajectory
+        else:
+            fixed = np.asarray(trajectory, dtype=np.float64)
+            if fixed.shape != (4, 4):
+                raise ValueError(f"expected `trajectory` to be callable or a (4, 4) pose, got "
+                                 f"shape {fixed.shape}")
+            self._trajectory = lambda t: np.broadcast_to(fixed, (len(t), 4, 4))
+        self.coupling_stride = max(1, int(coupling_stride))
+        self._rng = np.random.default_rng(seed)
+        c = self.config
+        self._phase = (self._rng.uniform(0, 2 * np.pi, lay.n_source) if c.drive_phase is None
+                       else np.asarray(c.drive_phase, dtype=np.float64))
+        self._omega = 2 * np.pi * np.asarray(lay.frequencies)
+        self._eddy = 1 + eddy_factor(lay.frequencies, c.eddy_strength, c.eddy_time_constant)
+        self._mains_phase = self._rng.uniform(0, 2 * np.pi, max(1, len(c.mains_amplitudes)))
+        self.sample_index = 0
+
+    @property
+    def layout(self) -> ChannelLayout:
+        return self.config.layout
+
+    def poses(self, times) -> np.ndarray:
+        """Trajectory poses ``(N, 4, 4)`` at ``times`` (s)."""
+        return np.asarray(self._trajectory(np.asarray(times, dtype=np.float64)), dtype=np.float64)
+
+    def true_couplings(self, times) -> np.ndarray:
+        """Complex truth couplings ``(N, n_source, n_sensor)`` at ``times`` (with eddy term)."""
+        C = self.model.coupling(np.ascontiguousarray(self.poses(times)))
+        return C * self._eddy[None, :, None]
+
+    def _couplings_per_sample(self, t):
+        s = self.coupling_stride
+        if s == 1 or len(t) < 2:
+            return self.model.coupling(np.ascontiguousarray(self.poses(t)))
+        knots = np.append(t[::s], t[-1])
+        Ck = self.model.coupling(np.ascontiguousarray(self.poses(knots)))
+        flat = Ck.reshape(len(knots), -1)
+        out = np.empty((len(t), flat.shape[1]))
+        for k in range(flat.shape[1]):
+            out[:, k] = np.interp(t, knots, flat[:, k])
+        return out.reshape(len(t), *Ck.shape[1:])
+
+    def read(self, n: int) -> np.ndarray:
+        """The next ``n`` samples, shape ``(n, n_channels)`` (volts)."""
+        c, lay = self.config, self.layout
+        n = int(n)
+        t = (self.sample_index + np.arange(n)) / lay.sample_rate
+        self.sample_index += n
+        out = np.zeros((n, lay.n_channels))
+        amp = c.drive_amplitude * (1 + c.drift_amplitude * np.sin(2 * np.pi * t / c.drift_period))
+        arg = self._omega[None, :] * t[:, None] + self._phase[None, :]          # (n, n_so)
+        out[:, list(lay.reference_channels)] = (lay.reference_gain * amp[:, None] * np.cos(arg)
+                                                + c.reference_noise_rms
+                                                * self._rng.standard_normal((n, lay.n_source)))
+        # sensor: Re{Ct I(t - delay)}; delay acts on the carrier phase (slow envelopes)
+        arg_d = arg - self._omega[None, :] * c.delay
+        cur = amp[:, None] * np.exp(1j * arg_d)                                    # (n, n_so)
+        Ct = self._couplings_per_sample(t) * self._eddy[None, :, None]            # (n, so, se)
+        v = lay.sensor_gain * np.einsum("nij,ni->nj", Ct, cur).real
+        for h, a in enumerate(c.mains_amplitudes, start=1):
+            if a:
+                v += a * np.cos(2 * np.pi * h * c.mains_frequency * t
+                                + self._mains_phase[(h - 1) % len(self._mains_phase)])[:, None]
+        v += c.noise_rms * self._rng.standard_normal(v.shape)
+        out[:, list(lay.sensor_channels)] = v
+        return out
+
+
+def simulate_raw(model, trajectory, duration: float, config: RawSignalConfig | None = None, *,
+                 seed=0, truth_rate: float = 1500.0, coupling_stride: int = 4) -> RawSignal:
+    """Simulate ``duration`` seconds of raw samples along a trajectory.
+
+    Parameters
+    ----------
+    model, trajectory, config, seed, coupling_stride
+        See :class:`RawSimulator`.
+    duration : float
+        Seconds of signal (rounded down to whole samples).
+    truth_rate : float
+        Rate (Hz) of the tabulated truth (poses and complex couplings).
+
+    Returns
+    -------
+    RawSignal
+    """
+    sim = RawSimulator(model, trajectory, config, seed=seed, coupling_stride=coupling_stride)
+    fs = sim.layout.sample_rate
+    n = int(np.floor(float(duration) * fs + 1e-9))
+    if n < 1:
+        raise ValueError(f"expected a `duration` of at least one sample, got {duration!r}")
+    samples = sim.read(n)
+    tt = np.arange(0.0, n / fs, 1.0 / float(truth_rate))
+    return RawSignal(samples=samples, layout=sim.layout, t0=0.0, truth_times=tt,
+                     truth_couplings=sim.true_couplings(tt), truth_poses=sim.poses(tt))
+
+
+# --------------------------------------------------------------------------- HDF5 raw file
+
+def write_raw(raw: RawSignal, path) -> None:
+    """Write a raw recording to HDF5 (schema below), atomically.
+
+    Schema (``format = "openemt-raw"``, ``version = 1``)::
+
+        /samples                  float32|float64 (n_samples, n_channels), volts
+        attrs: format, version, sample_rate (Hz), frequencies (n_source,) Hz,
+               sensor_channels (n_sensor,), reference_channels (n_source,),
+               sensor_gain (V per coupling*A), reference_gain (V/A), t0 (s)
+        /truth/times              (n_truth,) s            -- optional (simulations)
+        /truth/couplings          complex (n_truth, n_source, n_sensor)
+        /truth/poses              (n_truth, 4, 4) m
+    """
+    import h5py
+
+    from ..io import atomic_path
+
+    lay = raw.layout
+    with atomic_path(path, suffix=".h5") as tmp:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = RAW_FORMAT
+            f.attrs["version"] = _RAW_VERSION
+            f.attrs["sample_rate"] = lay.sample_rate
+            f.attrs["frequencies"] = np.asarray(lay.frequencies)
+            f.attrs["sensor_channels"] = np.asarray(lay.sensor_channels, dtype=np.int64)
+            f.attrs["reference_channels"] = np.asarray(lay.reference_channels, dtype=np.int64)
+            f.attrs["sensor_gain"] = lay.sensor_gain
+            f.attrs["reference_gain"] = lay.reference_gain
+            f.attrs["t0"] = float(raw.t0)
+            f.create_dataset("samples", data=np.asarray(raw.samples), chunks=True)
+            if raw.truth_times is not None:
+                g = f.create_group("truth")
+                g.create_dataset("times", data=raw.truth_times)
+                if raw.truth_couplings is not None:
+                    g.create_dataset("couplings", data=raw.truth_couplings)
+                if raw.truth_poses is not None:
+                    g.create_dataset("poses", data=raw.truth_poses)
+
+
+def read_raw(path) -> RawSignal:
+    """Read a raw HDF5 file written by :func:`write_raw`.
+
+    Raises
+    ------
+    ValueError
+        With a one-line message when the file is not a readable openemt raw file.
+    FileNotFoundError
+        When ``path`` does not exist.
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"expected an existing raw file, got missing {str(path)!r}")
+    try:
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format")
+            fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
+            if fmt != RAW_FORMAT:
+                raise ValueError(f"expected an HDF5 file with format {RAW_FORMAT!r}, got "
+                                 f"{fmt!r} in {str(path)!r}")
+            version = int(f.attrs.get("version", -1))
+            if version > _RAW_VERSION:
+                raise ValueError(f"expected raw file version <= {_RAW_VERSION}, got {version}")
+            layout = ChannelLayout(frequencies=tuple(f.attrs["frequencies"]),
+                                   sample_rate=float(f.attrs["sample_rate"]),
+                                   sensor_channels=tuple(f.attrs["sensor_channels"]),
+                                   reference_channels=tuple(f.attrs["reference_channels"]),
+                                   sensor_gain=float(f.attrs["sensor_gain"]),
+                                   reference_gain=float(f.attrs["reference_gain"]))
+            samples = np.asarray(f["samples"][()])
+            truth = {}
+            if "truth" in f:
+                for key in ("times", "couplings", "poses"):
+                    if key in f["truth"]:
+                        truth[key] = np.asarray(f["truth"][key][()])
+            t0 = float(f.attrs.get("t0", 0.0))
+    except ValueError:
+        raise
+    except (OSError, KeyError, TypeError) as exc:
+        msg = " ".join(str(exc).split())
+        raise ValueError(f"expected a readable openemt raw HDF5 file, got {str(path)!r} "
+                         f"({msg})") from None
+    if samples.ndim != 2 or samples.shape[1] < layout.n_channels:
+        raise ValueError(f"expected `samples` of shape (n, >= {layout.n_channels}), got "
+                         f"{samples.shape} in {str(path)!r}")
+    if samples.dtype.kind != "f" or not np.all(np.isfinite(samples)):
+        raise ValueError(f"expected finite float samples, got dtype {samples.dtype} or NaN/inf "
+                         f"in {str(path)!r}")
+    return RawSignal(samples=samples, layout=layout, t0=t0, truth_times=truth.get("times"),
+                     truth_couplings=truth.get("couplings"), truth_poses=truth.get("poses"))
+
