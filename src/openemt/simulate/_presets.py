@@ -14,7 +14,6 @@ Their values are chosen near the ILEMT calibrations quoted in ilemt-format.md §
 from __future__ import annotations
 
 import functools
-import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -86,19 +85,34 @@ class Preset:
 _ILEMT_FREQUENCIES = (7500.0, 10500.0, 13500.0)
 
 
-def _solenoids(L, M, radius, length):
-    """Finite coils (thin solenoids) at columns of L with moments = columns of M."""
+# Quadrature orders (n_depth, n_length, n_area) of the finite coils. Chosen for speed: against
+# much finer orders the couplings differ by < 1e-4 relative over the ILEMT workspace, while
+# the finite-size effects themselves are ~1e-2 (see docs/simulator.md).
+_SOURCE_ORDER = (1, 2, 1)
+_SENSOR_ORDER = (1, 2, 1)
+
+
+def _windings(L, M, size, length, *, square: bool, order):
+    """Finite windings at columns of L with dipole moments = columns of M.
+
+    ``square``: square windings of mean side ``size`` (around a cube core); else circular
+    windings of mean radius ``size``.
+    """
     coils = []
     for j in range(L.shape[1]):
         g = float(np.linalg.norm(M[:, j]))
-        coils.append(_field.circular_coil(L[:, j], M[:, j] / g, radius=float(radius[j]),
-                                          length=float(length[j]), gain=g))
+        kw = dict(length=float(length[j]), gain=g, order=order)
+        if square:
+            coils.append(_field.square_coil(L[:, j], M[:, j] / g, side=float(size[j]), **kw))
+        else:
+            coils.append(_field.circular_coil(L[:, j], M[:, j] / g, radius=float(size[j]), **kw))
     return tuple(coils)
 
 
-def _coil_desc(kind, L, M, radius, length):
-    return {"kind": kind, "positions_m": np.round(L, 9).tolist(),
-            "moments": np.round(M, 9).tolist(), "radius_m": list(map(float, radius)),
+def _coil_desc(kind, L, M, size, length, square):
+    return {"kind": kind, "winding": "square" if square else "circular",
+            "positions_m": np.round(L, 9).tolist(), "moments": np.round(M, 9).tolist(),
+            ("side_m" if square else "radius_m"): list(map(float, size)),
             "length_m": list(map(float, length))}
 
 
@@ -107,16 +121,12 @@ def _finite_model(sources, sensors) -> tuple[Any, DipoleModel]:
     return model, model.dipole_equivalent()
 
 
-def _tri_axial_preset(name, description, L_so, M_so, r_so, l_so, L_se, M_se, r_se, l_se,
-                      F_so, F_st, F_se, source_kind, sensor_kind) -> Preset:
+def _tri_axial_preset(name, description, L_so, M_so, s_so, l_so, L_se, M_se, F_so, F_st, F_se,
+                      source_kind, square_source: bool) -> Preset:
     L_so, M_so, L_se, M_se = (np.asarray(a, dtype=np.float64) for a in (L_so, M_so, L_se, M_se))
-    if hasattr(_field, "FiniteCoilModel"):
-        model, dipole = _finite_model(_solenoids(L_so, M_so, r_so, l_so),
-                                      _solenoids(L_se, M_se, r_se, l_se))
-    else:  # TEMPORARY until openemt.field.FiniteCoilModel lands
-        warnings.warn("openemt.field.FiniteCoilModel is not available; preset "
-                      f"{name!r} uses the dipole model as ground truth", stacklevel=3)
-        model = dipole = DipoleModel(L_so, M_so, L_se, M_se, ILEMT_GAIN)
+    model, dipole = _finite_model(
+        _windings(L_so, M_so, s_so, l_so, square=square_source, order=_SOURCE_ORDER),
+        _windings(L_se, M_se, _SENSOR_R, _SENSOR_LEN, square=False, order=_SENSOR_ORDER))
     return Preset(
         name=name, description=description, model=model, dipole=dipole,
         source_fixture=np.asarray(F_so, dtype=np.float64),
@@ -124,8 +134,8 @@ def _tri_axial_preset(name, description, L_so, M_so, r_so, l_so, L_se, M_se, r_s
         sensor_fixture=np.asarray(F_se, dtype=np.float64),
         source_fixtures=SOURCE_FIXTURES, sensor_fixtures=SENSOR_FIXTURES,
         default_pattern="md", frequencies=np.array(_ILEMT_FREQUENCIES),
-        source=_coil_desc(source_kind, L_so, M_so, r_so, l_so),
-        sensor=_coil_desc(sensor_kind, L_se, M_se, r_se, l_se))
+        source=_coil_desc(source_kind, L_so, M_so, s_so, l_so, square_source),
+        sensor=_coil_desc("tri-axial (Premo-like)", L_se, M_se, _SENSOR_R, _SENSOR_LEN, False))
 
 
 # A Premo-like 3-axis sensor: three concentric ~10 mm windings, nearly orthogonal, with
@@ -144,16 +154,15 @@ def _concentric() -> Preset:
         "ferrite-cube style concentric tri-axial source (~40 mm) with a Premo-like sensor",
         L_so=[[-0.0024, 0.0002, 0.0], [0.0013, -0.0003, 0.0], [0.0011, 0.0010, 0.0]],
         M_so=[[0.82, -0.0155, 0.0], [0.0, 0.898, 0.0], [0.0016, 0.0015, 1.0]],
-        # nested windings around a 40 mm cube: 30 mm long, radius 20-22 mm (l/d != 0.866, so
-        # the quadrupole-order deviation from a dipole does not cancel)
-        r_so=(0.0200, 0.0210, 0.0220), l_so=(0.030, 0.030, 0.030),
+        # three nested square windings around a 40 mm cube, 30 mm long (air-core field; the
+        # core only raises the moment, which the gains stand for)
+        s_so=(0.040, 0.042, 0.044), l_so=(0.030, 0.030, 0.030),
         L_se=_SENSOR_L,
         M_se=[[0.993 * k, 0.0022 * k, 0.0], [0.0, 0.988 * k, 0.0], [0.0155 * k, 0.0115 * k, k]],
-        r_se=_SENSOR_R, l_se=_SENSOR_LEN,
         F_so=[0.0012, -0.0004, -0.0088, 0.035, 0.041, -1.5701],       # ~ Rz(-90 deg)
         F_st=[0.0126, 0.2424, 0.0086, -0.0150, 0.0011, 0.0128],       # ~ 242 mm along +Y
         F_se=_F_SE,
-        source_kind="concentric tri-axial (ferrite cube style)", sensor_kind="tri-axial")
+        source_kind="concentric tri-axial (ferrite cube style)", square_source=True)
 
 
 def _dipole_approx() -> Preset:
@@ -167,15 +176,14 @@ def _dipole_approx() -> Preset:
         M_so=[[0.951, -0.0007, 0.0], [0.0, 0.949, 0.0], [-0.0259, 0.0005, 1.0]],
         # each coil 40 mm across with length/diameter = sqrt(3)/2, the solenoid shape whose
         # leading (octupole) deviation from a dipole field vanishes
-        r_so=(r, r, r), l_so=(np.sqrt(3.0) * r,) * 3,
+        s_so=(r, r, r), l_so=(np.sqrt(3.0) * r,) * 3,
         L_se=[[0.00014, 0.00006, 0.0], [0.00012, 0.00012, 0.0], [-0.00022, -0.00019, 0.0]],
         M_se=[[0.984 * k, 0.0024 * k, 0.0], [0.0, 0.979 * k, 0.0], [0.0152 * k, 0.0120 * k, k]],
-        r_se=_SENSOR_R, l_se=_SENSOR_LEN,
         # deliberately rotated source (63 deg) so the sensor is in the +X+Y+Z octant (cal_9_24)
         F_so=[-0.0117, -0.0094, -0.0643, 0.7571, -0.3127, -0.7452],
         F_st=[-0.0002, 0.2436, 0.0128, 0.0017, 0.0032, 0.0093],
         F_se=[-0.00033, 0.00020, -0.00037, -2.2079, -2.2263, -0.0043],
-        source_kind="three separate air coils (dipole approximating)", sensor_kind="tri-axial")
+        source_kind="three separate air coils (dipole approximating)", square_source=False)
 
 
 # Anser-style board: the sensor is carried over the board on the 7 x 7 test grid about 72 mm
@@ -187,9 +195,12 @@ _ANSER_FREQUENCIES = tuple(np.linspace(2500.0, 20000.0, 8))
 def _anser() -> Preset:
     sources = _field.anser_field_generator(gain=1.0)
     gain_se = 0.01  # couplings of order 0.1 at the test height
-    radius, length = 0.0003, 0.008  # 0.6 mm x 8 mm 5-DOF sensor coil
-    sensor = _field.circular_coil(np.zeros(3), np.array([0.0, 0.0, 1.0]), radius=radius,
-                                  length=length, gain=gain_se)
+    # 0.5 mm x 8 mm 5-DOF sensor coil; at this size the cross-section shape is irrelevant, and a
+    # square winding samples the field on the coil axis (2 points along the length), which is
+    # 4x cheaper than the circular winding's ring of points
+    side, length = 0.0005, 0.008
+    sensor = _field.square_coil(np.zeros(3), np.array([0.0, 0.0, 1.0]), side=side,
+                                length=length, gain=gain_se, order=_SENSOR_ORDER)
     model, dipole = _finite_model(tuple(sources), (sensor,))
     return Preset(
         name="anser",
@@ -205,7 +216,7 @@ def _anser() -> Preset:
         source={"kind": "Anser-style planar board, 8 square spiral coils",
                 "positions_m": np.round(dipole.L_so, 9).tolist(),
                 "moments": np.round(dipole.M_so, 9).tolist()},
-        sensor={"kind": "single coil (5-DOF)", "radius_m": radius, "length_m": length,
+        sensor={"kind": "single coil (5-DOF)", "side_m": side, "length_m": length,
                 "gain": gain_se})
 
 
