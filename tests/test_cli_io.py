@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import openemt.cli
-from openemt.io import import_ilemt_folder, read_dataset, write_calibration, read_calibration
+from openemt.io import import_ilemt_folder, read_calibration, read_dataset, write_calibration
 
 
 @pytest.fixture
@@ -81,7 +81,7 @@ def test_info_on_calibrations(cli, ilemt_dir, tmp_path):
 ])
 def test_import_bad_input_exit_2_without_output(cli, ilemt_dir, tmp_path, argv, match):
     out = tmp_path / "o.h5"
-    code, stdout, err = cli("import", "ilemt", ilemt_dir, "-o", out, *argv)
+    code, _, err = cli("import", "ilemt", ilemt_dir, "-o", out, *argv)
     assert code == 2 and err.startswith("error: ") and match in err
     assert len(err.strip().splitlines()) == 1
     assert not out.exists() and list(tmp_path.iterdir()) == []

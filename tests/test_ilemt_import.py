@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from openemt.geometry import ground_truth_poses, vector_from_pose
-from openemt.io import (compensate_stage, file_sha256, import_ilemt_folder, parse_sign_options,
-                        read_calibration, read_ilemt_calibration, read_ilemt_dat)
+from openemt.io import (
+    compensate_stage,
+    file_sha256,
+    import_ilemt_folder,
+    parse_sign_options,
+    read_calibration,
+    read_ilemt_calibration,
+    read_ilemt_dat,
+)
 
 ROWS = {"md": 142, "ld": 632, "sweep": 973, "source": 78, "mdtrans": 30, "ldtrans": 128}
 FLIPPED = {"soZoutYup_seYoutZup_md.dat", "soZoutYup_seYoutZup_ld.dat", "soXoutZup_seYoutZup_md.dat"}

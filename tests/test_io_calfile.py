@@ -69,16 +69,16 @@ def _doc(tmp_path):
 @pytest.mark.parametrize("edit, match", [
     (lambda d: d.pop("fixtures"), r"expected field `fixtures`, got no such field"),
     (lambda d: d["model"].pop("M_se"), r"expected field `model.M_se`"),
-    (lambda d: d["fixtures"].update(stage=[0, 0, 0]), r"expected `fixtures.stage` of shape \(6,\), "
-                                                      r"got shape \(3,\)"),
+    (lambda d: d["fixtures"].update(stage=[0, 0, 0]),
+     r"expected `fixtures.stage` of shape \(6,\), got shape \(3,\)"),
     (lambda d: d["model"].update(L_so=[[1, 2], [3, 4]]), r"`model.L_so` of shape \(3, n\)"),
     (lambda d: d["model"].update(L_so="abc"), r"expected `model.L_so` to be list"),
     (lambda d: d["model"].update(n_source=5), r"expected `model.n_source` = 3"),
     (lambda d: d.update(schema="other"), r"expected schema 'openemt.calibration', got 'other'"),
     (lambda d: d.update(schema_version=7), r"expected schema_version 1..1, got 7"),
     (lambda d: d.update(linear_correction=[[1, 0], [0, 1]]), r"`linear_correction` of shape"),
-    (lambda d: d["fixtures"].update(source=[0, 0, None, 0, 0, 0]), r"`fixtures.source` as a list "
-                                                                   r"of numbers.*got list"),
+    (lambda d: d["fixtures"].update(source=[0, 0, None, 0, 0, 0]),
+     r"`fixtures.source` as a list of numbers.*got list"),
     (lambda d: d.update(free="d_so_pos"), r"expected `free` to be a list of strings"),
     (lambda d: d.update(stats=[1]), r"expected `stats` to be an object"),
 ])

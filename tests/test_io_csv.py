@@ -68,8 +68,8 @@ def test_minimal_foreign_csv(tmp_path):
     ("x,y,z,rx,ry,rz\n1,2,3,4,5,6\n", "coupling columns"),
     ("x,y,z,rx,ry,rz,c_0_0,c_1_1\n1,2,3,4,5,6,7,8\n", "expected column c_0_1"),
     ("x,y,z,rx,ry,rz,c_0_0\n1,2,3,4,5,6,7\n1,2,3\n", "line 3: expected 7 fields, got 3"),
-    ("# c\nx,y,z,rx,ry,rz,c_0_0\n1,2,3,4,5,six,7\n", "line 3: column 'rz': expected a number, "
-                                                     "got 'six'"),
+    ("# c\nx,y,z,rx,ry,rz,c_0_0\n1,2,3,4,5,six,7\n",
+     "line 3: column 'rz': expected a number, got 'six'"),
     ("", "empty file"),
     ("# pose=weird\nx,y,z,rx,ry,rz,c_0_0\n", "pose=truth or pose=stage"),
 ])

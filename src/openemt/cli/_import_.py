@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ._common import add_common, emit
 
-__all__ = ["register", "run", "parse_sign_arg"]
+__all__ = ["parse_sign_arg", "register", "run"]
 
 
 def parse_sign_arg(text: str) -> tuple[str, tuple[float, float, float]]:

@@ -9,7 +9,7 @@ import numpy as np
 
 from ._common import add_common, emit
 
-__all__ = ["register", "run", "dataset_info", "calibration_info"]
+__all__ = ["calibration_info", "dataset_info", "register", "run"]
 
 
 def register(sub) -> None:
@@ -99,15 +99,15 @@ def run(args) -> int:
                                 f"{str(path)!r}")
     if _kind(path) == "dataset":
         info = dataset_info(read_dataset(path))
-        human = [f"{path}: dataset, {info['n_samples']} rows, "
-                 f"{info['n_source']} x {info['n_sensor']} couplings"
-                 f"{' (complex)' if info['complex'] else ''}"]
+        human = [(f"{path}: dataset, {info['n_samples']} rows, "
+                  f"{info['n_source']} x {info['n_sensor']} couplings"
+                  f"{' (complex)' if info['complex'] else ''}")]
         human += [f"  {name}: {n}" for name, n in info["files"].items()]
     else:
         info = calibration_info(read_calibration(path))
-        human = [f"{path}: calibration mode {info['mode']!r}, {info['n_source']} x "
-                 f"{info['n_sensor']} coils{' (concentric)' if info['concentric'] else ''}, "
-                 f"linear correction: {'yes' if info['linear_correction'] else 'no'}"]
+        human = [(f"{path}: calibration mode {info['mode']!r}, {info['n_source']} x "
+                  f"{info['n_sensor']} coils{' (concentric)' if info['concentric'] else ''}, "
+                  f"linear correction: {'yes' if info['linear_correction'] else 'no'}")]
         human += [f"  {k}: {v}" for k, v in info["stats"].items()]
     info["path"] = str(path)
     emit(args, info, human)

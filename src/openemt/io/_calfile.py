@@ -17,8 +17,14 @@ from ..field import DipoleModel
 from ._atomic import atomic_path
 from ._calibration import Calibration
 
-__all__ = ["CALIBRATION_SCHEMA", "CALIBRATION_SCHEMA_VERSION", "calibration_to_dict",
-           "calibration_from_dict", "read_calibration", "write_calibration"]
+__all__ = [
+    "CALIBRATION_SCHEMA",
+    "CALIBRATION_SCHEMA_VERSION",
+    "calibration_from_dict",
+    "calibration_to_dict",
+    "read_calibration",
+    "write_calibration",
+]
 
 CALIBRATION_SCHEMA = "openemt.calibration"
 CALIBRATION_SCHEMA_VERSION = 1
@@ -150,7 +156,7 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
     """Validate a calibration JSON document and build the :class:`Calibration`."""
     src = source
     if not isinstance(doc, dict):
-        raise ValueError(f"{_where(src)}expected a JSON object, got {_describe(doc)}")
+        raise ValueError(f"{_where(src)}expected a JSON object, got {_describe(doc)}")  # noqa: TRY004
     schema = doc.get("schema")
     if schema != CALIBRATION_SCHEMA:
         raise ValueError(f"{_where(src)}expected schema {CALIBRATION_SCHEMA!r}, got {schema!r}")
@@ -185,7 +191,7 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
         L = _array(L, "linear_correction", (4, 4), src)
     se_doc = doc.get("standard_errors") or {}
     if not isinstance(se_doc, dict):
-        raise ValueError(f"{_where(src)}expected `standard_errors` to be an object, "
+        raise ValueError(f"{_where(src)}expected `standard_errors` to be an object, "  # noqa: TRY004
                          f"got {_describe(se_doc)}")
     std = {str(k): _array(v, f"standard_errors.{k}", None, src, allow_nan=True)
            for k, v in se_doc.items()}
@@ -200,7 +206,8 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
             raise ValueError(f"{_where(src)}expected `{name}` to be an object, got {_describe(v)}")
     mode = doc.get("mode") or ""
     if not isinstance(mode, str):
-        raise ValueError(f"{_where(src)}expected `mode` to be a string, got {_describe(mode)}")
+        raise ValueError(  # noqa: TRY004 - a bad file is bad input, not a caller's type error
+            f"{_where(src)}expected `mode` to be a string, got {_describe(mode)}")
     return Calibration(model=dm, linear_correction=L, mode=mode,
                        free=tuple(doc.get("free") or ()), frozen=tuple(doc.get("frozen") or ()),
                        standard_errors=std, stats=dict(doc.get("stats") or {}),

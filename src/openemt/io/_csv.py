@@ -51,22 +51,22 @@ def export_csv(ds: Dataset, path) -> Path:
     flat = C.reshape(len(C), -1)
     files = ds.file_names()
     path = Path(path)
-    with atomic_path(path, suffix=".csv") as tmp:
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
-            fh.write(f"{_MAGIC}; pose={kind}; units: m, rad (rotation vector); "
-                     "C[i,j] = source i into sensor j\n")
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(header)
-            for k in range(len(C)):
-                row = [repr(float(v)) for v in pv[k]]
-                if cplx:
-                    row += [repr(float(v)) for v in flat[k].real]
-                    row += [repr(float(v)) for v in flat[k].imag]
-                else:
-                    row += [repr(float(v)) for v in flat[k]]
-                row += [repr(float(v)) for v in ds.stage[k]]
-                row += [ds.source_fixture[k], ds.sensor_fixture[k], ds.pattern[k], files[k]]
-                w.writerow(row)
+    with atomic_path(path, suffix=".csv") as tmp, open(tmp, "w", newline="",
+                                                        encoding="utf-8") as fh:
+        fh.write(f"{_MAGIC}; pose={kind}; units: m, rad (rotation vector); "
+                 "C[i,j] = source i into sensor j\n")
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for k in range(len(C)):
+            row = [repr(float(v)) for v in pv[k]]
+            if cplx:
+                row += [repr(float(v)) for v in flat[k].real]
+                row += [repr(float(v)) for v in flat[k].imag]
+            else:
+                row += [repr(float(v)) for v in flat[k]]
+            row += [repr(float(v)) for v in ds.stage[k]]
+            row += [ds.source_fixture[k], ds.sensor_fixture[k], ds.pattern[k], files[k]]
+            w.writerow(row)
     return path
 
 
@@ -130,8 +130,8 @@ def import_csv(path) -> Dataset:
             except ValueError:
                 raise ValueError(f"{path.name}: line {numbered[r + 1][0]}: column "
                                  f"{header[k]!r}: expected a number, got {row[k][:30]!r}") from None
-        for h in strs:
-            strs[h].append(row[col[h]])
+        for h, values in strs.items():
+            values.append(row[col[h]])
     C = np.empty((n, n_so, n_se), dtype=np.complex128 if cplx else np.float64)
     for i in range(n_so):
         for j in range(n_se):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 
@@ -83,35 +84,34 @@ def write_dataset(ds: Dataset, path) -> Path:
     except (TypeError, ValueError) as exc:
         raise ValueError(f"expected JSON-serialisable dataset `meta`, got {exc}") from None
     path = Path(path)
-    with atomic_path(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["schema"] = DATASET_SCHEMA
-            f.attrs["schema_version"] = DATASET_SCHEMA_VERSION
-            f.attrs["openemt_version"] = __version__
-            f.attrs["n_samples"] = ds.n_samples
-            f.attrs["n_source"] = ds.n_source
-            f.attrs["n_sensor"] = ds.n_sensor
-            f.attrs["couplings_complex"] = bool(np.iscomplexobj(ds.couplings))
-            f.attrs["meta"] = meta_json
-            # couplings_real always exists; couplings_imag only for complex couplings
-            _write_array(f, "couplings" if np.iscomplexobj(ds.couplings) else "couplings_real",
-                         ds.couplings, _UNITS["couplings"])
-            _write_array(f, "stage", ds.stage, _UNITS["stage"])
-            for name in ("source_fixture", "sensor_fixture", "pattern"):
-                _write_array(f, name, getattr(ds, name))
-            _write_array(f, "file_index", ds.file_index, _UNITS["file_index"])
-            f.create_dataset("files", data=np.array(list(ds.files), dtype=object),
-                             dtype=_str_dtype(), shape=(len(ds.files),))
-            for name in ("stage_logged", "poses", "source_signs", "sensor_signs"):
-                v = getattr(ds, name)
-                if v is not None:
-                    _write_array(f, name, v, _UNITS[name])
-            g = f.create_group("extra")
-            for k, v in ds.extra.items():
-                if "/" in k or k.endswith(("_real", "_imag")):
-                    raise ValueError(f"expected extra names without '/' or a _real/_imag suffix, "
-                                     f"got {k!r}")
-                _write_array(g, k, np.asarray(v))
+    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["schema"] = DATASET_SCHEMA
+        f.attrs["schema_version"] = DATASET_SCHEMA_VERSION
+        f.attrs["openemt_version"] = __version__
+        f.attrs["n_samples"] = ds.n_samples
+        f.attrs["n_source"] = ds.n_source
+        f.attrs["n_sensor"] = ds.n_sensor
+        f.attrs["couplings_complex"] = bool(np.iscomplexobj(ds.couplings))
+        f.attrs["meta"] = meta_json
+        # couplings_real always exists; couplings_imag only for complex couplings
+        _write_array(f, "couplings" if np.iscomplexobj(ds.couplings) else "couplings_real",
+                     ds.couplings, _UNITS["couplings"])
+        _write_array(f, "stage", ds.stage, _UNITS["stage"])
+        for name in ("source_fixture", "sensor_fixture", "pattern"):
+            _write_array(f, name, getattr(ds, name))
+        _write_array(f, "file_index", ds.file_index, _UNITS["file_index"])
+        f.create_dataset("files", data=np.array(list(ds.files), dtype=object),
+                         dtype=_str_dtype(), shape=(len(ds.files),))
+        for name in ("stage_logged", "poses", "source_signs", "sensor_signs"):
+            v = getattr(ds, name)
+            if v is not None:
+                _write_array(f, name, v, _UNITS[name])
+        g = f.create_group("extra")
+        for k, v in ds.extra.items():
+            if "/" in k or k.endswith(("_real", "_imag")):
+                raise ValueError(f"expected extra names without '/' or a _real/_imag suffix, "
+                                 f"got {k!r}")
+            _write_array(g, k, np.asarray(v))
     return path
 
 
@@ -186,7 +186,7 @@ def read_dataset(path) -> Dataset:
         extra = {}
         if "extra" in f:
             g = f["extra"]
-            names = sorted({k[:-5] if k.endswith(("_real", "_imag")) else k for k in g.keys()})
+            names = sorted({k[:-5] if k.endswith(("_real", "_imag")) else k for k in g})
             extra = {k: _read_array(g, k) for k in names}
         try:
             return Dataset(
@@ -244,7 +244,7 @@ class CouplingReader:
     def _set_handles(self, f) -> None:
         self._file = f
         self._re = f["couplings_real"]
-        self._im = f["couplings_imag"] if "couplings_imag" in f else None
+        self._im = f.get("couplings_imag", None)
         self.shape = tuple(self._re.shape)
         self.ndim = len(self.shape)
         self.is_complex = self._im is not None
@@ -280,7 +280,7 @@ class CouplingReader:
             self._file.close()
             self._file = None
 
-    def __enter__(self) -> "CouplingReader":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:

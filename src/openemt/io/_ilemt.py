@@ -345,10 +345,11 @@ def _read_one(path: Path, source_signs, sensor_signs, compensate: bool, codes=No
     lr = lr * flip
     stage = compensate_stage(stage_logged) if compensate else stage_logged
     n = len(stage)
-    return dict(name=name, couplings=hr, lr=lr, stage=_stage_si(stage),
-                stage_logged=_stage_si(stage_logged), source_fixture=so_code,
-                sensor_fixture=se_code, pattern=pattern, n=n,
-                source_signs=np.broadcast_to(s_so, (n, 3)), sensor_signs=np.broadcast_to(s_se, (n, 3)))
+    return {"name": name, "couplings": hr, "lr": lr, "stage": _stage_si(stage),
+            "stage_logged": _stage_si(stage_logged), "source_fixture": so_code,
+            "sensor_fixture": se_code, "pattern": pattern, "n": n,
+            "source_signs": np.broadcast_to(s_so, (n, 3)),
+            "sensor_signs": np.broadcast_to(s_se, (n, 3))}
 
 
 def _sign_json(signs) -> list:

@@ -100,7 +100,7 @@ def read_ilemt_calibration(path) -> Calibration:
                                 f"{str(path)!r}")
     try:
         d = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
-    except Exception as exc:  # scipy raises several types for corrupt files
+    except Exception as exc:  # noqa: BLE001 - scipy raises many types for corrupt files
         msg = " ".join(str(exc).split())[:120]
         raise ValueError(f"expected an ILEMT calibration .mat file (MATLAB v5), got "
                          f"{path.name} that cannot be read ({type(exc).__name__}: {msg})") from None
