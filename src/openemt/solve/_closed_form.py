@@ -1,0 +1,417 @@
+"""Closed-form pose solutions for concentric three-axis dipole sources and sensors.
+
+For concentric coils the dipole model (seed 000 eq. 3-5, ``openemt.field``) reduces to
+
+    C = (g / d^3) M_so^T H R M_se,      H = 3 u u^T - I,
+
+with ``u`` the unit position direction, ``d`` the distance, ``R`` the sensor rotation and ``g``
+the model gain. Whitening with the known moments gives ``C0 = M_so^-T C M_se^-1 = k H R`` with
+``k = g / d^3``; ``H`` has eigenvalues (2, -1, -1) so the singular values of ``C0`` are
+``(2k, k, k)`` and its first left singular vector is ``+/-u``. Three solvers invert this:
+
+``svd``
+    Teixeira Silva et al. 2017 (seed 004): distance from the three singular values (mean of the
+    three distance estimates of their eq. 25), direction from the first right singular vector of
+    ``T = C0^T`` (= first left singular vector of ``C0``), and orientation from the Wahba
+    problem ``min ||k R - H^-1 C0||`` solved by SVD with the determinant correction (Markley).
+``kuipers``
+    Kuipers' closed form (the benchmark of seed 004): distance from the invariant
+    ``||C0||_F^2 = 6 k^2``, direction cosines from ``C0 C0^T = k^2 (I + 3 u u^T)`` (magnitudes
+    from the diagonal, relative signs from the off-diagonal terms), orientation matrix
+    ``H^-1 C0 / k`` read out as Z-Y-X Euler angles element by element (no orthogonalisation).
+``kim18``
+    Kim, Song & Park 2018 as ILEMT applies it to calibrated concentric models (ilemt-format.md
+    §10.2): ``Y = C0^T = U S V^T``, ``R = V diag(1, -1, -1) U^T``,
+    ``d = (6 g / (2 s1 + s2 + s3))^(1/3)``, ``p = +/- d V[:, 0]``. Non-orthogonal moments and
+    unequal gains enter through the whitening.
+
+Each resolves the +/- ambiguity with the hemisphere direction ``n``: the solution with
+``p . n >= 0`` is returned.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..field import DipoleModel
+from ..field._dipole_kernel import dipole_eval
+from ._hemisphere import hemisphere_vectors
+from ._linalg import euler_zyx_matrix, rotvec_from_matrix, svd3
+from ._result import SolveResult, Status
+
+__all__ = ["solve_svd", "solve_kuipers", "solve_kim18", "check_couplings", "spectral_norms"]
+
+_METHODS = {"svd": 0, "kuipers": 1, "kim18": 2}
+_INVALID = np.int8(Status.INVALID_INPUT)
+_AMBIG = np.int8(Status.AMBIGUOUS)
+
+
+# ------------------------------------------------------------------------------------------
+# validation shared with the LM solver
+# ------------------------------------------------------------------------------------------
+def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray, np.ndarray]:
+    """Validate couplings ``(N, n_so, n_se)``; return signed-real float64 values and the spectral
+    norms to normalise residuals with.
+
+    Complex input is taken as measured phasors: the target is ``sign(Re z) |z|`` and the norm is
+    the spectral norm of the complex matrix, as ILEMT does (ilemt-format.md §10.1). For real input
+    the norms are returned as -1 and computed inside the compiled kernels.
+    """
+    C = np.asarray(couplings)
+    if C.dtype.kind not in "iufc":
+        raise TypeError(f"expected numeric `couplings`, got dtype {C.dtype}")
+    if C.ndim != 3:
+        raise ValueError(f"expected `couplings` of shape (N, n_source, n_sensor), got {C.shape}")
+    if n_source is not None and (C.shape[1], C.shape[2]) != (n_source, n_sensor):
+        raise ValueError(f"expected `couplings` of shape (N, {n_source}, {n_sensor}) for this "
+                         f"model, got {C.shape}")
+    if C.dtype.kind == "c":
+        norms = np.full(C.shape[0], np.nan)
+        ok = np.all(np.isfinite(C), axis=(1, 2))
+        if np.any(ok):
+            norms[ok] = np.linalg.norm(C[ok], ord=2, axis=(1, 2))
+        real = np.where(C.real < 0, -1.0, 1.0) * np.abs(C)
+        return np.ascontiguousarray(real), norms
+    return (np.ascontiguousarray(C, dtype=np.float64),
+            np.full(C.shape[0], -1.0))
+
+
+@njit(cache=True)
+def _lambda_max_sym3(A):
+    """Largest eigenvalue of a symmetric 3x3 matrix (trigonometric closed form)."""
+    p1 = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
+    q = (A[0, 0] + A[1, 1] + A[2, 2]) / 3.0
+    a0 = A[0, 0] - q
+    a1 = A[1, 1] - q
+    a2 = A[2, 2] - q
+    p2 = a0 * a0 + a1 * a1 + a2 * a2 + 2.0 * p1
+    if p2 <= 0.0:
+        return q
+    p = np.sqrt(p2 / 6.0)
+    b00, b11, b22 = a0 / p, a1 / p, a2 / p
+    b01, b02, b12 = A[0, 1] / p, A[0, 2] / p, A[1, 2] / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+               + b02 * (b01 * b12 - b11 * b02))
+    r = min(max(r, -1.0), 1.0)
+    return q + 2.0 * p * np.cos(np.arccos(r) / 3.0)
+
+
+@njit(cache=True)
+def spectral_norm(C, G):
+    """Spectral norm of a real matrix ``C`` (n_so, n_se); ``G`` is (n_se, n_se) scratch."""
+    n_so, n_se = C.shape
+    for a in range(n_se):
+        for b in range(n_se):
+            acc = 0.0
+            for i in range(n_so):
+                acc += C[i, a] * C[i, b]
+            G[a, b] = acc
+    if n_se == 1:
+        return np.sqrt(G[0, 0])
+    if n_se == 3:
+        return np.sqrt(max(_lambda_max_sym3(G), 0.0))
+    # power iteration on the Gram matrix (other sizes; not on the hot path of 3x3 trackers)
+    v = np.ones(n_se) / np.sqrt(n_se)
+    w = np.empty(n_se)
+    lam = 0.0
+    for _ in range(200):
+        for a in range(n_se):
+            acc = 0.0
+            for b in range(n_se):
+                acc += G[a, b] * v[b]
+            w[a] = acc
+        nw = np.sqrt(np.sum(w * w))
+        if nw == 0.0:
+            return 0.0
+        if abs(nw - lam) <= 1e-15 * nw:
+            lam = nw
+            break
+        lam = nw
+        v[:] = w / nw
+    return np.sqrt(lam)
+
+
+def spectral_norms(C) -> np.ndarray:
+    """Spectral norms of real coupling matrices ``(N, n_so, n_se)`` -> ``(N,)``."""
+    C = np.ascontiguousarray(C, dtype=np.float64)
+    return _spectral_norms(C)
+
+
+@njit(cache=True)
+def _spectral_norms(C):
+    out = np.empty(C.shape[0])
+    G = np.empty((C.shape[2], C.shape[2]))
+    for k in range(C.shape[0]):
+        out[k] = spectral_norm(C[k], G)
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# the compiled kernel
+# ------------------------------------------------------------------------------------------
+@njit(cache=True)
+def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B):
+    """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``; returns a status code
+    (0 ok, INVALID_INPUT, AMBIGUOUS). ``C0, U, V, B`` are 3x3 scratch, ``s`` (3,) scratch."""
+    for i in range(3):
+        for j in range(3):
+            if not np.isfinite(C[i, j]):
+                return 2
+    # C0 = Wso C Wse (whitened coupling, = k H R)
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for a in range(3):
+                for b in range(3):
+                    acc += Wso[i, a] * C[a, b] * Wse[b, j]
+            C0[i, j] = acc
+    u0 = 0.0
+    u1 = 0.0
+    u2 = 0.0
+    if method == 1:
+        # Kuipers: invariants of C0 C0^T = k^2 (I + 3 u u^T)
+        for i in range(3):
+            for j in range(3):
+                B[i, j] = C0[i, 0] * C0[j, 0] + C0[i, 1] * C0[j, 1] + C0[i, 2] * C0[j, 2]
+        k2 = (B[0, 0] + B[1, 1] + B[2, 2]) / 6.0
+        if not k2 > 0.0:
+            return 2
+        k = np.sqrt(k2)
+        det = (C0[0, 0] * (C0[1, 1] * C0[2, 2] - C0[1, 2] * C0[2, 1])
+               - C0[0, 1] * (C0[1, 0] * C0[2, 2] - C0[1, 2] * C0[2, 0])
+               + C0[0, 2] * (C0[1, 0] * C0[2, 1] - C0[1, 1] * C0[2, 0]))
+        if not abs(det) > rank_tol * 2.0 * k2 * k:
+            return 2
+        m = 0
+        best = -np.inf
+        for i in range(3):
+            B[i, i] = (B[i, i] / k2 - 1.0) / 3.0
+            if B[i, i] > best:
+                best = B[i, i]
+                m = i
+        for i in range(3):
+            if i != m:
+                for j in range(3):
+                    if j != i:
+                        B[i, j] = B[i, j] / k2 / 3.0
+        if not best > 0.0:
+            return 2
+        sq = np.sqrt(best)
+        u0 = B[0, m] / sq
+        u1 = B[1, m] / sq
+        u2 = B[2, m] / sq
+        nu = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+        u0 /= nu
+        u1 /= nu
+        u2 /= nu
+        dist = (gain / k) ** (1.0 / 3.0)
+    else:
+        svd3(C0, U, s, V)
+        if not s[0] > 0.0 or not s[2] > rank_tol * s[0]:
+            return 2
+        u0 = U[0, 0]
+        u1 = U[1, 0]
+        u2 = U[2, 0]
+        if method == 0:
+            # seed 004 eq. 25: rho = cbrt(C/sigma), three estimates averaged
+            dist = ((2.0 * gain / s[0]) ** (1.0 / 3.0) + (gain / s[1]) ** (1.0 / 3.0)
+                    + (gain / s[2]) ** (1.0 / 3.0)) / 3.0
+        else:
+            # Kim18 (ilemt-format.md §10.2) with 3 mu / (2 pi) = 6 gain
+            dist = (6.0 * gain / (2.0 * s[0] + s[1] + s[2])) ** (1.0 / 3.0)
+    # hemisphere: p . n >= 0
+    proj = u0 * n[0] + u1 * n[1] + u2 * n[2]
+    if proj < 0.0:
+        u0, u1, u2 = -u0, -u1, -u2
+    t[0] = dist * u0
+    t[1] = dist * u1
+    t[2] = dist * u2
+    # orientation
+    if method == 1:
+        k = np.sqrt(k2)
+        # A = H^-1 C0 / k with H^-1 = 1.5 u u^T - I
+        uv = (u0, u1, u2)
+        for j in range(3):
+            dot = u0 * C0[0, j] + u1 * C0[1, j] + u2 * C0[2, j]
+            for i in range(3):
+                B[i, j] = (1.5 * uv[i] * dot - C0[i, j]) / k
+        st = -B[2, 0]
+        st = min(max(st, -1.0), 1.0)
+        theta = np.arcsin(st)
+        psi = np.arctan2(B[1, 0], B[0, 0])
+        phi = np.arctan2(B[2, 1], B[2, 2])
+        euler_zyx_matrix(psi, theta, phi, R)
+    else:
+        # Kim18 (ilemt-format.md §10.2): Y = C0^T = V S U^T, R = V_Y diag(1,-1,-1) U_Y^T
+        # = U diag(1,-1,-1) V^T. The seed-004 Wahba step min ||k R - H^-1 C0|| gives the same
+        # rotation: H^-1 C0 = U diag(s0/2, -s1, -s2) V^T. When noise makes det(U V^T) < 0 both
+        # flip the axis of the smallest Wahba weight (Markley's determinant correction) so
+        # that R stays a rotation.
+        detU = (U[0, 0] * (U[1, 1] * U[2, 2] - U[1, 2] * U[2, 1])
+                - U[0, 1] * (U[1, 0] * U[2, 2] - U[1, 2] * U[2, 0])
+                + U[0, 2] * (U[1, 0] * U[2, 1] - U[1, 1] * U[2, 0]))
+        detV = (V[0, 0] * (V[1, 1] * V[2, 2] - V[1, 2] * V[2, 1])
+                - V[0, 1] * (V[1, 0] * V[2, 2] - V[1, 2] * V[2, 0])
+                + V[0, 2] * (V[1, 0] * V[2, 1] - V[1, 1] * V[2, 0]))
+        d0, d1, d2 = 1.0, -1.0, -1.0
+        if detU * detV < 0.0:
+            w0, w1, w2 = 0.5 * s[0], s[1], s[2]
+            if w0 <= w1 and w0 <= w2:
+                d0 = -d0
+            elif w1 <= w2:
+                d1 = -d1
+            else:
+                d2 = -d2
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = d0 * U[i, 0] * V[j, 0] + d1 * U[i, 1] * V[j, 1] + d2 * U[i, 2] * V[j, 2]
+    if abs(proj) < ambig_tol:
+        return 3
+    return 0
+
+
+@njit(cache=True)
+def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain, nvec, rank_tol,
+                       ambig_tol, poses, vecs, status, residual):
+    N = C.shape[0]
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    C0 = np.empty((3, 3))
+    U = np.empty((3, 3))
+    V = np.empty((3, 3))
+    B = np.empty((3, 3))
+    s = np.empty(3)
+    Cp = np.empty((3, 3))
+    G = np.empty((3, 3))
+    rv = np.empty(3)
+    dummy = np.empty((3, 3, 3))
+    for k in range(N):
+        st = closed_form_one(method, C[k], Wso, Wse, gain, nvec[k], rank_tol, ambig_tol, R, t,
+                             C0, U, s, V, B)
+        if st == 2:
+            status[k] = 2
+            residual[k] = np.nan
+            for i in range(4):
+                for j in range(4):
+                    poses[k, i, j] = np.nan
+            for i in range(6):
+                vecs[k, i] = np.nan
+            continue
+        status[k] = st
+        for i in range(3):
+            for j in range(3):
+                poses[k, i, j] = R[i, j]
+            poses[k, i, 3] = t[i]
+            poses[k, 3, i] = 0.0
+            vecs[k, i] = t[i]
+        poses[k, 3, 3] = 1.0
+        rotvec_from_matrix(R, rv)
+        vecs[k, 3] = rv[0]
+        vecs[k, 4] = rv[1]
+        vecs[k, 5] = rv[2]
+        dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dummy, dummy, dummy, dummy, False)
+        nrm = cnorm[k]
+        if nrm < 0.0:
+            nrm = spectral_norm(C[k], G)
+        ss = 0.0
+        for i in range(3):
+            for j in range(3):
+                d = Cp[i, j] - C[k, i, j]
+                ss += d * d
+        residual[k] = ss / nrm
+
+
+def _concentric_model(model, name) -> DipoleModel:
+    if model is None:
+        return DipoleModel.concentric()
+    if not isinstance(model, DipoleModel):
+        raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
+    if model.n_source != 3 or model.n_sensor != 3:
+        raise ValueError(f"expected a 3x3-coil model for the {name} closed form, got "
+                         f"{model.n_source}x{model.n_sensor}")
+    if not model.is_concentric:
+        raise ValueError(f"expected a concentric model (all coil positions 0) for the {name} "
+                         f"closed form, got non-zero coil positions; use solve_lm")
+    for nm in ("M_so", "M_se"):
+        M = getattr(model, nm)
+        if abs(np.linalg.det(M)) <= 1e-12 * np.linalg.norm(M) ** 3:
+            raise ValueError(f"expected invertible `{nm}` moments, got a singular matrix")
+    return model
+
+
+def _solve_closed_form(method, couplings, hemisphere, model, rank_tol, ambiguity_tol):
+    model = _concentric_model(model, method)
+    C, cnorm = check_couplings(couplings, 3, 3)
+    n = C.shape[0]
+    nvec = hemisphere_vectors(hemisphere, n, allow_none=False)
+    Wso = np.ascontiguousarray(np.linalg.inv(model.M_so.T))
+    Wse = np.ascontiguousarray(np.linalg.inv(model.M_se))
+    poses = np.empty((n, 4, 4))
+    vecs = np.empty((n, 6))
+    status = np.empty(n, dtype=np.int8)
+    residual = np.empty(n)
+    _closed_form_batch(_METHODS[method], C, cnorm, Wso, Wse, model.L_so, model.M_so, model.L_se,
+                       model.M_se, model.gain, nvec, float(rank_tol), float(ambiguity_tol),
+                       poses, vecs, status, residual)
+    return SolveResult(poses, vecs, status, residual, np.zeros(n, dtype=np.int32), solver=method)
+
+
+_COMMON_DOC = """
+    Parameters
+    ----------
+    couplings : ndarray, shape (N, 3, 3)
+        Signed real couplings ``C[k, source, sensor]`` (complex phasors are accepted and converted
+        with ``sign(Re z) |z|``; their complex spectral norm then normalises the residual).
+    hemisphere : str, array_like (3,), sequence of str (N,) or array (N, 3)
+        Resolves the +/- position ambiguity: the solution with ``p . n >= 0``.
+    model : DipoleModel, optional
+        A concentric 3x3 model giving the moments and gain (ideal unit orthogonal coils with
+        ``gain = 1/250`` if omitted).
+    rank_tol : float
+        Coupling matrices with ``s3 < rank_tol * s1`` (after whitening) are INVALID_INPUT.
+    ambiguity_tol : float
+        Samples with ``|u . n| < ambiguity_tol`` are flagged AMBIGUOUS (pose still returned).
+
+    Returns
+    -------
+    SolveResult
+        ``status`` is CONVERGED, AMBIGUOUS or INVALID_INPUT; ``residual`` is ILEMT's resnorm of
+        the closed-form pose under ``model``; ``iterations`` are 0.
+"""
+
+
+def solve_svd(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
+              ambiguity_tol=1e-6) -> SolveResult:
+    """Closed-form SVD pose solution of Teixeira Silva et al. (seed 004).
+
+    Distance from the singular values, direction from the first singular vector, orientation
+    from the Wahba problem solved by SVD.
+    """
+    return _solve_closed_form("svd", couplings, hemisphere, model, rank_tol, ambiguity_tol)
+
+
+def solve_kuipers(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
+                  ambiguity_tol=1e-6) -> SolveResult:
+    """Kuipers' closed-form pose solution (the benchmark of seed 004).
+
+    Distance from the Frobenius invariant, direction cosines from ``C0 C0^T``, orientation from
+    Z-Y-X Euler angles read off ``H^-1 C0 / k``.
+    """
+    return _solve_closed_form("kuipers", couplings, hemisphere, model, rank_tol, ambiguity_tol)
+
+
+def solve_kim18(couplings, model, *, hemisphere="+x", rank_tol=1e-6,
+                ambiguity_tol=1e-6) -> SolveResult:
+    """Kim-Song-Park 2018 closed form for calibrated concentric models (ilemt-format.md §10.2).
+
+    Accepts non-orthogonal moments and unequal gains (through the whitening by ``M_so``,
+    ``M_se``).
+    """
+    if model is None:
+        raise TypeError("expected a concentric DipoleModel for solve_kim18, got None")
+    return _solve_closed_form("kim18", couplings, hemisphere, model, rank_tol, ambiguity_tol)
+
+
+for _f in (solve_svd, solve_kuipers, solve_kim18):
+    _f.__doc__ += _COMMON_DOC

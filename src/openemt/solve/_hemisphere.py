@@ -1,0 +1,81 @@
+"""Hemisphere specifications: which of the two mirror-image dipole solutions is meant.
+
+A dipole coupling is unchanged when the sensor position p is replaced by -p. A hemisphere names a
+direction ``n``; the solution with ``p . n >= 0`` is taken. ILEMT names hemispheres by a signed
+axis (``'+x'``, ``'-z'``, ilemt-format.md §10.1); openemt also accepts an arbitrary 3-vector.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+__all__ = ["hemisphere_vectors", "hemisphere_from_positions"]
+
+_AXIS_RE = re.compile(r"^\s*([+-]?)\s*([xyzXYZ])\s*$")
+
+
+def _one(h) -> np.ndarray:
+    if isinstance(h, str):
+        m = _AXIS_RE.match(h)
+        if m is None:
+            raise ValueError(f"expected a hemisphere like '+x', '-z' or 'y', got {h!r}")
+        v = np.zeros(3)
+        v["xyz".index(m.group(2).lower())] = -1.0 if m.group(1) == "-" else 1.0
+        return v
+    v = np.asarray(h, dtype=np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.any(v):
+        raise ValueError(f"expected a hemisphere string or a finite non-zero 3-vector, got {h!r}")
+    return v / np.linalg.norm(v)
+
+
+def hemisphere_vectors(hemisphere, n: int, *, allow_none: bool = True) -> np.ndarray:
+    """Unit hemisphere directions, shape ``(n, 3)``; rows of zeros mean "no constraint".
+
+    Parameters
+    ----------
+    hemisphere : None, str, array_like (3,), sequence of str of length n, or array (n, 3)
+        ``None`` (no constraint, only if ``allow_none``), one spec for all samples, or one per
+        sample.
+    n : int
+        Number of samples.
+    """
+    if hemisphere is None:
+        if not allow_none:
+            raise ValueError("expected a hemisphere such as '+x', got None")
+        return np.zeros((n, 3))
+    if isinstance(hemisphere, str):
+        return np.tile(_one(hemisphere), (n, 1))
+    arr = np.asarray(hemisphere)
+    if arr.dtype.kind in "iuf":
+        if arr.shape == (3,):
+            return np.tile(_one(arr), (n, 1))
+        if arr.shape == (n, 3):
+            norms = np.linalg.norm(arr, axis=1, keepdims=True)
+            if not np.all(np.isfinite(arr)) or np.any(norms == 0):
+                raise ValueError("expected finite non-zero hemisphere vectors, got NaN/inf/zero")
+            return arr / norms
+        raise ValueError(f"expected hemisphere vectors of shape (3,) or ({n}, 3), got {arr.shape}")
+    if arr.shape != (n,):
+        raise ValueError(f"expected one hemisphere per sample, shape ({n},), got {arr.shape}")
+    cache: dict[str, np.ndarray] = {}
+    out = np.empty((n, 3))
+    for k, h in enumerate(arr.tolist()):
+        if h not in cache:
+            cache[h] = _one(h)
+        out[k] = cache[h]
+    return out
+
+
+def hemisphere_from_positions(positions) -> np.ndarray:
+    """ILEMT's hemisphere of known positions: the signed axis of the largest |component|.
+
+    Returns strings like ``'+x'``, shape (N,) (ilemt-format.md §10.1).
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"expected positions of shape (N, 3), got {p.shape}")
+    axis = np.argmax(np.abs(p), axis=1)
+    sign = np.where(p[np.arange(p.shape[0]), axis] < 0, "-", "+")
+    return np.char.add(sign, np.array(list("xyz"))[axis])

@@ -1,0 +1,189 @@
+"""Small compiled 3x3 / 6x6 linear-algebra helpers for the per-sample solvers.
+
+Everything here works on one sample and is called from the batched kernels; nothing here knows
+about coils or poses beyond rotations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["svd3", "exp_so3", "rotvec_from_matrix", "cholesky_solve", "euler_zyx_matrix"]
+
+
+@njit(cache=True)
+def svd3(A, U, s, V):
+    """Singular value decomposition ``A = U diag(s) V^T`` of a 3x3 matrix (one-sided Jacobi).
+
+    Singular values are sorted in decreasing order; ``U`` and ``V`` are orthogonal (their
+    determinants may be -1). Accurate to a few ulps relative to ``s[0]``.
+    """
+    for i in range(3):
+        for j in range(3):
+            U[i, j] = A[i, j]
+            V[i, j] = 1.0 if i == j else 0.0
+    for _sweep in range(30):
+        rotated = False
+        for p in range(2):
+            for q in range(p + 1, 3):
+                alpha = U[0, p] * U[0, p] + U[1, p] * U[1, p] + U[2, p] * U[2, p]
+                beta = U[0, q] * U[0, q] + U[1, q] * U[1, q] + U[2, q] * U[2, q]
+                gamma = U[0, p] * U[0, q] + U[1, p] * U[1, q] + U[2, p] * U[2, q]
+                if gamma == 0.0 or abs(gamma) <= 1e-16 * np.sqrt(alpha * beta):
+                    continue
+                rotated = True
+                zeta = (beta - alpha) / (2.0 * gamma)
+                t = (1.0 if zeta >= 0.0 else -1.0) / (abs(zeta) + np.sqrt(1.0 + zeta * zeta))
+                c = 1.0 / np.sqrt(1.0 + t * t)
+                sn = c * t
+                for i in range(3):
+                    up = U[i, p]
+                    uq = U[i, q]
+                    U[i, p] = c * up - sn * uq
+                    U[i, q] = sn * up + c * uq
+                    vp = V[i, p]
+                    vq = V[i, q]
+                    V[i, p] = c * vp - sn * vq
+                    V[i, q] = sn * vp + c * vq
+        if not rotated:
+            break
+    for j in range(3):
+        s[j] = np.sqrt(U[0, j] * U[0, j] + U[1, j] * U[1, j] + U[2, j] * U[2, j])
+    # sort decreasing (3 elements: bubble)
+    for _ in range(2):
+        for j in range(2):
+            if s[j] < s[j + 1]:
+                tmp = s[j]
+                s[j] = s[j + 1]
+                s[j + 1] = tmp
+                for i in range(3):
+                    tmp = U[i, j]
+                    U[i, j] = U[i, j + 1]
+                    U[i, j + 1] = tmp
+                    tmp = V[i, j]
+                    V[i, j] = V[i, j + 1]
+                    V[i, j + 1] = tmp
+    # normalise the left vectors; complete a zero column from the other two
+    for j in range(3):
+        if s[j] > 0.0:
+            for i in range(3):
+                U[i, j] /= s[j]
+    if s[2] <= 1e-300 * max(s[0], 1e-300) or s[2] == 0.0:
+        if s[1] > 0.0:
+            U[0, 2] = U[1, 0] * U[2, 1] - U[2, 0] * U[1, 1]
+            U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
+            U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
+
+
+@njit(cache=True)
+def exp_so3(phi, R):
+    """Rotation matrix ``R = exp([phi]x)`` (Rodrigues), written into ``R`` (3, 3)."""
+    th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    th = np.sqrt(th2)
+    if th < 1e-8:
+        a = 1.0 - th2 / 6.0
+        b = 0.5 - th2 / 24.0
+    else:
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / th2
+    x, y, z = phi[0], phi[1], phi[2]
+    R[0, 0] = 1.0 - b * (y * y + z * z)
+    R[1, 1] = 1.0 - b * (x * x + z * z)
+    R[2, 2] = 1.0 - b * (x * x + y * y)
+    R[0, 1] = -a * z + b * x * y
+    R[1, 0] = a * z + b * x * y
+    R[0, 2] = a * y + b * x * z
+    R[2, 0] = -a * y + b * x * z
+    R[1, 2] = -a * x + b * y * z
+    R[2, 1] = a * x + b * y * z
+
+
+@njit(cache=True)
+def rotvec_from_matrix(R, out):
+    """Rotation vector (angle in [0, pi]) of a rotation matrix, through a unit quaternion."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    # Shepperd's method: pick the largest of w, x, y, z for accuracy
+    if tr >= R[0, 0] and tr >= R[1, 1] and tr >= R[2, 2]:
+        w = 0.5 * np.sqrt(max(1.0 + tr, 0.0))
+        f = 0.25 / w
+        x = (R[2, 1] - R[1, 2]) * f
+        y = (R[0, 2] - R[2, 0]) * f
+        z = (R[1, 0] - R[0, 1]) * f
+    elif R[0, 0] >= R[1, 1] and R[0, 0] >= R[2, 2]:
+        x = 0.5 * np.sqrt(max(1.0 + 2.0 * R[0, 0] - tr, 0.0))
+        f = 0.25 / x
+        w = (R[2, 1] - R[1, 2]) * f
+        y = (R[0, 1] + R[1, 0]) * f
+        z = (R[0, 2] + R[2, 0]) * f
+    elif R[1, 1] >= R[2, 2]:
+        y = 0.5 * np.sqrt(max(1.0 + 2.0 * R[1, 1] - tr, 0.0))
+        f = 0.25 / y
+        w = (R[0, 2] - R[2, 0]) * f
+        x = (R[0, 1] + R[1, 0]) * f
+        z = (R[1, 2] + R[2, 1]) * f
+    else:
+        z = 0.5 * np.sqrt(max(1.0 + 2.0 * R[2, 2] - tr, 0.0))
+        f = 0.25 / z
+        w = (R[1, 0] - R[0, 1]) * f
+        x = (R[0, 2] + R[2, 0]) * f
+        y = (R[1, 2] + R[2, 1]) * f
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    nv = np.sqrt(x * x + y * y + z * z)
+    if nv < 1e-300:
+        out[0] = 0.0
+        out[1] = 0.0
+        out[2] = 0.0
+        return
+    ang = 2.0 * np.arctan2(nv, w)
+    out[0] = ang * x / nv
+    out[1] = ang * y / nv
+    out[2] = ang * z / nv
+
+
+@njit(cache=True)
+def cholesky_solve(A, b, n, x, L):
+    """Solve ``A x = b`` for a symmetric positive-definite ``n x n`` block of ``A``.
+
+    Returns False (and leaves ``x`` undefined) when ``A`` is not numerically positive definite.
+    """
+    for i in range(n):
+        for j in range(i + 1):
+            acc = A[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if not acc > 0.0:
+                    return False
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    for i in range(n):
+        acc = b[i]
+        for k in range(i):
+            acc -= L[i, k] * x[k]
+        x[i] = acc / L[i, i]
+    for i in range(n - 1, -1, -1):
+        acc = x[i]
+        for k in range(i + 1, n):
+            acc -= L[k, i] * x[k]
+        x[i] = acc / L[i, i]
+    return True
+
+
+@njit(cache=True)
+def euler_zyx_matrix(psi, theta, phi, R):
+    """``R = Rz(psi) Ry(theta) Rx(phi)`` written into ``R`` (3, 3)."""
+    cps, sps = np.cos(psi), np.sin(psi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    cph, sph = np.cos(phi), np.sin(phi)
+    R[0, 0] = cps * cth
+    R[0, 1] = cps * sth * sph - sps * cph
+    R[0, 2] = cps * sth * cph + sps * sph
+    R[1, 0] = sps * cth
+    R[1, 1] = sps * sth * sph + cps * cph
+    R[1, 2] = sps * sth * cph - cps * sph
+    R[2, 0] = -sth
+    R[2, 1] = cth * sph
+    R[2, 2] = cth * cph

@@ -1,0 +1,227 @@
+"""Public entry point of the compiled Levenberg-Marquardt solver (see ``_lm.py``)."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ..field import DipoleModel
+from ..geometry import check_pose_vectors
+from ._closed_form import check_couplings, solve_kim18, solve_kuipers, solve_svd
+from ._hemisphere import hemisphere_vectors
+from ._lm import lm_batch, lm_track
+from ._result import SolveResult
+
+__all__ = ["solve_lm"]
+
+_CLOSED = {"kim18": solve_kim18, "svd": solve_svd, "kuipers": solve_kuipers}
+
+
+def _check_model(model) -> DipoleModel:
+    if not isinstance(model, DipoleModel):
+        raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
+    n_so, n_se = model.n_source, model.n_sensor
+    need = 5 if n_se == 1 else 6
+    if n_so * n_se < need or (n_se > 1 and n_so < 2):
+        raise ValueError(f"expected at least {need} couplings (n_source * n_sensor) and >= 2 "
+                         f"source coils for a {need}-DOF solve, got {n_so}x{n_se}")
+    return model
+
+
+def _concentric_for(model, concentric_model):
+    """The concentric model used for closed-form starts, or None when none applies."""
+    if concentric_model is not None:
+        if not isinstance(concentric_model, DipoleModel):
+            raise TypeError(f"expected `concentric_model` to be a DipoleModel, got "
+                            f"{type(concentric_model).__name__}")
+        return concentric_model
+    if model.n_source == 3 and model.n_sensor == 3:
+        if model.is_concentric:
+            return model
+        # the same moments with the coil offsets dropped: a good start when offsets << range
+        return model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
+    return None
+
+
+def _bounds(bounds):
+    if bounds is None:
+        return np.full(3, -np.inf), np.full(3, np.inf)
+    b = np.asarray(bounds, dtype=np.float64)
+    if b.ndim == 0:
+        if not b > 0:
+            raise ValueError(f"expected a positive `bounds` half-width in m, got {float(b)}")
+        return np.full(3, -float(b)), np.full(3, float(b))
+    if b.shape != (3, 2) or not np.all(b[:, 0] < b[:, 1]):
+        raise ValueError(f"expected `bounds` as a half-width or a (3, 2) array of [low, high] "
+                         f"with low < high, got shape {b.shape}")
+    return np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1])
+
+
+def _multistart_init(C, cnorm, model, nvec, lo, hi, five, xtol, thr):
+    """Best of a coarse set of starts per sample: 14 directions x 4 orientations at the
+    distance suggested by the coupling magnitude."""
+    dirs = [np.eye(3)[i] * s for i in range(3) for s in (1.0, -1.0)]
+    dirs += [np.array([a, b, c]) / np.sqrt(3) for a in (1, -1) for b in (1, -1) for c in (1, -1)]
+    rots = [np.zeros(3), np.array([np.pi, 0, 0]), np.array([0, np.pi, 0]),
+            np.array([0, 0, np.pi])]
+    scale = model.gain * np.linalg.norm(model.M_so) * np.linalg.norm(model.M_se)
+    fro = np.linalg.norm(C.reshape(C.shape[0], -1), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = np.cbrt(scale / fro)
+    dist = np.where(np.isfinite(dist), dist, 0.1)
+    n = C.shape[0]
+    best_res = np.full(n, np.inf)
+    best = np.zeros((n, 6))
+    for d in dirs:
+        for r in rots:
+            init = np.empty((n, 6))
+            init[:, :3] = dist[:, None] * d
+            init[:, 3:] = r
+            out = _run_batch(C, cnorm, init, model, nvec, lo, hi, five, 30, xtol, thr, 1.0,
+                             False)
+            better = out.residual < best_res
+            best_res[better] = out.residual[better]
+            best[better] = out.pose_vectors[better]
+    return best
+
+
+def _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr, ambig, retries):
+    n = C.shape[0]
+    poses = np.empty((n, 4, 4))
+    vecs = np.empty((n, 6))
+    status = np.empty(n, dtype=np.int8)
+    residual = np.empty(n)
+    iterations = np.empty(n, dtype=np.int32)
+    n_blocks = max(1, min(numba.get_num_threads() * 4, n // 256 or 1))
+    lm_batch(model.L_so, model.M_so, model.L_se, model.M_se, model.gain, C, cnorm,
+             np.ascontiguousarray(init), nvec, lo, hi, five, int(max_iter), float(xtol),
+             float(thr), float(ambig), bool(retries), n_blocks, poses, vecs, status, residual,
+             iterations)
+    return SolveResult(poses, vecs, status, residual, iterations, solver="lm")
+
+
+def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100,
+             valid_threshold=1e-5, retries=True, concentric_model=None, bounds=None,
+             xtol=1e-10, ambiguity_tol=1e-9, covariance=False) -> SolveResult:
+    """Levenberg-Marquardt pose solution for any dipole model, compiled and batched.
+
+    Parameters
+    ----------
+    couplings : ndarray, shape (N, n_source, n_sensor)
+        Signed real couplings (complex phasors are accepted: target ``sign(Re z)|z|``, residual
+        normalised by the complex spectral norm, as ILEMT).
+    model : DipoleModel
+        The coil model (concentric or not). 6-DOF needs >= 6 couplings; a single-coil sensor
+        (``n_sensor == 1``) gives a 5-DOF solve whose roll about the sensor axis is reported
+        as zero (shortest-arc rotation of the coil axis).
+    initial : {'kim18', 'svd', 'kuipers', 'track', 'multistart'} or array (N, 6) / (6,)
+        Closed-form start (needs a 3x3 model; uses ``concentric_model`` or the model's moments
+        with the coil offsets dropped), tracking (each sample starts from the previous valid
+        solution; the first and any failed sample from the Kim18 closed form when available,
+        else multi-start), a coarse multi-start grid, or given pose vectors.
+    hemisphere : None, str, (3,), (N,) str or (N, 3)
+        Constraint ``t . n >= 0`` (ILEMT's hemisphere bound); ``None`` for none. The closed-form
+        start uses ``'+x'`` when no hemisphere is given.
+    max_iter : int
+        Iterations per LM run.
+    valid_threshold : float or None
+        A solution is valid if its residual (sum of squares / spectral norm of C) is below this
+        (1e-5 is ILEMT's value for high-rate data). ``None`` disables the test and the retries.
+    retries : bool
+        Re-solve invalid samples from the initial pose with one pose-vector component's sign
+        flipped, each of the 6 in turn (ILEMT, ilemt-format.md §10.1).
+    concentric_model : DipoleModel, optional
+        Concentric model for the closed-form start (ILEMT: the concentric calibration).
+    bounds : float or array (3, 2), optional
+        Position box (half-width in m, or [low, high] per axis); a solution on its boundary is
+        OUT_OF_VOLUME. ILEMT uses 0.4 m.
+    xtol : float
+        Convergence when the relative translation step and the rotation step (rad) are below it.
+    ambiguity_tol : float
+        A solution with ``t . n <= ambiguity_tol * |t|`` (on the hemisphere plane) is AMBIGUOUS.
+    covariance : bool
+        Also return the Gauss-Newton pose-vector covariance ``s^2 (J^T J)^-1`` with
+        ``s^2 = SSR / (m - dof)`` (see :func:`openemt.solve.cramer_rao`).
+
+    Returns
+    -------
+    SolveResult
+    """
+    model = _check_model(model)
+    C, cnorm = check_couplings(couplings, model.n_source, model.n_sensor)
+    n = C.shape[0]
+    nvec = hemisphere_vectors(hemisphere, n)
+    lo, hi = _bounds(bounds)
+    five = model.n_sensor == 1
+    thr = np.inf if valid_threshold is None else float(valid_threshold)
+    if not thr > 0:
+        raise ValueError(f"expected a positive `valid_threshold`, got {valid_threshold!r}")
+    retries = bool(retries) and np.isfinite(thr)
+    if int(max_iter) < 1:
+        raise ValueError(f"expected `max_iter` >= 1, got {max_iter!r}")
+    conc = _concentric_for(model, concentric_model)
+    cf_hemi = hemisphere if hemisphere is not None else "+x"
+
+    if isinstance(initial, str) and initial == "track":
+        if n == 0:
+            return _run_batch(C, cnorm, np.zeros((0, 6)), model, nvec, lo, hi, five, max_iter,
+                              xtol, thr, ambiguity_tol, retries)
+        if conc is not None:
+            Wso = np.ascontiguousarray(np.linalg.inv(conc.M_so.T))
+            Wse = np.ascontiguousarray(np.linalg.inv(conc.M_se))
+            # first start: the closed form of the first sample with finite couplings
+            ok = np.flatnonzero(np.all(np.isfinite(C.reshape(n, -1)), axis=1))
+            k0 = ok[0] if ok.size else 0
+            first = solve_kim18(C[k0:k0 + 1], conc, hemisphere=hemisphere_vectors(
+                cf_hemi, n)[k0] if hemisphere is not None else "+x").pose_vectors[0]
+            cf_gain = conc.gain
+        else:
+            Wso = Wse = np.eye(3)
+            k0 = 0
+            first = _multistart_init(C[:1], cnorm[:1], model, nvec[:1], lo, hi, five, xtol,
+                                     thr)[0]
+            cf_gain = model.gain
+        if not np.all(np.isfinite(first)):
+            first = np.zeros(6)
+        poses = np.empty((n, 4, 4))
+        vecs = np.empty((n, 6))
+        status = np.empty(n, dtype=np.int8)
+        residual = np.empty(n)
+        iterations = np.empty(n, dtype=np.int32)
+        lm_track(model.L_so, model.M_so, model.L_se, model.M_se, model.gain, C, cnorm,
+                 np.ascontiguousarray(first, dtype=np.float64), conc is not None, Wso, Wse,
+                 float(cf_gain), nvec, lo, hi, five, int(max_iter), float(xtol), thr,
+                 float(ambiguity_tol), retries, poses, vecs, status, residual, iterations)
+        result = SolveResult(poses, vecs, status, residual, iterations, solver="lm")
+    else:
+        if isinstance(initial, str):
+            if initial in _CLOSED:
+                if conc is None:
+                    raise ValueError(f"expected a 3x3 model or `concentric_model` for the "
+                                     f"{initial!r} start, got a {model.n_source}x"
+                                     f"{model.n_sensor} model; use initial='multistart'")
+                f = _CLOSED[initial]
+                cf = (f(couplings, conc, hemisphere=cf_hemi) if initial == "kim18"
+                      else f(couplings, hemisphere=cf_hemi, model=conc))
+                init = cf.pose_vectors
+            elif initial == "multistart":
+                init = _multistart_init(C, cnorm, model, nvec, lo, hi, five, xtol, thr)
+            else:
+                raise ValueError(f"expected `initial` in 'kim18', 'svd', 'kuipers', 'track', "
+                                 f"'multistart' or pose vectors (N, 6), got {initial!r}")
+        else:
+            init = check_pose_vectors(initial, "initial")
+            if init.shape == (6,):
+                init = np.tile(init, (n, 1))
+            if init.shape != (n, 6):
+                raise ValueError(f"expected `initial` pose vectors of shape ({n}, 6) or (6,), "
+                                 f"got {init.shape}")
+        result = _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr,
+                            ambiguity_tol, retries)
+    if covariance:
+        from ._crb import solver_covariance
+
+        result = SolveResult(result.poses, result.pose_vectors, result.status, result.residual,
+                             result.iterations, solver_covariance(model, result, C, cnorm),
+                             result.solver)
+    return result
