@@ -7,6 +7,7 @@ from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, ge
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
 from ._sequence import (PAPER_SEQUENCE, OutputCorrection, SequenceStep, fit_output_correction,
                         run_sequence)
+from ._table2 import TABLE2_PAPER, reproduce_table2, test_poses, test_rows
 
 __all__ = [
     "DEFAULT_FREEZE",
@@ -22,6 +23,7 @@ __all__ = [
     "IdentifiabilityWarning",
     "ParameterLayout",
     "SequenceStep",
+    "TABLE2_PAPER",
     "analyse_identifiability",
     "build_problem",
     "calibrate",
@@ -29,7 +31,10 @@ __all__ = [
     "fit_output_correction",
     "fixture_twist_map",
     "get_mode",
+    "reproduce_table2",
     "residue_stats",
     "run_sequence",
     "select_rows",
+    "test_poses",
+    "test_rows",
 ]

@@ -86,24 +86,22 @@ class OutputCorrection:
 
 
 def _solve_rows(data, cal, solver: str, truth_poses):
-    """Solve the calibration rows' poses; returns (positions (N, 3), resnorm (N,))."""
-    from ..solve import solve_kim18, solve_lm
+    """Solve the calibration rows' poses; returns (positions (N, 3), resnorm (N,)).
 
-    C = data.signed_real()
-    hemi = _hemispheres(truth_poses)
+    The complex couplings go to the solver so that the validity residual is normalised by the
+    complex spectral norm, as ILEMT's resnorm is (ilemt-format.md §10.1).
+    """
+    from ..solve import hemisphere_from_positions, solve_kim18, solve_lm
+
+    hemi = hemisphere_from_positions(truth_poses[:, :3, 3])
     if solver == "kim18":
-        res = solve_kim18(C, cal.model, hemisphere=hemi)
+        res = solve_kim18(data.couplings, cal.model, hemisphere=hemi)
+    elif solver == "lm":
+        res = solve_lm(data.couplings, cal.model, initial=vector_from_pose(truth_poses),
+                       hemisphere=hemi, bounds=0.4)
     else:
-        res = solve_lm(C, cal.model, initial=vector_from_pose(truth_poses), hemisphere=hemi)
+        raise ValueError(f"expected solver 'lm' or 'kim18', got {solver!r}")
     return res.poses[:, :3, 3], np.asarray(res.residual, dtype=np.float64)
-
-
-def _hemispheres(P) -> np.ndarray:
-    """ILEMT hemisphere of each pose: the largest |translation component| and its sign."""
-    t = P[:, :3, 3]
-    k = np.argmax(np.abs(t), axis=1)
-    sign = np.where(t[np.arange(len(t)), k] >= 0, "+", "-")
-    return np.array([s + "xyz"[i] for s, i in zip(sign, k)])
 
 
 def fit_output_correction(data, cal, *, solver: str = "lm", valid_threshold: float = 1e-5,

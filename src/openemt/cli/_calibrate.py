@@ -1,0 +1,128 @@
+"""``openemt calibrate DATASET``: fit a calibration (one mode) starting from another calibration."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+
+from ._common import add_common, emit
+
+__all__ = ["register", "run", "load_dataset"]
+
+
+def register(sub) -> None:
+    from ..calibrate import MODES
+
+    p = sub.add_parser(
+        "calibrate", help="fit a dipole-model and fixture calibration to a dataset",
+        description="Fit a calibration (seed 000 §VI) to DATASET, starting from --from CAL. "
+                    "DATASET is an ILEMT folder, a dataset file (.h5) or a CSV export.")
+    p.add_argument("dataset", metavar="DATASET", help="ILEMT folder, dataset .h5 or .csv")
+    p.add_argument("--from", dest="start", metavar="CAL",
+                   help="starting calibration (.json or ILEMT .mat); default: the folder's "
+                        "base_calibration.mat")
+    p.add_argument("--mode", default="XYZ", choices=sorted(MODES),
+                   help="calibration mode (default XYZ)")
+    p.add_argument("-o", "--output", metavar="CAL.json", help="write the calibration here")
+    p.add_argument("--all-rows", action="store_true",
+                   help="fit every row instead of the rows the mode names")
+    p.add_argument("--optimize", metavar="G1,G2", help="override the free parameter groups")
+    p.add_argument("--freeze", metavar="G1,G2", help="override the frozen parameter groups")
+    p.add_argument("--correction", choices=("auto", "none", "lm", "kim18"), default="auto",
+                   help="fit the DLT output correction on the calibration rows with this pose "
+                        "solver (auto: kim18 for concentric modes, lm otherwise)")
+    add_common(p)
+    p.set_defaults(func=run)
+
+
+def load_dataset(path):
+    """A Dataset from an ILEMT folder, a dataset file or a CSV export."""
+    from ..io import import_csv, import_ilemt_folder, read_dataset
+
+    path = Path(path)
+    if path.is_dir():
+        return import_ilemt_folder(path)
+    if not path.exists():
+        raise FileNotFoundError(f"expected a dataset folder or file, got missing {str(path)!r}")
+    if path.suffix.lower() == ".csv":
+        return import_csv(path)
+    return read_dataset(path)
+
+
+def _groups(text):
+    if text is None:
+        return None
+    return tuple(g.strip() for g in text.split(",") if g.strip())
+
+
+def run(args) -> int:
+    from ..calibrate import fit, fit_output_correction, get_mode, select_rows
+    from ..io import atomic_path, read_calibration, write_calibration
+
+    t0 = time.perf_counter()
+    dataset = load_dataset(args.dataset)
+    start_path = args.start
+    if start_path is None:
+        cand = Path(args.dataset) / "base_calibration.mat"
+        if not cand.is_file():
+            raise ValueError("expected --from CAL (no base_calibration.mat in the dataset "
+                             "folder), got none")
+        start_path = cand
+    start = read_calibration(start_path)
+    mode = get_mode(args.mode)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        f = fit(dataset, start, mode, select=not args.all_rows, optimize=_groups(args.optimize),
+                freeze=_groups(args.freeze))
+    cal = f.calibration
+    stats = dict(cal.stats)
+    solver = args.correction
+    if solver == "auto":
+        solver = "kim18" if mode.concentric else "lm"
+    corr = None
+    if solver != "none":
+        rows = dataset if args.all_rows else dataset.select(select_rows(dataset, mode))
+        corr = fit_output_correction(rows, cal, solver=solver)
+        stats.update(num_invalid=corr.n_invalid, uncorrected=corr.rms_uncorrected,
+                     corrected=corr.rms_corrected, correction_method=corr.method)
+        cal = cal.replace(linear_correction=corr.matrix)
+    stats["seconds"] = time.perf_counter() - t0
+    cal = cal.replace(stats=stats, provenance={**cal.provenance,
+                                               "start_file": str(start_path)})
+    if args.output:
+        with atomic_path(args.output) as tmp:
+            write_calibration(cal, tmp)
+    ident = f.identifiability
+    summary = {
+        "mode": mode.name,
+        "output": args.output,
+        "start": str(start_path),
+        "rms_residue": stats["rms_residue"],
+        "sum_squared_residue": stats["sum_squared_residue"],
+        "num_points": stats["num_points"],
+        "n_free": int(f.free.size),
+        "free_groups": list(cal.free),
+        "frozen_groups": list(cal.frozen),
+        "jacobian_rank": ident.rank,
+        "condition": ident.summary()["condition"],
+        "undetermined_groups": list(ident.undetermined),
+        "correction": None if corr is None else {
+            "method": corr.method, "n_invalid": corr.n_invalid,
+            "rms_uncorrected_mm": corr.rms_uncorrected * 1e3,
+            "rms_corrected_mm": corr.rms_corrected * 1e3},
+        "warnings": [str(w.message) for w in caught],
+        "seconds": {"fit": f.seconds, "total": stats["seconds"]},
+    }
+    human = [f"{mode.name}: rms_residue {stats['rms_residue']:.7g} over {stats['num_points']} "
+             f"rows, {f.free.size} free parameters (rank {ident.rank}, condition "
+             f"{ident.condition:.3g})"]
+    if corr is not None:
+        human.append(f"output correction ({corr.method}): {corr.rms_uncorrected * 1e3:.4f} -> "
+                     f"{corr.rms_corrected * 1e3:.4f} mm on {corr.n_points - corr.n_invalid} "
+                     f"valid rows")
+    human += [f"warning: {w}" for w in summary["warnings"]]
+    if args.output:
+        human.append(f"wrote {args.output}")
+    emit(args, summary, human)
+    return 0
