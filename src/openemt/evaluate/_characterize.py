@@ -1,0 +1,141 @@
+"""Characterization of tracker error (seed 000 §VIII): error vectors, u(cal), combined u(P).
+
+The error of a measured pose against the reference is ``E = inv(P_measured) @ P_reference``
+(seed 000 eq. 8/9), or ILEMT's "stage coordinates" error
+``E = F_se . inv(P_reference) . P_measured . inv(F_se)`` when the sensor fixture is given
+(ilemt-format.md §12); see :func:`openemt.evaluate.pose_error_magnitudes`. u(cal) is the RMS
+of the error magnitudes and the combined standard uncertainty of a measurement is
+``u(P) = sqrt(u(P_stage)^2 + u(cal)^2)`` (eq. 10).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry import check_poses, invert, pose_error, pose_from_vector, vector_from_pose
+from ._errors import (STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, combined_uncertainty,
+                      error_summary, pose_error_magnitudes)
+
+__all__ = ["pose_error_vectors", "uncertainty_summary", "characterize", "Characterization",
+           "fixture_labels"]
+
+
+def pose_error_vectors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:
+    """Pose error as vectors ``[tx, ty, tz, rx, ry, rz]`` (m, rad), shape (N, 6).
+
+    Same error pose as :func:`openemt.evaluate.pose_error_magnitudes` (whose magnitudes are
+    the norms of the two halves), kept as vectors for error-vector plots and sweep analysis.
+    """
+    M = check_poses(P_measured, "P_measured")
+    D = check_poses(P_reference, "P_reference")
+    if sensor_fixture is None:
+        return vector_from_pose(pose_error(M, D))
+    F = np.asarray(sensor_fixture, dtype=np.float64)
+    F = pose_from_vector(F) if F.shape == (6,) else check_poses(F, "sensor_fixture")
+    return vector_from_pose(F @ invert(D) @ M @ invert(F))
+
+
+def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
+                        stage_uncertainty_rad: float = STAGE_UNCERTAINTY_RAD) -> dict:
+    """``error_summary`` plus u(cal) and the combined u(P) of eq. 10, in mm and degrees.
+
+    Keys added: ``u_cal_trans_mm``, ``u_P_trans_mm``, ``u_cal_rot_deg``, ``u_P_rot_deg``,
+    ``u_stage_trans_mm``, ``u_stage_rot_deg``.
+    """
+    s = error_summary(trans_err, rot_err)
+    us_mm = stage_uncertainty_m * 1e3
+    us_deg = float(np.rad2deg(stage_uncertainty_rad))
+    s["u_cal_trans_mm"] = s["trans_rms_mm"]
+    s["u_P_trans_mm"] = float(combined_uncertainty(s["trans_rms_mm"], us_mm))
+    s["u_cal_rot_deg"] = s["rot_rms_deg"]
+    s["u_P_rot_deg"] = float(combined_uncertainty(s["rot_rms_deg"], us_deg))
+    s["u_stage_trans_mm"] = us_mm
+    s["u_stage_rot_deg"] = us_deg
+    return s
+
+
+@dataclass(frozen=True, eq=False)
+class Characterization:
+    """Error statistics of a test set, overall and per group (e.g. fixture combination).
+
+    Attributes
+    ----------
+    overall : dict
+        :func:`uncertainty_summary` of all rows (mm, deg).
+    by_group : dict
+        The same per group label (only if groups were given).
+    positions : ndarray, shape (N, 3)
+        Reference positions (m), for error-vector workspace plots (seed 000 Fig. 8).
+    error_vectors : ndarray, shape (N, 6)
+        Error vectors (m, rad) as :func:`pose_error_vectors`.
+    groups : ndarray of str, shape (N,) or None
+    """
+
+    overall: dict
+    by_group: dict = field(default_factory=dict)
+    positions: np.ndarray | None = None
+    error_vectors: np.ndarray | None = None
+    groups: np.ndarray | None = None
+
+    def as_dict(self) -> dict:
+        """The statistics (no per-row arrays), JSON-ready."""
+        return {"overall": self.overall, "by_group": self.by_group}
+
+
+def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
+                 stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
+                 stage_uncertainty_rad: float = STAGE_UNCERTAINTY_RAD) -> Characterization:
+    """Characterize tracker error against reference poses (seed 000 §VIII).
+
+    Parameters
+    ----------
+    P_measured, P_reference : array_like, shape (N, 4, 4)
+        Tracker output and reference (stage / ground truth) poses. Non-finite measured poses
+        (failed solves) are counted in ``n_nonfinite`` and left out of the statistics.
+    groups : array_like, shape (N,), optional
+        Label per row (e.g. ``fixture_labels(dataset)``) for the per-group breakdown.
+    sensor_fixture : array_like, shape (6,) or (4, 4), optional
+        F_se for ILEMT's stage-coordinates error (ilemt-format.md §12).
+    stage_uncertainty_m, stage_uncertainty_rad : float
+        Standard uncertainty of the reference (default 0.107 mm and 0.17 deg, seed 000).
+
+    Returns
+    -------
+    Characterization
+    """
+    M = check_poses(P_measured, "P_measured")
+    D = check_poses(P_reference, "P_reference")
+    if M.ndim != 3 or D.shape != M.shape:
+        raise ValueError(f"expected P_measured and P_reference of one shape (N, 4, 4), got "
+                         f"{M.shape} and {D.shape}")
+    ok = np.all(np.isfinite(M), axis=(1, 2)) & np.all(np.isfinite(D), axis=(1, 2))
+    trans, rot = np.full(len(M), np.nan), np.full(len(M), np.nan)
+    if ok.any():
+        trans[ok], rot[ok] = pose_error_magnitudes(M[ok], D[ok], sensor_fixture)
+    kw = {"stage_uncertainty_m": stage_uncertainty_m,
+          "stage_uncertainty_rad": stage_uncertainty_rad}
+    overall = uncertainty_summary(trans, rot, **kw)
+    by_group = {}
+    g = None
+    if groups is not None:
+        g = np.asarray(groups).astype(str)
+        if g.shape != (len(M),):
+            raise ValueError(f"expected `groups` of shape ({len(M)},), got {g.shape}")
+        _, first = np.unique(g, return_index=True)
+        for lab in g[np.sort(first)]:
+            sel = g == lab
+            by_group[str(lab)] = uncertainty_summary(trans[sel], rot[sel], **kw)
+    vec = np.full((len(M), 6), np.nan)
+    if ok.any():
+        vec[ok] = pose_error_vectors(M[ok], D[ok], sensor_fixture)
+    return Characterization(overall=overall, by_group=by_group, positions=D[:, :3, 3].copy(),
+                            error_vectors=vec, groups=g)
+
+
+def fixture_labels(dataset) -> np.ndarray:
+    """Per-row labels ``so<source code>_se<sensor code>`` of a Dataset, shape (N,)."""
+    so = np.asarray(dataset.source_fixture).astype(str)
+    se = np.asarray(dataset.sensor_fixture).astype(str)
+    return np.char.add(np.char.add(np.char.add("so", so), "_se"), se)
