@@ -30,10 +30,12 @@ def dipole_field(moment, points):
     return (3 * (u @ moment)[:, None] * u - moment) / d**3
 
 
-def relative_deviation(coil, r_over_d):
+def relative_deviation(coil, r_over_d, moment=None):
+    """Max over DIRECTIONS of |B - B_dipole| / |B_dipole| at r = r_over_d * coil.diameter;
+    the dipole moment defaults to ``gain * axis``."""
     pts = coil.center + r_over_d * coil.diameter * DIRECTIONS
     B = coil.field(pts)
-    Bd = dipole_field(coil.moment, pts - coil.center)
+    Bd = dipole_field(coil.moment if moment is None else moment, pts - coil.center)
     return np.linalg.norm(B - Bd, axis=1) / np.linalg.norm(Bd, axis=1)
 
 
@@ -93,9 +95,11 @@ def test_far_field_is_the_dipole_of_moment_gain_axis(builder):
     coil = builder()
     dev50 = relative_deviation(coil, 50.0)
     assert dev50.max() < 1e-3, dev50
-    # the deviation falls with distance (leading multipole at least 1/r beyond the dipole)
-    dev100 = relative_deviation(coil, 100.0)
-    assert dev100.max() < dev50.max()
+    # against the dipole of the coil's exact vector area (a spiral's via and feed tilt it by
+    # ~2e-4 rad), the deviation falls at least as 1/r
+    m = coil.gain * coil.vector_area / coil.area_turns
+    exact50 = relative_deviation(coil, 50.0, m).max()
+    assert relative_deviation(coil, 100.0, m).max() < 0.6 * exact50
 
 
 def test_finite_size_is_measurable_at_short_range():
@@ -287,7 +291,7 @@ def test_anser_board_tends_to_dipole_equivalent():
 
 # --------------------------------------------------------------------------- batch, validation
 
-def test_batch_equals_loop():
+def test_batch_equals_loop(monkeypatch):
     rng = np.random.default_rng(8)
     sources = [circular_coil(0.045 * e, e, radius=0.02, length=0.03, turns=100) for e in np.eye(3)]
     sources.append(square_spiral_coil((0, 0, -0.05), 0.4, turns=5, outer_side=0.02))
@@ -300,6 +304,9 @@ def test_batch_equals_loop():
     loop = np.concatenate([model.coupling(P[k:k + 1]) for k in range(len(P))])
     np.testing.assert_allclose(C, loop, rtol=1e-12, atol=0)
     np.testing.assert_allclose(small.coupling(P), C, rtol=1e-12, atol=0)
+    import openemt.field._finite as finite
+    monkeypatch.setattr(finite, "_POINTS_PER_BLOCK", 50)        # blocks of 2 poses
+    np.testing.assert_allclose(model.coupling(P), C, rtol=1e-12, atol=0)
     assert model.coupling(P[:0]).shape == (0, 4, 3)
 
 

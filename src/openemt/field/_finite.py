@@ -18,6 +18,9 @@ from ._dipole import ILEMT_GAIN, DipoleModel, _split
 
 __all__ = ["FiniteCoilModel"]
 
+#: Observer points handled per block of poses in :meth:`FiniteCoilModel.coupling`.
+_POINTS_PER_BLOCK = 200_000
+
 
 @dataclass(frozen=True, eq=False)
 class FiniteCoilModel:
@@ -82,12 +85,17 @@ class FiniteCoilModel:
         """
         R, t = _split(poses)
         n, m = R.shape[0], len(self._points)
-        obs = np.einsum("kab,mb->kma", R, self._points) + t[:, None, :]   # (N, M, 3)
-        B = _coil_fields(self.sources, obs.reshape(-1, 3), self.chunk).reshape(
-            self.n_source, n, m, 3)
-        Bmean = np.einsum("jm,ikma->kija", self._weights, B)             # (N, n_so, n_se, 3)
-        normals = np.einsum("kab,jb->kja", R, self._axes)                 # (N, n_se, 3)
-        return self.gain * np.einsum("kija,kja->kij", Bmean, normals)
+        C = np.empty((n, self.n_source, self.n_sensor))
+        block = max(1, _POINTS_PER_BLOCK // m)           # poses per block: bounds memory
+        for a in range(0, n, block):
+            Rb, tb = R[a:a + block], t[a:a + block]
+            obs = np.einsum("kab,mb->kma", Rb, self._points) + tb[:, None, :]   # (n, M, 3)
+            B = _coil_fields(self.sources, obs.reshape(-1, 3), self.chunk).reshape(
+                self.n_source, len(Rb), m, 3)
+            Bmean = np.einsum("jm,ikma->kija", self._weights, B)    # (n, n_so, n_se, 3)
+            normals = np.einsum("kab,jb->kja", Rb, self._axes)       # (n, n_se, 3)
+            C[a:a + block] = self.gain * np.einsum("kija,kja->kij", Bmean, normals)
+        return C
 
     def dipole_equivalent(self) -> DipoleModel:
         """The dipole model of equal moments: coil centres and ``gain * axis`` per coil."""
