@@ -110,6 +110,9 @@ def test_finite_size_is_measurable_at_short_range():
     # thin loop, leading correction (octupole) ~ (R/r)^2: r/d 4 -> 6 shrinks it ~ (4/6)^2
     ratio = relative_deviation(loop, 6.0).max() / relative_deviation(loop, 4.0).max()
     assert 0.35 < ratio < 0.55
+    spiral = square_spiral_coil((0, 0, 0))
+    for r_over_d in (4.0, 5.0, 6.0):
+        assert relative_deviation(spiral, r_over_d).max() > 1e-3
 
 
 def test_dipole_imitating_solenoid_cancels_the_octupole():

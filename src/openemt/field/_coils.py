@@ -19,7 +19,6 @@ With this normalisation a coil's far field is exactly the dipole field of moment
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import magpylib
 import numpy as np
@@ -27,15 +26,15 @@ from scipy.constants import mu_0
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "COIL_KINDS",
-    "Coil",
-    "circular_coil",
-    "square_coil",
-    "square_spiral_coil",
-    "anser_field_generator",
     "ANSER_COIL_CENTERS",
     "ANSER_ROTATED_COILS",
+    "COIL_KINDS",
+    "Coil",
+    "anser_field_generator",
+    "circular_coil",
     "coil_fields",
+    "square_coil",
+    "square_spiral_coil",
 ]
 
 #: Supported coil kinds.
