@@ -93,3 +93,31 @@ def test_bad_input(m, d, exc):
 def test_bad_matrix():
     with pytest.raises(ValueError, match=r"\(4, 4\)"):
         apply_linear_correction(np.eye(3), np.zeros((2, 3)))
+
+
+def test_real_data_refit_matches_stored_statistics(ilemt_dir):
+    """ilemt-format.md §11: re-fitting the correction of output/XYZ_hr_cal.mat on its own 3 md
+    files (solved from the true pose) matches the stored uncorrected/corrected RMS to 4 digits."""
+    from openemt.geometry import ground_truth_poses, vector_from_pose
+    from openemt.io import import_ilemt_folder, read_ilemt_calibration
+    from openemt.solve import solve_lm
+
+    ds = import_ilemt_folder(ilemt_dir, patterns=["md"])
+    ds = ds.select(np.flatnonzero(ds.source_fixture == "YoutZup"))
+    assert ds.n_samples == 426
+    cal = read_ilemt_calibration(ilemt_dir / "output" / "XYZ_hr_cal.mat")
+    P = ground_truth_poses(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
+                           ds.source_fixture, ds.stage, ds.sensor_fixture)
+    i = np.argmax(np.abs(P[:, :3, 3]), axis=1)
+    s = np.sign(P[np.arange(len(P)), i, 3])
+    hem = np.array([("+" if si > 0 else "-") + "xyz"[ii] for ii, si in zip(i, s)])
+    res = solve_lm(ds.couplings, cal.model, initial=vector_from_pose(P), hemisphere=hem)
+    v = res.valid
+    assert v.mean() >= 0.75
+    fit = fit_dlt(res.poses[v, :3, 3], P[v, :3, 3])
+    assert fit.rms_uncorrected == pytest.approx(cal.stats["uncorrected"], rel=2e-4)
+    assert fit.rms_corrected == pytest.approx(cal.stats["corrected"], rel=2e-4)
+    assert fit.method == "dlt"
+    # same action as the stored matrix (homogeneous: compare normalised)
+    np.testing.assert_allclose(fit.matrix / fit.matrix[3, 3],
+                               cal.linear_correction / cal.linear_correction[3, 3], atol=2e-5)
