@@ -4,9 +4,18 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from openemt.correct import (Correction, evaluate_correction, fit_correction, fit_grid,
-                             fit_polynomial, fit_rbf, kfold_splits, monomial_exponents,
-                             read_correction, write_correction)
+from openemt.correct import (
+    Correction,
+    evaluate_correction,
+    fit_correction,
+    fit_grid,
+    fit_polynomial,
+    fit_rbf,
+    kfold_splits,
+    monomial_exponents,
+    read_correction,
+    write_correction,
+)
 from openemt.geometry import pose_from_rt
 
 
@@ -104,7 +113,7 @@ def test_lookup_tables_reproduce_affine_offsets(method):
     meas = pose_from_rt(Rm, m)
     fit = fit_grid if method == "grid" else fit_rbf
     model = fit(m, ref[:, :3, 3], Rm, ref[:, :3, :3], smoothing=1e-6 if method == "grid" else 0)
-    xyz, R = model.predict(m, Rm)
+    xyz, _ = model.predict(m, Rm)
     # grid: the offset is affine in the *measured* position, exactly representable
     np.testing.assert_allclose(xyz, ref[:, :3, 3], atol=1e-9)
     c = fit_correction(meas, ref, method, cross_validate=False)

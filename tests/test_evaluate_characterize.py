@@ -4,13 +4,21 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from openemt.evaluate import (STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, characterize,
-                              fixture_labels, pose_error_magnitudes, pose_error_vectors,
-                              uncertainty_summary)
+from openemt.evaluate import (
+    STAGE_UNCERTAINTY_M,
+    STAGE_UNCERTAINTY_RAD,
+    characterize,
+    fixture_labels,
+    pose_error_magnitudes,
+    pose_error_vectors,
+    uncertainty_summary,
+)
 from openemt.geometry import pose_from_rt, pose_from_vector
 
+R_SIGMA = np.deg2rad(0.1)
 
-def _pairs(rng, n, t_sigma=1e-4, r_sigma=np.deg2rad(0.1)):
+
+def _pairs(rng, n, t_sigma=1e-4, r_sigma=R_SIGMA):
     D = pose_from_rt(Rotation.random(n, random_state=3).as_matrix(),
                      rng.uniform(-0.2, 0.2, (n, 3)))
     e = np.hstack([t_sigma * rng.standard_normal((n, 3)), r_sigma * rng.standard_normal((n, 3))])
@@ -51,7 +59,7 @@ def test_uncertainty_matches_paper_table2_concentric_row():
 
 def test_characterize_overall_and_groups():
     rng = np.random.default_rng(31)
-    M, D, e = _pairs(rng, 400)
+    M, D, _ = _pairs(rng, 400)
     groups = np.where(np.arange(400) < 100, "soYoutZup_seZinYup", "soYoutZup_seYoutZup")
     M[:100, :3, 3] += [1e-3, 0, 0]  # a 1 mm bias on the first group (in the source frame)
     M[5] = np.nan  # a failed solve

@@ -104,7 +104,7 @@ def test_sweep_noise_is_smoothed_and_labels_split_curves():
     M[10] = np.nan
     an = sweep_linearity(M, D, S, labels=lab)
     assert len(an.curves) == 8
-    x = [c for c in an.curves if c.axis == "x"][0]
+    x = next(c for c in an.curves if c.axis == "x")
     # the SG derivative keeps the noise-induced slope error small vs the 0.4 % slope
     assert np.median(np.abs(x.nonlin_direct - 100 * np.abs(K + 2 * Q * x.motion))) < 0.05
     with pytest.raises(ValueError, match="window"):

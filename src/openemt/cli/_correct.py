@@ -14,7 +14,7 @@ import numpy as np
 
 from ._common import add_common, emit
 
-__all__ = ["register", "run_fit", "run_apply"]
+__all__ = ["register", "run_apply", "run_fit"]
 
 
 def register(sub) -> None:

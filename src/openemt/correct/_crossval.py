@@ -7,13 +7,20 @@ row gets exactly one prediction from a model that never saw it.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["kfold_splits", "held_out_predictions", "position_errors", "rotation_errors",
-           "rotation_offsets", "apply_rotation_offsets", "normalizer"]
+__all__ = [
+    "apply_rotation_offsets",
+    "held_out_predictions",
+    "kfold_splits",
+    "normalizer",
+    "position_errors",
+    "rotation_errors",
+    "rotation_offsets",
+]
 
 
 def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None

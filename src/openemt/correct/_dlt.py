@@ -13,8 +13,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["DltFit", "fit_dlt", "apply_linear_correction", "linear_correction_rms",
-           "check_points"]
+__all__ = [
+    "DltFit",
+    "apply_linear_correction",
+    "check_points",
+    "fit_dlt",
+    "linear_correction_rms",
+]
 
 #: Bounds on every entry of L during the refinement (ilemt-format.md §11, step 3).
 REFINE_BOUND = 10.0
@@ -156,7 +161,7 @@ class DltFit:
                 "n_points": self.n_points}
 
     @classmethod
-    def from_params(cls, p: dict) -> "DltFit":
+    def from_params(cls, p: dict) -> DltFit:
         return cls(matrix=_check_matrix(p["matrix"]),
                    rms_uncorrected=_float_or_nan(p.get("rms_uncorrected")),
                    rms_corrected=_float_or_nan(p.get("rms_corrected")),
@@ -223,4 +228,4 @@ def fit_dlt(measured_xyz, reference_xyz, *, refine: bool = True) -> DltFit:
             L, err, refined = L_ref, err_ref, True
     return DltFit(matrix=np.array(L), rms_uncorrected=errs["none"], rms_corrected=float(err),
                   method=best, refined=refined, candidates={k: float(v) for k, v in errs.items()},
-                  n_points=int(len(m)))
+                  n_points=len(m))

@@ -27,11 +27,23 @@ import scipy.sparse as sp
 from scipy.interpolate import RBFInterpolator
 from scipy.sparse.linalg import spsolve
 
-from ._crossval import (apply_rotation_offsets, kfold_splits, normalizer, position_errors,
-                        rotation_errors, rotation_offsets)
+from ._crossval import (
+    apply_rotation_offsets,
+    kfold_splits,
+    normalizer,
+    position_errors,
+    rotation_errors,
+    rotation_offsets,
+)
 
-__all__ = ["GridCorrection", "RbfCorrection", "fit_grid", "fit_rbf", "SMOOTHING_GRID",
-           "SMOOTHING_RBF"]
+__all__ = [
+    "SMOOTHING_GRID",
+    "SMOOTHING_RBF",
+    "GridCorrection",
+    "RbfCorrection",
+    "fit_grid",
+    "fit_rbf",
+]
 
 SMOOTHING_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 SMOOTHING_RBF = (1e-8, 1e-6, 1e-4, 1e-2, 1.0)
@@ -161,7 +173,7 @@ class GridCorrection:
                 "values": self.values, "smoothing": self.smoothing, "selection": self.selection}
 
     @classmethod
-    def from_params(cls, p: dict) -> "GridCorrection":
+    def from_params(cls, p: dict) -> GridCorrection:
         shape = tuple(int(s) for s in p["shape"])
         vals = np.asarray(p["values"], float)
         return cls(lower=np.asarray(p["lower"], float), upper=np.asarray(p["upper"], float),
@@ -278,7 +290,7 @@ class RbfCorrection:
                 "selection": self.selection}
 
     @classmethod
-    def from_params(cls, p: dict) -> "RbfCorrection":
+    def from_params(cls, p: dict) -> RbfCorrection:
         vals = np.asarray(p["values"], float)
         return cls(center=np.asarray(p["center"], float), scale=float(p["scale"]),
                    points=np.asarray(p["points"], float).reshape(-1, 3),

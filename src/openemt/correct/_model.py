@@ -22,8 +22,14 @@ from ._dlt import DltFit, check_points, fit_dlt
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._poly import PolynomialCorrection, fit_polynomial
 
-__all__ = ["Correction", "fit_correction", "evaluate_correction", "write_correction",
-           "read_correction", "CORRECTION_METHODS"]
+__all__ = [
+    "CORRECTION_METHODS",
+    "Correction",
+    "evaluate_correction",
+    "fit_correction",
+    "read_correction",
+    "write_correction",
+]
 
 #: Correction methods: name -> (fit function, fitted-model class).
 CORRECTION_METHODS = {
@@ -144,7 +150,7 @@ class Correction:
                 "meta": _jsonable(self.meta)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Correction":
+    def from_dict(cls, d: dict) -> Correction:
         if d.get("format") != _FORMAT:
             raise ValueError(f"expected a {_FORMAT!r} document, got format {d.get('format')!r}")
         obj = cls(method=str(d["method"]), params=dict(d["params"]),
@@ -206,7 +212,7 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
     model = _fit_model(method, m, Rm, d, Rd, options)
     params = model.to_params()
     xyz_fit, R_fit = model.predict(m, Rm)
-    stats = {"n": int(len(m)), "n_dropped_nonfinite": n_dropped,
+    stats = {"n": len(m), "n_dropped_nonfinite": n_dropped,
              "in_sample": {"uncorrected": _summary(m, Rm, d, Rd),
                            "corrected": _summary(xyz_fit, R_fit, d, Rd)}}
     if cross_validate:
@@ -254,5 +260,5 @@ def read_correction(path) -> Correction:
         raise ValueError(f"expected a JSON correction file, got invalid JSON in {path}: "
                          f"{exc.msg}") from None
     if not isinstance(d, dict):
-        raise ValueError(f"expected a JSON object in {path}, got {type(d).__name__}")
+        raise TypeError(f"expected a JSON object in {path}, got {type(d).__name__}")
     return Correction.from_dict(d)

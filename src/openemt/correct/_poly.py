@@ -18,11 +18,22 @@ from math import comb
 
 import numpy as np
 
-from ._crossval import (apply_rotation_offsets, kfold_splits, normalizer, position_errors,
-                        rotation_errors, rotation_offsets)
+from ._crossval import (
+    apply_rotation_offsets,
+    kfold_splits,
+    normalizer,
+    position_errors,
+    rotation_errors,
+    rotation_offsets,
+)
 
-__all__ = ["PolynomialCorrection", "fit_polynomial", "monomial_exponents", "monomials",
-           "POLY_ORDERS"]
+__all__ = [
+    "POLY_ORDERS",
+    "PolynomialCorrection",
+    "fit_polynomial",
+    "monomial_exponents",
+    "monomials",
+]
 
 #: Orders tried by the cross-validated selection (seed 002 uses up to 5).
 POLY_ORDERS = (1, 2, 3, 4, 5)
@@ -98,7 +109,7 @@ class PolynomialCorrection:
                 "rot_coef": self.rot_coef, "selection": self.selection}
 
     @classmethod
-    def from_params(cls, p: dict) -> "PolynomialCorrection":
+    def from_params(cls, p: dict) -> PolynomialCorrection:
         rc = p.get("rot_coef")
         return cls(center=np.asarray(p["center"], float), scale=float(p["scale"]),
                    pos_order=int(p["pos_order"]),

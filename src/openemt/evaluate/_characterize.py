@@ -15,11 +15,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import check_poses, invert, pose_error, pose_from_vector, vector_from_pose
-from ._errors import (STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, combined_uncertainty,
-                      error_summary, pose_error_magnitudes)
+from ._errors import (
+    STAGE_UNCERTAINTY_M,
+    STAGE_UNCERTAINTY_RAD,
+    combined_uncertainty,
+    error_summary,
+    pose_error_magnitudes,
+)
 
-__all__ = ["pose_error_vectors", "uncertainty_summary", "characterize", "Characterization",
-           "fixture_labels"]
+__all__ = [
+    "Characterization",
+    "characterize",
+    "fixture_labels",
+    "pose_error_vectors",
+    "uncertainty_summary",
+]
 
 
 def pose_error_vectors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:

@@ -27,8 +27,14 @@ from scipy.signal import savgol_filter
 from ..geometry import check_poses
 from ._characterize import pose_error_vectors
 
-__all__ = ["SweepCurve", "SweepAnalysis", "find_sweeps", "sweep_linearity", "sweep_table",
-           "SWEEP_AXES"]
+__all__ = [
+    "SWEEP_AXES",
+    "SweepAnalysis",
+    "SweepCurve",
+    "find_sweeps",
+    "sweep_linearity",
+    "sweep_table",
+]
 
 SWEEP_AXES = ("x", "y", "z", "rx", "ry", "rz")
 #: ILEMT: "sweep points are found where all other stage axes are within 0.25 of zero"
@@ -77,7 +83,7 @@ class SweepCurve:
         def rm(x):
             return float(np.sqrt(np.mean(x ** 2))), float(np.max(x))
 
-        out = {"label": self.label, "axis": self.axis, "n": int(len(self.motion)),
+        out = {"label": self.label, "axis": self.axis, "n": len(self.motion),
                "range": [float(self.motion[0]), float(self.motion[-1])]}
         for name in ("abs_direct", "abs_cross", "nonlin_direct", "nonlin_cross"):
             r, m = rm(getattr(self, name))
@@ -234,7 +240,7 @@ def sweep_table(curves) -> dict:
         sel = [c for c in curves if c.is_rotation == (kind == "rot")]
         n[kind] = len(sel)
 
-        def comb(field_name, stat):
+        def comb(field_name, stat, sel=sel, row=row):
             vals = []
             for c in sel:
                 x = getattr(c, f"{field_name}_{row}")

@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 from ..geometry import pose_from_rt
 from ._poses_csv import StaticAverage, average_static
 
-__all__ = ["NdiTool", "NdiRecording", "read_ndi_tsv"]
+__all__ = ["NdiRecording", "NdiTool", "read_ndi_tsv"]
 
 _FIELDS = ("frame", "face", "state", "q0", "qx", "qy", "qz", "tx", "ty", "tz", "error",
            "markers")
@@ -165,7 +165,7 @@ def read_ndi_tsv(path) -> NdiRecording:
         rows = a["rows"]
         n = len(rows)
 
-        def col(name, default=np.nan):
+        def col(name, default=np.nan, rows=rows):
             return np.array([r[1].get(name, default) for r in rows], dtype=float)
 
         q = np.stack([col("q0"), col("qx"), col("qy"), col("qz")], axis=1).reshape(n, 4)

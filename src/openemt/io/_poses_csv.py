@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 from ..geometry import check_poses, pose_from_rt, vector_from_pose
 from ._atomic import atomic_path
 
-__all__ = ["PoseTable", "StaticAverage", "read_poses_csv", "write_poses_csv", "average_static"]
+__all__ = ["PoseTable", "StaticAverage", "average_static", "read_poses_csv", "write_poses_csv"]
 
 _LEN = {"m": 1.0, "mm": 1e-3}
 _ANG = {"rad": 1.0, "deg": np.pi / 180}
@@ -95,7 +95,7 @@ class StaticAverage:
         """Overall jitter in mm/deg: RMS over all samples and the worst group maximum."""
         n = self.counts.astype(float)
         return {
-            "n_groups": int(len(self.labels)), "n_samples": int(n.sum()),
+            "n_groups": len(self.labels), "n_samples": int(n.sum()),
             "jitter_trans_rms_mm": float(1e3 * np.sqrt(np.sum(n * self.jitter_trans_rms ** 2)
                                                        / n.sum())),
             "jitter_trans_max_mm": float(1e3 * self.jitter_trans_max.max()),
