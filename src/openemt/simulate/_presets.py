@@ -85,14 +85,11 @@ class Preset:
 _ILEMT_FREQUENCIES = (7500.0, 10500.0, 13500.0)
 
 
-# Quadrature orders (n_depth, n_length, n_area) of the finite coils. Chosen for speed: against
-# much finer orders the couplings differ by < 1e-4 relative over the ILEMT workspace, while
-# the finite-size effects themselves are ~1e-2 (see docs/simulator.md).
-_SOURCE_ORDER = (1, 2, 1)
-_SENSOR_ORDER = (1, 2, 1)
+# Finite coils use the field module's default quadrature (converged to a few 1e-6 at
+# r/d = 3.75, docs/field-models.md), so the simulated truth is the physical coil.
 
 
-def _windings(L, M, size, length, *, square: bool, order):
+def _windings(L, M, size, length, *, square: bool):
     """Finite windings at columns of L with dipole moments = columns of M.
 
     ``square``: square windings of mean side ``size`` (around a cube core); else circular
@@ -101,7 +98,7 @@ def _windings(L, M, size, length, *, square: bool, order):
     coils = []
     for j in range(L.shape[1]):
         g = float(np.linalg.norm(M[:, j]))
-        kw = dict(length=float(length[j]), gain=g, order=order)
+        kw = dict(length=float(length[j]), gain=g)
         if square:
             coils.append(_field.square_coil(L[:, j], M[:, j] / g, side=float(size[j]), **kw))
         else:
@@ -125,8 +122,8 @@ def _tri_axial_preset(name, description, L_so, M_so, s_so, l_so, L_se, M_se, F_s
                       source_kind, square_source: bool) -> Preset:
     L_so, M_so, L_se, M_se = (np.asarray(a, dtype=np.float64) for a in (L_so, M_so, L_se, M_se))
     model, dipole = _finite_model(
-        _windings(L_so, M_so, s_so, l_so, square=square_source, order=_SOURCE_ORDER),
-        _windings(L_se, M_se, _SENSOR_R, _SENSOR_LEN, square=False, order=_SENSOR_ORDER))
+        _windings(L_so, M_so, s_so, l_so, square=square_source),
+        _windings(L_se, M_se, _SENSOR_R, _SENSOR_LEN, square=False))
     return Preset(
         name=name, description=description, model=model, dipole=dipole,
         source_fixture=np.asarray(F_so, dtype=np.float64),
@@ -200,7 +197,7 @@ def _anser() -> Preset:
     # 4x cheaper than the circular winding's ring of points
     side, length = 0.0005, 0.008
     sensor = _field.square_coil(np.zeros(3), np.array([0.0, 0.0, 1.0]), side=side,
-                                length=length, gain=gain_se, order=_SENSOR_ORDER)
+                                length=length, gain=gain_se)
     model, dipole = _finite_model(tuple(sources), (sensor,))
     return Preset(
         name="anser",
