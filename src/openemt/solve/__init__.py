@@ -1,21 +1,34 @@
 """Pose solution: closed forms (seed 004 SVD, Kuipers, Kim18), a compiled batched
-Levenberg-Marquardt solver for any dipole model, the Cramer-Rao bound and a chunked runner."""
+Levenberg-Marquardt solver for any dipole model, the Cramer-Rao bound and a chunked runner.
+
+See docs/solve.md for the algorithms, status codes, SNR definition and benchmarks.
+"""
 
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd, spectral_norms
-from ._crb import cramer_rao
+from ._crb import cramer_rao, solver_covariance
 from ._hemisphere import hemisphere_from_positions, hemisphere_vectors
 from ._lm_solver import solve_lm
+from ._output import POSES_SCHEMA, PoseWriter, read_poses
 from ._result import SolveResult, Status
+from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
 
 __all__ = [
+    "POSES_SCHEMA",
+    "PoseWriter",
+    "SOLVERS",
     "SolveResult",
     "Status",
+    "apply_position_correction",
     "cramer_rao",
     "hemisphere_from_positions",
     "hemisphere_vectors",
+    "read_poses",
+    "solve",
+    "solve_chunks",
     "solve_kim18",
     "solve_kuipers",
     "solve_lm",
     "solve_svd",
+    "solver_covariance",
     "spectral_norms",
 ]

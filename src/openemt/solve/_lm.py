@@ -141,6 +141,14 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
                 A[p, p] = JtJ[p, p] * (1.0 + lam) + 1e-300
             ok = cholesky_solve(A, g, npar, delta, Lc)
             if ok:
+                # trust limit: one step moves the sensor by at most half its distance (keeps
+                # an unconstrained solve from running off to infinity, where C -> 0)
+                st2 = delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]
+                tn2 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2]
+                if st2 > 0.25 * tn2 and tn2 > 0.0:
+                    f = np.sqrt(0.25 * tn2 / st2)
+                    for a in range(npar):
+                        delta[a] *= f
                 for a in range(3):
                     t2[a] = t[a] + delta[a]
                 _project(t2, n, lo, hi)

@@ -1,0 +1,84 @@
+"""Solved poses on disk: one HDF5 file written block by block (``openemt solve -o``).
+
+Layout: root attributes ``schema = "openemt.poses"``, ``schema_version``, ``openemt_version``,
+``n_samples``, ``solver``, ``status_names`` (JSON list, index = code), ``meta`` (JSON); datasets
+``poses`` (N, 4, 4), ``pose_vectors`` (N, 6), ``status`` (N,) int8, ``residual`` (N,),
+``iterations`` (N,) int32.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ._result import SolveResult, Status
+
+__all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseWriter", "read_poses"]
+
+POSES_SCHEMA = "openemt.poses"
+POSES_SCHEMA_VERSION = 1
+_FIELDS = {"poses": ((4, 4), np.float64), "pose_vectors": ((6,), np.float64),
+           "status": ((), np.int8), "residual": ((), np.float64),
+           "iterations": ((), np.int32)}
+_UNITS = {"poses": "homogeneous 4x4, translation in m (sensor frame -> source frame)",
+          "pose_vectors": "m, m, m, rad, rad, rad ([x, y, z] and rotation vector)",
+          "status": "openemt.solve.Status code (see attribute status_names)",
+          "residual": "sum of squared coupling residuals / spectral norm of C",
+          "iterations": "solver iterations"}
+
+
+class PoseWriter:
+    """Incremental writer: ``w = PoseWriter(h5file, n, solver)``; ``w.write(start, result)``.
+
+    ``h5file`` is an open, writable ``h5py.File`` (the caller owns it, typically a temporary
+    path from :func:`openemt.io.atomic_path`).
+    """
+
+    def __init__(self, h5file, n_samples: int, solver: str, meta: dict | None = None,
+                 chunk_rows: int = 65536):
+        f = h5file
+        f.attrs["schema"] = POSES_SCHEMA
+        f.attrs["schema_version"] = POSES_SCHEMA_VERSION
+        f.attrs["openemt_version"] = __version__
+        f.attrs["n_samples"] = int(n_samples)
+        f.attrs["solver"] = solver
+        f.attrs["status_names"] = json.dumps([s.name.lower() for s in Status])
+        f.attrs["meta"] = json.dumps(meta or {})
+        self._ds = {}
+        for name, (shape, dtype) in _FIELDS.items():
+            chunks = (max(1, min(int(n_samples), chunk_rows)),) + shape if n_samples else None
+            d = f.create_dataset(name, shape=(int(n_samples),) + shape, dtype=dtype,
+                                 chunks=chunks)
+            d.attrs["units"] = _UNITS[name]
+            self._ds[name] = d
+        self.counts = np.zeros(len(Status), dtype=np.int64)
+
+    def write(self, start: int, result: SolveResult) -> None:
+        stop = start + len(result)
+        for name, d in self._ds.items():
+            d[start:stop] = getattr(result, name)
+        self.counts += np.bincount(result.status.astype(np.int64), minlength=len(Status))
+
+    def status_counts(self) -> dict[str, int]:
+        return {s.name.lower(): int(self.counts[s.value]) for s in Status}
+
+
+def read_poses(path) -> SolveResult:
+    """Read a poses file written by ``openemt solve``."""
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"expected an openemt poses HDF5 file, got missing file "
+                                f"{str(path)!r}")
+    with h5py.File(path, "r") as f:
+        schema = f.attrs.get("schema")
+        if isinstance(schema, bytes):
+            schema = schema.decode()
+        if schema != POSES_SCHEMA:
+            raise ValueError(f"expected an openemt poses file (schema {POSES_SCHEMA!r}), got "
+                             f"schema {schema!r} in {path.name}")
+        return SolveResult(*(f[name][()] for name in _FIELDS), solver=str(f.attrs["solver"]))

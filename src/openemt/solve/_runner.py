@@ -1,0 +1,142 @@
+"""High-level solving with a calibration, and chunked (Dask) streaming of large datasets."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..io import Calibration
+from ._closed_form import solve_kim18, solve_kuipers, solve_svd
+from ._lm_solver import solve_lm
+from ._result import SolveResult
+
+__all__ = ["SOLVERS", "solve", "solve_chunks", "apply_position_correction"]
+
+#: Solver names accepted by :func:`solve` and ``openemt solve --solver``.
+SOLVERS = ("lm", "svd", "kuipers", "kim18")
+
+
+def apply_position_correction(result: SolveResult, L) -> SolveResult:
+    """Apply a 4x4 homogeneous output correction to the solved positions (orientation kept),
+    ilemt-format.md §10.3."""
+    from ..correct import apply_linear_correction
+
+    xyz = apply_linear_correction(L, result.pose_vectors[:, :3])
+    poses = result.poses.copy()
+    vecs = result.pose_vectors.copy()
+    poses[:, :3, 3] = xyz
+    vecs[:, :3] = xyz
+    return SolveResult(poses, vecs, result.status, result.residual, result.iterations,
+                       result.covariance, result.solver)
+
+
+def solve(couplings, calibration: Calibration, *, solver: str = "lm", hemisphere=None,
+          apply_correction: bool = True, concentric_calibration: Calibration | None = None,
+          **options) -> SolveResult:
+    """Solve poses with a calibration's model, then apply its output correction if present.
+
+    Parameters
+    ----------
+    couplings : ndarray, shape (N, n_source, n_sensor)
+        Signed real couplings (or complex phasors, see :func:`solve_lm`).
+    calibration : Calibration
+        Provides the model and, optionally, ``linear_correction``.
+    solver : {'lm', 'svd', 'kuipers', 'kim18'}
+        ``svd``, ``kuipers`` and ``kim18`` need a concentric 3x3 model.
+    hemisphere : see :func:`solve_lm`
+        Closed forms default to ``'+x'`` when None.
+    apply_correction : bool
+        Apply ``calibration.linear_correction`` to the positions when present.
+    concentric_calibration : Calibration, optional
+        Its model starts the LM solver (ILEMT's ``concentric_cal_file``).
+    **options
+        Passed to the solver (``max_iter``, ``valid_threshold``, ``bounds``, ``initial``, ...).
+    """
+    if not isinstance(calibration, Calibration):
+        raise TypeError(f"expected a Calibration, got {type(calibration).__name__}")
+    if solver not in SOLVERS:
+        raise ValueError(f"expected solver in {SOLVERS}, got {solver!r}")
+    model = calibration.model
+    if solver == "lm":
+        if concentric_calibration is not None:
+            options.setdefault("concentric_model", concentric_calibration.model)
+        result = solve_lm(couplings, model, hemisphere=hemisphere, **options)
+    else:
+        hemi = "+x" if hemisphere is None else hemisphere
+        if solver == "kim18":
+            result = solve_kim18(couplings, model, hemisphere=hemi, **options)
+        else:
+            f = solve_svd if solver == "svd" else solve_kuipers
+            result = f(couplings, hemisphere=hemi, model=model, **options)
+    if apply_correction and calibration.linear_correction is not None:
+        result = apply_position_correction(result, calibration.linear_correction)
+    return result
+
+
+def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_correction,
+                 options):
+    C = reader[start:stop]
+    return solve(C, calibration, solver=solver, hemisphere=hemisphere,
+                 apply_correction=apply_correction, **options)
+
+
+def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 262144,
+                 scheduler=None, max_in_flight: int = 2, solver: str = "lm", hemisphere=None,
+                 apply_correction: bool = True, **options):
+    """Solve a (possibly larger-than-memory) coupling array block by block.
+
+    Yields ``(start, SolveResult)`` in row order, so the caller can write each block out and
+    drop it; at most ``max_in_flight`` blocks are held at once.
+
+    Parameters
+    ----------
+    couplings : array-like, shape (N, n_source, n_sensor)
+        Anything sliceable by rows: an ndarray, an h5py dataset, or
+        :class:`openemt.io.CouplingReader` (pickles by path, so it works on a cluster).
+    chunk_rows : int
+        Rows per block (a 3x3 block of 262144 rows is ~19 MB of couplings, ~50 MB of results).
+    scheduler : None, str or dask.distributed.Client
+        ``None``: blocks are computed one after another in this process (Dask's synchronous
+        scheduler; the compiled solver itself uses all cores). A ``dask.distributed`` scheduler
+        address (``'tcp://host:8786'``) or a ``Client``: blocks are submitted to that cluster,
+        ``max_in_flight`` at a time.
+    solver, hemisphere, apply_correction, **options
+        As in :func:`solve`; ``hemisphere`` must be one spec for all rows (not per row).
+    """
+    import dask
+
+    n = len(couplings)
+    rows = int(chunk_rows)
+    if rows < 1:
+        raise ValueError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
+    if max_in_flight < 1:
+        raise ValueError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
+    if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1:
+        raise ValueError("expected one hemisphere for all rows when streaming, got an array")
+    if solver not in SOLVERS:
+        raise ValueError(f"expected solver in {SOLVERS}, got {solver!r}")
+    starts = list(range(0, n, rows))
+    args = (calibration, solver, hemisphere, apply_correction, options)
+    if scheduler is None:
+        for s in starts:
+            task = dask.delayed(_solve_block)(couplings, s, min(n, s + rows), *args)
+            (res,) = dask.compute(task, scheduler="synchronous")
+            yield s, res
+        return
+    from dask.distributed import Client
+
+    own = not isinstance(scheduler, Client)
+    client = Client(scheduler) if own else scheduler
+    try:
+        pending = []
+        it = iter(starts)
+        for s in it:
+            pending.append((s, client.submit(_solve_block, couplings, s, min(n, s + rows), *args,
+                                             pure=False)))
+            if len(pending) >= max_in_flight:
+                s0, fut = pending.pop(0)
+                yield s0, fut.result()
+        for s0, fut in pending:
+            yield s0, fut.result()
+    finally:
+        if own:
+            client.close()
