@@ -30,7 +30,7 @@ from ..geometry import (
 )
 from ._layout import ParameterLayout
 
-__all__ = ["CalibrationProblem", "build_problem", "fixture_twist_map"]
+__all__ = ["CalibrationProblem", "build_problem", "fixture_twist_map", "pose_twist_gradient"]
 
 
 def fixture_twist_map(v) -> np.ndarray:
@@ -97,18 +97,41 @@ class CalibrationProblem:
 
     def residuals_and_jacobian(self, x) -> tuple[np.ndarray, np.ndarray]:
         """Residuals ``(m,)`` and their Jacobian ``(m, layout.size)`` w.r.t. the full vector."""
-        lay = self.layout
         P, A, D, _ = self.poses(x)
-        jac = coupling_jacobians(lay.model(x, self.gain), P)
-        n, ns, ne = jac.C.shape
-        w = self.weight[:, None, None, None]
-        J = np.zeros((n, ns, ne, lay.size))
+        jac = coupling_jacobians(self.layout.model(x, self.gain), P)
+        dC, _ = self.gradients(x, jac, P, A, D)
+        r = (self.C_meas - jac.C) * self.weight[:, None, None]
+        J = dC * -self.weight[:, None, None, None]
+        return r.ravel(), J.reshape(r.size, self.layout.size)
 
+    def gradients(self, x, jac, P, A, D) -> tuple[np.ndarray, np.ndarray]:
+        """Derivatives of the predicted couplings.
+
+        Parameters
+        ----------
+        x : ndarray, shape (layout.size,)
+        jac : CouplingJacobians
+            Coupling derivatives at the poses ``P``.
+        P, A, D : ndarray, shape (N, 4, 4)
+            Poses and the partial products of :meth:`poses`.
+
+        Returns
+        -------
+        dC : ndarray, shape (N, n_so, n_se, layout.size)
+            ``d C_pred / d x``.
+        H : ndarray, shape (N, n_so, n_se, 6)
+            ``d C_pred`` with respect to a left twist ``(rho, phi)`` of ``P`` (for further
+            parameters that move ``P``: transport their twist with the adjoint of whatever
+            stands to their left).
+        """
+        lay = self.layout
+        n, ns, ne = jac.C.shape
+        J = np.zeros((n, ns, ne, lay.size))
         # model parameters: C[i, j] depends on source coil i and sensor coil j only
         for name, d, by_source in (("L_so", jac.d_L_so, True), ("M_so", jac.d_M_so, True),
                                    ("L_se", jac.d_L_se, False), ("M_se", jac.d_M_se, False)):
             s = lay.slices[name]
-            blk = J[..., s].reshape(n, ns, ne, -1, 3)  # view on J
+            blk = J[..., s].reshape(n, ns, ne, -1, 3)
             if by_source:
                 for i in range(ns):
                     blk[:, i, :, i, :] = d[:, i, :, :]
@@ -116,20 +139,25 @@ class CalibrationProblem:
                 for j in range(ne):
                     blk[:, :, j, j, :] = d[:, :, j, :]
             J[..., s] = blk.reshape(n, ns, ne, -1)
-
-        # pose -> left twist on P: dt_P = rho + phi x t_P, i.e. d/dphi gains -G_t [t_P]x
-        G_t = jac.d_translation
-        H = np.concatenate(
-            [G_t, jac.d_rotation - np.einsum("kija,kab->kijb", G_t, skew(P[:, :3, 3]))], axis=-1)
+        H = pose_twist_gradient(jac.d_translation, jac.d_rotation, P)
         F_so_v, F_st_v, F_se_v = lay.fixtures(x)
         J[..., lay.slices["F_so"]] = H @ fixture_twist_map(F_so_v)
         J[..., lay.slices["F_st"]] = np.einsum("kijb,kbc->kijc", H,
                                                adjoint(A) @ fixture_twist_map(F_st_v))
         J[..., lay.slices["F_se"]] = np.einsum("kijb,kbc->kijc", H,
                                                adjoint(D) @ fixture_twist_map(F_se_v))
-        r = (self.C_meas - jac.C) * self.weight[:, None, None]
-        J *= -w
-        return r.ravel(), J.reshape(n * ns * ne, lay.size)
+        return J, H
+
+
+def pose_twist_gradient(d_translation, d_rotation, P) -> np.ndarray:
+    """Gradient ``(N, ..., 6)`` with respect to a left twist ``(rho, phi)`` of the poses ``P``.
+
+    A twist moves the translation by ``rho + phi x t_P`` and rotates by ``phi``, so the phi part
+    gains ``-G_t [t_P]x`` on top of the rotation gradient.
+    """
+    G_t = d_translation
+    return np.concatenate(
+        [G_t, d_rotation - np.einsum("kija,kab->kijb", G_t, skew(P[:, :3, 3]))], axis=-1)
 
 
 def _spectral_norms(C: np.ndarray) -> np.ndarray:

@@ -1,0 +1,188 @@
+"""Axial octupole (finite-size) terms of the coils and a dipole-plus-octupole coupling model.
+
+A coil of finite size with an axis of symmetry and no net quadrupole (centred winding) has, after
+its dipole term, an axial octupole (zonal harmonic l = 3). With the dipole written as the
+scalar potential ``Phi_1 = |M| P_1(c) / d^2`` (so ``B = -grad Phi`` is the usual dipole field
+``(3 (M.u) u - M) / d^3``), the octupole of the same coil is ``Phi_3 = kappa |M| P_3(c) / d^4``,
+``c = n . u``, with a strength ``kappa`` in m^2 (of the order of the coil radius squared; its
+sign depends on the winding's aspect ratio). Writing ``a = M.u``, ``b = m.u``, ``g = M.m`` and
+``mu2 = |M|^2``, the coupling into a point sensor of moment ``m`` is::
+
+    C3 = -gain kappa / (2 mu2 d^5) * (15 a^2 g - 3 g mu2 - 35 a^3 b + 15 a b mu2)
+
+It is homogeneous of degree one in ``M`` and in ``m``, like the dipole coupling. A finite sensor
+coil in the field of a point source has the same form with the roles of the two coils swapped
+(reciprocity). The sum of the dipole model and these terms is :class:`OctupoleModel`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..field import CouplingJacobians, DipoleModel, coupling_jacobians
+from ..geometry import check_poses
+
+__all__ = ["OctupoleModel", "octupole_coupling", "refine_poses"]
+
+
+def _octupole_pair(r, M, m, gain, want_grad):
+    """Octupole coupling of source moments ``M`` at offset ``r`` (source -> sensor) into ``m``.
+
+    Shapes broadcast: ``r, M, m (..., 3)``. Returns ``C (...)`` and, if wanted, the gradients
+    with respect to ``r``, ``M`` and ``m`` (each ``(..., 3)``), for ``kappa = 1``.
+    """
+    d2 = np.sum(r * r, axis=-1)
+    d = np.sqrt(d2)
+    u = r / d[..., None]
+    a = np.sum(M * u, axis=-1)
+    b = np.sum(m * u, axis=-1)
+    g = np.sum(M * m, axis=-1)
+    mu2 = np.sum(M * M, axis=-1)
+    f = 15 * a * a * g - 3 * g * mu2 - 35 * a ** 3 * b + 15 * a * b * mu2
+    K = -0.5 * gain / (mu2 * d2 * d2 * d)
+    C = K * f
+    if not want_grad:
+        return C, None, None, None
+    fa = 30 * a * g - 105 * a * a * b + 15 * b * mu2
+    fb = -35 * a ** 3 + 15 * a * mu2
+    fg = 15 * a * a - 3 * mu2
+    fmu = -3 * g + 15 * a * b
+    inv_d = (1.0 / d)[..., None]
+    da_dr = (M - a[..., None] * u) * inv_d
+    db_dr = (m - b[..., None] * u) * inv_d
+    Kx = K[..., None]
+    dr = Kx * (fa[..., None] * da_dr + fb[..., None] * db_dr - 5 * f[..., None] * u * inv_d)
+    dM = Kx * (fa[..., None] * u + fg[..., None] * m + 2 * fmu[..., None] * M
+               - 2 * (f / mu2)[..., None] * M)
+    dm = Kx * (fb[..., None] * u + fg[..., None] * M)
+    return C, dr, dM, dm
+
+
+def octupole_coupling(model: DipoleModel, k_so, k_se, R, t, want_grad=False):
+    """Octupole couplings ``(N, n_so, n_se)`` of a dipole model's coils with strengths
+    ``k_so (n_so,)`` and ``k_se (n_se,)`` (m^2) for poses ``R (N, 3, 3)``, ``t (N, 3)``.
+
+    With ``want_grad`` also returns a dict of gradients shaped like
+    :class:`~openemt.field.CouplingJacobians` fields plus ``d_k_so``/``d_k_se``
+    ``(N, n_so, n_se)`` (``C`` for unit strength of the coil concerned).
+    """
+    k_so = np.asarray(k_so, dtype=np.float64)
+    k_se = np.asarray(k_se, dtype=np.float64)
+    Lr = np.einsum("kab,bj->kja", R, model.L_se)                   # (N, n_se, 3)
+    p = Lr + t[:, None, :]
+    m = np.einsum("kab,bj->kja", R, model.M_se)                    # (N, n_se, 3)
+    r = p[:, None, :, :] - model.L_so.T[None, :, None, :]          # (N, n_so, n_se, 3)
+    M = np.broadcast_to(model.M_so.T[None, :, None, :], r.shape)
+    mm = np.broadcast_to(m[:, None, :, :], r.shape)
+    # source coil finite size: field of the source octupole at the point sensor
+    Cs, drs, dMs, dms = _octupole_pair(r, M, mm, model.gain, want_grad)
+    # sensor coil finite size: by reciprocity, the sensor octupole "seen" from the source
+    Ce, dre, dme, dMe = _octupole_pair(-r, mm, M, model.gain, want_grad)
+    C = Cs * k_so[None, :, None] + Ce * k_se[None, None, :]
+    if not want_grad:
+        return C, None
+    ks = k_so[None, :, None, None]
+    ke = k_se[None, None, :, None]
+    g_r = drs * ks - dre * ke          # gradient with respect to r = p_j - L_so_i
+    g_M = dMs * ks + dMe * ke          # with respect to the source moment (source frame)
+    g_m = dms * ks + dme * ke          # with respect to the sensor moment (source frame)
+    # p_j = R L_se_j + t, m_j = R M_se_j (as the dipole kernel)
+    d_phi = np.cross(Lr[:, None, :, :], g_r) + np.cross(mm, g_m)
+    grads = {
+        "C": C, "d_translation": g_r, "d_rotation": d_phi, "d_L_so": -g_r, "d_M_so": g_M,
+        "d_L_se": np.einsum("kba,kijb->kija", R, g_r),
+        "d_M_se": np.einsum("kba,kijb->kija", R, g_m),
+        "d_k_so": Cs, "d_k_se": Ce,
+    }
+    return C, grads
+
+
+@dataclass(frozen=True, eq=False)
+class OctupoleModel:
+    """Dipole model plus an axial octupole per coil (finite coil size).
+
+    Attributes
+    ----------
+    dipole : DipoleModel
+    k_so : ndarray, shape (n_source,)
+        Octupole strength of each source coil (m^2).
+    k_se : ndarray, shape (n_sensor,)
+        Octupole strength of each sensor coil (m^2).
+    """
+
+    dipole: DipoleModel
+    k_so: np.ndarray
+    k_se: np.ndarray
+
+    def __post_init__(self):
+        for name, n in (("k_so", self.dipole.n_source), ("k_se", self.dipole.n_sensor)):
+            v = np.asarray(getattr(self, name), dtype=np.float64).reshape(-1)
+            if v.shape != (n,) or not np.all(np.isfinite(v)):
+                raise ValueError(f"expected finite `{name}` of shape ({n},), got {v.shape}")
+            object.__setattr__(self, name, v)
+
+    @property
+    def n_source(self) -> int:
+        return self.dipole.n_source
+
+    @property
+    def n_sensor(self) -> int:
+        return self.dipole.n_sensor
+
+    def coupling(self, poses) -> np.ndarray:
+        """Couplings ``(N, n_source, n_sensor)`` for poses ``(N, 4, 4)``."""
+        P = check_poses(poses)
+        C3, _ = octupole_coupling(self.dipole, self.k_so, self.k_se, P[:, :3, :3], P[:, :3, 3])
+        return self.dipole.coupling(P) + C3
+
+    def jacobians(self, poses) -> tuple[CouplingJacobians, np.ndarray, np.ndarray]:
+        """Coupling derivatives of the sum (as :func:`~openemt.field.coupling_jacobians`) and the
+        derivatives with respect to ``k_so`` and ``k_se`` (each ``(N, n_so, n_se)``, the
+        coupling of unit strength of the coil concerned)."""
+        P = check_poses(poses)
+        jd = coupling_jacobians(self.dipole, P)
+        _, g = octupole_coupling(self.dipole, self.k_so, self.k_se, P[:, :3, :3], P[:, :3, 3],
+                                 want_grad=True)
+        fields = {k: getattr(jd, k) + g[k] for k in ("C", "d_translation", "d_rotation",
+                                                     "d_L_so", "d_M_so", "d_L_se", "d_M_se")}
+        return CouplingJacobians(**fields), g["d_k_so"], g["d_k_se"]
+
+
+def refine_poses(model: OctupoleModel, couplings, pose_vectors, *, iterations: int = 10,
+                 damping: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Refine pose vectors ``(N, 6)`` for an :class:`OctupoleModel` by batched Gauss-Newton.
+
+    Starts from (for example) the dipole-model solution, which differs from the octupole-model
+    solution by a small amount, and returns the refined pose vectors and the ILEMT residual
+    ``sum(residual^2) / ||C||_2`` (N,). ``couplings`` are signed real or complex (the target is
+    ``sign(Re z)|z|``, normalised by the complex spectral norm).
+    """
+    from ..geometry import left_jacobian_so3, pose_from_vector, vector_from_pose
+    from ..io import signed_real
+
+    C = np.asarray(couplings)
+    norm = np.linalg.norm(C, ord=2, axis=(1, 2))
+    Cd = signed_real(C)
+    v = np.array(pose_vectors, dtype=np.float64)
+    n = v.shape[0]
+    lam = damping
+    for _ in range(iterations):
+        P = pose_from_vector(v)
+        jac, _, _ = model.jacobians(P)
+        r = (Cd - jac.C).reshape(n, -1)
+        J = jac.pose_vector(v[:, 3:]).reshape(n, -1, 6)
+        JtJ = np.einsum("kma,kmb->kab", J, J)
+        scale = np.sqrt(np.einsum("kaa->ka", JtJ)) + 1e-300
+        JtJ = JtJ / scale[:, :, None] / scale[:, None, :] + lam * np.eye(6)
+        step = np.linalg.solve(JtJ, (np.einsum("kma,km->ka", J, r) / scale)[..., None])[..., 0]
+        step /= scale
+        v = v + step
+        # keep the rotation vector canonical (angle in [0, pi])
+        v = vector_from_pose(pose_from_vector(v))
+        if np.max(np.abs(step[:, :3])) < 1e-12:
+            break
+    P = pose_from_vector(v)
+    res = np.sum((Cd - model.coupling(P)) ** 2, axis=(1, 2)) / norm
+    return v, res
