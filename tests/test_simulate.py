@@ -6,12 +6,25 @@ import numpy as np
 import pytest
 
 from openemt.field import DipoleModel
-from openemt.geometry import (SENSOR_FIXTURES, SOURCE_FIXTURES, ground_truth_poses,
-                              pose_from_vector, source_fixture_rotation)
+from openemt.geometry import (
+    SENSOR_FIXTURES,
+    SOURCE_FIXTURES,
+    ground_truth_poses,
+    pose_from_vector,
+    source_fixture_rotation,
+)
 from openemt.io import Calibration, Dataset
-from openemt.simulate import (PRESETS, Distortion, distortion_coupling, fixture_combinations,
-                              get_preset, polarizability, simulate, stage_pattern,
-                              truth_calibration)
+from openemt.simulate import (
+    PRESETS,
+    Distortion,
+    distortion_coupling,
+    fixture_combinations,
+    get_preset,
+    polarizability,
+    simulate,
+    stage_pattern,
+    truth_calibration,
+)
 
 MU0 = 4e-7 * np.pi
 
@@ -66,7 +79,7 @@ def test_stage_error_changes_poses_not_stage():
 
 
 def test_seeded_reproducibility():
-    kw = dict(snr_db=60, drift=2e-4, seed=11)
+    kw = {"snr_db": 60, "drift": 2e-4, "seed": 11}
     a = simulate("concentric", "mdtrans", **kw)
     b = simulate("concentric", "mdtrans", **kw)
     np.testing.assert_array_equal(a.couplings, b.couplings)
@@ -195,7 +208,7 @@ def test_distortion_stays_in_bench_frame():
     is F_so so_J x."""
     obj = Distortion("ferromagnetic", (0.03, 0.15, 0.02), radius=0.02)
     p = get_preset("concentric")
-    kw = dict(source_fixtures="ZoutYup", sensor_fixtures="YoutZup", stage_sigma=0.0)
+    kw = {"source_fixtures": "ZoutYup", "sensor_fixtures": "YoutZup", "stage_sigma": 0.0}
     clean = simulate(p, "mdtrans", **kw)
     ds = simulate(p, "mdtrans", distortion=obj, **kw)
     assert ds.couplings.dtype == np.float64  # ferromagnetic only: real
@@ -299,7 +312,7 @@ def test_truth_calibration():
         assert isinstance(cal, Calibration) and cal.mode == "truth"
         assert cal.model is p.dipole
         np.testing.assert_array_equal(cal.stage_fixture, p.stage_fixture)
-        F_so, F_st, F_se = cal.fixture_poses
+        _F_so, F_st, _F_se = cal.fixture_poses
         np.testing.assert_allclose(F_st, pose_from_vector(p.stage_fixture))
 
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-import openemt.cli as cli
+from openemt import cli
 from openemt.io import read_calibration, read_dataset
 from openemt.simulate import simulate, truth_calibration
 

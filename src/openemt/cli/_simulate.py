@@ -8,7 +8,7 @@ import numpy as np
 
 from ._common import add_common, emit
 
-__all__ = ["register", "run", "parse_distortion"]
+__all__ = ["parse_distortion", "register", "run"]
 
 _DISTORTION_HELP = (
     "field-distorting object 'KIND,X,Y,Z,RADIUS[,conductivity=S][,mu_r=M]' with KIND "
@@ -139,8 +139,8 @@ def run(args) -> int:
         "seed": args.seed,
         "errors": ds.meta["errors"],
     }
-    human = [f"simulated {ds.n_samples} samples ({ds.n_source} x {ds.n_sensor} couplings) of "
-             f"preset {args.preset}: {len(ds.files)} blocks -> {args.output}"]
+    human = [(f"simulated {ds.n_samples} samples ({ds.n_source} x {ds.n_sensor} couplings) of "
+             f"preset {args.preset}: {len(ds.files)} blocks -> {args.output}")]
     if cal is not None:
         human.append(f"truth calibration -> {args.truth_calibration}")
     emit(args, summary, human)

@@ -17,13 +17,13 @@ from ._patterns import GRID_PITCH, PATTERNS, STAGE_Z_LIMIT, stage_pattern
 from ._presets import PRESETS, Preset, get_preset
 
 __all__ = [
-    "Distortion",
     "GRID_PITCH",
     "PATTERNS",
     "PRESETS",
-    "Preset",
     "STAGE_SIGMA",
     "STAGE_Z_LIMIT",
+    "Distortion",
+    "Preset",
     "add_noise",
     "distortion_coupling",
     "drift_factors",

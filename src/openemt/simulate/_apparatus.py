@@ -26,7 +26,7 @@ from ._errors import (
 from ._patterns import STAGE_Z_LIMIT, stage_pattern
 from ._presets import Preset, get_preset
 
-__all__ = ["fixture_combinations", "simulate", "truth_calibration", "STAGE_SIGMA"]
+__all__ = ["STAGE_SIGMA", "fixture_combinations", "simulate", "truth_calibration"]
 
 #: Default stage position uncertainty per axis after compensation (m), seed 000 supplement.
 STAGE_SIGMA = 107e-6

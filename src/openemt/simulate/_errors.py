@@ -14,13 +14,13 @@ import numpy as np
 from ..field import DipoleModel
 
 __all__ = [
-    "Distortion",
-    "noise_sigma",
-    "add_noise",
-    "drift_factors",
-    "polarizability",
-    "distortion_coupling",
     "MU0",
+    "Distortion",
+    "add_noise",
+    "distortion_coupling",
+    "drift_factors",
+    "noise_sigma",
+    "polarizability",
 ]
 
 MU0 = 4e-7 * np.pi  # vacuum permeability (H/m)
@@ -125,7 +125,7 @@ class Distortion:
             object.__setattr__(self, name, v)
 
     @classmethod
-    def from_any(cls, obj) -> "Distortion":
+    def from_any(cls, obj) -> Distortion:
         """A ``Distortion`` from itself or a dict of its fields."""
         if isinstance(obj, cls):
             return obj

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PATTERNS", "STAGE_Z_LIMIT", "GRID_PITCH", "stage_pattern"]
+__all__ = ["GRID_PITCH", "PATTERNS", "STAGE_Z_LIMIT", "stage_pattern"]
 
 #: Lowest Z the stage reaches (m). A commanded Z below it is logged as this value (§2, §3).
 STAGE_Z_LIMIT = -0.0462

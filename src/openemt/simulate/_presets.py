@@ -23,7 +23,7 @@ from .. import field as _field
 from ..field import ILEMT_GAIN, DipoleModel
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
 
-__all__ = ["Preset", "PRESETS", "get_preset"]
+__all__ = ["PRESETS", "Preset", "get_preset"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,7 +98,7 @@ def _windings(L, M, size, length, *, square: bool):
     coils = []
     for j in range(L.shape[1]):
         g = float(np.linalg.norm(M[:, j]))
-        kw = dict(length=float(length[j]), gain=g)
+        kw = {"length": float(length[j]), "gain": g}
         if square:
             coils.append(_field.square_coil(L[:, j], M[:, j] / g, side=float(size[j]), **kw))
         else:
@@ -222,7 +222,7 @@ _BUILDERS = {"concentric": _concentric, "dipole-approx": _dipole_approx, "anser"
 PRESETS = tuple(_BUILDERS)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _cached(name: str) -> Preset:
     return _BUILDERS[name]()
 
