@@ -45,8 +45,8 @@ __all__ = [
     "fit_rbf",
 ]
 
-SMOOTHING_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)
-SMOOTHING_RBF = (1e-8, 1e-6, 1e-4, 1e-2, 1.0)
+SMOOTHING_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
+SMOOTHING_RBF = (1e-8, 1e-6, 1e-4, 1e-2, 1.0, 10.0, 100.0)
 
 
 def _targets(m, d, Rm, Rd):
