@@ -97,3 +97,19 @@ def test_bad_inputs(tmp_path):
     with pytest.raises(ValueError, match="grid-shape"):
         _main(["correct", "fit", str(g), "-o", str(tmp_path / "c.json"), "--method", "grid",
                "--grid-shape", "a,b"])
+
+
+def test_registered_command_exit_codes(tmp_path, capsys):
+    from openemt.cli import main
+
+    assert main(["correct", "fit", str(tmp_path / "missing.csv"), "-o",
+                 str(tmp_path / "c.json")]) == 2
+    assert "error:" in capsys.readouterr().err
+    rng = np.random.default_rng(52)
+    M, D = _pairs(rng, 40)
+    f = write_poses_csv(tmp_path / "p.csv", M, D)
+    assert main(["correct", "fit", str(f), "-o", str(tmp_path / "c.json"), "--method", "rbf",
+                 "--quiet"]) == 0
+    assert main(["correct", "apply", str(tmp_path / "c.json"), str(f), "-o",
+                 str(tmp_path / "o.csv"), "--quiet"]) == 0
+    assert read_poses_csv(tmp_path / "o.csv").poses.shape == (40, 4, 4)
