@@ -114,7 +114,7 @@ def test_noise_matches_analytic_prediction(window):
     sigma = 1e-3
     raw = simulate_raw(MODEL, POSE, 1.0, _quiet(noise_rms=sigma), seed=8)
     d = demodulate(raw.samples, raw.layout, window=window)
-    hop, L = frame_length(raw.layout, 1500, window)
+    _, L = frame_length(raw.layout, 1500, window)
     w = np.ones(L) if window == "rect" else 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(L) / L)
     predicted = sigma * np.sqrt(2 * np.sum(w ** 2)) / np.sum(w)
     measured = d.in_phase.std(axis=0)

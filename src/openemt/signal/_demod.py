@@ -33,7 +33,7 @@ import numpy as np
 
 from ._rawsim import ChannelLayout
 
-__all__ = ["Demodulated", "Demodulator", "demodulate", "phase_calibration", "frame_length"]
+__all__ = ["Demodulated", "Demodulator", "demodulate", "frame_length", "phase_calibration"]
 
 _WINDOWS = {"rect": 1, "hann": 2}
 
@@ -97,7 +97,7 @@ def frame_length(layout: ChannelLayout, output_rate: float = 1500.0,
     if abs(hop - round(hop)) > 1e-9 * hop or round(hop) < 2:
         raise ValueError(f"expected sample_rate / output_rate to be an integer >= 2, got "
                          f"{fs:g} / {rate:g} = {hop:g}")
-    hop = int(round(hop))
+    hop = round(hop)
     L = _WINDOWS[window] * hop
     bins = np.asarray(layout.frequencies) * L / fs
     if np.any(np.abs(bins - np.round(bins)) > 1e-6):

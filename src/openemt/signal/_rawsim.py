@@ -20,19 +20,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+
 import numpy as np
 
 __all__ = [
     "ILEMT_FREQUENCIES",
+    "RAW_FORMAT",
     "ChannelLayout",
-    "RawSignalConfig",
     "RawSignal",
+    "RawSignalConfig",
     "RawSimulator",
     "eddy_factor",
+    "read_raw",
     "simulate_raw",
     "write_raw",
-    "read_raw",
-    "RAW_FORMAT",
 ]
 
 #: ILEMT's high-rate carrier frequencies for source X, Y, Z (Hz), seed 000 §V-C.
@@ -145,8 +146,8 @@ class RawSignalConfig:
     layout: ChannelLayout = field(default_factory=ChannelLayout)
     drive_amplitude: float = 1.0
     drive_phase: tuple | None = None
-    noise_rms: float = 1e-4
-    reference_noise_rms: float = 1e-5
+    noise_rms: float = 1.5e-5
+    reference_noise_rms: float = 1.5e-6
     mains_frequency: float = 50.0
     mains_amplitudes: tuple = ()
     drift_amplitude: float = 0.0
@@ -365,25 +366,24 @@ def write_raw(raw: RawSignal, path) -> None:
     from ..io import atomic_path
 
     lay = raw.layout
-    with atomic_path(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = RAW_FORMAT
-            f.attrs["version"] = _RAW_VERSION
-            f.attrs["sample_rate"] = lay.sample_rate
-            f.attrs["frequencies"] = np.asarray(lay.frequencies)
-            f.attrs["sensor_channels"] = np.asarray(lay.sensor_channels, dtype=np.int64)
-            f.attrs["reference_channels"] = np.asarray(lay.reference_channels, dtype=np.int64)
-            f.attrs["sensor_gain"] = lay.sensor_gain
-            f.attrs["reference_gain"] = lay.reference_gain
-            f.attrs["t0"] = float(raw.t0)
-            f.create_dataset("samples", data=np.asarray(raw.samples), chunks=True)
-            if raw.truth_times is not None:
-                g = f.create_group("truth")
-                g.create_dataset("times", data=raw.truth_times)
-                if raw.truth_couplings is not None:
-                    g.create_dataset("couplings", data=raw.truth_couplings)
-                if raw.truth_poses is not None:
-                    g.create_dataset("poses", data=raw.truth_poses)
+    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = RAW_FORMAT
+        f.attrs["version"] = _RAW_VERSION
+        f.attrs["sample_rate"] = lay.sample_rate
+        f.attrs["frequencies"] = np.asarray(lay.frequencies)
+        f.attrs["sensor_channels"] = np.asarray(lay.sensor_channels, dtype=np.int64)
+        f.attrs["reference_channels"] = np.asarray(lay.reference_channels, dtype=np.int64)
+        f.attrs["sensor_gain"] = lay.sensor_gain
+        f.attrs["reference_gain"] = lay.reference_gain
+        f.attrs["t0"] = float(raw.t0)
+        f.create_dataset("samples", data=np.asarray(raw.samples), chunks=True)
+        if raw.truth_times is not None:
+            g = f.create_group("truth")
+            g.create_dataset("times", data=raw.truth_times)
+            if raw.truth_couplings is not None:
+                g.create_dataset("couplings", data=raw.truth_couplings)
+            if raw.truth_poses is not None:
+                g.create_dataset("poses", data=raw.truth_poses)
 
 
 def read_raw(path) -> RawSignal:

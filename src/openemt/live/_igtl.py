@@ -1,0 +1,260 @@
+"""OpenIGTLink output: a TRANSFORM server that 3D Slicer's OpenIGTLinkIF module connects to.
+
+Poses are metres inside openemt; OpenIGTLink transforms for Slicer are in **millimetres**
+(Slicer's convention), so :meth:`IgtlServer.send_pose` scales the translation by 1000 at this
+edge and nowhere else. The message transports the 4x4 pose as float32 (about 1e-5 mm and
+1e-7 rad of rounding at 200 mm).
+
+The server is pyigtl's ``OpenIGTLinkServer`` (message packing, socket server) with its own
+connection handler so that it
+
+- never grows memory: poses wait in a bounded queue (``max_queue``, oldest dropped first, a
+  tracker wants the newest pose) and nothing is queued while no client is connected;
+- notices a client that disconnects and accepts the next one (Slicer reconnecting);
+- drops a client whose socket stays blocked longer than ``send_timeout`` (a stalled viewer
+  cannot stall the tracker);
+- shuts down within about ``poll`` seconds and leaves no thread behind.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import select
+import socket
+import socketserver
+import threading
+import time
+
+import numpy as np
+import pyigtl
+from pyigtl.comm import OpenIGTLinkBase
+
+__all__ = ["DEFAULT_IGTL_PORT", "IgtlServer"]
+
+#: The OpenIGTLink port 3D Slicer's client connector uses by default.
+DEFAULT_IGTL_PORT = 18944
+
+logger = logging.getLogger(__name__)
+
+
+class _Handler(socketserver.BaseRequestHandler):
+    """One connected client: send queued transforms until it leaves or the server stops."""
+
+    def handle(self):
+        srv: _Server = self.server
+        sock = self.request
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.settimeout(srv.owner.send_timeout)
+        srv.owner._set_connected(True)
+        try:
+            while not srv.communication_thread_stop_requested:
+                batch = srv.owner._take(srv.owner.poll)
+                readable, _, _ = select.select([sock], [], [], 0)
+                # a client message (ignored) or the client closing
+                if readable and not sock.recv(65536):
+                    logger.info("OpenIGTLink client disconnected")
+                    break
+                for message, t_ready in batch:
+                    sock.sendall(message.pack())
+                    srv.owner._sent(t_ready)
+        except OSError as exc:  # includes socket.timeout: stalled or vanished client
+            logger.warning("OpenIGTLink client dropped: %s", exc)
+        finally:
+            srv.owner._set_connected(False)
+
+
+class _Server(pyigtl.OpenIGTLinkServer):
+    """pyigtl's server with our handler, no process signal handlers, explicit lifetime."""
+
+    allow_reuse_address = True
+
+    def __init__(self, owner, host: str, port: int):
+        OpenIGTLinkBase.__init__(self)
+        self.owner = owner
+        self.host = host
+        socketserver.TCPServer.__init__(self, (host, port), _Handler)
+        self.port = self.server_address[1]
+
+
+class IgtlServer:
+    """Serve sensor poses as OpenIGTLink TRANSFORM messages.
+
+    Parameters
+    ----------
+    port : int
+        TCP port (default 18944, Slicer's default); 0 picks a free port (see :attr:`port`).
+    host : str
+        Interface to listen on ("127.0.0.1" for local viewers; "0.0.0.0" for the network).
+    device_name : str
+        OpenIGTLink device name = the transform node name in Slicer.
+    max_queue : int
+        Poses waiting for a slow client; older ones are dropped first.
+    send_timeout : float
+        A client whose socket blocks longer than this (s) is disconnected.
+    poll : float
+        Wake-up period of the sender thread (s); bounds the shutdown time.
+
+    Examples
+    --------
+    >>> with IgtlServer(port=0, device_name="SensorToTracker") as srv:   # doctest: +SKIP
+    ...     srv.send_pose(pose_in_metres)
+    """
+
+    def __init__(self, port: int = DEFAULT_IGTL_PORT, *, host: str = "127.0.0.1",
+                 device_name: str = "openemt", max_queue: int = 16, send_timeout: float = 1.0,
+                 poll: float = 0.02):
+        if not isinstance(device_name, str) or not device_name or len(device_name) > 20:
+            raise ValueError(f"expected a `device_name` of 1-20 characters, got {device_name!r}")
+        if int(max_queue) < 1:
+            raise ValueError(f"expected `max_queue` >= 1, got {max_queue!r}")
+        port = int(port)
+        if not 0 <= port <= 65535:
+            raise ValueError(f"expected a TCP `port` in 0..65535, got {port}")
+        self.device_name = device_name
+        self.send_timeout = float(send_timeout)
+        self.poll = float(poll)
+        self._queue: collections.deque = collections.deque()
+        self._max_queue = int(max_queue)
+        self._cond = threading.Condition()
+        self._connected = False
+        self.n_queued = 0
+        self.n_sent = 0
+        self.n_dropped = 0
+        self.n_no_client = 0
+        self.n_connections = 0
+        self._latency = collections.deque(maxlen=200_000)
+        self._closed = False
+        try:
+            self._server = _Server(self, host, port)
+        except OSError as exc:
+            raise OSError(f"expected a free TCP port for OpenIGTLink on {host}:{port}, got "
+                          f"{exc.strerror or exc}") from None
+        self._thread = threading.Thread(target=self._server.serve_forever,
+                                        kwargs={"poll_interval": self.poll},
+                                        name="openemt-igtl", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ state
+    @property
+    def port(self) -> int:
+        """The TCP port actually listened on."""
+        return self._server.port
+
+    @property
+    def connected(self) -> bool:
+        """True while a client is connected."""
+        return self._connected
+
+    @property
+    def queue_length(self) -> int:
+        return len(self._queue)
+
+    def latencies(self) -> np.ndarray:
+        """Seconds from ``t_ready`` (given to :meth:`send_pose`) to the end of the socket send,
+        for the most recent (up to 200 000) sent poses."""
+        return np.asarray(self._latency)
+
+    def stats(self) -> dict:
+        """Counters: queued, sent, dropped (queue full), no_client (nobody listening),
+        connections."""
+        return {"queued": self.n_queued, "sent": self.n_sent, "dropped": self.n_dropped,
+                "no_client": self.n_no_client, "connections": self.n_connections}
+
+    def _set_connected(self, value: bool):
+        with self._cond:
+            self._connected = value
+            if value:
+                self.n_connections += 1
+            else:
+                self._queue.clear()
+
+    def _take(self, timeout):
+        with self._cond:
+            if not self._queue:
+                self._cond.wait(timeout)
+            batch = list(self._queue)
+            self._queue.clear()
+        return batch
+
+    def _sent(self, t_ready):
+        self.n_sent += 1
+        if t_ready is not None:
+            self._latency.append(time.perf_counter() - t_ready)
+
+    # ------------------------------------------------------------------ sending
+    def send_pose(self, pose, *, timestamp: float | None = None,
+                  t_ready: float | None = None) -> bool:
+        """Queue one pose (metres) as a TRANSFORM in millimetres.
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+            Sensor pose in the source frame, translation in metres.
+        timestamp : float, optional
+            Acquisition time (s since the epoch) written into the message.
+        t_ready : float, optional
+            ``time.perf_counter()`` when the pose's couplings were available; the sender records
+            the latency to the end of the socket send.
+
+        Returns
+        -------
+        bool
+            False when no client is connected (nothing queued) or the server is closed.
+        """
+        P = np.asarray(pose, dtype=np.float64)
+        if P.shape != (4, 4):
+            raise ValueError(f"expected `pose` of shape (4, 4), got {P.shape}")
+        M = P.copy()
+        M[:3, 3] *= 1000.0                       # metres -> millimetres (Slicer convention)
+        return self._enqueue(pyigtl.TransformMessage(M, timestamp=timestamp,
+                                                     device_name=self.device_name), t_ready)
+
+    def send_message(self, message, t_ready: float | None = None) -> bool:
+        """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status)."""
+        return self._enqueue(message, t_ready)
+
+    def _enqueue(self, message, t_ready):
+        with self._cond:
+            if self._closed:
+                return False
+            if not self._connected:
+                self.n_no_client += 1
+                return False
+            if len(self._queue) >= self._max_queue:
+                self._queue.popleft()
+                self.n_dropped += 1
+            self._queue.append((message, t_ready))
+            self.n_queued += 1
+            self._cond.notify()
+        return True
+
+    def wait_for_client(self, timeout: float) -> bool:
+        """Block until a client is connected or ``timeout`` seconds pass."""
+        end = time.monotonic() + float(timeout)
+        while not self._connected and time.monotonic() < end:
+            time.sleep(0.005)
+        return self._connected
+
+    # ------------------------------------------------------------------ lifetime
+    def close(self) -> None:
+        """Stop serving, disconnect the client and join the server thread (idempotent)."""
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            self._server.communication_thread_stop_requested = True
+            self._cond.notify_all()
+        self._server.shutdown()
+        self._server.server_close()
+        self._thread.join(timeout=self.send_timeout + 5 * self.poll + 1.0)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed and not self._thread.is_alive()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,145 @@
+"""OpenIGTLink server on loopback with real pyigtl clients (free ports, bounded waits)."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import numpy as np
+import pyigtl
+import pytest
+
+from openemt.geometry import pose_from_vector
+from openemt.live import IgtlServer
+
+NAME = "TestSensor"
+
+
+def _wait(cond, timeout=3.0):
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.005)
+    return cond()
+
+
+@pytest.fixture
+def server():
+    srv = IgtlServer(port=0, device_name=NAME, max_queue=8, send_timeout=0.3)
+    yield srv
+    srv.close()
+    assert srv.closed
+
+
+def _client(port):
+    return pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port)
+
+
+def test_transform_in_millimetres_and_timestamp(server):
+    cl = _client(server.port)
+    try:
+        assert server.wait_for_client(3.0)
+        P = pose_from_vector(np.array([0.2012, -0.0345, 0.0171, 0.3, -0.2, 1.1]))
+        assert server.send_pose(P, timestamp=1234.5678)
+        msg = cl.wait_for_message(NAME, timeout=3.0)
+        assert msg is not None and msg.device_name == NAME
+        expected = P.copy()
+        expected[:3, 3] *= 1000.0
+        np.testing.assert_allclose(msg.matrix, expected, rtol=0, atol=2e-5 * 250)
+        assert abs(msg.timestamp - 1234.5678) < 1e-6
+    finally:
+        cl.stop()
+
+
+def test_no_client_nothing_queued(server):
+    assert not server.send_pose(np.eye(4))
+    assert server.queue_length == 0 and server.stats()["no_client"] == 1
+    with pytest.raises(ValueError, match="shape"):
+        server.send_pose(np.eye(3))
+
+
+def test_client_disconnect_and_reconnect(server):
+    P = np.eye(4)
+    for round_ in range(3):
+        cl = _client(server.port)
+        try:
+            assert server.wait_for_client(3.0)
+            P[0, 3] = 0.1 * (round_ + 1)
+            got = None
+            for _ in range(100):          # bounded: resend until this client has the pose
+                server.send_pose(P, timestamp=float(round_))
+                got = cl.wait_for_message(NAME, timeout=0.05)
+                if got is not None:
+                    break
+            assert got is not None
+            assert got.matrix[0, 3] == pytest.approx(100.0 * (round_ + 1))
+        finally:
+            cl.stop()
+        assert _wait(lambda: not server.connected), "server did not notice the disconnect"
+    assert server.stats()["connections"] == 3
+
+
+def test_slow_client_queue_stays_bounded(server):
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    sock.connect(("127.0.0.1", server.port))     # connects and never reads
+    try:
+        assert server.wait_for_client(3.0)
+        peak = 0
+        P = np.eye(4)
+        for k in range(20000):
+            server.send_pose(P, timestamp=float(k))
+            if k % 100 == 0:
+                peak = max(peak, server.queue_length)
+        st = server.stats()
+        assert peak <= 8 and server.queue_length <= 8
+        assert st["dropped"] > 10000                    # shed, not buffered
+        assert st["sent"] < 20000
+    finally:
+        sock.close()
+    # the slow client leaving is noticed and the next client is served
+    assert _wait(lambda: server.send_pose(P) is False, timeout=5.0)
+    cl = _client(server.port)
+    try:
+        assert server.wait_for_client(3.0)
+        got = None
+        for _ in range(100):
+            server.send_pose(P, timestamp=1.0)
+            got = cl.wait_for_message(NAME, timeout=0.05)
+            if got is not None:
+                break
+        assert got is not None
+    finally:
+        cl.stop()
+
+
+def test_clean_shutdown_and_port_reuse():
+    before = {t.ident for t in threading.enumerate()}
+    srv = IgtlServer(port=0, device_name=NAME, send_timeout=0.3)
+    port = srv.port
+    stalled = socket.create_connection(("127.0.0.1", port))
+    try:
+        assert srv.wait_for_client(3.0)
+        t = time.perf_counter()
+        srv.close()
+        assert time.perf_counter() - t < 2.0
+        assert srv.closed
+        srv.close()                                   # idempotent
+        assert not srv.send_pose(np.eye(4))
+    finally:
+        stalled.close()
+    assert {t.ident for t in threading.enumerate() if t.is_alive()} <= before | set()
+    again = IgtlServer(port=port, device_name=NAME)   # the port is free again at once
+    again.close()
+
+
+def test_port_in_use_is_a_one_line_oserror():
+    with IgtlServer(port=0) as srv, pytest.raises(OSError, match="free TCP port"):
+        IgtlServer(port=srv.port)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="device_name"):
+        IgtlServer(port=0, device_name="")
+    with pytest.raises(ValueError, match="max_queue"):
+        IgtlServer(port=0, max_queue=0)
