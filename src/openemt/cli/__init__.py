@@ -21,6 +21,12 @@ COMMAND_MODULES = (
     "simulate",
     "import_",
     "info",
+    "solve",
+    "calibrate",
+    "correct",
+    "reproduce",
+    "track",
+    "bench",
 )
 
 

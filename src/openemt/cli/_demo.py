@@ -1,0 +1,201 @@
+"""``openemt demo``: the whole pipeline on the simulated tracker, ending in an HTML report.
+
+1. simulate the ILEMT apparatus with finite-size coils as physical truth: calibration data (md
+   pattern, the paper's six fixture combinations) and test data (ld pattern, home source fixture,
+   three sensor fixtures), with measurement noise and stage position error;
+2. calibrate the dipole model and the rig fixtures (mode ``XYZ``) from a start perturbed away
+   from the truth, a concentric model (mode ``concentric``) whose Kim18 closed form starts the
+   iterative solver, and the DLT output correction on the calibration data;
+3. solve the test data with the compiled LM solver and score it against the rig's kinematics,
+   as the paper does (seed 000 Table II): the dipole-equivalent truth, the start, the fit, the
+   fit with the output correction, and the concentric model with Kim18 alone;
+4. write the datasets, calibrations and a self-contained HTML report.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ._common import add_common, emit
+
+PRESETS = ("dipole-approx", "concentric")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("demo", help="simulate, calibrate, solve, correct and report (no hardware)",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("--preset", choices=PRESETS, default="dipole-approx",
+                   help="simulated source (default: dipole-approx, seed 000's 3-coil source)")
+    p.add_argument("-o", "--output-dir", default="openemt-demo",
+                   help="folder for the datasets, calibrations and report (default: openemt-demo)")
+    p.add_argument("--snr-db", type=float, default=80.0,
+                   help="measurement SNR in dB (default 80)")
+    p.add_argument("--stage-sigma-um", type=float, default=107.0,
+                   help="stage position error sigma per axis in um (default 107, as the paper)")
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    add_common(p)
+    p.set_defaults(func=run)
+
+
+def _perturbed_start(truth, mode, rng):
+    """The truth calibration with every parameter the mode fits moved by a realistic amount:
+    coil positions and fixture translations by 1 mm, gains by 1 %, fixture rotations by 0.5 deg."""
+    from ..calibrate import ParameterLayout
+
+    layout = ParameterLayout.for_model(truth.model)
+    x = layout.pack_calibration(truth)
+    free = layout.free_indices(mode.optimize, mode.freeze)
+    scale = np.zeros(layout.size)
+    for name, s in (("L_so", 1e-3), ("L_se", 1e-3), ("M_so", 1e-2), ("M_se", 1e-2)):
+        scale[layout.slices[name]] = s
+    for name in ("F_so", "F_st", "F_se"):
+        sl = layout.slices[name]
+        scale[sl.start:sl.start + 3] = 1e-3
+        scale[sl.start + 3:sl.stop] = np.deg2rad(0.5)
+    x[free] += rng.normal(size=free.size) * scale[free]
+    F_so, F_st, F_se = layout.fixtures(x)
+    return truth.replace(model=layout.model(x, truth.model.gain), source_fixture=F_so,
+                         stage_fixture=F_st, sensor_fixture=F_se, mode="demo-start")
+
+
+def run(args) -> int:
+    from ..calibrate import fit, fit_output_correction, get_mode, test_poses, test_rows
+    from ..evaluate import combined_uncertainty, STAGE_UNCERTAINTY_M
+    from ..io import write_calibration, write_dataset
+    from ..report import Report, error_histogram_figure, error_vector_figure
+    from ..simulate import get_preset, simulate, truth_calibration
+
+    if not np.isfinite(args.snr_db) or args.snr_db <= 0:
+        raise ValueError(f"expected --snr-db > 0, got {args.snr_db}")
+    if not np.isfinite(args.stage_sigma_um) or args.stage_sigma_um < 0:
+        raise ValueError(f"expected --stage-sigma-um >= 0, got {args.stage_sigma_um}")
+    out = Path(args.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    say = [] if args.quiet else None
+    seconds: dict[str, float] = {}
+
+    def step(name, t0):
+        seconds[name] = round(time.perf_counter() - t0, 3)
+        if say is None:
+            import sys
+            print(f"  {name}: {seconds[name]:.2f} s", file=sys.stderr)
+
+    t_all = time.perf_counter()
+    preset = get_preset(args.preset)
+    sigma = args.stage_sigma_um * 1e-6
+    t0 = time.perf_counter()
+    cal_data = simulate(preset, "md", source_fixtures="all", sensor_fixtures="all",
+                        snr_db=args.snr_db, stage_sigma=sigma, seed=args.seed)
+    test_data = simulate(preset, "ld", source_fixtures=preset.source_fixtures[0],
+                         sensor_fixtures="all", snr_db=args.snr_db, stage_sigma=sigma,
+                         seed=args.seed + 1000)
+    test_data = test_data.select(test_rows(test_data))
+    write_dataset(cal_data, out / "calibration_data.h5")
+    write_dataset(test_data, out / "test_data.h5")
+    step("simulate", t0)
+
+    t0 = time.perf_counter()
+    truth = truth_calibration(preset)
+    write_calibration(truth, out / "truth_calibration.json")
+    mode = get_mode("XYZ")
+    start = _perturbed_start(truth, mode, np.random.default_rng(args.seed))
+    result = fit(cal_data, start, mode, warn=False)
+    cal = result.calibration
+    concentric = fit(cal_data, cal, "concentric", warn=False).calibration
+    write_calibration(concentric, out / "concentric_calibration.json")
+    step("calibrate", t0)
+
+    t0 = time.perf_counter()
+    corr = fit_output_correction(cal_data.select(cal_data.mask(
+        pattern="md", source_fixture=preset.source_fixtures[0])), cal)
+    if corr.matrix is not None:
+        cal = cal.replace(linear_correction=corr.matrix)
+    write_calibration(cal, out / "calibration.json")
+    step("output correction", t0)
+
+    t0 = time.perf_counter()
+    rows = {}
+    conc = concentric.model
+    scored = {
+        "truth (dipole equivalent of the finite coils)": test_poses(test_data, truth,
+                                                                    concentric_model=conc),
+        "start (perturbed)": test_poses(test_data, start, concentric_model=conc),
+        "calibrated": test_poses(test_data, cal, concentric_model=conc),
+    }
+    if cal.linear_correction is not None:
+        scored["calibrated + DLT correction"] = test_poses(test_data, cal, concentric_model=conc,
+                                                           apply_correction=True)
+    scored["concentric + Kim18"] = test_poses(test_data, concentric, solver="kim18")
+    for name, r in scored.items():
+        s = r["summary"]
+        rows[name] = {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg",
+                                        "rot_max_deg")}
+        rows[name]["n_invalid"] = int(r["n_invalid"])
+        rows[name]["trans_uncert_mm"] = float(combined_uncertainty(
+            s["trans_rms_mm"], STAGE_UNCERTAINTY_M * 1e3))
+    step("solve and score", t0)
+
+    t0 = time.perf_counter()
+    rep = Report(f"openemt demo — simulated '{preset.name}' tracker")
+    rep.paragraph(preset.description)
+    rep.paragraph(
+        f"Calibration data: {cal_data.n_samples} rows (md pattern, {len(cal_data.files)} fixture "
+        f"combinations); test data: {test_data.n_samples} rows (ld pattern, home source fixture, "
+        f"three sensor fixtures). Measurement SNR {args.snr_db:g} dB, stage error sigma "
+        f"{args.stage_sigma_um:g} um per axis, seed {args.seed}. Ground truth couplings come from "
+        "finite-size coil models; the calibration fits the dipole model.")
+    rep.heading("Accuracy on the test data (seed 000 Table II style)")
+    rep.table([{"calibration": k, **v} for k, v in rows.items()],
+              ["calibration", "trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg",
+               "trans_uncert_mm", "n_invalid"], digits=4)
+    rep.paragraph("Errors are measured against the rig's kinematic chain with each calibration's "
+                  "own fixtures (the paper's procedure). trans_uncert_mm = sqrt(RMS^2 + 0.107^2) "
+                  "combines the error with the stage uncertainty (seed 000 eq. 10).", note=True)
+    best = scored["calibrated"]
+    P = best["poses"]
+    from ..geometry import ground_truth_poses
+    D = ground_truth_poses(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
+                           test_data.source_fixture, test_data.stage, test_data.sensor_fixture)
+    shown = np.flatnonzero(test_data.sensor_fixture == preset.sensor_fixtures[0])
+    rep.figure(error_vector_figure(D[shown, :3, 3], P[shown, :3, 3] - D[shown, :3, 3],
+                                   title="Calibrated: translation error across the workspace"),
+               "Error vectors of the calibrated tracker at the test poses of the home sensor "
+               "fixture, five Rz rotations per grid point (seed 000 Fig. 8 style).")
+    rep.figure(error_histogram_figure(best["trans"], best["rot"],
+                                      title="Calibrated: error distribution"))
+    rep.heading("Calibration")
+    stats = cal.stats
+    rep.paragraph(f"Mode {cal.mode}; rms_residue {stats.get('rms_residue', float('nan')):.6g} "
+                  f"over {stats.get('num_points', '?')} rows; free groups: {', '.join(cal.free)}.")
+    param_rows = []
+    se = cal.standard_errors
+    for name in ("L_so", "M_so", "L_se", "M_se"):
+        val = getattr(cal.model, name)
+        err = se.get(name)
+        tv = getattr(truth.model, name)
+        for c in range(val.shape[1]):
+            for a in range(3):
+                param_rows.append({
+                    "parameter": f"{name}[{'xyz'[a]}, coil {c}]",
+                    "fitted": float(val[a, c]), "std_error": float(err[a, c]) if err is not None
+                    else float("nan"), "truth (dipole equiv.)": float(tv[a, c])})
+    rep.table(param_rows, digits=6, caption="Coil parameters (m, gain units) with standard errors")
+    rep.write(out / "report.html")
+    step("report", t0)
+
+    summary = {
+        "preset": preset.name, "output_dir": str(out), "report": str(out / "report.html"),
+        "n_calibration": cal_data.n_samples, "n_test": test_data.n_samples,
+        "snr_db": args.snr_db, "stage_sigma_um": args.stage_sigma_um, "seed": args.seed,
+        "rms_residue": stats.get("rms_residue"), "rows": rows,
+        "seconds": {**seconds, "total": round(time.perf_counter() - t_all, 3)},
+    }
+    human = [f"openemt demo: simulated '{preset.name}' tracker -> {out}/"]
+    for k, v in rows.items():
+        human.append(f"  {k:48s} {v['trans_rms_mm']:.3f} mm RMS  {v['rot_rms_deg']:.3f} deg RMS")
+    human.append(f"  report: {out / 'report.html'}")
+    emit(args, summary, human)
+    return 0
