@@ -250,6 +250,8 @@ def test_patterns_and_input_validation():
         simulate("cube", "md")
     with pytest.raises(ValueError, match="stage pattern name"):
         simulate("concentric", "md,xd")
+    with pytest.raises(ValueError, match="distinct stage pattern"):
+        simulate("concentric", ["md", "md"])
     with pytest.raises(ValueError, match="stage_sigma"):
         simulate("concentric", "md", stage_sigma=-1e-6)
     with pytest.raises(ValueError, match="drift"):

@@ -73,6 +73,8 @@ def _patterns(pattern, preset: Preset) -> list[str]:
     names = [p.strip() for p in pattern.split(",")] if isinstance(pattern, str) else list(pattern)
     if not names or any(not isinstance(n, str) or not n for n in names):
         raise ValueError(f"expected one or more stage pattern names, got {pattern!r}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"expected distinct stage pattern names, got {names}")
     return names
 
 
@@ -138,7 +140,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     """
     p = get_preset(preset)
     names = _patterns(pattern, p)
-    stages = {n: stage_pattern(n, clip_z=clip_z) for n in dict.fromkeys(names)}
+    stages = {n: stage_pattern(n, clip_z=clip_z) for n in names}
     combos = fixture_combinations(p, source_fixtures, sensor_fixtures, combinations=combinations)
     stage_sigma = _nonneg(stage_sigma, "stage_sigma")
     if snr_db is not None and noise_abs is not None:

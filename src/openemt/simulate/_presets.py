@@ -67,6 +67,12 @@ class Preset:
     source: dict = field(default_factory=dict)
     sensor: dict = field(default_factory=dict)
 
+    def __post_init__(self):
+        for name in ("source_fixture", "stage_fixture", "sensor_fixture", "frequencies"):
+            a = np.array(getattr(self, name), dtype=np.float64)
+            a.setflags(write=False)  # presets are cached and shared
+            object.__setattr__(self, name, a)
+
     @property
     def n_source(self) -> int:
         return self.dipole.n_source
