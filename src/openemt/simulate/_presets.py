@@ -68,10 +68,10 @@ class Preset:
     sensor: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        # presets are cached and shared: callers must not modify these arrays in place (they
+        # are not flagged read-only because scipy's Rotation.from_rotvec rejects such input)
         for name in ("source_fixture", "stage_fixture", "sensor_fixture", "frequencies"):
-            a = np.array(getattr(self, name), dtype=np.float64)
-            a.setflags(write=False)  # presets are cached and shared
-            object.__setattr__(self, name, a)
+            object.__setattr__(self, name, np.array(getattr(self, name), dtype=np.float64))
 
     @property
     def n_source(self) -> int:
