@@ -43,6 +43,36 @@ def _concentric_for(model, concentric_model):
     return None
 
 
+def _closed_form_start(couplings, model, conc, method, hemi, explicit, n_correct=4):
+    """Closed-form start under the concentric model ``conc``. When ``conc`` only drops the
+    model's coil offsets (no concentric model given), the measured couplings are corrected by
+    the offset effect at the current estimate, ``C - (C_model(P) - C_conc(P))``, and the closed
+    form re-solved ``n_correct`` times (a fixed-point iteration that removes most of the
+    offset bias for sources with coil offsets of a few centimetres)."""
+    f = _CLOSED[method]
+
+    def closed(c):
+        return (f(c, conc, hemisphere=hemi) if method == "kim18"
+                else f(c, hemisphere=hemi, model=conc))
+
+    res = closed(couplings)
+    if explicit or model.is_concentric:
+        return res.pose_vectors
+    C, _ = check_couplings(couplings)
+    for _ in range(n_correct):
+        ok = np.all(np.isfinite(res.pose_vectors), axis=1)
+        if not np.any(ok):
+            break
+        C2 = C.copy()
+        C2[ok] -= model.coupling(res.poses[ok]) - conc.coupling(res.poses[ok])
+        nxt = closed(C2)
+        keep = ~np.all(np.isfinite(nxt.pose_vectors), axis=1)
+        vecs = np.where(keep[:, None], res.pose_vectors, nxt.pose_vectors)
+        poses = np.where(keep[:, None, None], res.poses, nxt.poses)
+        res = SolveResult(poses, vecs, res.status, res.residual, res.iterations)
+    return res.pose_vectors
+
+
 def _bounds(bounds):
     if bounds is None:
         return np.full(3, -np.inf), np.full(3, np.inf)
@@ -102,7 +132,7 @@ def _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr, a
 
 def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100,
              valid_threshold=1e-5, retries=True, concentric_model=None, bounds=None,
-             xtol=1e-10, ambiguity_tol=1e-9, covariance=False) -> SolveResult:
+             xtol=1e-8, ambiguity_tol=1e-9, covariance=False, fallback=None) -> SolveResult:
     """Levenberg-Marquardt pose solution for any dipole model, compiled and batched.
 
     Parameters
@@ -115,8 +145,9 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
         (``n_sensor == 1``) gives a 5-DOF solve whose roll about the sensor axis is reported
         as zero (shortest-arc rotation of the coil axis).
     initial : {'kim18', 'svd', 'kuipers', 'track', 'multistart'} or array (N, 6) / (6,)
-        Closed-form start (needs a 3x3 model; uses ``concentric_model`` or the model's moments
-        with the coil offsets dropped), tracking (each sample starts from the previous valid
+        Closed-form start (needs a 3x3 model; uses ``concentric_model`` as is, or else the
+        model's moments with the coil offsets dropped and a fixed-point correction of the offset
+        effect, see ``_closed_form_start``), tracking (each sample starts from the previous valid
         solution; the first and any failed sample from the Kim18 closed form when available,
         else multi-start), a coarse multi-start grid, or given pose vectors.
     hemisphere : None, str, (3,), (N,) str or (N, 3)
@@ -136,12 +167,17 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
         Position box (half-width in m, or [low, high] per axis); a solution on its boundary is
         OUT_OF_VOLUME. ILEMT uses 0.4 m.
     xtol : float
-        Convergence when the relative translation step and the rotation step (rad) are below it.
+        Convergence when the relative translation step and the rotation step (rad) are below it
+        (the step after that would be ~xtol^2 for these small-residual problems).
     ambiguity_tol : float
         A solution with ``t . n <= ambiguity_tol * |t|`` (on the hemisphere plane) is AMBIGUOUS.
     covariance : bool
         Also return the Gauss-Newton pose-vector covariance ``s^2 (J^T J)^-1`` with
         ``s^2 = SSR / (m - dof)`` (see :func:`openemt.solve.cramer_rao`).
+    fallback : None or 'multistart'
+        Re-solve samples still NOT_CONVERGED / MAX_ITERATIONS from the best of a coarse grid
+        of 56 starts, keeping the better result (slow; off by default, and off for ILEMT
+        reproduction).
 
     Returns
     -------
@@ -200,10 +236,8 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
                     raise ValueError(f"expected a 3x3 model or `concentric_model` for the "
                                      f"{initial!r} start, got a {model.n_source}x"
                                      f"{model.n_sensor} model; use initial='multistart'")
-                f = _CLOSED[initial]
-                cf = (f(couplings, conc, hemisphere=cf_hemi) if initial == "kim18"
-                      else f(couplings, hemisphere=cf_hemi, model=conc))
-                init = cf.pose_vectors
+                init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
+                                          concentric_model is not None)
             elif initial == "multistart":
                 init = _multistart_init(C, cnorm, model, nvec, lo, hi, five, xtol, thr)
             else:
@@ -218,6 +252,22 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
                                  f"got {init.shape}")
         result = _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr,
                             ambiguity_tol, retries)
+    if fallback is not None:
+        if fallback != "multistart":
+            raise ValueError(f"expected fallback None or 'multistart', got {fallback!r}")
+        redo = np.flatnonzero(np.isin(result.status, (1, 5)))
+        if redo.size:
+            init2 = _multistart_init(C[redo], cnorm[redo], model, nvec[redo], lo, hi, five,
+                                     xtol, thr)
+            again = _run_batch(C[redo], cnorm[redo], init2, model, nvec[redo], lo, hi, five,
+                               max_iter, xtol, thr, ambiguity_tol, retries)
+            better = again.residual < result.residual[redo]
+            rows = redo[better]
+            fields = {f: getattr(result, f).copy() for f in
+                      ("poses", "pose_vectors", "status", "residual", "iterations")}
+            for f in fields:
+                fields[f][rows] = getattr(again, f)[better]
+            result = SolveResult(**fields, solver="lm")
     if covariance:
         from ._crb import solver_covariance
 

@@ -1,0 +1,138 @@
+"""``openemt bench speed``: poses per second on one core for every solver.
+
+Data: the ``dipole-approx`` preset's dipole model (three air coils with 45 mm offsets, seed 000
+Table I / ilemt-format.md §7 cal_9_24), a smooth sensor trajectory sampled at 1 kHz around
+0.25 m from the source (0.05 m Lissajous amplitude, about 0.2 m/s and 1 rad/s), and white noise
+at 80 dB SNR on the couplings.
+
+- ``lm_tracking``: LM warm-started from the previous sample (``initial='track'``);
+- ``lm_cold``: LM started from the Kim18 closed form of each sample (closed form included);
+- ``svd``, ``kuipers``, ``kim18``: the closed forms on the same couplings with the preset's
+  moments and the coil offsets dropped (the concentric approximation they need; their
+  accuracy on this source is not the point here);
+- baseline: ``scipy.optimize.least_squares`` (default 'trf', finite-difference Jacobian) called
+  once per pose on the same model from the same Kim18 start, as the peer trackers do, with
+  tolerances 1e-12 so that its answer can be compared at the 1e-9 m level.
+
+All timings use one numba thread (``numba.set_num_threads(1)``), best of ``--repeats`` runs,
+after a warm-up call that excludes compilation.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["add_arguments", "run", "trajectory"]
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--samples", type=int, default=200000,
+                        help="samples for the compiled solvers (200000)")
+    parser.add_argument("--baseline-samples", type=int, default=200,
+                        help="poses solved by the per-pose scipy baseline (200)")
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats (best taken)")
+    parser.add_argument("--snr-db", type=float, default=80.0, help="coupling SNR (80 dB)")
+    parser.add_argument("--seed", type=int, default=0)
+
+
+def trajectory(n, rate_hz=1000.0):
+    """Smooth pose vectors (n, 6): 0.05 m Lissajous around 0.25 m along (1, 1, 1)/sqrt(3)."""
+    t = np.arange(n)[:, None] / rate_hz
+    center = np.full(3, 0.25 / np.sqrt(3.0))
+    pos = center + 0.05 * np.sin(2 * np.pi * np.array([0.5, 0.7, 0.9]) * t + [0.0, 1.0, 2.0])
+    rot = np.array([0.3, -0.2, 0.5]) + 0.5 * np.sin(
+        2 * np.pi * np.array([0.3, 0.23, 0.17]) * t + [0.5, 1.5, 2.5])
+    return np.hstack([pos, rot])
+
+
+def _best_time(f, repeats):
+    best = np.inf
+    out = None
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        out = f()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def run(args) -> dict:
+    import numba
+    from scipy.optimize import least_squares
+
+    from ..geometry import pose_from_vector
+    from ..simulate import get_preset
+    from ..solve import solve_kim18, solve_kuipers, solve_lm, solve_svd
+
+    n = int(args.samples)
+    nb = int(args.baseline_samples)
+    if n < 10 or nb < 1:
+        raise ValueError(f"expected --samples >= 10 and --baseline-samples >= 1, got {n}, {nb}")
+    threads_before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        rng = np.random.default_rng(args.seed)
+        model = get_preset("dipole-approx").dipole
+        conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
+        truth = trajectory(n)
+        C = model.coupling(pose_from_vector(truth))
+        sigma = np.sqrt(np.mean(C ** 2, axis=(1, 2))) * 10 ** (-args.snr_db / 20)
+        C = C + sigma[:, None, None] * rng.normal(size=C.shape)
+
+        runs = {
+            "lm_tracking": lambda c: solve_lm(c, model, initial="track", hemisphere="+x",
+                                              concentric_model=conc),
+            "lm_cold": lambda c: solve_lm(c, model, initial="kim18", hemisphere="+x",
+                                          concentric_model=conc),
+            "svd": lambda c: solve_svd(c, hemisphere="+x", model=conc),
+            "kuipers": lambda c: solve_kuipers(c, hemisphere="+x", model=conc),
+            "kim18": lambda c: solve_kim18(c, conc, hemisphere="+x"),
+        }
+        summary: dict = {"samples": n, "preset": "dipole-approx", "snr_db": args.snr_db,
+                         "numba_threads": numba.get_num_threads()}
+        results = {}
+        for name, f in runs.items():
+            f(C[:50])  # warm-up (loads or compiles the kernels)
+            dt, res = _best_time(lambda: f(C), args.repeats)
+            results[name] = res
+            summary[f"{name}_poses_per_s"] = n / dt
+            summary[f"{name}_status_counts"] = res.status_counts()
+            summary[f"{name}_mean_iterations"] = float(res.iterations.mean())
+        for name in ("lm_tracking", "lm_cold"):
+            err = results[name].pose_vectors[:, :3] - truth[:, :3]
+            summary[f"{name}_position_rms_error_m"] = float(np.sqrt(np.mean(err ** 2) * 3))
+
+        # per-pose scipy baseline on the first nb samples, from the same Kim18 start
+        init = solve_kim18(C[:nb], conc, hemisphere="+x").pose_vectors
+
+        def baseline():
+            out = np.empty((nb, 6))
+            for k in range(nb):
+                ck = C[k]
+
+                def fun(x, ck=ck):
+                    return (model.coupling(pose_from_vector(x[None]))[0] - ck).ravel()
+
+                out[k] = least_squares(fun, init[k], xtol=1e-12, ftol=1e-12, gtol=1e-12).x
+            return out
+
+        dt_b, base = _best_time(baseline, 1)
+        summary["scipy_per_pose_poses_per_s"] = nb / dt_b
+        summary["scipy_baseline"] = ("scipy.optimize.least_squares per pose, method='trf', "
+                                     "2-point finite differences, xtol=ftol=gtol=1e-12")
+        summary["lm_vs_scipy_ratio"] = summary["lm_tracking_poses_per_s"] / (nb / dt_b)
+        summary["lm_cold_vs_scipy_ratio"] = summary["lm_cold_poses_per_s"] / (nb / dt_b)
+        diffs = [np.abs(results[name].pose_vectors[:nb, :3] - base[:, :3]).max()
+                 for name in ("lm_tracking", "lm_cold")]
+        summary["max_position_diff_m"] = float(max(diffs))
+        summary["targets"] = {
+            "lm_tracking_poses_per_s >= 200000": summary["lm_tracking_poses_per_s"] >= 2e5,
+            "lm_vs_scipy_ratio >= 300": summary["lm_vs_scipy_ratio"] >= 300,
+            "closed forms >= 2000000": all(summary[f"{s}_poses_per_s"] >= 2e6
+                                           for s in ("svd", "kuipers", "kim18")),
+            "max_position_diff_m <= 1e-9": summary["max_position_diff_m"] <= 1e-9,
+        }
+    finally:
+        numba.set_num_threads(threads_before)
+    return summary
