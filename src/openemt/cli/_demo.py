@@ -33,8 +33,9 @@ def register(sub) -> None:
                    help="folder for the datasets, calibrations and report (default: openemt-demo)")
     p.add_argument("--snr-db", type=float, default=80.0,
                    help="measurement SNR in dB (default 80)")
-    p.add_argument("--stage-sigma-um", type=float, default=107.0,
-                   help="stage position error sigma per axis in um (default 107, as the paper)")
+    p.add_argument("--stage-error-um", type=float, default=107.0,
+                   help="3-D RMS stage position error in um (default 107, the paper's stage "
+                        "uncertainty); per axis it is this / sqrt(3)")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
     add_common(p)
     p.set_defaults(func=run)
@@ -70,8 +71,8 @@ def run(args) -> int:
 
     if not np.isfinite(args.snr_db) or args.snr_db <= 0:
         raise ValueError(f"expected --snr-db > 0, got {args.snr_db}")
-    if not np.isfinite(args.stage_sigma_um) or args.stage_sigma_um < 0:
-        raise ValueError(f"expected --stage-sigma-um >= 0, got {args.stage_sigma_um}")
+    if not np.isfinite(args.stage_error_um) or args.stage_error_um < 0:
+        raise ValueError(f"expected --stage-error-um >= 0, got {args.stage_error_um}")
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     say = [] if args.quiet else None
@@ -85,7 +86,7 @@ def run(args) -> int:
 
     t_all = time.perf_counter()
     preset = get_preset(args.preset)
-    sigma = args.stage_sigma_um * 1e-6
+    sigma = args.stage_error_um * 1e-6 / np.sqrt(3.0)
     t0 = time.perf_counter()
     cal_data = simulate(preset, "md", source_fixtures="all", sensor_fixtures="all",
                         snr_db=args.snr_db, stage_sigma=sigma, seed=args.seed)
@@ -144,8 +145,8 @@ def run(args) -> int:
     rep.paragraph(
         f"Calibration data: {cal_data.n_samples} rows (md pattern, {len(cal_data.files)} fixture "
         f"combinations); test data: {test_data.n_samples} rows (ld pattern, home source fixture, "
-        f"three sensor fixtures). Measurement SNR {args.snr_db:g} dB, stage error sigma "
-        f"{args.stage_sigma_um:g} um per axis, seed {args.seed}. Ground truth couplings come from "
+        f"three sensor fixtures). Measurement SNR {args.snr_db:g} dB, stage error "
+        f"{args.stage_error_um:g} um 3-D RMS, seed {args.seed}. Ground truth couplings come from "
         "finite-size coil models; the calibration fits the dipole model.")
     rep.heading("Accuracy on the test data (seed 000 Table II style)")
     rep.table([{"calibration": k, **v} for k, v in rows.items()],
@@ -189,7 +190,7 @@ def run(args) -> int:
     summary = {
         "preset": preset.name, "output_dir": str(out), "report": str(out / "report.html"),
         "n_calibration": cal_data.n_samples, "n_test": test_data.n_samples,
-        "snr_db": args.snr_db, "stage_sigma_um": args.stage_sigma_um, "seed": args.seed,
+        "snr_db": args.snr_db, "stage_error_um": args.stage_error_um, "seed": args.seed,
         "rms_residue": stats.get("rms_residue"), "rows": rows,
         "seconds": {**seconds, "total": round(time.perf_counter() - t_all, 3)},
     }

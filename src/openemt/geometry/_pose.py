@@ -50,7 +50,7 @@ def check_poses(P, name: str = "poses") -> np.ndarray:
 
 
 def _rotations_from_rotvec(rv: np.ndarray) -> np.ndarray:
-    flat = rv.reshape(-1, 3)
+    flat = np.array(rv.reshape(-1, 3), dtype=np.float64)  # a copy: scipy rejects read-only input
     return Rotation.from_rotvec(flat).as_matrix().reshape(rv.shape[:-1] + (3, 3))
 
 

@@ -28,8 +28,10 @@ from ._presets import Preset, get_preset
 
 __all__ = ["STAGE_SIGMA", "fixture_combinations", "simulate", "truth_calibration"]
 
-#: Default stage position uncertainty per axis after compensation (m), seed 000 supplement.
-STAGE_SIGMA = 107e-6
+#: Default stage position error sigma per axis (m): seed 000 quotes a stage uncertainty of
+#: 0.107 mm after compensation and adds it to the RMS of the 3-D error magnitude (eq. 10), so it
+#: is a 3-D RMS; per axis that is 107 um / sqrt(3) = 61.8 um.
+STAGE_SIGMA = 107e-6 / np.sqrt(3.0)
 
 
 def _codes(value, supported: tuple[str, ...], name: str) -> list[str]:
@@ -115,8 +117,9 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
         with per-sample ``sigma = rms(|C_true|) / 10**(snr_db/20)`` (see :func:`noise_sigma`).
     noise_abs : float, optional
         Measurement noise with a fixed sigma (coupling units). Not together with ``snr_db``.
-    stage_sigma : float, default 107e-6
-        Standard deviation (m) of the stage position error on each of x, y, z; the true poses use
+    stage_sigma : float, default 107e-6 / sqrt(3)
+        Standard deviation (m) of the stage position error on each of x, y, z (the default gives
+        the paper's 0.107 mm 3-D RMS stage uncertainty); the true poses use
         commanded + error, ``stage`` keeps the commanded values. 0 disables it.
     drift : float or array (n_source,), optional
         Relative source gain change over the run (linear in acquisition order), e.g. 3e-4.
