@@ -1,15 +1,32 @@
 """Calibration of coupling models and rig fixtures: layout, objective, staged fits, uncertainty."""
 
 from ._fit import CalibrationFit, calibrate, fit, residue_stats
+from ._heldout import (CANDIDATES, IMPROVED_OPTIONS, ImprovedCalibration, cross_validate,
+                       improved_calibration)
 from ._identifiability import Identifiability, IdentifiabilityWarning, analyse_identifiability
+from ._improved import STAGE_LINEAR_BASIS, ImprovedProblem, RigModel, RigOptions, fit_improved
 from ._layout import FIELD_NAMES, ParameterLayout
 from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, get_mode, select_rows
+from ._multipole import OctupoleModel, octupole_coupling, refine_poses
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
 from ._sequence import (PAPER_SEQUENCE, OutputCorrection, SequenceStep, fit_output_correction,
                         run_sequence)
 from ._table2 import TABLE2_PAPER, reproduce_table2, test_poses, test_rows
 
 __all__ = [
+    "CANDIDATES",
+    "IMPROVED_OPTIONS",
+    "STAGE_LINEAR_BASIS",
+    "ImprovedCalibration",
+    "ImprovedProblem",
+    "OctupoleModel",
+    "RigModel",
+    "RigOptions",
+    "cross_validate",
+    "fit_improved",
+    "improved_calibration",
+    "octupole_coupling",
+    "refine_poses",
     "DEFAULT_FREEZE",
     "DEFAULT_OPTIMIZE",
     "FIELD_NAMES",

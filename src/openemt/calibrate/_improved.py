@@ -45,7 +45,7 @@ from ._layout import ParameterLayout
 from ._multipole import OctupoleModel
 from ._objective import build_problem, fixture_twist_map
 
-__all__ = ["RigOptions", "RigModel", "ImprovedProblem", "fit_improved"]
+__all__ = ["RigOptions", "RigModel", "ImprovedProblem", "fit_improved", "STAGE_LINEAR_BASIS"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,24 @@ class RigOptions:
     rz_tilt: bool = True
     octupole_source: bool = True
     octupole_sensor: bool = False
+    stage_linear: tuple = ()
+
+
+#: Basis of the stage's linear-map errors ``t -> (I + G) t``; ``stage_linear`` picks entries
+#: by name. Non-orthogonality (``xy``, ``xz``, ``yz``: symmetric shear), axis rotations
+#: (``rx``, ``ry``, ``rz``: antisymmetric) and relative scales (``sx_sz``, ``sy_sz``). A uniform
+#: scale is not offered (it trades against the coil gains).
+STAGE_LINEAR_BASIS = {
+    "xy": np.array([[0, 1, 0], [1, 0, 0], [0, 0, 0]], dtype=float),
+    "xz": np.array([[0, 0, 1], [0, 0, 0], [1, 0, 0]], dtype=float),
+    "yz": np.array([[0, 0, 0], [0, 0, 1], [0, 1, 0]], dtype=float),
+    "rx": np.array([[0, 0, 0], [0, 0, -1], [0, 1, 0]], dtype=float),
+    "ry": np.array([[0, 0, 1], [0, 0, 0], [-1, 0, 0]], dtype=float),
+    "rz": np.array([[0, -1, 0], [1, 0, 0], [0, 0, 0]], dtype=float),
+    "sx_sz": np.diag([1.0, 0.0, -1.0]),
+    "sy_sz": np.diag([0.0, 1.0, -1.0]),
+    "sz": np.diag([0.0, 0.0, 1.0]),
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +104,8 @@ class RigModel:
     rz_tilt: np.ndarray = field(default_factory=lambda: np.zeros(2))
     k_so: np.ndarray | None = None
     k_se: np.ndarray | None = None
+    stage_linear_names: tuple = ()
+    stage_linear: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def to_dict(self) -> dict:
         """JSON-ready form (stored in ``Calibration.extra['rig']``)."""
@@ -96,7 +116,9 @@ class RigModel:
                 "rz_poly": np.asarray(self.rz_poly).tolist(),
                 "rz_tilt": np.asarray(self.rz_tilt).tolist(),
                 "octupole_k_so": None if self.k_so is None else self.k_so.tolist(),
-                "octupole_k_se": None if self.k_se is None else self.k_se.tolist()}
+                "octupole_k_se": None if self.k_se is None else self.k_se.tolist(),
+                "stage_linear": dict(zip(self.stage_linear_names,
+                                         np.asarray(self.stage_linear).tolist()))}
 
 
 class ImprovedProblem:
@@ -132,7 +154,14 @@ class ImprovedProblem:
         sizes = {"sensor_fix": 6 * len(self.sensor_codes), "source_fix": 6 * len(self.source_codes),
                  "rz_poly": options.rz_poly, "rz_tilt": 2 if options.rz_tilt else 0,
                  "k_so": layout.n_source if options.octupole_source else 0,
-                 "k_se": layout.n_sensor if options.octupole_sensor else 0}
+                 "k_se": layout.n_sensor if options.octupole_sensor else 0,
+                 "stage_linear": len(options.stage_linear)}
+        bad = [b for b in options.stage_linear if b not in STAGE_LINEAR_BASIS]
+        if bad:
+            raise ValueError(f"expected stage_linear names from {sorted(STAGE_LINEAR_BASIS)}, "
+                             f"got {bad}")
+        self.G_basis = np.array([STAGE_LINEAR_BASIS[b] for b in options.stage_linear]
+                                ).reshape(-1, 3, 3)
         self.extra, start = {}, layout.size
         for k, s in sizes.items():
             self.extra[k] = slice(start, start + s)
@@ -148,7 +177,9 @@ class ImprovedProblem:
             rz_poly=np.array(x[e["rz_poly"]]),
             rz_tilt=np.array(x[e["rz_tilt"]]) if self.options.rz_tilt else np.zeros(2),
             k_so=np.array(x[e["k_so"]]) if self.options.octupole_source else None,
-            k_se=np.array(x[e["k_se"]]) if self.options.octupole_sensor else None)
+            k_se=np.array(x[e["k_se"]]) if self.options.octupole_sensor else None,
+            stage_linear_names=tuple(self.options.stage_linear),
+            stage_linear=np.array(x[e["stage_linear"]]))
 
     def model(self, x):
         dip = self.layout.model(x, self.base.gain)
@@ -182,7 +213,9 @@ class ImprovedProblem:
         soJ = pose_from_rt(self.soR, np.zeros(3))
         A0 = F_so @ soJ                         # prefix of a source-code correction
         A = A0 @ dso                            # prefix of F_st
-        K = A @ F_st @ pose_from_rt(np.eye(3), self.stage[:, :3])   # prefix of the Rz rotation
+        G = np.einsum("p,pab->ab", x[self.extra["stage_linear"]], self.G_basis)
+        t_stage = self.stage[:, :3] + self.stage[:, :3] @ G.T
+        K = A @ F_st @ pose_from_rt(np.eye(3), t_stage)              # prefix of the Rz rotation
         Q = K @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))       # prefix of a sensor-code fix
         D = Q @ dse                             # prefix of F_se
         P = D @ F_se
@@ -229,6 +262,11 @@ class ImprovedProblem:
                 Jl = left_jacobian_so3(ch["w"])[:, :2]
                 M = (np.eye(3) - ch["Rn"]) @ Jl                               # (n, 3, 2)
                 J[..., e["rz_tilt"]] = np.einsum("kijb,kbc->kijc", HK, M)
+        if self.G_basis.shape[0]:
+            # t -> t + G t: a translation of the stage carriage in stage-base axes
+            HKt = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K"]))[..., :3]
+            dt = np.einsum("pab,kb->kpa", self.G_basis, self.stage[:, :3])   # (n, p, 3)
+            J[..., e["stage_linear"]] = np.einsum("kija,kpa->kijp", HKt, dt)
         if dks is not None and self.options.octupole_source:
             for i in range(ns):
                 J[:, i, :, e["k_so"].start + i] = dks[:, i, :]
