@@ -79,7 +79,7 @@ def test_polynomial_recovers_polynomial_distortion_exactly():
     s = c.stats
     assert s["in_sample"]["uncorrected"]["trans_rms_mm"] > 0.5
     assert s["held_out"]["corrected"]["trans_rms_mm"] < 0.01
-    assert s["held_out"]["scheme"] == "5-fold"
+    assert s["held_out"]["scheme"] == "5-fold by location"
     # held-out never better than in-sample by more than rounding (same model family)
     assert s["held_out"]["corrected"]["trans_rms_mm"] >= s["in_sample"]["corrected"]["trans_rms_mm"] * 0.999
 
@@ -179,3 +179,77 @@ def test_bad_inputs(tmp_path):
     p.write_text('{"format": "other"}')
     with pytest.raises(ValueError, match="openemt.correction"):
         read_correction(p)
+
+
+def _grid_data(rng, levels, repeats, noise):
+    g = np.linspace(-0.05, 0.05, levels)
+    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) + [0.2, 0.0, 0.0]
+    p = np.repeat(p, repeats, axis=0)
+    ref = pose_from_rt(Rotation.random(len(p), random_state=int(rng.integers(1000))).as_matrix(),
+                       p)
+    meas = _poly_distortion(ref)
+    meas[:, :3, 3] += noise * rng.standard_normal((len(p), 3))
+    return meas, ref
+
+
+def test_grid_sampled_calibration_levels_and_location_folds():
+    """On a 3-level calibration grid, powers >= 3 per axis are not identified: the fit must
+    leave them out (axis_levels) and the folds must hold out whole locations."""
+    from openemt.correct import axis_levels, location_groups, location_kfold
+
+    rng = np.random.default_rng(15)
+    meas, ref = _grid_data(rng, 3, 5, 2e-5)
+    m = meas[:, :3, 3]
+    assert axis_levels((m - m.mean(0)) / 0.05) == (3, 3, 3)
+    assert axis_levels(rng.uniform(-1, 1, (300, 3))) == (None, None, None)
+    g = location_groups(m)
+    assert len(np.unique(g)) == 27 and all(np.bincount(g) == 5)
+    for _, test in location_kfold(m, 5, seed=0):
+        assert set(g[test]).isdisjoint(set(np.delete(g, test)))  # no location in both parts
+    c = fit_correction(meas, ref, "poly")
+    assert c.params["max_power"] == [2, 2, 2]
+    assert c.stats["held_out"]["scheme"] == "5-fold by location"
+    # between the calibration levels (a 5-level test grid) the correction still helps
+    tmeas, tref = _grid_data(rng, 5, 1, 2e-5)
+    ev = evaluate_correction(c, tmeas, tref)
+    assert ev["corrected"]["trans_rms_mm"] < 0.6 * ev["uncorrected"]["trans_rms_mm"]
+    assert ev["corrected"]["rot_rms_deg"] < 0.6 * ev["uncorrected"]["rot_rms_deg"]
+
+
+def test_real_data_md_calibration_corrects_ld_test(ilemt_dir):
+    """cal_9_15, XYZ_hr_cal without its stored correction: fit each method on the 3 md files
+    (426 rows, a 3-level grid) and test on the 3 ld files (1896 rows, 5 levels). The test
+    points lie between the calibration levels, so this checks interpolation, not repeatability.
+    Paper Table II (concentric source): 0.41555 mm uncorrected, 0.26306 mm with the DLT."""
+    from openemt.geometry import ground_truth_poses
+    from openemt.io import import_ilemt_folder, read_ilemt_calibration
+    from openemt.solve import solve
+
+    cal = read_ilemt_calibration(ilemt_dir / "output" / "XYZ_hr_cal.mat")
+    conc = read_ilemt_calibration(ilemt_dir / "output" / "XYZ_concentric_hr_cal.mat")
+
+    def load(pattern):
+        ds = import_ilemt_folder(ilemt_dir, patterns=[pattern])
+        ds = ds.select(np.flatnonzero(ds.source_fixture == "YoutZup"))
+        P = ground_truth_poses(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
+                               ds.source_fixture, ds.stage, ds.sensor_fixture)
+        i = np.argmax(np.abs(P[:, :3, 3]), axis=1)
+        s = np.sign(P[np.arange(len(P)), i, 3])
+        hem = np.array([("+" if si > 0 else "-") + "xyz"[ii] for ii, si in zip(i, s)])
+        r = solve(ds.couplings, cal, hemisphere=hem, concentric_calibration=conc,
+                  apply_correction=False)
+        return r.poses, P
+
+    Mc, Dc = load("md")
+    Mt, Dt = load("ld")
+    assert len(Mc) == 426 and len(Mt) == 1896
+    for method, ratio in [("dlt", 0.66), ("poly", 0.55), ("grid", 0.55), ("rbf", 0.55)]:
+        c = fit_correction(Mc, Dc, method, cross_validate=False)
+        ev = evaluate_correction(c, Mt, Dt)
+        unc, cor = ev["uncorrected"], ev["corrected"]
+        assert unc["trans_rms_mm"] == pytest.approx(0.41555, rel=1e-3)
+        assert cor["trans_rms_mm"] < ratio * unc["trans_rms_mm"], method
+        if method == "dlt":
+            assert cor["trans_rms_mm"] == pytest.approx(0.26306, rel=0.01)
+        else:
+            assert cor["rot_rms_deg"] < 0.75 * unc["rot_rms_deg"], method

@@ -1,40 +1,49 @@
 """Output correction on pose pairs (measured, reference): DLT, polynomials, lookup tables.
 
 Independent of any magnetic model: the corrections work on the pose output of any tracker
-(ILEMT, NDI Aurora, Polhemus, ...) given reference poses.
+(ILEMT, NDI Aurora, Polhemus, ...) given reference poses. See docs/correction.md.
 """
 
-from ._crossval import kfold_splits
+from ._crossval import kfold_splits, location_groups, location_kfold
 from ._dlt import DltFit, apply_linear_correction, fit_dlt, linear_correction_rms
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._model import (
-                     CORRECTION_METHODS,
-                     Correction,
-                     evaluate_correction,
-                     fit_correction,
-                     read_correction,
-                     write_correction,
+    CORRECTION_METHODS,
+    Correction,
+    evaluate_correction,
+    fit_correction,
+    read_correction,
+    write_correction,
 )
-from ._poly import POLY_ORDERS, PolynomialCorrection, fit_polynomial, monomial_exponents
+from ._poly import (
+    POLY_ORDERS,
+    PolynomialCorrection,
+    axis_levels,
+    fit_polynomial,
+    monomial_exponents,
+)
 
 __all__ = [
-                     "CORRECTION_METHODS",
-                     "POLY_ORDERS",
-                     "Correction",
-                     "DltFit",
-                     "GridCorrection",
-                     "PolynomialCorrection",
-                     "RbfCorrection",
-                     "apply_linear_correction",
-                     "evaluate_correction",
-                     "fit_correction",
-                     "fit_dlt",
-                     "fit_grid",
-                     "fit_polynomial",
-                     "fit_rbf",
-                     "kfold_splits",
-                     "linear_correction_rms",
-                     "monomial_exponents",
-                     "read_correction",
-                     "write_correction",
+    "CORRECTION_METHODS",
+    "POLY_ORDERS",
+    "Correction",
+    "DltFit",
+    "GridCorrection",
+    "PolynomialCorrection",
+    "RbfCorrection",
+    "apply_linear_correction",
+    "axis_levels",
+    "evaluate_correction",
+    "fit_correction",
+    "fit_dlt",
+    "fit_grid",
+    "fit_polynomial",
+    "fit_rbf",
+    "kfold_splits",
+    "linear_correction_rms",
+    "location_groups",
+    "location_kfold",
+    "monomial_exponents",
+    "read_correction",
+    "write_correction",
 ]

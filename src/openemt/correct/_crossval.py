@@ -3,6 +3,12 @@
 Corrections are judged on data not used in the fit. ``kfold_splits`` makes the splits;
 ``held_out_predictions`` fits on each training part and predicts the held-out part, so every
 row gets exactly one prediction from a model that never saw it.
+
+Pose data are often recorded at a few positions, with several orientations or repeated
+samples at each (ILEMT: 5 stage rotations per grid point). Random folds would then hold out a
+point whose near-duplicates stay in the training set, and cross-validation would only measure
+repeatability, not interpolation. ``location_kfold`` therefore keeps the rows of one location
+(positions within 2 % of the workspace span) in the same fold.
 """
 
 from __future__ import annotations
@@ -10,12 +16,17 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 __all__ = [
     "apply_rotation_offsets",
     "held_out_predictions",
     "kfold_splits",
+    "location_groups",
+    "location_kfold",
     "normalizer",
     "position_errors",
     "rotation_errors",
@@ -23,7 +34,7 @@ __all__ = [
 ]
 
 
-def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None
+def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None, fold_groups=None
                  ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Training/test index pairs for k-fold or leave-one-group-out cross-validation.
 
@@ -37,6 +48,9 @@ def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None
         Seed of the ``np.random.default_rng`` permutation that assigns rows to folds.
     groups : array_like, shape (n,), optional
         Group label per row (e.g. the file a row came from). Each group is held out once.
+    fold_groups : array_like, shape (n,), optional
+        Rows with the same label stay in the same fold of a k-fold split (groups are
+        assigned to folds at random); used by :func:`location_kfold`.
 
     Returns
     -------
@@ -53,8 +67,21 @@ def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None
     k = int(k)
     if not 2 <= k <= n:
         raise ValueError(f"expected 2 <= k <= n = {n} folds, got k = {k}")
-    perm = np.random.default_rng(seed).permutation(n)
-    folds = np.array_split(perm, k)
+    if fold_groups is not None:
+        fg = np.asarray(fold_groups)
+        if fg.shape != (n,):
+            raise ValueError(f"expected `fold_groups` of shape ({n},), got {fg.shape}")
+        labels, inv = np.unique(fg, return_inverse=True)
+        if len(labels) < k:
+            raise ValueError(f"expected at least k = {k} fold groups, got {len(labels)}")
+        gperm = np.random.default_rng(seed).permutation(len(labels))
+        gfold = np.empty(len(labels), dtype=int)
+        for i, chunk in enumerate(np.array_split(gperm, k)):
+            gfold[chunk] = i
+        folds = [np.flatnonzero(gfold[inv] == i) for i in range(k)]
+    else:
+        perm = np.random.default_rng(seed).permutation(n)
+        folds = np.array_split(perm, k)
     out = []
     for i in range(k):
         test = np.sort(folds[i])
@@ -108,3 +135,33 @@ def normalizer(xyz) -> tuple[np.ndarray, float]:
     center = 0.5 * (xyz.min(axis=0) + xyz.max(axis=0))
     scale = float(np.max(np.abs(xyz - center)))
     return center, (scale if scale > 0 else 1.0)
+
+
+def location_groups(xyz, tol_fraction: float = 0.02) -> np.ndarray:
+    """Label rows whose positions are linked by distances below ``tol_fraction`` of the span.
+
+    Returns integer labels, shape (N,): connected components of the graph joining positions
+    closer than ``tol_fraction * max(extent)``.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    n = len(xyz)
+    span = float(np.max(np.ptp(xyz, axis=0))) if n else 0.0
+    if n < 2 or span <= 0:
+        return np.zeros(n, dtype=int)
+    pairs = cKDTree(xyz).query_pairs(tol_fraction * span, output_type="ndarray")
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(g, directed=False)[1]
+
+
+def location_kfold(xyz, k: int = 5, *, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """k-fold splits that keep the rows of one location together (see the module docstring).
+
+    Falls back to plain row folds when there are fewer than ``k`` distinct locations.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    n = len(xyz)
+    k = min(int(k), n)
+    g = location_groups(xyz)
+    if len(np.unique(g)) >= k:
+        return kfold_splits(n, k, seed=seed, fold_groups=g)
+    return kfold_splits(n, k, seed=seed)

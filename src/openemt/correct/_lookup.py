@@ -29,7 +29,7 @@ from scipy.sparse.linalg import spsolve
 
 from ._crossval import (
     apply_rotation_offsets,
-    kfold_splits,
+    location_kfold,
     normalizer,
     position_errors,
     rotation_errors,
@@ -76,8 +76,7 @@ def _cv_score(m, d, Rm, Rd, predict_rows) -> float:
 
 
 def _choose_smoothing(fit_one, m, d, Rm, Rd, grid, k, seed) -> tuple[float, dict]:
-    n = len(m)
-    splits = kfold_splits(n, min(k, n), seed=seed)
+    splits = location_kfold(m, k, seed=seed)
     scores = {}
     for s in grid:
         xyz = np.empty_like(m)

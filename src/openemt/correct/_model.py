@@ -17,7 +17,7 @@ import numpy as np
 from ..evaluate import error_summary, pose_error_magnitudes
 from ..geometry import check_poses, pose_from_rt
 from ..io import atomic_path
-from ._crossval import held_out_predictions, kfold_splits, position_errors
+from ._crossval import held_out_predictions, kfold_splits, location_kfold, position_errors
 from ._dlt import DltFit, check_points, fit_dlt
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._poly import PolynomialCorrection, fit_polynomial
@@ -176,7 +176,8 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
         Measured and reference poses (or positions only), SI units.
     method : {"dlt", "poly", "grid", "rbf"}
     k : int
-        Folds of the held-out evaluation (k-fold, rows shuffled with ``seed``).
+        Folds of the held-out evaluation (k-fold keeping the rows of one location together,
+        see :func:`location_kfold`; shuffled with ``seed``).
     seed : int
     groups : array_like, shape (N,), optional
         Hold out one group (e.g. file) at a time instead of k random folds.
@@ -216,7 +217,12 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
              "in_sample": {"uncorrected": _summary(m, Rm, d, Rd),
                            "corrected": _summary(xyz_fit, R_fit, d, Rd)}}
     if cross_validate:
-        splits = kfold_splits(len(m), min(k, len(m)), seed=seed, groups=groups)
+        if groups is not None:
+            splits = kfold_splits(len(m), seed=seed, groups=groups)
+            scheme = "leave-one-group-out"
+        else:
+            splits = location_kfold(m, k, seed=seed)
+            scheme = f"{len(splits)}-fold by location"
 
         def fit_rows(rows):
             return _fit_model(method, m[rows], None if Rm is None else Rm[rows], d[rows],
@@ -232,7 +238,7 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
             if R_ho is not None:
                 R_ho[rows] = pR
         stats["held_out"] = {
-            "scheme": "leave-one-group-out" if groups is not None else f"{len(splits)}-fold",
+            "scheme": scheme,
             "n_folds": len(splits), "seed": int(seed),
             "uncorrected": _summary(m, Rm, d, Rd),
             "corrected": _summary(xyz_ho, R_ho, d, Rd)}

@@ -9,18 +9,24 @@ Positions are centred and scaled into about [-1, 1]^3 before building the monomi
 
 The orders of the position and the orientation polynomials are chosen separately by k-fold
 cross-validation over 1..5 unless given.
+
+Identifiability: calibration data are often taken on a grid (ILEMT's md pattern has 3 levels
+per axis). On c levels, ``x^c`` is indistinguishable from lower powers at the data, so a fit
+with such terms is free to oscillate between the levels; random k-fold cross-validation
+cannot see this because every held-out point is on a level too. :func:`axis_levels` detects
+axes sampled at a few well-populated levels, and powers >= c along such an axis are left out
+of the monomials (``max_power``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from math import comb
 
 import numpy as np
 
 from ._crossval import (
     apply_rotation_offsets,
-    kfold_splits,
+    location_kfold,
     normalizer,
     position_errors,
     rotation_errors,
@@ -30,6 +36,7 @@ from ._crossval import (
 __all__ = [
     "POLY_ORDERS",
     "PolynomialCorrection",
+    "axis_levels",
     "fit_polynomial",
     "monomial_exponents",
     "monomials",
@@ -39,24 +46,59 @@ __all__ = [
 POLY_ORDERS = (1, 2, 3, 4, 5)
 
 
-def monomial_exponents(order: int) -> np.ndarray:
+def monomial_exponents(order: int, max_power=None) -> np.ndarray:
     """Exponent triples (p, q, s) with ``p + q + s <= order``, by total degree; (n_terms, 3).
 
-    ``n_terms = C(order + 3, 3)``: 4, 10, 20, 35, 56 for orders 1-5.
+    ``n_terms = C(order + 3, 3)``: 4, 10, 20, 35, 56 for orders 1-5. ``max_power`` (3 ints or
+    None per axis) drops terms whose power along an axis exceeds the limit.
     """
     order = int(order)
     if order < 0:
         raise ValueError(f"expected a polynomial order >= 0, got {order}")
     out = [(p, q, deg - p - q) for deg in range(order + 1)
            for p in range(deg, -1, -1) for q in range(deg - p, -1, -1)]
-    return np.array(out, dtype=np.int64).reshape(-1, 3)
+    e = np.array(out, dtype=np.int64).reshape(-1, 3)
+    if max_power is not None:
+        lim = np.array([order if m is None else int(m) for m in max_power])
+        e = e[np.all(e <= lim, axis=1)]
+    return e
 
 
-def monomials(u, order: int) -> np.ndarray:
+def monomials(u, order: int, max_power=None) -> np.ndarray:
     """Monomials of scaled positions ``u`` (N, 3) up to ``order``: shape (N, n_terms)."""
     u = np.asarray(u, dtype=np.float64)
-    e = monomial_exponents(order)
+    e = monomial_exponents(order, max_power)
     return np.prod(u[:, None, :] ** e[None, :, :], axis=-1)
+
+
+def axis_levels(u, *, gap: float = 0.1, min_fraction: float = 0.05, max_levels: int = 6):
+    """Number of sampled levels per axis, or None where the sampling is continuous.
+
+    Along each axis the sorted coordinates are split at gaps wider than ``gap`` times the
+    range. If every cluster holding at least ``min_fraction`` of the points is narrower than
+    that, the axis is sampled at levels: their count (clusters with at least
+    ``min_fraction`` of the points; isolated key points do not count) is returned if it is at
+    most ``max_levels``. Returns a tuple of 3 ``int | None``.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    n = len(u)
+    out = []
+    for a in range(u.shape[1]):
+        v = np.sort(u[:, a])
+        if n == 0:
+            out.append(None)
+            continue
+        span = v[-1] - v[0]
+        if span <= 0:
+            out.append(1)
+            continue
+        parts = np.split(v, np.flatnonzero(np.diff(v) > gap * span) + 1)
+        big = [c for c in parts if len(c) >= min_fraction * n]
+        if not big or any(c[-1] - c[0] > gap * span for c in big) or len(big) > max_levels:
+            out.append(None)
+        else:
+            out.append(len(big))
+    return tuple(out)
 
 
 def _lstsq(A, y):
@@ -79,6 +121,8 @@ class PolynomialCorrection:
     rot_order : int or None
     rot_coef : ndarray, shape (n_terms, 3) or None
         Coefficients of the rotation-vector offset (rad).
+    max_power : tuple of 3 (int or None), or None
+        Highest power allowed along each axis (from :func:`axis_levels`), None: no limit.
     selection : dict
         Cross-validation scores per tried order (``position`` in m, ``orientation`` in rad).
     """
@@ -89,6 +133,7 @@ class PolynomialCorrection:
     pos_coef: np.ndarray
     rot_order: int | None = None
     rot_coef: np.ndarray | None = None
+    max_power: tuple | None = None
     selection: dict = field(default_factory=dict)
 
     def _u(self, xyz):
@@ -97,16 +142,17 @@ class PolynomialCorrection:
     def predict(self, xyz, R=None):
         """Corrected positions (N, 3) and rotations (N, 3, 3) (``None`` if ``R`` is None)."""
         u = self._u(xyz)
-        out_xyz = xyz + monomials(u, self.pos_order) @ self.pos_coef
+        out_xyz = xyz + monomials(u, self.pos_order, self.max_power) @ self.pos_coef
         if R is None or self.rot_coef is None:
             return out_xyz, R
-        rho = monomials(u, self.rot_order) @ self.rot_coef
+        rho = monomials(u, self.rot_order, self.max_power) @ self.rot_coef
         return out_xyz, apply_rotation_offsets(rho, R)
 
     def to_params(self) -> dict:
         return {"center": self.center, "scale": self.scale, "pos_order": self.pos_order,
                 "pos_coef": self.pos_coef, "rot_order": self.rot_order,
-                "rot_coef": self.rot_coef, "selection": self.selection}
+                "rot_coef": self.rot_coef, "max_power": None if self.max_power is None else list(self.max_power),
+                "selection": self.selection}
 
     @classmethod
     def from_params(cls, p: dict) -> PolynomialCorrection:
@@ -116,18 +162,20 @@ class PolynomialCorrection:
                    pos_coef=np.asarray(p["pos_coef"], float).reshape(-1, 3),
                    rot_order=None if p.get("rot_order") is None else int(p["rot_order"]),
                    rot_coef=None if rc is None else np.asarray(rc, float).reshape(-1, 3),
+                   max_power=None if p.get("max_power") is None
+                   else tuple(None if m is None else int(m) for m in p["max_power"]),
                    selection=dict(p.get("selection") or {}))
 
 
-def _select_order(u, target, orders, splits, score) -> tuple[int, dict]:
-    """Order with the lowest held-out RMS of ``score(prediction, rows)``."""
+def _select_order(u, target, orders, splits, score, max_power) -> tuple[int, dict]:
+    """Order with the lowest held-out RMS of ``score(prediction, rows)`` (lowest on ties)."""
     scores = {}
     n = len(u)
     for r in orders:
-        n_terms = comb(r + 3, 3)
+        n_terms = len(monomial_exponents(r, max_power))
         if n_terms > min(len(tr) for tr, _ in splits):
             continue
-        A = monomials(u, r)
+        A = monomials(u, r, max_power)
         held = np.empty(n)
         for train, test in splits:
             coef = _lstsq(A[train], target[train])
@@ -146,7 +194,8 @@ def _select_order(u, target, orders, splits, score) -> tuple[int, dict]:
 
 def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
                    order: int | None = None, rot_order: int | None = None,
-                   orders=POLY_ORDERS, k: int = 5, seed: int = 0) -> PolynomialCorrection:
+                   orders=POLY_ORDERS, max_power="auto", k: int = 5,
+                   seed: int = 0) -> PolynomialCorrection:
     """Fit a Kindratenko polynomial correction (seed 002) to pose pairs.
 
     Parameters
@@ -157,6 +206,9 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
         Measured and reference rotations; if given, the orientation is corrected as well.
     order, rot_order : int, optional
         Polynomial orders; ``None`` selects each by k-fold cross-validation over ``orders``.
+    max_power : tuple of 3 (int or None), "auto" or None
+        Per-axis power limit; ``"auto"`` (default) uses ``axis_levels(u) - 1`` on axes sampled
+        at few levels (see the module docstring); ``None`` disables the limit.
     orders : sequence of int
         Candidate orders (default 1-5).
     k, seed : int
@@ -175,18 +227,29 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
     center, scale = normalizer(m)
     u = (m - center) / scale
     n = len(m)
-    splits = kfold_splits(n, min(k, n), seed=seed) if (order is None or rot_order is None) \
-        else None
+    if isinstance(max_power, str):
+        if max_power != "auto":
+            raise ValueError(f"expected max_power 'auto', None or 3 ints, got {max_power!r}")
+        levels = axis_levels(u)
+        max_power = (None if all(c is None for c in levels)
+                     else tuple(None if c is None else c - 1 for c in levels))
+    elif max_power is not None:
+        max_power = tuple(None if c is None else int(c) for c in max_power)
+        if len(max_power) != 3:
+            raise ValueError(f"expected max_power of 3 entries, got {len(max_power)}")
+    splits = (location_kfold(m, k, seed=seed) if (order is None or rot_order is None)
+              else None)
     selection = {}
 
     off = d - m
     if order is None:
         order, selection["position"] = _select_order(
-            u, off, orders, splits, lambda pred, rows: position_errors(pred, off[rows]))
-    if comb(int(order) + 3, 3) > n:
-        raise ValueError(f"expected at least {comb(int(order) + 3, 3)} pairs for order {order}, "
-                         f"got {n}")
-    pos_coef = _lstsq(monomials(u, order), off)
+            u, off, orders, splits, lambda pred, rows: position_errors(pred, off[rows]),
+            max_power)
+    n_terms = len(monomial_exponents(order, max_power))
+    if n_terms > n:
+        raise ValueError(f"expected at least {n_terms} pairs for order {order}, got {n}")
+    pos_coef = _lstsq(monomials(u, order, max_power), off)
 
     rot_coef = None
     if measured_R is not None and reference_R is not None:
@@ -199,11 +262,12 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
 
         if rot_order is None:
             rot_order, selection["orientation"] = _select_order(u, rho, orders, splits,
-                                                                rot_score)
-        rot_coef = _lstsq(monomials(u, rot_order), rho)
+                                                                rot_score, max_power)
+        rot_coef = _lstsq(monomials(u, rot_order, max_power), rho)
     else:
         rot_order = None
     return PolynomialCorrection(center=center, scale=scale, pos_order=int(order),
                                 pos_coef=pos_coef,
                                 rot_order=None if rot_order is None else int(rot_order),
-                                rot_coef=rot_coef, selection=selection)
+                                rot_coef=rot_coef, max_power=max_power,
+                                selection=selection)
