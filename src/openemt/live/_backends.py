@@ -119,20 +119,30 @@ class SimulatedBackend(Backend):
         self.realtime = bool(realtime)
         fs = self.layout.sample_rate
         self._end = None if duration is None else round(float(duration) * fs)
+        self._block = 9600
+        self._buf = np.empty((0, self.layout.n_channels))
+        self._i = 0
         self.t0_epoch = time.time()
         self._t0_perf = time.perf_counter()
 
     def read(self):
-        i = self._sim.sample_index
+        i = self._i
         n = self.chunk if self._end is None else min(self.chunk, self._end - i)
         if n <= 0:
             return None
+        if self._buf.shape[0] < n:            # simulate ahead in blocks (cheaper per sample)
+            more = max(n, self._block)
+            if self._end is not None:
+                more = min(max(n, self._block), self._end - self._sim.sample_index)
+            self._buf = np.concatenate([self._buf, self._sim.read(more)])
         if self.realtime:
             due = self._t0_perf + (i + n) / self.layout.sample_rate
             delay = due - time.perf_counter()
             if delay > 0:
                 time.sleep(delay)
-        return self._sim.read(n)
+        out, self._buf = self._buf[:n], self._buf[n:]
+        self._i = i + n
+        return out
 
     def truth_poses(self, times):
         return self._sim.poses(times)

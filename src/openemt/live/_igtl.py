@@ -43,25 +43,27 @@ class _Handler(socketserver.BaseRequestHandler):
 
     def handle(self):
         srv: _Server = self.server
+        owner = srv.owner
         sock = self.request
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(srv.owner.send_timeout)
-        srv.owner._set_connected(True)
+        sock.settimeout(owner.send_timeout)
+        owner._attach(sock)
         try:
             while not srv.communication_thread_stop_requested:
-                batch = srv.owner._take(srv.owner.poll)
+                owner._wait(owner.poll)
                 readable, _, _ = select.select([sock], [], [], 0)
                 # a client message (ignored) or the client closing
                 if readable and not sock.recv(65536):
                     logger.info("OpenIGTLink client disconnected")
                     break
-                for message, t_ready in batch:
-                    sock.sendall(message.pack())
-                    srv.owner._sent(t_ready)
+                with owner._send_lock:          # taken before the batch: keeps the order
+                    for data, t_ready in owner._take():
+                        sock.sendall(data)
+                        owner._sent(t_ready)
         except OSError as exc:  # includes socket.timeout: stalled or vanished client
             logger.warning("OpenIGTLink client dropped: %s", exc)
         finally:
-            srv.owner._set_connected(False)
+            owner._detach()
 
 
 class _Server(pyigtl.OpenIGTLinkServer):
@@ -117,6 +119,9 @@ class IgtlServer:
         self._queue: collections.deque = collections.deque()
         self._max_queue = int(max_queue)
         self._cond = threading.Condition()
+        self._send_lock = threading.Lock()
+        self._direct = None
+        self._partial = False
         self._connected = False
         self.n_queued = 0
         self.n_sent = 0
@@ -161,26 +166,40 @@ class IgtlServer:
         return {"queued": self.n_queued, "sent": self.n_sent, "dropped": self.n_dropped,
                 "no_client": self.n_no_client, "connections": self.n_connections}
 
-    def _set_connected(self, value: bool):
+    def _attach(self, sock):
+        direct = sock.dup()                 # non-blocking twin for the caller's fast path
+        direct.setblocking(False)
         with self._cond:
-            self._connected = value
-            if value:
-                self.n_connections += 1
-            else:
-                self._queue.clear()
+            self._connected = True
+            self._direct = direct
+            self.n_connections += 1
 
-    def _take(self, timeout):
+    def _detach(self):
+        with self._send_lock, self._cond:
+            self._connected = False
+            self._queue.clear()
+            self._partial = False
+            if self._direct is not None:
+                self._direct.close()
+                self._direct = None
+
+    def _wait(self, timeout):
         with self._cond:
             if not self._queue:
                 self._cond.wait(timeout)
+
+    def _take(self):
+        with self._cond:
             batch = list(self._queue)
             self._queue.clear()
+            self._partial = False
         return batch
 
     def _sent(self, t_ready):
-        self.n_sent += 1
-        if t_ready is not None:
-            self._latency.append(time.perf_counter() - t_ready)
+        with self._cond:
+            self.n_sent += 1
+            if t_ready is not None:
+                self._latency.append(time.perf_counter() - t_ready)
 
     # ------------------------------------------------------------------ sending
     def send_pose(self, pose, *, timestamp: float | None = None,
@@ -215,17 +234,43 @@ class IgtlServer:
         return self._enqueue(message, t_ready)
 
     def _enqueue(self, message, t_ready):
+        data = message.pack()
         with self._cond:
             if self._closed:
                 return False
             if not self._connected:
                 self.n_no_client += 1
                 return False
-            if len(self._queue) >= self._max_queue:
-                self._queue.popleft()
-                self.n_dropped += 1
-            self._queue.append((message, t_ready))
             self.n_queued += 1
+            # fast path: nothing waiting and the sender idle -> non-blocking send right here
+            # (no thread hand-over, so no wait for the interpreter to switch threads)
+            if (not self._queue and self._direct is not None
+                    and self._send_lock.acquire(blocking=False)):
+                try:
+                    n = self._direct.send(data)
+                except OSError:                 # would block, or the client is gone
+                    n = 0
+                finally:
+                    self._send_lock.release()
+                if n == len(data):
+                    self.n_sent += 1
+                    if t_ready is not None:
+                        self._latency.append(time.perf_counter() - t_ready)
+                    return True
+                if n:                           # the rest must go out next, never dropped
+                    self._queue.append((data[n:], t_ready))
+                    self._partial = True
+                    self._cond.notify()
+                    return True
+            if len(self._queue) >= self._max_queue:
+                # drop the oldest whole message (a partly sent head must be completed)
+                if not self._partial:
+                    self._queue.popleft()
+                    self.n_dropped += 1
+                elif len(self._queue) > 1:
+                    del self._queue[1]
+                    self.n_dropped += 1
+            self._queue.append((data, t_ready))
             self._cond.notify()
         return True
 

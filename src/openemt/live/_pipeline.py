@@ -31,7 +31,16 @@ def lm_solver(model, *, hemisphere="+x", **kwargs):
     """
     from ..solve import solve_lm
 
+    # warm starts never use the closed form; handing solve_lm a ready concentric model skips
+    # re-deriving it on every call (a fixed cost that dominates one-sample solves)
+    conc = None
+    if model.n_source == 3 and model.n_sensor == 3 and "concentric_model" not in kwargs:
+        conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
+
     def solve(C, initial):
+        if conc is not None and not isinstance(initial, str):
+            return solve_lm(C, model, initial=initial, hemisphere=hemisphere,
+                            concentric_model=conc, **kwargs)
         return solve_lm(C, model, initial=initial, hemisphere=hemisphere, **kwargs)
 
     return solve
@@ -197,12 +206,15 @@ class TrackingPipeline:
     igtl : IgtlServer, optional
         Receives every ``igtl_every``-th valid pose.
     log : TrackLog, optional
+    serial_small_batches : bool
+        Solve chunks of fewer than 256 samples with numba's parallel regions limited to this
+        thread (see ``openemt bench track``'s baseline for why).
     """
 
     def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
                  output_rate: float = 1500.0, window: str = "hann", phase=None,
                  distortion_threshold: float = 0.01, igtl=None, log: TrackLog | None = None,
-                 igtl_every: int = 1):
+                 igtl_every: int = 1, serial_small_batches: bool = True):
         if solver is None:
             if model is None:
                 raise ValueError("expected a `model` or a `solver`, got neither")
@@ -221,17 +233,24 @@ class TrackingPipeline:
         self.igtl = igtl
         self.log = log
         self.igtl_every = max(1, int(igtl_every))
+        self.serial_small_batches = bool(serial_small_batches)
         self._last = None             # last valid pose vector
         self._n_out = 0
         self._status_counts: dict = {}
         self._n_distorted = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
         self._err_n, self._err_ss, self._err_max = 0, 0.0, 0.0
+        self._pending: list = []
+        self._n_pending = 0
+        self._truth_known = backend.truth_poses(np.zeros(1)) is not None
 
     def _solve(self, C):
         n = C.shape[0]
         initial = "kim18" if self._last is None else np.tile(self._last, (n, 1))
-        res = _serial(self.solver, C, initial) if n < 256 else self.solver(C, initial)
+        if self.serial_small_batches and n < 256:
+            res = _serial(self.solver, C, initial)
+        else:
+            res = self.solver(C, initial)
         poses = np.asarray(res.poses, dtype=np.float64)
         vecs = np.asarray(res.pose_vectors, dtype=np.float64)
         status = np.asarray(res.status).astype(np.int8)
@@ -291,14 +310,27 @@ class TrackingPipeline:
         self._n_distorted += int(np.count_nonzero(step.distorted))
         if self.log is not None:
             self.log.append(step)
-        truth = self.backend.truth_poses(step.times)
-        if truth is not None:
-            ok = step.status == _CONVERGED
-            err = np.linalg.norm(step.poses[ok, :3, 3] - truth[ok, :3, 3], axis=1)
-            if err.size:
-                self._err_n += err.size
-                self._err_ss += float(np.sum(err ** 2))
-                self._err_max = max(self._err_max, float(err.max()))
+        ok = step.status == _CONVERGED
+        if self._truth_known and np.any(ok):
+            self._pending.append((step.times[ok], step.poses[ok, :3, 3]))
+            self._n_pending += int(ok.sum())
+            if self._n_pending >= 1500:       # compare with the truth in batches (cheaper)
+                self._flush_truth()
+
+    def _flush_truth(self):
+        if not self._pending:
+            return
+        t = np.concatenate([p[0] for p in self._pending])
+        xyz = np.concatenate([p[1] for p in self._pending])
+        self._pending, self._n_pending = [], 0
+        truth = self.backend.truth_poses(t)
+        if truth is None:
+            self._truth_known = False
+            return
+        err = np.linalg.norm(xyz - truth[:, :3, 3], axis=1)
+        self._err_n += err.size
+        self._err_ss += float(np.sum(err ** 2))
+        self._err_max = max(self._err_max, float(err.max()))
 
     def run(self, duration: float | None = None, *, max_steps: int | None = None,
             stop=None) -> TrackSummary:
@@ -330,6 +362,7 @@ class TrackingPipeline:
         except ImportError:  # pragma: no cover
             names = {}
         counts = {names.get(c, str(c)): k for c, k in sorted(self._status_counts.items())}
+        self._flush_truth()
         lat = np.asarray(self._latency) * 1e3
         truth = None
         if self._err_n:
