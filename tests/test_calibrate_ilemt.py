@@ -57,7 +57,7 @@ def test_paper_sequence_residues(ilemt, ilemt_dir):
 def test_reproduce_table2_matches_paper(ilemt_dir):
     from openemt.calibrate import TABLE2_PAPER, reproduce_table2
 
-    out = reproduce_table2(ilemt_dir)
+    out = reproduce_table2(ilemt_dir, improved=True)
     assert out["n_test"] == 1896
     # issue 4 item 7 tolerances: default within 0.005 mm / 0.005 deg, corrected <= 0.27 mm,
     # concentric within 0.01 mm of the paper
@@ -76,3 +76,9 @@ def test_reproduce_table2_matches_paper(ilemt_dir):
     assert st["XYZ"]["uncorrected"] == pytest.approx(0.4691e-3, abs=1e-7)
     assert st["XYZ"]["corrected"] == pytest.approx(0.2776e-3, abs=1e-7)
     assert st["XYZ_all"]["num_invalid"] == 276
+    # issue 4 item 7 goals for the improved calibration (fitted on md rows only)
+    imp, impc = out["improved"], out["improved_corrected"]
+    assert imp["trans_rms_mm"] <= 0.25 and imp["rot_rms_deg"] <= 0.12
+    assert impc["trans_rms_mm"] <= 0.18
+    assert out["improved_model"]["extra_parameters"] == 25
+    assert imp["trans_uncert_mm"] == pytest.approx(np.hypot(imp["trans_rms_mm"], 0.107))
