@@ -100,7 +100,8 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
     n_se = Cm.shape[1]
     _project(t, n, lo, hi)
     cost = _eval(L_so, M_so, L_se, M_se, gain, Cm, R, t, Cp, dt, dphi, d1, d2, True)
-    lam = 1e-3
+    lam = 1e-4
+    lam_small = 1e-3
     it = 0
     code = 1
     while it < max_iter:
@@ -140,6 +141,32 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
                     A[p, q] = JtJ[p, q]
                 A[p, p] = JtJ[p, p] * (1.0 + lam) + 1e-300
             ok = cholesky_solve(A, g, npar, delta, Lc)
+            if ok and lam <= lam_small:
+                # converged: the Gauss-Newton step is below tolerance; apply it without a new
+                # evaluation (the cost changes by O(step^2), far below rounding of the test)
+                st2 = delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]
+                sr2 = 0.0
+                for c in range(nr):
+                    sr2 += delta[3 + c] * delta[3 + c]
+                tn = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+                if np.sqrt(st2) <= xtol * (tn + xtol) and np.sqrt(sr2) <= xtol:
+                    for a in range(3):
+                        t[a] += delta[a]
+                    _project(t, n, lo, hi)
+                    for a in range(3):
+                        acc = 0.0
+                        for c in range(nr):
+                            acc += basis[a, c] * delta[3 + c]
+                        phi[a] = acc
+                    exp_so3(phi, dR)
+                    for a in range(3):
+                        for b in range(3):
+                            R2[a, b] = (dR[a, 0] * R[0, b] + dR[a, 1] * R[1, b]
+                                        + dR[a, 2] * R[2, b])
+                    for a in range(3):
+                        for b in range(3):
+                            R[a, b] = R2[a, b]
+                    return cost, it, 0
             if ok:
                 # trust limit: one step moves the sensor by at most half its distance (keeps
                 # an unconstrained solve from running off to infinity, where C -> 0)
