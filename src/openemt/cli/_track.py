@@ -51,7 +51,7 @@ def register(subparsers) -> None:
                    help="(sim) conductive-object strength; >0 shows as quadrature/distortion")
     p.add_argument("--window", choices=("hann", "rect"), default="hann",
                    help="demodulation window (default hann)")
-    p.add_argument("--distortion-threshold", type=float, default=0.01,
+    p.add_argument("--distortion-threshold", type=float, default=1e-3,
                    help="quadrature ratio above which a sample is flagged distorted")
     add_common(p)
     p.set_defaults(func=run)

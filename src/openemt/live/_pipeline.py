@@ -213,7 +213,7 @@ class TrackingPipeline:
 
     def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
                  output_rate: float = 1500.0, window: str = "hann", phase=None,
-                 distortion_threshold: float = 0.01, igtl=None, log: TrackLog | None = None,
+                 distortion_threshold: float = 1e-3, igtl=None, log: TrackLog | None = None,
                  igtl_every: int = 1, serial_small_batches: bool = True):
         if solver is None:
             if model is None:
