@@ -243,3 +243,28 @@ def test_bad_poses():
         vector_from_pose(np.zeros((3, 3)))
     with pytest.raises(ValueError, match="at least one pose"):
         compose()
+
+
+def test_nonfinite_rows_give_nan_not_an_exception():
+    P = pose_from_vector(np.array([[0.1, 0, 0, 0.1, 0, 0], [0.2, 0, 0, 0, 0.2, 0]]))
+    P[1] = np.nan
+    v = vector_from_pose(P)
+    np.testing.assert_allclose(v[0], [0.1, 0, 0, 0.1, 0, 0], atol=1e-15)
+    assert np.all(np.isnan(v[1]))
+    trans, ang = error_magnitudes(pose_error(P, P))
+    assert trans[0] == pytest.approx(0, abs=1e-15) and ang[0] == pytest.approx(0, abs=1e-7)
+    assert np.isnan(trans[1]) and np.isnan(ang[1])
+
+
+def test_pose_error_magnitudes_with_failed_rows():
+    from openemt.evaluate import error_summary, pose_error_magnitudes
+
+    D = pose_from_vector(np.array([[0.2, 0, 0, 0, 0, 0.1]] * 3))
+    M = D.copy()
+    M[0, 0, 3] += 1e-3
+    M[2] = np.nan
+    t, r = pose_error_magnitudes(M, D, sensor_fixture=[0.001, 0, 0, 0.1, 0.2, 0.3])
+    assert t[0] == pytest.approx(1e-3, rel=1e-9) and t[1] == pytest.approx(0, abs=1e-15)
+    assert np.isnan(t[2]) and np.isnan(r[2])
+    s = error_summary(t, r)
+    assert s["n"] == 3 and s["n_nonfinite"] == 1

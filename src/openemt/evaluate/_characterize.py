@@ -120,10 +120,7 @@ def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
     if M.ndim != 3 or D.shape != M.shape:
         raise ValueError(f"expected P_measured and P_reference of one shape (N, 4, 4), got "
                          f"{M.shape} and {D.shape}")
-    ok = np.all(np.isfinite(M), axis=(1, 2)) & np.all(np.isfinite(D), axis=(1, 2))
-    trans, rot = np.full(len(M), np.nan), np.full(len(M), np.nan)
-    if ok.any():
-        trans[ok], rot[ok] = pose_error_magnitudes(M[ok], D[ok], sensor_fixture)
+    trans, rot = pose_error_magnitudes(M, D, sensor_fixture)  # NaN for failed rows
     kw = {"stage_uncertainty_m": stage_uncertainty_m,
           "stage_uncertainty_rad": stage_uncertainty_rad}
     overall = uncertainty_summary(trans, rot, **kw)

@@ -77,11 +77,17 @@ def pose_from_vector(v) -> np.ndarray:
 
 
 def vector_from_pose(P) -> np.ndarray:
-    """Poses ``(..., 4, 4)`` -> pose vectors ``(..., 6)`` with rotation angle in ``[0, pi]``."""
+    """Poses ``(..., 4, 4)`` -> pose vectors ``(..., 6)`` with rotation angle in ``[0, pi]``.
+
+    Rows with a non-finite rotation (e.g. a failed solve) give NaN rotation vectors.
+    """
     P = check_poses(P)
     R = P[..., :3, :3].reshape(-1, 3, 3)
-    rv = Rotation.from_matrix(R).as_rotvec().reshape(P.shape[:-2] + (3,))
-    return np.concatenate([P[..., :3, 3], rv], axis=-1)
+    ok = np.all(np.isfinite(R), axis=(1, 2))
+    rv = np.full((R.shape[0], 3), np.nan)
+    if ok.any():
+        rv[ok] = Rotation.from_matrix(R[ok]).as_rotvec()
+    return np.concatenate([P[..., :3, 3], rv.reshape(P.shape[:-2] + (3,))], axis=-1)
 
 
 def compose(*poses) -> np.ndarray:
