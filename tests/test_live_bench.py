@@ -1,0 +1,84 @@
+"""Benchmark modules run end to end on short inputs (numbers checked are physics, not speed)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import types
+
+import numpy as np
+import pytest
+
+from openemt.bench import _demod, _track
+
+
+def _args(mod, argv):
+    p = argparse.ArgumentParser()
+    mod.add_arguments(p)
+    return p.parse_args(argv)
+
+
+def test_bench_demod_keys_and_physics():
+    out = _demod.run(_args(_demod, ["--seconds", "0.3", "--repeats", "1"]))
+    assert out["realtime_factor"] > 0 and out["speedup_vs_baseline"] > 0
+    assert out["baseline_max_abs_difference"] < 1e-12      # same estimator as the baseline
+    assert out["mains_rejection_db"]["hann_50hz"] > 60
+    assert out["amplitude_error_rel_max"]["hann"]["static"] < 1e-10
+    n = out["noise_coupling_rms"]["hann"]
+    assert n["measured"] == pytest.approx(n["predicted"], rel=0.1)
+
+
+def test_bench_track_noise_matches_cramer_rao():
+    out = _track.run(_args(_track, ["--seconds", "0.2", "--noise-seconds", "0.5"]))
+    for key in ("latency_ms_p50", "latency_ms_p99", "position_noise_um",
+                "crb_position_noise_um"):
+        assert np.isfinite(out[key])
+    assert out["igtl"]["sent"] > 0
+    # the LM solution of the demodulated couplings is efficient: noise at the bound
+    assert 0.8 < out["noise_to_crb_ratio"] < 1.2
+    assert 0.5 < out["position_noise_um"] < 10
+
+
+def test_sounddevice_backend_with_a_stand_in_module(monkeypatch):
+    from openemt.live import SoundDeviceBackend
+    from openemt.signal import ChannelLayout
+
+    streams = []
+
+    class InputStream:
+        def __init__(self, samplerate, channels, dtype, blocksize, device, callback):
+            self.callback, self.channels, self.blocksize = callback, channels, blocksize
+            self.started = self.closed = False
+            streams.append(self)
+
+        def start(self):
+            self.started = True
+
+        def stop(self):
+            self.started = False
+
+        def close(self):
+            self.closed = True
+
+    monkeypatch.setitem(sys.modules, "sounddevice", types.SimpleNamespace(InputStream=InputStream))
+    b = SoundDeviceBackend(ChannelLayout(), chunk=64, timeout=0.01, max_blocks=2)
+    s = streams[0]
+    assert s.started and s.channels == 6
+    blocks = [np.full((64, 6), k, np.float32) for k in range(4)]
+    for blk in blocks:                      # the audio thread delivers 4 blocks, 2 fit
+        s.callback(blk, 64, None, None)
+    assert b.n_overflow == 2
+    np.testing.assert_array_equal(b.read(), blocks[0])
+    np.testing.assert_array_equal(b.read(), blocks[1])
+    assert b.read() is None                 # nothing within the timeout
+    b.close()
+    assert s.closed
+
+
+def test_sounddevice_missing_is_a_clear_error(monkeypatch):
+    from openemt.live import SoundDeviceBackend
+    from openemt.signal import ChannelLayout
+
+    monkeypatch.setitem(sys.modules, "sounddevice", None)
+    with pytest.raises(ImportError, match="openemt\\[sound\\]"):
+        SoundDeviceBackend(ChannelLayout())
