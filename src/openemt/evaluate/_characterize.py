@@ -14,37 +14,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import check_poses, invert, pose_error, pose_from_vector, vector_from_pose
+from ..geometry import check_poses
 from ._errors import (
     STAGE_UNCERTAINTY_M,
     STAGE_UNCERTAINTY_RAD,
     combined_uncertainty,
     error_summary,
     pose_error_magnitudes,
+    pose_error_vectors,
 )
 
 __all__ = [
     "Characterization",
     "characterize",
     "fixture_labels",
-    "pose_error_vectors",
     "uncertainty_summary",
 ]
-
-
-def pose_error_vectors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:
-    """Pose error as vectors ``[tx, ty, tz, rx, ry, rz]`` (m, rad), shape (N, 6).
-
-    Same error pose as :func:`openemt.evaluate.pose_error_magnitudes` (whose magnitudes are
-    the norms of the two halves), kept as vectors for error-vector plots and sweep analysis.
-    """
-    M = check_poses(P_measured, "P_measured")
-    D = check_poses(P_reference, "P_reference")
-    if sensor_fixture is None:
-        return vector_from_pose(pose_error(M, D))
-    F = np.asarray(sensor_fixture, dtype=np.float64)
-    F = pose_from_vector(F) if F.shape == (6,) else check_poses(F, "sensor_fixture")
-    return vector_from_pose(F @ invert(D) @ M @ invert(F))
 
 
 def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
@@ -134,9 +119,7 @@ def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
         for lab in g[np.sort(first)]:
             sel = g == lab
             by_group[str(lab)] = uncertainty_summary(trans[sel], rot[sel], **kw)
-    vec = np.full((len(M), 6), np.nan)
-    if ok.any():
-        vec[ok] = pose_error_vectors(M[ok], D[ok], sensor_fixture)
+    vec = pose_error_vectors(M, D, sensor_fixture)
     return Characterization(overall=overall, by_group=by_group, positions=D[:, :3, 3].copy(),
                             error_vectors=vec, groups=g)
 

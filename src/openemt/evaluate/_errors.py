@@ -4,19 +4,32 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import check_poses, error_magnitudes, invert, pose_error, pose_from_vector
+from ..geometry import (
+    check_poses,
+    error_magnitudes,
+    invert,
+    pose_error,
+    pose_from_vector,
+    vector_from_pose,
+)
 
-__all__ = ["pose_error_magnitudes", "error_summary", "STAGE_UNCERTAINTY_M",
-           "STAGE_UNCERTAINTY_RAD", "combined_uncertainty"]
+__all__ = [
+    "STAGE_UNCERTAINTY_M",
+    "STAGE_UNCERTAINTY_RAD",
+    "combined_uncertainty",
+    "error_summary",
+    "pose_error_magnitudes",
+    "pose_error_vectors",
+    "pose_errors",
+]
 
 #: Stage standard uncertainty after compensation (seed 000 supplement): 107 um and 0.17 deg.
 STAGE_UNCERTAINTY_M = 0.107e-3
 STAGE_UNCERTAINTY_RAD = np.deg2rad(0.17)
 
 
-def pose_error_magnitudes(P_measured, P_reference, sensor_fixture=None
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Translation (m) and rotation (rad) magnitudes of the pose errors, each shape (N,).
+def pose_errors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:
+    """Error poses, shape (N, 4, 4); rows with a failed (non-finite) pose stay NaN.
 
     Without ``sensor_fixture`` the error is ``E = inv(P_measured) @ P_reference``. With the sensor
     fixture F_se (pose vector (6,) or pose (4, 4)) it is ILEMT's "stage coordinates" error
@@ -25,10 +38,22 @@ def pose_error_magnitudes(P_measured, P_reference, sensor_fixture=None
     M = check_poses(P_measured, "P_measured")
     D = check_poses(P_reference, "P_reference")
     if sensor_fixture is None:
-        return error_magnitudes(pose_error(M, D))
+        return pose_error(M, D)
     F = np.asarray(sensor_fixture, dtype=np.float64)
     F = pose_from_vector(F) if F.shape == (6,) else check_poses(F, "sensor_fixture")
-    return error_magnitudes(F @ invert(D) @ M @ invert(F))
+    return F @ invert(D) @ M @ invert(F)
+
+
+def pose_error_magnitudes(P_measured, P_reference, sensor_fixture=None
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Translation (m) and rotation (rad) magnitudes of :func:`pose_errors`, each shape (N,)."""
+    return error_magnitudes(pose_errors(P_measured, P_reference, sensor_fixture))
+
+
+def pose_error_vectors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:
+    """:func:`pose_errors` as vectors ``[tx, ty, tz, rx, ry, rz]`` (m, rad), shape (N, 6), for
+    error-vector plots and sweep analysis; their two halves' norms are the magnitudes."""
+    return vector_from_pose(pose_errors(P_measured, P_reference, sensor_fixture))
 
 
 def combined_uncertainty(rms, stage_uncertainty):

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from ..geometry import check_poses
-from ._characterize import pose_error_vectors
+from ._errors import pose_error_vectors
 
 __all__ = [
     "SWEEP_AXES",

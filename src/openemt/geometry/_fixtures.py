@@ -14,14 +14,14 @@ from ._pose import check_poses, pose_from_rt, pose_from_vector, rotation_x, rota
 
 __all__ = [
     "FIXTURE_CODE_RE",
-    "SOURCE_FIXTURES",
     "SENSOR_FIXTURES",
+    "SOURCE_FIXTURES",
     "fixture_axes",
-    "source_fixture_rotation",
-    "sensor_fixture_rotation",
-    "stage_transform",
-    "stage_joint",
     "ground_truth_poses",
+    "sensor_fixture_rotation",
+    "source_fixture_rotation",
+    "stage_joint",
+    "stage_transform",
 ]
 
 FIXTURE_CODE_RE = re.compile(r"^([XYZ])(out|in)([XYZ])(up|down)$")

@@ -11,21 +11,21 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "check_poses",
+    "adjoint",
     "check_pose_vectors",
-    "pose_from_vector",
-    "vector_from_pose",
-    "pose_from_rt",
+    "check_poses",
     "compose",
-    "invert",
-    "pose_error",
     "error_magnitudes",
+    "invert",
+    "left_jacobian_so3",
+    "pose_error",
+    "pose_from_rt",
+    "pose_from_vector",
     "rotation_x",
     "rotation_y",
     "rotation_z",
     "skew",
-    "left_jacobian_so3",
-    "adjoint",
+    "vector_from_pose",
 ]
 
 
