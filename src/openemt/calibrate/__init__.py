@@ -11,9 +11,13 @@ from ._multipole import OctupoleModel, octupole_coupling, refine_poses
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
 from ._sequence import (PAPER_SEQUENCE, OutputCorrection, SequenceStep, fit_output_correction,
                         run_sequence)
+from ._simstudy import dipole_cost, parameter_recovery, perturb_calibration
 from ._table2 import TABLE2_PAPER, reproduce_table2, test_poses, test_rows
 
 __all__ = [
+    "dipole_cost",
+    "parameter_recovery",
+    "perturb_calibration",
     "CANDIDATES",
     "IMPROVED_OPTIONS",
     "STAGE_LINEAR_BASIS",
