@@ -64,7 +64,7 @@ def _perturbed_start(truth, mode, rng):
 
 def run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, test_poses, test_rows
-    from ..evaluate import combined_uncertainty, STAGE_UNCERTAINTY_M
+    from ..evaluate import STAGE_UNCERTAINTY_M, combined_uncertainty
     from ..io import write_calibration, write_dataset
     from ..report import Report, error_histogram_figure, error_vector_figure
     from ..simulate import get_preset, simulate, truth_calibration

@@ -17,11 +17,11 @@ from ._dipole_kernel import dipole_batch, dipole_batch_jac
 
 __all__ = [
     "ILEMT_GAIN",
-    "DipoleModel",
     "CouplingJacobians",
+    "DipoleModel",
     "coupling",
-    "coupling_jacobians",
     "coupling_jacobian_pose",
+    "coupling_jacobians",
 ]
 
 #: ILEMT's fixed coupling scale, C = B . m / 250 (ilemt-format.md §6).
@@ -91,13 +91,13 @@ class DipoleModel:
         return not (np.any(self.L_so) or np.any(self.L_se))
 
     @classmethod
-    def concentric(cls, M_so=None, M_se=None, gain: float = ILEMT_GAIN) -> "DipoleModel":
+    def concentric(cls, M_so=None, M_se=None, gain: float = ILEMT_GAIN) -> DipoleModel:
         """Concentric coils at the origins; identity moments by default (ideal tri-axial)."""
         M_so = np.eye(3) if M_so is None else np.asarray(M_so, dtype=np.float64)
         M_se = np.eye(3) if M_se is None else np.asarray(M_se, dtype=np.float64)
         return cls(np.zeros_like(M_so), M_so, np.zeros_like(M_se), M_se, gain)
 
-    def replace(self, **changes) -> "DipoleModel":
+    def replace(self, **changes) -> DipoleModel:
         """A copy with some of L_so, M_so, L_se, M_se, gain replaced."""
         kw = dict(L_so=self.L_so, M_so=self.M_so, L_se=self.L_se, M_se=self.M_se, gain=self.gain)
         kw.update(changes)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["dipole_eval", "dipole_batch", "dipole_batch_jac"]
+__all__ = ["dipole_batch", "dipole_batch_jac", "dipole_eval"]
 
 
 @njit(cache=True, fastmath=False)

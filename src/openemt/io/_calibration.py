@@ -84,5 +84,5 @@ class Calibration:
         return tuple(pose_from_vector(v) for v in
                      (self.source_fixture, self.stage_fixture, self.sensor_fixture))
 
-    def replace(self, **changes) -> "Calibration":
+    def replace(self, **changes) -> Calibration:
         return replace(self, **changes)

@@ -158,7 +158,7 @@ class Dataset:
                 & accept(self.source_fixture, source_fixture)
                 & accept(self.sensor_fixture, sensor_fixture))
 
-    def select(self, rows) -> "Dataset":
+    def select(self, rows) -> Dataset:
         """A new dataset with the rows picked by a boolean mask or an index array."""
         idx = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
 

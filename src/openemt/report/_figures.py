@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["error_vector_figure", "error_histogram_figure", "sweep_figure"]
+__all__ = ["error_histogram_figure", "error_vector_figure", "sweep_figure"]
 
 
 def _plt():

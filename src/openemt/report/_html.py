@@ -60,17 +60,17 @@ class Report:
     blocks: list[str] = field(default_factory=list)
     n_figures: int = 0
 
-    def heading(self, text: str, level: int = 2) -> "Report":
+    def heading(self, text: str, level: int = 2) -> Report:
         self.blocks.append(f"<h{level}>{html.escape(text)}</h{level}>")
         return self
 
-    def paragraph(self, text: str, note: bool = False) -> "Report":
+    def paragraph(self, text: str, note: bool = False) -> Report:
         cls = ' class="note"' if note else ""
         self.blocks.append(f"<p{cls}>{html.escape(text)}</p>")
         return self
 
     def table(self, rows: list[dict], columns: list[str] | None = None, *, caption: str = "",
-              digits: int = 4) -> "Report":
+              digits: int = 4) -> Report:
         """A table from a list of dicts; the first column is left-aligned as a label."""
         if not rows:
             return self
@@ -88,7 +88,7 @@ class Report:
                            "</tbody></table>")
         return self
 
-    def figure(self, fig, caption: str = "") -> "Report":
+    def figure(self, fig, caption: str = "") -> Report:
         """Embed a matplotlib figure as a base64 PNG (the figure is closed)."""
         data = base64.b64encode(figure_png(fig)).decode("ascii")
         self.n_figures += 1
@@ -98,7 +98,7 @@ class Report:
         return self
 
     def html(self) -> str:
-        stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
         return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
                 f"<title>{html.escape(self.title)}</title><style>{_CSS}</style></head><body>"
                 f"<h1>{html.escape(self.title)}</h1>" + "\n".join(self.blocks)
