@@ -139,7 +139,9 @@ def test_igtl_client_receives_the_trajectory():
             done.set()
             th.join(timeout=2.0)
             cl.stop()
+        status = cl.wait_for_message("SensorStatus", timeout=0.5)   # latest one kept
         assert s.igtl["sent"] > 0
+        assert status is not None and status.string.startswith("CONVERGED distorted=0")
     assert len(received) >= 10
     t = np.array([r[0] for r in received]) - b.t0_epoch
     M = np.stack([r[1] for r in received])

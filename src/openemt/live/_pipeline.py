@@ -204,7 +204,10 @@ class TrackingPipeline:
     distortion_threshold : float
         Quadrature ratio above which a sample is flagged as distorted.
     igtl : IgtlServer, optional
-        Receives every ``igtl_every``-th valid pose.
+        Receives every ``igtl_every``-th valid pose, and every ``status_every`` samples a
+        STRING message on device ``<device_name>Status`` such as
+        ``"CONVERGED distorted=0 quadrature=1.2e-05"`` (the latest sample), which Slicer shows
+        as a text node.
     log : TrackLog, optional
     serial_small_batches : bool
         Solve chunks of fewer than 256 samples with numba's parallel regions limited to this
@@ -214,7 +217,8 @@ class TrackingPipeline:
     def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
                  output_rate: float = 1500.0, window: str = "hann", phase=None,
                  distortion_threshold: float = 1e-3, igtl=None, log: TrackLog | None = None,
-                 igtl_every: int = 1, serial_small_batches: bool = True):
+                 igtl_every: int = 1, status_every: int = 150,
+                 serial_small_batches: bool = True):
         if solver is None:
             if model is None:
                 raise ValueError("expected a `model` or a `solver`, got neither")
@@ -233,6 +237,7 @@ class TrackingPipeline:
         self.igtl = igtl
         self.log = log
         self.igtl_every = max(1, int(igtl_every))
+        self.status_every = max(1, int(status_every))
         self.serial_small_batches = bool(serial_small_batches)
         self._last = None             # last valid pose vector
         self._n_out = 0
@@ -296,11 +301,27 @@ class TrackingPipeline:
                 if status[k] == _CONVERGED and (self._n_out + k) % self.igtl_every == 0:
                     self.igtl.send_pose(poses[k], timestamp=epoch + d.times[k], t_ready=t_ready)
                 self._latency.append(time.perf_counter() - t_ready)
+            if (self._n_out + n) // self.status_every > self._n_out // self.status_every:
+                self._send_status(int(status[-1]), bool(flag[-1]), float(ratio[-1]),
+                                  epoch + d.times[-1])
         else:
             self._latency.extend([time.perf_counter() - t_ready] * n)
         step = TrackStep(d.times, d.couplings, poses, vecs, status, resid, ratio, flag, t_ready)
         self._account(step)
         return step
+
+    def _send_status(self, code, distorted, ratio, timestamp):
+        import pyigtl
+
+        try:
+            from ..solve import Status
+            name = Status(code).name
+        except (ImportError, ValueError):  # pragma: no cover
+            name = str(code)
+        device = (self.igtl.device_name + "Status")[:20]
+        self.igtl.send_message(pyigtl.StringMessage(
+            f"{name} distorted={int(distorted)} quadrature={ratio:.2e}", timestamp=timestamp,
+            device_name=device))
 
     def _account(self, step: TrackStep):
         self._n_out += len(step)
