@@ -144,3 +144,49 @@ def test_bad_arguments():
         IgtlServer(port=0, device_name="")
     with pytest.raises(ValueError, match="max_queue"):
         IgtlServer(port=0, max_queue=0)
+
+
+def test_flooded_stream_stays_well_formed_and_ordered(server):
+    """Poses are dropped under back-pressure, but every byte that arrives belongs to a whole,
+    valid message, in sending order (partial non-blocking sends are completed first)."""
+    from pyigtl.messages import MessageBase
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 2048)
+    sock.connect(("127.0.0.1", server.port))
+    data = bytearray()
+    try:
+        assert server.wait_for_client(3.0)
+        P = np.eye(4)
+        sock.settimeout(0.0)
+        for k in range(20000):
+            P[0, 3] = k * 1e-6
+            server.send_pose(P, timestamp=float(k + 1))
+            if k % 500 == 0:                      # a slow reader
+                try:
+                    data += sock.recv(4096)
+                except BlockingIOError:
+                    pass
+        sock.settimeout(0.5)
+        while True:                               # drain what is still in flight
+            try:
+                chunk = sock.recv(1 << 16)
+            except TimeoutError:
+                break
+            if not chunk:
+                break
+            data += chunk
+    finally:
+        sock.close()
+    H = MessageBase.IGTL_HEADER_SIZE
+    stamps, pos = [], 0
+    while pos + H <= len(data):
+        head = MessageBase.parse_header(bytes(data[pos:pos + H]))
+        assert head["message_type"] == "TRANSFORM" and head["device_name"] == NAME
+        assert head["body_size"] == 48
+        pos += H + head["body_size"]
+        stamps.append(head["timestamp"])
+    assert len(data) - pos < H + 48                  # at most one message still incomplete
+    assert len(stamps) > 100
+    assert np.all(np.diff(stamps) > 0)               # in order, no duplicates
+    assert set(np.round(stamps)) <= set(range(1, 20001))
