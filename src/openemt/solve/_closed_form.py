@@ -273,7 +273,7 @@ def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0,
 
 @njit(cache=True)
 def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain, nvec, rank_tol,
-                       ambig_tol, poses, vecs, status, residual):
+                       ambig_tol, want_res, poses, vecs, status, residual):
     N = C.shape[0]
     R = np.empty((3, 3))
     t = np.empty(3)
@@ -310,6 +310,9 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
         vecs[k, 3] = rv[0]
         vecs[k, 4] = rv[1]
         vecs[k, 5] = rv[2]
+        if not want_res:
+            residual[k] = np.nan
+            continue
         dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dummy, dummy, dummy, dummy, False)
         nrm = cnorm[k]
         if nrm < 0.0:
@@ -340,20 +343,22 @@ def _concentric_model(model, name) -> DipoleModel:
     return model
 
 
-def _solve_closed_form(method, couplings, hemisphere, model, rank_tol, ambiguity_tol):
+def _solve_closed_form(method, couplings, hemisphere, model, rank_tol, ambiguity_tol,
+                       residual=True):
     model = _concentric_model(model, method)
     C, cnorm = check_couplings(couplings, 3, 3)
     n = C.shape[0]
     nvec = hemisphere_vectors(hemisphere, n, allow_none=False)
     Wso = np.ascontiguousarray(np.linalg.inv(model.M_so.T))
     Wse = np.ascontiguousarray(np.linalg.inv(model.M_se))
+    want_residual = residual
     poses = np.empty((n, 4, 4))
     vecs = np.empty((n, 6))
     status = np.empty(n, dtype=np.int8)
     residual = np.empty(n)
     _closed_form_batch(_METHODS[method], C, cnorm, Wso, Wse, model.L_so, model.M_so, model.L_se,
                        model.M_se, model.gain, nvec, float(rank_tol), float(ambiguity_tol),
-                       poses, vecs, status, residual)
+                       bool(want_residual), poses, vecs, status, residual)
     return SolveResult(poses, vecs, status, residual, np.zeros(n, dtype=np.int32), solver=method)
 
 
@@ -372,6 +377,9 @@ _COMMON_DOC = """
         Coupling matrices with ``s3 < rank_tol * s1`` (after whitening) are INVALID_INPUT.
     ambiguity_tol : float
         Samples with ``|u . n| < ambiguity_tol`` are flagged AMBIGUOUS (pose still returned).
+    residual : bool
+        Evaluate the model at the solution for ``residual`` (default). ``False`` skips it (about
+        half the cost) and returns NaN residuals.
 
     Returns
     -------
@@ -382,27 +390,29 @@ _COMMON_DOC = """
 
 
 def solve_svd(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
-              ambiguity_tol=1e-6) -> SolveResult:
+              ambiguity_tol=1e-6, residual=True) -> SolveResult:
     """Closed-form SVD pose solution of Teixeira Silva et al. (seed 004).
 
     Distance from the singular values, direction from the first singular vector, orientation
     from the Wahba problem solved by SVD.
     """
-    return _solve_closed_form("svd", couplings, hemisphere, model, rank_tol, ambiguity_tol)
+    return _solve_closed_form("svd", couplings, hemisphere, model, rank_tol, ambiguity_tol,
+                              residual)
 
 
 def solve_kuipers(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
-                  ambiguity_tol=1e-6) -> SolveResult:
+              ambiguity_tol=1e-6, residual=True) -> SolveResult:
     """Kuipers' closed-form pose solution (the benchmark of seed 004).
 
     Distance from the Frobenius invariant, direction cosines from ``C0 C0^T``, orientation from
     Z-Y-X Euler angles read off ``H^-1 C0 / k``.
     """
-    return _solve_closed_form("kuipers", couplings, hemisphere, model, rank_tol, ambiguity_tol)
+    return _solve_closed_form("kuipers", couplings, hemisphere, model, rank_tol, ambiguity_tol,
+                              residual)
 
 
 def solve_kim18(couplings, model, *, hemisphere="+x", rank_tol=1e-6,
-                ambiguity_tol=1e-6) -> SolveResult:
+                ambiguity_tol=1e-6, residual=True) -> SolveResult:
     """Kim-Song-Park 2018 closed form for calibrated concentric models (ilemt-format.md §10.2).
 
     Accepts non-orthogonal moments and unequal gains (through the whitening by ``M_so``,
@@ -410,7 +420,8 @@ def solve_kim18(couplings, model, *, hemisphere="+x", rank_tol=1e-6,
     """
     if model is None:
         raise TypeError("expected a concentric DipoleModel for solve_kim18, got None")
-    return _solve_closed_form("kim18", couplings, hemisphere, model, rank_tol, ambiguity_tol)
+    return _solve_closed_form("kim18", couplings, hemisphere, model, rank_tol, ambiguity_tol,
+                              residual)
 
 
 for _f in (solve_svd, solve_kuipers, solve_kim18):
