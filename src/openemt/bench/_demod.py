@@ -46,7 +46,9 @@ def add_arguments(parser) -> None:
 
 def _fft_baseline(samples, layout, hop, L, window):
     """Textbook demodulation: frame, window, full FFT, pick bins, divide by the reference."""
-    w = np.ones(L) if window == "rect" else 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(L) / L)
+    from ..signal import frame_window
+
+    w = frame_window(window, L)
     bins = np.round(np.asarray(layout.frequencies) * L / layout.sample_rate).astype(int)
     n_out = (samples.shape[0] - L) // hop + 1
     out = np.empty((n_out, layout.n_source, layout.n_sensor), complex)
@@ -72,7 +74,14 @@ def run(args) -> dict:
     from ..field import DipoleModel
     from ..geometry import pose_from_vector
     from ..live import default_trajectory
-    from ..signal import Demodulator, RawSignalConfig, demodulate, frame_length, simulate_raw
+    from ..signal import (
+        Demodulator,
+        RawSignalConfig,
+        demodulate,
+        frame_length,
+        frame_window,
+        simulate_raw,
+    )
 
     model = DipoleModel.concentric()
     pose = pose_from_vector(np.array([0.17, 0.08, -0.07, 0.4, -0.3, 0.6]))
@@ -158,7 +167,7 @@ def run(args) -> dict:
     for window in ("hann", "rect"):
         d = demodulate(r.samples, r.layout, window=window)
         _, L = frame_length(r.layout, 1500.0, window)
-        w = np.ones(L) if window == "rect" else 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(L) / L)
+        w = frame_window(window, L)
         noise[window] = {"measured": float(np.sqrt(np.mean(d.in_phase.var(axis=0)))),
                          "predicted": float(sigma * np.sqrt(2 * np.sum(w ** 2)) / np.sum(w))}
     out["noise_sensor_v_rms"] = sigma

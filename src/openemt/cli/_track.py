@@ -113,13 +113,19 @@ def run(args) -> int:
             raise ValueError(f"expected no FILE with --source sim, got {str(args.file)!r}")
         if args.save_raw is not None and args.duration is None:
             raise ValueError("expected --duration with --save-raw, got none")
+        from ..signal import ChannelLayout
         from ..simulate import get_preset
 
+        preset = get_preset(args.preset)
+        if (preset.n_source, preset.n_sensor) != (3, 3):
+            raise ValueError(f"expected a tri-axial source and sensor preset for track, got "
+                             f"{args.preset!r} with {preset.n_source}x{preset.n_sensor} coils")
         kw = {"eddy_strength": args.eddy}
         if args.noise is not None:
             kw["noise_rms"] = args.noise
-        cfg = RawSignalConfig(mains_amplitudes=(0.01, 0.002, 0.003), **kw)
-        backend = SimulatedBackend(get_preset(args.preset).dipole, config=cfg, seed=args.seed,
+        layout = ChannelLayout(frequencies=tuple(preset.frequencies))
+        cfg = RawSignalConfig(layout=layout, mains_amplitudes=(0.01, 0.002, 0.003), **kw)
+        backend = SimulatedBackend(preset.dipole, config=cfg, seed=args.seed,
                                    realtime=not args.fast, duration=args.duration)
     model, correction = _model_and_correction(args)
     source = backend

@@ -17,10 +17,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..signal import Demodulator
+from ..solve import Status, solve_lm
 
 __all__ = ["TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline", "lm_solver"]
 
-_CONVERGED = 0  # openemt.solve.Status.CONVERGED
+_CONVERGED = int(Status.CONVERGED)
 
 
 def lm_solver(model, *, hemisphere="+x", **kwargs):
@@ -29,8 +30,6 @@ def lm_solver(model, *, hemisphere="+x", **kwargs):
     ``hemisphere`` only matters while (re)acquiring with the closed-form start; afterwards
     each sample starts from the previous valid pose.
     """
-    from ..solve import solve_lm
-
     # warm starts never use the closed form; handing solve_lm a ready concentric model skips
     # re-deriving it on every call (a fixed cost that dominates one-sample solves)
     conc = None
@@ -314,9 +313,8 @@ class TrackingPipeline:
         import pyigtl
 
         try:
-            from ..solve import Status
             name = Status(code).name
-        except (ImportError, ValueError):  # pragma: no cover
+        except ValueError:  # pragma: no cover - a custom solver's own code
             name = str(code)
         device = (self.igtl.device_name + "Status")[:20]
         self.igtl.send_message(pyigtl.StringMessage(
@@ -377,11 +375,7 @@ class TrackingPipeline:
 
     def summary(self, wall_seconds: float = float("nan")) -> TrackSummary:
         """Summary of everything processed so far."""
-        try:
-            from ..solve import Status
-            names = {int(s): s.name for s in Status}
-        except ImportError:  # pragma: no cover
-            names = {}
+        names = {int(s): s.name for s in Status}
         counts = {names.get(c, str(c)): k for c, k in sorted(self._status_counts.items())}
         self._flush_truth()
         lat = np.asarray(self._latency) * 1e3

@@ -1,6 +1,13 @@
 """Signal processing: raw-signal simulation of an FDM tracker and demodulation to couplings."""
 
-from ._demod import Demodulated, Demodulator, demodulate, frame_length, phase_calibration
+from ._demod import (
+    Demodulated,
+    Demodulator,
+    demodulate,
+    frame_length,
+    frame_window,
+    phase_calibration,
+)
 from ._rawsim import (
     ILEMT_FREQUENCIES,
     RAW_FORMAT,
@@ -26,6 +33,7 @@ __all__ = [
     "demodulate",
     "eddy_factor",
     "frame_length",
+    "frame_window",
     "phase_calibration",
     "read_raw",
     "simulate_raw",

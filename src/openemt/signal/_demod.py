@@ -33,7 +33,8 @@ import numpy as np
 
 from ._rawsim import ChannelLayout
 
-__all__ = ["Demodulated", "Demodulator", "demodulate", "frame_length", "phase_calibration"]
+__all__ = ["Demodulated", "Demodulator", "demodulate", "frame_length", "frame_window",
+           "phase_calibration"]
 
 _WINDOWS = {"rect": 1, "hann": 2}
 
@@ -114,10 +115,23 @@ def frame_length(layout: ChannelLayout, output_rate: float = 1500.0,
     return hop, L
 
 
+def frame_window(window: str, L: int) -> np.ndarray:
+    """The frame window ``(L,)``: ones (``"rect"``) or the periodic Hann window (``"hann"``).
+
+    The coupling noise of a white sensor noise ``sigma`` (V rms) is
+    ``sigma * sqrt(2 sum w^2) / sum w`` per real component, divided by drive amplitude and
+    sensor gain.
+    """
+    if window not in _WINDOWS:
+        raise ValueError(f"expected `window` in {sorted(_WINDOWS)}, got {window!r}")
+    n = np.arange(int(L))
+    return np.ones(len(n)) if window == "rect" else 0.5 - 0.5 * np.cos(2 * np.pi * n / len(n))
+
+
 def _basis(layout: ChannelLayout, L: int, window: str) -> np.ndarray:
     """Real correlation basis ``(L, 2 n_source)``: ``[w cos, -w sin] * 2 / sum(w)``."""
     n = np.arange(L)
-    w = np.ones(L) if window == "rect" else 0.5 - 0.5 * np.cos(2 * np.pi * n / L)
+    w = frame_window(window, L)
     ang = 2 * np.pi * np.outer(n, layout.frequencies) / layout.sample_rate
     return np.concatenate([w[:, None] * np.cos(ang), -w[:, None] * np.sin(ang)],
                           axis=1) * (2.0 / w.sum())
