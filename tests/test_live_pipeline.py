@@ -184,3 +184,16 @@ def test_cli_corrupt_replay_is_one_line_error(cli, capsys, tmp_path):
     assert len(err) == 1 and err[0].startswith("error: expected")
     assert cli(["track", "--source", "replay", "--no-igtl"]) == 2
     assert cli(["track", "--source", "replay", str(tmp_path / "missing.h5"), "--no-igtl"]) == 2
+
+
+def test_cli_track_with_a_calibration_file(cli, capsys, tmp_path):
+    from openemt.io import write_calibration
+    from openemt.simulate import truth_calibration
+
+    path = tmp_path / "cal.json"
+    write_calibration(truth_calibration("concentric"), path)
+    code = cli(["track", "--calibration", str(path), "--duration", "0.05", "--fast",
+                "--no-igtl", "--json", "--quiet"])
+    d = json.loads(capsys.readouterr().out)
+    assert code == 0 and d["status_counts"] == {"CONVERGED": d["n_samples"]}
+    assert d["truth"]["position_error_mm_rms"] < 0.05
