@@ -1,0 +1,29 @@
+"""Reproductions of the seed papers' tables on ILEMT folders and the characterization report.
+
+These orchestrate :mod:`openemt.calibrate`, :mod:`openemt.solve` and :mod:`openemt.evaluate`;
+see docs/paper-reproductions.md.
+"""
+
+from ._run import PaperRun, load_paper_run, sequence_steps
+from ._table3 import (TABLE3_COLUMNS, TABLE3_PAPER, TABLE3_ROWS, reproduce_table3,
+                      table3_test_masks)
+from ._table4 import (FIXTURE_MOMENT_M, TABLE4_PAPER, FixtureRefit, Table4Result, refit_fixtures,
+                      reproduce_table4, sweep_test)
+
+__all__ = [
+    "FIXTURE_MOMENT_M",
+    "FixtureRefit",
+    "PaperRun",
+    "TABLE3_COLUMNS",
+    "TABLE3_PAPER",
+    "TABLE3_ROWS",
+    "TABLE4_PAPER",
+    "Table4Result",
+    "load_paper_run",
+    "refit_fixtures",
+    "reproduce_table3",
+    "reproduce_table4",
+    "sequence_steps",
+    "sweep_test",
+    "table3_test_masks",
+]
