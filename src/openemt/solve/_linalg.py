@@ -76,7 +76,7 @@ def svd3(A, U, s, V):
             U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def exp_so3(phi, R):
     """Rotation matrix ``R = exp([phi]x)`` (Rodrigues), written into ``R`` (3, 3)."""
     th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
@@ -142,7 +142,7 @@ def rotvec_from_matrix(R, out):
     out[2] = ang * z / nv
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def cholesky_solve(A, b, n, x, L):
     """Solve ``A x = b`` for a symmetric positive-definite ``n x n`` block of ``A``.
 

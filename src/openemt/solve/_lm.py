@@ -32,7 +32,7 @@ __all__ = ["lm_batch", "lm_track"]
 _BIG = 1e300
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _project(t, n, lo, hi):
     d = t[0] * n[0] + t[1] * n[1] + t[2] * n[2]
     if d < 0.0:
@@ -46,7 +46,7 @@ def _project(t, n, lo, hi):
             t[a] = hi[a]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rot_basis(R, M_se, five, basis):
     """Rotation increment directions (columns of ``basis``); returns their number."""
     if not five:
@@ -79,7 +79,7 @@ def _rot_basis(R, M_se, five, basis):
     return 2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _eval(L_so, M_so, L_se, M_se, gain, Cm, R, t, Cp, dt, dphi, d1, d2, want):
     dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dt, dphi, d1, d2, want)
     ss = 0.0
