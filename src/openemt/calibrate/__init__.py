@@ -9,12 +9,20 @@ from ._layout import FIELD_NAMES, ParameterLayout
 from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, get_mode, select_rows
 from ._multipole import OctupoleModel, octupole_coupling, refine_poses
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
+from ._planar import (GridData, PlanarCalibration, calibrate_planar, planar_coupling,
+                      read_grid_csv, write_grid_csv)
 from ._sequence import (PAPER_SEQUENCE, OutputCorrection, SequenceStep, fit_output_correction,
                         run_sequence)
 from ._simstudy import dipole_cost, parameter_recovery, perturb_calibration
 from ._table2 import TABLE2_PAPER, reproduce_table2, test_poses, test_rows
 
 __all__ = [
+    "GridData",
+    "PlanarCalibration",
+    "calibrate_planar",
+    "planar_coupling",
+    "read_grid_csv",
+    "write_grid_csv",
     "dipole_cost",
     "parameter_recovery",
     "perturb_calibration",
