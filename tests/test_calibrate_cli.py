@@ -78,3 +78,36 @@ def test_reproduce_command_json(ilemt_dir, capsys):
     assert set(out["calibration_residues"]) >= {"XYZ", "XYZ_concentric", "so_fixture_all"}
     assert out["seconds"]["total"] > 0
     assert abs(out["default"]["trans_rms_mm"] - 0.416) <= 0.005
+
+
+def test_calibrate_improved_and_planar_modes(ilemt_dir, tmp_path, capsys):
+    xyz = tmp_path / "xyz.json"
+    assert _main(_calibrate, ["calibrate", str(ilemt_dir), "-o", str(xyz), "--correction",
+                              "none", "--quiet"]) == 0
+    out = tmp_path / "improved.json"
+    rc = _main(_calibrate, ["calibrate", str(ilemt_dir), "--from", str(xyz), "--mode",
+                            "improved", "-o", str(out), "--json", "--quiet"])
+    assert rc == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["extra_parameters"] == 25 and s["rms_residue"] < 0.0025
+    cal = read_calibration(out)
+    assert cal.mode == "improved" and cal.linear_correction is not None
+    assert set(cal.extra["rig"]["sensor_fixture_corrections"]) == {"ZinYup", "ZinXdown"}
+
+    from openemt.calibrate import GridData, planar_coupling, write_grid_csv
+    from openemt.field import anser_field_generator
+    from openemt.simulate import stage_pattern
+
+    pts = stage_pattern("grid")[:, :3] + [0.0, 0.0, 0.072]
+    u = np.tile([0.0, 0.0, -1.0], (len(pts), 1))
+    d_true = np.zeros((8, 3))
+    d_true[3] = [3e-4, -2e-4, 1e-4]
+    C = planar_coupling(anser_field_generator(gain=1.0), np.full(8, 0.01), d_true, pts, u)
+    grid = tmp_path / "grid.csv"
+    write_grid_csv(GridData(pts, u, C), grid)
+    res = tmp_path / "planar.json"
+    assert _main(_calibrate, ["calibrate", str(grid), "--mode", "planar", "-o", str(res),
+                              "--json", "--quiet"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    np.testing.assert_allclose(np.array(s["offsets_mm"]) / 1e3, d_true, atol=1e-6)
+    assert json.loads(res.read_text())["gains"] == s["gains"]

@@ -188,6 +188,32 @@ class ImprovedCalibration:
             out[name]["n_invalid"] = 0
         return out
 
+    def to_calibration(self, start=None):
+        """The dipole part, fixtures and correction as a :class:`~openemt.io.Calibration`.
+
+        The extra rig and octupole parameters go to ``extra["rig"]``; pose solvers that know
+        only the dipole model ignore them (solve with :func:`refine_poses` to use them).
+        """
+        from .. import __version__
+        from ..io import Calibration
+
+        lay = self.problem.layout
+        F = lay.fixtures(self.x)
+        n = self.problem.base.n_rows
+        r = self.problem.residuals(self.x)
+        prov = {"openemt_version": __version__, "mode": "improved",
+                "start": None if start is None else {"mode": start.mode}}
+        return Calibration(
+            model=lay.model(self.x, self.problem.base.gain), source_fixture=F[0],
+            stage_fixture=F[1], sensor_fixture=F[2], linear_correction=self.correction,
+            mode="improved", free=MODES["XYZ"].optimize + ("rig",), frozen=MODES["XYZ"].freeze,
+            stats={"rms_residue": self.rms_residue, "sum_squared_residue": float(r @ r),
+                   "num_points": int(n), "n_free": self.n_free, **{
+                       k: v for k, v in self.correction_stats.items()}},
+            provenance=prov,
+            extra={"rig": self.problem.rig(self.x).to_dict(),
+                   "rig_options": self.summary()["options"]})
+
     def summary(self) -> dict:
         rig = self.problem.rig(self.x).to_dict()
         return {"variant": self.name, "options": self.options.__dict__ | {

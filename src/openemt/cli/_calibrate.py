@@ -6,6 +6,8 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from ._common import add_common, emit
 
 __all__ = ["register", "run", "load_dataset"]
@@ -22,8 +24,13 @@ def register(sub) -> None:
     p.add_argument("--from", dest="start", metavar="CAL",
                    help="starting calibration (.json or ILEMT .mat); default: the folder's "
                         "base_calibration.mat")
-    p.add_argument("--mode", default="XYZ", choices=sorted(MODES),
-                   help="calibration mode (default XYZ)")
+    p.add_argument("--mode", default="XYZ", choices=sorted(MODES) + ["improved", "planar"],
+                   help="calibration mode (default XYZ); 'improved': openemt's rig and "
+                        "octupole model on the md rows (start from an XYZ calibration); "
+                        "'planar': per-coil gain and offset of an Anser-style board from a "
+                        "grid CSV (x, y, z, ux, uy, uz, one column per coil)")
+    p.add_argument("--sensor-length", type=float, default=0.0, metavar="M",
+                   help="planar mode: sensor coil length (m) for the field average")
     p.add_argument("-o", "--output", metavar="CAL.json", help="write the calibration here")
     p.add_argument("--all-rows", action="store_true",
                    help="fit every row instead of the rows the mode names")
@@ -56,10 +63,49 @@ def _groups(text):
     return tuple(g.strip() for g in text.split(",") if g.strip())
 
 
+def _planar(args) -> int:
+    import json
+
+    from ..calibrate import calibrate_planar, read_grid_csv
+    from ..io import atomic_path
+
+    t0 = time.perf_counter()
+    cal = calibrate_planar(read_grid_csv(args.dataset), sensor_length=args.sensor_length)
+    summary = {"mode": "planar", "output": args.output, **cal.summary(),
+               "seconds": time.perf_counter() - t0}
+    if args.output:
+        with atomic_path(args.output) as tmp:
+            Path(tmp).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    human = [f"planar: {len(cal.gains)} coils, rms residue {cal.rms_residue:.3g} of the rms "
+             f"coupling, max |offset| {np.abs(cal.offsets).max() * 1e3:.3f} mm"]
+    emit(args, summary, human)
+    return 0
+
+
+def _improved(args, dataset, start, start_path) -> int:
+    from ..calibrate import improved_calibration
+    from ..io import atomic_path, write_calibration
+
+    t0 = time.perf_counter()
+    imp = improved_calibration(dataset, start, None)
+    cal = imp.to_calibration(start)
+    if args.output:
+        with atomic_path(args.output) as tmp:
+            write_calibration(cal, tmp)
+    summary = {"mode": "improved", "output": args.output, "start": str(start_path),
+               **imp.summary(), "seconds": time.perf_counter() - t0}
+    human = [f"improved: rms_residue {imp.rms_residue:.7g}, {imp.n_free} free parameters "
+             f"({imp.extra_parameters()} beyond XYZ)"]
+    emit(args, summary, human)
+    return 0
+
+
 def run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, select_rows
     from ..io import atomic_path, read_calibration, write_calibration
 
+    if args.mode == "planar":
+        return _planar(args)
     t0 = time.perf_counter()
     dataset = load_dataset(args.dataset)
     start_path = args.start
@@ -70,6 +116,8 @@ def run(args) -> int:
                              "folder), got none")
         start_path = cand
     start = read_calibration(start_path)
+    if args.mode == "improved":
+        return _improved(args, dataset, start, start_path)
     mode = get_mode(args.mode)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
