@@ -190,3 +190,31 @@ def test_flooded_stream_stays_well_formed_and_ordered(server):
     assert len(stamps) > 100
     assert np.all(np.diff(stamps) > 0)               # in order, no duplicates
     assert set(np.round(stamps)) <= set(range(1, 20001))
+
+
+def test_send_poses_block_arrives_as_separate_transforms(server):
+    from pyigtl.messages import MessageBase
+
+    sock = socket.create_connection(("127.0.0.1", server.port))
+    try:
+        assert server.wait_for_client(3.0)
+        P = np.stack([pose_from_vector(np.array([0.1 * k, 0.0, 0.01, 0.0, 0.0, 0.2 * k]))
+                      for k in (1, 2, 3)])
+        assert server.send_poses(P, [10.0, 11.0, 12.0], t_ready=time.perf_counter())
+        H = MessageBase.IGTL_HEADER_SIZE
+        need, data = 3 * (H + 48), b""
+        sock.settimeout(3.0)
+        while len(data) < need:
+            data += sock.recv(need - len(data))
+    finally:
+        sock.close()
+    for k in range(3):
+        head = MessageBase.parse_header(data[k * (H + 48):k * (H + 48) + H])
+        msg = pyigtl.TransformMessage()
+        msg.unpack(head, data[k * (H + 48) + H:(k + 1) * (H + 48)])
+        assert head["timestamp"] == pytest.approx(10.0 + k)
+        np.testing.assert_allclose(msg.matrix[:3, 3], 1000 * P[k, :3, 3], atol=1e-3)
+        np.testing.assert_allclose(msg.matrix[:3, :3], P[k, :3, :3], atol=1e-6)
+    assert server.stats()["sent"] == 3 and len(server.latencies()) == 3
+    with pytest.raises(ValueError, match="timestamps"):
+        server.send_poses(P, [1.0])

@@ -57,9 +57,9 @@ class _Handler(socketserver.BaseRequestHandler):
                     logger.info("OpenIGTLink client disconnected")
                     break
                 with owner._send_lock:          # taken before the batch: keeps the order
-                    for data, t_ready in owner._take():
+                    for data, count, t_ready in owner._take():
                         sock.sendall(data)
-                        owner._sent(t_ready)
+                        owner._sent(count, t_ready)
         except OSError as exc:  # includes socket.timeout: stalled or vanished client
             logger.warning("OpenIGTLink client dropped: %s", exc)
         finally:
@@ -91,7 +91,8 @@ class IgtlServer:
     device_name : str
         OpenIGTLink device name = the transform node name in Slicer.
     max_queue : int
-        Poses waiting for a slow client; older ones are dropped first.
+        Items (a pose, or a block of poses from :meth:`send_poses`) waiting for a slow client;
+        older ones are dropped first.
     send_timeout : float
         A client whose socket blocks longer than this (s) is disconnected.
     poll : float
@@ -195,11 +196,14 @@ class IgtlServer:
             self._partial = False
         return batch
 
-    def _sent(self, t_ready):
+    def _sent(self, count, t_ready):
         with self._cond:
-            self.n_sent += 1
-            if t_ready is not None:
-                self._latency.append(time.perf_counter() - t_ready)
+            self._count_sent(count, t_ready)
+
+    def _count_sent(self, count, t_ready):
+        self.n_sent += count
+        if t_ready is not None:
+            self._latency.extend([time.perf_counter() - t_ready] * count)
 
     # ------------------------------------------------------------------ sending
     def send_pose(self, pose, *, timestamp: float | None = None,
@@ -224,24 +228,51 @@ class IgtlServer:
         P = np.asarray(pose, dtype=np.float64)
         if P.shape != (4, 4):
             raise ValueError(f"expected `pose` of shape (4, 4), got {P.shape}")
+        return self.send_poses(P[None], None if timestamp is None else [timestamp],
+                               t_ready=t_ready)
+
+    def send_poses(self, poses, timestamps=None, *, t_ready: float | None = None) -> bool:
+        """Queue several poses (metres) as consecutive TRANSFORMs, written to the socket in one
+        piece (one system call for a block of samples).
+
+        Parameters
+        ----------
+        poses : ndarray, shape (N, 4, 4)
+        timestamps : array of N floats, optional
+            Acquisition times (s since the epoch).
+        t_ready : float, optional
+            See :meth:`send_pose`; the latency is recorded for each of the N poses.
+        """
+        P = np.asarray(poses, dtype=np.float64)
+        if P.ndim != 3 or P.shape[1:] != (4, 4):
+            raise ValueError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+        ts = [None] * len(P) if timestamps is None else [float(t) for t in timestamps]
+        if len(ts) != len(P):
+            raise ValueError(f"expected {len(P)} timestamps, got {len(ts)}")
+        if len(P) == 0:
+            return False
+        if not self._connected:                  # cheap exit before packing
+            with self._cond:
+                self.n_no_client += len(P)
+            return False
         M = P.copy()
-        M[:3, 3] *= 1000.0                       # metres -> millimetres (Slicer convention)
-        return self._enqueue(pyigtl.TransformMessage(M, timestamp=timestamp,
-                                                     device_name=self.device_name), t_ready)
+        M[:, :3, 3] *= 1000.0                    # metres -> millimetres (Slicer convention)
+        data = b"".join(pyigtl.TransformMessage(m, timestamp=t, device_name=self.device_name)
+                        .pack() for m, t in zip(M, ts))
+        return self._enqueue(data, len(P), t_ready)
 
     def send_message(self, message, t_ready: float | None = None) -> bool:
         """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status)."""
-        return self._enqueue(message, t_ready)
+        return self._enqueue(message.pack(), 1, t_ready)
 
-    def _enqueue(self, message, t_ready):
-        data = message.pack()
+    def _enqueue(self, data: bytes, count: int, t_ready):
         with self._cond:
             if self._closed:
                 return False
             if not self._connected:
-                self.n_no_client += 1
+                self.n_no_client += count
                 return False
-            self.n_queued += 1
+            self.n_queued += count
             # fast path: nothing waiting and the sender idle -> non-blocking send right here
             # (no thread hand-over, so no wait for the interpreter to switch threads)
             if (not self._queue and self._direct is not None
@@ -253,24 +284,21 @@ class IgtlServer:
                 finally:
                     self._send_lock.release()
                 if n == len(data):
-                    self.n_sent += 1
-                    if t_ready is not None:
-                        self._latency.append(time.perf_counter() - t_ready)
+                    self._count_sent(count, t_ready)
                     return True
                 if n:                           # the rest must go out next, never dropped
-                    self._queue.append((data[n:], t_ready))
+                    self._queue.append((data[n:], count, t_ready))
                     self._partial = True
                     self._cond.notify()
                     return True
             if len(self._queue) >= self._max_queue:
-                # drop the oldest whole message (a partly sent head must be completed)
+                # drop the oldest whole item (a partly sent head must be completed)
                 if not self._partial:
-                    self._queue.popleft()
-                    self.n_dropped += 1
+                    self.n_dropped += self._queue.popleft()[1]
                 elif len(self._queue) > 1:
+                    self.n_dropped += self._queue[1][1]
                     del self._queue[1]
-                    self.n_dropped += 1
-            self._queue.append((data, t_ready))
+            self._queue.append((data, count, t_ready))
             self._cond.notify()
         return True
 

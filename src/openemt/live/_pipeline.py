@@ -296,10 +296,10 @@ class TrackingPipeline:
         flag = ratio > self.distortion_threshold
         if self.igtl is not None:
             epoch = self.backend.t0_epoch
-            for k in range(n):
-                if status[k] == _CONVERGED and (self._n_out + k) % self.igtl_every == 0:
-                    self.igtl.send_pose(poses[k], timestamp=epoch + d.times[k], t_ready=t_ready)
-                self._latency.append(time.perf_counter() - t_ready)
+            pick = (status == _CONVERGED) & ((self._n_out + np.arange(n)) % self.igtl_every == 0)
+            if np.any(pick):
+                self.igtl.send_poses(poses[pick], epoch + d.times[pick], t_ready=t_ready)
+            self._latency.extend([time.perf_counter() - t_ready] * n)
             if (self._n_out + n) // self.status_every > self._n_out // self.status_every:
                 self._send_status(int(status[-1]), bool(flag[-1]), float(ratio[-1]),
                                   epoch + d.times[-1])
