@@ -158,7 +158,7 @@ def test_improved_fit_recovers_rig_errors_and_octupoles():
                    sensor_fixture=ds.sensor_fixture, pattern=ds.pattern,
                    file_index=ds.file_index)
     freeze = MODES["XYZ"].freeze + ("z_se_fix",)
-    prob, x, free, res = fit_improved(data, cal, opts, optimize=MODES["XYZ"].optimize,
+    prob, x, _, _ = fit_improved(data, cal, opts, optimize=MODES["XYZ"].optimize,
                                       freeze=freeze)
     r = prob.residuals(x)
     assert np.sqrt(r @ r / len(data)) < 1e-9

@@ -15,7 +15,7 @@ from ._layout import ParameterLayout
 from ._modes import CalibrationMode, get_mode, select_rows
 from ._objective import CalibrationProblem, build_problem
 
-__all__ = ["CalibrationFit", "fit", "calibrate", "residue_stats"]
+__all__ = ["CalibrationFit", "calibrate", "fit", "residue_stats"]
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,8 +18,14 @@ from ._improved import ImprovedProblem, RigOptions, fit_improved
 from ._modes import MODES
 from ._multipole import OctupoleModel, refine_poses
 
-__all__ = ["ImprovedCalibration", "improved_calibration", "cross_validate", "CANDIDATES",
-           "IMPROVED_OPTIONS", "transfer"]
+__all__ = [
+    "CANDIDATES",
+    "IMPROVED_OPTIONS",
+    "ImprovedCalibration",
+    "cross_validate",
+    "improved_calibration",
+    "transfer",
+]
 
 _SL = ("xy", "xz", "yz", "sx_sz", "sy_sz")
 

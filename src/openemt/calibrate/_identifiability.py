@@ -20,7 +20,7 @@ import numpy as np
 
 from ._layout import ParameterLayout
 
-__all__ = ["Identifiability", "analyse_identifiability", "IdentifiabilityWarning"]
+__all__ = ["Identifiability", "IdentifiabilityWarning", "analyse_identifiability"]
 
 
 class IdentifiabilityWarning(UserWarning):

@@ -39,13 +39,12 @@ from ..geometry import (
     rotation_y,
     rotation_z,
     sensor_fixture_rotation,
-    source_fixture_rotation,
 )
 from ._layout import ParameterLayout
 from ._multipole import OctupoleModel
 from ._objective import build_problem, fixture_twist_map
 
-__all__ = ["RigOptions", "RigModel", "ImprovedProblem", "fit_improved", "STAGE_LINEAR_BASIS"]
+__all__ = ["STAGE_LINEAR_BASIS", "ImprovedProblem", "RigModel", "RigOptions", "fit_improved"]
 
 
 @dataclass(frozen=True)
@@ -219,7 +218,8 @@ class ImprovedProblem:
         Q = K @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))       # prefix of a sensor-code fix
         D = Q @ dse                             # prefix of F_se
         P = D @ F_se
-        return dict(P=P, A0=A0, A=A, K=K, Q=Q, D=D, Rn=Rn, E=E, w=w, theta=theta)
+        return {"P": P, "A0": A0, "A": A, "K": K, "Q": Q, "D": D, "Rn": Rn, "E": E, "w": w,
+                "theta": theta}
 
     def poses(self, x) -> np.ndarray:
         """Ground-truth poses ``(N, 4, 4)`` of the rows under the improved rig model."""

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..field import DipoleModel
 
-__all__ = ["ParameterLayout", "FIELD_NAMES"]
+__all__ = ["FIELD_NAMES", "ParameterLayout"]
 
 #: Names of the blocks of the full vector, in order.
 FIELD_NAMES = ("L_so", "M_so", "L_se", "M_se", "F_so", "F_st", "F_se")
@@ -119,7 +119,7 @@ class ParameterLayout:
         return self.slices["F_se"].stop
 
     @classmethod
-    def for_model(cls, model: DipoleModel) -> "ParameterLayout":
+    def for_model(cls, model: DipoleModel) -> ParameterLayout:
         return cls(model.n_source, model.n_sensor)
 
     # -- pack / unpack ----------------------------------------------------------------------

@@ -26,8 +26,14 @@ import numpy as np
 
 from ..geometry import SOURCE_FIXTURES
 
-__all__ = ["CalibrationMode", "MODES", "DEFAULT_OPTIMIZE", "DEFAULT_FREEZE", "get_mode",
-           "select_rows"]
+__all__ = [
+    "DEFAULT_FREEZE",
+    "DEFAULT_OPTIMIZE",
+    "MODES",
+    "CalibrationMode",
+    "get_mode",
+    "select_rows",
+]
 
 #: ILEMT's default free groups (ilemt-format.md §8.1).
 DEFAULT_OPTIMIZE = ("d_so_pos", "d_so_mo", "d_se_pos", "d_se_mo", "st_fix", "se_fix")
@@ -65,7 +71,7 @@ class CalibrationMode:
     description: str = ""
 
     def with_rows(self, *, source_fixtures=..., sensor_fixtures=..., patterns=...
-                  ) -> "CalibrationMode":
+                  ) -> CalibrationMode:
         """A copy with a different row selection (``...`` keeps the current value)."""
         kw = {}
         for k, v in (("source_fixtures", source_fixtures), ("sensor_fixtures", sensor_fixtures),

@@ -159,7 +159,7 @@ def refine_poses(model: OctupoleModel, couplings, pose_vectors, *, iterations: i
     ``sum(residual^2) / ||C||_2`` (N,). ``couplings`` are signed real or complex (the target is
     ``sign(Re z)|z|``, normalised by the complex spectral norm).
     """
-    from ..geometry import left_jacobian_so3, pose_from_vector, vector_from_pose
+    from ..geometry import pose_from_vector, vector_from_pose
     from ..io import signed_real
 
     C = np.asarray(couplings)

@@ -23,8 +23,8 @@ from ..geometry import (
     adjoint,
     left_jacobian_so3,
     pose_from_vector,
-    skew,
     sensor_fixture_rotation,
+    skew,
     source_fixture_rotation,
     stage_transform,
 )

@@ -27,8 +27,14 @@ import numpy as np
 
 from ..field import ILEMT_GAIN, anser_field_generator, coil_fields
 
-__all__ = ["GridData", "PlanarCalibration", "read_grid_csv", "write_grid_csv",
-           "planar_coupling", "calibrate_planar"]
+__all__ = [
+    "GridData",
+    "PlanarCalibration",
+    "calibrate_planar",
+    "planar_coupling",
+    "read_grid_csv",
+    "write_grid_csv",
+]
 
 _POS = ("x", "y", "z", "ux", "uy", "uz")
 

@@ -23,8 +23,13 @@ from ..geometry import ground_truth_poses, vector_from_pose
 from ._fit import CalibrationFit, fit
 from ._modes import select_rows
 
-__all__ = ["SequenceStep", "PAPER_SEQUENCE", "run_sequence", "fit_output_correction",
-           "OutputCorrection"]
+__all__ = [
+    "PAPER_SEQUENCE",
+    "OutputCorrection",
+    "SequenceStep",
+    "fit_output_correction",
+    "run_sequence",
+]
 
 
 @dataclass(frozen=True)

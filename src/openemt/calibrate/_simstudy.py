@@ -24,7 +24,7 @@ from ._improved import RigOptions, fit_improved
 from ._layout import ParameterLayout
 from ._modes import MODES
 
-__all__ = ["parameter_recovery", "dipole_cost", "perturb_calibration"]
+__all__ = ["dipole_cost", "parameter_recovery", "perturb_calibration"]
 
 
 def _truth(preset) -> Calibration:
@@ -131,7 +131,7 @@ def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -
     f = fit(md, start, "XYZ_all", warn=False)
     opts = RigOptions(sensor_code_fix=False, rz_poly=0, rz_tilt=False, octupole_source=True,
                       octupole_sensor=True)
-    prob, x, free, _ = fit_improved(md, f.calibration, opts,
+    prob, x, _, _ = fit_improved(md, f.calibration, opts,
                                     optimize=MODES["XYZ_all"].optimize,
                                     freeze=MODES["XYZ_all"].freeze)
     r = prob.residuals(x)

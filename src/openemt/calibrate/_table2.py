@@ -19,7 +19,7 @@ import numpy as np
 from ..evaluate import STAGE_UNCERTAINTY_M, error_summary, pose_error_magnitudes
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES, ground_truth_poses
 
-__all__ = ["test_poses", "test_rows", "reproduce_table2", "TABLE2_PAPER"]
+__all__ = ["TABLE2_PAPER", "reproduce_table2", "test_poses", "test_rows"]
 
 #: Seed 000 Table II, concentric source (cal_9_15): (trans rms, trans max) mm, (rot rms, max) deg
 TABLE2_PAPER = {
@@ -170,7 +170,7 @@ def reproduce_table2(folder, *, improved: bool = False) -> dict:
         out["improved_model"] = imp.summary()
     out.update(rows)
     del out["rows"]
-    out["n_test"] = int(len(test))
+    out["n_test"] = len(test)
     out["calibration_residues"] = {k: f.calibration.stats["rms_residue"] for k, f in fits.items()}
     out["calibration_stats"] = {
         k: {kk: f.calibration.stats.get(kk) for kk in

@@ -10,7 +10,7 @@ import numpy as np
 
 from ._common import add_common, emit
 
-__all__ = ["register", "run", "load_dataset"]
+__all__ = ["load_dataset", "register", "run"]
 
 
 def register(sub) -> None:
@@ -76,8 +76,8 @@ def _planar(args) -> int:
     if args.output:
         with atomic_path(args.output) as tmp:
             Path(tmp).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    human = [f"planar: {len(cal.gains)} coils, rms residue {cal.rms_residue:.3g} of the rms "
-             f"coupling, max |offset| {np.abs(cal.offsets).max() * 1e3:.3f} mm"]
+    human = [(f"planar: {len(cal.gains)} coils, rms residue {cal.rms_residue:.3g} of the rms "
+              f"coupling, max |offset| {np.abs(cal.offsets).max() * 1e3:.3f} mm")]
     emit(args, summary, human)
     return 0
 
@@ -94,8 +94,8 @@ def _improved(args, dataset, start, start_path) -> int:
             write_calibration(cal, tmp)
     summary = {"mode": "improved", "output": args.output, "start": str(start_path),
                **imp.summary(), "seconds": time.perf_counter() - t0}
-    human = [f"improved: rms_residue {imp.rms_residue:.7g}, {imp.n_free} free parameters "
-             f"({imp.extra_parameters()} beyond XYZ)"]
+    human = [(f"improved: rms_residue {imp.rms_residue:.7g}, {imp.n_free} free parameters "
+              f"({imp.extra_parameters()} beyond XYZ)")]
     emit(args, summary, human)
     return 0
 
@@ -162,9 +162,9 @@ def run(args) -> int:
         "warnings": [str(w.message) for w in caught],
         "seconds": {"fit": f.seconds, "total": stats["seconds"]},
     }
-    human = [f"{mode.name}: rms_residue {stats['rms_residue']:.7g} over {stats['num_points']} "
-             f"rows, {f.free.size} free parameters (rank {ident.rank}, condition "
-             f"{ident.condition:.3g})"]
+    human = [(f"{mode.name}: rms_residue {stats['rms_residue']:.7g} over "
+              f"{stats['num_points']} rows, {f.free.size} free parameters (rank {ident.rank}, "
+              f"condition {ident.condition:.3g})")]
     if corr is not None:
         human.append(f"output correction ({corr.method}): {corr.rms_uncorrected * 1e3:.4f} -> "
                      f"{corr.rms_corrected * 1e3:.4f} mm on {corr.n_points - corr.n_invalid} "

@@ -46,10 +46,9 @@ def _simulated(args) -> int:
             human.append(_fmt(k, out[k]))
     else:
         out = parameter_recovery(args.preset, seed=args.seed)
-        out = {k: v for k, v in out.items()}
-        human = [f"{args.preset}: {out['n_free']} free parameters, max |z| "
-                 f"{out['max_abs_z']:.2f}, {100 * out['fraction_within_3']:.0f}% within 3 "
-                 "standard errors"]
+        human = [(f"{args.preset}: {out['n_free']} free parameters, max |z| "
+                  f"{out['max_abs_z']:.2f}, {100 * out['fraction_within_3']:.0f}% within 3 "
+                  "standard errors")]
     emit(args, out, human)
     return 0
 
@@ -62,8 +61,8 @@ def run(args) -> int:
     if args.folder is None:
         raise ValueError("expected an ILEMT_DIR for table2, got none")
     out = reproduce_table2(args.folder, improved=args.improved)
-    human = [f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
-             "rot rms/max"]
+    human = [(f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
+              "rot rms/max")]
     for name in ("default", "corrected", "concentric", "improved", "improved_corrected"):
         if name in out:
             human.append(_fmt(name, out[name]))
