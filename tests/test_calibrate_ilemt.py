@@ -53,3 +53,16 @@ def test_paper_sequence_residues(ilemt, ilemt_dir):
     se = xyz.calibration.standard_errors["M_se"]
     assert np.all(np.isfinite(se)) and np.all(se < 1e-3)
 
+
+
+def test_sequence_skips_steps_without_rows(ilemt, ilemt_dir):
+    from openemt.calibrate import SequenceStep
+
+    base = read_ilemt_calibration(ilemt_dir / "base_calibration.mat")
+    rows = ilemt.select(ilemt.pattern != "mdtrans")
+    steps = (SequenceStep("XYZ", "XYZ", "base", None),
+             SequenceStep("trans_only", "trans_only", "XYZ", None),
+             SequenceStep("after", "XYZ", "trans_only", None))
+    with pytest.warns(UserWarning, match="skipped"):
+        fits = run_sequence(rows, base, steps=steps, correction=False)
+    assert list(fits) == ["XYZ"]

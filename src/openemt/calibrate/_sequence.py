@@ -21,7 +21,7 @@ import numpy as np
 
 from ..geometry import ground_truth_poses, vector_from_pose
 from ._fit import CalibrationFit, fit
-from ._modes import select_rows
+from ._modes import get_mode, select_rows
 
 __all__ = [
     "PAPER_SEQUENCE",
@@ -151,11 +151,20 @@ def run_sequence(dataset, base, steps=PAPER_SEQUENCE, *, correction: bool = True
     Returns
     -------
     dict of str -> CalibrationFit
-        In step order; each fit's ``calibration`` carries the correction (when fitted) and the
+        In step order (steps without rows, or whose start was skipped, are left out with a
+        warning); each fit's ``calibration`` carries the correction (when fitted) and the
         correction statistics in ``stats`` (``uncorrected``/``corrected`` in m, ``num_invalid``).
     """
     out: dict[str, CalibrationFit] = {}
     for step in steps:
+        if step.start != "base" and step.start not in out:
+            warnings.warn(f"sequence step {step.name!r} skipped: its start {step.start!r} "
+                          "was not run", stacklevel=2)
+            continue
+        if not select_rows(dataset, get_mode(step.mode)).any():
+            warnings.warn(f"sequence step {step.name!r} skipped: the dataset has no rows for "
+                          f"mode {step.mode!r}", stacklevel=2)
+            continue
         start = base if step.start == "base" else out[step.start].calibration
         t0 = time.perf_counter()
         with warnings.catch_warnings():

@@ -135,9 +135,14 @@ def reproduce_table2(folder, *, improved: bool = False) -> dict:
     base = read_calibration(base_path)
     seconds["import"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         fits = run_sequence(ds, base)
+    skipped = [str(w.message) for w in caught if "skipped" in str(w.message)]
+    for need in ("XYZ", "XYZ_concentric"):
+        if need not in fits:
+            raise ValueError(f"expected the {need} calibration of the sequence, got it skipped "
+                             f"({'; '.join(skipped)})")
     seconds["calibration_sequence"] = time.perf_counter() - t0
     seconds["calibration_steps"] = {k: f.calibration.stats["seconds"] for k, f in fits.items()}
     test = ds.select(test_rows(ds))
