@@ -14,6 +14,7 @@ import numpy as np
 
 from ..evaluate import STAGE_UNCERTAINTY_M, error_summary, pose_error_magnitudes
 from ..geometry import SOURCE_FIXTURES, pose_from_vector
+from ._identifiability import analyse_identifiability
 from ._improved import ImprovedProblem, RigOptions, fit_improved
 from ._modes import MODES
 from ._multipole import OctupoleModel, refine_poses
@@ -158,6 +159,9 @@ class ImprovedCalibration:
     correction_stats : dict
     concentric_model : DipoleModel
         Model of the Kim18 start.
+    identifiability : dict
+        Jacobian rank and condition at the solution and the standard errors of the extra
+        parameters (``rig_standard_errors``, shaped like ``rig``).
     """
 
     name: str
@@ -170,6 +174,7 @@ class ImprovedCalibration:
     correction: np.ndarray | None
     correction_stats: dict
     concentric_model: object
+    identifiability: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
 
     def extra_parameters(self) -> int:
@@ -226,6 +231,7 @@ class ImprovedCalibration:
                     "stage_linear": list(self.options.stage_linear)},
                 "n_free": self.n_free, "extra_parameters": self.extra_parameters(),
                 "rms_residue": self.rms_residue, "rig": rig,
+                "identifiability": self.identifiability,
                 "selection_cv_md": self.selection, "correction": self.correction_stats,
                 "seconds": self.seconds}
 
@@ -260,7 +266,10 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()
     prob, x, free, _ = _fit(md, start, options)
-    r = prob.residuals(x)
+    r, J = prob.residuals_and_jacobian(x)
+    ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
+    se = np.zeros(prob.size)
+    se[free] = ident.standard_errors
     # output correction on the calibration rows, solved from the truth (ilemt-format.md §11)
     D = prob.poses(x)
     s = solve_and_score(prob, x, md, concentric_model, initial=vector_from_pose(D))
@@ -275,4 +284,7 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
         name=name, options=options, problem=prob, x=x, n_free=int(free.size),
         rms_residue=float(np.sqrt(r @ r / prob.base.n_rows)), selection=selection,
         correction=corr, correction_stats=cstats, concentric_model=concentric_model,
+        identifiability={"rank": ident.rank, "n_free": ident.n_free,
+                         "condition": ident.summary()["condition"],
+                         "rig_standard_errors": prob.rig(se).to_dict()},
         seconds={"cross_validation": t_sel, "fit_and_correction": time.perf_counter() - t0})

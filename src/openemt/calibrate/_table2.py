@@ -101,7 +101,7 @@ def _row(t: dict) -> dict:
     return row
 
 
-def reproduce_table2(folder, *, improved: bool = False) -> dict:
+def reproduce_table2(folder, *, improved: bool = False, cross_validation: bool = False) -> dict:
     """Seed 000 Table II from an ILEMT folder: import, the §9 sequence, §11 correction, §12 tests.
 
     Parameters
@@ -112,6 +112,9 @@ def reproduce_table2(folder, *, improved: bool = False) -> dict:
         Also run the improved calibration (:func:`openemt.calibrate.improved_calibration`) and
         report rows ``improved`` and ``improved_corrected`` and its parameters
         (``improved_model``). It is fitted on md data only.
+    cross_validation : bool
+        With ``improved``, also report the md cross-validation of every variant of
+        :data:`openemt.calibrate.CANDIDATES` (``improved_model.selection_cv_md``).
 
     Returns
     -------
@@ -164,10 +167,11 @@ def reproduce_table2(folder, *, improved: bool = False) -> dict:
     seconds["test_solve_concentric"] = time.perf_counter() - t0
     out = {"rows": rows}
     if improved:
-        from ._heldout import improved_calibration
+        from ._heldout import CANDIDATES, improved_calibration
 
         t0 = time.perf_counter()
-        imp = improved_calibration(ds, xyz, conc.model)
+        imp = improved_calibration(ds, xyz, conc.model,
+                                   candidates=CANDIDATES if cross_validation else None)
         seconds["improved_calibration"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         rows.update(imp.test(test))

@@ -25,6 +25,9 @@ def register(sub) -> None:
     p.add_argument("--improved", action="store_true",
                    help="also run openemt's improved calibration (fitted on md data only) and "
                         "report rows 'improved' and 'improved_corrected'")
+    p.add_argument("--cv", action="store_true",
+                   help="with --improved: also cross-validate every model variant on the md "
+                        "rows (slower)")
     add_common(p)
     p.set_defaults(func=run)
 
@@ -60,7 +63,7 @@ def run(args) -> int:
         return _simulated(args)
     if args.folder is None:
         raise ValueError("expected an ILEMT_DIR for table2, got none")
-    out = reproduce_table2(args.folder, improved=args.improved)
+    out = reproduce_table2(args.folder, improved=args.improved, cross_validation=args.cv)
     human = [(f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
               "rot rms/max")]
     for name in ("default", "corrected", "concentric", "improved", "improved_corrected"):
