@@ -21,7 +21,7 @@ result.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ..field._dipole_kernel import dipole_eval
 from ._closed_form import closed_form_one, spectral_norm
@@ -375,38 +375,37 @@ def _mark_invalid(k, poses, vecs, status, residual, iterations):
     iterations[k] = 0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def lm_batch(L_so, M_so, L_se, M_se, gain, C, cnorm, init, nvec, lo, hi, five, max_iter, xtol,
-             thr, ambig_tol, retries, n_blocks, poses, vecs, status, residual, iterations):
-    """Independent LM solves of every sample (blocks of samples in parallel)."""
+             thr, ambig_tol, retries, poses, vecs, status, residual, iterations):
+    """Independent LM solves of every sample (releases the GIL: callers may run row blocks in
+    threads)."""
     N = C.shape[0]
     n_so = C.shape[1]
     n_se = C.shape[2]
-    size = (N + n_blocks - 1) // n_blocks
-    for blk in prange(n_blocks):
-        ws = _workspace(n_so, n_se)
-        G = np.empty((n_se, n_se))
-        R = np.empty((3, 3))
-        t = np.empty(3)
-        Rb = np.empty((3, 3))
-        tb = np.empty(3)
-        rv = np.empty(3)
-        dummy = np.empty(6)
-        for k in range(blk * size, min(N, (blk + 1) * size)):
-            cn = cnorm[k]
-            if cn < 0.0:
-                cn = spectral_norm(C[k], G)
-            if _bad_input(C[k], cn) or not np.all(np.isfinite(init[k])):
-                _mark_invalid(k, poses, vecs, status, residual, iterations)
-                continue
-            res, it, code = _solve_sample(L_so, M_so, L_se, M_se, gain, C[k], cn, init[k],
-                                          dummy, False, nvec[k], lo, hi, five, max_iter, xtol,
-                                          thr, retries, R, t, Rb, tb, ws)
-            _finish(k, C[k], cn, res, it, code, Rb, tb, nvec[k], lo, hi, five, L_se, M_se, thr,
-                    ambig_tol, poses, vecs, status, residual, iterations, rv)
+    ws = _workspace(n_so, n_se)
+    G = np.empty((n_se, n_se))
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    Rb = np.empty((3, 3))
+    tb = np.empty(3)
+    rv = np.empty(3)
+    dummy = np.empty(6)
+    for k in range(N):
+        cn = cnorm[k]
+        if cn < 0.0:
+            cn = spectral_norm(C[k], G)
+        if _bad_input(C[k], cn) or not np.all(np.isfinite(init[k])):
+            _mark_invalid(k, poses, vecs, status, residual, iterations)
+            continue
+        res, it, code = _solve_sample(L_so, M_so, L_se, M_se, gain, C[k], cn, init[k], dummy,
+                                      False, nvec[k], lo, hi, five, max_iter, xtol, thr,
+                                      retries, R, t, Rb, tb, ws)
+        _finish(k, C[k], cn, res, it, code, Rb, tb, nvec[k], lo, hi, five, L_se, M_se, thr,
+                ambig_tol, poses, vecs, status, residual, iterations, rv)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lm_track(L_so, M_so, L_se, M_se, gain, C, cnorm, first, use_cf, Wso, Wse, cf_gain, nvec, lo,
              hi, five, max_iter, xtol, thr, ambig_tol, retries, poses, vecs, status, residual,
              iterations):

@@ -122,11 +122,24 @@ def _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr, a
     status = np.empty(n, dtype=np.int8)
     residual = np.empty(n)
     iterations = np.empty(n, dtype=np.int32)
-    n_blocks = max(1, min(numba.get_num_threads() * 4, n // 256 or 1))
-    lm_batch(model.L_so, model.M_so, model.L_se, model.M_se, model.gain, C, cnorm,
-             np.ascontiguousarray(init), nvec, lo, hi, five, int(max_iter), float(xtol),
-             float(thr), float(ambig), bool(retries), n_blocks, poses, vecs, status, residual,
-             iterations)
+    args = (model.L_so, model.M_so, model.L_se, model.M_se, model.gain)
+    init = np.ascontiguousarray(init)
+    opts = (lo, hi, five, int(max_iter), float(xtol), float(thr), float(ambig), bool(retries))
+
+    def block(a, b):
+        lm_batch(*args, C[a:b], cnorm[a:b], init[a:b], nvec[a:b], *opts, poses[a:b], vecs[a:b],
+                 status[a:b], residual[a:b], iterations[a:b])
+
+    threads = numba.get_num_threads()
+    if threads <= 1 or n < 512:
+        block(0, n)
+    else:
+        # the kernel releases the GIL: row blocks in a thread pool use all cores
+        from concurrent.futures import ThreadPoolExecutor
+
+        edges = np.linspace(0, n, 4 * threads + 1).astype(int)
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(block, edges[:-1], edges[1:]))
     return SolveResult(poses, vecs, status, residual, iterations, solver="lm")
 
 
