@@ -177,3 +177,11 @@ def test_validation_messages():
         ChannelLayout(sensor_channels=(0, 1, 3))
     with pytest.raises(ValueError, match="complex couplings"):
         phase_calibration(np.zeros((4, 3, 3)))
+
+
+def test_drive_off_gives_non_finite_couplings_not_garbage():
+    raw = simulate_raw(MODEL, POSE, 0.01, _quiet(), seed=12)
+    x = raw.samples.copy()
+    x[:, list(raw.layout.reference_channels)] = 0.0      # no current measured
+    d = demodulate(x, raw.layout)
+    assert not np.any(np.isfinite(d.couplings))

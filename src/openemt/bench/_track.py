@@ -4,7 +4,8 @@ Keys
 ----
 latency_ms_p50, latency_ms_p99
     Per sample, from the moment its demodulated coupling is available to the end of the
-    socket send of its OpenIGTLink TRANSFORM to a real pyigtl client on loopback. The
+    socket send of its OpenIGTLink TRANSFORM to a real pyigtl client on loopback (in a
+    separate process, as a viewer would be). The
     simulated device is paced at the sample rate (1500 samples/s out) and delivers ``--chunk``
     samples per read (default 640 = 10 frames = 6.7 ms, an audio-interface block, as
     ``openemt track`` uses); the samples of a block are solved together and sent one by one.
@@ -49,24 +50,46 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0)
 
 
+# The viewer: a pyigtl client in its own process (as 3D Slicer would be), so that its polling
+# thread does not compete with the pipeline for this interpreter.
+_CLIENT = """
+import sys, time, pyigtl
+c = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=int(sys.argv[1]))
+end, seen = time.time() + float(sys.argv[2]), 0
+while time.time() < end:
+    if c.wait_for_message("openemt", timeout=0.05) is not None:
+        seen += 1
+c.stop()
+print(seen, flush=True)
+"""
+
+
 def _latency_run(model, seconds, chunk, seed, serial=True):
-    import pyigtl
+    import subprocess
+    import sys
 
     from ..live import IgtlServer, SimulatedBackend, TrackingPipeline
 
     backend = SimulatedBackend(model, seed=seed, realtime=True, duration=seconds, chunk=chunk)
     srv = IgtlServer(port=0, device_name="openemt", max_queue=64)
-    client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=srv.port)
+    client = subprocess.Popen([sys.executable, "-c", _CLIENT, str(srv.port),
+                               str(seconds * 20 + 30)], stdout=subprocess.DEVNULL)
     try:
-        if not srv.wait_for_client(5.0):
-            raise OSError("expected a loopback OpenIGTLink client to connect, got none in 5 s")
+        if not srv.wait_for_client(30.0):
+            raise OSError("expected a loopback OpenIGTLink client to connect, got none in 30 s")
         pipe = TrackingPipeline(backend, model, igtl=srv, serial_small_batches=serial)
+        backend.restart_clock()
         t0 = time.perf_counter()
         s = pipe.run()
         wall = time.perf_counter() - t0
         time.sleep(0.05)
     finally:
-        client.stop()
+        client.terminate()
+        try:
+            client.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:  # pragma: no cover
+            client.kill()
+            client.wait(timeout=5.0)
         srv.close()
     send = srv.latencies() * 1e3
     return s, send, wall, srv.stats()

@@ -144,6 +144,14 @@ class SimulatedBackend(Backend):
         self._i = i + n
         return out
 
+    def restart_clock(self) -> None:
+        """Make "now" the wall-clock time of the next sample (for real-time pacing and the
+        IGTL timestamps), e.g. after waiting for a viewer to connect."""
+        now_perf, now = time.perf_counter(), time.time()
+        elapsed = self._i / self.layout.sample_rate
+        self._t0_perf = now_perf - elapsed
+        self.t0_epoch = now - elapsed
+
     def truth_poses(self, times):
         return self._sim.poses(times)
 

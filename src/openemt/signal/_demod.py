@@ -224,7 +224,8 @@ class Demodulator:
         Z = acc[..., :nso] + 1j * acc[..., nso:]            # (n_ch, n_out, n_so)
         sens = Z[:nse].transpose(1, 2, 0)                   # (n_out, n_so, n_se)
         ref = Z[nse + np.arange(nso), :, np.arange(nso)].T  # (n_out, n_so): ref i at f_i
-        C = sens / ref[:, :, None] * self._scale
+        with np.errstate(divide="ignore", invalid="ignore"):   # drive off -> NaN/inf
+            C = sens / ref[:, :, None] * self._scale
         if self._rot is not None:
             C = C * self._rot
         starts = self._start + np.arange(n_out) * H
