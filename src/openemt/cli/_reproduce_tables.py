@@ -46,8 +46,8 @@ def run_table3(args) -> int:
     from ..paper import TABLE3_COLUMNS, TABLE3_ROWS, reproduce_table3
 
     out = reproduce_table3(args.folder)
-    human = [f"Table III on {args.folder}: per test set trans rms/max (mm), rot rms/max (deg); "
-             "paper below"]
+    human = [(f"Table III on {args.folder}: per test set trans rms/max (mm), rot rms/max (deg); "
+              "paper below")]
     human.append(f"{'calibration':17s}" + "".join(f"{c:>30s}" for c in TABLE3_COLUMNS))
     for row in TABLE3_ROWS:
         human.append(f"{row:17s}" + "".join(f"{_cell(out[row][c]):>30s}"
@@ -64,8 +64,8 @@ def run_table4(args) -> int:
     from ..paper import reproduce_table4
 
     out = reproduce_table4(args.folder, correction=not args.uncorrected)
-    human = [f"Table IV on {args.folder} ({out['condition']}; {out['n_curves']['xyz']} "
-             f"translation and {out['n_curves']['rot']} rotation sweeps): ours (paper)"]
+    human = [(f"Table IV on {args.folder} ({out['condition']}; {out['n_curves']['xyz']} "
+              f"translation and {out['n_curves']['rot']} rotation sweeps): ours (paper)")]
     for row in ("direct", "cross"):
         for k, v in out[row].items():
             human.append(f"  {row:6s} {k:28s} {v:9.4f}  ({out['paper'][row][k]:g})")

@@ -4,22 +4,33 @@ These orchestrate :mod:`openemt.calibrate`, :mod:`openemt.solve` and :mod:`opene
 see docs/paper-reproductions.md.
 """
 
+from ._report import BuiltReport, characterization_report, paper_report, parameter_rows
 from ._run import PaperRun, load_paper_run, sequence_steps
-from ._table3 import (TABLE3_COLUMNS, TABLE3_PAPER, TABLE3_ROWS, reproduce_table3,
-                      table3_test_masks)
-from ._table4 import (FIXTURE_MOMENT_M, TABLE4_PAPER, FixtureRefit, Table4Result, refit_fixtures,
-                      reproduce_table4, sweep_test)
+from ._table3 import TABLE3_COLUMNS, TABLE3_PAPER, TABLE3_ROWS, reproduce_table3, table3_test_masks
+from ._table4 import (
+    FIXTURE_MOMENT_M,
+    TABLE4_PAPER,
+    FixtureRefit,
+    Table4Result,
+    refit_fixtures,
+    reproduce_table4,
+    sweep_test,
+)
 
 __all__ = [
     "FIXTURE_MOMENT_M",
-    "FixtureRefit",
-    "PaperRun",
     "TABLE3_COLUMNS",
     "TABLE3_PAPER",
     "TABLE3_ROWS",
     "TABLE4_PAPER",
+    "BuiltReport",
+    "FixtureRefit",
+    "PaperRun",
     "Table4Result",
+    "characterization_report",
     "load_paper_run",
+    "paper_report",
+    "parameter_rows",
     "refit_fixtures",
     "reproduce_table3",
     "reproduce_table4",

@@ -33,8 +33,13 @@ import numpy as np
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
 from ._run import as_run
 
-__all__ = ["TABLE3_PAPER", "TABLE3_ROWS", "TABLE3_COLUMNS", "table3_test_masks",
-           "reproduce_table3"]
+__all__ = [
+    "TABLE3_COLUMNS",
+    "TABLE3_PAPER",
+    "TABLE3_ROWS",
+    "reproduce_table3",
+    "table3_test_masks",
+]
 
 #: Table III row -> calibration step of the paper sequence (ILEMT ``<step>_hr_cal``).
 TABLE3_ROWS = {"translation_only": "trans_only", "sensor_fixture": "XYZ",

@@ -21,12 +21,18 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ..geometry import (check_poses, invert, pose_from_vector, source_fixture_rotation,
-                        stage_joint)
+from ..geometry import check_poses, invert, pose_from_vector, source_fixture_rotation, stage_joint
 from ._run import as_run
 
-__all__ = ["FIXTURE_MOMENT_M", "TABLE4_PAPER", "FixtureRefit", "Table4Result", "refit_fixtures", "sweep_test",
-           "reproduce_table4"]
+__all__ = [
+    "FIXTURE_MOMENT_M",
+    "TABLE4_PAPER",
+    "FixtureRefit",
+    "Table4Result",
+    "refit_fixtures",
+    "reproduce_table4",
+    "sweep_test",
+]
 
 #: Seed 000 Table IV (cal_9_16, dipole-approximating source, corrected), in the key layout of
 #: :func:`openemt.evaluate.sweep_table`: ``xyz_`` = translation sweeps, ``rot_`` = rotation.
@@ -261,7 +267,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     out["without_fixture_refit"] = _table(a_norefit)
     out["fixture_refit"] = refit.summary()
     out["curves"] = [c.summary() for c in a.curves]
-    out["n_rows"] = int(len(data))
+    out["n_rows"] = len(data)
     out["n_invalid"] = int(solved["n_invalid"])
     out["files"] = sorted(set(data.file_names()))
     out["calibration"] = "XYZ_hr_cal"
