@@ -197,3 +197,21 @@ def test_cli_track_with_a_calibration_file(cli, capsys, tmp_path):
     d = json.loads(capsys.readouterr().out)
     assert code == 0 and d["status_counts"] == {"CONVERGED": d["n_samples"]}
     assert d["truth"]["position_error_mm_rms"] < 0.05
+
+
+def test_drive_dropout_is_flagged_and_tracking_recovers():
+    class Dropout(SimulatedBackend):
+        def read(self):
+            x = super().read()
+            if x is not None and 0.05 < self._i / self.layout.sample_rate < 0.1:
+                x = x.copy()
+                x[:, list(self.layout.reference_channels)] = 0.0     # no drive current
+            return x
+
+    b = Dropout(MODEL, duration=0.2)
+    log = TrackLog()
+    s = TrackingPipeline(b, MODEL, log=log).run()
+    a = log.arrays()
+    assert s.status_counts["INVALID_INPUT"] >= 60
+    assert np.all(a["status"][-50:] == 0)                    # re-acquired after the drop-out
+    assert s.truth["position_error_mm_rms"] < 0.05
