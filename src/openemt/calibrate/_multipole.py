@@ -181,7 +181,7 @@ def refine_poses(model: OctupoleModel, couplings, pose_vectors, *, iterations: i
         v = v + step
         # keep the rotation vector canonical (angle in [0, pi])
         v = vector_from_pose(pose_from_vector(v))
-        if np.max(np.abs(step[:, :3])) < 1e-12:
+        if np.max(np.abs(step)) < 1e-10:   # m and rad: far below any measurable change
             break
     P = pose_from_vector(v)
     res = np.sum((Cd - model.coupling(P)) ** 2, axis=(1, 2)) / norm
