@@ -36,6 +36,9 @@ def test_bench_track_noise_matches_cramer_rao():
     assert out["igtl"]["sent"] > 0
     # the LM solution of the demodulated couplings is efficient: noise at the bound
     assert 0.8 < out["noise_to_crb_ratio"] < 1.2
+    # and the bound from the simulator's noise setting alone agrees with the measured one
+    assert out["crb_position_noise_um_from_spec"] == pytest.approx(
+        out["crb_position_noise_um"], rel=0.1)
     assert 0.5 < out["position_noise_um"] < 10
 
 
