@@ -102,6 +102,7 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
     cost = _eval(L_so, M_so, L_se, M_se, gain, Cm, R, t, Cp, dt, dphi, d1, d2, True)
     lam = 1e-4
     lam_small = 1e-3
+    prev_rel = 0.0
     it = 0
     code = 1
     while it < max_iter:
@@ -188,10 +189,25 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
                 for a in range(3):
                     for b in range(3):
                         R2[a, b] = dR[a, 0] * R[0, b] + dR[a, 1] * R[1, b] + dR[a, 2] * R[2, b]
+                # linear-rate prediction: if this step is much smaller than the previous
+                # accepted one and the step after it would be below tolerance, this is the
+                # last step; its Jacobian is not needed
+                rel = max(np.sqrt(delta[0] * delta[0] + delta[1] * delta[1]
+                                  + delta[2] * delta[2]) / (np.sqrt(tn2) + xtol),
+                          np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]))
+                final = (prev_rel > 0.0 and lam <= lam_small and rel < 0.5 * prev_rel
+                         and rel * rel / prev_rel <= xtol)
                 cost2 = _eval(L_so, M_so, L_se, M_se, gain, Cm, R2, t2, Cp2, dt2, dphi2, d1, d2,
-                              True)
+                              not final)
                 if cost2 <= cost:
+                    if final:
+                        for a in range(3):
+                            t[a] = t2[a]
+                            for b in range(3):
+                                R[a, b] = R2[a, b]
+                        return cost2, it, 0
                     accepted = True
+                    prev_rel = rel
                     break
             lam *= 10.0
             if lam > 1e12:
