@@ -22,6 +22,7 @@ import numpy as np
 from .. import field as _field
 from ..field import ILEMT_GAIN, DipoleModel
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
+from ..signal import ILEMT_FREQUENCIES  # ILEMT high-rate carriers (seed 000 §V-E)
 
 __all__ = ["PRESETS", "Preset", "get_preset"]
 
@@ -87,8 +88,6 @@ class Preset:
         return self.model is not self.dipole
 
 
-# ILEMT high-rate carriers of source X, Y, Z (seed 000 §V-E).
-_ILEMT_FREQUENCIES = (7500.0, 10500.0, 13500.0)
 
 
 # Finite coils use the field module's default quadrature (converged to a few 1e-6 at
@@ -136,7 +135,7 @@ def _tri_axial_preset(name, description, L_so, M_so, s_so, l_so, L_se, M_se, F_s
         stage_fixture=np.asarray(F_st, dtype=np.float64),
         sensor_fixture=np.asarray(F_se, dtype=np.float64),
         source_fixtures=SOURCE_FIXTURES, sensor_fixtures=SENSOR_FIXTURES,
-        default_pattern="md", frequencies=np.array(_ILEMT_FREQUENCIES),
+        default_pattern="md", frequencies=np.array(ILEMT_FREQUENCIES),
         source=_coil_desc(source_kind, L_so, M_so, s_so, l_so, square_source),
         sensor=_coil_desc("tri-axial (Premo-like)", L_se, M_se, _SENSOR_R, _SENSOR_LEN, False))
 
