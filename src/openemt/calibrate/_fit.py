@@ -192,7 +192,8 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
                       stage_fixture=F_st, sensor_fixture=F_se, linear_correction=None,
                       mode=mode.name, free=tuple(g for g in opt if g not in frz), frozen=frz,
                       standard_errors=se, stats=stats, provenance=provenance,
-                      extra=dict(start.extra))
+                      extra={k: v for k, v in start.extra.items()
+                             if k not in ("rig", "rig_options")})
     return CalibrationFit(calibration=cal, mode=mode, layout=layout, problem=prob, x=x,
                           free=free, residuals=r, identifiability=ident, nfev=int(res.nfev),
                           seconds=seconds)

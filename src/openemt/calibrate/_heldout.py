@@ -191,12 +191,14 @@ class ImprovedCalibration:
             if name == "improved_corrected" and corr is None:
                 out[name] = None
                 continue
-            s = solve_and_score(tp, xt, rows, cm, correction=corr)["summary"]
+            res = solve_and_score(tp, xt, rows, cm, correction=corr)
+            s = res["summary"]
             out[name] = {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg",
                                            "rot_max_deg")}
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
                                                           STAGE_UNCERTAINTY_M * 1e3))
-            out[name]["n_invalid"] = 0
+            resid = np.asarray(res["residual"])
+            out[name]["n_invalid"] = int(np.sum(~(np.isfinite(resid) & (resid < 1e-5))))
         return out
 
     def to_calibration(self, start=None):
