@@ -15,6 +15,7 @@ from openemt.paper import (
     TABLE3_PAPER,
     TABLE3_ROWS,
     TABLE4_PAPER,
+    PaperRun,
     load_paper_run,
     refit_fixtures,
     reproduce_table3,
@@ -51,6 +52,15 @@ def test_sequence_steps_adds_the_start_steps_in_order():
     assert len(sequence_steps(None)) == 7
     with pytest.raises(ValueError, match="expected a step of the paper sequence"):
         sequence_steps(["nope"])
+
+
+def test_a_run_without_a_needed_calibration_is_rejected(tmp_path):
+    run = PaperRun(folder=tmp_path, dataset=None, base=None, fits={}, correction=False,
+                   skipped=("trans_only",))
+    with pytest.raises(ValueError, match=r"expected the calibrations \['XYZ_nosofix'"):
+        reproduce_table3(run)
+    with pytest.raises(ValueError, match="expected the calibrations"):
+        reproduce_table4(run)
 
 
 def test_paper_values_are_seed_000_tables():

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..evaluate import STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, combined_uncertainty
-from ._run import as_run
+from ._run import PaperRun, as_run, load_paper_run
 
 __all__ = ["BuiltReport", "characterization_report", "paper_report", "parameter_rows"]
 
@@ -216,11 +216,12 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
     from ..evaluate import characterize, fixture_labels
     from ..geometry import ground_truth_poses
     from ..report import Report
-    from ._table3 import reproduce_table3
+    from ._table3 import TABLE3_ROWS, reproduce_table3, table3_test_masks
     from ._table4 import sweep_test
 
     t_all = time.perf_counter()
-    run = as_run(source, None, correction=True)
+    run = source if isinstance(source, PaperRun) else load_paper_run(source)
+    as_run(run, ["XYZ", "XYZ_concentric"])  # the least a report needs
     ds = run.dataset
     seconds = dict(run.seconds)
     xyz, conc = run.calibration("XYZ"), run.calibration("XYZ_concentric")
@@ -241,7 +242,9 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
                                      TABLE2_PAPER["concentric"])
     seconds["table2"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    t3 = reproduce_table3(run)
+    masks = table3_test_masks(ds)
+    t3 = reproduce_table3(run) if (run.has(*TABLE3_ROWS.values())
+                                   and all(m.any() for m in masks.values())) else None
     seconds["table3"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     has_sweeps = bool(ds.mask(pattern="sweep", source_fixture="YoutZup").any())
@@ -287,7 +290,11 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
     _figures(rep, default["poses"], D, default["trans"], default["rot"], shown, "XYZ_hr_cal")
 
     rep.heading("Calibration versus test dimensionality (seed 000 Table III)")
-    _table3_section(rep, t3)
+    if t3 is not None:
+        _table3_section(rep, t3)
+    else:
+        rep.paragraph("This folder lacks the calibration or test data of Table III "
+                      "(mdtrans/ldtrans files, source-fixture md/ld files).", note=True)
 
     if t4 is not None:
         rep.heading("Axis sweeps: cross-coupling and nonlinearity (seed 000 Table IV)")
@@ -305,7 +312,7 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
                   "source Z gain, Y component of the X moments) have none.", note=True)
     seconds["report"] = time.perf_counter() - t0
     seconds["total"] = time.perf_counter() - t_all
-    t3s = {k: v for k, v in t3.items() if k != "seconds"}
+    t3s = None if t3 is None else {k: v for k, v in t3.items() if k != "seconds"}
     summary = {
         "mode": "ilemt", "folder": str(run.folder), "n_rows": len(ds), "n_test": len(test),
         "table2": t2, "table3": t3s,
@@ -384,17 +391,23 @@ def characterization_report(dataset, calibration, *, concentric=None,
         hemi = hemisphere_from_positions(D[:, :3, 3])
         res = solve(dataset.signed_real(), cal, hemisphere=hemi, apply_correction=False,
                     concentric_calibration=concentric)
-        variants = {"calibration": res.poses}
+        variants = {"calibration": (res, res.poses)}
         if cal.linear_correction is not None:
-            variants["calibration + correction"] = _corrected(res.poses, cal.linear_correction)
+            variants["calibration + correction"] = (res, _corrected(res.poses,
+                                                                    cal.linear_correction))
+        if concentric is not None:
+            rk = solve(dataset.signed_real(), concentric, solver="kim18", hemisphere=hemi,
+                       apply_correction=False)
+            variants["concentric + Kim18"] = (rk, rk.poses)
         conds = {}
-        ok = np.all(np.isfinite(res.poses), axis=(1, 2))
-        for name, M in variants.items():
+        for name, (r, M) in variants.items():
+            ok = np.all(np.isfinite(M), axis=(1, 2))
             trans, rot = np.full(len(D), np.nan), np.full(len(D), np.nan)
             if ok.any():
                 trans[ok], rot[ok] = pose_error_magnitudes(M[ok], D[ok])
             conds[name] = {"trans": trans, "rot": rot, "summary": error_summary(trans, rot),
-                           "n_invalid": int((~res.valid).sum()), "poses": res.poses,
+                           "n_invalid": int((~(np.asarray(r.residual) < 1e-5)).sum()),
+                           "poses": r.poses,
                            "measured": M}
     rows = [_accuracy_row(name, r) for name, r in conds.items()]
     main_name = "calibration + correction" if "calibration + correction" in conds else \

@@ -57,6 +57,9 @@ class PaperRun:
         Whether the output corrections were fitted.
     seconds : dict
         Wall time of the import and of the sequence.
+    skipped : tuple of str
+        Requested steps the sequence skipped (no rows for their mode in this folder, or their
+        start step was skipped).
     """
 
     folder: Path
@@ -65,6 +68,7 @@ class PaperRun:
     fits: dict
     correction: bool
     seconds: dict = field(default_factory=dict)
+    skipped: tuple = ()
 
     def calibration(self, name: str):
         """The calibration produced by step ``name`` (``XYZ`` is ILEMT's ``XYZ_hr_cal``)."""
@@ -110,22 +114,27 @@ def load_paper_run(folder, *, steps=None, correction: bool = True, dataset=None)
     base = read_calibration(base_path)
     seconds["import"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    wanted = sequence_steps(steps)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fits = run_sequence(ds, base, sequence_steps(steps), correction=correction)
+        fits = run_sequence(ds, base, wanted, correction=correction)
     seconds["calibration_sequence"] = time.perf_counter() - t0
     seconds["calibration_steps"] = {k: f.calibration.stats.get("seconds") for k, f in
                                     fits.items()}
+    skipped = tuple(st.name for st in wanted if st.name not in fits)
     return PaperRun(folder=folder, dataset=ds, base=base, fits=fits, correction=correction,
-                    seconds=seconds)
+                    seconds=seconds, skipped=skipped)
 
 
 def as_run(source, steps, *, correction: bool = True) -> PaperRun:
-    """``source`` if it is a PaperRun with the wanted steps, else a fresh run of the folder."""
-    if isinstance(source, PaperRun):
-        missing = [s.name for s in sequence_steps(steps) if s.name not in source.fits]
-        if missing:
-            raise ValueError(f"expected a PaperRun with the calibrations {missing}, got "
-                             f"{tuple(source.fits)}")
-        return source
-    return load_paper_run(source, steps=steps, correction=correction)
+    """``source`` if it is a PaperRun with the wanted steps, else a fresh run of the folder.
+
+    Raises ValueError if a wanted calibration is missing (e.g. the folder has no rows for it).
+    """
+    run = source if isinstance(source, PaperRun) else \
+        load_paper_run(source, steps=steps, correction=correction)
+    missing = [s.name for s in sequence_steps(steps) if s.name not in run.fits]
+    if missing:
+        raise ValueError(f"expected the calibrations {missing} of the paper sequence, got only "
+                         f"{tuple(run.fits)} (no rows for the others in {str(run.folder)!r})")
+    return run
