@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from openemt.cli._reproduce_tables import add_table_commands
+from openemt.cli._reproduce_tables import TABLE_RUNNERS, add_table_commands, add_table_options
 from openemt.field import DipoleModel
 from openemt.geometry import SENSOR_FIXTURES, SOURCE_FIXTURES, ground_truth_poses, pose_from_vector
 from openemt.io import Calibration, Dataset
@@ -228,3 +228,15 @@ def test_reproduce_table_commands_reject_a_missing_folder(tmp_path):
     args = p.parse_args(["reproduce", "table3", str(tmp_path), "--quiet"])
     with pytest.raises(FileNotFoundError, match="base_calibration.mat"):
         args.func(args)
+    # the alternative wiring: a positional table choice dispatched through TABLE_RUNNERS
+    q = argparse.ArgumentParser()
+    q.add_argument("table", choices=("table2", "table3", "table4"))
+    q.add_argument("folder", nargs="?")
+    add_table_options(q)
+    args = q.parse_args(["table4"])
+    assert args.uncorrected is False
+    with pytest.raises(ValueError, match="expected an ILEMT_DIR for table4"):
+        TABLE_RUNNERS[args.table](args)
+    args = q.parse_args(["table3", str(tmp_path / "missing")])
+    with pytest.raises(FileNotFoundError, match="expected an ILEMT data folder"):
+        TABLE_RUNNERS[args.table](args)
