@@ -159,3 +159,19 @@ def test_report_of_an_ilemt_folder_renders(ilemt_dir, tmp_path, capsys):
     n, ok, dom = _render(out, tmp_path)
     assert (n, ok) == (3, 3), f"images total/decoded = {n}/{ok}"
     assert "cal_9_15_premo_cmu" in dom
+
+
+def test_report_through_openemt_main(sim_files, tmp_path, monkeypatch, capsys):
+    # as the lead registers it: bad input is one error line and exit code 2, no partial file
+    from openemt import cli
+
+    if "report" not in cli.COMMAND_MODULES:
+        monkeypatch.setattr(cli, "COMMAND_MODULES", (*cli.COMMAND_MODULES, "report"))
+    d, _ = sim_files
+    out = tmp_path / "r.html"
+    assert cli.main(["report", str(d / "test.h5"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: expected --calibration") and err.count("\n") == 1
+    assert cli.main(["report", str(d / "test.h5"), "--calibration", str(d / "missing.json"),
+                     "-o", str(out)]) == 2
+    assert not out.exists()
