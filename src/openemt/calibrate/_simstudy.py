@@ -28,12 +28,9 @@ __all__ = ["dipole_cost", "parameter_recovery", "perturb_calibration"]
 
 
 def _truth(preset) -> Calibration:
-    from ..simulate import get_preset
+    from ..simulate import truth_calibration
 
-    p = get_preset(preset)
-    return Calibration(model=p.dipole, source_fixture=p.source_fixture,
-                       stage_fixture=p.stage_fixture, sensor_fixture=p.sensor_fixture,
-                       mode="truth")
+    return truth_calibration(preset)
 
 
 def perturb_calibration(cal: Calibration, rng, *, mode="XYZ_all", pos=5e-4, rel=0.01,
