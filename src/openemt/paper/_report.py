@@ -368,6 +368,8 @@ def characterization_report(dataset, calibration, *, concentric=None,
     cal = calibration
     conc_model = None if concentric is None else concentric.model
     groups = fixture_labels(dataset)
+    if len(np.unique(dataset.pattern)) > 1:
+        groups = np.char.add(np.char.add(groups, " "), dataset.pattern.astype(str))
     if reference == "kinematics":
         D = ground_truth_poses(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
                                dataset.source_fixture, dataset.stage, dataset.sensor_fixture)
@@ -423,13 +425,15 @@ def characterization_report(dataset, calibration, *, concentric=None,
     rep.heading("Accuracy (seed 000 Table II style)")
     _accuracy_section(rep, rows, with_paper=False)
     _uncertainty_paragraph(rep, next(r for r in rows if r["condition"] == main_name))
-    rep.heading("Per fixture combination (seed 000 Table III style)")
+    rep.heading("Per fixture combination and pattern (seed 000 Table III style)")
     rep.table([{"test rows": g, **{k: s[k] for k in _KEYS}, "u_P_trans_mm": s["u_P_trans_mm"],
                 "u_P_rot_deg": s["u_P_rot_deg"], "n": s["n"]}
                for g, s in char.by_group.items()], digits=5,
               caption=f"{main_name}: errors per fixture combination with the combined "
                       "uncertainty u(P)")
-    shown = np.flatnonzero(groups == groups[0])
+    grid = dataset.pattern != "sweep"
+    first = groups[np.flatnonzero(grid)[0]] if grid.any() else groups[0]
+    shown = np.flatnonzero(groups == first)
     _figures(rep, main["measured"], D, main["trans"], main["rot"], shown, main_name)
     sweep_summary = None
     sweep_rows = dataset.mask(pattern="sweep")
