@@ -37,7 +37,8 @@ from numba import njit
 from ..field import DipoleModel
 from ..field._dipole_kernel import dipole_eval
 from ._hemisphere import hemisphere_vectors
-from ._linalg import euler_zyx_matrix, rotvec_from_matrix, svd3
+from ._linalg import (dominant_eigvec, euler_zyx_matrix, polar3, rotvec_from_matrix, svd3,
+                      sym3_eigvals)
 from ._result import SolveResult, Status
 
 __all__ = ["solve_svd", "solve_kuipers", "solve_kim18", "check_couplings", "spectral_norms"]
@@ -151,6 +152,50 @@ def _spectral_norms(C):
 # the compiled kernel
 # ------------------------------------------------------------------------------------------
 @njit(cache=True)
+def _fast_concentric(C0, rank_tol, s, U, R, G, X):
+    """Singular values, dominant direction and rotation of ``C0 = k H R`` without a full SVD.
+
+    Eigenvalues of ``C0 C0^T`` (trigonometric closed form) give the singular values; the
+    eigenvector of the largest gives ``u = U[:, 0]``; the rotation is the orthogonal polar
+    factor of ``H^-1 C0 = U diag(s0/2, -s1, -s2) V^T``, i.e. ``U diag(1, -1, -1) V^T`` -- the
+    Kim18 rotation and the seed-004 Wahba solution. Returns 1 (done: ``s``, ``U[:, 0]``, ``R``
+    set), 2 (rank deficient) or 0 (fall back to the SVD path: det(C0) <= 0, which needs the
+    determinant correction, a nearly double top singular value, or no convergence).
+    """
+    for i in range(3):
+        for j in range(i + 1):
+            acc = C0[i, 0] * C0[j, 0] + C0[i, 1] * C0[j, 1] + C0[i, 2] * C0[j, 2]
+            G[i, j] = acc
+            G[j, i] = acc
+    sym3_eigvals(G, s)
+    if not s[0] > 0.0:
+        return 2
+    lam0 = s[0]
+    lam1 = s[1]
+    for i in range(3):
+        s[i] = np.sqrt(max(s[i], 0.0))
+    if not s[2] > rank_tol * s[0]:
+        return 2
+    if not lam0 > 1.5 * lam1:
+        return 0
+    u = X[0]
+    if not dominant_eigvec(G, lam0, u):
+        return 0
+    u0, u1, u2 = u[0], u[1], u[2]
+    U[0, 0], U[1, 0], U[2, 0] = u0, u1, u2
+    # G <- H^-1 C0 / k with H^-1 = 1.5 u u^T - I and k = (s0/2 + s1 + s2)/3
+    k = (0.5 * s[0] + s[1] + s[2]) / 3.0
+    for j in range(3):
+        dot = u0 * C0[0, j] + u1 * C0[1, j] + u2 * C0[2, j]
+        G[0, j] = (1.5 * u0 * dot - C0[0, j]) / k
+        G[1, j] = (1.5 * u1 * dot - C0[1, j]) / k
+        G[2, j] = (1.5 * u2 * dot - C0[2, j]) / k
+    if not polar3(G, R):
+        return 0
+    return 1
+
+
+@njit(cache=True)
 def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B):
     """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``; returns a status code
     (0 ok, INVALID_INPUT, AMBIGUOUS). ``C0, U, V, B`` are 3x3 scratch, ``s`` (3,) scratch."""
@@ -169,6 +214,7 @@ def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0,
     u0 = 0.0
     u1 = 0.0
     u2 = 0.0
+    fast = 0
     if method == 1:
         # Kuipers: invariants of C0 C0^T = k^2 (I + 3 u u^T)
         for i in range(3):
@@ -207,9 +253,13 @@ def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0,
         u2 /= nu
         dist = (gain / k) ** (1.0 / 3.0)
     else:
-        svd3(C0, U, s, V)
-        if not s[0] > 0.0 or not s[2] > rank_tol * s[0]:
+        fast = _fast_concentric(C0, rank_tol, s, U, R, B, V)
+        if fast == 2:
             return 2
+        if fast == 0:
+            svd3(C0, U, s, V)
+            if not s[0] > 0.0 or not s[2] > rank_tol * s[0]:
+                return 2
         u0 = U[0, 0]
         u1 = U[1, 0]
         u2 = U[2, 0]
@@ -242,7 +292,7 @@ def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0,
         psi = np.arctan2(B[1, 0], B[0, 0])
         phi = np.arctan2(B[2, 1], B[2, 2])
         euler_zyx_matrix(psi, theta, phi, R)
-    else:
+    elif fast == 0:
         # Kim18 (ilemt-format.md §10.2): Y = C0^T = V S U^T, R = V_Y diag(1,-1,-1) U_Y^T
         # = U diag(1,-1,-1) V^T. The seed-004 Wahba step min ||k R - H^-1 C0|| gives the same
         # rotation: H^-1 C0 = U diag(s0/2, -s1, -s2) V^T. When noise makes det(U V^T) < 0 both

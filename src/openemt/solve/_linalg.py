@@ -187,3 +187,101 @@ def euler_zyx_matrix(psi, theta, phi, R):
     R[2, 0] = -sth
     R[2, 1] = cth * sph
     R[2, 2] = cth * cph
+
+
+@njit(cache=True)
+def sym3_eigvals(A, lam):
+    """Eigenvalues of a symmetric 3x3 matrix, decreasing, into ``lam`` (trigonometric form)."""
+    p1 = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
+    q = (A[0, 0] + A[1, 1] + A[2, 2]) / 3.0
+    a0 = A[0, 0] - q
+    a1 = A[1, 1] - q
+    a2 = A[2, 2] - q
+    p2 = a0 * a0 + a1 * a1 + a2 * a2 + 2.0 * p1
+    if p2 <= 0.0:
+        lam[0] = q
+        lam[1] = q
+        lam[2] = q
+        return
+    p = np.sqrt(p2 / 6.0)
+    b00, b11, b22 = a0 / p, a1 / p, a2 / p
+    b01, b02, b12 = A[0, 1] / p, A[0, 2] / p, A[1, 2] / p
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+               + b02 * (b01 * b12 - b11 * b02))
+    r = min(max(r, -1.0), 1.0)
+    phi = np.arccos(r) / 3.0
+    lam[0] = q + 2.0 * p * np.cos(phi)
+    lam[2] = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    lam[1] = 3.0 * q - lam[0] - lam[2]
+
+
+@njit(cache=True)
+def dominant_eigvec(A, lam0, v):
+    """Unit eigenvector of symmetric ``A`` for its (simple) eigenvalue ``lam0``: the largest
+    cross product of two rows of ``A - lam0 I``. Returns False if none is usable."""
+    r00, r01, r02 = A[0, 0] - lam0, A[0, 1], A[0, 2]
+    r10, r11, r12 = A[1, 0], A[1, 1] - lam0, A[1, 2]
+    r20, r21, r22 = A[2, 0], A[2, 1], A[2, 2] - lam0
+    best = -1.0
+    for k in range(3):
+        if k == 0:
+            x0, x1, x2, y0, y1, y2 = r00, r01, r02, r10, r11, r12
+        elif k == 1:
+            x0, x1, x2, y0, y1, y2 = r00, r01, r02, r20, r21, r22
+        else:
+            x0, x1, x2, y0, y1, y2 = r10, r11, r12, r20, r21, r22
+        c0 = x1 * y2 - x2 * y1
+        c1 = x2 * y0 - x0 * y2
+        c2 = x0 * y1 - x1 * y0
+        nn = c0 * c0 + c1 * c1 + c2 * c2
+        if nn > best:
+            best = nn
+            v[0], v[1], v[2] = c0, c1, c2
+    if not best > 0.0:
+        return False
+    nv = np.sqrt(best)
+    v[0] /= nv
+    v[1] /= nv
+    v[2] /= nv
+    return True
+
+
+@njit(cache=True)
+def polar3(B, X):
+    """Orthogonal polar factor of a 3x3 matrix with positive determinant (Newton iteration
+    ``X <- (X + X^-T) / 2``, quadratically convergent), into ``X``. ``B`` is overwritten.
+    Returns False if the determinant is not positive or the iteration does not converge.
+    (For det > 0 this is the SVD solution ``U V^T`` of the orthogonal Procrustes / Wahba
+    problem.)"""
+    for _ in range(30):
+        c00 = B[1, 1] * B[2, 2] - B[1, 2] * B[2, 1]
+        c01 = B[1, 2] * B[2, 0] - B[1, 0] * B[2, 2]
+        c02 = B[1, 0] * B[2, 1] - B[1, 1] * B[2, 0]
+        det = B[0, 0] * c00 + B[0, 1] * c01 + B[0, 2] * c02
+        if not det > 0.0:
+            return False
+        c10 = B[0, 2] * B[2, 1] - B[0, 1] * B[2, 2]
+        c11 = B[0, 0] * B[2, 2] - B[0, 2] * B[2, 0]
+        c12 = B[0, 1] * B[2, 0] - B[0, 0] * B[2, 1]
+        c20 = B[0, 1] * B[1, 2] - B[0, 2] * B[1, 1]
+        c21 = B[0, 2] * B[1, 0] - B[0, 0] * B[1, 2]
+        c22 = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
+        inv = 0.5 / det
+        X[0, 0] = 0.5 * B[0, 0] + inv * c00
+        X[0, 1] = 0.5 * B[0, 1] + inv * c01
+        X[0, 2] = 0.5 * B[0, 2] + inv * c02
+        X[1, 0] = 0.5 * B[1, 0] + inv * c10
+        X[1, 1] = 0.5 * B[1, 1] + inv * c11
+        X[1, 2] = 0.5 * B[1, 2] + inv * c12
+        X[2, 0] = 0.5 * B[2, 0] + inv * c20
+        X[2, 1] = 0.5 * B[2, 1] + inv * c21
+        X[2, 2] = 0.5 * B[2, 2] + inv * c22
+        diff = 0.0
+        for i in range(3):
+            for j in range(3):
+                d = X[i, j] - B[i, j]
+                diff += d * d
+                B[i, j] = X[i, j]
+        if diff < 1e-30:
+            return True
+    return False
