@@ -91,10 +91,18 @@ def stage_joint(stage, sensor_codes) -> np.ndarray:
     codes = [sensor_codes] * n if isinstance(sensor_codes, str) else list(sensor_codes)
     if len(codes) != n:
         raise ValueError(f"expected {n} sensor-fixture codes, got {len(codes)}")
-    S = np.stack([sensor_fixture_rotation(c) for c in codes]) if n else np.zeros((0, 3, 3))
     out = T.copy()
-    out[:, :3, :3] = T[:, :3, :3] @ S
+    out[:, :3, :3] = T[:, :3, :3] @ _rotations_per_row(codes, sensor_fixture_rotation)
     return out
+
+
+def _rotations_per_row(codes, rotation_of) -> np.ndarray:
+    """(N, 3, 3) rotations of per-row fixture codes, each distinct code converted once."""
+    codes = np.asarray(codes, dtype=str)
+    R = np.empty((codes.size, 3, 3))
+    for c in np.unique(codes):
+        R[codes == c] = rotation_of(str(c))
+    return R
 
 
 def ground_truth_poses(source_fixture, stage_fixture, sensor_fixture, source_codes, stage,
@@ -126,9 +134,5 @@ def ground_truth_poses(source_fixture, stage_fixture, sensor_fixture, source_cod
         raise ValueError(f"expected {n} source-fixture codes, got {len(codes)}")
     so_J = np.zeros((n, 4, 4))
     so_J[:, 3, 3] = 1.0
-    cache: dict[str, np.ndarray] = {}
-    for i, c in enumerate(codes):
-        if c not in cache:
-            cache[c] = source_fixture_rotation(c)
-        so_J[i, :3, :3] = cache[c]
+    so_J[:, :3, :3] = _rotations_per_row(codes, source_fixture_rotation)
     return F_so @ so_J @ F_st @ st_J @ F_se
