@@ -94,3 +94,20 @@ def test_solve_chunks_equals_one_batch():
     assert [s for s, _ in parts] == list(range(0, 40, 7))
     joined = np.concatenate([r.poses for _, r in parts])
     np.testing.assert_array_equal(joined, whole.poses)
+
+
+def test_solve_command_on_a_dask_cluster(files, capsys):
+    distributed = pytest.importorskip("dask.distributed")
+    tmp, P, L = files
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        args = _parser().parse_args(["solve", str(tmp / "data.h5"), "--calibration",
+                                     str(tmp / "cal.json"), "-o", str(tmp / "dist.h5"),
+                                     "--hemisphere", "+x", "--chunk-rows", "20", "--json",
+                                     "--scheduler", cluster.scheduler_address])
+        assert args.func(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["status_counts"]["converged"] == 49
+    res = read_poses(tmp / "dist.h5")
+    ok = np.arange(50) != 3
+    np.testing.assert_allclose(res.poses[ok, :3, 3], P[ok, :3, 3] + L[:3, 3], atol=1e-10)
