@@ -9,8 +9,17 @@ from scipy.optimize import least_squares
 from openemt.evaluate import pose_error_magnitudes
 from openemt.field import DipoleModel
 from openemt.geometry import pose_from_vector
-from openemt.solve import (SolveResult, Status, cramer_rao, hemisphere_from_positions,
-                           hemisphere_vectors, solve_kim18, solve_kuipers, solve_lm, solve_svd)
+from openemt.solve import (
+    SolveResult,
+    Status,
+    cramer_rao,
+    hemisphere_from_positions,
+    hemisphere_vectors,
+    solve_kim18,
+    solve_kuipers,
+    solve_lm,
+    solve_svd,
+)
 
 
 def random_poses(rng, n, *, center=(0.0, 0.25, 0.0), spread=0.08):
@@ -195,7 +204,6 @@ def test_lm_nonconcentric_round_trip_and_batch_vs_loop():
 
 
 def test_lm_tracking_smooth_trajectory():
-    rng = np.random.default_rng(8)
     model = dipole_approx_model()
     n = 400
     s = np.linspace(0, 1, n)[:, None]
@@ -221,7 +229,7 @@ def test_lm_matches_scipy_least_squares_with_noise():
     C = C + 1e-4 * np.abs(C).mean() * rng.normal(size=C.shape)
     res = solve_lm(C, model, hemisphere="+y", valid_threshold=None)
     for k in range(15):
-        def fun(x):
+        def fun(x, k=k):
             return (model.coupling(pose_from_vector(x[None]))[0] - C[k]).ravel()
         ref = least_squares(fun, res.pose_vectors[k] + 1e-3, xtol=1e-14, ftol=1e-14,
                             gtol=1e-14)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["add_arguments", "run", "SEED004_TABLE4", "random_table2_poses"]
+__all__ = ["SEED004_TABLE4", "add_arguments", "random_table2_poses", "run"]
 
 SNR_DB = (20, 40, 60, 80, 100)
 VARIABLES = ("rho", "alpha", "beta", "psi", "theta", "phi")

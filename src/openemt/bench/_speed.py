@@ -103,7 +103,7 @@ def run(args) -> dict:
         results = {}
         for name, f in runs.items():
             f(C[:50])  # warm-up (loads or compiles the kernels)
-            dt, wall, res = _best_time(lambda: f(C), args.repeats)
+            dt, wall, res = _best_time(lambda f=f: f(C), args.repeats)
             results[name] = res
             summary[f"{name}_poses_per_s"] = n / dt
             summary[f"{name}_wall_poses_per_s"] = n / wall
@@ -115,7 +115,7 @@ def run(args) -> dict:
                                                     residual=False),
                  "kim18": lambda c: solve_kim18(c, conc, hemisphere="+x", residual=False)}[name]
             f(C[:50])
-            dt, _, _ = _best_time(lambda: f(C), args.repeats)
+            dt, _, _ = _best_time(lambda f=f: f(C), args.repeats)
             summary[f"{name}_no_residual_poses_per_s"] = n / dt
         for name in ("lm_tracking", "lm_cold"):
             err = results[name].pose_vectors[:, :3] - truth[:, :3]

@@ -14,8 +14,8 @@ from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
 
 __all__ = [
     "POSES_SCHEMA",
-    "PoseWriter",
     "SOLVERS",
+    "PoseWriter",
     "SolveResult",
     "Status",
     "apply_position_correction",

@@ -37,11 +37,17 @@ from numba import njit
 from ..field import DipoleModel
 from ..field._dipole_kernel import dipole_eval
 from ._hemisphere import hemisphere_vectors
-from ._linalg import (dominant_eigvec, euler_zyx_matrix, polar3, rotvec_from_matrix, svd3,
-                      sym3_eigvals)
+from ._linalg import (
+    dominant_eigvec,
+    euler_zyx_matrix,
+    polar3,
+    rotvec_from_matrix,
+    svd3,
+    sym3_eigvals,
+)
 from ._result import SolveResult, Status
 
-__all__ = ["solve_svd", "solve_kuipers", "solve_kim18", "check_couplings", "spectral_norms"]
+__all__ = ["check_couplings", "solve_kim18", "solve_kuipers", "solve_svd", "spectral_norms"]
 
 _METHODS = {"svd": 0, "kuipers": 1, "kim18": 2}
 _INVALID = np.int8(Status.INVALID_INPUT)

@@ -11,7 +11,7 @@ import re
 
 import numpy as np
 
-__all__ = ["hemisphere_vectors", "hemisphere_from_positions"]
+__all__ = ["hemisphere_from_positions", "hemisphere_vectors"]
 
 _AXIS_RE = re.compile(r"^\s*([+-]?)\s*([xyzXYZ])\s*$")
 

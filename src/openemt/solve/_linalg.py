@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["svd3", "exp_so3", "rotvec_from_matrix", "cholesky_solve", "euler_zyx_matrix"]
+__all__ = ["cholesky_solve", "euler_zyx_matrix", "exp_so3", "rotvec_from_matrix", "svd3"]
 
 
 @njit(cache=True)
@@ -69,11 +69,10 @@ def svd3(A, U, s, V):
         if s[j] > 0.0:
             for i in range(3):
                 U[i, j] /= s[j]
-    if s[2] <= 1e-300 * max(s[0], 1e-300) or s[2] == 0.0:
-        if s[1] > 0.0:
-            U[0, 2] = U[1, 0] * U[2, 1] - U[2, 0] * U[1, 1]
-            U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
-            U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
+    if (s[2] <= 1e-300 * max(s[0], 1e-300) or s[2] == 0.0) and s[1] > 0.0:
+        U[0, 2] = U[1, 0] * U[2, 1] - U[2, 0] * U[1, 1]
+        U[1, 2] = U[2, 0] * U[0, 1] - U[0, 0] * U[2, 1]
+        U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
 
 
 @njit(cache=True, inline="always")

@@ -278,8 +278,8 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
             rows = redo[better]
             fields = {f: getattr(result, f).copy() for f in
                       ("poses", "pose_vectors", "status", "residual", "iterations")}
-            for f in fields:
-                fields[f][rows] = getattr(again, f)[better]
+            for f, arr in fields.items():
+                arr[rows] = getattr(again, f)[better]
             result = SolveResult(**fields, solver="lm")
     if covariance:
         from ._crb import solver_covariance

@@ -7,7 +7,7 @@ from enum import IntEnum
 
 import numpy as np
 
-__all__ = ["Status", "SolveResult"]
+__all__ = ["SolveResult", "Status"]
 
 
 class Status(IntEnum):
@@ -81,7 +81,7 @@ class SolveResult:
         counts = np.bincount(self.status.astype(np.int64), minlength=len(Status))
         return {s.name.lower(): int(counts[s.value]) for s in Status}
 
-    def select(self, rows) -> "SolveResult":
+    def select(self, rows) -> SolveResult:
         """A result with the rows picked by a boolean mask or index array."""
         idx = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
         return SolveResult(self.poses[idx], self.pose_vectors[idx], self.status[idx],
@@ -89,7 +89,7 @@ class SolveResult:
                            None if self.covariance is None else self.covariance[idx], self.solver)
 
     @staticmethod
-    def concatenate(results) -> "SolveResult":
+    def concatenate(results) -> SolveResult:
         """Join results of consecutive chunks."""
         results = list(results)
         if not results:

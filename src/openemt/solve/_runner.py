@@ -9,7 +9,7 @@ from ._closed_form import solve_kim18, solve_kuipers, solve_svd
 from ._lm_solver import solve_lm
 from ._result import SolveResult
 
-__all__ = ["SOLVERS", "solve", "solve_chunks", "apply_position_correction"]
+__all__ = ["SOLVERS", "apply_position_correction", "solve", "solve_chunks"]
 
 #: Solver names accepted by :func:`solve` and ``openemt solve --solver``.
 SOLVERS = ("lm", "svd", "kuipers", "kim18")
