@@ -69,7 +69,7 @@ def test_calibrate_command_bad_input(tmp_path, capsys):
 
 
 def test_reproduce_table2_command_matches_paper(ilemt_dir, capsys):
-    from openemt.calibrate import TABLE2_PAPER
+    from openemt.paper import TABLE2_PAPER
 
     rc = _main(_reproduce, ["reproduce", "table2", str(ilemt_dir), "--improved", "--json",
                             "--quiet"])

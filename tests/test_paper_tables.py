@@ -1,12 +1,11 @@
 """Seed 000 Table III and Table IV reproductions (openemt.paper) and their reproduce commands."""
 
-import argparse
 import json
 
 import numpy as np
 import pytest
 
-from openemt.cli._reproduce_tables import TABLE_RUNNERS, add_table_commands, add_table_options
+from openemt.cli import build_parser
 from openemt.field import DipoleModel
 from openemt.geometry import SENSOR_FIXTURES, SOURCE_FIXTURES, ground_truth_poses, pose_from_vector
 from openemt.io import Calibration, Dataset
@@ -29,11 +28,7 @@ KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def _parser():
-    p = argparse.ArgumentParser(prog="openemt")
-    sub = p.add_subparsers(dest="command")
-    rep = sub.add_parser("reproduce")
-    add_table_commands(rep.add_subparsers(dest="table"))
-    return p
+    return build_parser()
 
 
 @pytest.fixture(scope="module")
@@ -228,15 +223,3 @@ def test_reproduce_table_commands_reject_a_missing_folder(tmp_path):
     args = p.parse_args(["reproduce", "table3", str(tmp_path), "--quiet"])
     with pytest.raises(FileNotFoundError, match="base_calibration.mat"):
         args.func(args)
-    # the alternative wiring: a positional table choice dispatched through TABLE_RUNNERS
-    q = argparse.ArgumentParser()
-    q.add_argument("table", choices=("table2", "table3", "table4"))
-    q.add_argument("folder", nargs="?")
-    add_table_options(q)
-    args = q.parse_args(["table4"])
-    assert args.uncorrected is False
-    with pytest.raises(ValueError, match="expected an ILEMT_DIR for table4"):
-        TABLE_RUNNERS[args.table](args)
-    args = q.parse_args(["table3", str(tmp_path / "missing")])
-    with pytest.raises(FileNotFoundError, match="expected an ILEMT data folder"):
-        TABLE_RUNNERS[args.table](args)

@@ -1,5 +1,6 @@
 """Calibration of coupling models and rig fixtures: layout, objective, staged fits, uncertainty."""
 
+from ._check import test_poses, test_rows
 from ._fit import CalibrationFit, calibrate, fit, residue_stats
 from ._heldout import (
                        CANDIDATES,
@@ -30,7 +31,6 @@ from ._sequence import (
                        run_sequence,
 )
 from ._simstudy import dipole_cost, parameter_recovery, perturb_calibration
-from ._table2 import TABLE2_PAPER, reproduce_table2, test_poses, test_rows
 
 __all__ = [
                        "CANDIDATES",
@@ -41,7 +41,6 @@ __all__ = [
                        "MODES",
                        "PAPER_SEQUENCE",
                        "STAGE_LINEAR_BASIS",
-                       "TABLE2_PAPER",
                        "CalibrationFit",
                        "CalibrationMode",
                        "CalibrationProblem",
@@ -75,7 +74,6 @@ __all__ = [
                        "planar_coupling",
                        "read_grid_csv",
                        "refine_poses",
-                       "reproduce_table2",
                        "residue_stats",
                        "run_sequence",
                        "select_rows",

@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "calibrate",
     "correct",
     "reproduce",
+    "report",
     "track",
     "bench",
 )

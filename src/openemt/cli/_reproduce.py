@@ -1,35 +1,48 @@
-"""``openemt reproduce table2 ILEMT_DIR``: the paper's calibration procedure as one command."""
+"""``openemt reproduce TABLE ...``: the seed papers' tables from raw data, one command each."""
 
 from __future__ import annotations
 
 from ._common import add_common, emit
+from ._reproduce_tables import add_table_commands
 
-__all__ = ["register", "run"]
+__all__ = ["register", "run_table2"]
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "reproduce", help="reproduce a table of the seed papers from raw data",
-        description="Reproduce seed 000 Table II from an ILEMT data folder: import, the "
-                    "paper's calibration sequence from base_calibration.mat, output correction, "
-                    "test solves on the soYoutZup ld files.")
-    p.add_argument("table", choices=("table2", "dipole-cost", "recovery"),
-                   help="table2: seed 000 Table II from ILEMT_DIR; dipole-cost: accuracy cost of "
-                        "the dipole model for finite coils (simulated); recovery: calibration "
-                        "parameters against simulated exact-dipole truth, in standard errors")
-    p.add_argument("folder", metavar="ILEMT_DIR", nargs="?",
-                   help="ILEMT data folder (table2 only)")
-    p.add_argument("--preset", default="concentric",
-                   help="simulation preset for dipole-cost / recovery (default concentric)")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed")
-    p.add_argument("--improved", action="store_true",
-                   help="also run openemt's improved calibration (fitted on md data only) and "
-                        "report rows 'improved' and 'improved_corrected'")
-    p.add_argument("--cv", action="store_true",
-                   help="with --improved: also cross-validate every model variant on the md "
-                        "rows (slower)")
-    add_common(p)
-    p.set_defaults(func=run)
+        description="Reproduce the seed papers' tables: Table II, III and IV of seed 000 from an "
+                    "ILEMT data folder, and two simulation studies of the calibration.")
+    tables = p.add_subparsers(dest="table", metavar="TABLE", parser_class=type(p))
+    tables.required = True
+
+    t2 = tables.add_parser(
+        "table2", help="seed 000 Table II (default, corrected, concentric)",
+        description="Seed 000 Table II from an ILEMT data folder: import, the paper's "
+                    "calibration sequence from base_calibration.mat, output correction, test "
+                    "solves on the soYoutZup ld files.")
+    t2.add_argument("folder", metavar="ILEMT_DIR", help="ILEMT data folder")
+    t2.add_argument("--improved", action="store_true",
+                    help="also run openemt's improved calibration (fitted on md data only) and "
+                         "report rows 'improved' and 'improved_corrected'")
+    t2.add_argument("--cv", action="store_true",
+                    help="with --improved: also cross-validate every model variant on the md "
+                         "rows (slower)")
+    add_common(t2)
+    t2.set_defaults(func=run_table2)
+
+    add_table_commands(tables)
+
+    for name, help_ in (
+            ("dipole-cost", "accuracy cost of the dipole model for finite coils (simulated)"),
+            ("recovery", ("calibration parameters against simulated exact-dipole truth, in "
+                         "standard errors"))):
+        sp = tables.add_parser(name, help=help_, description=help_)
+        sp.add_argument("--preset", default="concentric",
+                        help="simulation preset (default concentric)")
+        sp.add_argument("--seed", type=int, default=0, help="simulation seed")
+        add_common(sp)
+        sp.set_defaults(func=_simulated)
 
 
 def _fmt(name, row):
@@ -56,13 +69,9 @@ def _simulated(args) -> int:
     return 0
 
 
-def run(args) -> int:
-    from ..calibrate import reproduce_table2
+def run_table2(args) -> int:
+    from ..paper import reproduce_table2
 
-    if args.table != "table2":
-        return _simulated(args)
-    if args.folder is None:
-        raise ValueError("expected an ILEMT_DIR for table2, got none")
     out = reproduce_table2(args.folder, improved=args.improved, cross_validation=args.cv)
     human = [(f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
               "rot rms/max")]

@@ -7,8 +7,7 @@ from __future__ import annotations
 
 from ._common import add_common, emit
 
-__all__ = ["TABLE_RUNNERS", "add_table_commands", "add_table_options", "run_table3",
-           "run_table4"]
+__all__ = ["add_table_commands", "run_table3", "run_table4"]
 
 
 def add_table_commands(reproduce_subparsers) -> None:
@@ -38,19 +37,6 @@ def add_table_commands(reproduce_subparsers) -> None:
     p.set_defaults(func=run_table4)
 
 
-def add_table_options(parser) -> None:
-    """The options of ``table3``/``table4`` for a ``reproduce`` parser with a ``table`` choice."""
-    parser.add_argument("--uncorrected", action="store_true",
-                        help="table4: report the uncorrected solutions as the main rows")
-
-
-def _folder(args):
-    if getattr(args, "folder", None) is None:
-        raise ValueError(f"expected an ILEMT_DIR for {getattr(args, 'table', 'the table')}, "
-                         "got none")
-    return args.folder
-
-
 def _cell(c) -> str:
     return (f"{c['trans_rms_mm']:7.3f} {c['trans_max_mm']:7.3f} {c['rot_rms_deg']:6.3f} "
             f"{c['rot_max_deg']:6.3f}")
@@ -59,7 +45,7 @@ def _cell(c) -> str:
 def run_table3(args) -> int:
     from ..paper import TABLE3_COLUMNS, TABLE3_ROWS, reproduce_table3
 
-    out = reproduce_table3(_folder(args))
+    out = reproduce_table3(args.folder)
     human = [(f"Table III on {args.folder}: per test set trans rms/max (mm), rot rms/max (deg); "
               "paper below")]
     human.append(f"{'calibration':17s}" + "".join(f"{c:>30s}" for c in TABLE3_COLUMNS))
@@ -77,7 +63,7 @@ def run_table3(args) -> int:
 def run_table4(args) -> int:
     from ..paper import reproduce_table4
 
-    out = reproduce_table4(_folder(args), correction=not getattr(args, "uncorrected", False))
+    out = reproduce_table4(args.folder, correction=not args.uncorrected)
     human = [(f"Table IV on {args.folder} ({out['condition']}; {out['n_curves']['xyz']} "
               f"translation and {out['n_curves']['rot']} rotation sweeps): ours (paper)")]
     for row in ("direct", "cross"):
@@ -89,4 +75,3 @@ def run_table4(args) -> int:
 
 
 #: ``reproduce`` table name -> command function, for a parser with a positional table choice.
-TABLE_RUNNERS = {"table3": run_table3, "table4": run_table4}

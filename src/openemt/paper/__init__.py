@@ -6,6 +6,7 @@ see docs/paper-reproductions.md.
 
 from ._report import BuiltReport, characterization_report, paper_report, parameter_rows
 from ._run import PaperRun, load_paper_run, sequence_steps
+from ._table2 import TABLE2_PAPER, reproduce_table2, table2_tests
 from ._table3 import TABLE3_COLUMNS, TABLE3_PAPER, TABLE3_ROWS, reproduce_table3, table3_test_masks
 from ._table4 import (
     FIXTURE_MOMENT_M,
@@ -19,6 +20,7 @@ from ._table4 import (
 
 __all__ = [
     "FIXTURE_MOMENT_M",
+    "TABLE2_PAPER",
     "TABLE3_COLUMNS",
     "TABLE3_PAPER",
     "TABLE3_ROWS",
@@ -32,9 +34,11 @@ __all__ = [
     "paper_report",
     "parameter_rows",
     "refit_fixtures",
+    "reproduce_table2",
     "reproduce_table3",
     "reproduce_table4",
     "sequence_steps",
     "sweep_test",
+    "table2_tests",
     "table3_test_masks",
 ]

@@ -212,10 +212,10 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
         uncertainties and the paper's values), ``table3``, ``table4`` (None without sweep
         files), ``calibration_stats`` and ``seconds``.
     """
-    from ..calibrate import TABLE2_PAPER, test_poses, test_rows
     from ..evaluate import characterize, fixture_labels
     from ..geometry import ground_truth_poses
     from ..report import Report
+    from ._table2 import TABLE2_PAPER, table2_tests
     from ._table3 import TABLE3_ROWS, reproduce_table3, table3_test_masks
     from ._table4 import sweep_test
 
@@ -224,22 +224,13 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
     as_run(run, ["XYZ", "XYZ_concentric"])  # the least a report needs
     ds = run.dataset
     seconds = dict(run.seconds)
-    xyz, conc = run.calibration("XYZ"), run.calibration("XYZ_concentric")
-    test = ds.select(test_rows(ds))
-    if len(test) == 0:
-        raise ValueError(f"expected soYoutZup ld test files in {str(run.folder)!r}, got none")
-
+    xyz = run.calibration("XYZ")
     t0 = time.perf_counter()
-    default = test_poses(test, xyz, concentric_model=conc.model)
-    t2 = {"default": _accuracy_row("default (XYZ_hr_cal)", default, TABLE2_PAPER["default"])}
-    if xyz.linear_correction is not None:
-        t2["corrected"] = _accuracy_row(
-            "corrected (XYZ_hr_cal + DLT)",
-            test_poses(test, xyz, concentric_model=conc.model, apply_correction=True),
-            TABLE2_PAPER["corrected"])
-    t2["concentric"] = _accuracy_row("concentric + Kim18",
-                                     test_poses(test, conc, solver="kim18"),
-                                     TABLE2_PAPER["concentric"])
+    test, results, _ = table2_tests(run)
+    default = results["default"]
+    labels = {"default": "default (XYZ_hr_cal)", "corrected": "corrected (XYZ_hr_cal + DLT)",
+              "concentric": "concentric + Kim18"}
+    t2 = {k: _accuracy_row(labels[k], r, TABLE2_PAPER[k]) for k, r in results.items()}
     seconds["table2"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     masks = table3_test_masks(ds)

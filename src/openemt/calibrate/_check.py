@@ -1,0 +1,78 @@
+"""Testing calibrations as the paper does (ilemt-format.md §10, §12; ILEMT's ``check_poses``).
+
+Test rows are the ``ld`` files of the home source fixture with all three sensor fixtures (1896
+rows on the ILEMT folders, null and key rows included). Each row is solved without any use of
+the ground truth except the hemisphere (ILEMT takes it from the ground-truth position): the
+iterative solver starts from the Kim18 closed form of the concentric calibration. The error is
+ILEMT's "stage coordinates" error ``F_se . D^-1 . M . F_se^-1`` against the ground truth ``D``
+built with the tested calibration's own fixtures.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..evaluate import error_summary, pose_error_magnitudes
+from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES, ground_truth_poses
+
+__all__ = ["test_poses", "test_rows"]
+
+
+
+def test_rows(dataset):
+    """Boolean mask of the paper's test rows: home source fixture, every sensor fixture, ld."""
+    return dataset.mask(pattern="ld", source_fixture=SOURCE_FIXTURES[0],
+                        sensor_fixture=SENSOR_FIXTURES)
+
+
+test_rows.__test__ = False  # not a pytest test
+
+
+def test_poses(data, cal, *, solver: str = "lm", concentric_model=None,
+               apply_correction: bool = False) -> dict:
+    """Solve and score test rows with a calibration (ilemt-format.md §10, §12).
+
+    Parameters
+    ----------
+    data : Dataset
+        Test rows.
+    cal : Calibration
+        Calibration under test (its fixtures define the ground truth).
+    solver : {'lm', 'kim18'}
+        Iterative solution started from Kim18 (``concentric_model``), or Kim18 alone.
+    concentric_model : DipoleModel, optional
+        Concentric model of the Kim18 start (ILEMT: the concentric calibration).
+    apply_correction : bool
+        Apply ``cal.linear_correction`` to the solved positions (ilemt-format.md §10.3).
+
+    Returns
+    -------
+    dict
+        ``trans``/``rot`` errors (m, rad; (N,)), ``summary`` (mm/deg statistics), ``n_invalid``,
+        ``poses`` (N, 4, 4) as solved (before correction).
+    """
+    from ..correct import apply_linear_correction
+    from ..solve import hemisphere_from_positions, solve_kim18, solve_lm
+
+    F = (cal.source_fixture, cal.stage_fixture, cal.sensor_fixture)
+    D = ground_truth_poses(*F, data.source_fixture, data.stage, data.sensor_fixture)
+    hemi = hemisphere_from_positions(D[:, :3, 3])
+    if solver == "kim18":
+        res = solve_kim18(data.couplings, cal.model, hemisphere=hemi)
+    elif solver == "lm":
+        res = solve_lm(data.couplings, cal.model, initial="kim18", hemisphere=hemi, bounds=0.4,
+                       concentric_model=concentric_model)
+    else:
+        raise ValueError(f"expected solver 'lm' or 'kim18', got {solver!r}")
+    M = np.array(res.poses)
+    if apply_correction:
+        if cal.linear_correction is None:
+            raise ValueError("expected a calibration with a linear_correction, got none")
+        M[:, :3, 3] = apply_linear_correction(cal.linear_correction, M[:, :3, 3])
+    trans, rot = pose_error_magnitudes(M, D, sensor_fixture=cal.sensor_fixture)
+    valid = np.asarray(res.residual) < 1e-5
+    return {"trans": trans, "rot": rot, "summary": error_summary(trans, rot),
+            "n_invalid": int((~valid).sum()), "poses": np.asarray(res.poses)}
+
+
+test_poses.__test__ = False  # not a pytest test
