@@ -1,1 +1,10 @@
-"""openemt.bench (see docs/architecture in README)."""
+"""Benchmarks that print JSON; each is a module ``_<name>.py`` with ``add_arguments(parser)`` and
+``run(args) -> dict``, dispatched by ``openemt bench <name>``.
+
+Solver benchmarks:
+
+- ``_noise``: seed 004 noise protocol for the pose solvers next to the Cramer-Rao bound.
+- ``_speed``: poses per second on one core for each solver vs a per-pose scipy baseline.
+"""
+
+__all__: list[str] = []
