@@ -22,6 +22,7 @@ import numpy as np
 from ._common import add_common, emit
 
 PRESETS = ("dipole-approx", "concentric")
+_ROW_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def register(sub) -> None:
@@ -66,7 +67,7 @@ def run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, test_poses, test_rows
     from ..evaluate import STAGE_UNCERTAINTY_M, combined_uncertainty
     from ..io import write_calibration, write_dataset
-    from ..report import Report, error_histogram_figure, error_vector_figure
+    from ..paper import characterization_report
     from ..simulate import get_preset, simulate, truth_calibration
 
     if not np.isfinite(args.snr_db) or args.snr_db <= 0:
@@ -118,80 +119,65 @@ def run(args) -> int:
     step("output correction", t0)
 
     t0 = time.perf_counter()
+    built = characterization_report(
+        test_data, cal, concentric=concentric,
+        title=f"openemt demo — simulated '{preset.name}' tracker")
+    accuracy = built.summary["accuracy"]
     rows = {}
-    conc = concentric.model
-    scored = {
-        "truth (dipole equivalent of the finite coils)": test_poses(test_data, truth,
-                                                                    concentric_model=conc),
-        "start (perturbed)": test_poses(test_data, start, concentric_model=conc),
-        "calibrated": test_poses(test_data, cal, concentric_model=conc),
-    }
-    if cal.linear_correction is not None:
-        scored["calibrated + DLT correction"] = test_poses(test_data, cal, concentric_model=conc,
-                                                           apply_correction=True)
-    scored["concentric + Kim18"] = test_poses(test_data, concentric, solver="kim18")
-    for name, r in scored.items():
-        s = r["summary"]
-        rows[name] = {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg",
-                                        "rot_max_deg")}
-        rows[name]["n_invalid"] = int(r["n_invalid"])
-        rows[name]["trans_uncert_mm"] = float(combined_uncertainty(
+    for label, res in (("truth (dipole equivalent of the finite coils)",
+                        test_poses(test_data, truth, concentric_model=concentric.model)),
+                       ("start (perturbed)",
+                        test_poses(test_data, start, concentric_model=concentric.model))):
+        s = res["summary"]
+        rows[label] = {k: s[k] for k in _ROW_KEYS}
+        rows[label]["n_invalid"] = int(res["n_invalid"])
+        rows[label]["trans_uncert_mm"] = float(combined_uncertainty(
             s["trans_rms_mm"], STAGE_UNCERTAINTY_M * 1e3))
+    for cond, label in (("calibration", "calibrated"),
+                        ("calibration + correction", "calibrated + DLT correction"),
+                        ("concentric + Kim18", "concentric + Kim18")):
+        if cond in accuracy:
+            r = accuracy[cond]
+            rows[label] = {k: r[k] for k in (*_ROW_KEYS, "n_invalid", "trans_uncert_mm")}
     step("solve and score", t0)
 
     t0 = time.perf_counter()
-    rep = Report(f"openemt demo — simulated '{preset.name}' tracker")
+    rep = built.report
+    rep.heading("The simulation: truth, starting point, calibration")
     rep.paragraph(preset.description)
     rep.paragraph(
         f"Calibration data: {cal_data.n_samples} rows (md pattern, {len(cal_data.files)} fixture "
         f"combinations); test data: {test_data.n_samples} rows (ld pattern, home source fixture, "
         f"three sensor fixtures). Measurement SNR {args.snr_db:g} dB, stage error "
         f"{args.stage_error_um:g} um 3-D RMS, seed {args.seed}. Ground truth couplings come from "
-        "finite-size coil models; the calibration fits the dipole model.")
-    rep.heading("Accuracy on the test data (seed 000 Table II style)")
+        "finite-size coil models; the calibration fits the dipole model, starting from the truth "
+        "moved by 1 mm / 1 % / 0.5 deg in every fitted parameter.")
     rep.table([{"calibration": k, **v} for k, v in rows.items()],
-              ["calibration", "trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg",
-               "trans_uncert_mm", "n_invalid"], digits=4)
-    rep.paragraph("Errors are measured against the rig's kinematic chain with each calibration's "
-                  "own fixtures (the paper's procedure). trans_uncert_mm = sqrt(RMS^2 + 0.107^2) "
-                  "combines the error with the stage uncertainty (seed 000 eq. 10).", note=True)
-    best = scored["calibrated"]
-    P = best["poses"]
-    from ..geometry import ground_truth_poses
-    D = ground_truth_poses(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
-                           test_data.source_fixture, test_data.stage, test_data.sensor_fixture)
-    shown = np.flatnonzero(test_data.sensor_fixture == preset.sensor_fixtures[0])
-    rep.figure(error_vector_figure(D[shown, :3, 3], P[shown, :3, 3] - D[shown, :3, 3],
-                                   title="Calibrated: translation error across the workspace"),
-               "Error vectors of the calibrated tracker at the test poses of the home sensor "
-               "fixture, five Rz rotations per grid point (seed 000 Fig. 8 style).")
-    rep.figure(error_histogram_figure(best["trans"], best["rot"],
-                                      title="Calibrated: error distribution"))
-    rep.heading("Calibration")
-    stats = cal.stats
-    rep.paragraph(f"Mode {cal.mode}; rms_residue {stats.get('rms_residue', float('nan')):.6g} "
-                  f"over {stats.get('num_points', '?')} rows; free groups: {', '.join(cal.free)}.")
+              ["calibration", *_ROW_KEYS, "trans_uncert_mm", "n_invalid"], digits=4,
+              caption="Test errors of every calibration (rig kinematics with its own fixtures)")
     param_rows = []
     se = cal.standard_errors
     for name in ("L_so", "M_so", "L_se", "M_se"):
-        val = getattr(cal.model, name)
-        err = se.get(name)
-        tv = getattr(truth.model, name)
+        val, err, tv = getattr(cal.model, name), se.get(name), getattr(truth.model, name)
         for c in range(val.shape[1]):
             for a in range(3):
                 param_rows.append({
-                    "parameter": f"{name}[{'xyz'[a]}, coil {c}]",
-                    "fitted": float(val[a, c]), "std_error": float(err[a, c]) if err is not None
-                    else float("nan"), "truth (dipole equiv.)": float(tv[a, c])})
-    rep.table(param_rows, digits=6, caption="Coil parameters (m, gain units) with standard errors")
-    rep.write(out / "report.html")
+                    "parameter": f"{name}[{'xyz'[a]}, coil {c}]", "fitted": float(val[a, c]),
+                    "std_error": float(err[a, c]) if err is not None else float("nan"),
+                    "truth (dipole equiv.)": float(tv[a, c])})
+    rep.table(param_rows, digits=6,
+              caption="Fitted coil parameters (m, gain units) against the dipole equivalent of "
+                      "the simulated finite coils")
+    written = built.write(out / "report.html")
     step("report", t0)
+    stats = cal.stats
 
     summary = {
         "preset": preset.name, "output_dir": str(out), "report": str(out / "report.html"),
         "n_calibration": cal_data.n_samples, "n_test": test_data.n_samples,
         "snr_db": args.snr_db, "stage_error_um": args.stage_error_um, "seed": args.seed,
         "rms_residue": stats.get("rms_residue"), "rows": rows,
+        "n_figures": written["n_figures"],
         "seconds": {**seconds, "total": round(time.perf_counter() - t_all, 3)},
     }
     human = [f"openemt demo: simulated '{preset.name}' tracker -> {out}/"]

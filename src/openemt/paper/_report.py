@@ -394,10 +394,7 @@ def characterization_report(dataset, calibration, *, concentric=None,
             variants["concentric + Kim18"] = (rk, rk.poses)
         conds = {}
         for name, (r, M) in variants.items():
-            ok = np.all(np.isfinite(M), axis=(1, 2))
-            trans, rot = np.full(len(D), np.nan), np.full(len(D), np.nan)
-            if ok.any():
-                trans[ok], rot[ok] = pose_error_magnitudes(M[ok], D[ok])
+            trans, rot = pose_error_magnitudes(M, D)  # NaN for failed solves
             conds[name] = {"trans": trans, "rot": rot, "summary": error_summary(trans, rot),
                            "n_invalid": int((~(np.asarray(r.residual) < 1e-5)).sum()),
                            "poses": r.poses,
