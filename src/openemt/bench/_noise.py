@@ -1,7 +1,7 @@
 """``openemt bench noise``: the seed 004 noise protocol for every solver, against the CRB.
 
 Random poses uniform over seed 004 Table 2 (distance 0.03-1 m, azimuth alpha in [-90, 90] deg,
-elevation beta in [0, 90] deg, Z-Y-X Euler angles psi in [-180, 180], theta in [-90, 90],
+elevation beta in [0, 90] deg, Euler angles psi in [-180, 180], theta in [-90, 90],
 phi in [-180, 180] deg), ideal concentric unit dipoles (gain 1/250), and white Gaussian noise on
 the couplings at SNR 20-100 dB.
 
@@ -14,7 +14,7 @@ signal's mean power to the noise power (like MATLAB ``awgn(x, snr, 'measured')``
 couplings. The CRB uses exactly the same (diagonal) noise covariance.
 
 Position is ``rho [cos(beta) cos(alpha), cos(beta) sin(alpha), sin(beta)]`` (x >= 0, z >= 0)
-and the rotation ``R = Rz(psi) Ry(theta) Rx(phi)``. The +/- ambiguity is resolved with the
+and the rotation ``R = Rx(phi) Ry(theta) Rz(psi)`` (seed 004 eq. 9). The +/- ambiguity is resolved with the
 hemisphere direction (1, 0, 1)/sqrt(2), which every Table 2 position satisfies.
 """
 
@@ -64,7 +64,8 @@ def random_table2_poses(rng, n):
     phi = rng.uniform(-np.pi, np.pi, n)
     p = rho[:, None] * np.column_stack([np.cos(beta) * np.cos(alpha),
                                         np.cos(beta) * np.sin(alpha), np.sin(beta)])
-    R = rotation_z(psi) @ rotation_y(theta) @ rotation_x(phi)
+    # seed 004 eq. 9: orientation matrix A = Rx(phi) Ry(theta) Rz(psi), taken as the rotation
+    R = rotation_x(phi) @ rotation_y(theta) @ rotation_z(psi)
     return pose_from_rt(R, p), np.column_stack([rho, alpha, beta, psi, theta, phi])
 
 
@@ -76,9 +77,11 @@ def variables_from_poses(P):
     with np.errstate(invalid="ignore"):
         alpha = np.arctan2(p[:, 1], p[:, 0])
         beta = np.arcsin(np.clip(p[:, 2] / rho, -1.0, 1.0))
-        psi = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-        theta = -np.arcsin(np.clip(R[:, 2, 0], -1.0, 1.0))
-        phi = np.arctan2(R[:, 2, 1], R[:, 2, 2])
+        # R = Rx(phi) Ry(theta) Rz(psi): R[0, 2] = sin(theta), R[0, :2] = cos(theta) (cos psi,
+        # -sin psi), R[1:, 2] = cos(theta) (-sin phi, cos phi)
+        psi = np.arctan2(-R[:, 0, 1], R[:, 0, 0])
+        theta = np.arcsin(np.clip(R[:, 0, 2], -1.0, 1.0))
+        phi = np.arctan2(-R[:, 1, 2], R[:, 2, 2])
     return np.column_stack([rho, alpha, beta, psi, theta, phi])
 
 
