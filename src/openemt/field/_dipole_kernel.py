@@ -34,52 +34,68 @@ def dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, C, dC_dt, dC_dphi, dC_dMso, 
     """
     n_so = L_so.shape[1]
     n_se = L_se.shape[1]
-    p = np.empty(3)
-    m = np.empty(3)
-    Lr = np.empty(3)
+    # distance terms of the previous coil pair: coils at the same offset (concentric coils)
+    # share them, so the square root and divisions are done once (same values, bit for bit)
+    qx = np.nan
+    qy = np.nan
+    qz = np.nan
+    inv_d2 = inv_d3 = inv_d5 = 0.0
     for j in range(n_se):
-        for a in range(3):
-            Lr[a] = R[a, 0] * L_se[0, j] + R[a, 1] * L_se[1, j] + R[a, 2] * L_se[2, j]
-            p[a] = Lr[a] + t[a]
-            m[a] = R[a, 0] * M_se[0, j] + R[a, 1] * M_se[1, j] + R[a, 2] * M_se[2, j]
+        # sensor coil j in the source frame (scalars: no per-call allocation)
+        lx = R[0, 0] * L_se[0, j] + R[0, 1] * L_se[1, j] + R[0, 2] * L_se[2, j]
+        ly = R[1, 0] * L_se[0, j] + R[1, 1] * L_se[1, j] + R[1, 2] * L_se[2, j]
+        lz = R[2, 0] * L_se[0, j] + R[2, 1] * L_se[1, j] + R[2, 2] * L_se[2, j]
+        px = lx + t[0]
+        py = ly + t[1]
+        pz = lz + t[2]
+        mx = R[0, 0] * M_se[0, j] + R[0, 1] * M_se[1, j] + R[0, 2] * M_se[2, j]
+        my = R[1, 0] * M_se[0, j] + R[1, 1] * M_se[1, j] + R[1, 2] * M_se[2, j]
+        mz = R[2, 0] * M_se[0, j] + R[2, 1] * M_se[1, j] + R[2, 2] * M_se[2, j]
         for i in range(n_so):
-            rx = p[0] - L_so[0, i]
-            ry = p[1] - L_so[1, i]
-            rz = p[2] - L_so[2, i]
-            d2 = rx * rx + ry * ry + rz * rz
-            d = np.sqrt(d2)
-            inv_d3 = 1.0 / (d2 * d)
-            inv_d5 = inv_d3 / d2
+            rx = px - L_so[0, i]
+            ry = py - L_so[1, i]
+            rz = pz - L_so[2, i]
+            if rx != qx or ry != qy or rz != qz:
+                d2 = rx * rx + ry * ry + rz * rz
+                inv_d2 = 1.0 / d2
+                inv_d3 = inv_d2 / np.sqrt(d2)
+                inv_d5 = inv_d3 * inv_d2
+                qx = rx
+                qy = ry
+                qz = rz
             Mx = M_so[0, i]
             My = M_so[1, i]
             Mz = M_so[2, i]
             Mr = Mx * rx + My * ry + Mz * rz
-            mr = m[0] * rx + m[1] * ry + m[2] * rz
-            Mm = Mx * m[0] + My * m[1] + Mz * m[2]
+            mr = mx * rx + my * ry + mz * rz
+            Mm = Mx * mx + My * my + Mz * mz
             C[i, j] = gain * (3.0 * Mr * mr * inv_d5 - Mm * inv_d3)
             if want_jac:
-                inv_d7 = inv_d5 / d2
-                r0 = (rx, ry, rz)
-                Mv = (Mx, My, Mz)
+                inv_d7 = inv_d5 * inv_d2
+                a5 = 3.0 * inv_d5
                 # gradient with respect to the sensor coil position p_j
-                for a in range(3):
-                    g = (3.0 * mr * Mv[a] * inv_d5 + 3.0 * Mr * m[a] * inv_d5
-                         - 15.0 * Mr * mr * r0[a] * inv_d7 + 3.0 * Mm * r0[a] * inv_d5)
-                    dC_dt[i, j, a] = gain * g
-                    # B field of source coil i at p_j (d C / d m_j)
-                    dC_dMse_src[i, j, a] = gain * (3.0 * Mr * r0[a] * inv_d5 - Mv[a] * inv_d3)
-                    # d C / d M_so[:, i] (symmetric in the two moments)
-                    dC_dMso[i, j, a] = gain * (3.0 * mr * r0[a] * inv_d5 - m[a] * inv_d3)
+                c_r = 3.0 * Mm * inv_d5 - 15.0 * Mr * mr * inv_d7
+                gpx = gain * (a5 * (mr * Mx + Mr * mx) + c_r * rx)
+                gpy = gain * (a5 * (mr * My + Mr * my) + c_r * ry)
+                gpz = gain * (a5 * (mr * Mz + Mr * mz) + c_r * rz)
+                dC_dt[i, j, 0] = gpx
+                dC_dt[i, j, 1] = gpy
+                dC_dt[i, j, 2] = gpz
+                # B field of source coil i at p_j (d C / d m_j)
+                gmx = gain * (a5 * Mr * rx - Mx * inv_d3)
+                gmy = gain * (a5 * Mr * ry - My * inv_d3)
+                gmz = gain * (a5 * Mr * rz - Mz * inv_d3)
+                dC_dMse_src[i, j, 0] = gmx
+                dC_dMse_src[i, j, 1] = gmy
+                dC_dMse_src[i, j, 2] = gmz
+                # d C / d M_so[:, i] (symmetric in the two moments)
+                dC_dMso[i, j, 0] = gain * (a5 * mr * rx - mx * inv_d3)
+                dC_dMso[i, j, 1] = gain * (a5 * mr * ry - my * inv_d3)
+                dC_dMso[i, j, 2] = gain * (a5 * mr * rz - mz * inv_d3)
                 # rotation: dp = phi x (R L), dm = phi x m  =>  dC/dphi = (R L) x gp + m x gm
-                gp0 = dC_dt[i, j, 0]
-                gp1 = dC_dt[i, j, 1]
-                gp2 = dC_dt[i, j, 2]
-                gm0 = dC_dMse_src[i, j, 0]
-                gm1 = dC_dMse_src[i, j, 1]
-                gm2 = dC_dMse_src[i, j, 2]
-                dC_dphi[i, j, 0] = (Lr[1] * gp2 - Lr[2] * gp1) + (m[1] * gm2 - m[2] * gm1)
-                dC_dphi[i, j, 1] = (Lr[2] * gp0 - Lr[0] * gp2) + (m[2] * gm0 - m[0] * gm2)
-                dC_dphi[i, j, 2] = (Lr[0] * gp1 - Lr[1] * gp0) + (m[0] * gm1 - m[1] * gm0)
+                dC_dphi[i, j, 0] = (ly * gpz - lz * gpy) + (my * gmz - mz * gmy)
+                dC_dphi[i, j, 1] = (lz * gpx - lx * gpz) + (mz * gmx - mx * gmz)
+                dC_dphi[i, j, 2] = (lx * gpy - ly * gpx) + (mx * gmy - my * gmx)
 
 
 @njit(cache=True)
