@@ -375,3 +375,78 @@ def test_kim18_matches_numpy_transcription_of_ilemt_formula():
             continue
         np.testing.assert_allclose(res.poses[k, :3, :3], R, atol=1e-12)
         np.testing.assert_allclose(res.poses[k, :3, 3], p, atol=1e-13)
+
+
+def _markley_reference(B):
+    """Rotation maximising tr(R^T B) by numpy's SVD with the determinant correction."""
+    U, s, Vt = np.linalg.svd(B)
+    d = np.sign(np.linalg.det(U @ Vt))
+    return U @ np.diag([1.0, 1.0, d]) @ Vt, s
+
+
+def test_wahba_quat_matches_numpy_svd():
+    """q-method with the known top eigenvalue vs numpy's SVD (both signs of det B)."""
+    from openemt.solve._linalg import quat_matrix, rotvec_from_matrix, rotvec_from_quat, wahba_quat
+
+    rng = np.random.default_rng(21)
+    q = np.empty(4)
+    M = np.empty((4, 4))
+    R = np.empty((3, 3))
+    rv = np.empty(3)
+    rv_ref = np.empty(3)
+    n_neg = 0
+    for k in range(400):
+        if k % 2:
+            B = rng.normal(size=(3, 3))
+        else:  # near-orthogonal, as in the solvers
+            Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            B = Q @ np.diag(rng.uniform(0.5, 2.0, 3)) + 1e-3 * rng.normal(size=(3, 3))
+        R_ref, s = _markley_reference(B)
+        det = np.linalg.det(B)
+        n_neg += det < 0
+        lam = s[0] + s[1] + np.sign(det) * s[2]
+        assert wahba_quat(B, lam, q, M)
+        assert q[0] >= 0.0
+        np.testing.assert_allclose(np.linalg.norm(q), 1.0, atol=1e-15)
+        quat_matrix(q, R)
+        gap = s[1] + np.sign(det) * s[2]  # conditioning of the Wahba problem
+        np.testing.assert_allclose(R, R_ref, atol=1e-13 / gap)
+        rotvec_from_quat(q, rv)
+        rotvec_from_matrix(R, rv_ref)
+        if np.linalg.norm(rv) < np.pi - 1e-6:  # away from the +/- pi branch cut
+            np.testing.assert_allclose(rv, rv_ref, atol=1e-13)
+    assert n_neg > 50
+    # a wrong eigenvalue leaves a regular K - lam I: no null vector direction to trust
+    assert wahba_quat(np.eye(3), 3.0, q, M) is True
+    np.testing.assert_allclose(q, [1.0, 0.0, 0.0, 0.0], atol=1e-15)
+
+
+@pytest.mark.parametrize("name", ["svd", "kim18"])
+def test_closed_form_far_from_dipole_matches_numpy_svd(name):
+    """Couplings far from the concentric model (coil offsets, close range): nearly double top
+    singular values and det(C0) < 0 both occur; the rotation is still U diag(1,-1,-1) V^T with
+    Markley's correction and the direction the first singular vector (numpy reference)."""
+    rng = np.random.default_rng(22)
+    model = skewed_concentric(rng)
+    offset = model.replace(L_so=0.05 * rng.normal(size=(3, 3)),
+                           L_se=0.05 * rng.normal(size=(3, 3)))
+    P = random_poses(rng, 400, center=(0.2, 0.0, 0.0), spread=0.08)
+    C = offset.coupling(P)
+    C = C * (1 + 0.02 * rng.normal(size=C.shape))
+    res = solve_svd(C, model=model) if name == "svd" else solve_kim18(C, model)
+    C0 = np.linalg.inv(model.M_so.T) @ C @ np.linalg.inv(model.M_se)
+    n_close = n_neg = 0
+    for k in range(len(C)):
+        U, s, Vt = np.linalg.svd(C0[k])
+        if s[0] < 1.05 * s[1] or s[2] < 1e-6 * s[0]:
+            continue  # ill-conditioned direction: not a rounding-level comparison
+        n_close += s[0] < np.sqrt(1.5) * s[1]
+        n_neg += np.linalg.det(C0[k]) < 0
+        H_inv = 1.5 * np.outer(U[:, 0], U[:, 0]) - np.eye(3)
+        R_ref, sb = _markley_reference(H_inv @ C0[k])
+        gap = (sb[1] + np.sign(np.linalg.det(C0[k])) * sb[2]) / sb[0]
+        np.testing.assert_allclose(res.poses[k, :3, :3], R_ref, atol=1e-12 / gap)
+        u = U[:, 0] if U[0, 0] >= 0 else -U[:, 0]
+        t = res.poses[k, :3, 3]
+        np.testing.assert_allclose(t / np.linalg.norm(t), u, atol=1e-11)
+    assert n_close > 5 and n_neg > 5, (n_close, n_neg)

@@ -40,10 +40,12 @@ from ._hemisphere import hemisphere_vectors
 from ._linalg import (
     dominant_eigvec,
     euler_zyx_matrix,
-    polar3,
+    quat_matrix,
     rotvec_from_matrix,
+    rotvec_from_quat,
     svd3,
     sym3_eigvals,
+    wahba_quat,
 )
 from ._result import SolveResult, Status
 
@@ -158,15 +160,16 @@ def _spectral_norms(C):
 # the compiled kernel
 # ------------------------------------------------------------------------------------------
 @njit(cache=True)
-def _fast_concentric(C0, rank_tol, s, U, R, G, X):
+def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     """Singular values, dominant direction and rotation of ``C0 = k H R`` without a full SVD.
 
     Eigenvalues of ``C0 C0^T`` (trigonometric closed form) give the singular values; the
-    eigenvector of the largest gives ``u = U[:, 0]``; the rotation is the orthogonal polar
-    factor of ``H^-1 C0 = U diag(s0/2, -s1, -s2) V^T``, i.e. ``U diag(1, -1, -1) V^T`` -- the
-    Kim18 rotation and the seed-004 Wahba solution. Returns 1 (done: ``s``, ``U[:, 0]``, ``R``
-    set), 2 (rank deficient) or 0 (fall back to the SVD path: det(C0) <= 0, which needs the
-    determinant correction, a nearly double top singular value, or no convergence).
+    eigenvector of the largest gives ``u = U[:, 0]``; the rotation is the Wahba solution for
+    ``H^-1 C0 = U diag(s0/2, -s1, -s2) V^T``: ``U diag(1, -1, -1) V^T`` (the Kim18 rotation and
+    the seed-004 solution), with Markley's determinant correction when ``det C0 < 0``, found as
+    a unit quaternion ``q`` by Davenport's q-method (``wahba_quat``) from the known singular
+    values. Returns 1 (done: ``s``, ``U[:, 0]``, ``q``, ``R`` set), 2 (rank deficient) or 0
+    (fall back to the SVD path: a nearly double top singular value, or no usable eigenvector).
     """
     for i in range(3):
         for j in range(i + 1):
@@ -182,41 +185,53 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X):
         s[i] = np.sqrt(max(s[i], 0.0))
     if not s[2] > rank_tol * s[0]:
         return 2
-    if not lam0 > 1.5 * lam1:
+    if not lam0 > 1.05 * lam1:
         return 0
     u = X[0]
     if not dominant_eigvec(G, lam0, u):
         return 0
     u0, u1, u2 = u[0], u[1], u[2]
     U[0, 0], U[1, 0], U[2, 0] = u0, u1, u2
-    # G <- H^-1 C0 / k with H^-1 = 1.5 u u^T - I and k = (s0/2 + s1 + s2)/3
-    k = (0.5 * s[0] + s[1] + s[2]) / 3.0
+    # G <- H^-1 C0 / k with H^-1 = 1.5 u u^T - I and k = (s0/2 + s1 + s2)/3; its singular
+    # values are (s0/2, s1, s2) / k and sign(det G) = sign(det C0) (det H^-1 = 1/2)
+    w0 = 0.5 * s[0]
+    w1 = s[1]
+    w2 = s[2]
+    k = (w0 + w1 + w2) / 3.0
     for j in range(3):
         dot = u0 * C0[0, j] + u1 * C0[1, j] + u2 * C0[2, j]
         G[0, j] = (1.5 * u0 * dot - C0[0, j]) / k
         G[1, j] = (1.5 * u1 * dot - C0[1, j]) / k
         G[2, j] = (1.5 * u2 * dot - C0[2, j]) / k
-    if not polar3(G, R):
+    det = (C0[0, 0] * (C0[1, 1] * C0[2, 2] - C0[1, 2] * C0[2, 1])
+           - C0[0, 1] * (C0[1, 0] * C0[2, 2] - C0[1, 2] * C0[2, 0])
+           + C0[0, 2] * (C0[1, 0] * C0[2, 1] - C0[1, 1] * C0[2, 0]))
+    lam = w0 + w1 + w2
+    if det < 0.0:
+        lam -= 2.0 * min(w0, min(w1, w2))
+    if not wahba_quat(G, lam / k, q, M):
         return 0
+    quat_matrix(q, R)
     return 1
 
 
 @njit(cache=True)
-def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B):
-    """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``; returns a status code
-    (0 ok, INVALID_INPUT, AMBIGUOUS). ``C0, U, V, B`` are 3x3 scratch, ``s`` (3,) scratch."""
+def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B,
+                      q, M):
+    """``closed_form_one`` with the rotation's quaternion: ``q`` (4,) is set when the fast
+    path produced it and ``q[0] = -1`` otherwise; ``M`` is (4, 4) scratch."""
+    q[0] = -1.0
     for i in range(3):
         for j in range(3):
             if not np.isfinite(C[i, j]):
                 return 2
-    # C0 = Wso C Wse (whitened coupling, = k H R)
+    # C0 = Wso C Wse (whitened coupling, = k H R), as two 3x3 products
     for i in range(3):
         for j in range(3):
-            acc = 0.0
-            for a in range(3):
-                for b in range(3):
-                    acc += Wso[i, a] * C[a, b] * Wse[b, j]
-            C0[i, j] = acc
+            B[i, j] = Wso[i, 0] * C[0, j] + Wso[i, 1] * C[1, j] + Wso[i, 2] * C[2, j]
+    for i in range(3):
+        for j in range(3):
+            C0[i, j] = B[i, 0] * Wse[0, j] + B[i, 1] * Wse[1, j] + B[i, 2] * Wse[2, j]
     u0 = 0.0
     u1 = 0.0
     u2 = 0.0
@@ -259,7 +274,7 @@ def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0,
         u2 /= nu
         dist = (gain / k) ** (1.0 / 3.0)
     else:
-        fast = _fast_concentric(C0, rank_tol, s, U, R, B, V)
+        fast = _fast_concentric(C0, rank_tol, s, U, R, B, V, q, M)
         if fast == 2:
             return 2
         if fast == 0:
@@ -328,6 +343,16 @@ def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0,
 
 
 @njit(cache=True)
+def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B):
+    """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``; returns a status code
+    (0 ok, INVALID_INPUT, AMBIGUOUS). ``C0, U, V, B`` are 3x3 scratch, ``s`` (3,) scratch."""
+    q = np.empty(4)
+    M = np.empty((4, 4))
+    return _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s,
+                             V, B, q, M)
+
+
+@njit(cache=True)
 def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain, nvec, rank_tol,
                        ambig_tol, want_res, poses, vecs, status, residual):
     N = C.shape[0]
@@ -341,10 +366,12 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
     Cp = np.empty((3, 3))
     G = np.empty((3, 3))
     rv = np.empty(3)
+    q = np.empty(4)
+    M = np.empty((4, 4))
     dummy = np.empty((3, 3, 3))
     for k in range(N):
-        st = closed_form_one(method, C[k], Wso, Wse, gain, nvec[k], rank_tol, ambig_tol, R, t,
-                             C0, U, s, V, B)
+        st = _closed_form_core(method, C[k], Wso, Wse, gain, nvec[k], rank_tol, ambig_tol, R, t,
+                               C0, U, s, V, B, q, M)
         if st == 2:
             status[k] = 2
             residual[k] = np.nan
@@ -362,7 +389,10 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
             poses[k, 3, i] = 0.0
             vecs[k, i] = t[i]
         poses[k, 3, 3] = 1.0
-        rotvec_from_matrix(R, rv)
+        if q[0] >= 0.0:
+            rotvec_from_quat(q, rv)
+        else:
+            rotvec_from_matrix(R, rv)
         vecs[k, 3] = rv[0]
         vecs[k, 4] = rv[1]
         vecs[k, 5] = rv[2]

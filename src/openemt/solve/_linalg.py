@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["cholesky_solve", "euler_zyx_matrix", "exp_so3", "rotvec_from_matrix", "svd3"]
+__all__ = ["cholesky_solve", "euler_zyx_matrix", "exp_so3", "quat_matrix", "rotvec_from_matrix",
+           "rotvec_from_quat", "svd3", "wahba_quat"]
 
 
 @njit(cache=True)
@@ -284,3 +285,102 @@ def polar3(B, X):
         if diff < 1e-30:
             return True
     return False
+
+
+
+@njit(cache=True, inline="always")
+def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    return (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20)
+            + a02 * (a10 * a21 - a11 * a20))
+
+
+@njit(cache=True)
+def wahba_quat(B, lam, q, M):
+    """Unit quaternion ``q = (w, x, y, z)``, ``w >= 0``, of the rotation maximising
+    ``tr(R^T B)`` (Davenport's q-method), given the largest eigenvalue ``lam`` of Davenport's
+    symmetric 4x4 matrix ``K(B)``: ``lam = s1 + s2 + sign(det B) s3`` with the singular values
+    ``s1 >= s2 >= s3`` of ``B``. The eigenvector is the largest column of the adjugate of
+    ``K - lam I``, a 4-D cross product of three of its rows (no iteration). For ``det B > 0`` the
+    rotation is the orthogonal polar factor of ``B``; for ``det B < 0`` Markley's
+    determinant-corrected SVD solution ``U diag(1, 1, -1) V^T``. ``M`` is (4, 4) scratch.
+    Returns False if ``lam`` is (numerically) not a simple eigenvalue.
+    """
+    M[0, 0] = B[0, 0] + B[1, 1] + B[2, 2] - lam
+    M[1, 1] = B[0, 0] - B[1, 1] - B[2, 2] - lam
+    M[2, 2] = -B[0, 0] + B[1, 1] - B[2, 2] - lam
+    M[3, 3] = -B[0, 0] - B[1, 1] + B[2, 2] - lam
+    M[0, 1] = M[1, 0] = B[2, 1] - B[1, 2]
+    M[0, 2] = M[2, 0] = B[0, 2] - B[2, 0]
+    M[0, 3] = M[3, 0] = B[1, 0] - B[0, 1]
+    M[1, 2] = M[2, 1] = B[0, 1] + B[1, 0]
+    M[1, 3] = M[3, 1] = B[0, 2] + B[2, 0]
+    M[2, 3] = M[3, 2] = B[1, 2] + B[2, 1]
+    # diagonal of adj(K - lam I) = prod_j (lam_j - lam) q_i^2: pick the largest |q_i|
+    best = -1.0
+    ib = 0
+    for i in range(4):
+        a = 1 if i == 0 else 0
+        b = 2 if i <= 1 else 1
+        c = 3 if i <= 2 else 2
+        m = abs(_det3(M[a, a], M[a, b], M[a, c], M[b, a], M[b, b], M[b, c],
+                      M[c, a], M[c, b], M[c, c]))
+        if m > best:
+            best = m
+            ib = i
+    if not best > 0.0:
+        return False
+    # column ib of the adjugate: 4-D cross product of the other three rows
+    a = 1 if ib == 0 else 0
+    b = 2 if ib <= 1 else 1
+    c = 3 if ib <= 2 else 2
+    nn = 0.0
+    for j in range(4):
+        e = 1 if j == 0 else 0
+        f = 2 if j <= 1 else 1
+        g = 3 if j <= 2 else 2
+        v = _det3(M[a, e], M[a, f], M[a, g], M[b, e], M[b, f], M[b, g],
+                  M[c, e], M[c, f], M[c, g])
+        if j % 2 == 1:
+            v = -v
+        q[j] = v
+        nn += v * v
+    nv = np.sqrt(nn)
+    if q[0] < 0.0:
+        nv = -nv
+    for j in range(4):
+        q[j] /= nv
+    return True
+
+
+@njit(cache=True, inline="always")
+def quat_matrix(q, R):
+    """Rotation matrix of a unit quaternion ``q = (w, x, y, z)`` into ``R`` (3, 3)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    R[0, 0] = 1.0 - 2.0 * (yy + zz)
+    R[1, 1] = 1.0 - 2.0 * (xx + zz)
+    R[2, 2] = 1.0 - 2.0 * (xx + yy)
+    R[0, 1] = 2.0 * (xy - wz)
+    R[1, 0] = 2.0 * (xy + wz)
+    R[0, 2] = 2.0 * (xz + wy)
+    R[2, 0] = 2.0 * (xz - wy)
+    R[1, 2] = 2.0 * (yz - wx)
+    R[2, 1] = 2.0 * (yz + wx)
+
+
+@njit(cache=True, inline="always")
+def rotvec_from_quat(q, out):
+    """Rotation vector (angle in [0, pi]) of a unit quaternion with ``w >= 0``."""
+    x, y, z = q[1], q[2], q[3]
+    nv = np.sqrt(x * x + y * y + z * z)
+    if nv < 1e-300:
+        out[0] = 0.0
+        out[1] = 0.0
+        out[2] = 0.0
+        return
+    f = 2.0 * np.arctan2(nv, q[0]) / nv
+    out[0] = f * x
+    out[1] = f * y
+    out[2] = f * z
