@@ -6,18 +6,11 @@ import numpy as np
 import pytest
 from test_calibrate import F_SE, F_SO, F_ST, synthetic_dataset, truth_model
 
-from openemt.calibrate import (
-    MODES,
-    ImprovedProblem,
-    OctupoleModel,
-    ParameterLayout,
-    RigOptions,
-    fit_improved,
-    refine_poses,
-)
-from openemt.field import DipoleModel, FiniteCoilModel, circular_coil
+from openemt.calibrate import MODES, ImprovedProblem, ParameterLayout, RigOptions, fit_improved
+from openemt.field import DipoleModel, FiniteCoilModel, OctupoleModel, circular_coil
 from openemt.geometry import SOURCE_FIXTURES, pose_from_vector, vector_from_pose
 from openemt.io import Calibration, Dataset
+from openemt.solve import refine_poses
 
 FULL = RigOptions(source_code_fix=True, rz_poly=2, octupole_sensor=True,
                   stage_linear=("xy", "rz", "sx_sz", "sy_sz"))

@@ -13,7 +13,6 @@ from ._identifiability import Identifiability, IdentifiabilityWarning, analyse_i
 from ._improved import STAGE_LINEAR_BASIS, ImprovedProblem, RigModel, RigOptions, fit_improved
 from ._layout import FIELD_NAMES, ParameterLayout
 from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, get_mode, select_rows
-from ._multipole import OctupoleModel, octupole_coupling, refine_poses
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
 from ._planar import (
                        GridData,
@@ -49,7 +48,6 @@ __all__ = [
                        "IdentifiabilityWarning",
                        "ImprovedCalibration",
                        "ImprovedProblem",
-                       "OctupoleModel",
                        "OutputCorrection",
                        "ParameterLayout",
                        "PlanarCalibration",
@@ -68,12 +66,10 @@ __all__ = [
                        "fixture_twist_map",
                        "get_mode",
                        "improved_calibration",
-                       "octupole_coupling",
                        "parameter_recovery",
                        "perturb_calibration",
                        "planar_coupling",
                        "read_grid_csv",
-                       "refine_poses",
                        "residue_stats",
                        "run_sequence",
                        "select_rows",

@@ -13,11 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..evaluate import STAGE_UNCERTAINTY_M, error_summary, pose_error_magnitudes
+from ..field import OctupoleModel
 from ..geometry import SOURCE_FIXTURES, pose_from_vector
+from ..solve import refine_poses
 from ._identifiability import analyse_identifiability
 from ._improved import ImprovedProblem, RigOptions, fit_improved
 from ._modes import MODES
-from ._multipole import OctupoleModel, refine_poses
 
 __all__ = [
     "CANDIDATES",
@@ -204,8 +205,9 @@ class ImprovedCalibration:
     def to_calibration(self, start=None):
         """The dipole part, fixtures and correction as a :class:`~openemt.io.Calibration`.
 
-        The extra rig and octupole parameters go to ``extra["rig"]``; pose solvers that know
-        only the dipole model ignore them (solve with :func:`refine_poses` to use them).
+        The extra rig and octupole parameters go to ``extra["rig"]``;
+        :func:`openemt.solve.solve` (and ``openemt solve``) uses the octupole terms through
+        :attr:`~openemt.io.Calibration.coupling_model`.
         """
         from .. import __version__
         from ..io import Calibration

@@ -13,7 +13,7 @@ the calibration (md) rows only:
   ``Rz(theta') -> E Rz(theta') E^T``, ``E = exp([wx, wy, 0]x)``;
 * ``source_code_fix`` -- as ``sensor_code_fix`` for the source fixture (only with several
   source fixtures in the data);
-* ``k_so`` / ``k_se`` -- an axial octupole per coil (finite coil size, :mod:`._multipole`).
+* ``k_so`` / ``k_se`` -- an axial octupole per coil (finite coil size, :mod:`openemt.field._octupole`).
 
 A global stage scale is deliberately not offered: a uniform scale trades exactly against the coil
 gains. The improved rig model also defines the ground truth of the test rows, since it is a
@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..field import coupling_jacobians
+from ..field import OctupoleModel, coupling_jacobians
 from ..geometry import (
     SENSOR_FIXTURES,
     SOURCE_FIXTURES,
@@ -41,7 +41,6 @@ from ..geometry import (
     sensor_fixture_rotation,
 )
 from ._layout import ParameterLayout
-from ._multipole import OctupoleModel
 from ._objective import build_problem, fixture_twist_map
 
 __all__ = ["STAGE_LINEAR_BASIS", "ImprovedProblem", "RigModel", "RigOptions", "fit_improved"]

@@ -98,7 +98,7 @@ def _score(cal_like, model, test, refine=None):
     res = solve_lm(test.couplings, model, initial=vector_from_pose(P), hemisphere=hemi)
     v = res.pose_vectors
     if refine is not None:
-        from ._multipole import refine_poses
+        from ..solve import refine_poses
 
         v, _ = refine_poses(refine, test.couplings, v)
     trans, rot = pose_error_magnitudes(pose_from_vector(v), P,

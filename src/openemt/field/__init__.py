@@ -1,4 +1,5 @@
-"""Coupling models: the dipole model with analytic Jacobians, and finite-size coils."""
+"""Coupling models: the dipole model with analytic Jacobians, axial octupole terms of finite
+coils, and finite-size coils on magpylib."""
 
 from ._coils import (
     ANSER_COIL_CENTERS,
@@ -20,6 +21,7 @@ from ._dipole import (
     coupling_jacobians,
 )
 from ._finite import FiniteCoilModel
+from ._octupole import OctupoleModel, octupole_coupling
 
 __all__ = [
     "ANSER_COIL_CENTERS",
@@ -30,12 +32,14 @@ __all__ = [
     "CouplingJacobians",
     "DipoleModel",
     "FiniteCoilModel",
+    "OctupoleModel",
     "anser_field_generator",
     "circular_coil",
     "coil_fields",
     "coupling",
     "coupling_jacobian_pose",
     "coupling_jacobians",
+    "octupole_coupling",
     "square_coil",
     "square_spiral_coil",
 ]

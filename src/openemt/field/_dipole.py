@@ -8,6 +8,7 @@ convention: it stands in for mu0/(4 pi) so that fitted source and sensor gains s
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -99,9 +100,7 @@ class DipoleModel:
 
     def replace(self, **changes) -> DipoleModel:
         """A copy with some of L_so, M_so, L_se, M_se, gain replaced."""
-        kw = dict(L_so=self.L_so, M_so=self.M_so, L_se=self.L_se, M_se=self.M_se, gain=self.gain)
-        kw.update(changes)
-        return DipoleModel(**kw)
+        return dataclasses.replace(self, **changes)
 
     def coupling(self, poses) -> np.ndarray:
         """Couplings for poses ``(N, 4, 4)`` -> ``(N, n_source, n_sensor)``; see :func:`coupling`."""

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..field import DipoleModel
+from ..field import DipoleModel, OctupoleModel
 from ..geometry import pose_from_vector
 
 __all__ = ["Calibration"]
@@ -83,6 +83,19 @@ class Calibration:
         """(F_so, F_st, F_se) as (4, 4) poses."""
         return tuple(pose_from_vector(v) for v in
                      (self.source_fixture, self.stage_fixture, self.sensor_fixture))
+
+    @property
+    def coupling_model(self):
+        """The model that predicts this calibration's couplings: ``model`` plus the axial octupole
+        terms an improved calibration stores in ``extra['rig']`` (``octupole_k_so``,
+        ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), else ``model`` itself."""
+        rig = self.extra.get("rig") or {}
+        k_so, k_se = rig.get("octupole_k_so"), rig.get("octupole_k_se")
+        if k_so is None and k_se is None:
+            return self.model
+        return OctupoleModel(self.model,
+                             np.zeros(self.model.n_source) if k_so is None else k_so,
+                             np.zeros(self.model.n_sensor) if k_se is None else k_se)
 
     def replace(self, **changes) -> Calibration:
         return replace(self, **changes)

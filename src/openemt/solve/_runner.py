@@ -7,6 +7,7 @@ import numpy as np
 from ..io import Calibration
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd
 from ._lm_solver import solve_lm
+from ._refine import refine_result
 from ._result import SolveResult
 
 __all__ = ["SOLVERS", "apply_position_correction", "solve", "solve_chunks"]
@@ -39,7 +40,9 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm", hemisphere
     couplings : ndarray, shape (N, n_source, n_sensor)
         Signed real couplings (or complex phasors, see :func:`solve_lm`).
     calibration : Calibration
-        Provides the model and, optionally, ``linear_correction``.
+        Provides the model and, optionally, ``linear_correction``. Octupole terms of an
+        improved calibration (:attr:`Calibration.coupling_model`) are used by refining the
+        dipole solution for them (:func:`refine_poses`).
     solver : {'lm', 'svd', 'kuipers', 'kim18'}
         ``svd``, ``kuipers`` and ``kim18`` need a concentric 3x3 model.
     hemisphere : see :func:`solve_lm`
@@ -67,6 +70,10 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm", hemisphere
         else:
             f = solve_svd if solver == "svd" else solve_kuipers
             result = f(couplings, hemisphere=hemi, model=model, **options)
+    full = calibration.coupling_model
+    if full is not model:
+        # octupole terms of an improved calibration: refine the dipole solution for them
+        result = refine_result(result, full, couplings)
     if apply_correction and calibration.linear_correction is not None:
         result = apply_position_correction(result, calibration.linear_correction)
     return result

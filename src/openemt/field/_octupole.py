@@ -12,7 +12,8 @@ sign depends on the winding's aspect ratio). Writing ``a = M.u``, ``b = m.u``, `
 
 It is homogeneous of degree one in ``M`` and in ``m``, like the dipole coupling. A finite sensor
 coil in the field of a point source has the same form with the roles of the two coils swapped
-(reciprocity). The sum of the dipole model and these terms is :class:`OctupoleModel`.
+(reciprocity). The sum of the dipole model and these terms is :class:`OctupoleModel`; calibrations store the
+strengths in ``Calibration.extra['rig']`` (``octupole_k_so``, ``octupole_k_se``).
 """
 
 from __future__ import annotations
@@ -21,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..field import CouplingJacobians, DipoleModel, coupling_jacobians
 from ..geometry import check_poses
+from ._dipole import CouplingJacobians, DipoleModel, coupling_jacobians
 
-__all__ = ["OctupoleModel", "octupole_coupling", "refine_poses"]
+__all__ = ["OctupoleModel", "octupole_coupling"]
 
 
 def _octupole_pair(r, M, m, gain, want_grad):
@@ -148,41 +149,3 @@ class OctupoleModel:
         fields = {k: getattr(jd, k) + g[k] for k in ("C", "d_translation", "d_rotation",
                                                      "d_L_so", "d_M_so", "d_L_se", "d_M_se")}
         return CouplingJacobians(**fields), g["d_k_so"], g["d_k_se"]
-
-
-def refine_poses(model: OctupoleModel, couplings, pose_vectors, *, iterations: int = 10,
-                 damping: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-    """Refine pose vectors ``(N, 6)`` for an :class:`OctupoleModel` by batched Gauss-Newton.
-
-    Starts from (for example) the dipole-model solution, which differs from the octupole-model
-    solution by a small amount, and returns the refined pose vectors and the ILEMT residual
-    ``sum(residual^2) / ||C||_2`` (N,). ``couplings`` are signed real or complex (the target is
-    ``sign(Re z)|z|``, normalised by the complex spectral norm).
-    """
-    from ..geometry import pose_from_vector, vector_from_pose
-    from ..io import signed_real
-
-    C = np.asarray(couplings)
-    norm = np.linalg.norm(C, ord=2, axis=(1, 2))
-    Cd = signed_real(C)
-    v = np.array(pose_vectors, dtype=np.float64)
-    n = v.shape[0]
-    lam = damping
-    for _ in range(iterations):
-        P = pose_from_vector(v)
-        jac, _, _ = model.jacobians(P)
-        r = (Cd - jac.C).reshape(n, -1)
-        J = jac.pose_vector(v[:, 3:]).reshape(n, -1, 6)
-        JtJ = np.einsum("kma,kmb->kab", J, J)
-        scale = np.sqrt(np.einsum("kaa->ka", JtJ)) + 1e-300
-        JtJ = JtJ / scale[:, :, None] / scale[:, None, :] + lam * np.eye(6)
-        step = np.linalg.solve(JtJ, (np.einsum("kma,km->ka", J, r) / scale)[..., None])[..., 0]
-        step /= scale
-        v = v + step
-        # keep the rotation vector canonical (angle in [0, pi])
-        v = vector_from_pose(pose_from_vector(v))
-        if np.max(np.abs(step)) < 1e-10:   # m and rad: far below any measurable change
-            break
-    P = pose_from_vector(v)
-    res = np.sum((Cd - model.coupling(P)) ** 2, axis=(1, 2)) / norm
-    return v, res
