@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_common, emit
+from ._common import add_common, emit, progress
 
 PRESETS = ("dipole-approx", "concentric")
 _ROW_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
@@ -76,14 +76,13 @@ def run(args) -> int:
         raise ValueError(f"expected --stage-error-um >= 0, got {args.stage_error_um}")
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    say = [] if args.quiet else None
     seconds: dict[str, float] = {}
+    bar = progress(total=5, desc="openemt demo", args=args, unit="step")
 
     def step(name, t0):
         seconds[name] = round(time.perf_counter() - t0, 3)
-        if say is None:
-            import sys
-            print(f"  {name}: {seconds[name]:.2f} s", file=sys.stderr)
+        bar.set_postfix_str(f"{name} done")
+        bar.update()
 
     t_all = time.perf_counter()
     preset = get_preset(args.preset)
@@ -170,6 +169,7 @@ def run(args) -> int:
                       "the simulated finite coils")
     written = built.write(out / "report.html")
     step("report", t0)
+    bar.close()
     stats = cal.stats
 
     summary = {
@@ -183,6 +183,7 @@ def run(args) -> int:
     human = [f"openemt demo: simulated '{preset.name}' tracker -> {out}/"]
     for k, v in rows.items():
         human.append(f"  {k:48s} {v['trans_rms_mm']:.3f} mm RMS  {v['rot_rms_deg']:.3f} deg RMS")
+    human.append("  seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()))
     human.append(f"  report: {out / 'report.html'}")
     emit(args, summary, human)
     return 0
