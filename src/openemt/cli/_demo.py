@@ -138,7 +138,7 @@ def run(args) -> int:
         if cond in accuracy:
             r = accuracy[cond]
             rows[label] = {k: r[k] for k in (*_ROW_KEYS, "n_invalid", "trans_uncert_mm")}
-    step("solve and score", t0)
+    step("solve, score and figures", t0)
 
     t0 = time.perf_counter()
     rep = built.report
@@ -168,7 +168,7 @@ def run(args) -> int:
               caption="Fitted coil parameters (m, gain units) against the dipole equivalent of "
                       "the simulated finite coils")
     written = built.write(out / "report.html")
-    step("report", t0)
+    step("write report", t0)
     bar.close()
     stats = cal.stats
 
