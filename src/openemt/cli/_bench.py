@@ -19,6 +19,8 @@ BENCHMARKS = {
               "poses/s per solver on one core vs per-pose scipy least_squares"),
     "demod": ("openemt.bench._demod", "demodulator realtime factor, accuracy, mains rejection"),
     "track": ("openemt.bench._track", "live pipeline latency and position noise vs the CRB"),
+    "correct": ("openemt.bench._correct",
+                "output corrections on a simulated distortion: held-out vs in-sample"),
 }
 
 
