@@ -86,22 +86,21 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
             np.full(C.shape[0], -1.0))
 
 
-@njit(cache=True)
-def _lambda_max_sym3(A):
+@njit(cache=True, inline="always")
+def _lambda_max_sym3(a00, a01, a02, a11, a12, a22):
     """Largest eigenvalue of a symmetric 3x3 matrix (trigonometric closed form)."""
-    p1 = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
-    q = (A[0, 0] + A[1, 1] + A[2, 2]) / 3.0
-    a0 = A[0, 0] - q
-    a1 = A[1, 1] - q
-    a2 = A[2, 2] - q
-    p2 = a0 * a0 + a1 * a1 + a2 * a2 + 2.0 * p1
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    b0 = a00 - q
+    b1 = a11 - q
+    b2 = a22 - q
+    p2 = b0 * b0 + b1 * b1 + b2 * b2 + 2.0 * p1
     if p2 <= 0.0:
         return q
     p = np.sqrt(p2 / 6.0)
-    b00, b11, b22 = a0 / p, a1 / p, a2 / p
-    b01, b02, b12 = A[0, 1] / p, A[0, 2] / p, A[1, 2] / p
-    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
-               + b02 * (b01 * b12 - b11 * b02))
+    # det((A - q I) / p) / 2
+    r = 0.5 * (b0 * (b1 * b2 - a12 * a12) - a01 * (a01 * b2 - a12 * a02)
+               + a02 * (a01 * a12 - b1 * a02)) / (p * p * p)
     r = min(max(r, -1.0), 1.0)
     return q + 2.0 * p * np.cos(np.arccos(r) / 3.0)
 
@@ -110,6 +109,18 @@ def _lambda_max_sym3(A):
 def spectral_norm(C, G):
     """Spectral norm of a real matrix ``C`` (n_so, n_se); ``G`` is (n_se, n_se) scratch."""
     n_so, n_se = C.shape
+    if n_so == 3 and n_se == 3:
+        # Gram matrix C^T C, unrolled
+        c00, c01, c02 = C[0, 0], C[0, 1], C[0, 2]
+        c10, c11, c12 = C[1, 0], C[1, 1], C[1, 2]
+        c20, c21, c22 = C[2, 0], C[2, 1], C[2, 2]
+        lam = _lambda_max_sym3(c00 * c00 + c10 * c10 + c20 * c20,
+                               c00 * c01 + c10 * c11 + c20 * c21,
+                               c00 * c02 + c10 * c12 + c20 * c22,
+                               c01 * c01 + c11 * c11 + c21 * c21,
+                               c01 * c02 + c11 * c12 + c21 * c22,
+                               c02 * c02 + c12 * c12 + c22 * c22)
+        return np.sqrt(max(lam, 0.0))
     for a in range(n_se):
         for b in range(n_se):
             acc = 0.0
@@ -119,7 +130,8 @@ def spectral_norm(C, G):
     if n_se == 1:
         return np.sqrt(G[0, 0])
     if n_se == 3:
-        return np.sqrt(max(_lambda_max_sym3(G), 0.0))
+        return np.sqrt(max(_lambda_max_sym3(G[0, 0], G[0, 1], G[0, 2], G[1, 1], G[1, 2],
+                                            G[2, 2]), 0.0))
     # power iteration on the Gram matrix (other sizes; not on the hot path of 3x3 trackers)
     v = np.ones(n_se) / np.sqrt(n_se)
     w = np.empty(n_se)
@@ -159,7 +171,7 @@ def _spectral_norms(C):
 # ------------------------------------------------------------------------------------------
 # the compiled kernel
 # ------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     """Singular values, dominant direction and rotation of ``C0 = k H R`` without a full SVD.
 
@@ -215,7 +227,7 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     return 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B,
                       q, M):
     """``closed_form_one`` with the rotation's quaternion: ``q`` (4,) is set when the fast

@@ -99,7 +99,7 @@ def exp_so3(phi, R):
     R[2, 1] = a * x + b * y * z
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rotvec_from_matrix(R, out):
     """Rotation vector (angle in [0, pi]) of a rotation matrix, through a unit quaternion."""
     tr = R[0, 0] + R[1, 1] + R[2, 2]
@@ -172,7 +172,7 @@ def cholesky_solve(A, b, n, x, L):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def euler_zyx_matrix(psi, theta, phi, R):
     """``R = Rz(psi) Ry(theta) Rx(phi)`` written into ``R`` (3, 3)."""
     cps, sps = np.cos(psi), np.sin(psi)
@@ -189,7 +189,7 @@ def euler_zyx_matrix(psi, theta, phi, R):
     R[2, 2] = cth * cph
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def sym3_eigvals(A, lam):
     """Eigenvalues of a symmetric 3x3 matrix, decreasing, into ``lam`` (trigonometric form)."""
     p1 = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
@@ -215,7 +215,7 @@ def sym3_eigvals(A, lam):
     lam[1] = 3.0 * q - lam[0] - lam[2]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def dominant_eigvec(A, lam0, v):
     """Unit eigenvector of symmetric ``A`` for its (simple) eigenvalue ``lam0``: the largest
     cross product of two rows of ``A - lam0 I``. Returns False if none is usable."""
@@ -294,7 +294,7 @@ def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
             + a02 * (a10 * a21 - a11 * a20))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def wahba_quat(B, lam, q, M):
     """Unit quaternion ``q = (w, x, y, z)``, ``w >= 0``, of the rotation maximising
     ``tr(R^T B)`` (Davenport's q-method), given the largest eigenvalue ``lam`` of Davenport's
