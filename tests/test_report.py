@@ -76,3 +76,17 @@ def test_report_renders_in_chromium(tmp_path):
     assert m is not None, "the page did not finish loading in Chromium"
     assert m.group(1) == "3" and m.group(2) == "3", f"images total/decoded = {m.groups()}"
     assert "openemt test report" in out.stdout
+
+
+def test_atomic_output_has_ordinary_permissions(tmp_path):
+    import os
+
+    from openemt.io import atomic_path
+
+    umask = os.umask(0o022)
+    try:
+        with atomic_path(tmp_path / "out.txt") as tmp:
+            tmp.write_text("x")
+    finally:
+        os.umask(umask)
+    assert (tmp_path / "out.txt").stat().st_mode & 0o777 == 0o644
