@@ -79,14 +79,9 @@ def test_report_renders_in_chromium(tmp_path):
 
 
 def test_atomic_output_has_ordinary_permissions(tmp_path):
-    import os
+    from openemt.io import _atomic, atomic_path
 
-    from openemt.io import atomic_path
-
-    umask = os.umask(0o022)
-    try:
-        with atomic_path(tmp_path / "out.txt") as tmp:
-            tmp.write_text("x")
-    finally:
-        os.umask(umask)
-    assert (tmp_path / "out.txt").stat().st_mode & 0o777 == 0o644
+    with atomic_path(tmp_path / "out.txt") as tmp:
+        tmp.write_text("x")
+    assert (tmp_path / "out.txt").stat().st_mode & 0o777 == 0o666 & ~_atomic._UMASK
+    assert (tmp_path / "out.txt").stat().st_mode & 0o044  # readable by others (umask 022)

@@ -9,6 +9,10 @@ from pathlib import Path
 
 __all__ = ["atomic_path"]
 
+# the process umask, read once at import (setting it to read it is not thread-safe later)
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
 
 @contextlib.contextmanager
 def atomic_path(path, suffix: str | None = None):
@@ -27,9 +31,7 @@ def atomic_path(path, suffix: str | None = None):
     try:
         yield Path(tmp)
         # mkstemp creates the file 0600; give the result the permissions a plain open() would
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+        os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
