@@ -450,3 +450,30 @@ def test_closed_form_far_from_dipole_matches_numpy_svd(name):
         t = res.poses[k, :3, 3]
         np.testing.assert_allclose(t / np.linalg.norm(t), u, atol=1e-11)
     assert n_close > 5 and n_neg > 5, (n_close, n_neg)
+
+
+def test_sym3_eigvals_matches_numpy_eigvalsh():
+    """Trigonometric eigenvalues (incl. nearly double ones, as for H = 3 u u^T - I) vs LAPACK."""
+    from openemt.solve._linalg import sym3_eigvals
+
+    rng = np.random.default_rng(23)
+    lam = np.empty(3)
+    for k in range(600):
+        Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        if k % 3 == 0:
+            ev = rng.normal(size=3)
+        elif k % 3 == 1:  # two nearly equal small eigenvalues
+            ev = np.array([4.0, 1.0, 1.0 + 10.0 ** rng.uniform(-12, -2)])
+        else:  # two nearly equal large eigenvalues
+            ev = np.array([1.0, 1.0 + 10.0 ** rng.uniform(-12, -2), 0.2])
+        A = Q @ np.diag(ev) @ Q.T
+        A = 0.5 * (A + A.T)
+        sym3_eigvals(A, lam)
+        ref = np.linalg.eigvalsh(A)[::-1]
+        scale = np.abs(ref).max()
+        np.testing.assert_allclose(lam.sum(), ref.sum(), rtol=0, atol=1e-13 * scale)
+        # exact to rounding for separated eigenvalues; a nearly double pair (gap g) is resolved
+        # to about eps * scale^2 / g, at worst sqrt(eps) * scale (the arccos near +/-1)
+        gap = np.abs(np.diff(ref)).min()
+        tol = 1e-13 * scale + min(5e-8 * scale, 1e-14 * scale ** 2 / gap)
+        np.testing.assert_allclose(lam, ref, rtol=0, atol=tol)

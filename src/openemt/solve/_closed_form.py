@@ -39,7 +39,6 @@ from ..field._dipole_kernel import dipole_eval
 from ._hemisphere import hemisphere_vectors
 from ._linalg import (
     dominant_eigvec,
-    euler_zyx_matrix,
     quat_matrix,
     rotvec_from_matrix,
     rotvec_from_quat,
@@ -319,12 +318,34 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
             dot = u0 * C0[0, j] + u1 * C0[1, j] + u2 * C0[2, j]
             for i in range(3):
                 B[i, j] = (1.5 * uv[i] * dot - C0[i, j]) / k
-        st = -B[2, 0]
-        st = min(max(st, -1.0), 1.0)
-        theta = np.arcsin(st)
-        psi = np.arctan2(B[1, 0], B[0, 0])
-        phi = np.arctan2(B[2, 1], B[2, 2])
-        euler_zyx_matrix(psi, theta, phi, R)
+        # Z-Y-X Euler angles theta = asin(-B20), psi = atan2(B10, B00), phi = atan2(B21, B22)
+        # and R = Rz(psi) Ry(theta) Rx(phi) (``euler_zyx_matrix``), with the sines and cosines
+        # of the angles taken directly from the matrix entries instead of through the angles
+        sth = min(max(-B[2, 0], -1.0), 1.0)
+        cth = np.sqrt(1.0 - sth * sth)
+        h = np.sqrt(B[0, 0] * B[0, 0] + B[1, 0] * B[1, 0])
+        if h > 0.0:
+            cps = B[0, 0] / h
+            sps = B[1, 0] / h
+        else:
+            cps = 1.0
+            sps = 0.0
+        h = np.sqrt(B[2, 1] * B[2, 1] + B[2, 2] * B[2, 2])
+        if h > 0.0:
+            cph = B[2, 2] / h
+            sph = B[2, 1] / h
+        else:
+            cph = 1.0
+            sph = 0.0
+        R[0, 0] = cps * cth
+        R[0, 1] = cps * sth * sph - sps * cph
+        R[0, 2] = cps * sth * cph + sps * sph
+        R[1, 0] = sps * cth
+        R[1, 1] = sps * sth * sph + cps * cph
+        R[1, 2] = sps * sth * cph - cps * sph
+        R[2, 0] = -sth
+        R[2, 1] = cth * sph
+        R[2, 2] = cth * cph
     elif fast == 0:
         # Kim18 (ilemt-format.md §10.2): Y = C0^T = V S U^T, R = V_Y diag(1,-1,-1) U_Y^T
         # = U diag(1,-1,-1) V^T. The seed-004 Wahba step min ||k R - H^-1 C0|| gives the same

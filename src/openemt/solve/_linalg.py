@@ -209,9 +209,11 @@ def sym3_eigvals(A, lam):
     r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
                + b02 * (b01 * b12 - b11 * b02))
     r = min(max(r, -1.0), 1.0)
-    phi = np.arccos(r) / 3.0
-    lam[0] = q + 2.0 * p * np.cos(phi)
-    lam[2] = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    # phi = acos(r) / 3 in [0, pi/3]; cos(phi + 2 pi / 3) = -(cos phi + sqrt(3) sin phi) / 2
+    c = np.cos(np.arccos(r) / 3.0)
+    sn = np.sqrt(max(1.0 - c * c, 0.0))
+    lam[0] = q + 2.0 * p * c
+    lam[2] = q - p * (c + 1.7320508075688772 * sn)
     lam[1] = 3.0 * q - lam[0] - lam[2]
 
 
@@ -384,3 +386,4 @@ def rotvec_from_quat(q, out):
     out[0] = f * x
     out[1] = f * y
     out[2] = f * z
+
