@@ -208,19 +208,19 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     w0 = 0.5 * s[0]
     w1 = s[1]
     w2 = s[2]
-    k = (w0 + w1 + w2) / 3.0
+    lam = w0 + w1 + w2
+    ik = 3.0 / lam  # 1 / k
     for j in range(3):
         dot = u0 * C0[0, j] + u1 * C0[1, j] + u2 * C0[2, j]
-        G[0, j] = (1.5 * u0 * dot - C0[0, j]) / k
-        G[1, j] = (1.5 * u1 * dot - C0[1, j]) / k
-        G[2, j] = (1.5 * u2 * dot - C0[2, j]) / k
+        G[0, j] = (1.5 * u0 * dot - C0[0, j]) * ik
+        G[1, j] = (1.5 * u1 * dot - C0[1, j]) * ik
+        G[2, j] = (1.5 * u2 * dot - C0[2, j]) * ik
     det = (C0[0, 0] * (C0[1, 1] * C0[2, 2] - C0[1, 2] * C0[2, 1])
            - C0[0, 1] * (C0[1, 0] * C0[2, 2] - C0[1, 2] * C0[2, 0])
            + C0[0, 2] * (C0[1, 0] * C0[2, 1] - C0[1, 1] * C0[2, 0]))
-    lam = w0 + w1 + w2
     if det < 0.0:
         lam -= 2.0 * min(w0, min(w1, w2))
-    if not wahba_quat(G, lam / k, q, M):
+    if not wahba_quat(G, lam * ik, q, M):
         return 0
     quat_matrix(q, R)
     return 1

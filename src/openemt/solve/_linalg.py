@@ -204,10 +204,10 @@ def sym3_eigvals(A, lam):
         lam[2] = q
         return
     p = np.sqrt(p2 / 6.0)
-    b00, b11, b22 = a0 / p, a1 / p, a2 / p
-    b01, b02, b12 = A[0, 1] / p, A[0, 2] / p, A[1, 2] / p
-    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
-               + b02 * (b01 * b12 - b11 * b02))
+    # r = det((A - q I) / p) / 2
+    b01, b02, b12 = A[0, 1], A[0, 2], A[1, 2]
+    r = 0.5 * (a0 * (a1 * a2 - b12 * b12) - b01 * (b01 * a2 - b12 * b02)
+               + b02 * (b01 * b12 - a1 * b02)) / (p * p * p)
     r = min(max(r, -1.0), 1.0)
     # phi = acos(r) / 3 in [0, pi/3]; cos(phi + 2 pi / 3) = -(cos phi + sqrt(3) sin phi) / 2
     c = np.cos(np.arccos(r) / 3.0)
@@ -241,10 +241,10 @@ def dominant_eigvec(A, lam0, v):
             v[0], v[1], v[2] = c0, c1, c2
     if not best > 0.0:
         return False
-    nv = np.sqrt(best)
-    v[0] /= nv
-    v[1] /= nv
-    v[2] /= nv
+    nv = 1.0 / np.sqrt(best)
+    v[0] *= nv
+    v[1] *= nv
+    v[2] *= nv
     return True
 
 
@@ -346,11 +346,11 @@ def wahba_quat(B, lam, q, M):
             v = -v
         q[j] = v
         nn += v * v
-    nv = np.sqrt(nn)
+    nv = 1.0 / np.sqrt(nn)
     if q[0] < 0.0:
         nv = -nv
     for j in range(4):
-        q[j] /= nv
+        q[j] *= nv
     return True
 
 
