@@ -104,22 +104,27 @@ def _lambda_max_sym3(a00, a01, a02, a11, a12, a22):
     return q + 2.0 * p * np.cos(np.arccos(r) / 3.0)
 
 
+@njit(cache=True, inline="always")
+def _spectral_norm33(C):
+    """Spectral norm of a real 3x3 matrix: square root of the top eigenvalue of ``C^T C``."""
+    c00, c01, c02 = C[0, 0], C[0, 1], C[0, 2]
+    c10, c11, c12 = C[1, 0], C[1, 1], C[1, 2]
+    c20, c21, c22 = C[2, 0], C[2, 1], C[2, 2]
+    lam = _lambda_max_sym3(c00 * c00 + c10 * c10 + c20 * c20,
+                           c00 * c01 + c10 * c11 + c20 * c21,
+                           c00 * c02 + c10 * c12 + c20 * c22,
+                           c01 * c01 + c11 * c11 + c21 * c21,
+                           c01 * c02 + c11 * c12 + c21 * c22,
+                           c02 * c02 + c12 * c12 + c22 * c22)
+    return np.sqrt(max(lam, 0.0))
+
+
 @njit(cache=True)
 def spectral_norm(C, G):
     """Spectral norm of a real matrix ``C`` (n_so, n_se); ``G`` is (n_se, n_se) scratch."""
     n_so, n_se = C.shape
     if n_so == 3 and n_se == 3:
-        # Gram matrix C^T C, unrolled
-        c00, c01, c02 = C[0, 0], C[0, 1], C[0, 2]
-        c10, c11, c12 = C[1, 0], C[1, 1], C[1, 2]
-        c20, c21, c22 = C[2, 0], C[2, 1], C[2, 2]
-        lam = _lambda_max_sym3(c00 * c00 + c10 * c10 + c20 * c20,
-                               c00 * c01 + c10 * c11 + c20 * c21,
-                               c00 * c02 + c10 * c12 + c20 * c22,
-                               c01 * c01 + c11 * c11 + c21 * c21,
-                               c01 * c02 + c11 * c12 + c21 * c22,
-                               c02 * c02 + c12 * c12 + c22 * c22)
-        return np.sqrt(max(lam, 0.0))
+        return _spectral_norm33(C)
     for a in range(n_se):
         for b in range(n_se):
             acc = 0.0
@@ -397,14 +402,14 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
     B = np.empty((3, 3))
     s = np.empty(3)
     Cp = np.empty((3, 3))
-    G = np.empty((3, 3))
     rv = np.empty(3)
     q = np.empty(4)
     M = np.empty((4, 4))
     dummy = np.empty((3, 3, 3))
+    one_n = 1 if nvec.shape[0] == 1 else 0
     for k in range(N):
-        st = _closed_form_core(method, C[k], Wso, Wse, gain, nvec[k], rank_tol, ambig_tol, R, t,
-                               C0, U, s, V, B, q, M)
+        st = _closed_form_core(method, C[k], Wso, Wse, gain, nvec[k if one_n == 0 else 0],
+                               rank_tol, ambig_tol, R, t, C0, U, s, V, B, q, M)
         if st == 2:
             status[k] = 2
             residual[k] = np.nan
@@ -435,7 +440,7 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
         dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dummy, dummy, dummy, dummy, False)
         nrm = cnorm[k]
         if nrm < 0.0:
-            nrm = spectral_norm(C[k], G)
+            nrm = _spectral_norm33(C[k])
         ss = 0.0
         for i in range(3):
             for j in range(3):
@@ -467,7 +472,9 @@ def _solve_closed_form(method, couplings, hemisphere, model, rank_tol, ambiguity
     model = _concentric_model(model, method)
     C, cnorm = check_couplings(couplings, 3, 3)
     n = C.shape[0]
-    nvec = hemisphere_vectors(hemisphere, n, allow_none=False)
+    # one hemisphere for all samples: pass a single row (the kernel broadcasts it)
+    uniform = isinstance(hemisphere, str) or np.shape(hemisphere) == (3,)
+    nvec = hemisphere_vectors(hemisphere, 1 if uniform else n, allow_none=False)
     Wso = np.ascontiguousarray(np.linalg.inv(model.M_so.T))
     Wse = np.ascontiguousarray(np.linalg.inv(model.M_se))
     want_residual = residual
