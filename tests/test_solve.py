@@ -437,7 +437,7 @@ def test_closed_form_far_from_dipole_matches_numpy_svd(name):
     C0 = np.linalg.inv(model.M_so.T) @ C @ np.linalg.inv(model.M_se)
     n_close = n_neg = 0
     for k in range(len(C)):
-        U, s, Vt = np.linalg.svd(C0[k])
+        U, s, _ = np.linalg.svd(C0[k])
         if s[0] < 1.05 * s[1] or s[2] < 1e-6 * s[0]:
             continue  # ill-conditioned direction: not a rounding-level comparison
         n_close += s[0] < np.sqrt(1.5) * s[1]

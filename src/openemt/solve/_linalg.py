@@ -248,48 +248,6 @@ def dominant_eigvec(A, lam0, v):
     return True
 
 
-@njit(cache=True)
-def polar3(B, X):
-    """Orthogonal polar factor of a 3x3 matrix with positive determinant (Newton iteration
-    ``X <- (X + X^-T) / 2``, quadratically convergent), into ``X``. ``B`` is overwritten.
-    Returns False if the determinant is not positive or the iteration does not converge.
-    (For det > 0 this is the SVD solution ``U V^T`` of the orthogonal Procrustes / Wahba
-    problem.)"""
-    for _ in range(30):
-        c00 = B[1, 1] * B[2, 2] - B[1, 2] * B[2, 1]
-        c01 = B[1, 2] * B[2, 0] - B[1, 0] * B[2, 2]
-        c02 = B[1, 0] * B[2, 1] - B[1, 1] * B[2, 0]
-        det = B[0, 0] * c00 + B[0, 1] * c01 + B[0, 2] * c02
-        if not det > 0.0:
-            return False
-        c10 = B[0, 2] * B[2, 1] - B[0, 1] * B[2, 2]
-        c11 = B[0, 0] * B[2, 2] - B[0, 2] * B[2, 0]
-        c12 = B[0, 1] * B[2, 0] - B[0, 0] * B[2, 1]
-        c20 = B[0, 1] * B[1, 2] - B[0, 2] * B[1, 1]
-        c21 = B[0, 2] * B[1, 0] - B[0, 0] * B[1, 2]
-        c22 = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
-        inv = 0.5 / det
-        X[0, 0] = 0.5 * B[0, 0] + inv * c00
-        X[0, 1] = 0.5 * B[0, 1] + inv * c01
-        X[0, 2] = 0.5 * B[0, 2] + inv * c02
-        X[1, 0] = 0.5 * B[1, 0] + inv * c10
-        X[1, 1] = 0.5 * B[1, 1] + inv * c11
-        X[1, 2] = 0.5 * B[1, 2] + inv * c12
-        X[2, 0] = 0.5 * B[2, 0] + inv * c20
-        X[2, 1] = 0.5 * B[2, 1] + inv * c21
-        X[2, 2] = 0.5 * B[2, 2] + inv * c22
-        diff = 0.0
-        for i in range(3):
-            for j in range(3):
-                d = X[i, j] - B[i, j]
-                diff += d * d
-                B[i, j] = X[i, j]
-        if diff < 1e-30:
-            return True
-    return False
-
-
-
 @njit(cache=True, inline="always")
 def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
     return (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20)
