@@ -407,6 +407,11 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
     M = np.empty((4, 4))
     dummy = np.empty((3, 3, 3))
     one_n = 1 if nvec.shape[0] == 1 else 0
+    if want_res:
+        # spectral norms of real input first, in a pass of independent samples
+        for k in range(N):
+            if cnorm[k] < 0.0:
+                cnorm[k] = _spectral_norm33(C[k])
     for k in range(N):
         st = _closed_form_core(method, C[k], Wso, Wse, gain, nvec[k if one_n == 0 else 0],
                                rank_tol, ambig_tol, R, t, C0, U, s, V, B, q, M)
@@ -439,8 +444,6 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
             continue
         dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dummy, dummy, dummy, dummy, False)
         nrm = cnorm[k]
-        if nrm < 0.0:
-            nrm = _spectral_norm33(C[k])
         ss = 0.0
         for i in range(3):
             for j in range(3):
