@@ -44,6 +44,7 @@ from ._linalg import (
     rotvec_from_quat,
     svd3,
     sym3_eigvals,
+    sym3_lambda_max,
     wahba_quat,
 )
 from ._result import SolveResult, Status
@@ -86,31 +87,12 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
 
 
 @njit(cache=True, inline="always")
-def _lambda_max_sym3(a00, a01, a02, a11, a12, a22):
-    """Largest eigenvalue of a symmetric 3x3 matrix (trigonometric closed form)."""
-    p1 = a01 * a01 + a02 * a02 + a12 * a12
-    q = (a00 + a11 + a22) / 3.0
-    b0 = a00 - q
-    b1 = a11 - q
-    b2 = a22 - q
-    p2 = b0 * b0 + b1 * b1 + b2 * b2 + 2.0 * p1
-    if p2 <= 0.0:
-        return q
-    p = np.sqrt(p2 / 6.0)
-    # det((A - q I) / p) / 2
-    r = 0.5 * (b0 * (b1 * b2 - a12 * a12) - a01 * (a01 * b2 - a12 * a02)
-               + a02 * (a01 * a12 - b1 * a02)) / (p * p * p)
-    r = min(max(r, -1.0), 1.0)
-    return q + 2.0 * p * np.cos(np.arccos(r) / 3.0)
-
-
-@njit(cache=True, inline="always")
 def _spectral_norm33(C):
     """Spectral norm of a real 3x3 matrix: square root of the top eigenvalue of ``C^T C``."""
     c00, c01, c02 = C[0, 0], C[0, 1], C[0, 2]
     c10, c11, c12 = C[1, 0], C[1, 1], C[1, 2]
     c20, c21, c22 = C[2, 0], C[2, 1], C[2, 2]
-    lam = _lambda_max_sym3(c00 * c00 + c10 * c10 + c20 * c20,
+    lam = sym3_lambda_max(c00 * c00 + c10 * c10 + c20 * c20,
                            c00 * c01 + c10 * c11 + c20 * c21,
                            c00 * c02 + c10 * c12 + c20 * c22,
                            c01 * c01 + c11 * c11 + c21 * c21,
@@ -134,7 +116,7 @@ def spectral_norm(C, G):
     if n_se == 1:
         return np.sqrt(G[0, 0])
     if n_se == 3:
-        return np.sqrt(max(_lambda_max_sym3(G[0, 0], G[0, 1], G[0, 2], G[1, 1], G[1, 2],
+        return np.sqrt(max(sym3_lambda_max(G[0, 0], G[0, 1], G[0, 2], G[1, 1], G[1, 2],
                                             G[2, 2]), 0.0))
     # power iteration on the Gram matrix (other sizes; not on the hot path of 3x3 trackers)
     v = np.ones(n_se) / np.sqrt(n_se)

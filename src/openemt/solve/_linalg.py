@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["cholesky_solve", "euler_zyx_matrix", "exp_so3", "quat_matrix", "rotvec_from_matrix",
-           "rotvec_from_quat", "svd3", "wahba_quat"]
+           "rotvec_from_quat", "svd3", "sym3_eigvals", "sym3_lambda_max", "wahba_quat"]
 
 
 @njit(cache=True)
@@ -190,27 +190,38 @@ def euler_zyx_matrix(psi, theta, phi, R):
 
 
 @njit(cache=True, inline="always")
-def sym3_eigvals(A, lam):
-    """Eigenvalues of a symmetric 3x3 matrix, decreasing, into ``lam`` (trigonometric form)."""
-    p1 = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
-    q = (A[0, 0] + A[1, 1] + A[2, 2]) / 3.0
-    a0 = A[0, 0] - q
-    a1 = A[1, 1] - q
-    a2 = A[2, 2] - q
-    p2 = a0 * a0 + a1 * a1 + a2 * a2 + 2.0 * p1
+def _sym3_trig(a00, a01, a02, a11, a12, a22):
+    """``(q, p, c)`` of the trigonometric eigenvalue formula of a symmetric 3x3 matrix: the
+    eigenvalues are ``q + 2 p cos(phi + 2 pi k / 3)`` with ``c = cos(phi)``, phi in [0, pi/3];
+    ``p = 0`` when all three are equal (``q``)."""
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    b0 = a00 - q
+    b1 = a11 - q
+    b2 = a22 - q
+    p2 = b0 * b0 + b1 * b1 + b2 * b2 + 2.0 * p1
     if p2 <= 0.0:
-        lam[0] = q
-        lam[1] = q
-        lam[2] = q
-        return
+        return q, 0.0, 1.0
     p = np.sqrt(p2 / 6.0)
     # r = det((A - q I) / p) / 2
-    b01, b02, b12 = A[0, 1], A[0, 2], A[1, 2]
-    r = 0.5 * (a0 * (a1 * a2 - b12 * b12) - b01 * (b01 * a2 - b12 * b02)
-               + b02 * (b01 * b12 - a1 * b02)) / (p * p * p)
+    r = 0.5 * (b0 * (b1 * b2 - a12 * a12) - a01 * (a01 * b2 - a12 * a02)
+               + a02 * (a01 * a12 - b1 * a02)) / (p * p * p)
     r = min(max(r, -1.0), 1.0)
-    # phi = acos(r) / 3 in [0, pi/3]; cos(phi + 2 pi / 3) = -(cos phi + sqrt(3) sin phi) / 2
-    c = np.cos(np.arccos(r) / 3.0)
+    return q, p, np.cos(np.arccos(r) / 3.0)
+
+
+@njit(cache=True, inline="always")
+def sym3_lambda_max(a00, a01, a02, a11, a12, a22):
+    """Largest eigenvalue of the symmetric 3x3 matrix with these upper-triangle entries."""
+    q, p, c = _sym3_trig(a00, a01, a02, a11, a12, a22)
+    return q + 2.0 * p * c
+
+
+@njit(cache=True, inline="always")
+def sym3_eigvals(A, lam):
+    """Eigenvalues of a symmetric 3x3 matrix, decreasing, into ``lam`` (trigonometric form)."""
+    q, p, c = _sym3_trig(A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2])
+    # cos(phi + 2 pi / 3) = -(cos phi + sqrt(3) sin phi) / 2
     sn = np.sqrt(max(1.0 - c * c, 0.0))
     lam[0] = q + 2.0 * p * c
     lam[2] = q - p * (c + 1.7320508075688772 * sn)
