@@ -39,6 +39,7 @@ from ..field._dipole_kernel import dipole_eval
 from ._hemisphere import hemisphere_vectors
 from ._linalg import (
     dominant_eigvec,
+    euler_zyx_matrix,
     quat_matrix,
     rotvec_from_matrix,
     rotvec_from_quat,
@@ -324,15 +325,7 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
         else:
             cph = 1.0
             sph = 0.0
-        R[0, 0] = cps * cth
-        R[0, 1] = cps * sth * sph - sps * cph
-        R[0, 2] = cps * sth * cph + sps * sph
-        R[1, 0] = sps * cth
-        R[1, 1] = sps * sth * sph + cps * cph
-        R[1, 2] = sps * sth * cph - cps * sph
-        R[2, 0] = -sth
-        R[2, 1] = cth * sph
-        R[2, 2] = cth * cph
+        euler_zyx_matrix(cps, sps, cth, sth, cph, sph, R)
     elif fast == 0:
         # Kim18 (ilemt-format.md §10.2): Y = C0^T = V S U^T, R = V_Y diag(1,-1,-1) U_Y^T
         # = U diag(1,-1,-1) V^T. The seed-004 Wahba step min ||k R - H^-1 C0|| gives the same

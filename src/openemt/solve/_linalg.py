@@ -173,11 +173,9 @@ def cholesky_solve(A, b, n, x, L):
 
 
 @njit(cache=True, inline="always")
-def euler_zyx_matrix(psi, theta, phi, R):
-    """``R = Rz(psi) Ry(theta) Rx(phi)`` written into ``R`` (3, 3)."""
-    cps, sps = np.cos(psi), np.sin(psi)
-    cth, sth = np.cos(theta), np.sin(theta)
-    cph, sph = np.cos(phi), np.sin(phi)
+def euler_zyx_matrix(cps, sps, cth, sth, cph, sph, R):
+    """``R = Rz(psi) Ry(theta) Rx(phi)`` from the cosines and sines of the three angles,
+    written into ``R`` (3, 3)."""
     R[0, 0] = cps * cth
     R[0, 1] = cps * sth * sph - sps * cph
     R[0, 2] = cps * sth * cph + sps * sph
