@@ -43,6 +43,8 @@ from ._linalg import (
     quat_matrix,
     rotvec_from_matrix,
     rotvec_from_quat,
+    store_nan_pose,
+    store_pose,
     svd3,
     sym3_eigvals,
     sym3_lambda_max,
@@ -393,27 +395,14 @@ def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain,
         if st == 2:
             status[k] = 2
             residual[k] = np.nan
-            for i in range(4):
-                for j in range(4):
-                    poses[k, i, j] = np.nan
-            for i in range(6):
-                vecs[k, i] = np.nan
+            store_nan_pose(k, poses, vecs)
             continue
         status[k] = st
-        for i in range(3):
-            for j in range(3):
-                poses[k, i, j] = R[i, j]
-            poses[k, i, 3] = t[i]
-            poses[k, 3, i] = 0.0
-            vecs[k, i] = t[i]
-        poses[k, 3, 3] = 1.0
         if q[0] >= 0.0:
             rotvec_from_quat(q, rv)
         else:
             rotvec_from_matrix(R, rv)
-        vecs[k, 3] = rv[0]
-        vecs[k, 4] = rv[1]
-        vecs[k, 5] = rv[2]
+        store_pose(k, R, t, rv, poses, vecs)
         if not want_res:
             residual[k] = np.nan
             continue

@@ -9,8 +9,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["cholesky_solve", "euler_zyx_matrix", "exp_so3", "quat_matrix", "rotvec_from_matrix",
-           "rotvec_from_quat", "svd3", "sym3_eigvals", "sym3_lambda_max", "wahba_quat"]
+__all__ = [
+    "cholesky_solve",
+    "euler_zyx_matrix",
+    "exp_so3",
+    "quat_matrix",
+    "rotvec_from_matrix",
+    "rotvec_from_quat",
+    "store_nan_pose",
+    "store_pose",
+    "svd3",
+    "sym3_eigvals",
+    "sym3_lambda_max",
+    "wahba_quat",
+]
 
 
 @njit(cache=True)
@@ -130,16 +142,7 @@ def rotvec_from_matrix(R, out):
         y = (R[1, 2] + R[2, 1]) * f
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z
-    nv = np.sqrt(x * x + y * y + z * z)
-    if nv < 1e-300:
-        out[0] = 0.0
-        out[1] = 0.0
-        out[2] = 0.0
-        return
-    ang = 2.0 * np.arctan2(nv, w)
-    out[0] = ang * x / nv
-    out[1] = ang * y / nv
-    out[2] = ang * z / nv
+    _rotvec_from_wxyz(w, x, y, z, out)
 
 
 @njit(cache=True, inline="always")
@@ -340,17 +343,46 @@ def quat_matrix(q, R):
 
 
 @njit(cache=True, inline="always")
-def rotvec_from_quat(q, out):
-    """Rotation vector (angle in [0, pi]) of a unit quaternion with ``w >= 0``."""
-    x, y, z = q[1], q[2], q[3]
+def _rotvec_from_wxyz(w, x, y, z, out):
+    """Rotation vector (angle in [0, pi]) of the unit quaternion (w, x, y, z), ``w >= 0``."""
     nv = np.sqrt(x * x + y * y + z * z)
     if nv < 1e-300:
         out[0] = 0.0
         out[1] = 0.0
         out[2] = 0.0
         return
-    f = 2.0 * np.arctan2(nv, q[0]) / nv
+    f = 2.0 * np.arctan2(nv, w) / nv
     out[0] = f * x
     out[1] = f * y
     out[2] = f * z
 
+
+@njit(cache=True, inline="always")
+def rotvec_from_quat(q, out):
+    """Rotation vector (angle in [0, pi]) of a unit quaternion with ``w >= 0``."""
+    _rotvec_from_wxyz(q[0], q[1], q[2], q[3], out)
+
+
+
+@njit(cache=True, inline="always")
+def store_pose(k, R, t, rv, poses, vecs):
+    """Write sample ``k`` of the batch outputs: pose ``[[R, t], [0, 1]]`` into ``poses (N, 4, 4)``
+    and ``[t, rv]`` into ``vecs (N, 6)``."""
+    for i in range(3):
+        for j in range(3):
+            poses[k, i, j] = R[i, j]
+        poses[k, i, 3] = t[i]
+        poses[k, 3, i] = 0.0
+        vecs[k, i] = t[i]
+        vecs[k, 3 + i] = rv[i]
+    poses[k, 3, 3] = 1.0
+
+
+@njit(cache=True, inline="always")
+def store_nan_pose(k, poses, vecs):
+    """Sample ``k`` of the batch outputs set to NaN (no pose, never a plausible one)."""
+    for i in range(4):
+        for j in range(4):
+            poses[k, i, j] = np.nan
+    for i in range(6):
+        vecs[k, i] = np.nan

@@ -25,7 +25,7 @@ from numba import njit
 
 from ..field._dipole_kernel import dipole_eval
 from ._closed_form import closed_form_one, spectral_norm
-from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix
+from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix, store_nan_pose, store_pose
 
 __all__ = ["lm_batch", "lm_track"]
 
@@ -336,17 +336,8 @@ def _finish(k, Cm, cn, res, it, code, Rb, tb, n, lo, hi, five, L_se, M_se, thr, 
             poses, vecs, status, residual, iterations, rv):
     if five:
         _canonical_5dof(Rb, tb, L_se, M_se)
-    for i in range(3):
-        for j in range(3):
-            poses[k, i, j] = Rb[i, j]
-        poses[k, i, 3] = tb[i]
-        poses[k, 3, i] = 0.0
-        vecs[k, i] = tb[i]
-    poses[k, 3, 3] = 1.0
     rotvec_from_matrix(Rb, rv)
-    vecs[k, 3] = rv[0]
-    vecs[k, 4] = rv[1]
-    vecs[k, 5] = rv[2]
+    store_pose(k, Rb, tb, rv, poses, vecs)
     residual[k] = res
     iterations[k] = it
     on_box = False
@@ -381,11 +372,7 @@ def _bad_input(Cm, cn):
 
 @njit(cache=True)
 def _mark_invalid(k, poses, vecs, status, residual, iterations):
-    for i in range(4):
-        for j in range(4):
-            poses[k, i, j] = np.nan
-    for i in range(6):
-        vecs[k, i] = np.nan
+    store_nan_pose(k, poses, vecs)
     status[k] = 2
     residual[k] = np.nan
     iterations[k] = 0
