@@ -5,27 +5,15 @@ import argparse
 import dataclasses
 import json
 import re
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
+from chromium_render import render
 
 from openemt.cli._report import register
 from openemt.io import read_calibration, read_dataset, write_calibration, write_dataset
 from openemt.paper import characterization_report
 from openemt.simulate import get_preset, simulate, truth_calibration
-
-# the recipe of tests/test_report.py
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-_PROBE = """<script>
-window.addEventListener('load', function () {
-  var imgs = Array.from(document.images);
-  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
-  document.body.setAttribute('data-images', imgs.length + '/' + ok);
-});
-</script>"""
 
 
 def _parser():
@@ -37,23 +25,6 @@ def _parser():
 def _run(argv):
     args = _parser().parse_args(argv)
     return args.func(args)
-
-
-def _render(path, tmp_path):
-    """Load the page in headless Chromium; returns (n images, n decoded, DOM text)."""
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    if chromium is None:
-        pytest.fail("headless Chromium is required for this test (Debian package `chromium`; "
-                    ".ci/run installs it)")
-    probe = tmp_path / "probe.html"
-    probe.write_text(path.read_text().replace("</body>", _PROBE + "</body>"))
-    out = subprocess.run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
-                          "--virtual-time-budget=10000", "--dump-dom", probe.as_uri()],
-                         capture_output=True, text=True, timeout=120, check=False)
-    assert out.returncode == 0, out.stderr[-2000:]
-    m = re.search(r'data-images="(\d+)/(\d+)"', out.stdout)
-    assert m is not None, "the page did not finish loading in Chromium"
-    return int(m.group(1)), int(m.group(2)), out.stdout
 
 
 def _self_contained(text):
@@ -102,7 +73,7 @@ def test_report_of_a_calibration_on_a_dataset_renders(sim_files, tmp_path, capsy
     _self_contained(text)
     assert text.count("data:image/png;base64,") == 3
     assert "Calibration parameters and standard errors" in text and "u(P)" in text
-    n, ok, dom = _render(out, tmp_path)
+    n, ok, dom = render(out, tmp_path)
     assert (n, ok) == (3, 3), f"images total/decoded = {n}/{ok}"
     assert "Axis sweeps" in dom
 
@@ -157,7 +128,7 @@ def test_report_of_an_ilemt_folder_renders(ilemt_dir, tmp_path, capsys):
     _self_contained(text)
     for heading in ("Table II", "Table III", "Table IV", "parameters and standard errors"):
         assert heading in text
-    n, ok, dom = _render(out, tmp_path)
+    n, ok, dom = render(out, tmp_path)
     assert (n, ok) == (3, 3), f"images total/decoded = {n}/{ok}"
     assert "cal_9_15_premo_cmu" in dom
 
