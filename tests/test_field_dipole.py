@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from openemt.field import ILEMT_GAIN, DipoleModel, coupling, coupling_jacobian_pose, coupling_jacobians
+from openemt.field import (
+    ILEMT_GAIN,
+    DipoleModel,
+    coupling,
+    coupling_jacobian_pose,
+    coupling_jacobians,
+)
 from openemt.geometry import ground_truth_poses, pose_from_vector
 
 

@@ -1,14 +1,19 @@
 """Reading and writing every box of the pipeline: datasets, calibrations, importers."""
 
 from ._atomic import atomic_path
-from ._calibration import Calibration
-from ._dataset import Dataset, signed_real
-from ._ilemt import (compensate_stage, file_sha256, import_ilemt_folder, parse_sign_options,
-                     read_ilemt_dat)
-from ._ilemt_mat import read_ilemt_calibration
 from ._calfile import read_calibration, write_calibration
-from ._hdf5 import CouplingReader, open_dataset_couplings, read_dataset, write_dataset
+from ._calibration import Calibration
 from ._csv import export_csv, import_csv
+from ._dataset import Dataset, signed_real
+from ._hdf5 import CouplingReader, open_dataset_couplings, read_dataset, write_dataset
+from ._ilemt import (
+                     compensate_stage,
+                     file_sha256,
+                     import_ilemt_folder,
+                     parse_sign_options,
+                     read_ilemt_dat,
+)
+from ._ilemt_mat import read_ilemt_calibration
 from ._ndi import NdiRecording, NdiTool, read_ndi_tsv
 from ._poses_csv import PoseTable, StaticAverage, average_static, read_poses_csv, write_poses_csv
 

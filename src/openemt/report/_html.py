@@ -10,6 +10,7 @@ import base64
 import datetime as _dt
 import html
 import io
+import math
 from dataclasses import dataclass, field
 
 from .. import __version__
@@ -46,7 +47,7 @@ def figure_png(fig, dpi: int = 110) -> bytes:
 
 def _fmt(v, digits: int) -> str:
     if isinstance(v, float):
-        if v != v:  # NaN
+        if math.isnan(v):
             return "–"
         return f"{v:.{digits}g}" if abs(v) >= 1e4 or (v != 0 and abs(v) < 1e-3) else f"{v:.{digits}f}"
     return html.escape(str(v))
