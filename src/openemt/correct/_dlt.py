@@ -13,26 +13,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..geometry import check_points
+
 __all__ = [
     "DltFit",
     "apply_linear_correction",
-    "check_points",
     "fit_dlt",
     "linear_correction_rms",
 ]
 
 #: Bounds on every entry of L during the refinement (ilemt-format.md §11, step 3).
 REFINE_BOUND = 10.0
-
-
-def check_points(xyz, name: str = "xyz") -> np.ndarray:
-    """Validate points and return them as float64, shape ``(..., 3)``."""
-    arr = np.asarray(xyz)
-    if arr.dtype.kind not in "iuf":
-        raise TypeError(f"expected `{name}` to be real numbers, got dtype {arr.dtype}")
-    if arr.ndim < 1 or arr.shape[-1] != 3:
-        raise ValueError(f"expected `{name}` to have shape (..., 3), got {arr.shape}")
-    return arr.astype(np.float64, copy=False)
 
 
 def _check_matrix(L) -> np.ndarray:

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from ..evaluate import error_summary, pose_error_magnitudes
-from ..geometry import check_poses, pose_from_rt
+from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
 from ._crossval import held_out_predictions, kfold_splits, location_kfold, position_errors
-from ._dlt import DltFit, check_points, fit_dlt
+from ._dlt import DltFit, fit_dlt
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._poly import PolynomialCorrection, fit_polynomial
 

@@ -13,6 +13,7 @@ from ._fixtures import (
 )
 from ._pose import (
     adjoint,
+    check_points,
     check_pose_vectors,
     check_poses,
     compose,
@@ -34,6 +35,7 @@ __all__ = [
     "SENSOR_FIXTURES",
     "SOURCE_FIXTURES",
     "adjoint",
+    "check_points",
     "check_pose_vectors",
     "check_poses",
     "compose",

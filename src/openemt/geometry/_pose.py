@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 __all__ = [
     "adjoint",
+    "check_points",
     "check_pose_vectors",
     "check_poses",
     "compose",
@@ -29,14 +30,23 @@ __all__ = [
 ]
 
 
-def check_pose_vectors(v, name: str = "pose_vectors") -> np.ndarray:
-    """Validate pose vectors and return them as float64, shape ``(..., 6)``."""
+def _check_last_axis(v, n: int, name: str) -> np.ndarray:
     arr = np.asarray(v)
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `{name}` to be real numbers, got dtype {arr.dtype}")
-    if arr.ndim < 1 or arr.shape[-1] != 6:
-        raise ValueError(f"expected `{name}` to have shape (..., 6), got {arr.shape}")
+    if arr.ndim < 1 or arr.shape[-1] != n:
+        raise ValueError(f"expected `{name}` to have shape (..., {n}), got {arr.shape}")
     return arr.astype(np.float64, copy=False)
+
+
+def check_pose_vectors(v, name: str = "pose_vectors") -> np.ndarray:
+    """Validate pose vectors and return them as float64, shape ``(..., 6)``."""
+    return _check_last_axis(v, 6, name)
+
+
+def check_points(xyz, name: str = "xyz") -> np.ndarray:
+    """Validate points and return them as float64, shape ``(..., 3)``."""
+    return _check_last_axis(xyz, 3, name)
 
 
 def check_poses(P, name: str = "poses") -> np.ndarray:
