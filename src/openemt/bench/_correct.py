@@ -16,6 +16,8 @@ import time
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["add_arguments", "distorted_poses", "run"]
 
 METHODS = ("dlt", "poly", "grid", "rbf")
@@ -58,7 +60,7 @@ def run(args) -> dict:
 
     n = int(args.samples)
     if n < 50:
-        raise ValueError(f"expected --samples >= 50, got {n}")
+        raise InputError(f"expected --samples >= 50, got {n}")
     rng = np.random.default_rng(args.seed)
     meas, ref = distorted_poses(n, rng)
     methods, seconds = {}, {}

@@ -30,6 +30,8 @@ import time
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["add_arguments", "run"]
 
 
@@ -91,7 +93,7 @@ def run(args) -> dict:
     # --- throughput: realistic signal (noise, mains) through the streaming demodulator
     seconds = float(args.seconds)
     if not seconds > 0:
-        raise ValueError(f"expected positive --seconds, got {seconds}")
+        raise InputError(f"expected positive --seconds, got {seconds}")
     raw = simulate_raw(model, default_trajectory, seconds,
                        RawSignalConfig(mains_amplitudes=(0.01, 0.003)), seed=args.seed,
                        coupling_stride=16)

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["SEED004_TABLE4", "add_arguments", "random_table2_poses", "run"]
 
 SNR_DB = (20, 40, 60, 80, 100)
@@ -126,7 +128,7 @@ def run(args) -> dict:
 
     n = int(args.samples)
     if n < 10:
-        raise ValueError(f"expected --samples >= 10, got {n}")
+        raise InputError(f"expected --samples >= 10, got {n}")
     rng = np.random.default_rng(args.seed)
     model = DipoleModel.concentric()
     P, truth = random_table2_poses(rng, n)
@@ -137,7 +139,7 @@ def run(args) -> dict:
     elif per == "sample":
         signal_rms = np.sqrt(np.mean(C0 ** 2, axis=(1, 2)))[:, None, None]
     else:
-        raise ValueError(f"expected --snr-per 'signal' or 'sample', got {per!r}")
+        raise InputError(f"expected --snr-per 'signal' or 'sample', got {per!r}")
 
     noiseless = {name: _stats(r.poses, P, truth) for name, r in _solve_all(C0, model).items()}
     solvers: dict[str, dict] = {s: {"position_rms_mm": [], "rotation_rms_deg": [],

@@ -27,6 +27,8 @@ import time
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["add_arguments", "run", "trajectory"]
 
 
@@ -74,7 +76,7 @@ def run(args) -> dict:
     n = int(args.samples)
     nb = int(args.baseline_samples)
     if n < 10 or nb < 1:
-        raise ValueError(f"expected --samples >= 10 and --baseline-samples >= 1, got {n}, {nb}")
+        raise InputError(f"expected --samples >= 10 and --baseline-samples >= 1, got {n}, {nb}")
     threads_before = numba.get_num_threads()
     numba.set_num_threads(1)
     try:

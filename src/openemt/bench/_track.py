@@ -37,6 +37,8 @@ import time
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["add_arguments", "run"]
 
 
@@ -107,7 +109,7 @@ def run(args) -> dict:
     model = get_preset(args.preset).dipole
     seconds = float(args.seconds)
     if not seconds > 0 or not args.noise_seconds > 0:
-        raise ValueError(f"expected positive --seconds and --noise-seconds, got {seconds} and "
+        raise InputError(f"expected positive --seconds and --noise-seconds, got {seconds} and "
                          f"{args.noise_seconds}")
 
     # compile / load every numba kernel the pipeline uses before anything is timed

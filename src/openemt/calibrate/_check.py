@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._errors import InputError
 from ..evaluate import error_summary, pose_error_magnitudes
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES, ground_truth_poses
 
@@ -63,11 +64,11 @@ def test_poses(data, cal, *, solver: str = "lm", concentric_model=None,
         res = solve_lm(data.couplings, cal.model, initial="kim18", hemisphere=hemi, bounds=0.4,
                        concentric_model=concentric_model)
     else:
-        raise ValueError(f"expected solver 'lm' or 'kim18', got {solver!r}")
+        raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
     M = np.array(res.poses)
     if apply_correction:
         if cal.linear_correction is None:
-            raise ValueError("expected a calibration with a linear_correction, got none")
+            raise InputError("expected a calibration with a linear_correction, got none")
         M[:, :3, 3] = apply_linear_correction(cal.linear_correction, M[:, :3, 3])
     trans, rot = pose_error_magnitudes(M, D, sensor_fixture=cal.sensor_fixture)
     valid = np.asarray(res.residual) < 1e-5

@@ -9,6 +9,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import __version__
+from .._errors import InputError
 from ..io import Calibration, Dataset
 from ._identifiability import Identifiability, analyse_identifiability
 from ._layout import ParameterLayout
@@ -63,7 +64,7 @@ def _check_inputs(dataset, start):
         raise TypeError(f"expected `start` to be an openemt.io.Calibration, got "
                         f"{type(start).__name__}")
     if (dataset.n_source, dataset.n_sensor) != (start.model.n_source, start.model.n_sensor):
-        raise ValueError(f"expected a dataset with {start.model.n_source} x "
+        raise InputError(f"expected a dataset with {start.model.n_source} x "
                          f"{start.model.n_sensor} coils like the start calibration, got "
                          f"{dataset.n_source} x {dataset.n_sensor}")
 
@@ -73,7 +74,7 @@ def _rows(dataset, mode, select):
         return dataset
     mask = select_rows(dataset, mode)
     if not mask.any():
-        raise ValueError(f"expected rows for mode {mode.name!r} (source fixtures "
+        raise InputError(f"expected rows for mode {mode.name!r} (source fixtures "
                          f"{mode.source_fixtures}, sensor fixtures {mode.sensor_fixtures}, "
                          f"patterns {mode.patterns}), got none")
     return dataset.select(mask)
@@ -141,7 +142,7 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
         opt = tuple(g for g in opt if g not in ("d_so_pos", "d_se_pos"))
     free = layout.free_indices(opt, frz)
     if free.size == 0:
-        raise ValueError(f"expected at least one free parameter, got none (optimize {opt}, "
+        raise InputError(f"expected at least one free parameter, got none (optimize {opt}, "
                          f"freeze {frz})")
     prob = build_problem(data, layout, start.model.gain)
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from .._errors import InputError
 from ..field import OctupoleModel, coupling_jacobians
 from ..geometry import (
     SENSOR_FIXTURES,
@@ -156,7 +157,7 @@ class ImprovedProblem:
                  "stage_linear": len(options.stage_linear)}
         bad = [b for b in options.stage_linear if b not in STAGE_LINEAR_BASIS]
         if bad:
-            raise ValueError(f"expected stage_linear names from {sorted(STAGE_LINEAR_BASIS)}, "
+            raise InputError(f"expected stage_linear names from {sorted(STAGE_LINEAR_BASIS)}, "
                              f"got {bad}")
         self.G_basis = np.array([STAGE_LINEAR_BASIS[b] for b in options.stage_linear]
                                 ).reshape(-1, 3, 3)

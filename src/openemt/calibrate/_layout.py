@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._errors import InputError
 from ..field import DipoleModel
 
 __all__ = ["FIELD_NAMES", "ParameterLayout"]
@@ -64,7 +65,7 @@ class ParameterLayout:
         for name in ("n_source", "n_sensor"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"expected `{name}` to be a positive integer, got {v!r}")
+                raise InputError(f"expected `{name}` to be a positive integer, got {v!r}")
             object.__setattr__(self, name, int(v))
         ns, ne = self.n_source, self.n_sensor
         sizes = {"L_so": 3 * ns, "M_so": 3 * ns, "L_se": 3 * ne, "M_se": 3 * ne,
@@ -127,7 +128,7 @@ class ParameterLayout:
              ) -> np.ndarray:
         """Model and fixture pose vectors -> full vector ``(size,)``."""
         if (model.n_source, model.n_sensor) != (self.n_source, self.n_sensor):
-            raise ValueError(f"expected a model with {self.n_source} source and {self.n_sensor} "
+            raise InputError(f"expected a model with {self.n_source} source and {self.n_sensor} "
                              f"sensor coils, got {model.n_source} and {model.n_sensor}")
         x = np.empty(self.size)
         x[self.slices["L_so"]] = _coil_block(model.L_so)
@@ -174,7 +175,7 @@ class ParameterLayout:
         names = [names] if isinstance(names, str) else list(names)
         bad = [n for n in names if n not in self.groups]
         if bad:
-            raise ValueError(f"expected parameter group names from {sorted(self.groups)}, "
+            raise InputError(f"expected parameter group names from {sorted(self.groups)}, "
                              f"got {bad}")
         if not names:
             return np.zeros(0, dtype=np.int64)
@@ -194,4 +195,4 @@ class ParameterLayout:
                 if name.startswith("F_"):
                     return f"{name}[{k}]"
                 return f"{name}[{k % 3}, {k // 3}]"
-        raise ValueError(f"expected an index below {self.size}, got {i}")
+        raise InputError(f"expected an index below {self.size}, got {i}")

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import SOURCE_FIXTURES
 
 __all__ = [
@@ -112,7 +113,7 @@ def get_mode(mode) -> CalibrationMode:
         return mode
     if isinstance(mode, str) and mode in MODES:
         return MODES[mode]
-    raise ValueError(f"expected a calibration mode from {sorted(MODES)}, got {mode!r}")
+    raise InputError(f"expected a calibration mode from {sorted(MODES)}, got {mode!r}")
 
 
 def select_rows(dataset, mode: CalibrationMode) -> np.ndarray:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._errors import InputError
 from ..field import coupling_jacobians
 from ..geometry import (
     adjoint,
@@ -171,14 +172,14 @@ def build_problem(dataset, layout: ParameterLayout, gain: float) -> CalibrationP
     """
     C = dataset.signed_real()
     if (C.shape[1], C.shape[2]) != (layout.n_source, layout.n_sensor):
-        raise ValueError(f"expected couplings with {layout.n_source} x {layout.n_sensor} coils, "
+        raise InputError(f"expected couplings with {layout.n_source} x {layout.n_sensor} coils, "
                          f"got {C.shape[1]} x {C.shape[2]}")
     n = C.shape[0]
     if n == 0:
-        raise ValueError("expected at least one calibration row, got 0")
+        raise InputError("expected at least one calibration row, got 0")
     norms = _spectral_norms(C)
     if not np.all(np.isfinite(norms)) or np.any(norms <= 0):
-        raise ValueError("expected finite, non-zero coupling matrices, got zero or NaN rows")
+        raise InputError("expected finite, non-zero coupling matrices, got zero or NaN rows")
     so_J = np.zeros((n, 4, 4))
     so_J[:, 3, 3] = 1.0
     codes = np.asarray(dataset.source_fixture)

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ..field import ILEMT_GAIN, anser_field_generator, coil_fields
 
 __all__ = [
@@ -64,17 +65,17 @@ class GridData:
         u = np.asarray(self.axes, dtype=np.float64)
         C = np.asarray(self.couplings, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3:
-            raise ValueError(f"expected `points` of shape (N, 3), got {p.shape}")
+            raise InputError(f"expected `points` of shape (N, 3), got {p.shape}")
         if u.shape != p.shape:
-            raise ValueError(f"expected `axes` of shape {p.shape}, got {u.shape}")
+            raise InputError(f"expected `axes` of shape {p.shape}, got {u.shape}")
         if C.ndim != 2 or C.shape[0] != p.shape[0]:
-            raise ValueError(f"expected `couplings` of shape ({p.shape[0]}, n_coils), "
+            raise InputError(f"expected `couplings` of shape ({p.shape[0]}, n_coils), "
                              f"got {C.shape}")
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u)) and np.all(np.isfinite(C))):
-            raise ValueError("expected finite grid data, got NaN or inf")
+            raise InputError("expected finite grid data, got NaN or inf")
         n = np.linalg.norm(u, axis=1, keepdims=True)
         if np.any(n == 0):
-            raise ValueError("expected non-zero sensor axes, got a zero row")
+            raise InputError("expected non-zero sensor axes, got a zero row")
         object.__setattr__(self, "points", p)
         object.__setattr__(self, "axes", u / n)
         object.__setattr__(self, "couplings", C)
@@ -90,20 +91,20 @@ def read_grid_csv(path) -> GridData:
     with open(path, newline="", encoding="utf-8") as fh:
         rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
     if not rows:
-        raise ValueError(f"{path.name}: expected a header line, got an empty file")
+        raise InputError(f"{path.name}: expected a header line, got an empty file")
     header = [h.strip() for h in rows[0]]
     missing = [c for c in _POS if c not in header]
     if missing:
-        raise ValueError(f"{path.name}: expected columns {list(_POS)}, missing {missing}")
+        raise InputError(f"{path.name}: expected columns {list(_POS)}, missing {missing}")
     coils = [h for h in header if h not in _POS]
     if not coils:
-        raise ValueError(f"{path.name}: expected one column per source coil, got none")
+        raise InputError(f"{path.name}: expected one column per source coil, got none")
     try:
         data = np.array([[float(v) for v in r] for r in rows[1:]], dtype=np.float64)
     except ValueError as exc:
-        raise ValueError(f"{path.name}: expected numbers, got {exc}") from None
+        raise InputError(f"{path.name}: expected numbers, got {exc}") from None
     if data.ndim != 2 or data.shape[1] != len(header):
-        raise ValueError(f"{path.name}: expected {len(header)} values per row")
+        raise InputError(f"{path.name}: expected {len(header)} values per row")
     col = {h: i for i, h in enumerate(header)}
     return GridData(points=data[:, [col["x"], col["y"], col["z"]]],
                     axes=data[:, [col["ux"], col["uy"], col["uz"]]],
@@ -224,7 +225,7 @@ def calibrate_planar(data: GridData, coils=None, *, gain=ILEMT_GAIN, sensor_leng
     coils = tuple(anser_field_generator(gain=1.0) if coils is None else coils)
     n_c = len(coils)
     if data.couplings.shape[1] != n_c:
-        raise ValueError(f"expected {n_c} coil columns, got {data.couplings.shape[1]}")
+        raise InputError(f"expected {n_c} coil columns, got {data.couplings.shape[1]}")
     P, U, C = data.points, data.axes, data.couplings
     n = len(P)
     scale = np.sqrt(np.mean(C ** 2))

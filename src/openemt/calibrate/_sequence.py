@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import ground_truth_poses, vector_from_pose
 from ._fit import CalibrationFit, fit
 from ._modes import get_mode, select_rows
@@ -105,7 +106,7 @@ def _solve_rows(data, cal, solver: str, truth_poses):
         res = solve_lm(data.couplings, cal.model, initial=vector_from_pose(truth_poses),
                        hemisphere=hemi, bounds=0.4)
     else:
-        raise ValueError(f"expected solver 'lm' or 'kim18', got {solver!r}")
+        raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
     return res.poses[:, :3, 3], np.asarray(res.residual, dtype=np.float64)
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ._common import add_common, emit
 
 __all__ = ["load_dataset", "register", "run"]
@@ -112,7 +113,7 @@ def run(args) -> int:
     if start_path is None:
         cand = Path(args.dataset) / "base_calibration.mat"
         if not cand.is_file():
-            raise ValueError("expected --from CAL (no base_calibration.mat in the dataset "
+            raise InputError("expected --from CAL (no base_calibration.mat in the dataset "
                              "folder), got none")
         start_path = cand
     start = read_calibration(start_path)

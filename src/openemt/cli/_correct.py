@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ._common import add_common, emit
 
 __all__ = ["register", "run_apply", "run_fit"]
@@ -66,13 +67,13 @@ def _read_pairs(args):
     for i, path in enumerate(args.pairs):
         t = read_poses_csv(path, length_unit=args.length_unit, angle_unit=args.angle_unit)
         if t.reference is None:
-            raise ValueError(f"expected reference columns ref_x, ref_y, ref_z in {path}, "
+            raise InputError(f"expected reference columns ref_x, ref_y, ref_z in {path}, "
                              f"got none")
         rot &= t.has_orientation and t.reference_has_orientation
         Pm, Pd = t.poses, t.reference
         if args.average_static:
             if t.group is None:
-                raise ValueError(f"expected a pose_id column for --average-static in {path}, "
+                raise InputError(f"expected a pose_id column for --average-static in {path}, "
                                  f"got none")
             am, ad = average_static(Pm, t.group), average_static(Pd, t.group)
             Pm, Pd = am.poses, ad.poses
@@ -98,7 +99,7 @@ def run_fit(args) -> int:
         try:
             opts["shape"] = tuple(int(v) for v in args.grid_shape.split(","))
         except ValueError:
-            raise ValueError(f"expected --grid-shape like 5,5,5, got {args.grid_shape!r}") \
+            raise InputError(f"expected --grid-shape like 5,5,5, got {args.grid_shape!r}") \
                 from None
     positions_only = args.positions_only or not has_rot
     measured = M[:, :3, 3] if positions_only else M

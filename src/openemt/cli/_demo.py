@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ._common import add_common, emit, progress
 
 PRESETS = ("dipole-approx", "concentric")
@@ -71,9 +72,9 @@ def run(args) -> int:
     from ..simulate import get_preset, simulate, truth_calibration
 
     if not np.isfinite(args.snr_db) or args.snr_db <= 0:
-        raise ValueError(f"expected --snr-db > 0, got {args.snr_db}")
+        raise InputError(f"expected --snr-db > 0, got {args.snr_db}")
     if not np.isfinite(args.stage_error_um) or args.stage_error_um < 0:
-        raise ValueError(f"expected --stage-error-um >= 0, got {args.stage_error_um}")
+        raise InputError(f"expected --stage-error-um >= 0, got {args.stage_error_um}")
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}

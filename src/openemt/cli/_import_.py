@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from .._errors import InputError
 from ._common import add_common, emit
 
 __all__ = ["parse_sign_arg", "register", "run"]
@@ -18,7 +19,7 @@ def parse_sign_arg(text: str) -> tuple[str, tuple[float, float, float]]:
     except ValueError:
         values = ()
     if not sep or not regex or len(values) != 3 or any(v not in (-1.0, 1.0) for v in values):
-        raise ValueError(f"expected a sign rule 'REGEX=sx,sy,sz' with signs +1/-1, got {text!r}")
+        raise InputError(f"expected a sign rule 'REGEX=sx,sy,sz' with signs +1/-1, got {text!r}")
     return regex, values
 
 
@@ -53,7 +54,7 @@ def run(args) -> int:
     from ..io import import_ilemt_folder, write_dataset
 
     if args.format != "ilemt":  # pragma: no cover - argparse restricts the choices
-        raise ValueError(f"expected import format 'ilemt', got {args.format!r}")
+        raise InputError(f"expected import format 'ilemt', got {args.format!r}")
     t0 = time.perf_counter()
     so = [parse_sign_arg(s) for s in args.source_signs] if args.source_signs else None
     se = [parse_sign_arg(s) for s in args.sensor_signs] if args.sensor_signs else None

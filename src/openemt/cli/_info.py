@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ._common import add_common, emit
 
 __all__ = ["calibration_info", "dataset_info", "register", "run"]
@@ -87,7 +88,7 @@ def _kind(path: Path) -> str:
             return "dataset"
         if head.lstrip()[:1] == b"{":
             return "calibration"
-    raise ValueError(f"expected a dataset .h5 or a calibration .json/.mat file, got {str(path)!r}")
+    raise InputError(f"expected a dataset .h5 or a calibration .json/.mat file, got {str(path)!r}")
 
 
 def run(args) -> int:

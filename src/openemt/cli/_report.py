@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .._errors import InputError
 from ._common import add_common, emit
 
 __all__ = ["register", "run"]
@@ -57,16 +58,16 @@ def run(args) -> int:
     from ..paper import characterization_report, paper_report
 
     if args.source and args.dataset:
-        raise ValueError(f"expected one input (positional or --dataset), got {args.source!r} "
+        raise InputError(f"expected one input (positional or --dataset), got {args.source!r} "
                          f"and {args.dataset!r}")
     src = args.source or args.dataset
     if src is None:
-        raise ValueError("expected an ILEMT folder or a dataset (--dataset), got none")
+        raise InputError("expected an ILEMT folder or a dataset (--dataset), got none")
     src = Path(src)
     out_path = Path(args.output)
     if src.is_dir():
         if args.dataset or args.calibration or args.concentric:
-            raise ValueError("expected no --dataset/--calibration/--concentric with an ILEMT "
+            raise InputError("expected no --dataset/--calibration/--concentric with an ILEMT "
                              f"folder, got them with {str(src)!r}")
         built = paper_report(src, title=args.title)
     else:
@@ -74,7 +75,7 @@ def run(args) -> int:
             raise FileNotFoundError(f"expected an ILEMT folder or a dataset file, got "
                                     f"{str(src)!r}")
         if not args.calibration:
-            raise ValueError(f"expected --calibration CAL.json to characterise on "
+            raise InputError(f"expected --calibration CAL.json to characterise on "
                              f"{src.name}, got none")
         ds = _read_dataset(src)
         cal = read_calibration(args.calibration)

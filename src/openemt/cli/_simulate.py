@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ._common import add_common, emit
 
 __all__ = ["parse_distortion", "register", "run"]
@@ -61,7 +62,7 @@ def _floats(text: str, name: str) -> np.ndarray:
     try:
         return np.array([float(v) for v in text.split(",")])
     except ValueError:
-        raise ValueError(f"expected {name} as comma-separated numbers, got {text!r}") from None
+        raise InputError(f"expected {name} as comma-separated numbers, got {text!r}") from None
 
 
 def parse_distortion(spec: str) -> dict:
@@ -70,13 +71,13 @@ def parse_distortion(spec: str) -> dict:
     positional = [s for s in parts if "=" not in s]
     keyed = [s for s in parts if "=" in s]
     if len(positional) != 5:
-        raise ValueError(f"expected --distortion 'KIND,X,Y,Z,RADIUS[,key=value]', got {spec!r}")
+        raise InputError(f"expected --distortion 'KIND,X,Y,Z,RADIUS[,key=value]', got {spec!r}")
     nums = _floats(",".join(positional[1:]), "--distortion X,Y,Z,RADIUS")
     out = {"kind": positional[0], "position": tuple(nums[:3]), "radius": float(nums[3])}
     for kv in keyed:
         k, v = (s.strip() for s in kv.split("=", 1))
         if k not in ("conductivity", "mu_r"):
-            raise ValueError(f"expected --distortion keys conductivity or mu_r, got {k!r}")
+            raise InputError(f"expected --distortion keys conductivity or mu_r, got {k!r}")
         out[k] = float(_floats(v, f"--distortion {k}")[0])
     return out
 
@@ -106,7 +107,7 @@ def run(args) -> int:
         _check_folder(path)
     if args.truth_calibration is not None and \
             args.truth_calibration.resolve() == args.output.resolve():
-        raise ValueError(f"expected different paths for -o and --truth-calibration, got "
+        raise InputError(f"expected different paths for -o and --truth-calibration, got "
                          f"{str(args.output)!r} twice")
 
     ds = simulate(args.preset, args.pattern, source_fixtures=_codes(args.source_fixtures),

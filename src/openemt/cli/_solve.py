@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from .._errors import InputError
+
 __all__ = ["register", "run"]
 
 
@@ -59,15 +61,15 @@ def run(args) -> int:
         if args.concentric_calibration is not None:
             options["concentric_model"] = read_calibration(args.concentric_calibration).model
     elif args.bounds is not None or args.concentric_calibration is not None:
-        raise ValueError(f"expected --bounds/--concentric-calibration only with --solver lm, "
+        raise InputError(f"expected --bounds/--concentric-calibration only with --solver lm, "
                          f"got --solver {args.solver}")
     if args.chunk_rows < 1:
-        raise ValueError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
+        raise InputError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset) as reader:
         n = reader.shape[0]
         if (reader.shape[1], reader.shape[2]) != (cal.model.n_source, cal.model.n_sensor):
-            raise ValueError(f"expected couplings of shape (N, {cal.model.n_source}, "
+            raise InputError(f"expected couplings of shape (N, {cal.model.n_source}, "
                              f"{cal.model.n_sensor}) for this calibration, got {reader.shape}")
         meta = {"dataset": str(args.dataset), "calibration": str(args.calibration),
                 "hemisphere": args.hemisphere,

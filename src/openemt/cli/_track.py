@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .._errors import InputError
+
 __all__ = ["register", "run"]
 
 
@@ -101,24 +103,24 @@ def run(args) -> int:
     from ._common import emit
 
     if args.duration is not None and not args.duration > 0:
-        raise ValueError(f"expected a positive --duration, got {args.duration}")
+        raise InputError(f"expected a positive --duration, got {args.duration}")
     if args.source == "replay":
         if args.file is None:
-            raise ValueError("expected a raw HDF5 FILE with --source replay, got none")
+            raise InputError("expected a raw HDF5 FILE with --source replay, got none")
         if args.save_raw is not None:
-            raise ValueError("expected --save-raw only with --source sim, got --source replay")
+            raise InputError("expected --save-raw only with --source sim, got --source replay")
         backend = ReplayBackend(args.file, realtime=not args.fast)
     else:
         if args.file is not None:
-            raise ValueError(f"expected no FILE with --source sim, got {str(args.file)!r}")
+            raise InputError(f"expected no FILE with --source sim, got {str(args.file)!r}")
         if args.save_raw is not None and args.duration is None:
-            raise ValueError("expected --duration with --save-raw, got none")
+            raise InputError("expected --duration with --save-raw, got none")
         from ..signal import ChannelLayout
         from ..simulate import get_preset
 
         preset = get_preset(args.preset)
         if (preset.n_source, preset.n_sensor) != (3, 3):
-            raise ValueError(f"expected a tri-axial source and sensor preset for track, got "
+            raise InputError(f"expected a tri-axial source and sensor preset for track, got "
                              f"{args.preset!r} with {preset.n_source}x{preset.n_sensor} coils")
         kw = {"eddy_strength": args.eddy}
         if args.noise is not None:
@@ -133,7 +135,7 @@ def run(args) -> int:
         source = _Recorder(backend)
     log = TrackLog() if args.log is not None else None
     if args.log is not None and args.log.suffix.lower() not in (".h5", ".hdf5", ".csv"):
-        raise ValueError(f"expected --log ending in .h5, .hdf5 or .csv, got {str(args.log)!r}")
+        raise InputError(f"expected --log ending in .h5, .hdf5 or .csv, got {str(args.log)!r}")
     server = None
     if not args.no_igtl:
         server = IgtlServer(args.igtl_port, host=args.host, device_name=args.device_name)

@@ -21,6 +21,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from .._errors import InputError
+
 __all__ = [
     "apply_rotation_offsets",
     "held_out_predictions",
@@ -59,21 +61,21 @@ def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None, fold_groups=
     if groups is not None:
         g = np.asarray(groups)
         if g.shape != (n,):
-            raise ValueError(f"expected `groups` of shape ({n},), got {g.shape}")
+            raise InputError(f"expected `groups` of shape ({n},), got {g.shape}")
         labels = np.unique(g)
         if len(labels) < 2:
-            raise ValueError(f"expected at least 2 groups to hold out, got {len(labels)}")
+            raise InputError(f"expected at least 2 groups to hold out, got {len(labels)}")
         return [(np.flatnonzero(g != lab), np.flatnonzero(g == lab)) for lab in labels]
     k = int(k)
     if not 2 <= k <= n:
-        raise ValueError(f"expected 2 <= k <= n = {n} folds, got k = {k}")
+        raise InputError(f"expected 2 <= k <= n = {n} folds, got k = {k}")
     if fold_groups is not None:
         fg = np.asarray(fold_groups)
         if fg.shape != (n,):
-            raise ValueError(f"expected `fold_groups` of shape ({n},), got {fg.shape}")
+            raise InputError(f"expected `fold_groups` of shape ({n},), got {fg.shape}")
         labels, inv = np.unique(fg, return_inverse=True)
         if len(labels) < k:
-            raise ValueError(f"expected at least k = {k} fold groups, got {len(labels)}")
+            raise InputError(f"expected at least k = {k} fold groups, got {len(labels)}")
         gperm = np.random.default_rng(seed).permutation(len(labels))
         gfold = np.empty(len(labels), dtype=int)
         for i, chunk in enumerate(np.array_split(gperm, k)):
@@ -103,7 +105,7 @@ def held_out_predictions(fit: Callable, predict: Callable, n: int, splits) -> li
         model = fit(train)
         out.append((test, predict(model, test)))
     if not np.all(seen == 1):
-        raise ValueError("expected the test folds to partition the rows, got overlaps or gaps")
+        raise InputError("expected the test folds to partition the rows, got overlaps or gaps")
     return out
 
 

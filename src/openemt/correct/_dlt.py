@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from .._errors import InputError
 from ..geometry import check_points
 
 __all__ = [
@@ -31,7 +32,7 @@ def _check_matrix(L) -> np.ndarray:
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `L` to be real numbers, got dtype {arr.dtype}")
     if arr.shape != (4, 4):
-        raise ValueError(f"expected `L` to have shape (4, 4), got {arr.shape}")
+        raise InputError(f"expected `L` to have shape (4, 4), got {arr.shape}")
     return arr.astype(np.float64, copy=False)
 
 
@@ -73,7 +74,7 @@ def linear_correction_rms(L, measured_xyz, reference_xyz) -> float:
     m = check_points(measured_xyz, "measured_xyz").reshape(-1, 3)
     d = check_points(reference_xyz, "reference_xyz").reshape(-1, 3)
     if m.shape != d.shape:
-        raise ValueError(f"expected `reference_xyz` of shape {m.shape}, got {d.shape}")
+        raise InputError(f"expected `reference_xyz` of shape {m.shape}, got {d.shape}")
     return _rms(_check_matrix(L), m, d)
 
 
@@ -187,13 +188,13 @@ def fit_dlt(measured_xyz, reference_xyz, *, refine: bool = True) -> DltFit:
     m = check_points(measured_xyz, "measured_xyz")
     d = check_points(reference_xyz, "reference_xyz")
     if m.ndim != 2:
-        raise ValueError(f"expected `measured_xyz` to have shape (N, 3), got {m.shape}")
+        raise InputError(f"expected `measured_xyz` to have shape (N, 3), got {m.shape}")
     if d.shape != m.shape:
-        raise ValueError(f"expected `reference_xyz` of shape {m.shape}, got {d.shape}")
+        raise InputError(f"expected `reference_xyz` of shape {m.shape}, got {d.shape}")
     if len(m) < 5:
-        raise ValueError(f"expected at least 5 point pairs for a DLT fit, got {len(m)}")
+        raise InputError(f"expected at least 5 point pairs for a DLT fit, got {len(m)}")
     if not (np.all(np.isfinite(m)) and np.all(np.isfinite(d))):
-        raise ValueError("expected finite positions, got NaN or inf (drop invalid solves first)")
+        raise InputError("expected finite positions, got NaN or inf (drop invalid solves first)")
 
     cands = {"none": np.eye(4), "pinv": _pinv_candidate(m, d), "dlt": _dlt_candidate(m, d)}
     errs = {name: _rms(L, m, d) for name, L in cands.items()}

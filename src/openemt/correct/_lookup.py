@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from scipy.interpolate import RBFInterpolator
 from scipy.sparse.linalg import spsolve
 
+from .._errors import InputError
 from ._crossval import (
     apply_rotation_offsets,
     location_kfold,
@@ -223,7 +224,7 @@ def fit_grid(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *, 
     Rd = None if Rm is None else np.asarray(reference_R, float)
     shape = _default_shape(len(m)) if shape is None else tuple(int(s) for s in shape)
     if len(shape) != 3 or min(shape) < 2:
-        raise ValueError(f"expected a grid shape of 3 ints >= 2, got {shape}")
+        raise InputError(f"expected a grid shape of 3 ints >= 2, got {shape}")
     lo, hi = m.min(axis=0), m.max(axis=0)
     ext = np.maximum(hi - lo, 1e-9)
     lower, upper = lo - padding * ext, hi + padding * ext
@@ -314,7 +315,7 @@ def fit_rbf(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
     pts = (m - center) / scale
     y = _targets(m, d, Rm, Rd)
     if len(m) < 5:
-        raise ValueError(f"expected at least 5 pairs for an RBF correction, got {len(m)}")
+        raise InputError(f"expected at least 5 pairs for an RBF correction, got {len(m)}")
     selection = {}
     if smoothing is None:
         def fit_one(rows, s):

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ..evaluate import error_summary, pose_error_magnitudes
 from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
@@ -50,14 +51,14 @@ def _split_pairs(measured, reference):
         M = check_poses(measured, "measured")
         D = check_poses(reference, "reference")
         if D.shape != M.shape:
-            raise ValueError(f"expected `reference` of shape {M.shape}, got {D.shape}")
+            raise InputError(f"expected `reference` of shape {M.shape}, got {D.shape}")
         return M[:, :3, 3], M[:, :3, :3], D[:, :3, 3], D[:, :3, :3], True
     m = check_points(measured, "measured")
     d = check_points(reference, "reference")
     if m.ndim != 2:
-        raise ValueError(f"expected `measured` of shape (N, 3) or (N, 4, 4), got {m.shape}")
+        raise InputError(f"expected `measured` of shape (N, 3) or (N, 4, 4), got {m.shape}")
     if d.shape != m.shape:
-        raise ValueError(f"expected `reference` of shape {m.shape}, got {d.shape}")
+        raise InputError(f"expected `reference` of shape {m.shape}, got {d.shape}")
     return m, None, d, None, False
 
 
@@ -107,7 +108,7 @@ class Correction:
 
     def __post_init__(self):
         if self.method not in CORRECTION_METHODS:
-            raise ValueError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
+            raise InputError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
                              f"got {self.method!r}")
 
     @property
@@ -152,7 +153,7 @@ class Correction:
     @classmethod
     def from_dict(cls, d: dict) -> Correction:
         if d.get("format") != _FORMAT:
-            raise ValueError(f"expected a {_FORMAT!r} document, got format {d.get('format')!r}")
+            raise InputError(f"expected a {_FORMAT!r} document, got format {d.get('format')!r}")
         obj = cls(method=str(d["method"]), params=dict(d["params"]),
                   stats=dict(d.get("stats") or {}), meta=dict(d.get("meta") or {}))
         # normalise params through the model so arrays have their numpy types again
@@ -196,7 +197,7 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
         error summaries (mm, deg).
     """
     if method not in CORRECTION_METHODS:
-        raise ValueError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
+        raise InputError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
                          f"got {method!r}")
     m, Rm, d, Rd, _ = _split_pairs(measured, reference)
     ok = np.all(np.isfinite(m), axis=1) & np.all(np.isfinite(d), axis=1)
@@ -263,7 +264,7 @@ def read_correction(path) -> Correction:
     try:
         d = json.loads(Path(path).read_text())
     except json.JSONDecodeError as exc:
-        raise ValueError(f"expected a JSON correction file, got invalid JSON in {path}: "
+        raise InputError(f"expected a JSON correction file, got invalid JSON in {path}: "
                          f"{exc.msg}") from None
     if not isinstance(d, dict):
         raise TypeError(f"expected a JSON object in {path}, got {type(d).__name__}")

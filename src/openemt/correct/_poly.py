@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._errors import InputError
 from ._crossval import (
     apply_rotation_offsets,
     location_kfold,
@@ -54,7 +55,7 @@ def monomial_exponents(order: int, max_power=None) -> np.ndarray:
     """
     order = int(order)
     if order < 0:
-        raise ValueError(f"expected a polynomial order >= 0, got {order}")
+        raise InputError(f"expected a polynomial order >= 0, got {order}")
     out = [(p, q, deg - p - q) for deg in range(order + 1)
            for p in range(deg, -1, -1) for q in range(deg - p, -1, -1)]
     e = np.array(out, dtype=np.int64).reshape(-1, 3)
@@ -186,7 +187,7 @@ def _select_order(u, target, orders, splits, score, max_power) -> tuple[int, dic
                           "in_sample_rms": float(np.sqrt(np.mean(ins ** 2))),
                           "n_terms": int(n_terms)}
     if not scores:
-        raise ValueError(f"expected enough pairs for a polynomial of order {min(orders)}, "
+        raise InputError(f"expected enough pairs for a polynomial of order {min(orders)}, "
                          f"got {n}")
     best = min(scores, key=lambda r: scores[r]["held_out_rms"])
     return best, scores
@@ -229,14 +230,14 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
     n = len(m)
     if isinstance(max_power, str):
         if max_power != "auto":
-            raise ValueError(f"expected max_power 'auto', None or 3 ints, got {max_power!r}")
+            raise InputError(f"expected max_power 'auto', None or 3 ints, got {max_power!r}")
         levels = axis_levels(u)
         max_power = (None if all(c is None for c in levels)
                      else tuple(None if c is None else c - 1 for c in levels))
     elif max_power is not None:
         max_power = tuple(None if c is None else int(c) for c in max_power)
         if len(max_power) != 3:
-            raise ValueError(f"expected max_power of 3 entries, got {len(max_power)}")
+            raise InputError(f"expected max_power of 3 entries, got {len(max_power)}")
     splits = (location_kfold(m, k, seed=seed) if (order is None or rot_order is None)
               else None)
     selection = {}
@@ -248,7 +249,7 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
             max_power)
     n_terms = len(monomial_exponents(order, max_power))
     if n_terms > n:
-        raise ValueError(f"expected at least {n_terms} pairs for order {order}, got {n}")
+        raise InputError(f"expected at least {n_terms} pairs for order {order}, got {n}")
     pos_coef = _lstsq(monomials(u, order, max_power), off)
 
     rot_coef = None

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import check_poses
 from ._errors import (
     STAGE_UNCERTAINTY_M,
@@ -103,7 +104,7 @@ def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
     M = check_poses(P_measured, "P_measured")
     D = check_poses(P_reference, "P_reference")
     if M.ndim != 3 or D.shape != M.shape:
-        raise ValueError(f"expected P_measured and P_reference of one shape (N, 4, 4), got "
+        raise InputError(f"expected P_measured and P_reference of one shape (N, 4, 4), got "
                          f"{M.shape} and {D.shape}")
     trans, rot = pose_error_magnitudes(M, D, sensor_fixture)  # NaN for failed rows
     kw = {"stage_uncertainty_m": stage_uncertainty_m,
@@ -114,7 +115,7 @@ def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
     if groups is not None:
         g = np.asarray(groups).astype(str)
         if g.shape != (len(M),):
-            raise ValueError(f"expected `groups` of shape ({len(M)},), got {g.shape}")
+            raise InputError(f"expected `groups` of shape ({len(M)},), got {g.shape}")
         _, first = np.unique(g, return_index=True)
         for lab in g[np.sort(first)]:
             sel = g == lab

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
+from .._errors import InputError
 from ..geometry import check_poses
 from ._errors import pose_error_vectors
 
@@ -124,11 +125,11 @@ def find_sweeps(stage, labels=None, *, tol_m: float = SWEEP_TOL_M,
     """
     S = np.asarray(stage, dtype=np.float64)
     if S.ndim != 2 or S.shape[1] != 6:
-        raise ValueError(f"expected `stage` of shape (N, 6), got {S.shape}")
+        raise InputError(f"expected `stage` of shape (N, 6), got {S.shape}")
     lab = np.zeros(len(S), dtype=int).astype(str) if labels is None else \
         np.asarray(labels).astype(str)
     if lab.shape != (len(S),):
-        raise ValueError(f"expected `labels` of shape ({len(S)},), got {lab.shape}")
+        raise InputError(f"expected `labels` of shape ({len(S)},), got {lab.shape}")
     tol = np.array([tol_m] * 3 + [tol_rad] * 3)
     near0 = np.abs(S) <= tol
     out = []
@@ -182,13 +183,13 @@ def sweep_linearity(P_measured, P_reference, stage, *, labels=None, sensor_fixtu
     M = check_poses(P_measured, "P_measured")
     D = check_poses(P_reference, "P_reference")
     if M.ndim != 3 or D.shape != M.shape:
-        raise ValueError(f"expected P_measured and P_reference of one shape (N, 4, 4), got "
+        raise InputError(f"expected P_measured and P_reference of one shape (N, 4, 4), got "
                          f"{M.shape} and {D.shape}")
     S = np.asarray(stage, dtype=np.float64)
     if S.shape != (len(M), 6):
-        raise ValueError(f"expected `stage` of shape ({len(M)}, 6), got {S.shape}")
+        raise InputError(f"expected `stage` of shape ({len(M)}, 6), got {S.shape}")
     if window % 2 == 0 or window <= polyorder:
-        raise ValueError(f"expected an odd window > polyorder, got window={window}")
+        raise InputError(f"expected an odd window > polyorder, got window={window}")
     ok = np.all(np.isfinite(M), axis=(1, 2))
     err = np.full((len(M), 6), np.nan)
     if ok.any():

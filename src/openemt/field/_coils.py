@@ -25,6 +25,8 @@ import numpy as np
 from scipy.constants import mu_0
 from scipy.spatial.transform import Rotation
 
+from .._errors import InputError
+
 __all__ = [
     "ANSER_COIL_CENTERS",
     "ANSER_ROTATED_COILS",
@@ -61,9 +63,9 @@ def _vec3(v, name: str) -> np.ndarray:
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `{name}` to be real numbers, got dtype {arr.dtype}")
     if arr.shape != (3,):
-        raise ValueError(f"expected `{name}` to have shape (3,), got {arr.shape}")
+        raise InputError(f"expected `{name}` to have shape (3,), got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"expected finite `{name}`, got {arr.tolist()}")
+        raise InputError(f"expected finite `{name}`, got {arr.tolist()}")
     return arr.astype(np.float64)
 
 
@@ -74,7 +76,7 @@ def _nonneg(x, name: str, positive: bool = False) -> float:
         raise TypeError(f"expected `{name}` to be a number, got {type(x).__name__}") from None
     if not np.isfinite(v) or v < 0 or (positive and v == 0):
         kind = "a finite positive" if positive else "a finite non-negative"
-        raise ValueError(f"expected {kind} `{name}`, got {x!r}")
+        raise InputError(f"expected {kind} `{name}`, got {x!r}")
     return v
 
 
@@ -82,7 +84,7 @@ def _count(n, name: str, minimum: int = 1) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
         raise TypeError(f"expected `{name}` to be an integer, got {type(n).__name__}")
     if n < minimum:
-        raise ValueError(f"expected `{name}` >= {minimum}, got {n}")
+        raise InputError(f"expected `{name}` >= {minimum}, got {n}")
     return int(n)
 
 
@@ -93,7 +95,7 @@ def _frame(axis, angle: float = 0.0) -> np.ndarray:
     a = _vec3(axis, "axis")
     n = np.linalg.norm(a)
     if n == 0:
-        raise ValueError("expected a non-zero `axis`, got [0, 0, 0]")
+        raise InputError("expected a non-zero `axis`, got [0, 0, 0]")
     a = a / n
     e = np.eye(3)[int(np.argmin(np.abs(a)))]
     x = e - (e @ a) * a
@@ -108,10 +110,10 @@ def _check_rotation(R) -> np.ndarray:
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `rotation` to be real numbers, got dtype {arr.dtype}")
     if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"expected `rotation` to be a finite (3, 3) matrix, got shape {arr.shape}")
+        raise InputError(f"expected `rotation` to be a finite (3, 3) matrix, got shape {arr.shape}")
     arr = arr.astype(np.float64)
     if not (np.allclose(arr.T @ arr, np.eye(3), atol=1e-9) and np.linalg.det(arr) > 0):
-        raise ValueError("expected `rotation` to be a proper rotation matrix, got a non-orthonormal "
+        raise InputError("expected `rotation` to be a proper rotation matrix, got a non-orthonormal "
                          "or reflecting matrix")
     return arr
 
@@ -180,7 +182,7 @@ class Coil:
 
     def __post_init__(self):
         if self.kind not in COIL_KINDS:
-            raise ValueError(f"expected `kind` in {COIL_KINDS}, got {self.kind!r}")
+            raise InputError(f"expected `kind` in {COIL_KINDS}, got {self.kind!r}")
         object.__setattr__(self, "center", _vec3(self.center, "center"))
         object.__setattr__(self, "rotation", _check_rotation(self.rotation))
         self.center.setflags(write=False)
@@ -193,25 +195,25 @@ class Coil:
         g = self.gain
         if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) \
                 or not np.isfinite(g) or g == 0:
-            raise ValueError(f"expected a finite non-zero `gain`, got {g!r}")
+            raise InputError(f"expected a finite non-zero `gain`, got {g!r}")
         object.__setattr__(self, "gain", float(g))
         order = tuple(self.order) if np.ndim(self.order) == 1 else ()
         if len(order) != 3:
-            raise ValueError(f"expected `order` = (n_depth, n_length, n_area), got {self.order!r}")
+            raise InputError(f"expected `order` = (n_depth, n_length, n_area), got {self.order!r}")
         object.__setattr__(self, "order", tuple(_count(n, "order", minimum=m)
                                                 for n, m in zip(order, (1, 1, 0))))
         if self.kind == "spiral":
             if self.layers > 2:
-                raise ValueError(f"expected `layers` 1 or 2 for a spiral, got {self.layers}")
+                raise InputError(f"expected `layers` 1 or 2 for a spiral, got {self.layers}")
             if self.trace_width <= 0:
-                raise ValueError(f"expected a positive `trace_width`, got {self.trace_width}")
+                raise InputError(f"expected a positive `trace_width`, got {self.trace_width}")
             if self._inner_half <= 0:
-                raise ValueError(f"expected {self.turns} turns of pitch "
+                raise InputError(f"expected {self.turns} turns of pitch "
                                  f"{self.trace_width + self.spacing} m to fit in a "
                                  f"{self.size} m spiral, got an inner half-side of "
                                  f"{self._inner_half:.3g} m")
         elif self.depth >= (2 * self.size if self.kind == "circular" else self.size):
-            raise ValueError(f"expected `depth` smaller than the coil's mean diameter/side, "
+            raise InputError(f"expected `depth` smaller than the coil's mean diameter/side, "
                              f"got depth {self.depth} for size {self.size}")
 
     # ---------------------------------------------------------------- derived geometry
@@ -281,7 +283,7 @@ class Coil:
         A single layer is closed by a straight return lead along +x.
         """
         if self.kind != "spiral":
-            raise ValueError(f"expected a spiral coil, got kind {self.kind!r}")
+            raise InputError(f"expected a spiral coil, got kind {self.kind!r}")
         h0, p, n = self._outer_half, self._pitch, self.turns
         xy = [(h0, 0.0)]
         for k in range(n):
@@ -397,9 +399,9 @@ def coil_fields(coils, points, *, chunk: int = 200_000) -> np.ndarray:
     if pts.dtype.kind not in "iuf":
         raise TypeError(f"expected `points` to be real numbers, got dtype {pts.dtype}")
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"expected `points` to have shape (N, 3), got {pts.shape}")
+        raise InputError(f"expected `points` to have shape (N, 3), got {pts.shape}")
     if not np.all(np.isfinite(pts)):
-        raise ValueError("expected finite `points`, got NaN or inf")
+        raise InputError("expected finite `points`, got NaN or inf")
     return _coil_fields(coils, pts.astype(np.float64), chunk)
 
 
@@ -432,7 +434,7 @@ def _check_coils(coils, name: str) -> tuple:
         raise TypeError(f"expected `{name}` to be a sequence of Coil, got "
                         f"{type(coils).__name__}") from None
     if not coils:
-        raise ValueError(f"expected at least one coil in `{name}`, got none")
+        raise InputError(f"expected at least one coil in `{name}`, got none")
     for c in coils:
         if not isinstance(c, Coil):
             raise TypeError(f"expected `{name}` to contain Coil objects, got {type(c).__name__}")

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import check_pose_vectors, check_poses, left_jacobian_so3, pose_from_vector
 from ._dipole_kernel import dipole_batch, dipole_batch_jac
 
@@ -34,10 +35,10 @@ def _coil_array(a, name: str) -> np.ndarray:
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `{name}` to be real numbers, got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[0] != 3 or arr.shape[1] < 1:
-        raise ValueError(f"expected `{name}` to have shape (3, n_coils) with n_coils >= 1, "
+        raise InputError(f"expected `{name}` to have shape (3, n_coils) with n_coils >= 1, "
                          f"got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"expected `{name}` to be finite, got NaN or inf")
+        raise InputError(f"expected `{name}` to be finite, got NaN or inf")
     out = np.ascontiguousarray(arr, dtype=np.float64)
     out.setflags(write=False)
     return out
@@ -68,14 +69,14 @@ class DipoleModel:
         for name in ("L_so", "M_so", "L_se", "M_se"):
             object.__setattr__(self, name, _coil_array(getattr(self, name), name))
         if self.L_so.shape != self.M_so.shape:
-            raise ValueError(f"expected `L_so` and `M_so` of equal shape, got {self.L_so.shape} "
+            raise InputError(f"expected `L_so` and `M_so` of equal shape, got {self.L_so.shape} "
                              f"and {self.M_so.shape}")
         if self.L_se.shape != self.M_se.shape:
-            raise ValueError(f"expected `L_se` and `M_se` of equal shape, got {self.L_se.shape} "
+            raise InputError(f"expected `L_se` and `M_se` of equal shape, got {self.L_se.shape} "
                              f"and {self.M_se.shape}")
         g = float(self.gain)
         if not np.isfinite(g) or g == 0.0:
-            raise ValueError(f"expected a finite non-zero `gain`, got {self.gain!r}")
+            raise InputError(f"expected a finite non-zero `gain`, got {self.gain!r}")
         object.__setattr__(self, "gain", g)
 
     @property
@@ -138,9 +139,9 @@ class CouplingJacobians:
 def _split(poses):
     P = check_poses(poses)
     if P.ndim != 3:
-        raise ValueError(f"expected `poses` to have shape (N, 4, 4), got {P.shape}")
+        raise InputError(f"expected `poses` to have shape (N, 4, 4), got {P.shape}")
     if not np.all(np.isfinite(P)):
-        raise ValueError("expected finite `poses`, got NaN or inf")
+        raise InputError("expected finite `poses`, got NaN or inf")
     return np.ascontiguousarray(P[:, :3, :3]), np.ascontiguousarray(P[:, :3, 3])
 
 
@@ -177,6 +178,6 @@ def coupling_jacobian_pose(model: DipoleModel, pose_vectors) -> tuple[np.ndarray
     the pose vector ``[x, y, z, rx, ry, rz]``."""
     v = check_pose_vectors(pose_vectors)
     if v.ndim != 2:
-        raise ValueError(f"expected `pose_vectors` to have shape (N, 6), got {v.shape}")
+        raise InputError(f"expected `pose_vectors` to have shape (N, 6), got {v.shape}")
     jac = coupling_jacobians(model, pose_from_vector(v))
     return jac.C, jac.pose_vector(v[:, 3:])

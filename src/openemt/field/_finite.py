@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._errors import InputError
 from ._coils import _check_coils, _coil_fields
 from ._dipole import ILEMT_GAIN, DipoleModel, _split
 
@@ -49,11 +50,11 @@ class FiniteCoilModel:
         g = self.gain
         if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) \
                 or not np.isfinite(g) or g == 0:
-            raise ValueError(f"expected a finite non-zero `gain`, got {g!r}")
+            raise InputError(f"expected a finite non-zero `gain`, got {g!r}")
         object.__setattr__(self, "gain", float(g))
         if isinstance(self.chunk, bool) or not isinstance(self.chunk, (int, np.integer)) \
                 or self.chunk < 1:
-            raise ValueError(f"expected a positive integer `chunk`, got {self.chunk!r}")
+            raise InputError(f"expected a positive integer `chunk`, got {self.chunk!r}")
         # sensor quadrature, concatenated over sensor coils (cached geometry of each coil)
         quads = [c.sensor_quadrature() for c in self.sensors]
         pts = np.concatenate([q[0] for q in quads])

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import check_poses
 from ._dipole import CouplingJacobians, DipoleModel, coupling_jacobians
 
@@ -121,7 +122,7 @@ class OctupoleModel:
         for name, n in (("k_so", self.dipole.n_source), ("k_se", self.dipole.n_sensor)):
             v = np.asarray(getattr(self, name), dtype=np.float64).reshape(-1)
             if v.shape != (n,) or not np.all(np.isfinite(v)):
-                raise ValueError(f"expected finite `{name}` of shape ({n},), got {v.shape}")
+                raise InputError(f"expected finite `{name}` of shape ({n},), got {v.shape}")
             object.__setattr__(self, name, v)
 
     @property

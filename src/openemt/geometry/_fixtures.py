@@ -10,6 +10,7 @@ import re
 
 import numpy as np
 
+from .._errors import InputError
 from ._pose import check_poses, pose_from_rt, pose_from_vector, rotation_x, rotation_y, rotation_z
 
 __all__ = [
@@ -42,7 +43,7 @@ def fixture_axes(code: str) -> np.ndarray:
     """
     m = FIXTURE_CODE_RE.match(code) if isinstance(code, str) else None
     if m is None or m.group(1) == m.group(3):
-        raise ValueError(
+        raise InputError(
             "expected a fixture code like 'YoutZup' or 'ZinXdown' (<X|Y|Z><out|in><X|Y|Z><up|down>, "
             f"two different axes), got {code!r}"
         )
@@ -71,7 +72,7 @@ def stage_transform(stage) -> np.ndarray:
     """
     s = np.asarray(stage, dtype=np.float64)
     if s.ndim < 1 or s.shape[-1] != 6:
-        raise ValueError(f"expected `stage` to have shape (..., 6), got {s.shape}")
+        raise InputError(f"expected `stage` to have shape (..., 6), got {s.shape}")
     R = rotation_z(s[..., 5]) @ rotation_y(s[..., 4]) @ rotation_x(s[..., 3])
     return pose_from_rt(R, s[..., :3])
 
@@ -90,7 +91,7 @@ def stage_joint(stage, sensor_codes) -> np.ndarray:
     n = T.shape[0]
     codes = [sensor_codes] * n if isinstance(sensor_codes, str) else list(sensor_codes)
     if len(codes) != n:
-        raise ValueError(f"expected {n} sensor-fixture codes, got {len(codes)}")
+        raise InputError(f"expected {n} sensor-fixture codes, got {len(codes)}")
     out = T.copy()
     out[:, :3, :3] = T[:, :3, :3] @ _rotations_per_row(codes, sensor_fixture_rotation)
     return out
@@ -131,7 +132,7 @@ def ground_truth_poses(source_fixture, stage_fixture, sensor_fixture, source_cod
     n = st_J.shape[0]
     codes = [source_codes] * n if isinstance(source_codes, str) else list(source_codes)
     if len(codes) != n:
-        raise ValueError(f"expected {n} source-fixture codes, got {len(codes)}")
+        raise InputError(f"expected {n} source-fixture codes, got {len(codes)}")
     so_J = np.zeros((n, 4, 4))
     so_J[:, 3, 3] = 1.0
     so_J[:, :3, :3] = _rotations_per_row(codes, source_fixture_rotation)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._errors import InputError
+
 __all__ = [
     "adjoint",
     "check_points",
@@ -35,7 +37,7 @@ def _check_last_axis(v, n: int, name: str) -> np.ndarray:
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `{name}` to be real numbers, got dtype {arr.dtype}")
     if arr.ndim < 1 or arr.shape[-1] != n:
-        raise ValueError(f"expected `{name}` to have shape (..., {n}), got {arr.shape}")
+        raise InputError(f"expected `{name}` to have shape (..., {n}), got {arr.shape}")
     return arr.astype(np.float64, copy=False)
 
 
@@ -55,7 +57,7 @@ def check_poses(P, name: str = "poses") -> np.ndarray:
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `{name}` to be real numbers, got dtype {arr.dtype}")
     if arr.ndim < 2 or arr.shape[-2:] != (4, 4):
-        raise ValueError(f"expected `{name}` to have shape (..., 4, 4), got {arr.shape}")
+        raise InputError(f"expected `{name}` to have shape (..., 4, 4), got {arr.shape}")
     return arr.astype(np.float64, copy=False)
 
 
@@ -103,7 +105,7 @@ def vector_from_pose(P) -> np.ndarray:
 def compose(*poses) -> np.ndarray:
     """Product ``P1 @ P2 @ ...`` of poses with broadcasting over the batch axes."""
     if not poses:
-        raise ValueError("expected at least one pose to compose, got none")
+        raise InputError("expected at least one pose to compose, got none")
     out = check_poses(poses[0])
     for p in poses[1:]:
         out = out @ check_poses(p)

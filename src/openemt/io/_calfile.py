@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .._errors import InputError
 from ..field import DipoleModel
 from ._atomic import atomic_path
 from ._calibration import Calibration
@@ -116,15 +117,15 @@ def _array(doc, key: str, shape, src: str, allow_nan: bool = False) -> np.ndarra
     except (TypeError, ValueError):
         a = None
     if a is None or a.dtype == object or (a.dtype.kind not in "iuf" and not allow_nan):
-        raise ValueError(f"{_where(src)}expected `{key}` as a list of numbers of shape "
+        raise InputError(f"{_where(src)}expected `{key}` as a list of numbers of shape "
                          f"{_shape_text(shape)}, got {_describe(doc)}")
     a = a.astype(np.float64)
     if shape is not None and (len(shape) != a.ndim or any(
             s is not None and s != n for s, n in zip(shape, a.shape))):
-        raise ValueError(f"{_where(src)}expected `{key}` of shape {_shape_text(shape)}, "
+        raise InputError(f"{_where(src)}expected `{key}` of shape {_shape_text(shape)}, "
                          f"got shape {a.shape}")
     if not allow_nan and not np.all(np.isfinite(a)):
-        raise ValueError(f"{_where(src)}expected finite numbers in `{key}`, got null/NaN")
+        raise InputError(f"{_where(src)}expected finite numbers in `{key}`, got null/NaN")
     return a
 
 
@@ -142,13 +143,13 @@ def _describe(v) -> str:
 def _get(doc: dict, key: str, src: str, kinds, path: str | None = None):
     name = path or key
     if key not in doc:
-        raise ValueError(f"{_where(src)}expected field `{name}`, got no such field "
+        raise InputError(f"{_where(src)}expected field `{name}`, got no such field "
                          f"(fields: {sorted(doc)})")
     v = doc[key]
     if kinds is not None and not isinstance(v, kinds):
         want = " or ".join(k.__name__ if k is not type(None) else "null" for k in
                            (kinds if isinstance(kinds, tuple) else (kinds,)))
-        raise ValueError(f"{_where(src)}expected `{name}` to be {want}, got {_describe(v)}")
+        raise InputError(f"{_where(src)}expected `{name}` to be {want}, got {_describe(v)}")
     return v
 
 
@@ -156,19 +157,19 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
     """Validate a calibration JSON document and build the :class:`Calibration`."""
     src = source
     if not isinstance(doc, dict):
-        raise ValueError(f"{_where(src)}expected a JSON object, got {_describe(doc)}")  # noqa: TRY004
+        raise InputError(f"{_where(src)}expected a JSON object, got {_describe(doc)}")
     schema = doc.get("schema")
     if schema != CALIBRATION_SCHEMA:
-        raise ValueError(f"{_where(src)}expected schema {CALIBRATION_SCHEMA!r}, got {schema!r}")
+        raise InputError(f"{_where(src)}expected schema {CALIBRATION_SCHEMA!r}, got {schema!r}")
     version = doc.get("schema_version")
     if not isinstance(version, int) or isinstance(version, bool) or not (
             1 <= version <= CALIBRATION_SCHEMA_VERSION):
-        raise ValueError(f"{_where(src)}expected schema_version 1..{CALIBRATION_SCHEMA_VERSION}, "
+        raise InputError(f"{_where(src)}expected schema_version 1..{CALIBRATION_SCHEMA_VERSION}, "
                          f"got {version!r}")
     model = _get(doc, "model", src, dict)
     kind = model.get("kind", "dipole")
     if kind != "dipole":
-        raise ValueError(f"{_where(src)}expected `model.kind` 'dipole', got {kind!r}")
+        raise InputError(f"{_where(src)}expected `model.kind` 'dipole', got {kind!r}")
     gain = _get(model, "gain", src, (int, float), "model.gain")
     arrays = {}
     for key, rows in (("L_so", 3), ("M_so", 3), ("L_se", 3), ("M_se", 3)):
@@ -176,12 +177,12 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
                              (rows, None), src)
     for key, n_key, coil_key in (("n_source", "n_source", "L_so"), ("n_sensor", "n_sensor", "L_se")):
         if n_key in model and model[n_key] != arrays[coil_key].shape[1]:
-            raise ValueError(f"{_where(src)}expected `model.{n_key}` = {arrays[coil_key].shape[1]} "
+            raise InputError(f"{_where(src)}expected `model.{n_key}` = {arrays[coil_key].shape[1]} "
                              f"(columns of model.{coil_key}), got {model[n_key]!r}")
     try:
         dm = DipoleModel(gain=float(gain), **arrays)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{_where(src)}{exc}") from None
+        raise InputError(f"{_where(src)}{exc}") from None
     fix = _get(doc, "fixtures", src, dict)
     fixtures = {f"{k}_fixture": _array(_get(fix, k, src, list, f"fixtures.{k}"), f"fixtures.{k}",
                                        (6,), src)
@@ -191,22 +192,22 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
         L = _array(L, "linear_correction", (4, 4), src)
     se_doc = doc.get("standard_errors") or {}
     if not isinstance(se_doc, dict):
-        raise ValueError(f"{_where(src)}expected `standard_errors` to be an object, "  # noqa: TRY004
+        raise InputError(f"{_where(src)}expected `standard_errors` to be an object, "
                          f"got {_describe(se_doc)}")
     std = {str(k): _array(v, f"standard_errors.{k}", None, src, allow_nan=True)
            for k, v in se_doc.items()}
     for name in ("free", "frozen"):
         v = doc.get(name) or []
         if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-            raise ValueError(f"{_where(src)}expected `{name}` to be a list of strings, "
+            raise InputError(f"{_where(src)}expected `{name}` to be a list of strings, "
                              f"got {_describe(v)}")
     for name in ("stats", "provenance", "extra"):
         v = doc.get(name)
         if v is not None and not isinstance(v, dict):
-            raise ValueError(f"{_where(src)}expected `{name}` to be an object, got {_describe(v)}")
+            raise InputError(f"{_where(src)}expected `{name}` to be an object, got {_describe(v)}")
     mode = doc.get("mode") or ""
     if not isinstance(mode, str):
-        raise ValueError(  # noqa: TRY004 - a bad file is bad input, not a caller's type error
+        raise InputError(
             f"{_where(src)}expected `mode` to be a string, got {_describe(mode)}")
     return Calibration(model=dm, linear_correction=L, mode=mode,
                        free=tuple(doc.get("free") or ()), frozen=tuple(doc.get("frozen") or ()),
@@ -263,9 +264,9 @@ def read_calibration(path) -> Calibration:
         text = path.read_text(encoding="utf-8")
         doc = json.loads(text)
     except UnicodeDecodeError:
-        raise ValueError(f"expected an openemt calibration JSON file, got binary data in "
+        raise InputError(f"expected an openemt calibration JSON file, got binary data in "
                          f"{path.name}") from None
     except json.JSONDecodeError as exc:
-        raise ValueError(f"expected an openemt calibration JSON file, got invalid JSON in "
+        raise InputError(f"expected an openemt calibration JSON file, got invalid JSON in "
                          f"{path.name} (line {exc.lineno}: {exc.msg})") from None
     return calibration_from_dict(doc, path.name)

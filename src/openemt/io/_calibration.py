@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from .._errors import InputError
 from ..field import DipoleModel, OctupoleModel
 from ..geometry import pose_from_vector
 
@@ -20,9 +21,9 @@ __all__ = ["Calibration"]
 def _vec6(v, name):
     a = np.asarray(v, dtype=np.float64)
     if a.shape != (6,):
-        raise ValueError(f"expected `{name}` to be a pose vector of shape (6,), got {a.shape}")
+        raise InputError(f"expected `{name}` to be a pose vector of shape (6,), got {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"expected finite `{name}`, got NaN or inf")
+        raise InputError(f"expected finite `{name}`, got NaN or inf")
     return a
 
 
@@ -73,7 +74,7 @@ class Calibration:
         if self.linear_correction is not None:
             L = np.asarray(self.linear_correction, dtype=np.float64)
             if L.shape != (4, 4) or not np.all(np.isfinite(L)):
-                raise ValueError(f"expected a finite (4, 4) `linear_correction`, got {L.shape}")
+                raise InputError(f"expected a finite (4, 4) `linear_correction`, got {L.shape}")
             object.__setattr__(self, "linear_correction", L)
         object.__setattr__(self, "free", tuple(self.free))
         object.__setattr__(self, "frozen", tuple(self.frozen))

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import pose_from_vector, stage_transform, vector_from_pose
 from ._atomic import atomic_path
 from ._dataset import Dataset
@@ -93,26 +94,26 @@ def import_csv(path) -> Dataset:
         if m:
             kind = m.group(1)
     if kind not in ("truth", "stage"):
-        raise ValueError(f"{path.name}: expected pose=truth or pose=stage in the comment line, "
+        raise InputError(f"{path.name}: expected pose=truth or pose=stage in the comment line, "
                          f"got pose={kind}")
     if not rows_text:
-        raise ValueError(f"{path.name}: expected a CSV header line, got an empty file")
+        raise InputError(f"{path.name}: expected a CSV header line, got an empty file")
     reader = csv.reader(rows_text)
     header = [h.strip() for h in next(reader)]
     col = {h: i for i, h in enumerate(header)}
     missing = [c for c in _POSE_COLS if c not in col]
     if missing:
-        raise ValueError(f"{path.name}: expected columns {_POSE_COLS}, got header without {missing}")
+        raise InputError(f"{path.name}: expected columns {_POSE_COLS}, got header without {missing}")
     idx = [(int(m.group(1)), int(m.group(2)), bool(m.group(3)))
            for m in (_C_RE.match(h) for h in header) if m]
     if not idx:
-        raise ValueError(f"{path.name}: expected coupling columns c_<i>_<j>, got none in the header")
+        raise InputError(f"{path.name}: expected coupling columns c_<i>_<j>, got none in the header")
     n_so = 1 + max(i for i, _, _ in idx)
     n_se = 1 + max(j for _, j, _ in idx)
     for i in range(n_so):
         for j in range(n_se):
             if f"c_{i}_{j}" not in col:
-                raise ValueError(f"{path.name}: expected column c_{i}_{j} "
+                raise InputError(f"{path.name}: expected column c_{i}_{j} "
                                  f"({n_so} x {n_se} couplings), got none")
     cplx = any(im for _, _, im in idx)
     data = list(reader)
@@ -122,13 +123,13 @@ def import_csv(path) -> Dataset:
     strs = {h: [] for h in _STR_COLS if h in col}
     for r, row in enumerate(data):
         if len(row) != len(header):
-            raise ValueError(f"{path.name}: line {numbered[r + 1][0]}: expected {len(header)} "
+            raise InputError(f"{path.name}: line {numbered[r + 1][0]}: expected {len(header)} "
                              f"fields, got {len(row)}")
         for k in num_cols:
             try:
                 num[r, k] = float(row[k])
             except ValueError:
-                raise ValueError(f"{path.name}: line {numbered[r + 1][0]}: column "
+                raise InputError(f"{path.name}: line {numbered[r + 1][0]}: column "
                                  f"{header[k]!r}: expected a number, got {row[k][:30]!r}") from None
         for h, values in strs.items():
             values.append(row[col[h]])

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["Dataset", "signed_real"]
 
 
@@ -30,7 +32,7 @@ def _str_array(a, n: int, name: str) -> np.ndarray:
         return np.full(n, a, dtype=object).astype(str)
     arr = np.asarray(a, dtype=str)
     if arr.shape != (n,):
-        raise ValueError(f"expected `{name}` to have shape ({n},), got {arr.shape}")
+        raise InputError(f"expected `{name}` to have shape ({n},), got {arr.shape}")
     return arr
 
 
@@ -84,7 +86,7 @@ class Dataset:
     def __post_init__(self):
         C = np.asarray(self.couplings)
         if C.ndim != 3:
-            raise ValueError(f"expected `couplings` to have shape (N, n_source, n_sensor), "
+            raise InputError(f"expected `couplings` to have shape (N, n_source, n_sensor), "
                              f"got {C.shape}")
         if C.dtype.kind not in "iufc":
             raise TypeError(f"expected numeric `couplings`, got dtype {C.dtype}")
@@ -93,18 +95,18 @@ class Dataset:
         object.__setattr__(self, "couplings", C)
         stage = np.asarray(self.stage, dtype=np.float64)
         if stage.shape != (n, 6):
-            raise ValueError(f"expected `stage` to have shape ({n}, 6), got {stage.shape}")
+            raise InputError(f"expected `stage` to have shape ({n}, 6), got {stage.shape}")
         object.__setattr__(self, "stage", stage)
         for name in ("source_fixture", "sensor_fixture", "pattern"):
             object.__setattr__(self, name, _str_array(getattr(self, name), n, name))
         fi = np.asarray(self.file_index)
         if fi.shape != (n,) or fi.dtype.kind not in "iu":
-            raise ValueError(f"expected integer `file_index` of shape ({n},), got {fi.dtype} "
+            raise InputError(f"expected integer `file_index` of shape ({n},), got {fi.dtype} "
                              f"{fi.shape}")
         object.__setattr__(self, "file_index", fi.astype(np.int64))
         object.__setattr__(self, "files", tuple(str(f) for f in self.files))
         if fi.size and fi.max() >= len(self.files):
-            raise ValueError(f"expected `file_index` < {len(self.files)} (number of files), "
+            raise InputError(f"expected `file_index` < {len(self.files)} (number of files), "
                              f"got {fi.max()}")
         for name, shape in (("stage_logged", (n, 6)), ("poses", (n, 4, 4)),
                             ("source_signs", (n, C.shape[1])), ("sensor_signs", (n, C.shape[2]))):
@@ -112,12 +114,12 @@ class Dataset:
             if v is not None:
                 v = np.asarray(v, dtype=np.float64)
                 if v.shape != shape:
-                    raise ValueError(f"expected `{name}` to have shape {shape}, got {v.shape}")
+                    raise InputError(f"expected `{name}` to have shape {shape}, got {v.shape}")
                 object.__setattr__(self, name, v)
         for k, v in self.extra.items():
             v = np.asarray(v)
             if v.ndim < 1 or v.shape[0] != n:
-                raise ValueError(f"expected extra array {k!r} to have first axis {n}, got {v.shape}")
+                raise InputError(f"expected extra array {k!r} to have first axis {n}, got {v.shape}")
 
     # -- shape -------------------------------------------------------------------------------
     @property

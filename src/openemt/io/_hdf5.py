@@ -14,6 +14,7 @@ from typing import Self
 import numpy as np
 
 from .. import __version__
+from .._errors import InputError
 from ._atomic import atomic_path
 from ._dataset import Dataset, signed_real
 
@@ -82,7 +83,7 @@ def write_dataset(ds: Dataset, path) -> Path:
     try:
         meta_json = json.dumps(ds.meta, allow_nan=False)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"expected JSON-serialisable dataset `meta`, got {exc}") from None
+        raise InputError(f"expected JSON-serialisable dataset `meta`, got {exc}") from None
     path = Path(path)
     with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
         f.attrs["schema"] = DATASET_SCHEMA
@@ -109,7 +110,7 @@ def write_dataset(ds: Dataset, path) -> Path:
         g = f.create_group("extra")
         for k, v in ds.extra.items():
             if "/" in k or k.endswith(("_real", "_imag")):
-                raise ValueError(f"expected extra names without '/' or a _real/_imag suffix, "
+                raise InputError(f"expected extra names without '/' or a _real/_imag suffix, "
                                  f"got {k!r}")
             _write_array(g, k, np.asarray(v))
     return path
@@ -271,7 +272,7 @@ class CouplingReader:
         """Yield ``(start, block)`` over the whole file in blocks of ``rows`` rows."""
         rows = int(rows or self.chunk_rows or 65536)
         if rows < 1:
-            raise ValueError(f"expected a positive block size, got {rows}")
+            raise InputError(f"expected a positive block size, got {rows}")
         for start in range(0, self.shape[0], rows):
             yield start, self[start:start + rows]
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .._errors import InputError
 from ..geometry import fixture_axes
 from ._dataset import Dataset
 
@@ -97,9 +98,9 @@ def compensate_stage(stage_mm_deg) -> np.ndarray:
     """
     s = np.asarray(stage_mm_deg, dtype=np.float64)
     if s.ndim not in (1, 2) or s.shape[-1] != 6:
-        raise ValueError(f"expected `stage_mm_deg` to have shape (N, 6) or (6,), got {s.shape}")
+        raise InputError(f"expected `stage_mm_deg` to have shape (N, 6) or (6,), got {s.shape}")
     if not np.all(np.isfinite(s)):
-        raise ValueError("expected finite `stage_mm_deg`, got NaN or inf")
+        raise InputError("expected finite `stage_mm_deg`, got NaN or inf")
     one = s.ndim == 1
     s2 = np.atleast_2d(s)
     x, y, z, c = s2[:, 0], s2[:, 1], s2[:, 2], np.deg2rad(s2[:, 5])
@@ -176,27 +177,27 @@ def _parse_sign_cell(body: str, what: str, path) -> list[tuple[str, tuple[float,
     for m in _ENTRY_RE.finditer(body):
         gap = body[pos:m.start()]
         if gap.replace("...", "").strip(" \t\r\n,;"):
-            raise ValueError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
+            raise InputError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
                              f"got unparsable text {gap.strip()[:40]!r}")
         pos = m.end()
         regex = m.group(1).replace("''", "'")
         try:
             re.compile(regex)
         except re.error as exc:
-            raise ValueError(f"{path}: expected a valid regular expression in `options.{what}`, "
+            raise InputError(f"{path}: expected a valid regular expression in `options.{what}`, "
                              f"got {regex!r} ({exc})") from None
         try:
             signs = tuple(float(v) for v in m.group(2).replace(",", " ").split())
         except ValueError:
-            raise ValueError(f"{path}: expected numeric signs in `options.{what}`, "
+            raise InputError(f"{path}: expected numeric signs in `options.{what}`, "
                              f"got [{m.group(2)}]") from None
         if not signs or any(s not in (-1.0, 1.0) for s in signs):
-            raise ValueError(f"{path}: expected signs of +1/-1 in `options.{what}`, "
+            raise InputError(f"{path}: expected signs of +1/-1 in `options.{what}`, "
                              f"got [{m.group(2)}]")
         entries.append((regex, signs))
     tail = body[pos:]
     if tail.replace("...", "").strip(" \t\r\n,;"):
-        raise ValueError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
+        raise InputError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
                          f"got unparsable text {tail.strip()[:40]!r}")
     return entries
 
@@ -228,11 +229,11 @@ def parse_sign_options(path) -> tuple[list[tuple[str, tuple[float, ...]]],
             continue
         rest = text[found[-1].end():]          # the last assignment wins, as in MATLAB
         if not rest.startswith("{"):
-            raise ValueError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
+            raise InputError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
                              f"got `options.{what} = {rest[:30].strip()!r}...`")
         end = rest.find("}")
         if end < 0:
-            raise ValueError(f"{path}: expected a closing '}}' for `options.{what}`, got end of file")
+            raise InputError(f"{path}: expected a closing '}}' for `options.{what}`, got end of file")
         result.append(_parse_sign_cell(rest[1:end], what, path))
     return result[0], result[1]
 
@@ -250,7 +251,7 @@ def _check_sign_list(signs, name: str, n: int) -> list[tuple[str, np.ndarray]]:
             raise TypeError(f"expected a regex string in `{name}`, got {type(regex).__name__}")
         s = np.asarray(s, dtype=np.float64)
         if s.shape != (n,) or not np.all(np.abs(s) == 1.0):
-            raise ValueError(f"expected {n} signs of +1/-1 for {regex!r} in `{name}`, got {s.tolist()}")
+            raise InputError(f"expected {n} signs of +1/-1 for {regex!r} in `{name}`, got {s.tolist()}")
         out.append((regex, s))
     return out
 
@@ -291,7 +292,7 @@ def _parse_dat(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     try:
         text = path.read_text(encoding="ascii")
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path.name}: expected an ASCII ILEMT .dat file, got a non-ASCII byte "
+        raise InputError(f"{path.name}: expected an ASCII ILEMT .dat file, got a non-ASCII byte "
                          f"at offset {exc.start}") from None
     groups = []
     match = _LINE_RE.fullmatch
@@ -303,7 +304,7 @@ def _parse_dat(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             raise _line_error(path, lineno, line)
         groups.append(m.groups("0"))
     if not groups:
-        raise ValueError(f"{path.name}: expected ILEMT data rows of {_N_FIELDS} fields, got an empty file")
+        raise InputError(f"{path.name}: expected ILEMT data rows of {_N_FIELDS} fields, got an empty file")
     v = np.array(groups, dtype=np.float64)             # (N, 42)
     stage = v[:, :6]
     z = v[:, 6::2] + 1j * v[:, 7::2]                    # (N, 18) complex
@@ -335,7 +336,7 @@ def _read_one(path: Path, source_signs, sensor_signs, compensate: bool, codes=No
         try:
             fixture_axes(code)
         except ValueError as exc:
-            raise ValueError(f"{name}: unknown {role} fixture code {code!r}: {exc}") from None
+            raise InputError(f"{name}: unknown {role} fixture code {code!r}: {exc}") from None
     stage_logged, hr, lr = _parse_dat(path)
     _check_drift(name, stage_logged, hr)
     s_so = resolve_signs(name, source_signs)
@@ -498,7 +499,7 @@ def import_ilemt_folder(folder, *, source_signs=None, sensor_signs=None, compens
         files.append(p)
     if not files:
         what = "" if wanted is None else f" with pattern in {sorted(wanted)}"
-        raise ValueError(f"expected so<SRC>_se<SEN>_<pattern>.dat files{what} in {str(folder)!r}, "
+        raise InputError(f"expected so<SRC>_se<SEN>_<pattern>.dat files{what} in {str(folder)!r}, "
                          "got none")
     so, se, origin = _signs_for(folder, source_signs, sensor_signs)
     parts = [_read_one(p, so, se, bool(compensate_stage)) for p in files]

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .._errors import InputError
 from ..field import DipoleModel
 from ._calibration import Calibration
 from ._ilemt import file_sha256
@@ -64,11 +65,11 @@ def _names(v) -> tuple[str, ...]:
 
 def _matrix(d: dict, key: str, shape, path: Path) -> np.ndarray:
     if key not in d:
-        raise ValueError(f"{path.name}: expected an ILEMT calibration with variable {key!r}, "
+        raise InputError(f"{path.name}: expected an ILEMT calibration with variable {key!r}, "
                          f"got variables {sorted(k for k in d if not k.startswith('__'))}")
     a = np.asarray(d[key])
     if a.dtype.kind not in "iuf" or a.shape != shape:
-        raise ValueError(f"{path.name}: expected {key!r} to be a real {shape} array, "
+        raise InputError(f"{path.name}: expected {key!r} to be a real {shape} array, "
                          f"got {a.dtype} {a.shape}")
     return a.astype(np.float64)
 
@@ -100,9 +101,9 @@ def read_ilemt_calibration(path) -> Calibration:
                                 f"{str(path)!r}")
     try:
         d = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
-    except Exception as exc:  # noqa: BLE001 - scipy raises many types for corrupt files
+    except Exception as exc:
         msg = " ".join(str(exc).split())[:120]
-        raise ValueError(f"expected an ILEMT calibration .mat file (MATLAB v5), got "
+        raise InputError(f"expected an ILEMT calibration .mat file (MATLAB v5), got "
                          f"{path.name} that cannot be read ({type(exc).__name__}: {msg})") from None
     model = DipoleModel(
         L_so=_matrix(d, "d_source_pos", (3, 3), path),

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._errors import InputError
 from ..geometry import pose_from_rt
 from ._poses_csv import StaticAverage, average_static
 
@@ -117,7 +118,7 @@ def read_ndi_tsv(path) -> NdiRecording:
                   if "port" in [c.strip().lower() for c in ln.replace("\t", ",").split(",")]),
                  None)
     if hdr_i is None:
-        raise ValueError(f"expected an NDI Toolbox header with a 'Port' column in {path}, "
+        raise InputError(f"expected an NDI Toolbox header with a 'Port' column in {path}, "
                          f"got none")
     delim = "\t" if "\t" in lines[hdr_i] else ","
     header = [c.strip().lower() for c in lines[hdr_i].split(delim)]
@@ -131,7 +132,7 @@ def read_ndi_tsv(path) -> NdiRecording:
                 cols[header[j]] = j
         missing = [f for f in _REQUIRED if f not in cols]
         if missing:
-            raise ValueError(f"expected columns {', '.join(_REQUIRED)} after Port in {path}, "
+            raise InputError(f"expected columns {', '.join(_REQUIRED)} after Port in {path}, "
                              f"got no {', '.join(missing)} for tool block {b + 1}")
         blocks.append((s, cols))
 
@@ -154,7 +155,7 @@ def read_ndi_tsv(path) -> NdiRecording:
             try:
                 vals = {f: _num(parts[j]) for f, j in cols.items() if f != "state"}
             except ValueError:
-                raise ValueError(f"expected numbers in the tool fields on line {ln_no} of "
+                raise InputError(f"expected numbers in the tool fields on line {ln_no} of "
                                  f"{path}, got {ln[:60]!r}") from None
             a["port"][parts[s].strip()] += 1
             a["rows"].append((ln_no, vals))
@@ -173,7 +174,7 @@ def read_ndi_tsv(path) -> NdiRecording:
         norm = np.linalg.norm(q, axis=1)
         if n and not np.all(np.isfinite(norm) & (norm > 0)):
             bad = int(np.flatnonzero(~(np.isfinite(norm) & (norm > 0)))[0])
-            raise ValueError(f"expected a non-zero quaternion on line {rows[bad][0]} of {path}, "
+            raise InputError(f"expected a non-zero quaternion on line {rows[bad][0]} of {path}, "
                              f"got {q[bad].tolist()}")
         R = (Rotation.from_quat(q / norm[:, None], scalar_first=True).as_matrix() if n
              else np.zeros((0, 3, 3)))

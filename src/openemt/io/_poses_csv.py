@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._errors import InputError
 from ..geometry import check_poses, pose_from_rt, vector_from_pose
 from ._atomic import atomic_path
 
@@ -121,14 +122,14 @@ def average_static(poses, groups=None) -> StaticAverage:
     """
     P = check_poses(poses, "poses")
     if P.ndim != 3:
-        raise ValueError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
     g = np.zeros(len(P), dtype=int) if groups is None else np.asarray(groups)
     if g.shape != (len(P),):
-        raise ValueError(f"expected `groups` of shape ({len(P)},), got {g.shape}")
+        raise InputError(f"expected `groups` of shape ({len(P)},), got {g.shape}")
     ok = np.all(np.isfinite(P), axis=(1, 2))
     P, g = P[ok], g[ok]
     if len(P) == 0:
-        raise ValueError("expected at least one finite pose to average, got none")
+        raise InputError("expected at least one finite pose to average, got none")
     _, first = np.unique(g, return_index=True)
     labels = g[np.sort(first)]
     out = {k: [] for k in ("P", "n", "tr", "tm", "rr", "rm")}
@@ -171,7 +172,7 @@ def _poses_from_columns(cols, data, prefix, length_unit, angle_unit, path):
         idx.append(i)
         facs.append(_LEN[length_unit] if f is None else f)
     if len(set(facs)) != 1:
-        raise ValueError(f"expected one length unit for the {prefix or 'measured '}position in "
+        raise InputError(f"expected one length unit for the {prefix or 'measured '}position in "
                          f"{path}, got several")
     t = data[:, idx] * facs[0]
     q_idx = [cols.get(f"{prefix}q{a}") for a in "wxyz"]
@@ -187,7 +188,7 @@ def _poses_from_columns(cols, data, prefix, length_unit, angle_unit, path):
     if all(i is not None for i, _ in r_idx):
         fac = {_ANG[angle_unit] if f is None else f for _, f in r_idx}
         if len(fac) != 1:
-            raise ValueError(f"expected one angle unit for the {prefix or 'measured '}rotation in "
+            raise InputError(f"expected one angle unit for the {prefix or 'measured '}rotation in "
                              f"{path}, got several")
         rv = data[:, [i for i, _ in r_idx]] * fac.pop()
         rv_ok = np.where(np.isfinite(rv), rv, 0.0)
@@ -214,14 +215,14 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
         Poses in metres. Empty fields read as NaN.
     """
     if length_unit not in _LEN:
-        raise ValueError(f"expected length_unit in {sorted(_LEN)}, got {length_unit!r}")
+        raise InputError(f"expected length_unit in {sorted(_LEN)}, got {length_unit!r}")
     if angle_unit not in _ANG:
-        raise ValueError(f"expected angle_unit in {sorted(_ANG)}, got {angle_unit!r}")
+        raise InputError(f"expected angle_unit in {sorted(_ANG)}, got {angle_unit!r}")
     path = Path(path)
     with open(path, newline="") as fh:
         lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
-        raise ValueError(f"expected a header line in {path}, got an empty file")
+        raise InputError(f"expected a header line in {path}, got an empty file")
     delim = "\t" if "\t" in lines[0] else ","
     rows = list(csv.reader(lines, delimiter=delim))
     header = [h.strip().lower() for h in rows[0]]
@@ -233,7 +234,7 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     data = np.full((len(body), len(header)), np.nan)
     for r, row in enumerate(body):
         if len(row) > len(header):
-            raise ValueError(f"expected at most {len(header)} fields on line {r + 2} of {path}, "
+            raise InputError(f"expected at most {len(header)} fields on line {r + 2} of {path}, "
                              f"got {len(row)}")
         for i in num_idx:
             if i < len(row) and row[i].strip():
@@ -241,11 +242,11 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
                     data[r, i] = float(row[i])
                 except ValueError:
                     if header[i] in _ALL_POSE_NAMES:
-                        raise ValueError(f"expected a number in column {header[i]!r} on line "
+                        raise InputError(f"expected a number in column {header[i]!r} on line "
                                          f"{r + 2} of {path}, got {row[i]!r}") from None
     P, has_rot = _poses_from_columns(cols, data, "", length_unit, angle_unit, path)
     if P is None:
-        raise ValueError(f"expected columns x, y, z (optionally _m/_mm) in {path}, "
+        raise InputError(f"expected columns x, y, z (optionally _m/_mm) in {path}, "
                          f"got {', '.join(header)}")
     Pref, ref_rot = _poses_from_columns(cols, data, "ref_", length_unit, angle_unit, path)
     group = None
@@ -270,14 +271,14 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
     """
     P = check_poses(poses, "poses")
     if P.ndim != 3:
-        raise ValueError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
     names = ["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"]
     blocks = [vector_from_pose(P)]
     header = list(names)
     if reference is not None:
         D = check_poses(reference, "reference")
         if D.shape != P.shape:
-            raise ValueError(f"expected `reference` of shape {P.shape}, got {D.shape}")
+            raise InputError(f"expected `reference` of shape {P.shape}, got {D.shape}")
         blocks.append(vector_from_pose(D))
         header += ["ref_" + n for n in names]
     num = np.hstack(blocks)
@@ -288,7 +289,7 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
     if group is not None:
         g = np.asarray(group).astype(str)
         if g.shape != (len(P),):
-            raise ValueError(f"expected `group` of shape ({len(P)},), got {g.shape}")
+            raise InputError(f"expected `group` of shape ({len(P)},), got {g.shape}")
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)

@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import pose_from_vector
 from ..signal import ChannelLayout, RawSignalConfig, RawSimulator, read_raw
 
@@ -115,7 +116,7 @@ class SimulatedBackend(Backend):
         self.layout = config.layout
         self.chunk = int(chunk)
         if self.chunk < 1:
-            raise ValueError(f"expected `chunk` >= 1, got {chunk!r}")
+            raise InputError(f"expected `chunk` >= 1, got {chunk!r}")
         self.realtime = bool(realtime)
         fs = self.layout.sample_rate
         self._end = None if duration is None else round(float(duration) * fs)
@@ -173,7 +174,7 @@ class ReplayBackend(Backend):
         self.layout = self.raw.layout
         self.chunk = int(chunk)
         if self.chunk < 1:
-            raise ValueError(f"expected `chunk` >= 1, got {chunk!r}")
+            raise InputError(f"expected `chunk` >= 1, got {chunk!r}")
         self.realtime = bool(realtime)
         self._i = 0
         self.t0_epoch = time.time()

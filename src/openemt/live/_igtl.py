@@ -30,6 +30,8 @@ import numpy as np
 import pyigtl
 from pyigtl.comm import OpenIGTLinkBase
 
+from .._errors import InputError
+
 __all__ = ["DEFAULT_IGTL_PORT", "IgtlServer"]
 
 #: The OpenIGTLink port 3D Slicer's client connector uses by default.
@@ -108,12 +110,12 @@ class IgtlServer:
                  device_name: str = "openemt", max_queue: int = 16, send_timeout: float = 1.0,
                  poll: float = 0.02):
         if not isinstance(device_name, str) or not device_name or len(device_name) > 20:
-            raise ValueError(f"expected a `device_name` of 1-20 characters, got {device_name!r}")
+            raise InputError(f"expected a `device_name` of 1-20 characters, got {device_name!r}")
         if int(max_queue) < 1:
-            raise ValueError(f"expected `max_queue` >= 1, got {max_queue!r}")
+            raise InputError(f"expected `max_queue` >= 1, got {max_queue!r}")
         port = int(port)
         if not 0 <= port <= 65535:
-            raise ValueError(f"expected a TCP `port` in 0..65535, got {port}")
+            raise InputError(f"expected a TCP `port` in 0..65535, got {port}")
         self.device_name = device_name
         self.send_timeout = float(send_timeout)
         self.poll = float(poll)
@@ -227,7 +229,7 @@ class IgtlServer:
         """
         P = np.asarray(pose, dtype=np.float64)
         if P.shape != (4, 4):
-            raise ValueError(f"expected `pose` of shape (4, 4), got {P.shape}")
+            raise InputError(f"expected `pose` of shape (4, 4), got {P.shape}")
         return self.send_poses(P[None], None if timestamp is None else [timestamp],
                                t_ready=t_ready)
 
@@ -245,10 +247,10 @@ class IgtlServer:
         """
         P = np.asarray(poses, dtype=np.float64)
         if P.ndim != 3 or P.shape[1:] != (4, 4):
-            raise ValueError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+            raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
         ts = [None] * len(P) if timestamps is None else [float(t) for t in timestamps]
         if len(ts) != len(P):
-            raise ValueError(f"expected {len(P)} timestamps, got {len(ts)}")
+            raise InputError(f"expected {len(P)} timestamps, got {len(ts)}")
         if len(P) == 0:
             return False
         if not self._connected:                  # cheap exit before packing

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._errors import InputError
 from ..signal import Demodulator
 from ..solve import Status, solve_lm
 
@@ -179,7 +180,7 @@ class TrackLog:
                 np.savetxt(tmp, table, delimiter=",", header=header, comments="",
                            fmt=["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d"])
         else:
-            raise ValueError(f"expected a log file ending in .h5, .hdf5 or .csv, got "
+            raise InputError(f"expected a log file ending in .h5, .hdf5 or .csv, got "
                              f"{str(path)!r}")
 
 
@@ -220,7 +221,7 @@ class TrackingPipeline:
                  serial_small_batches: bool = True):
         if solver is None:
             if model is None:
-                raise ValueError("expected a `model` or a `solver`, got neither")
+                raise InputError("expected a `model` or a `solver`, got neither")
             solver = lm_solver(model, hemisphere=hemisphere)
         self.backend = backend
         self.solver = solver
@@ -229,7 +230,7 @@ class TrackingPipeline:
         if correction is not None:
             L = np.asarray(correction, dtype=np.float64)
             if L.shape != (4, 4) or not np.all(np.isfinite(L)):
-                raise ValueError(f"expected a finite (4, 4) `correction`, got shape {L.shape}")
+                raise InputError(f"expected a finite (4, 4) `correction`, got shape {L.shape}")
             correction = L
         self.correction = correction
         self.distortion_threshold = float(distortion_threshold)

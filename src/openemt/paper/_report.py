@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._errors import InputError
 from ..evaluate import STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, combined_uncertainty
 from ._run import PaperRun, as_run, load_paper_run
 
@@ -351,9 +352,9 @@ def characterization_report(dataset, calibration, *, concentric=None,
     if concentric is not None and not isinstance(concentric, Calibration):
         raise TypeError(f"expected a concentric Calibration, got {type(concentric).__name__}")
     if reference not in ("kinematics", "poses"):
-        raise ValueError(f"expected reference 'kinematics' or 'poses', got {reference!r}")
+        raise InputError(f"expected reference 'kinematics' or 'poses', got {reference!r}")
     if reference == "poses" and dataset.poses is None:
-        raise ValueError("expected a dataset with reference `poses` for reference='poses', got "
+        raise InputError("expected a dataset with reference `poses` for reference='poses', got "
                          "none")
     t_all = time.perf_counter()
     cal = calibration

@@ -8,6 +8,8 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .._errors import InputError
+
 __all__ = ["PaperRun", "load_paper_run", "sequence_steps"]
 
 
@@ -33,7 +35,7 @@ def sequence_steps(names=None) -> tuple:
     need: set[str] = set()
     for n in names:
         if n not in by_name:
-            raise ValueError(f"expected a step of the paper sequence {tuple(by_name)}, got {n!r}")
+            raise InputError(f"expected a step of the paper sequence {tuple(by_name)}, got {n!r}")
         while n != "base" and n not in need:
             need.add(n)
             n = by_name[n].start
@@ -135,6 +137,6 @@ def as_run(source, steps, *, correction: bool = True) -> PaperRun:
         load_paper_run(source, steps=steps, correction=correction)
     missing = [s.name for s in sequence_steps(steps) if s.name not in run.fits]
     if missing:
-        raise ValueError(f"expected the calibrations {missing} of the paper sequence, got only "
+        raise InputError(f"expected the calibrations {missing} of the paper sequence, got only "
                          f"{tuple(run.fits)} (no rows for the others in {str(run.folder)!r})")
     return run

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from .._errors import InputError
 from ..evaluate import STAGE_UNCERTAINTY_M
 from ._run import PaperRun, as_run, load_paper_run
 
@@ -46,7 +47,7 @@ def table2_tests(run: PaperRun):
     run = as_run(run, ["XYZ", "XYZ_concentric"])
     test = run.dataset.select(test_rows(run.dataset))
     if len(test) == 0:
-        raise ValueError(f"expected soYoutZup ld test files in {str(run.folder)!r}, got none")
+        raise InputError(f"expected soYoutZup ld test files in {str(run.folder)!r}, got none")
     xyz, conc = run.calibration("XYZ"), run.calibration("XYZ_concentric")
     seconds = {}
     t0 = time.perf_counter()

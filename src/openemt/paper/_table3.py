@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 
+from .._errors import InputError
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
 from ._run import as_run
 
@@ -121,7 +122,7 @@ def reproduce_table3(source) -> dict:
     masks = table3_test_masks(ds)
     empty = [k for k, m in masks.items() if not m.any()]
     if empty:
-        raise ValueError(f"expected test rows for {empty} in {str(run.folder)!r}, got none")
+        raise InputError(f"expected test rows for {empty} in {str(run.folder)!r}, got none")
     sets = {k: ds.select(m) for k, m in masks.items()}
     conc = run.calibration("XYZ_concentric").model
     out: dict = {}

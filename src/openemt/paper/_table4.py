@@ -21,6 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from .._errors import InputError
 from ..geometry import check_poses, invert, pose_from_vector, source_fixture_rotation, stage_joint
 from ._run import as_run
 
@@ -138,12 +139,12 @@ def refit_fixtures(P_measured, data, cal, *, moment: float = FIXTURE_MOMENT_M,
     """
     M = check_poses(P_measured, "P_measured")
     if M.shape != (len(data), 4, 4):
-        raise ValueError(f"expected P_measured of shape ({len(data)}, 4, 4), got {M.shape}")
+        raise InputError(f"expected P_measured of shape ({len(data)}, 4, 4), got {M.shape}")
     if not moment > 0:
-        raise ValueError(f"expected moment > 0, got {moment}")
+        raise InputError(f"expected moment > 0, got {moment}")
     ok = np.all(np.isfinite(M), axis=(1, 2))
     if ok.sum() < 4:
-        raise ValueError(f"expected at least 4 finite measured poses, got {int(ok.sum())}")
+        raise InputError(f"expected at least 4 finite measured poses, got {int(ok.sum())}")
     chain = (_Chain(data, cal) if _chain is None else _chain).subset(ok)
     # E = F_se D^-1 M F_se^-1 = B^-1 . F_st^-1 . (A^-1 M) . F_se^-1
     B_inv = invert(chain.B)
@@ -228,13 +229,13 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     ds = run.dataset
     mask = ds.mask(pattern="sweep", source_fixture="YoutZup")
     if not mask.any():
-        raise ValueError(f"expected soYoutZup_se*_sweep.dat files in {str(run.folder)!r}, "
+        raise InputError(f"expected soYoutZup_se*_sweep.dat files in {str(run.folder)!r}, "
                          "got none")
     data = ds.select(mask)
     cal = run.calibration("XYZ")
     L = cal.linear_correction
     if correction and L is None:
-        raise ValueError("expected XYZ_hr_cal with an output correction, got none (fit the "
+        raise InputError("expected XYZ_hr_cal with an output correction, got none (fit the "
                          "sequence with correction=True)")
     seconds = dict(run.seconds)
     t0 = time.perf_counter()

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._errors import InputError
 from ._rawsim import ChannelLayout
 
 __all__ = ["Demodulated", "Demodulator", "demodulate", "frame_length", "frame_window",
@@ -89,27 +90,27 @@ def frame_length(layout: ChannelLayout, output_rate: float = 1500.0,
         integer bin of the frame with the spacing the window needs.
     """
     if window not in _WINDOWS:
-        raise ValueError(f"expected `window` in {sorted(_WINDOWS)}, got {window!r}")
+        raise InputError(f"expected `window` in {sorted(_WINDOWS)}, got {window!r}")
     fs = layout.sample_rate
     rate = float(output_rate)
     if not (np.isfinite(rate) and rate > 0):
-        raise ValueError(f"expected a positive `output_rate`, got {output_rate!r}")
+        raise InputError(f"expected a positive `output_rate`, got {output_rate!r}")
     hop = fs / rate
     if abs(hop - round(hop)) > 1e-9 * hop or round(hop) < 2:
-        raise ValueError(f"expected sample_rate / output_rate to be an integer >= 2, got "
+        raise InputError(f"expected sample_rate / output_rate to be an integer >= 2, got "
                          f"{fs:g} / {rate:g} = {hop:g}")
     hop = round(hop)
     L = _WINDOWS[window] * hop
     bins = np.asarray(layout.frequencies) * L / fs
     if np.any(np.abs(bins - np.round(bins)) > 1e-6):
-        raise ValueError(f"expected carriers with whole cycles per {L}-sample frame "
+        raise InputError(f"expected carriers with whole cycles per {L}-sample frame "
                          f"(multiples of {fs / L:g} Hz), got {layout.frequencies}")
     k = np.round(bins).astype(int)
     gap = 2 if window == "hann" else 1
     for a in k:
         d = np.abs(np.concatenate([k[k != a], -k, [0], L - k]) - a)
         if np.any(d < gap):
-            raise ValueError(f"expected carriers at least {gap} bins apart (and from DC and "
+            raise InputError(f"expected carriers at least {gap} bins apart (and from DC and "
                              f"their images) in a {L}-sample {window} frame, got bins "
                              f"{k.tolist()}")
     return hop, L
@@ -123,7 +124,7 @@ def frame_window(window: str, L: int) -> np.ndarray:
     sensor gain.
     """
     if window not in _WINDOWS:
-        raise ValueError(f"expected `window` in {sorted(_WINDOWS)}, got {window!r}")
+        raise InputError(f"expected `window` in {sorted(_WINDOWS)}, got {window!r}")
     n = np.arange(int(L))
     return np.ones(len(n)) if window == "rect" else 0.5 - 0.5 * np.cos(2 * np.pi * n / len(n))
 
@@ -178,7 +179,7 @@ class Demodulator:
         else:
             ph = np.asarray(phase, dtype=np.float64)
             if ph.shape != (nso, nse) or not np.all(np.isfinite(ph)):
-                raise ValueError(f"expected a finite `phase` of shape ({nso}, {nse}), got "
+                raise InputError(f"expected a finite `phase` of shape ({nso}, {nse}), got "
                                  f"{ph.shape}")
             self._rot = np.exp(-1j * ph)
         self._scale = layout.reference_gain / layout.sensor_gain
@@ -202,7 +203,7 @@ class Demodulator:
         """
         x = np.asarray(chunk)
         if x.ndim != 2 or x.shape[1] < self.layout.n_channels:
-            raise ValueError(f"expected raw samples of shape (n, >= {self.layout.n_channels}), "
+            raise InputError(f"expected raw samples of shape (n, >= {self.layout.n_channels}), "
                              f"got {x.shape}")
         tail = self._buf.shape[1]
         buf = np.empty((len(self._cols), tail + x.shape[0]))
@@ -295,6 +296,6 @@ def phase_calibration(couplings) -> np.ndarray:
     """
     C = np.asarray(couplings)
     if C.ndim != 3 or C.shape[0] < 1 or not np.iscomplexobj(C):
-        raise ValueError(f"expected complex couplings of shape (N, n_source, n_sensor), got "
+        raise InputError(f"expected complex couplings of shape (N, n_source, n_sensor), got "
                          f"{C.dtype} {C.shape}")
     return 0.5 * np.angle(np.sum(C * C, axis=0))

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = [
     "ILEMT_FREQUENCIES",
     "RAW_FORMAT",
@@ -76,23 +78,23 @@ class ChannelLayout:
         ref = tuple(int(x) for x in np.atleast_1d(self.reference_channels))
         fs = float(self.sample_rate)
         if not (np.isfinite(fs) and fs > 0):
-            raise ValueError(f"expected a positive `sample_rate`, got {self.sample_rate!r}")
+            raise InputError(f"expected a positive `sample_rate`, got {self.sample_rate!r}")
         if not f or any(not (0 < x < fs / 2) for x in f) or len(set(f)) != len(f):
-            raise ValueError(f"expected distinct carrier `frequencies` in (0, {fs / 2:g}) Hz, "
+            raise InputError(f"expected distinct carrier `frequencies` in (0, {fs / 2:g}) Hz, "
                              f"got {f}")
         if len(ref) != len(f):
-            raise ValueError(f"expected one reference channel per carrier ({len(f)}), "
+            raise InputError(f"expected one reference channel per carrier ({len(f)}), "
                              f"got {len(ref)}")
         if not se:
-            raise ValueError("expected at least one sensor channel, got none")
+            raise InputError("expected at least one sensor channel, got none")
         chans = se + ref
         if min(chans) < 0 or len(set(chans)) != len(chans):
-            raise ValueError(f"expected distinct non-negative channel indices, got sensor {se} "
+            raise InputError(f"expected distinct non-negative channel indices, got sensor {se} "
                              f"and reference {ref}")
         for name in ("sensor_gain", "reference_gain"):
             g = float(getattr(self, name))
             if not np.isfinite(g) or g == 0:
-                raise ValueError(f"expected a finite non-zero `{name}`, got {g!r}")
+                raise InputError(f"expected a finite non-zero `{name}`, got {g!r}")
             object.__setattr__(self, name, g)
         object.__setattr__(self, "frequencies", f)
         object.__setattr__(self, "sensor_channels", se)
@@ -164,12 +166,12 @@ class RawSignalConfig:
                      "eddy_time_constant", "delay"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v < 0:
-                raise ValueError(f"expected a finite non-negative `{name}`, got {v!r}")
+                raise InputError(f"expected a finite non-negative `{name}`, got {v!r}")
         if not (float(self.drive_amplitude) > 0):
-            raise ValueError(f"expected a positive `drive_amplitude`, got "
+            raise InputError(f"expected a positive `drive_amplitude`, got "
                              f"{self.drive_amplitude!r}")
         if self.drive_phase is not None and len(self.drive_phase) != self.layout.n_source:
-            raise ValueError(f"expected {self.layout.n_source} drive phases, got "
+            raise InputError(f"expected {self.layout.n_source} drive phases, got "
                              f"{len(self.drive_phase)}")
         object.__setattr__(self, "mains_amplitudes",
                            tuple(float(a) for a in self.mains_amplitudes))
@@ -246,7 +248,7 @@ class RawSimulator:
                             f"{type(self.config).__name__}")
         lay = self.config.layout
         if (model.n_source, model.n_sensor) != (lay.n_source, lay.n_sensor):
-            raise ValueError(f"expected a model with {lay.n_source} sources and {lay.n_sensor} "
+            raise InputError(f"expected a model with {lay.n_source} sources and {lay.n_sensor} "
                              f"sensors (the layout), got {model.n_source} and {model.n_sensor}")
         self.model = model
         if callable(trajectory):
@@ -254,7 +256,7 @@ class RawSimulator:
         else:
             fixed = np.asarray(trajectory, dtype=np.float64)
             if fixed.shape != (4, 4):
-                raise ValueError(f"expected `trajectory` to be callable or a (4, 4) pose, got "
+                raise InputError(f"expected `trajectory` to be callable or a (4, 4) pose, got "
                                  f"shape {fixed.shape}")
             self._trajectory = lambda t: np.broadcast_to(fixed, (len(t), 4, 4))
         self.coupling_stride = max(1, int(coupling_stride))
@@ -339,7 +341,7 @@ def simulate_raw(model, trajectory, duration: float, config: RawSignalConfig | N
     fs = sim.layout.sample_rate
     n = int(np.floor(float(duration) * fs + 1e-9))
     if n < 1:
-        raise ValueError(f"expected a `duration` of at least one sample, got {duration!r}")
+        raise InputError(f"expected a `duration` of at least one sample, got {duration!r}")
     samples = sim.read(n)
     tt = np.arange(0.0, n / fs, 1.0 / float(truth_rate))
     return RawSignal(samples=samples, layout=sim.layout, t0=0.0, truth_times=tt,
@@ -406,11 +408,11 @@ def read_raw(path) -> RawSignal:
             fmt = f.attrs.get("format")
             fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
             if fmt != RAW_FORMAT:
-                raise ValueError(f"expected an HDF5 file with format {RAW_FORMAT!r}, got "
+                raise InputError(f"expected an HDF5 file with format {RAW_FORMAT!r}, got "
                                  f"{fmt!r} in {str(path)!r}")
             version = int(f.attrs.get("version", -1))
             if version > _RAW_VERSION:
-                raise ValueError(f"expected raw file version <= {_RAW_VERSION}, got {version}")
+                raise InputError(f"expected raw file version <= {_RAW_VERSION}, got {version}")
             layout = ChannelLayout(frequencies=tuple(f.attrs["frequencies"]),
                                    sample_rate=float(f.attrs["sample_rate"]),
                                    sensor_channels=tuple(f.attrs["sensor_channels"]),
@@ -428,13 +430,13 @@ def read_raw(path) -> RawSignal:
         raise
     except (OSError, KeyError, TypeError) as exc:
         msg = " ".join(str(exc).split())
-        raise ValueError(f"expected a readable openemt raw HDF5 file, got {str(path)!r} "
+        raise InputError(f"expected a readable openemt raw HDF5 file, got {str(path)!r} "
                          f"({msg})") from None
     if samples.ndim != 2 or samples.shape[1] < layout.n_channels:
-        raise ValueError(f"expected `samples` of shape (n, >= {layout.n_channels}), got "
+        raise InputError(f"expected `samples` of shape (n, >= {layout.n_channels}), got "
                          f"{samples.shape} in {str(path)!r}")
     if samples.dtype.kind != "f" or not np.all(np.isfinite(samples)):
-        raise ValueError(f"expected finite float samples, got dtype {samples.dtype} or NaN/inf "
+        raise InputError(f"expected finite float samples, got dtype {samples.dtype} or NaN/inf "
                          f"in {str(path)!r}")
     return RawSignal(samples=samples, layout=layout, t0=t0, truth_times=truth.get("times"),
                      truth_couplings=truth.get("couplings"), truth_poses=truth.get("poses"))

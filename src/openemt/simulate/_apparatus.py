@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import __version__
+from .._errors import InputError
 from ..geometry import ground_truth_poses, pose_from_vector, source_fixture_rotation
 from ..io import Calibration, Dataset
 from ._errors import (
@@ -39,12 +40,12 @@ def _codes(value, supported: tuple[str, ...], name: str) -> list[str]:
         return list(supported)
     codes = [value] if isinstance(value, str) else list(value)
     if not codes:
-        raise ValueError(f"expected at least one {name} code or 'all', got none")
+        raise InputError(f"expected at least one {name} code or 'all', got none")
     for c in codes:
         if c not in supported:
-            raise ValueError(f"expected {name} codes in {list(supported)} or 'all', got {c!r}")
+            raise InputError(f"expected {name} codes in {list(supported)} or 'all', got {c!r}")
     if len(set(codes)) != len(codes):
-        raise ValueError(f"expected distinct {name} codes, got {codes}")
+        raise InputError(f"expected distinct {name} codes, got {codes}")
     return codes
 
 
@@ -63,7 +64,7 @@ def fixture_combinations(preset, source_fixtures="all", sensor_fixtures="all", *
     so = _codes(source_fixtures, p.source_fixtures, "source fixture")
     se = _codes(sensor_fixtures, p.sensor_fixtures, "sensor fixture")
     if combinations not in ("paper", "cross"):
-        raise ValueError(f"expected combinations 'paper' or 'cross', got {combinations!r}")
+        raise InputError(f"expected combinations 'paper' or 'cross', got {combinations!r}")
     home_so, home_se = p.source_fixtures[0], p.sensor_fixtures[0]
     paper = combinations == "paper" and home_so in so and home_se in se
     return [(s, e) for s in so for e in se if not paper or s == home_so or e == home_se]
@@ -74,9 +75,9 @@ def _patterns(pattern, preset: Preset) -> list[str]:
         return [preset.default_pattern]
     names = [p.strip() for p in pattern.split(",")] if isinstance(pattern, str) else list(pattern)
     if not names or any(not isinstance(n, str) or not n for n in names):
-        raise ValueError(f"expected one or more stage pattern names, got {pattern!r}")
+        raise InputError(f"expected one or more stage pattern names, got {pattern!r}")
     if len(set(names)) != len(names):
-        raise ValueError(f"expected distinct stage pattern names, got {names}")
+        raise InputError(f"expected distinct stage pattern names, got {names}")
     return names
 
 
@@ -91,7 +92,7 @@ def _distortions(distortion) -> list[Distortion]:
 def _nonneg(value, name):
     v = float(value)
     if not np.isfinite(v) or v < 0:
-        raise ValueError(f"expected a finite {name} >= 0, got {value!r}")
+        raise InputError(f"expected a finite {name} >= 0, got {value!r}")
     return v
 
 
@@ -147,7 +148,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     combos = fixture_combinations(p, source_fixtures, sensor_fixtures, combinations=combinations)
     stage_sigma = _nonneg(stage_sigma, "stage_sigma")
     if snr_db is not None and noise_abs is not None:
-        raise ValueError(f"expected at most one of snr_db and noise_abs, got snr_db={snr_db!r} "
+        raise InputError(f"expected at most one of snr_db and noise_abs, got snr_db={snr_db!r} "
                          f"and noise_abs={noise_abs!r}")
     if noise_abs is not None:
         _nonneg(noise_abs, "noise_abs")

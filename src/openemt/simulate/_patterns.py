@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["GRID_PITCH", "PATTERNS", "STAGE_Z_LIMIT", "stage_pattern"]
 
 #: Lowest Z the stage reaches (m). A commanded Z below it is logged as this value (§2, §3).
@@ -136,7 +138,7 @@ def stage_pattern(name: str, *, clip_z: bool = True) -> np.ndarray:
     ilemt-format.md §3; MacLachlan et al., IEEE Sensors J. 2025 (seed 000), §V-D.
     """
     if not isinstance(name, str) or name not in _BUILDERS:
-        raise ValueError(f"expected a stage pattern name in {sorted(_BUILDERS)}, got {name!r}")
+        raise InputError(f"expected a stage pattern name in {sorted(_BUILDERS)}, got {name!r}")
     rows = _BUILDERS[name]()
     out = np.empty_like(rows)
     out[:, :3] = rows[:, :3] * 1e-3

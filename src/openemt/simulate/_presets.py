@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .. import field as _field
+from .._errors import InputError
 from ..field import ILEMT_GAIN, DipoleModel
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
 from ..signal import ILEMT_FREQUENCIES  # ILEMT high-rate carriers (seed 000 §V-E)
@@ -242,5 +243,5 @@ def get_preset(name) -> Preset:
     if isinstance(name, Preset):
         return name
     if not isinstance(name, str) or name not in _BUILDERS:
-        raise ValueError(f"expected a preset name in {list(PRESETS)}, got {name!r}")
+        raise InputError(f"expected a preset name in {list(PRESETS)}, got {name!r}")
     return _cached(name)

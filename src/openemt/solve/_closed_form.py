@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._errors import InputError
 from ..field import DipoleModel
 from ..field._dipole_kernel import dipole_eval
 from ._hemisphere import hemisphere_vectors
@@ -74,9 +75,9 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
     if C.dtype.kind not in "iufc":
         raise TypeError(f"expected numeric `couplings`, got dtype {C.dtype}")
     if C.ndim != 3:
-        raise ValueError(f"expected `couplings` of shape (N, n_source, n_sensor), got {C.shape}")
+        raise InputError(f"expected `couplings` of shape (N, n_source, n_sensor), got {C.shape}")
     if n_source is not None and (C.shape[1], C.shape[2]) != (n_source, n_sensor):
-        raise ValueError(f"expected `couplings` of shape (N, {n_source}, {n_sensor}) for this "
+        raise InputError(f"expected `couplings` of shape (N, {n_source}, {n_sensor}) for this "
                          f"model, got {C.shape}")
     if C.dtype.kind == "c":
         norms = np.full(C.shape[0], np.nan)
@@ -422,15 +423,15 @@ def _concentric_model(model, name) -> DipoleModel:
     if not isinstance(model, DipoleModel):
         raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
     if model.n_source != 3 or model.n_sensor != 3:
-        raise ValueError(f"expected a 3x3-coil model for the {name} closed form, got "
+        raise InputError(f"expected a 3x3-coil model for the {name} closed form, got "
                          f"{model.n_source}x{model.n_sensor}")
     if not model.is_concentric:
-        raise ValueError(f"expected a concentric model (all coil positions 0) for the {name} "
+        raise InputError(f"expected a concentric model (all coil positions 0) for the {name} "
                          f"closed form, got non-zero coil positions; use solve_lm")
     for nm in ("M_so", "M_se"):
         M = getattr(model, nm)
         if abs(np.linalg.det(M)) <= 1e-12 * np.linalg.norm(M) ** 3:
-            raise ValueError(f"expected invertible `{nm}` moments, got a singular matrix")
+            raise InputError(f"expected invertible `{nm}` moments, got a singular matrix")
     return model
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._errors import InputError
 from ..field import DipoleModel, coupling_jacobians
 from ..geometry import check_poses, left_jacobian_so3, vector_from_pose
 
@@ -26,7 +27,7 @@ def _noise_cov(noise_sigma, n, m):
         return np.broadcast_to(s, (n, m, m))
     if s.shape == (n, m, m):
         return s
-    raise ValueError(f"expected `noise_sigma` as a scalar, ({n},) sigmas, or a ({m}, {m}) or "
+    raise InputError(f"expected `noise_sigma` as a scalar, ({n},) sigmas, or a ({m}, {m}) or "
                      f"({n}, {m}, {m}) covariance of the flattened couplings, got {s.shape}")
 
 
@@ -58,10 +59,10 @@ def cramer_rao(model: DipoleModel, poses, noise_sigma, *, parametrization: str =
     if not isinstance(model, DipoleModel):
         raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
     if parametrization not in ("vector", "local"):
-        raise ValueError(f"expected parametrization 'vector' or 'local', got {parametrization!r}")
+        raise InputError(f"expected parametrization 'vector' or 'local', got {parametrization!r}")
     P = check_poses(poses)
     if P.ndim != 3:
-        raise ValueError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
     n = P.shape[0]
     m = model.n_source * model.n_sensor
     jac = coupling_jacobians(model, P)

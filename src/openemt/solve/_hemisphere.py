@@ -11,6 +11,8 @@ import re
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["hemisphere_from_positions", "hemisphere_vectors"]
 
 _AXIS_RE = re.compile(r"^\s*([+-]?)\s*([xyzXYZ])\s*$")
@@ -20,13 +22,13 @@ def _one(h) -> np.ndarray:
     if isinstance(h, str):
         m = _AXIS_RE.match(h)
         if m is None:
-            raise ValueError(f"expected a hemisphere like '+x', '-z' or 'y', got {h!r}")
+            raise InputError(f"expected a hemisphere like '+x', '-z' or 'y', got {h!r}")
         v = np.zeros(3)
         v["xyz".index(m.group(2).lower())] = -1.0 if m.group(1) == "-" else 1.0
         return v
     v = np.asarray(h, dtype=np.float64)
     if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.any(v):
-        raise ValueError(f"expected a hemisphere string or a finite non-zero 3-vector, got {h!r}")
+        raise InputError(f"expected a hemisphere string or a finite non-zero 3-vector, got {h!r}")
     return v / np.linalg.norm(v)
 
 
@@ -43,7 +45,7 @@ def hemisphere_vectors(hemisphere, n: int, *, allow_none: bool = True) -> np.nda
     """
     if hemisphere is None:
         if not allow_none:
-            raise ValueError("expected a hemisphere such as '+x', got None")
+            raise InputError("expected a hemisphere such as '+x', got None")
         return np.zeros((n, 3))
     if isinstance(hemisphere, str):
         return np.tile(_one(hemisphere), (n, 1))
@@ -54,11 +56,11 @@ def hemisphere_vectors(hemisphere, n: int, *, allow_none: bool = True) -> np.nda
         if arr.shape == (n, 3):
             norms = np.linalg.norm(arr, axis=1, keepdims=True)
             if not np.all(np.isfinite(arr)) or np.any(norms == 0):
-                raise ValueError("expected finite non-zero hemisphere vectors, got NaN/inf/zero")
+                raise InputError("expected finite non-zero hemisphere vectors, got NaN/inf/zero")
             return arr / norms
-        raise ValueError(f"expected hemisphere vectors of shape (3,) or ({n}, 3), got {arr.shape}")
+        raise InputError(f"expected hemisphere vectors of shape (3,) or ({n}, 3), got {arr.shape}")
     if arr.shape != (n,):
-        raise ValueError(f"expected one hemisphere per sample, shape ({n},), got {arr.shape}")
+        raise InputError(f"expected one hemisphere per sample, shape ({n},), got {arr.shape}")
     cache: dict[str, np.ndarray] = {}
     out = np.empty((n, 3))
     for k, h in enumerate(arr.tolist()):
@@ -75,7 +77,7 @@ def hemisphere_from_positions(positions) -> np.ndarray:
     """
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"expected positions of shape (N, 3), got {p.shape}")
+        raise InputError(f"expected positions of shape (N, 3), got {p.shape}")
     axis = np.argmax(np.abs(p), axis=1)
     sign = np.where(p[np.arange(p.shape[0]), axis] < 0, "-", "+")
     return np.char.add(sign, np.array(list("xyz"))[axis])

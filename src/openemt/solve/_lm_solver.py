@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .._errors import InputError
 from ..field import DipoleModel
 from ..geometry import check_pose_vectors
 from ._closed_form import check_couplings, solve_kim18, solve_kuipers, solve_svd
@@ -23,7 +24,7 @@ def _check_model(model) -> DipoleModel:
     n_so, n_se = model.n_source, model.n_sensor
     need = 5 if n_se == 1 else 6
     if n_so * n_se < need or (n_se > 1 and n_so < 2):
-        raise ValueError(f"expected at least {need} couplings (n_source * n_sensor) and >= 2 "
+        raise InputError(f"expected at least {need} couplings (n_source * n_sensor) and >= 2 "
                          f"source coils for a {need}-DOF solve, got {n_so}x{n_se}")
     return model
 
@@ -79,10 +80,10 @@ def _bounds(bounds):
     b = np.asarray(bounds, dtype=np.float64)
     if b.ndim == 0:
         if not b > 0:
-            raise ValueError(f"expected a positive `bounds` half-width in m, got {float(b)}")
+            raise InputError(f"expected a positive `bounds` half-width in m, got {float(b)}")
         return np.full(3, -float(b)), np.full(3, float(b))
     if b.shape != (3, 2) or not np.all(b[:, 0] < b[:, 1]):
-        raise ValueError(f"expected `bounds` as a half-width or a (3, 2) array of [low, high] "
+        raise InputError(f"expected `bounds` as a half-width or a (3, 2) array of [low, high] "
                          f"with low < high, got shape {b.shape}")
     return np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1])
 
@@ -204,10 +205,10 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
     five = model.n_sensor == 1
     thr = np.inf if valid_threshold is None else float(valid_threshold)
     if not thr > 0:
-        raise ValueError(f"expected a positive `valid_threshold`, got {valid_threshold!r}")
+        raise InputError(f"expected a positive `valid_threshold`, got {valid_threshold!r}")
     retries = bool(retries) and np.isfinite(thr)
     if int(max_iter) < 1:
-        raise ValueError(f"expected `max_iter` >= 1, got {max_iter!r}")
+        raise InputError(f"expected `max_iter` >= 1, got {max_iter!r}")
     conc = _concentric_for(model, concentric_model)
     cf_hemi = hemisphere if hemisphere is not None else "+x"
 
@@ -246,7 +247,7 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
         if isinstance(initial, str):
             if initial in _CLOSED:
                 if conc is None:
-                    raise ValueError(f"expected a 3x3 model or `concentric_model` for the "
+                    raise InputError(f"expected a 3x3 model or `concentric_model` for the "
                                      f"{initial!r} start, got a {model.n_source}x"
                                      f"{model.n_sensor} model; use initial='multistart'")
                 init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
@@ -254,20 +255,20 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
             elif initial == "multistart":
                 init = _multistart_init(C, cnorm, model, nvec, lo, hi, five, xtol, thr)
             else:
-                raise ValueError(f"expected `initial` in 'kim18', 'svd', 'kuipers', 'track', "
+                raise InputError(f"expected `initial` in 'kim18', 'svd', 'kuipers', 'track', "
                                  f"'multistart' or pose vectors (N, 6), got {initial!r}")
         else:
             init = check_pose_vectors(initial, "initial")
             if init.shape == (6,):
                 init = np.tile(init, (n, 1))
             if init.shape != (n, 6):
-                raise ValueError(f"expected `initial` pose vectors of shape ({n}, 6) or (6,), "
+                raise InputError(f"expected `initial` pose vectors of shape ({n}, 6) or (6,), "
                                  f"got {init.shape}")
         result = _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr,
                             ambiguity_tol, retries)
     if fallback is not None:
         if fallback != "multistart":
-            raise ValueError(f"expected fallback None or 'multistart', got {fallback!r}")
+            raise InputError(f"expected fallback None or 'multistart', got {fallback!r}")
         redo = np.flatnonzero(np.isin(result.status, (1, 5)))
         if redo.size:
             init2 = _multistart_init(C[redo], cnorm[redo], model, nvec[redo], lo, hi, five,

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .._errors import InputError
 from ._result import SolveResult, Status
 
 __all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseWriter", "read_poses"]
@@ -79,6 +80,6 @@ def read_poses(path) -> SolveResult:
         if isinstance(schema, bytes):
             schema = schema.decode()
         if schema != POSES_SCHEMA:
-            raise ValueError(f"expected an openemt poses file (schema {POSES_SCHEMA!r}), got "
+            raise InputError(f"expected an openemt poses file (schema {POSES_SCHEMA!r}), got "
                              f"schema {schema!r} in {path.name}")
         return SolveResult(*(f[name][()] for name in _FIELDS), solver=str(f.attrs["solver"]))

@@ -7,6 +7,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from .._errors import InputError
+
 __all__ = ["SolveResult", "Status"]
 
 
@@ -93,7 +95,7 @@ class SolveResult:
         """Join results of consecutive chunks."""
         results = list(results)
         if not results:
-            raise ValueError("expected at least one SolveResult to concatenate, got none")
+            raise InputError("expected at least one SolveResult to concatenate, got none")
         cov = None
         if all(r.covariance is not None for r in results):
             cov = np.concatenate([r.covariance for r in results])

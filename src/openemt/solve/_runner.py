@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._errors import InputError
 from ..io import Calibration
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd
 from ._lm_solver import solve_lm
@@ -57,7 +58,7 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm", hemisphere
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, got {type(calibration).__name__}")
     if solver not in SOLVERS:
-        raise ValueError(f"expected solver in {SOLVERS}, got {solver!r}")
+        raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
     model = calibration.model
     if solver == "lm":
         if concentric_calibration is not None:
@@ -114,13 +115,13 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
     n = len(couplings)
     rows = int(chunk_rows)
     if rows < 1:
-        raise ValueError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
+        raise InputError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
     if max_in_flight < 1:
-        raise ValueError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
+        raise InputError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
     if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1:
-        raise ValueError("expected one hemisphere for all rows when streaming, got an array")
+        raise InputError("expected one hemisphere for all rows when streaming, got an array")
     if solver not in SOLVERS:
-        raise ValueError(f"expected solver in {SOLVERS}, got {solver!r}")
+        raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
     starts = list(range(0, n, rows))
     args = (calibration, solver, hemisphere, apply_correction, options)
     if scheduler is None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._errors import InputError
 from ._result import Status
 
 __all__ = ["MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "check_validity_options", "classify",
@@ -57,9 +58,9 @@ def check_validity_options(max_relative_residual, max_range) -> tuple[float, flo
         try:
             f = float(v)
         except (TypeError, ValueError):
-            raise ValueError(f"expected a positive number for `{name}`, got {v!r}") from None
+            raise InputError(f"expected a positive number for `{name}`, got {v!r}") from None
         if not f > 0:  # also rejects NaN
-            raise ValueError(f"expected a positive number for `{name}`, got {v!r}")
+            raise InputError(f"expected a positive number for `{name}`, got {v!r}")
         out.append(f)
     return out[0], out[1]
 
@@ -120,9 +121,9 @@ def classify(hit_limit, rho, t, n, lo, hi, ambig_tol, max_rel, max_range):
     for a in range(3):
         if t[a] <= lo[a] or t[a] >= hi[a]:
             return _OUT
-    if n[0] != 0.0 or n[1] != 0.0 or n[2] != 0.0:
-        if t[0] * n[0] + t[1] * n[1] + t[2] * n[2] <= ambig_tol * nt:
-            return _AMBIG
+    has_n = n[0] != 0.0 or n[1] != 0.0 or n[2] != 0.0
+    if has_n and t[0] * n[0] + t[1] * n[1] + t[2] * n[2] <= ambig_tol * nt:
+        return _AMBIG
     if hit_limit:
         return _MAX_ITER
     if not rho <= max_rel:
