@@ -92,6 +92,8 @@ def test_reproduce_table2_command_matches_paper(ilemt_dir, capsys):
     for row in ("default", "corrected", "concentric"):
         for k, v in TABLE2_PAPER[row].items():
             assert out[row][k] == pytest.approx(v, abs=5e-5), (row, k)
+    assert out["paper_column"]["name"] == "concentric source"
+    assert out["paper_column"]["same_recording"] is True
     st = out["calibration_stats"]
     assert st["XYZ"]["num_invalid"] == 0 and st["XYZ_concentric"]["num_invalid"] == 21
     assert st["XYZ"]["uncorrected"] == pytest.approx(0.4691e-3, abs=1e-7)

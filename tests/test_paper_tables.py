@@ -223,3 +223,58 @@ def test_reproduce_table_commands_reject_a_missing_folder(tmp_path):
     args = p.parse_args(["reproduce", "table3", str(tmp_path), "--quiet"])
     with pytest.raises(FileNotFoundError, match="base_calibration.mat"):
         args.func(args)
+
+
+def _fake_run(folder, L_so):
+    from types import SimpleNamespace
+
+    from openemt.field import DipoleModel
+
+    model = DipoleModel(L_so=np.asarray(L_so, dtype=np.float64), M_so=np.eye(3),
+                        L_se=np.zeros((3, 3)), M_se=np.eye(3))
+    cal = SimpleNamespace(model=model)
+    return SimpleNamespace(folder=folder, calibration=lambda name: cal)
+
+
+class _Test:
+    def __init__(self, n, files=("soYoutZup_seYoutZup_ld.dat", "soYoutZup_seZinXdown_ld.dat",
+                                 "soYoutZup_seZinYup_ld.dat")):
+        self.files = tuple(files)
+        self.file_index = np.arange(n) % len(files)
+        self._n = n
+
+    def __len__(self):
+        return self._n
+
+
+def test_table2_column_identified_by_data(ilemt_dir, tmp_path):
+    import shutil
+
+    from openemt.paper import TABLE2_PAPER_COLUMNS, identify_table2_column
+
+    concentric = [[-0.0025, 0.0001, 0.0], [0.0013, -0.0003, 0.0], [0.0011, 0.001, 0.0]]
+    col = identify_table2_column(_fake_run(ilemt_dir, concentric), _Test(1896))
+    assert col.name == "concentric source" and col.same_recording
+    assert col.values == TABLE2_PAPER_COLUMNS["concentric source"]
+    # the same design, but a file that differs from the paper's recording (name irrelevant)
+    other = tmp_path / "any_name"
+    other.mkdir()
+    for f in ("soYoutZup_seYoutZup_ld.dat", "soYoutZup_seZinXdown_ld.dat",
+              "soYoutZup_seZinYup_ld.dat"):
+        shutil.copy(ilemt_dir / f, other / f)
+    with open(other / "soYoutZup_seZinYup_ld.dat", "a") as fh:
+        fh.write("\n")
+    col = identify_table2_column(_fake_run(other, concentric), _Test(1896))
+    assert col.name == "concentric source" and not col.same_recording
+    assert "not the paper's recording" in col.note
+    # a source whose coils are 45 mm apart is the dipole approximating design, whatever the name
+    dipole = [[0.045, 0.0, 0.0], [0.0, 0.045, 0.0], [0.0, 0.0, 0.045]]
+    col = identify_table2_column(_fake_run(ilemt_dir, dipole), _Test(1896))
+    assert col.name == "dipole approximating source"
+    assert col.values["default"]["trans_rms_mm"] == 0.27148
+    # neither design, or another test layout: no column, with the reason
+    middle = [[0.030, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    col = identify_table2_column(_fake_run(ilemt_dir, middle), _Test(1896))
+    assert col.name is None and col.values is None and "neither" in col.note
+    col = identify_table2_column(_fake_run(ilemt_dir, concentric), _Test(632))
+    assert col.name is None and "632 test rows" in col.note

@@ -75,11 +75,13 @@ def run_table2(args) -> int:
     out = reproduce_table2(args.folder, improved=args.improved, cross_validation=args.cv)
     human = [(f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
               "rot rms/max")]
+    paper = out["paper"] or {}
     for name in ("default", "corrected", "concentric", "improved", "improved_corrected"):
         if name in out:
             human.append(_fmt(name, out[name]))
-            if name in out["paper"]:
-                human.append(_fmt("  paper", out["paper"][name]))
+            if name in paper:
+                human.append(_fmt("  paper", paper[name]))
+    human.append(f"paper column: {out['paper_column']['note']}")
     human.append(f"total {out['seconds']['total']:.2f} s")
     emit(args, out, human)
     return 0

@@ -6,7 +6,14 @@ see docs/paper-reproductions.md.
 
 from ._report import BuiltReport, characterization_report, paper_report, parameter_rows
 from ._run import PaperRun, load_paper_run, sequence_steps
-from ._table2 import TABLE2_PAPER, reproduce_table2, table2_tests
+from ._table2 import (
+    TABLE2_PAPER,
+    TABLE2_PAPER_COLUMNS,
+    Table2Column,
+    identify_table2_column,
+    reproduce_table2,
+    table2_tests,
+)
 from ._table3 import TABLE3_COLUMNS, TABLE3_PAPER, TABLE3_ROWS, reproduce_table3, table3_test_masks
 from ._table4 import (
     FIXTURE_MOMENT_M,
@@ -21,6 +28,7 @@ from ._table4 import (
 __all__ = [
     "FIXTURE_MOMENT_M",
     "TABLE2_PAPER",
+    "TABLE2_PAPER_COLUMNS",
     "TABLE3_COLUMNS",
     "TABLE3_PAPER",
     "TABLE3_ROWS",
@@ -28,8 +36,10 @@ __all__ = [
     "BuiltReport",
     "FixtureRefit",
     "PaperRun",
+    "Table2Column",
     "Table4Result",
     "characterization_report",
+    "identify_table2_column",
     "load_paper_run",
     "paper_report",
     "parameter_rows",
