@@ -15,21 +15,32 @@ from .. import __version__
 
 __all__ = ["build_parser", "main"]
 
+#: Commands in the order of ``openemt --help``: name -> (module ``openemt.cli._<module>``, one-line
+#: help). The help is defined here once (command modules read it through :func:`command_help`)
+#: so that ``openemt --help`` and ``--version`` list the commands without importing any of them.
+COMMANDS = {
+    "demo": ("demo", "simulate, calibrate, solve, correct and report (no hardware)"),
+    "simulate": ("simulate", "simulate a calibration/test data collection with known truth"),
+    "import": ("import_", "import acquisition files into an openemt dataset (.h5)"),
+    "info": ("info", "summarise a dataset or calibration file"),
+    "solve": ("solve", "solve sensor poses from a dataset's couplings"),
+    "calibrate": ("calibrate", "fit a dipole-model and fixture calibration to a dataset"),
+    "correct": ("correct", "fit or apply an output correction of poses"),
+    "reproduce": ("reproduce", "reproduce a table of the seed papers from raw data"),
+    "report": ("report", "write a self-contained HTML calibration and characterization report"),
+    "track": ("track",
+              "live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)"),
+    "bench": ("bench", "run a benchmark and print its JSON summary"),
+    "datasets": ("datasets", "list (and verify) the bundled data sets"),
+}
+
 #: Command modules, in the order they appear in ``openemt --help``.
-COMMAND_MODULES = (
-    "demo",
-    "simulate",
-    "import_",
-    "info",
-    "solve",
-    "calibrate",
-    "correct",
-    "reproduce",
-    "report",
-    "track",
-    "bench",
-    "datasets",
-)
+COMMAND_MODULES = tuple(module for module, _ in COMMANDS.values())
+
+
+def command_help(name: str) -> str:
+    """The one-line help of command ``name`` (see :data:`COMMANDS`)."""
+    return COMMANDS[name][1]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -39,20 +50,43 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``openemt`` argument parser.
+
+    Parameters
+    ----------
+    command : str, optional
+        Import and configure only this command's module; the others are listed by name and
+        help alone. ``None`` configures every command; ``""`` none (enough for ``--help`` and
+        ``--version``).
+    """
     parser = _Parser(prog="openemt",
                      description="Open software stack for electromagnetic trackers.")
     parser.add_argument("--version", action="version", version=f"openemt {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for name in COMMAND_MODULES:
-        importlib.import_module(f"openemt.cli._{name}").register(sub)
+    for name, (module, help_) in COMMANDS.items():
+        if command is None or command == name:
+            importlib.import_module(f"openemt.cli._{module}").register(sub)
+        else:
+            sub.add_parser(name, help=help_, add_help=False)
     return parser
+
+
+def _command_of(argv) -> str:
+    """The command named on a command line (the first word that is not an option), or ''."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else ""
+        if word in ("-h", "--help", "--version"):
+            return ""
+    return ""
 
 
 def main(argv=None) -> int:
     """Run the CLI; returns the exit status (0 ok, 2 bad input, 1 other failure)."""
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    parser = build_parser(_command_of(argv))
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import json
 
+from . import command_help
 from ._common import add_common, emit, to_jsonable
 
 #: name -> (module, one-line help)
@@ -25,7 +26,7 @@ BENCHMARKS = {
 
 
 def register(sub) -> None:
-    p = sub.add_parser("bench", help="run a benchmark and print its JSON summary",
+    p = sub.add_parser("bench", help=command_help("bench"),
                        description=__doc__.splitlines()[0])
     bsub = p.add_subparsers(dest="bench", metavar="NAME")
     bsub.required = True

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from . import command_help
 from ._common import add_common, emit
 
 __all__ = ["load_dataset", "register", "run"]
@@ -18,7 +19,7 @@ def register(sub) -> None:
     from ..calibrate import MODES
 
     p = sub.add_parser(
-        "calibrate", help="fit a dipole-model and fixture calibration to a dataset",
+        "calibrate", help=command_help("calibrate"),
         description="Fit a calibration (seed 000 §VI) to DATASET, starting from --from CAL. "
                     "DATASET is an ILEMT folder, a dataset file (.h5) or a CSV export.")
     p.add_argument("dataset", metavar="DATASET", help="ILEMT folder, dataset .h5 or .csv")

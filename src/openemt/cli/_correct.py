@@ -13,13 +13,14 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from . import command_help
 from ._common import add_common, emit
 
 __all__ = ["register", "run_apply", "run_fit"]
 
 
 def register(sub) -> None:
-    p = sub.add_parser("correct", help="fit or apply an output correction of poses",
+    p = sub.add_parser("correct", help=command_help("correct"),
                        description=__doc__.splitlines()[0])
     actions = p.add_subparsers(dest="action", metavar="ACTION")
     actions.required = True

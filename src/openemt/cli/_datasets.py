@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from . import command_help
 from ._common import add_common, emit
 
 __all__ = ["register", "run"]
 
 
 def register(sub) -> None:
-    p = sub.add_parser("datasets", help="list (and verify) the bundled data sets",
+    p = sub.add_parser("datasets", help=command_help("datasets"),
                        description=__doc__.splitlines()[0])
     p.add_argument("name", nargs="?", help="one data set (default: all)")
     p.add_argument("--verify", action="store_true",

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from . import command_help
 from ._common import add_common, emit, progress
 
 PRESETS = ("dipole-approx", "concentric")
@@ -27,7 +28,7 @@ _ROW_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def register(sub) -> None:
-    p = sub.add_parser("demo", help="simulate, calibrate, solve, correct and report (no hardware)",
+    p = sub.add_parser("demo", help=command_help("demo"),
                        description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=PRESETS, default="dipole-approx",
                    help="simulated source (default: dipole-approx, seed 000's 3-coil source)")

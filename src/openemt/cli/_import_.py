@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 from .._errors import InputError
+from . import command_help
 from ._common import add_common, emit
 
 __all__ = ["parse_sign_arg", "register", "run"]
@@ -24,7 +25,7 @@ def parse_sign_arg(text: str) -> tuple[str, tuple[float, float, float]]:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("import", help="import acquisition files into an openemt dataset (.h5)",
+    p = sub.add_parser("import", help=command_help("import"),
                        description=__doc__.splitlines()[0])
     fsub = p.add_subparsers(dest="format", metavar="FORMAT")
     fsub.required = True

@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from . import command_help
 from ._common import add_common, emit
 
 __all__ = ["calibration_info", "dataset_info", "register", "run"]
 
 
 def register(sub) -> None:
-    p = sub.add_parser("info", help="summarise a dataset or calibration file",
+    p = sub.add_parser("info", help=command_help("info"),
                        description=__doc__.splitlines()[0])
     p.add_argument("path", help="dataset .h5, calibration .json or ILEMT calibration .mat")
     add_common(p)

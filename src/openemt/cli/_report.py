@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._errors import InputError
+from . import command_help
 from ._common import add_common, emit
 
 __all__ = ["register", "run"]
@@ -21,7 +22,7 @@ __all__ = ["register", "run"]
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "report", help="write a self-contained HTML calibration and characterization report",
+        "report", help=command_help("report"),
         description="Write one self-contained HTML report (tables and figures embedded). With an "
                     "ILEMT folder: the paper's calibration sequence and the seed 000 Table II, "
                     "III and IV reproductions. With a dataset and --calibration: accuracy, "

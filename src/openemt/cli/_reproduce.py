@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from . import command_help
 from ._common import add_common, emit
 from ._reproduce_tables import add_table_commands
 
@@ -10,7 +11,7 @@ __all__ = ["register", "run_table2"]
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "reproduce", help="reproduce a table of the seed papers from raw data",
+        "reproduce", help=command_help("reproduce"),
         description="Reproduce the seed papers' tables: Table II, III and IV of seed 000 from an "
                     "ILEMT data folder, and two simulation studies of the calibration.")
     tables = p.add_subparsers(dest="table", metavar="TABLE", parser_class=type(p))

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from . import command_help
 from ._common import add_common, emit
 
 __all__ = ["parse_distortion", "register", "run"]
@@ -21,7 +22,7 @@ def register(subparsers) -> None:
     from ..simulate import PATTERNS, PRESETS, STAGE_SIGMA
 
     p = subparsers.add_parser(
-        "simulate", help="simulate a calibration/test data collection with known truth",
+        "simulate", help=command_help("simulate"),
         description="Simulate the ILEMT-style calibration apparatus (stage patterns, manual "
                     "fixtures) with a finite-coil tracker preset and optional error sources; "
                     "write the dataset as HDF5.")

@@ -11,10 +11,11 @@ __all__ = ["register", "run"]
 
 
 def register(subparsers) -> None:
+    from . import command_help
     from ._common import add_common
 
     p = subparsers.add_parser(
-        "solve", help="solve sensor poses from a dataset's couplings",
+        "solve", help=command_help("solve"),
         description="Solve sensor poses for every row of an openemt HDF5 dataset with a "
                     "calibration's model and write them to an HDF5 poses file. Large files are "
                     "streamed in blocks (Dask; local by default, --scheduler for a cluster).")

@@ -11,10 +11,11 @@ __all__ = ["register", "run"]
 
 
 def register(subparsers) -> None:
+    from . import command_help
     from ._common import add_common
 
     p = subparsers.add_parser(
-        "track", help="live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)",
+        "track", help=command_help("track"),
         description="Demodulate raw samples (simulated device or an HDF5 recording), solve "
                     "poses with a warm-started LM solver and serve them as OpenIGTLink "
                     "TRANSFORM messages in millimetres for 3D Slicer (OpenIGTLinkIF, client "
