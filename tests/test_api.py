@@ -1,0 +1,36 @@
+"""The top-level API: main objects reachable from ``import openemt``, loaded on first use."""
+
+import subprocess
+import sys
+
+import pytest
+
+import openemt
+
+
+def test_import_openemt_loads_no_numeric_stack():
+    code = ("import sys, openemt; "
+            "print(sorted(m for m in ('numpy', 'scipy', 'numba', 'h5py') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60)
+    assert out.stdout.strip() == "[]", out.stderr
+
+
+@pytest.mark.parametrize("name", sorted(set(openemt.__all__) - {"__version__"}))
+def test_every_public_name_resolves(name):
+    assert getattr(openemt, name) is not None
+    assert name in dir(openemt)
+
+
+def test_names_are_the_subpackages_objects():
+    from openemt import io, solve
+
+    assert openemt.Calibration is io.Calibration
+    assert openemt.read_dataset is io.read_dataset
+    assert openemt.solve_lm is solve.solve_lm
+    assert openemt.solve_svd is solve.solve_svd
+
+
+def test_unknown_name_raises_attribute_error():
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        openemt.nope  # noqa: B018
