@@ -1,15 +1,21 @@
 """The ``openemt`` command: a thin layer that parses, calls the library and prints.
 
 Each command lives in its own module exposing ``register(subparsers)``; the parser it adds
-sets ``func(args) -> int``. Bad input raises ``ValueError``/``TypeError``/``OSError`` (or
-``InputError``) inside the library; ``main`` turns that into one ``error:`` line and exit 2.
+sets ``func(args) -> int``. Bad input raises ``InputError`` (a ``ValueError``) or ``OSError``
+inside the library; ``main`` turns that into one ``error:`` line and exit 2. Before a command
+runs, its outputs are checked against every existing path on its command line (no input is
+ever overwritten).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
+import threading
+import traceback
 
 from .. import __version__
 
@@ -83,23 +89,79 @@ def _command_of(argv) -> str:
     return ""
 
 
+#: Argument destinations that name files or folders a command writes.
+OUTPUT_DESTS = ("output", "output_dir", "log", "save_raw", "truth_calibration")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived: handled exactly like Ctrl-C (temporary files are removed, a live session
+    ends and writes its log)."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def _paths(value):
+    if isinstance(value, (str, os.PathLike)):
+        yield value
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _paths(v)
+
+
+def check_outputs(args) -> None:
+    """Refuse outputs that would overwrite an input: every other existing path named on the
+    command line counts as an input (see :func:`openemt.io.check_output_path`)."""
+    from ..io._atomic import check_output_path
+
+    outputs = [v for d in OUTPUT_DESTS for v in _paths(getattr(args, d, None))]
+    if not outputs:
+        return
+    inputs = [v for d, val in vars(args).items() if d not in OUTPUT_DESTS
+              for v in _paths(val) if os.path.exists(v)]
+    for out in outputs:
+        check_output_path(out, inputs)
+
+
 def main(argv=None) -> int:
-    """Run the CLI; returns the exit status (0 ok, 2 bad input, 1 other failure)."""
+    """Run the CLI; returns the exit status (0 ok, 2 bad input, 1 other failure, 130/143
+    interrupted/terminated).
+
+    Bad input (:class:`~openemt._errors.InputError` and other ``ValueError``, ``OSError``) is one
+    ``error:`` line and status 2. ``KeyError``, ``TypeError``, ``IndexError`` and the like are bugs:
+    they print their traceback and an invitation to report them.
+    """
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     parser = build_parser(_command_of(argv))
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
+        check_outputs(args)
         return int(args.func(args) or 0)
+    except Terminated:
+        print("error: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, TypeError, KeyError, OSError) as exc:
+    except (ValueError, OSError) as exc:
         msg = " ".join(str(exc).split()) or type(exc).__name__
         print(f"error: {msg}", file=sys.stderr)
         return 2
+    except Exception:
+        traceback.print_exc()
+        print("error: internal error: this is a bug in openemt, not a problem with your input; "
+              "please report it with the traceback above", file=sys.stderr)
+        return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover
