@@ -12,7 +12,7 @@ def test_import_openemt_loads_no_numeric_stack():
     code = ("import sys, openemt; "
             "print(sorted(m for m in ('numpy', 'scipy', 'numba', 'h5py') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=60)
+                         timeout=60, check=False)
     assert out.stdout.strip() == "[]", out.stderr
 
 
@@ -34,3 +34,7 @@ def test_names_are_the_subpackages_objects():
 def test_unknown_name_raises_attribute_error():
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         openemt.nope  # noqa: B018
+
+
+def test_all_lists_exactly_the_lazy_names():
+    assert set(openemt.__all__) == {"__version__", *openemt.SUBPACKAGES, *openemt._ATTRIBUTES}

@@ -66,7 +66,7 @@ def test_check_output_path_allows_distinct_files(tmp_path):
 def test_stale_temporaries_of_dead_runs_are_removed(tmp_path):
     target = tmp_path / "out.h5"
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True).stdout.strip()
+                          capture_output=True, text=True, check=True).stdout.strip()
     stale = tmp_path / f".out.h5.openemt-{dead}.abcd1234.h5"
     live = tmp_path / f".out.h5.openemt-{os.getpid()}.abcd1234.h5"
     other = tmp_path / f".other.h5.openemt-{dead}.abcd1234.h5"

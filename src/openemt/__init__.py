@@ -56,7 +56,16 @@ _ATTRIBUTES = {
     "error_summary": ("evaluate", "error_summary"),
 }
 
-__all__ = ["__version__", *SUBPACKAGES, *sorted(_ATTRIBUTES)]
+__all__ = [  # noqa: RUF022 - version, then the subpackages in pipeline order, then the names
+    "__version__",
+    "geometry", "field", "simulate", "io", "signal", "solve", "calibrate", "correct", "evaluate",
+    "paper", "report", "live", "bench", "datasets",
+    "Calibration", "Dataset", "DipoleModel", "SolveResult", "Status", "error_summary",
+    "fit_calibration", "fit_correction", "import_ilemt_folder", "pose_errors",
+    "pose_from_vector", "read_calibration", "read_dataset", "read_ilemt_calibration",
+    "solve_kim18", "solve_kuipers", "solve_lm", "solve_svd", "vector_from_pose",
+    "write_calibration", "write_dataset",
+]
 
 
 def __getattr__(name: str):

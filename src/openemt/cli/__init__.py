@@ -154,7 +154,7 @@ def main(argv=None) -> int:
         msg = " ".join(str(exc).split()) or type(exc).__name__
         print(f"error: {msg}", file=sys.stderr)
         return 2
-    except Exception:
+    except Exception:  # noqa: BLE001 - a bug: shown with its traceback, never as bad input
         traceback.print_exc()
         print("error: internal error: this is a bug in openemt, not a problem with your input; "
               "please report it with the traceback above", file=sys.stderr)

@@ -17,6 +17,7 @@ from .. import __version__
 from .._errors import InputError
 from ..geometry import fixture_axes
 from ._dataset import Dataset
+from ._namepattern import compile_name_pattern
 
 __all__ = [
     "ILEMT_NAME_RE",
@@ -182,10 +183,9 @@ def _parse_sign_cell(body: str, what: str, path) -> list[tuple[str, tuple[float,
         pos = m.end()
         regex = m.group(1).replace("''", "'")
         try:
-            re.compile(regex)
-        except re.error as exc:
-            raise InputError(f"{path}: expected a valid regular expression in `options.{what}`, "
-                             f"got {regex!r} ({exc})") from None
+            compile_name_pattern(regex)
+        except InputError as exc:
+            raise InputError(f"{path}: `options.{what}`: {exc}") from None
         try:
             signs = tuple(float(v) for v in m.group(2).replace(",", " ").split())
         except ValueError:
@@ -249,6 +249,10 @@ def _check_sign_list(signs, name: str, n: int) -> list[tuple[str, np.ndarray]]:
             raise TypeError(f"expected `{name}` entries (regex, (s1, ..., s{n})), got {item!r}") from None
         if not isinstance(regex, str):
             raise TypeError(f"expected a regex string in `{name}`, got {type(regex).__name__}")
+        try:
+            compile_name_pattern(regex)
+        except InputError as exc:
+            raise InputError(f"`{name}`: {exc}") from None
         s = np.asarray(s, dtype=np.float64)
         if s.shape != (n,) or not np.all(np.abs(s) == 1.0):
             raise InputError(f"expected {n} signs of +1/-1 for {regex!r} in `{name}`, got {s.tolist()}")
@@ -257,10 +261,11 @@ def _check_sign_list(signs, name: str, n: int) -> list[tuple[str, np.ndarray]]:
 
 
 def resolve_signs(name: str, signs) -> np.ndarray:
-    """Sign vector for a file name: the first ``(regex, signs)`` whose regex ``re.search``-es
-    the name, else all ones (length 3)."""
+    """Sign vector for a file name: the first ``(pattern, signs)`` whose pattern is found in the
+    name (``re.search`` semantics, matched by the linear-time :mod:`._namepattern`), else all
+    ones (length 3)."""
     for regex, s in signs:
-        if re.search(regex, name):
+        if compile_name_pattern(regex).search(name):
             return np.asarray(s, dtype=np.float64)
     return np.ones(3)
 
