@@ -30,7 +30,7 @@ def test_calibrate_command_writes_calibration(ilemt_dir, tmp_path, capsys):
                             "--json", "--quiet"])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
-    # from base_calibration.mat: the paper's XYZ residue (ilemt-format.md §9)
+    # from base_calibration.mat: the paper's XYZ residue (docs/paper-procedure.md#run-sequence)
     assert summary["rms_residue"] == pytest.approx(0.004847097, rel=2e-6)
     assert summary["num_points"] == 426 and summary["n_free"] == 35
     assert summary["jacobian_rank"] == 35 and summary["undetermined_groups"] == []
@@ -80,7 +80,7 @@ def test_reproduce_table2_command_matches_paper(ilemt_dir, capsys):
         assert set(out[row]) >= {"trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg"}
     assert set(out["calibration_residues"]) >= {"XYZ", "XYZ_concentric", "so_fixture_all"}
     assert out["seconds"]["total"] > 0
-    # issue 4 item 7 tolerances: default within 0.005 mm / 0.005 deg, corrected <= 0.27 mm,
+    # tolerances of the Table II reproduction: default within 0.005 mm / 0.005 deg, corrected <= 0.27 mm,
     # concentric within 0.01 mm of the paper
     d, p = out["default"], TABLE2_PAPER["default"]
     assert abs(d["trans_rms_mm"] - p["trans_rms_mm"]) <= 0.005
@@ -88,7 +88,7 @@ def test_reproduce_table2_command_matches_paper(ilemt_dir, capsys):
     assert out["corrected"]["trans_rms_mm"] <= 0.27
     assert abs(out["concentric"]["trans_rms_mm"] - TABLE2_PAPER["concentric"]["trans_rms_mm"]) \
         <= 0.01
-    # and in fact to the paper's printed digits (ilemt-format.md §14)
+    # and in fact to the paper's printed digits (docs/paper-procedure.md#reproduction)
     for row in ("default", "corrected", "concentric"):
         for k, v in TABLE2_PAPER[row].items():
             assert out[row][k] == pytest.approx(v, abs=5e-5), (row, k)
@@ -99,7 +99,7 @@ def test_reproduce_table2_command_matches_paper(ilemt_dir, capsys):
     assert st["XYZ"]["uncorrected"] == pytest.approx(0.4691e-3, abs=1e-7)
     assert st["XYZ"]["corrected"] == pytest.approx(0.2776e-3, abs=1e-7)
     assert st["XYZ_all"]["num_invalid"] == 276
-    # issue 4 item 7 goals for the improved calibration (fitted on md rows only)
+    # targets of the improved calibration (docs/calibration.md) (fitted on md rows only)
     imp, impc = out["improved"], out["improved_corrected"]
     assert imp["trans_rms_mm"] <= 0.25 and imp["rot_rms_deg"] <= 0.12
     assert impc["trans_rms_mm"] <= 0.18

@@ -8,7 +8,7 @@ import pytest
 from openemt.calibrate import PAPER_SEQUENCE, residue_stats, run_sequence
 from openemt.io import import_ilemt_folder, read_ilemt_calibration
 
-# rms_residue of each run on cal_9_15 (ilemt-format.md §9 table, from the authors' spreadsheet)
+# rms_residue of each run on cal_9_15 (docs/paper-procedure.md#run-sequence table, from the authors' spreadsheet)
 PAPER_RESIDUES = {
     "XYZ_nosofix": 0.004847097,
     "so_fixture_all": 0.016104433,
@@ -30,7 +30,7 @@ def ilemt(ilemt_dir):
 def test_stored_calibration_residue_is_reproduced(ilemt, ilemt_dir):
     cal = read_ilemt_calibration(ilemt_dir / "output" / "XYZ_hr_cal.mat")
     st = residue_stats(ilemt, cal, "XYZ")
-    # ilemt-format.md §14: sum of squares 0.01000859278 for the committed XYZ_hr_cal
+    # docs/paper-procedure.md#reproduction: sum of squares 0.01000859278 for the committed XYZ_hr_cal
     assert st["num_points"] == 426
     assert st["sum_squared_residue"] == pytest.approx(0.01000859278, rel=1e-9)
 

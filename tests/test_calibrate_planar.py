@@ -1,4 +1,4 @@
-"""Planar (Anser-style) field-generator calibration from grid data (issue 4 item 9)."""
+"""Planar (Anser-style) field-generator calibration from grid data (Jaeger et al. 2017)."""
 
 from __future__ import annotations
 

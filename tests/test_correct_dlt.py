@@ -1,4 +1,4 @@
-"""DLT position correction (ilemt-format.md §11) on synthetic projective distortions."""
+"""DLT position correction (docs/paper-procedure.md#output-correction) on synthetic projective distortions."""
 
 import numpy as np
 import pytest
@@ -96,7 +96,7 @@ def test_bad_matrix():
 
 
 def test_real_data_refit_matches_stored_statistics(ilemt_dir):
-    """ilemt-format.md §11: re-fitting the correction of output/XYZ_hr_cal.mat on its own 3 md
+    """docs/paper-procedure.md#output-correction: re-fitting the correction of output/XYZ_hr_cal.mat on its own 3 md
     files (solved from the true pose) matches the stored uncorrected/corrected RMS to 4 digits."""
     from openemt.geometry import ground_truth_poses, vector_from_pose
     from openemt.io import import_ilemt_folder, read_ilemt_calibration

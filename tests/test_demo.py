@@ -17,7 +17,7 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert cal["trans_rms_mm"] < 0.3 and cal["rot_rms_deg"] < 0.1
     assert cal["trans_rms_mm"] < 1.2 * truth["trans_rms_mm"]
     assert start["trans_rms_mm"] > 10 * cal["trans_rms_mm"]
-    # the concentric model cannot represent the 45 mm coil offsets (seed 000 Table II: ~28 mm)
+    # the concentric model cannot represent the 45 mm coil offsets (MacLachlan et al. 2025, Table II: ~28 mm)
     assert rows["concentric + Kim18"]["trans_rms_mm"] > 5.0
     assert summary["n_test"] == 1896 and summary["n_calibration"] == 852
     for name in ("calibration_data.h5", "test_data.h5", "truth_calibration.json",

@@ -1,4 +1,4 @@
-"""Characterization: error vectors, u(cal), combined u(P) (seed 000 eq. 10), per-group stats."""
+"""Characterization: error vectors, u(cal), combined u(P) (MacLachlan et al. 2025, eq. 10), per-group stats."""
 
 import numpy as np
 import pytest
@@ -42,7 +42,7 @@ def test_error_vectors_match_magnitudes_and_construction():
 
 
 def test_uncertainty_matches_paper_table2_concentric_row():
-    """Seed 000 Table II, concentric source, (default) row: u(cal) 0.41555 mm / 0.27262 deg
+    """MacLachlan et al. 2025, Table II, concentric source, (default) row: u(cal) 0.41555 mm / 0.27262 deg
     gives u(P) 0.429 mm / 0.321 deg with the stage's 0.107 mm / 0.17 deg (eq. 10)."""
     t = np.full(10, 0.41555e-3)
     r = np.full(10, np.deg2rad(0.27262))

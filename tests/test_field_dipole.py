@@ -151,7 +151,7 @@ def test_bad_inputs():
 
 
 def test_worked_example_real_calibration(ilemt_dir):
-    """ilemt-format.md §13: predicted coupling of one real row with the committed XYZ_hr_cal."""
+    """docs/ilemt-data.md#worked-example: predicted coupling of one real row with the committed XYZ_hr_cal."""
     from openemt.io import read_ilemt_calibration
 
     cal = read_ilemt_calibration(ilemt_dir / "output" / "XYZ_hr_cal.mat")

@@ -131,7 +131,7 @@ def test_elementary_rotations():
 
 
 def test_fixture_rotations_match_the_documented_tables():
-    # ilemt-format.md §4.2, rows listed top to bottom
+    # docs/ilemt-data.md#fixture-rotations, rows listed top to bottom
     so = {
         "YoutZup": np.eye(3),
         "XoutZup": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]],
@@ -178,7 +178,7 @@ def test_all_fixture_codes_are_rotations():
 
 
 def test_worked_example_ground_truth():
-    # ilemt-format.md §13 (fixtures rounded to 6 decimals as printed there)
+    # docs/ilemt-data.md#worked-example (fixtures rounded to 6 decimals as printed there)
     F_so = [-0.000999, -0.011916, -0.009595, 0.022462, 0.052125, -1.568037]
     F_st = [0.001510, 0.244445, 0.012462, -0.000160, 0.001946, 0.011071]
     F_se = [-0.000319, 0.000275, -0.000322, -2.207918, -2.226116, -0.003116]

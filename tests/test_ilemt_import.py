@@ -1,4 +1,4 @@
-"""ILEMT importer on the real cal_9_15_premo_cmu folder (ilemt-format.md §1-§5, §13, §14)."""
+"""ILEMT importer on the real cal_9_15_premo_cmu folder (docs/ilemt-data.md, docs/paper-procedure.md#reproduction)."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def test_patterns_filter_and_no_compensation(ilemt_dir):
 
 
 def test_worked_example_row(ilemt_dir):
-    """ilemt-format.md §13: row 2 of soYoutZup_seZinXdown_md.dat, end to end."""
+    """docs/ilemt-data.md#worked-example: row 2 of soYoutZup_seZinXdown_md.dat, end to end."""
     ds = read_ilemt_dat(ilemt_dir / "soYoutZup_seZinXdown_md.dat")
     assert ds.n_samples == 142
     np.testing.assert_allclose(ds.stage_logged[1], [-0.05, -0.05, -0.0462, 0, 0, -np.pi / 2],
@@ -104,7 +104,7 @@ def test_worked_example_row(ilemt_dir):
     signed = [[-0.277755, 0.094484, -0.075956], [-0.087725, 0.012281, 0.163089],
               [0.121601, 0.169939, 0.032755]]
     np.testing.assert_allclose(ds.signed_real()[1], signed, atol=6e-7)
-    # first value of the lr block is lr C[0, 0] (raw line of §2)
+    # first value of the lr block is lr C[0, 0] (docs/ilemt-data.md#worked-example)
     assert ds.extra["couplings_lr"][1, 0, 0] == complex(-0.007545182, 0.000000861)
 
     cal = read_ilemt_calibration(ilemt_dir / "output" / "XYZ_hr_cal.mat")
@@ -134,7 +134,7 @@ def _sum_squared_residue(cal, ds, norm_of):
 
 @pytest.mark.parametrize("name", ["XYZ_hr_cal.mat", "XYZ_concentric_hr_cal.mat"])
 def test_calibration_residual_reproduced(ilemt_dir, name):
-    """ilemt-format.md §14: the §8.2 objective with the stored calibration on its 426 md rows.
+    """docs/paper-procedure.md#reproduction: the objective (docs/paper-procedure.md#calibration-objective) with the stored calibration on its 426 md rows.
 
     The spectral norm must be taken of the *signed-real* matrix: it reproduces the stored sums
     to ~1e-14 relative, while the norm of the complex matrix is off by ~1e-6 relative.
@@ -159,7 +159,7 @@ def test_calibration_residual_reproduced(ilemt_dir, name):
 
 def test_ilemt_calibration_contents(ilemt_dir):
     cal = read_ilemt_calibration(ilemt_dir / "base_calibration.mat")
-    # rounded values printed in ilemt-format.md §7
+    # rounded values printed in docs/ilemt-data.md#calibration-mat
     np.testing.assert_allclose(cal.model.M_so, [[0.819596, -0.015444, 0], [0, 0.897652, 0],
                                                 [0.001551, 0.001455, 1]], atol=6e-7)
     np.testing.assert_allclose(cal.stage_fixture, [0.012645, 0.242396, 0.008604, -0.015018,

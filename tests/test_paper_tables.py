@@ -1,4 +1,4 @@
-"""Seed 000 Table III and Table IV reproductions (openemt.paper) and their reproduce commands."""
+"""MacLachlan et al. 2025, Table III and Table IV reproductions (openemt.paper) and their reproduce commands."""
 
 import json
 
@@ -59,7 +59,7 @@ def test_a_run_without_a_needed_calibration_is_rejected(tmp_path):
 
 
 def test_paper_values_are_seed_000_tables():
-    # spot checks against the printed tables (seed 000 Table III, Table IV)
+    # spot checks against the printed tables (MacLachlan et al. 2025, Table III, Table IV)
     assert TABLE3_PAPER["translation_only"]["sensor_fixtures"]["trans_rms_mm"] == 1.862
     assert TABLE3_PAPER["sensor_fixture"]["source_and_sensor_fixtures"]["rot_max_deg"] == 5.222
     assert TABLE3_PAPER["both_fixtures"]["translation_only"]["trans_max_mm"] == 1.700
@@ -150,7 +150,7 @@ def test_table3_every_cell_within_5_percent_of_the_paper(paper_run):
                 worst = max(worst, abs(cell[k] / paper - 1))
     assert out["max_deviation"] == pytest.approx(worst)
     assert out["within_5_percent"] is True
-    # ilemt-format.md §14 reproduced values with more digits than the printed table
+    # docs/paper-procedure.md#reproduction reproduced values with more digits than the printed table
     sf = out["sensor_fixture"]
     assert sf["source_and_sensor_fixtures"]["trans_rms_mm"] == pytest.approx(4.58041, abs=2e-4)
     assert sf["source_and_sensor_fixtures"]["rot_rms_deg"] == pytest.approx(1.82626, abs=2e-4)

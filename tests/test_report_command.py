@@ -115,7 +115,7 @@ def test_report_of_an_ilemt_folder_renders(ilemt_dir, tmp_path, capsys):
     s = json.loads(capsys.readouterr().out)
     assert s["mode"] == "ilemt" and s["n_test"] == 1896
     t2 = s["table2"]
-    # seed 000 Table II, concentric source (the calibration module reproduces it to 4-5 digits)
+    # MacLachlan et al. 2025, Table II, concentric source (the calibration module reproduces it to 4-5 digits)
     assert t2["default"]["trans_rms_mm"] == pytest.approx(0.41555, rel=1e-3)
     assert t2["corrected"]["trans_rms_mm"] == pytest.approx(0.26306, rel=1e-3)
     assert t2["concentric"]["trans_rms_mm"] == pytest.approx(0.90484, rel=1e-3)

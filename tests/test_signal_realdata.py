@@ -16,7 +16,7 @@ def test_phase_calibration_on_real_couplings(ilemt_dir):
     files = sorted(ilemt_dir.glob("*_md.dat"))
     assert len(files) >= 5
     ref = read_ilemt_dat(files[0]).couplings
-    # ilemt-format.md §2: good values are nearly real, max |Im| / max |C| of 0.2-1 %
+    # docs/ilemt-data.md#dat-format: good values are nearly real, max |Im| / max |C| of 0.2-1 %
     assert 0.002 < np.abs(ref.imag).max() / np.abs(ref).max() < 0.01
     phase = phase_calibration(ref)
     assert np.abs(phase).max() < 0.05                 # a few mrad per (source, sensor) entry

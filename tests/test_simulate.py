@@ -135,7 +135,7 @@ def test_drift_is_a_source_gain_ramp():
     ramp = np.linspace(0, 1, clean.n_samples)
     np.testing.assert_allclose(ratio, (1 + ramp[:, None] * d)[:, :, None]
                                * np.ones((1, 1, 3)), rtol=1e-12)
-    # first and last rows are both the null pose: the drift is visible there, as in §2's check
+    # first and last rows are both the null pose: the drift is visible there, as in docs/ilemt-data.md#null-rows
     change = np.abs(drifted.couplings[-1] - drifted.couplings[0]).max()
     assert 1e-5 < change < 1e-3
 
@@ -273,7 +273,7 @@ def test_presets(name):
     assert (p.n_source, p.n_sensor) == ((8, 1) if name == "anser" else (3, 3))
     assert p.frequencies.shape == (p.n_source,)
     if name != "anser":
-        # gauge of seed 000 eq. 7: Z coils at the origin along z, source Z gain 1, M[1, 0] = 0
+        # gauge of MacLachlan et al. 2025, eq. 7: Z coils at the origin along z, source Z gain 1, M[1, 0] = 0
         for L, M in ((p.dipole.L_so, p.dipole.M_so), (p.dipole.L_se, p.dipole.M_se)):
             np.testing.assert_array_equal(L[:, 2], 0)
             np.testing.assert_array_equal(M[:2, 2], 0)
@@ -298,7 +298,7 @@ def test_coupling_range_like_real_data(md_clean):
 
 def test_concentric_preset_near_real_home_fixture_data(ilemt_dir):
     """The concentric preset reproduces the real cal_9_15 home-source couplings to a few %
-    (its parameters are near the ILEMT calibration of that data, ilemt-format.md §7)."""
+    (its parameters are near the ILEMT calibration of that data, docs/ilemt-data.md#calibration-mat)."""
     from openemt.io import read_ilemt_dat
 
     for se in SENSOR_FIXTURES:

@@ -1,4 +1,4 @@
-"""Stage patterns against ilemt-format.md §3 and against the stage columns of the real files."""
+"""Stage patterns against docs/ilemt-data.md#patterns and against the stage columns of the real files."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 
 from openemt.simulate import STAGE_Z_LIMIT, stage_pattern
 
-# row counts stated in ilemt-format.md §1/§3 (grid: 7 x 7 points of the Anser test grid)
+# row counts stated in docs/ilemt-data.md#recordings, docs/ilemt-data.md#patterns (grid: 7 x 7 points of the Anser test grid)
 DOC_COUNTS = {"sd": 86, "md": 142, "ld": 632, "sweep": 973, "mdtrans": 30, "ldtrans": 128,
               "source": 78, "grid": 49}
 
@@ -20,7 +20,7 @@ def to_mm_deg(stage):
 
 
 def mesh_by_loops(values, key, rz_values):
-    """§3 in words: null; per Rz (outer) the first grid point, the key point, then the rest of
+    """docs/ilemt-data.md#patterns in words: null; per Rz (outer) the first grid point, the key point, then the rest of
     the grid with x fastest, then y, then z; null. Z = -50 logged as -46.2."""
     rows = [[0.0] * 6]
     for rz in rz_values:
@@ -44,7 +44,7 @@ def test_md_ld_order_follows_section_3():
                        (-90, -45, 0, 45, 90))
     np.testing.assert_allclose(to_mm_deg(stage_pattern("md")), md, rtol=0, atol=1e-9)
     np.testing.assert_allclose(to_mm_deg(stage_pattern("ld")), ld, rtol=0, atol=1e-9)
-    # the worked rows of §2/§13: row 2 of an md file is (-50, -50, -46.2, 0, 0, -90)
+    # the worked rows of docs/ilemt-data.md#worked-example: row 2 of an md file is (-50, -50, -46.2, 0, 0, -90)
     np.testing.assert_allclose(to_mm_deg(stage_pattern("md"))[1], [-50, -50, -46.2, 0, 0, -90],
                                atol=1e-9)
 

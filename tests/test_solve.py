@@ -32,7 +32,7 @@ def random_poses(rng, n, *, center=(0.0, 0.25, 0.0), spread=0.08):
 
 
 def dipole_approx_model():
-    """3 air coils with 45 mm offsets (ilemt-format.md §7, cal_9_24 values, rounded)."""
+    """3 air coils with 45 mm offsets (docs/ilemt-data.md#calibration-mat, cal_9_24 values, rounded)."""
     L_so = np.array([[0.045269, -0.000789, 0.0], [0.001401, 0.045415, 0.0],
                      [-0.043735, -0.042953, 0.0]])
     M_so = np.array([[0.951017, -0.000652, 0.0], [0.0, 0.949091, 0.0], [-0.025910, 0.000539, 1.0]])
@@ -351,7 +351,7 @@ def test_solve_result_helpers():
 
 
 def test_kim18_matches_numpy_transcription_of_ilemt_formula():
-    """Kim18 exactly as written in ilemt-format.md §10.2, with numpy's SVD, on noisy data."""
+    """Kim18 exactly as written in docs/paper-procedure.md#kim18, with numpy's SVD, on noisy data."""
     rng = np.random.default_rng(16)
     model = skewed_concentric(rng)
     P = random_poses(rng, 200, center=(0.3, 0.0, 0.0), spread=0.1)

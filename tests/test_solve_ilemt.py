@@ -1,8 +1,8 @@
-"""Real data: seed 000 Table II (concentric source, cal_9_15) reproduced through the solvers.
+"""Real data: MacLachlan et al. 2025, Table II (concentric source, cal_9_15) reproduced through the solvers.
 
-Pose solution as ilemt-format.md §10 (hemisphere from each row's ground truth, LM started from
+Pose solution as docs/paper-procedure.md#pose-solution (hemisphere from each row's ground truth, LM started from
 the Kim18 solution of the concentric calibration, 0.4 m position box, resnorm < 1e-5 valid, sign
-flip retries), errors as §12 in stage coordinates, all 1896 rows kept.
+flip retries), errors as docs/paper-procedure.md#test-error in stage coordinates, all 1896 rows kept.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def test_table2_xyz_hr_cal_lm(ilemt_test_set):
     res = solve_lm(ds.couplings, cal.model, hemisphere=hemi, concentric_model=conc.model,
                    bounds=0.4, valid_threshold=1e-5)
     s = error_summary(*pose_error_magnitudes(res.poses, D, sensor_fixture=cal.sensor_fixture))
-    # seed 000 Table II / ilemt-format.md §12: 0.41555/1.02214 mm, 0.27262/0.63741 deg
+    # MacLachlan et al. 2025, Table II / docs/paper-procedure.md#test-error: 0.41555/1.02214 mm, 0.27262/0.63741 deg
     assert s["trans_rms_mm"] == pytest.approx(0.41555, abs=0.002)
     assert s["rot_rms_deg"] == pytest.approx(0.27262, abs=0.002)
     assert s["trans_max_mm"] == pytest.approx(1.02214, abs=0.002)
@@ -56,7 +56,7 @@ def test_table2_concentric_kim18(ilemt_test_set):
     res = solve_kim18(ds.couplings, conc.model,
                       hemisphere=hemisphere_from_positions(D[:, :3, 3]))
     s = error_summary(*pose_error_magnitudes(res.poses, D, sensor_fixture=conc.sensor_fixture))
-    # seed 000 Table II: 0.90484/2.49205 mm, 0.50825/1.41547 deg
+    # MacLachlan et al. 2025, Table II: 0.90484/2.49205 mm, 0.50825/1.41547 deg
     assert s["trans_rms_mm"] == pytest.approx(0.90484, abs=0.002)
     assert s["rot_rms_deg"] == pytest.approx(0.50825, abs=0.002)
     assert s["trans_max_mm"] == pytest.approx(2.49205, abs=0.002)

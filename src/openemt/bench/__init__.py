@@ -3,7 +3,7 @@
 
 Solver benchmarks:
 
-- ``_noise``: seed 004 noise protocol for the pose solvers next to the Cramer-Rao bound.
+- ``_noise``: Teixeira Silva et al. 2017 noise protocol for the pose solvers next to the Cramer-Rao bound.
 - ``_speed``: poses per second on one core for each solver vs a per-pose scipy baseline.
 """
 

@@ -1,5 +1,5 @@
 """``openemt bench correct``: every output-correction method on one simulated distortion,
-held-out error next to the in-sample error so overfitting is visible (seed 002's comparison).
+held-out error next to the in-sample error so overfitting is visible (Kindratenko's comparison).
 
 Poses uniform in x 0.05-0.35 m, y and z +-0.15 m with random orientations; the measured poses
 carry a smooth position distortion (quadratic, cubic and sine terms, about 1 mm RMS) and a

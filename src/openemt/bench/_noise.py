@@ -1,11 +1,11 @@
-"""``openemt bench noise``: the seed 004 noise protocol for every solver, against the CRB.
+"""``openemt bench noise``: the Teixeira Silva et al. 2017 noise protocol for every solver, against the CRB.
 
-Random poses uniform over seed 004 Table 2 (distance 0.03-1 m, azimuth alpha in [-90, 90] deg,
+Random poses uniform over Teixeira Silva et al. 2017, Table 2 (distance 0.03-1 m, azimuth alpha in [-90, 90] deg,
 elevation beta in [0, 90] deg, Euler angles psi in [-180, 180], theta in [-90, 90],
 phi in [-180, 180] deg), ideal concentric unit dipoles (gain 1/250), and white Gaussian noise on
 the couplings at SNR 20-100 dB.
 
-SNR definition (default ``--snr-per signal``): seed 004 adds the noise to the induced sensor
+SNR definition (default ``--snr-per signal``): Teixeira Silva et al. 2017 add the noise to the induced sensor
 signals. With one source coil excited per state, the induced signal of state i is row i of the
 coupling matrix, ``f5_i = C_k[i, :]`` (three sensor values). Each such signal gets white noise
 of standard deviation ``sigma_ki = rms(C_k[i, :]) * 10^(-SNR/20)``, i.e. SNR is the ratio of that
@@ -14,7 +14,7 @@ signal's mean power to the noise power (like MATLAB ``awgn(x, snr, 'measured')``
 couplings. The CRB uses exactly the same (diagonal) noise covariance.
 
 Position is ``rho [cos(beta) cos(alpha), cos(beta) sin(alpha), sin(beta)]`` (x >= 0, z >= 0)
-and the rotation ``R = Rx(phi) Ry(theta) Rz(psi)`` (seed 004 eq. 9). The +/- ambiguity is resolved with the
+and the rotation ``R = Rx(phi) Ry(theta) Rz(psi)`` (Teixeira Silva et al. 2017, eq. 9). The +/- ambiguity is resolved with the
 hemisphere direction (1, 0, 1)/sqrt(2), which every Table 2 position satisfies.
 """
 
@@ -28,7 +28,7 @@ __all__ = ["SEED004_TABLE4", "add_arguments", "random_table2_poses", "run"]
 
 SNR_DB = (20, 40, 60, 80, 100)
 VARIABLES = ("rho", "alpha", "beta", "psi", "theta", "phi")
-#: Seed 004 Table 4 RMS errors (rho in mm, angles in degrees), per SNR.
+#: Teixeira Silva et al. 2017, Table 4 RMS errors (rho in mm, angles in degrees), per SNR.
 SEED004_TABLE4 = {
     20: {"rho": 7.6317, "alpha": 35.1831, "beta": 33.0100, "psi": 59.7902, "theta": 5.4953,
          "phi": 61.0573},
@@ -51,11 +51,11 @@ def add_arguments(parser) -> None:
                         help="noise power relative to each induced signal (row of C, default) "
                              "or to the whole sample")
     parser.add_argument("--figure", default=None,
-                        help="write a figure like seed 004 Fig. 2 (NRMSE vs SNR) to this file")
+                        help="write a figure like Teixeira Silva et al. 2017, Fig. 2 (NRMSE vs SNR) to this file")
 
 
 def random_table2_poses(rng, n):
-    """Poses uniform over the seed 004 Table 2 intervals; returns (poses, variables (n, 6))."""
+    """Poses uniform over the Teixeira Silva et al. 2017, Table 2 intervals; returns (poses, variables (n, 6))."""
     from ..geometry import pose_from_rt, rotation_x, rotation_y, rotation_z
 
     rho = rng.uniform(0.03, 1.0, n)
@@ -66,7 +66,7 @@ def random_table2_poses(rng, n):
     phi = rng.uniform(-np.pi, np.pi, n)
     p = rho[:, None] * np.column_stack([np.cos(beta) * np.cos(alpha),
                                         np.cos(beta) * np.sin(alpha), np.sin(beta)])
-    # seed 004 eq. 9: orientation matrix A = Rx(phi) Ry(theta) Rz(psi), taken as the rotation
+    # Teixeira Silva et al. 2017, eq. 9: orientation matrix A = Rx(phi) Ry(theta) Rz(psi), taken as the rotation
     R = rotation_x(phi) @ rotation_y(theta) @ rotation_z(psi)
     return pose_from_rt(R, p), np.column_stack([rho, alpha, beta, psi, theta, phi])
 
@@ -208,7 +208,7 @@ def _figure(summary, path):
         ax.set_ylabel("NRMSE (%)")
         ax.grid(True, which="both", alpha=0.3)
     axes[0, 0].legend()
-    fig.suptitle("Normalised RMS error vs SNR (seed 004 protocol)")
+    fig.suptitle("Normalised RMS error vs SNR (the noise protocol of Teixeira Silva et al. 2017)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -1,7 +1,7 @@
 """``openemt bench speed``: poses per second on one core for every solver.
 
-Data: the ``dipole-approx`` preset's dipole model (three air coils with 45 mm offsets, seed 000
-Table I / ilemt-format.md §7 cal_9_24), a smooth sensor trajectory sampled at 1 kHz around
+Data: the ``dipole-approx`` preset's dipole model (three air coils with 45 mm offsets, MacLachlan et al. 2025
+Table I / docs/ilemt-data.md#calibration-mat cal_9_24), a smooth sensor trajectory sampled at 1 kHz around
 0.25 m from the source (0.05 m Lissajous amplitude, about 0.2 m/s and 1 rad/s), and white noise
 at 80 dB SNR on the couplings.
 

@@ -1,4 +1,4 @@
-"""Testing calibrations as the paper does (ilemt-format.md §10, §12; ILEMT's ``check_poses``).
+"""Testing calibrations as the paper does (docs/paper-procedure.md#pose-solution, docs/paper-procedure.md#test-error; ILEMT's ``check_poses``).
 
 Test rows are the ``ld`` files of the home source fixture with all three sensor fixtures (1896
 rows on the ILEMT folders, null and key rows included). Each row is solved without any use of
@@ -31,7 +31,7 @@ test_rows.__test__ = False  # not a pytest test
 
 def test_poses(data, cal, *, solver: str = "lm", concentric_model=None,
                apply_correction: bool = False) -> dict:
-    """Solve and score test rows with a calibration (ilemt-format.md §10, §12).
+    """Solve and score test rows with a calibration (docs/paper-procedure.md#pose-solution, docs/paper-procedure.md#test-error).
 
     Parameters
     ----------
@@ -44,7 +44,7 @@ def test_poses(data, cal, *, solver: str = "lm", concentric_model=None,
     concentric_model : DipoleModel, optional
         Concentric model of the Kim18 start (ILEMT: the concentric calibration).
     apply_correction : bool
-        Apply ``cal.linear_correction`` to the solved positions (ilemt-format.md §10.3).
+        Apply ``cal.linear_correction`` to the solved positions (docs/paper-procedure.md#applying-correction).
 
     Returns
     -------

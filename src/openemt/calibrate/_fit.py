@@ -88,7 +88,7 @@ def _stats(r: np.ndarray, n_rows: int) -> dict:
 
 def residue_stats(dataset, calibration, mode="XYZ", *, select=True) -> dict:
     """``rms_residue``, ``sum_squared_residue`` and ``num_points`` of a calibration on the rows
-    of ``dataset`` a mode uses (ilemt-format.md §8.2; N counts rows, not entries)."""
+    of ``dataset`` a mode uses (docs/paper-procedure.md#calibration-objective; N counts rows, not entries)."""
     _check_inputs(dataset, calibration)
     mode = get_mode(mode)
     data = _rows(dataset, mode, select)
@@ -127,7 +127,7 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
 
     References
     ----------
-    MacLachlan et al., IEEE Sensors J. 2025 (seed 000) §VI; ilemt-format.md §6, §8.
+    MacLachlan et al. 2025 §VI; docs/ilemt-data.md#dipole-model, docs/paper-procedure.md#calibration-objective.
     """
     _check_inputs(dataset, start)
     mode = get_mode(mode)

@@ -156,7 +156,7 @@ class ImprovedCalibration:
     selection : dict
         Cross-validation result of every candidate (md rows only).
     correction : ndarray (4, 4) or None
-        DLT output correction fitted on the calibration rows (ilemt-format.md §11).
+        DLT output correction fitted on the calibration rows (docs/paper-procedure.md#output-correction).
     correction_stats : dict
     concentric_model : DipoleModel
         Model of the Kim18 start.
@@ -244,7 +244,7 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
                          name: str = "improved", candidates=None, folds: int = 9
                          ) -> ImprovedCalibration:
     """The ``--improved`` procedure: fit the improved model on the md rows of the home source
-    fixture and the DLT output correction on the same rows (ilemt-format.md §11).
+    fixture and the DLT output correction on the same rows (docs/paper-procedure.md#output-correction).
 
     Parameters
     ----------
@@ -274,7 +274,7 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
     se = np.zeros(prob.size)
     se[free] = ident.standard_errors
-    # output correction on the calibration rows, solved from the truth (ilemt-format.md §11)
+    # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)
     s = solve_and_score(prob, x, md, concentric_model, initial=vector_from_pose(D))
     ok = np.isfinite(s["residual"]) & (s["residual"] < 1e-5)

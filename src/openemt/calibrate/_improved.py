@@ -1,6 +1,6 @@
 """An improved calibration: a better model of the rig's kinematics and of the coils.
 
-The paper's model (seed 000 eq. 6) takes the rig's known motions as exact. They are not: the
+The paper's model (MacLachlan et al. 2025, eq. 6) takes the rig's known motions as exact. They are not: the
 manual 90-degree sensor-fixture rotations are set by hand, and the stage's Rz axis has its own
 angle errors and tilt. The dipole coils then absorb those errors. This module adds, all fitted on
 the calibration (md) rows only:

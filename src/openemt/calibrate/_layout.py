@@ -1,11 +1,11 @@
 """The calibration parameter vector, defined once: named slices, named groups and the gauge.
 
-The full vector holds every number of a calibration (seed 000 §V-VI, ``rho``)::
+The full vector holds every number of a calibration (MacLachlan et al. 2025, §V-VI, ``rho``)::
 
     [ L_so (coil-major, 3 per coil) | M_so | L_se | M_se | F_so (6) | F_st (6) | F_se (6) ]
 
 Coil arrays are stored coil by coil, so ``L_so[:, i]`` occupies ``3 i .. 3 i + 2`` of its slice.
-The gauge of ilemt-format.md §6 (seed 000 eq. 7) is built in, generalised to any coil count:
+The gauge of docs/ilemt-data.md#dipole-model (MacLachlan et al. 2025, eq. 7) is built in, generalised to any coil count:
 
 * the **reference coil** of each side is its last coil (the Z coil of a tri-axial set): its
   position is held at the frame origin and its moment along +z, ``[0, 0, k]``;
@@ -15,7 +15,7 @@ The gauge of ilemt-format.md §6 (seed 000 eq. 7) is built in, generalised to an
   default freeze set) because a common scale of source and sensor moments is not observable.
 
 With one coil on a side (a 5-DOF sensor) only the reference-coil rules apply. Named groups follow
-ilemt-format.md §8.1; the 82-element ILEMT vector itself is not reproduced (quadrupole slots are
+docs/paper-procedure.md#parameter-groups; the 82-element ILEMT vector itself is not reproduced (quadrupole slots are
 not part of the dipole model).
 """
 
@@ -50,7 +50,7 @@ class ParameterLayout:
     slices : dict of str -> slice
         Block of each field of ``FIELD_NAMES`` in the full vector.
     groups : dict of str -> ndarray of int
-        Named parameter groups (indices into the full vector), as ilemt-format.md §8.1.
+        Named parameter groups (indices into the full vector), as docs/paper-procedure.md#parameter-groups.
     gauge : ndarray of int
         Indices that are never fitted (reference-coil position and transverse moment).
     """

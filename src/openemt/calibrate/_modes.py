@@ -1,6 +1,6 @@
 """Calibration modes: which parameter groups are fitted, which rows are used.
 
-The paper's modes (seed 000 §VI; ilemt-format.md §8.1 table):
+The paper's modes (MacLachlan et al. 2025, §VI; docs/paper-procedure.md#parameter-groups table):
 
 ========================  =========================================  ========================
 mode                      rows (source fixtures x sensor fixtures)   free groups
@@ -36,7 +36,7 @@ __all__ = [
     "select_rows",
 ]
 
-#: ILEMT's default free groups (ilemt-format.md §8.1).
+#: ILEMT's default free groups (docs/paper-procedure.md#parameter-groups).
 DEFAULT_OPTIMIZE = ("d_so_pos", "d_so_mo", "d_se_pos", "d_se_mo", "st_fix", "se_fix")
 #: ILEMT's default frozen groups: the source Z gain and the X coils' Y components.
 DEFAULT_FREEZE = ("d_so_z_gain", "d_so_y_co", "d_se_y_co")

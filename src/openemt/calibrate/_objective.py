@@ -1,9 +1,9 @@
-"""Normalised calibration residuals and their analytic Jacobian (seed 000 §VI; ilemt-format.md §8.2).
+"""Normalised calibration residuals and their analytic Jacobian (MacLachlan et al. 2025, §VI; docs/paper-procedure.md#calibration-objective).
 
 For each row ``n`` the residual is ``(C_meas,n - C_pred(P_n, rho)) / ||C_meas,n||_2`` over all
 ``n_so * n_se`` entries, with the spectral norm of the measured matrix (the stored ILEMT
 residuals are reproduced only with the spectral norm, not the Frobenius norm). The pose is
-``P = F_so . so_J . F_st . st_J . F_se`` (seed 000 eq. 6).
+``P = F_so . so_J . F_st . st_J . F_se`` (MacLachlan et al. 2025, eq. 6).
 
 Fixture derivatives use left twists ``xi = (rho, phi)`` (``P -> exp(xi) P``): a change
 ``(dt, dr)`` of a fixture pose vector ``v = (t, r)`` is the twist ``phi = J_l(r) dr``,
@@ -168,7 +168,7 @@ def _spectral_norms(C: np.ndarray) -> np.ndarray:
 def build_problem(dataset, layout: ParameterLayout, gain: float) -> CalibrationProblem:
     """Assemble a :class:`CalibrationProblem` from every row of ``dataset``.
 
-    The target and the normalisation both use the signed real coupling (ilemt-format.md §8.2).
+    The target and the normalisation both use the signed real coupling (docs/paper-procedure.md#calibration-objective).
     """
     C = dataset.signed_real()
     if (C.shape[1], C.shape[2]) != (layout.n_source, layout.n_sensor):

@@ -1,4 +1,4 @@
-"""Calibration of a planar field generator from grid data (Anser-style; issue 4 item 9).
+"""Calibration of a planar field generator from grid data (Anser-style board, Jaeger et al. 2017).
 
 A single-coil (5-DOF) sensor is placed at known points of a grid over the board with a known
 axis; each source coil's coupling into it is measured. The model is the finite-coil model of

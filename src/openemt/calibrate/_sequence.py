@@ -1,4 +1,5 @@
-"""The paper's staged run sequence (ilemt-format.md §9) and the output correction (§11).
+"""The paper's staged run sequence (docs/paper-procedure.md#run-sequence) and the output correction
+(docs/paper-procedure.md#output-correction).
 
 Each step fits one mode starting from an earlier step's output (or the base calibration):
 
@@ -69,7 +70,7 @@ PAPER_SEQUENCE = (
 
 @dataclass(frozen=True, eq=False)
 class OutputCorrection:
-    """Result of the output-correction fit on the calibration rows (ilemt-format.md §11).
+    """Result of the output-correction fit on the calibration rows (docs/paper-procedure.md#output-correction).
 
     Attributes
     ----------
@@ -95,7 +96,7 @@ def _solve_rows(data, cal, solver: str, truth_poses):
     """Solve the calibration rows' poses; returns (positions (N, 3), resnorm (N,)).
 
     The complex couplings go to the solver so that the validity residual is normalised by the
-    complex spectral norm, as ILEMT's resnorm is (ilemt-format.md §10.1).
+    complex spectral norm, as ILEMT's resnorm is (docs/paper-procedure.md#iterative-solution).
     """
     from ..solve import hemisphere_from_positions, solve_kim18, solve_lm
 
@@ -112,7 +113,7 @@ def _solve_rows(data, cal, solver: str, truth_poses):
 
 def fit_output_correction(data, cal, *, solver: str = "lm", valid_threshold: float = 1e-5,
                           min_valid: float = 0.75) -> OutputCorrection:
-    """Fit the DLT output correction on calibration rows (ilemt-format.md §11).
+    """Fit the DLT output correction on calibration rows (docs/paper-procedure.md#output-correction).
 
     Poses are solved from the ground truth (``solver='lm'``) or in closed form
     (``solver='kim18'``), without correction; invalid solutions (resnorm >= ``valid_threshold``)

@@ -1,4 +1,4 @@
-"""Calibration against simulated truth (issue 4 item 8).
+"""Calibration against simulated truth: parameter recovery and the cost of the dipole approximation.
 
 Two studies on data from :func:`openemt.simulate.simulate`:
 

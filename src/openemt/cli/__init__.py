@@ -32,7 +32,7 @@ COMMANDS = {
     "solve": ("solve", "solve sensor poses from a dataset's couplings"),
     "calibrate": ("calibrate", "fit a dipole-model and fixture calibration to a dataset"),
     "correct": ("correct", "fit or apply an output correction of poses"),
-    "reproduce": ("reproduce", "reproduce a table of the seed papers from raw data"),
+    "reproduce": ("reproduce", "reproduce a table of the MacLachlan et al. 2025s from raw data"),
     "report": ("report", "write a self-contained HTML calibration and characterization report"),
     "track": ("track",
               "live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)"),

@@ -15,7 +15,7 @@ from ._common import add_common, emit, to_jsonable
 #: name -> (module, one-line help)
 BENCHMARKS = {
     "noise": ("openemt.bench._noise",
-              "seed 004 protocol: solver accuracy vs SNR next to the Cramer-Rao bound"),
+              "the noise protocol of Teixeira Silva et al. 2017: solver accuracy vs SNR next to the Cramer-Rao bound"),
     "speed": ("openemt.bench._speed",
               "poses/s per solver on one core vs per-pose scipy least_squares"),
     "demod": ("openemt.bench._demod", "demodulator realtime factor, accuracy, mains rejection"),

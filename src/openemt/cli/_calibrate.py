@@ -20,7 +20,7 @@ def register(sub) -> None:
 
     p = sub.add_parser(
         "calibrate", help=command_help("calibrate"),
-        description="Fit a calibration (seed 000 §VI) to DATASET, starting from --from CAL. "
+        description="Fit a calibration (MacLachlan et al. 2025, §VI) to DATASET, starting from --from CAL. "
                     "DATASET is an ILEMT folder, a dataset file (.h5) or a CSV export.")
     p.add_argument("dataset", metavar="DATASET", help="ILEMT folder, dataset .h5 or .csv")
     p.add_argument("--from", dest="start", metavar="CAL",

@@ -7,7 +7,7 @@
    from the truth, a concentric model (mode ``concentric``) whose Kim18 closed form starts the
    iterative solver, and the DLT output correction on the calibration data;
 3. solve the test data with the compiled LM solver and score it against the rig's kinematics,
-   as the paper does (seed 000 Table II): the dipole-equivalent truth, the start, the fit, the
+   as the paper does (MacLachlan et al. 2025, Table II): the dipole-equivalent truth, the start, the fit, the
    fit with the output correction, and the concentric model with Kim18 alone;
 4. write the datasets, calibrations and a self-contained HTML report.
 """
@@ -31,7 +31,7 @@ def register(sub) -> None:
     p = sub.add_parser("demo", help=command_help("demo"),
                        description=__doc__.splitlines()[0])
     p.add_argument("--preset", choices=PRESETS, default="dipole-approx",
-                   help="simulated source (default: dipole-approx, seed 000's 3-coil source)")
+                   help="simulated source (default: dipole-approx, MacLachlan et al. 2025's 3-coil source)")
     p.add_argument("-o", "--output-dir", default="openemt-demo",
                    help="folder for the datasets, calibrations and report (default: openemt-demo)")
     p.add_argument("--snr-db", type=float, default=80.0,

@@ -1,7 +1,7 @@
 """``openemt report``: one self-contained HTML report of a calibration and characterization run.
 
 * ``openemt report ILEMT_DIR -o report.html``: import the folder, run the paper's calibration
-  sequence once, reproduce seed 000 Tables II-IV with figures and the main calibration's
+  sequence once, reproduce MacLachlan et al. 2025, Tables II-IV with figures and the main calibration's
   parameters;
 * ``openemt report --calibration CAL.json --dataset TEST.h5 -o report.html`` (or
   ``openemt report TEST.h5 --calibration CAL.json ...``): characterise a calibration on a test
@@ -24,7 +24,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "report", help=command_help("report"),
         description="Write one self-contained HTML report (tables and figures embedded). With an "
-                    "ILEMT folder: the paper's calibration sequence and the seed 000 Table II, "
+                    "ILEMT folder: the paper's calibration sequence and the MacLachlan et al. 2025, Table II, "
                     "III and IV reproductions. With a dataset and --calibration: accuracy, "
                     "per-fixture errors, error-vector and sweep plots and the parameters with "
                     "standard errors of that calibration.")

@@ -1,4 +1,4 @@
-"""``openemt reproduce TABLE ...``: the seed papers' tables from raw data, one command each."""
+"""``openemt reproduce TABLE ...``: the published tables from raw data, one command each."""
 
 from __future__ import annotations
 
@@ -12,14 +12,14 @@ __all__ = ["register", "run_table2"]
 def register(sub) -> None:
     p = sub.add_parser(
         "reproduce", help=command_help("reproduce"),
-        description="Reproduce the seed papers' tables: Table II, III and IV of seed 000 from an "
+        description="Reproduce the published tables: Table II, III and IV of MacLachlan et al. 2025 from an "
                     "ILEMT data folder, and two simulation studies of the calibration.")
     tables = p.add_subparsers(dest="table", metavar="TABLE", parser_class=type(p))
     tables.required = True
 
     t2 = tables.add_parser(
-        "table2", help="seed 000 Table II (default, corrected, concentric)",
-        description="Seed 000 Table II from an ILEMT data folder: import, the paper's "
+        "table2", help="MacLachlan et al. 2025, Table II (default, corrected, concentric)",
+        description="MacLachlan et al. 2025, Table II from an ILEMT data folder: import, the paper's "
                     "calibration sequence from base_calibration.mat, output correction, test "
                     "solves on the soYoutZup ld files.")
     t2.add_argument("folder", metavar="ILEMT_DIR", help="ILEMT data folder")

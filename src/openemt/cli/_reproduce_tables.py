@@ -1,4 +1,4 @@
-"""``openemt reproduce table3|table4 ILEMT_DIR``: seed 000 Tables III and IV from raw data.
+"""``openemt reproduce table3|table4 ILEMT_DIR``: MacLachlan et al. 2025, Tables III and IV from raw data.
 
 :func:`add_table_commands` adds the two subcommands to the ``reproduce`` command's subparsers.
 """
@@ -13,8 +13,8 @@ __all__ = ["add_table_commands", "run_table3", "run_table4"]
 def add_table_commands(reproduce_subparsers) -> None:
     """Add ``table3`` and ``table4`` to the subparsers of ``openemt reproduce``."""
     p = reproduce_subparsers.add_parser(
-        "table3", help="seed 000 Table III (calibration vs test dimensionality)",
-        description="Seed 000 Table III from an ILEMT folder: the paper's calibration sequence "
+        "table3", help="MacLachlan et al. 2025, Table III (calibration vs test dimensionality)",
+        description="MacLachlan et al. 2025, Table III from an ILEMT folder: the paper's calibration sequence "
                     "from base_calibration.mat, then the translation-only, sensor-fixture and "
                     "both-fixture calibrations tested (uncorrected) on the ldtrans, "
                     "sensor-fixture and source+sensor-fixture test sets, with the paper's "
@@ -24,8 +24,8 @@ def add_table_commands(reproduce_subparsers) -> None:
     p.set_defaults(func=run_table3)
 
     p = reproduce_subparsers.add_parser(
-        "table4", help="seed 000 Table IV (axis-sweep cross-coupling and nonlinearity)",
-        description="Seed 000 Table IV from the sweep files of an ILEMT folder: XYZ_hr_cal from "
+        "table4", help="MacLachlan et al. 2025, Table IV (axis-sweep cross-coupling and nonlinearity)",
+        description="MacLachlan et al. 2025, Table IV from the sweep files of an ILEMT folder: XYZ_hr_cal from "
                     "the paper's sequence, stage and sensor fixtures re-optimised in pose "
                     "space, direct/cross absolute error and Savitzky-Golay nonlinearity. The "
                     "paper's values (another collection) are listed for comparison.")

@@ -1,4 +1,4 @@
-"""Projective (DLT) position correction (ilemt-format.md §10.3 and §11).
+"""Projective (DLT) position correction (docs/paper-procedure.md#applying-correction, docs/paper-procedure.md#output-correction).
 
 A 4x4 homogeneous matrix ``L`` maps a measured position ``m`` to the corrected position
 ``q[:3] / q[3]`` with ``q = L @ [m, 1]``. ``fit_dlt`` compares three candidates (identity,
@@ -23,7 +23,7 @@ __all__ = [
     "linear_correction_rms",
 ]
 
-#: Bounds on every entry of L during the refinement (ilemt-format.md §11, step 3).
+#: Bounds on every entry of L during the refinement (docs/paper-procedure.md#output-correction, step 3).
 REFINE_BOUND = 10.0
 
 
@@ -47,7 +47,7 @@ def _apply(L: np.ndarray, xyz: np.ndarray) -> np.ndarray:
 
 
 def apply_linear_correction(L, xyz) -> np.ndarray:
-    """Apply a homogeneous 4x4 correction to positions (ilemt-format.md §10.3).
+    """Apply a homogeneous 4x4 correction to positions (docs/paper-procedure.md#applying-correction).
 
     Parameters
     ----------
@@ -86,7 +86,7 @@ def _pinv_candidate(m: np.ndarray, d: np.ndarray) -> np.ndarray:
 
 
 def _dlt_candidate(m: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Direct linear transformation (Sutherland 1974), as described in ilemt-format.md §11.
+    """Direct linear transformation (Sutherland 1974), as described in docs/paper-procedure.md#output-correction.
 
     For point k and output row j, the 4x4 matrix E has row j = m_k^T and row 3 =
     -(d_k[j] / d_k[3]) m_k^T; ``vec(E) . vec(L) = 0`` for the exact L. The column-major
@@ -163,7 +163,7 @@ class DltFit:
 
 
 def fit_dlt(measured_xyz, reference_xyz, *, refine: bool = True) -> DltFit:
-    """Fit a projective position correction (ilemt-format.md §11, steps 2-4).
+    """Fit a projective position correction (docs/paper-procedure.md#output-correction, steps 2-4).
 
     Parameters
     ----------
@@ -183,7 +183,7 @@ def fit_dlt(measured_xyz, reference_xyz, *, refine: bool = True) -> DltFit:
     References
     ----------
     Sutherland, "Three-dimensional data input by tablet", Proc. IEEE 62(4), 1974.
-    MacLachlan et al., IEEE Sensors J. 2025 (seed 000), output correction.
+    MacLachlan et al. 2025, output correction.
     """
     m = check_points(measured_xyz, "measured_xyz")
     d = check_points(reference_xyz, "reference_xyz")

@@ -4,7 +4,7 @@ Both tables store offsets as functions of the *measured* position: the position 
 ``reference - measured`` (m) and, if orientations are given, the rotation offset
 ``rho = log(R_ref R_meas^T)`` (rad, source frame), applied as ``exp([rho]x) R_meas``.
 
-* Grid (classic calibration table, seed 002 §"lookup tables"): node values on a regular grid
+* Grid (classic calibration table, Kindratenko 1999 (survey of lookup-table methods)): node values on a regular grid
   spanning the measured positions, read back by trilinear interpolation. The node values are
   the least-squares fit of the trilinear interpolant to the scattered pairs, with a small
   second-difference penalty so that nodes without nearby data are filled smoothly (the penalty

@@ -1,4 +1,4 @@
-"""Kindratenko polynomial correction of position and orientation (seed 002).
+"""Kindratenko polynomial correction of position and orientation (Kindratenko 1999).
 
 Position: ``x~ = x + sum_j c_xj x^p y^q z^s`` over all exponent triples with
 ``p + q + s <= r`` (likewise y, z), fitted by linear least squares to the offsets
@@ -43,7 +43,7 @@ __all__ = [
     "monomials",
 ]
 
-#: Orders tried by the cross-validated selection (seed 002 uses up to 5).
+#: Orders tried by the cross-validated selection (Kindratenko 1999 uses up to 5).
 POLY_ORDERS = (1, 2, 3, 4, 5)
 
 
@@ -197,7 +197,7 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
                    order: int | None = None, rot_order: int | None = None,
                    orders=POLY_ORDERS, max_power="auto", k: int = 5,
                    seed: int = 0) -> PolynomialCorrection:
-    """Fit a Kindratenko polynomial correction (seed 002) to pose pairs.
+    """Fit a Kindratenko polynomial correction (Kindratenko 1999) to pose pairs.
 
     Parameters
     ----------

@@ -1,9 +1,9 @@
-"""Characterization of tracker error (seed 000 §VIII): error vectors, u(cal), combined u(P).
+"""Characterization of tracker error (MacLachlan et al. 2025, §VIII): error vectors, u(cal), combined u(P).
 
 The error of a measured pose against the reference is ``E = inv(P_measured) @ P_reference``
-(seed 000 eq. 8/9), or ILEMT's "stage coordinates" error
+(MacLachlan et al. 2025, eqs. 8 and 9), or ILEMT's "stage coordinates" error
 ``E = F_se . inv(P_reference) . P_measured . inv(F_se)`` when the sensor fixture is given
-(ilemt-format.md §12); see :func:`openemt.evaluate.pose_error_magnitudes`. u(cal) is the RMS
+(docs/paper-procedure.md#test-error); see :func:`openemt.evaluate.pose_error_magnitudes`. u(cal) is the RMS
 of the error magnitudes and the combined standard uncertainty of a measurement is
 ``u(P) = sqrt(u(P_stage)^2 + u(cal)^2)`` (eq. 10).
 """
@@ -63,7 +63,7 @@ class Characterization:
     by_group : dict
         The same per group label (only if groups were given).
     positions : ndarray, shape (N, 3)
-        Reference positions (m), for error-vector workspace plots (seed 000 Fig. 8).
+        Reference positions (m), for error-vector workspace plots (MacLachlan et al. 2025, Fig. 8).
     error_vectors : ndarray, shape (N, 6)
         Error vectors (m, rad) as :func:`pose_error_vectors`.
     groups : ndarray of str, shape (N,) or None
@@ -83,7 +83,7 @@ class Characterization:
 def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
                  stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
                  stage_uncertainty_rad: float = STAGE_UNCERTAINTY_RAD) -> Characterization:
-    """Characterize tracker error against reference poses (seed 000 §VIII).
+    """Characterize tracker error against reference poses (MacLachlan et al. 2025, §VIII).
 
     Parameters
     ----------
@@ -93,9 +93,9 @@ def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
     groups : array_like, shape (N,), optional
         Label per row (e.g. ``fixture_labels(dataset)``) for the per-group breakdown.
     sensor_fixture : array_like, shape (6,) or (4, 4), optional
-        F_se for ILEMT's stage-coordinates error (ilemt-format.md §12).
+        F_se for ILEMT's stage-coordinates error (docs/paper-procedure.md#test-error).
     stage_uncertainty_m, stage_uncertainty_rad : float
-        Standard uncertainty of the reference (default 0.107 mm and 0.17 deg, seed 000).
+        Standard uncertainty of the reference (default 0.107 mm and 0.17 deg, MacLachlan et al. 2025).
 
     Returns
     -------

@@ -1,4 +1,4 @@
-"""Pose errors and their summary statistics (seed 000 §VIII; ilemt-format.md §12)."""
+"""Pose errors and their summary statistics (MacLachlan et al. 2025, §VIII; docs/paper-procedure.md#test-error)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ __all__ = [
     "pose_errors",
 ]
 
-#: Stage standard uncertainty after compensation (seed 000 supplement): 107 um and 0.17 deg.
+#: Stage standard uncertainty after compensation (MacLachlan et al. 2025, supplement): 107 um and 0.17 deg.
 STAGE_UNCERTAINTY_M = 0.107e-3
 STAGE_UNCERTAINTY_RAD = np.deg2rad(0.17)
 
@@ -33,7 +33,7 @@ def pose_errors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:
 
     Without ``sensor_fixture`` the error is ``E = inv(P_measured) @ P_reference``. With the sensor
     fixture F_se (pose vector (6,) or pose (4, 4)) it is ILEMT's "stage coordinates" error
-    ``E = F_se . inv(P_reference) . P_measured . inv(F_se)`` (ilemt-format.md §12).
+    ``E = F_se . inv(P_reference) . P_measured . inv(F_se)`` (docs/paper-procedure.md#test-error).
     """
     M = check_poses(P_measured, "P_measured")
     D = check_poses(P_reference, "P_reference")
@@ -57,7 +57,7 @@ def pose_error_vectors(P_measured, P_reference, sensor_fixture=None) -> np.ndarr
 
 
 def combined_uncertainty(rms, stage_uncertainty):
-    """Combined standard uncertainty ``sqrt(rms^2 + u_stage^2)`` (seed 000 eq. 10)."""
+    """Combined standard uncertainty ``sqrt(rms^2 + u_stage^2)`` (MacLachlan et al. 2025, eq. 10)."""
     return np.sqrt(np.asarray(rms, dtype=np.float64) ** 2 + stage_uncertainty ** 2)
 
 

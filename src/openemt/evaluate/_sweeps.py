@@ -1,4 +1,4 @@
-"""Axis-sweep linearity: direct and cross error and nonlinearity (seed 000 §VIII-C, Table IV).
+"""Axis-sweep linearity: direct and cross error and nonlinearity (MacLachlan et al. 2025, §VIII-I, Table IV).
 
 A sweep moves one stage axis while the others stay at zero (ILEMT ``sweep`` pattern:
 0.5 mm / 0.5 deg steps). Along each sweep the pose error vector (translation in mm, rotation
@@ -8,7 +8,7 @@ vector in degrees; :func:`pose_error_vectors`) is split by the kind of motion:
   rotation sweep; cross error: the other half (rotation error caused by translation and
   vice versa);
 * nonlinearity: the magnitude of the derivative of the 3-D error vector with respect to the
-  swept coordinate, from a Savitzky-Golay filter (order 2, window 21; ilemt-format.md §12).
+  swept coordinate, from a Savitzky-Golay filter (order 2, window 21; docs/paper-procedure.md#test-error).
   Direct nonlinearity is dimensionless (reported in percent of the motion); cross
   nonlinearity is in deg/mm (translation sweeps) or mm/deg (rotation sweeps).
 
@@ -171,7 +171,7 @@ def sweep_linearity(P_measured, P_reference, stage, *, labels=None, sensor_fixtu
     labels : array_like, shape (N,), optional
         Curve group per row (e.g. file name; one sweep file per sensor fixture).
     sensor_fixture : array_like, optional
-        F_se for ILEMT's stage-coordinates error (ilemt-format.md §12).
+        F_se for ILEMT's stage-coordinates error (docs/paper-procedure.md#test-error).
     window, polyorder : int
         Savitzky-Golay window and order (21 and 2 as in the reference procedure).
 

@@ -1,4 +1,4 @@
-"""The general dipole coupling model (seed 000 §V, eqs. 3-5) for any numbers of coils.
+"""The general dipole coupling model (MacLachlan et al. 2025, §V, eqs. 3-5) for any numbers of coils.
 
 ``C[i, j] = gain * m_j . B_i(p_j)`` with ``B_i(p) = (3 (M_i . u) u - M_i) / d^3``, where
 ``p_j = R L_se[:, j] + t`` and ``m_j = R M_se[:, j]`` are sensor coil j's position and moment
@@ -26,7 +26,7 @@ __all__ = [
     "coupling_jacobians",
 ]
 
-#: ILEMT's fixed coupling scale, C = B . m / 250 (ilemt-format.md §6).
+#: ILEMT's fixed coupling scale, C = B . m / 250 (docs/ilemt-data.md#dipole-model).
 ILEMT_GAIN = 1.0 / 250.0
 
 
@@ -150,7 +150,7 @@ def coupling(model: DipoleModel, poses) -> np.ndarray:
 
     References
     ----------
-    MacLachlan et al., IEEE Sensors J. 2025 (seed 000), eqs. 3-5; ilemt-format.md §6.
+    MacLachlan et al. 2025, eqs. 3-5; docs/ilemt-data.md#dipole-model.
     """
     R, t = _split(poses)
     C = np.empty((R.shape[0], model.n_source, model.n_sensor))

@@ -1,6 +1,6 @@
 """Compiled per-sample kernel of the dipole coupling model and its analytic derivatives.
 
-This is the one implementation of seed 000 eqs. 3-5. The batched numpy API in ``_dipole.py``
+This is the one implementation of MacLachlan et al. 2025, eqs. 3-5. The batched numpy API in ``_dipole.py``
 and the compiled solvers call these functions; nothing else re-derives the formula.
 
 Conventions (all arrays float64, C-contiguous):

@@ -1,7 +1,7 @@
 """Named manual-fixture rotations, stage transforms and the ground-truth kinematic chain.
 
 Fixture codes such as ``ZoutYup`` name the mover axes that point "out" (fixture +Y, from source
-towards sensor) and "up" (fixture +Z); "in"/"down" mean the negative axis (ilemt-format.md §4).
+towards sensor) and "up" (fixture +Z); "in"/"down" mean the negative axis (docs/ilemt-data.md#fixtures).
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ __all__ = [
 
 FIXTURE_CODE_RE = re.compile(r"^([XYZ])(out|in)([XYZ])(up|down)$")
 
-#: Source-fixture codes used by the ILEMT apparatus (seed 000), home first.
+#: Source-fixture codes used by the ILEMT apparatus (MacLachlan et al. 2025), home first.
 SOURCE_FIXTURES = ("YoutZup", "XoutZup", "ZoutYup", "XinYup")
-#: Sensor-fixture codes used by the ILEMT apparatus (seed 000), home first.
+#: Sensor-fixture codes used by the ILEMT apparatus (MacLachlan et al. 2025), home first.
 SENSOR_FIXTURES = ("YoutZup", "ZinYup", "ZinXdown")
 
 _AXIS = {"X": 0, "Y": 1, "Z": 2}
@@ -68,7 +68,7 @@ def stage_transform(stage) -> np.ndarray:
     """Stage vectors ``(..., 6)`` -> poses ``(..., 4, 4)``.
 
     ``stage = [x, y, z, a, b, c]`` in metres and radians; the rotation is ``Rz(c) Ry(b) Rx(a)``
-    (fixed-axis Z-Y-X Euler angles, ilemt-format.md §5) and the translation is not rotated.
+    (fixed-axis Z-Y-X Euler angles, docs/ilemt-data.md#ground-truth) and the translation is not rotated.
     """
     s = np.asarray(stage, dtype=np.float64)
     if s.ndim < 1 or s.shape[-1] != 6:
@@ -108,7 +108,7 @@ def _rotations_per_row(codes, rotation_of) -> np.ndarray:
 
 def ground_truth_poses(source_fixture, stage_fixture, sensor_fixture, source_codes, stage,
                        sensor_codes) -> np.ndarray:
-    """Ground truth ``P = F_so . so_J . F_st . st_J . F_se`` (seed 000 eq. 6), shape (N, 4, 4).
+    """Ground truth ``P = F_so . so_J . F_st . st_J . F_se`` (MacLachlan et al. 2025, eq. 6), shape (N, 4, 4).
 
     Parameters
     ----------

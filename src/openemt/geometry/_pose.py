@@ -121,7 +121,7 @@ def invert(P) -> np.ndarray:
 
 
 def pose_error(P_measured, P_true) -> np.ndarray:
-    """Pose error ``E = inv(P_measured) @ P_true`` (seed 000 §VIII), shape ``(..., 4, 4)``."""
+    """Pose error ``E = inv(P_measured) @ P_true`` (MacLachlan et al. 2025, §VIII), shape ``(..., 4, 4)``."""
     return invert(P_measured) @ check_poses(P_true)
 
 

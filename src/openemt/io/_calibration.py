@@ -38,7 +38,7 @@ class Calibration:
     source_fixture, stage_fixture, sensor_fixture : ndarray, shape (6,)
         F_so, F_st, F_se as pose vectors ``[x, y, z, rx, ry, rz]`` (m, rad); zeros if unknown.
     linear_correction : ndarray, shape (4, 4), optional
-        Homogeneous DLT output correction applied to solved positions (ilemt-format.md §10.3).
+        Homogeneous DLT output correction applied to solved positions (docs/paper-procedure.md#applying-correction).
     mode : str
         Calibration mode that produced it (``XYZ``, ``concentric``, ``truth``, ``ilemt``, ...).
     free, frozen : tuple of str

@@ -17,7 +17,7 @@ __all__ = ["Dataset", "signed_real"]
 
 
 def signed_real(C) -> np.ndarray:
-    """Signed real coupling ``sign(Re z) * |z|`` elementwise (ilemt-format.md §2).
+    """Signed real coupling ``sign(Re z) * |z|`` elementwise (docs/ilemt-data.md#dat-format).
 
     Real input is returned as float64 unchanged.
     """

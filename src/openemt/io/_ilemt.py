@@ -1,7 +1,7 @@
 """ILEMT ``.dat`` logger files: reader, stage-error compensation, sign flips, folder import.
 
 The file format, the fixture naming, the sign-flip rule and the stage compensation follow
-ilemt-format.md §2-§5 (MacLachlan et al. 2025, seed 000).
+docs/ilemt-data.md#dat-format to docs/ilemt-data.md#stage-compensation (MacLachlan et al. 2025, MacLachlan et al. 2025).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ _LINE_RE = re.compile(r"[ \t]*" + _SEP.join([_REAL] * 6 + [_CPLX] * 18) + r"[ \t
 _REAL_TOKEN_RE = re.compile(_NUM)
 _CPLX_TOKEN_RE = re.compile(_CPLX)
 
-# -- stage compensation tables (ilemt-format.md §5.1): from-axis position mm -> error mm -------
+# -- stage compensation tables (docs/ilemt-data.md#stage-compensation): from-axis position mm -> error mm -------
 _TABLE_ZX = ((50, 0.100), (40, 0.088), (30, 0.085), (20, 0.085), (10, 0.070), (0, 0.050),
              (-10, 0.025), (-20, -0.010), (-30, -0.050), (-40, -0.108), (-46, -0.140))
 _TABLE_ZZ = ((49, -0.130), (29, -0.115), (4, -0.090), (-21, -0.050), (-46, 0.000))
@@ -78,7 +78,7 @@ def _table_delta(x: np.ndarray, table) -> np.ndarray:
 
 
 def compensate_stage(stage_mm_deg) -> np.ndarray:
-    """Add the measured ILEMT stage errors to logged stage vectors (ilemt-format.md §5.1).
+    """Add the measured ILEMT stage errors to logged stage vectors (docs/ilemt-data.md#stage-compensation).
 
     Parameters
     ----------
@@ -434,10 +434,10 @@ def read_ilemt_dat(path, *, source_signs=None, sensor_signs=None, compensate_sta
     path : path-like
         ``so<SRC>_se<SEN>_<pattern>.dat``; fixture codes and pattern come from the name.
     source_signs, sensor_signs : list of (regex, (s1, s2, s3)), optional
-        Sign-flip rules (ilemt-format.md §4.3). ``None`` reads them from the file's folder
+        Sign-flip rules (docs/ilemt-data.md#sign-flips). ``None`` reads them from the file's folder
         ``local_cal_options.m`` when present (else no flips); ``[]`` means no flips.
     compensate_stage : bool
-        Apply the stage-error compensation of ilemt-format.md §5.1 (default on).
+        Apply the stage-error compensation of docs/ilemt-data.md#stage-compensation (default on).
     source_fixture, sensor_fixture, pattern : str, optional
         Override the values parsed from the file name (needed when the name does not follow
         the convention; otherwise home fixtures ``YoutZup`` and an empty pattern are assumed).
@@ -478,7 +478,7 @@ def import_ilemt_folder(folder, *, source_signs=None, sensor_signs=None, compens
         Sign-flip rules; ``None`` reads the folder's ``local_cal_options.m`` if present, else no
         flips. ``[]`` means no flips. Never guessed from the folder name.
     compensate_stage : bool
-        Apply the stage-error compensation (ilemt-format.md §5.1).
+        Apply the stage-error compensation (docs/ilemt-data.md#stage-compensation).
     patterns : str or collection of str, optional
         Keep only files whose pattern (``md``, ``ld``, ``sweep``, ...) is listed.
 

@@ -1,4 +1,4 @@
-"""ILEMT calibration ``.mat`` files -> :class:`Calibration` (ilemt-format.md §7)."""
+"""ILEMT calibration ``.mat`` files -> :class:`Calibration` (docs/ilemt-data.md#calibration-mat)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from ._ilemt import file_sha256
 
 __all__ = ["read_ilemt_calibration"]
 
-#: ILEMT's fixed coupling scale (1/250, ilemt-format.md §6).
+#: ILEMT's fixed coupling scale (1/250, docs/ilemt-data.md#dipole-model).
 _GAIN = 1.0 / 250.0
 
 _QUADRUPOLE_FIELDS = ("q_source_pos", "q_source_moment", "q_sensor_pos", "q_sensor_moment",

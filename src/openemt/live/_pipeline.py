@@ -198,7 +198,7 @@ class TrackingPipeline:
     hemisphere : str
         Hemisphere for (re)acquisition with the closed-form start.
     correction : ndarray, shape (4, 4), optional
-        Linear position correction (ilemt-format.md §10.3) applied to valid poses.
+        Linear position correction (docs/paper-procedure.md#applying-correction) applied to valid poses.
     output_rate, window, phase
         Demodulator settings (:class:`openemt.signal.Demodulator`).
     distortion_threshold : float

@@ -1,4 +1,4 @@
-"""Reproductions of the seed papers' tables on ILEMT folders and the characterization report.
+"""Reproductions of the published tables on ILEMT folders and the characterization report.
 
 These orchestrate :mod:`openemt.calibrate`, :mod:`openemt.solve` and :mod:`openemt.evaluate`;
 see docs/paper-reproductions.md.

@@ -3,7 +3,7 @@
 Two entry points build an :class:`openemt.report.Report` and a JSON-ready summary:
 
 * :func:`paper_report` on an ILEMT folder: one import, one run of the paper's calibration
-  sequence, then seed 000 Tables II, III and IV, error-vector and sweep figures (Figs. 8, 10),
+  sequence, then MacLachlan et al. 2025, Tables II, III and IV, error-vector and sweep figures (Figs. 8, 10),
   the main calibration's parameters with standard errors and the combined uncertainty (eq. 10);
 * :func:`characterization_report` for any calibration on a test dataset with a reference (the
   rig kinematics from the calibration's fixtures, or the dataset's own ``poses``).
@@ -111,13 +111,13 @@ def _accuracy_section(rep, rows, *, with_paper: bool):
               caption="Translation (mm) and rotation (deg) error magnitudes, RMS and max")
     rep.paragraph(f"trans_uncert_mm = sqrt(RMS^2 + {_U_MM:.3f}^2) and rot_uncert_deg = "
                   f"sqrt(RMS^2 + {_U_DEG:.2f}^2) combine the calibration error u(cal) with the "
-                  "stage uncertainty (seed 000 eq. 10). Invalid solutions (residue >= 1e-5) are "
+                  "stage uncertainty (MacLachlan et al. 2025, eq. 10). Invalid solutions (residue >= 1e-5) are "
                   "kept in the statistics and counted in n_invalid.", note=True)
 
 
 def _uncertainty_paragraph(rep, row):
     rep.paragraph(
-        f"Combined standard uncertainty of a measurement (seed 000 eq. 10) for "
+        f"Combined standard uncertainty of a measurement (MacLachlan et al. 2025, eq. 10) for "
         f"{row['condition']}: u(P) = sqrt({row['trans_rms_mm']:.3f}^2 + {_U_MM:.3f}^2) = "
         f"{row['trans_uncert_mm']:.3f} mm in translation and sqrt({row['rot_rms_deg']:.3f}^2 + "
         f"{_U_DEG:.2f}^2) = {row['rot_uncert_deg']:.3f} deg in rotation.")
@@ -128,7 +128,7 @@ def _figures(rep, M, D, trans, rot, shown, title):
 
     rep.figure(error_vector_figure(D[shown, :3, 3], M[shown, :3, 3] - D[shown, :3, 3],
                                    title=f"{title}: translation error across the workspace"),
-               "Translation error vectors at the test positions (seed 000 Fig. 8 style); "
+               "Translation error vectors at the test positions (MacLachlan et al. 2025, Fig. 8 style); "
                "several Rz rotations per grid point.")
     rep.figure(error_histogram_figure(trans, rot, title=f"{title}: error distribution"),
                "Histogram of the error magnitudes.")
@@ -174,7 +174,7 @@ def _sweep_section(rep, analysis, paper=None, note=""):
             f"cross nonlinearity, {kind} sweeps ({nl_unit})": c.nonlin_cross}}
     if curves:
         rep.figure(sweep_figure(curves), "Absolute error and nonlinearity along each axis sweep "
-                   "(seed 000 Fig. 10 style): one line per sweep file and swept axis.")
+                   "(MacLachlan et al. 2025, Fig. 10 style): one line per sweep file and swept axis.")
 
 
 def _table3_section(rep, t3):
@@ -192,7 +192,7 @@ def _table3_section(rep, t3):
                          "paper rot rms / max": f"{p['rot_rms_deg']:.3f} / "
                                                 f"{p['rot_max_deg']:.3f}",
                          "n": c["n"], "n_invalid": c["n_invalid"]})
-    rep.table(rows, digits=3, caption="Seed 000 Table III: calibration data versus test data "
+    rep.table(rows, digits=3, caption="MacLachlan et al. 2025, Table III: calibration data versus test data "
                                       "(uncorrected; mm and degrees)")
     rep.paragraph(f"Largest deviation from the paper over all 36 numbers: "
                   f"{100 * t3['max_deviation']:.2f} %.", note=True)
@@ -253,7 +253,7 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
     rep = Report(title or f"openemt calibration and characterization report: {run.folder.name}")
     rep.paragraph(
         f"ILEMT folder {run.folder.name}: {len(ds)} rows in {len(ds.files)} files. The paper's "
-        "calibration sequence (ilemt-format.md §9) was run from base_calibration.mat; the main "
+        "calibration sequence (docs/paper-procedure.md#run-sequence) was run from base_calibration.mat; the main "
         "calibration is XYZ_hr_cal (dipole model, three sensor fixtures, md data). Test "
         f"data: {len(test)} rows (soYoutZup, three sensor fixtures, ld). Poses are solved with "
         "the iterative solver started from the Kim18 closed form of the concentric calibration "
@@ -272,7 +272,7 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
     rep.table(stats_rows, digits=6, caption="Calibration residues (rms of the normalised "
               "coupling residual) and output-correction fits on the calibration rows")
 
-    rep.heading("Accuracy (seed 000 Table II)")
+    rep.heading("Accuracy (MacLachlan et al. 2025, Table II)")
     _accuracy_section(rep, list(t2.values()), with_paper=True)
     rep.paragraph(f"Paper column: {column.note}.", note=True)
     _uncertainty_paragraph(rep, t2.get("corrected") or t2["default"])
@@ -284,7 +284,7 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
     shown = np.flatnonzero(test.sensor_fixture == "YoutZup")
     _figures(rep, default["poses"], D, default["trans"], default["rot"], shown, "XYZ_hr_cal")
 
-    rep.heading("Calibration versus test dimensionality (seed 000 Table III)")
+    rep.heading("Calibration versus test dimensionality (MacLachlan et al. 2025, Table III)")
     if t3 is not None:
         _table3_section(rep, t3)
     else:
@@ -292,7 +292,7 @@ def paper_report(source, *, title: str | None = None) -> BuiltReport:
                       "(mdtrans/ldtrans files, source-fixture md/ld files).", note=True)
 
     if t4 is not None:
-        rep.heading("Axis sweeps: cross-coupling and nonlinearity (seed 000 Table IV)")
+        rep.heading("Axis sweeps: cross-coupling and nonlinearity (MacLachlan et al. 2025, Table IV)")
         _sweep_section(rep, t4.analysis, t4.summary["paper"], note=(
             f"XYZ_hr_cal {t4.summary['condition']} on {', '.join(t4.summary['files'])}; stage "
             "and sensor fixtures re-optimised in pose space (0.05 m moment). The paper's values "
@@ -414,10 +414,10 @@ def characterization_report(dataset, calibration, *, concentric=None,
                   f"calibration mode {cal.mode or '?'}; reference: "
                   + ("rig kinematics with the calibration's fixtures (stage-coordinates error)."
                      if reference == "kinematics" else "the dataset's reference poses."))
-    rep.heading("Accuracy (seed 000 Table II style)")
+    rep.heading("Accuracy (MacLachlan et al. 2025, Table II style)")
     _accuracy_section(rep, rows, with_paper=False)
     _uncertainty_paragraph(rep, next(r for r in rows if r["condition"] == main_name))
-    rep.heading("Per fixture combination and pattern (seed 000 Table III style)")
+    rep.heading("Per fixture combination and pattern (MacLachlan et al. 2025, Table III style)")
     rep.table([{"test rows": g, **{k: s[k] for k in _KEYS}, "u_P_trans_mm": s["u_P_trans_mm"],
                 "u_P_rot_deg": s["u_P_rot_deg"], "n": s["n"]}
                for g, s in char.by_group.items()], digits=5,
@@ -450,7 +450,7 @@ def characterization_report(dataset, calibration, *, concentric=None,
             F_sweep = None
         a = sweep_linearity(M, Ds, stage, labels=sub.file_names(), sensor_fixture=F_sweep)
         if a.curves:
-            rep.heading("Axis sweeps (seed 000 Table IV style)")
+            rep.heading("Axis sweeps (MacLachlan et al. 2025, Table IV style)")
             _sweep_section(rep, a, note=note)
             sweep_summary = {"direct": a.table["direct"], "cross": a.table["cross"],
                              "n_curves": a.table["n_curves"]}

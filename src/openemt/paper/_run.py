@@ -1,5 +1,5 @@
 """One import of an ILEMT folder and one run of the paper's calibration sequence, shared by the
-table reproductions and the report (ilemt-format.md §9)."""
+table reproductions and the report (docs/paper-procedure.md#run-sequence)."""
 
 from __future__ import annotations
 
@@ -92,7 +92,7 @@ def load_paper_run(folder, *, steps=None, correction: bool = True, dataset=None)
     steps : iterable of str, optional
         Calibrations wanted (their start steps are added); default: the whole sequence.
     correction : bool
-        Fit the output corrections (ilemt-format.md §11) where the sequence asks for them.
+        Fit the output corrections (docs/paper-procedure.md#output-correction) where the sequence asks for them.
     dataset : Dataset, optional
         The folder already imported (skips the import).
 

@@ -1,8 +1,9 @@
-"""Seed 000 Table II on an ILEMT folder: the paper's calibration procedure as one call.
+"""MacLachlan et al. 2025, Table II on an ILEMT folder: the paper's calibration procedure as one call.
 
-Import the folder, run the §9 sequence from ``base_calibration.mat`` (with the §11 output
-corrections), solve the home-source ``ld`` rows as §10 (LM from the Kim18 start of the
-concentric calibration) and score them as §12.
+Import the folder, run the paper's run sequence from ``base_calibration.mat`` (with its output
+corrections), solve the home-source ``ld`` rows (LM from the Kim18 start of the concentric
+calibration) and score them, as docs/paper-procedure.md describes (#run-sequence,
+#output-correction, #pose-solution, #test-error).
 """
 
 from __future__ import annotations
@@ -185,7 +186,8 @@ def _row(t: dict) -> dict:
 
 
 def reproduce_table2(source, *, improved: bool = False, cross_validation: bool = False) -> dict:
-    """Seed 000 Table II from an ILEMT folder: import, the §9 sequence, §11 correction, §12 tests.
+    """MacLachlan et al. 2025, Table II from an ILEMT folder: import, run sequence, output correction,
+    scoring (docs/paper-procedure.md#table-2).
 
     Parameters
     ----------

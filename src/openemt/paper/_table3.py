@@ -1,5 +1,5 @@
-"""Seed 000 Table III: calibration error versus the dimensionality of the calibration and test
-data (concentric source, uncorrected; ilemt-format.md §9 and §12).
+"""MacLachlan et al. 2025, Table III: calibration error versus the dimensionality of the calibration and test
+data (concentric source, uncorrected; docs/paper-procedure.md#run-sequence, docs/paper-procedure.md#table-3).
 
 Rows are calibrations of the paper's run sequence, columns are test sets:
 
@@ -53,7 +53,7 @@ def _cells(*rows):
     return {c: dict(zip(_KEYS, v)) for c, v in zip(TABLE3_COLUMNS, rows)}
 
 
-#: Seed 000 Table III as printed (mm and degrees; RMS, max).
+#: MacLachlan et al. 2025, Table III as printed (mm and degrees; RMS, max).
 TABLE3_PAPER = {
     "translation_only": _cells((0.231, 0.613, 0.109, 0.308), (1.862, 5.514, 1.088, 2.809),
                                (4.122, 11.227, 1.793, 5.672)),
@@ -96,7 +96,7 @@ def _cell(trans, rot, n_invalid):
 
 
 def reproduce_table3(source) -> dict:
-    """Seed 000 Table III from an ILEMT folder (or a :class:`PaperRun` of it).
+    """MacLachlan et al. 2025, Table III from an ILEMT folder (or a :class:`PaperRun` of it).
 
     Parameters
     ----------
@@ -163,7 +163,7 @@ def reproduce_table3(source) -> dict:
     }
     out["notes"] = ("Uncorrected; LM solution started from the Kim18 closed form of "
                     "XYZ_concentric_hr_cal, hemisphere from the ground truth, invalid solutions "
-                    "kept (ilemt-format.md §12). Paper values: seed 000 Table III.")
+                    "kept (docs/paper-procedure.md#test-error). Paper values: MacLachlan et al. 2025, Table III.")
     seconds["total"] = time.perf_counter() - t_all
     out["seconds"] = seconds
     return out

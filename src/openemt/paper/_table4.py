@@ -1,4 +1,4 @@
-"""Seed 000 Table IV: cross-coupling and nonlinearity during axis sweeps (ilemt-format.md §12).
+"""MacLachlan et al. 2025, Table IV: cross-coupling and nonlinearity during axis sweeps (docs/paper-procedure.md#test-error).
 
 The three ``soYoutZup_se*_sweep.dat`` files are solved with the main calibration
 (``XYZ_hr_cal``) as in the Table II test (Kim18 start from the concentric calibration, hemisphere
@@ -35,7 +35,7 @@ __all__ = [
     "sweep_test",
 ]
 
-#: Seed 000 Table IV (cal_9_16, dipole-approximating source, corrected), in the key layout of
+#: MacLachlan et al. 2025, Table IV (cal_9_16, dipole-approximating source, corrected), in the key layout of
 #: :func:`openemt.evaluate.sweep_table`: ``xyz_`` = translation sweeps, ``rot_`` = rotation.
 TABLE4_PAPER = {
     "direct": {"xyz_abs_rms_mm": 0.093, "xyz_abs_max_mm": 0.152,
@@ -89,7 +89,7 @@ class FixtureRefit:
 
 class _Chain:
     """The fixed factors of the ground truth of some rows: ``D = A . F_st . B . F_se`` with
-    ``A = F_so . so_J`` and ``B = st_J`` (seed 000 eq. 6), so D can be rebuilt cheaply for
+    ``A = F_so . so_J`` and ``B = st_J`` (MacLachlan et al. 2025, eq. 6), so D can be rebuilt cheaply for
     other stage and sensor fixtures."""
 
     def __init__(self, data, cal, rows=None):
@@ -119,7 +119,7 @@ def refit_fixtures(P_measured, data, cal, *, moment: float = FIXTURE_MOMENT_M,
 
     The error of each row is ILEMT's stage-coordinates error
     ``E = F_se . D^-1 . M . F_se^-1`` with ``D = F_so . so_J . F_st . st_J . F_se``
-    (ilemt-format.md §5, §12); the residual is ``[t(E), moment * r(E)]`` (rotation vector).
+    (docs/ilemt-data.md#ground-truth, docs/paper-procedure.md#test-error); the residual is ``[t(E), moment * r(E)]`` (rotation vector).
     F_st and F_se are their calibrated pose vectors plus fitted additive offsets.
 
     Parameters
@@ -272,7 +272,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     out["n_invalid"] = int(solved["n_invalid"])
     out["files"] = sorted(set(data.file_names()))
     out["calibration"] = "XYZ_hr_cal"
-    out["notes"] = ("Paper values: seed 000 Table IV, measured on another collection "
+    out["notes"] = ("Paper values: MacLachlan et al. 2025, Table IV, measured on another collection "
                     "(cal_9_16, dipole-approximating source); no target. Sweep points: other "
                     "stage axes within 0.25 mm / 0.25 deg of zero; Savitzky-Golay order 2, "
                     "window 21; fixtures re-optimised in pose space (0.05 m moment).")
@@ -282,7 +282,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
 
 
 def reproduce_table4(source, *, correction: bool = True) -> dict:
-    """Seed 000 Table IV on the sweep files of an ILEMT folder (or a :class:`PaperRun`).
+    """MacLachlan et al. 2025, Table IV on the sweep files of an ILEMT folder (or a :class:`PaperRun`).
 
     Returns
     -------
@@ -290,7 +290,7 @@ def reproduce_table4(source, *, correction: bool = True) -> dict:
         JSON-ready: rows ``direct`` and ``cross`` with ``xyz_abs_rms_mm``,
         ``xyz_nonlin_rms_percent``, ``rot_abs_max_deg``, ``xyz_nonlin_max_deg_per_mm`` ...
         (``xyz_`` = translation sweeps, ``rot_`` = rotation sweeps, units in the keys; layout of
-        :func:`openemt.evaluate.sweep_table`), ``paper`` (seed 000 Table IV in the same layout),
+        :func:`openemt.evaluate.sweep_table`), ``paper`` (MacLachlan et al. 2025, Table IV in the same layout),
         the other correction condition, ``without_fixture_refit``, ``fixture_refit``,
         per-curve summaries, row counts and ``seconds``.
     """

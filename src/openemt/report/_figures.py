@@ -1,4 +1,4 @@
-"""matplotlib figures of tracker errors (seed 000 Figs. 8 and 10 style) and error histograms.
+"""matplotlib figures of tracker errors (MacLachlan et al. 2025, Figs. 8 and 10 style) and error histograms.
 
 Every function takes plain arrays in SI units, returns a ``matplotlib.figure.Figure`` and never
 shows it; mm and degrees appear only on the axes.
@@ -22,7 +22,7 @@ def _plt():
 
 def error_vector_figure(positions, errors, *, exaggeration: float | None = None,
                         title: str = "Translation error across the workspace"):
-    """3-D error vectors at the reference positions (seed 000 Fig. 8 style).
+    """3-D error vectors at the reference positions (MacLachlan et al. 2025, Fig. 8 style).
 
     Parameters
     ----------
@@ -80,7 +80,7 @@ def error_histogram_figure(trans_err, rot_err, *, title: str = "Error distributi
 
 
 def sweep_figure(curves, *, title: str = "Axis sweeps: absolute error and nonlinearity"):
-    """Seed 000 Fig. 10 style: one panel per quantity, one line per swept axis.
+    """MacLachlan et al. 2025, Fig. 10 style: one panel per quantity, one line per swept axis.
 
     Parameters
     ----------

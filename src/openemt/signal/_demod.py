@@ -263,7 +263,7 @@ def demodulate(samples, layout: ChannelLayout, *, output_rate: float = 1500.0,
 
     References
     ----------
-    MacLachlan et al. 2025 (seed 000) §V-C: FDM carriers at 7.5, 10.5, 13.5 kHz, 1500 samples/s.
+    MacLachlan et al. 2025, §VIII-E: FDM carriers at 7.5, 10.5, 13.5 kHz, 1500 samples/s.
     """
     x = np.asarray(samples)
     dem = Demodulator(layout, output_rate=output_rate, window=window, phase=phase, t0=t0)

@@ -1,7 +1,7 @@
 """Raw-signal simulator of a frequency-multiplexed (FDM) AC tracker, and the raw HDF5 file.
 
 Each source coil ``i`` carries a sinusoidal current at its own carrier frequency ``f_i``
-(ILEMT: 7.5, 10.5 and 13.5 kHz, seed 000 §V-C). Sensor coil ``j`` sees
+(ILEMT: 7.5, 10.5 and 13.5 kHz, MacLachlan et al. 2025, §VIII-E). Sensor coil ``j`` sees
 
     v_j(t) = sensor_gain * sum_i Re{ Ct[i, j](t) * I_i(t - delay) } + mains(t) + noise
 
@@ -38,7 +38,7 @@ __all__ = [
     "write_raw",
 ]
 
-#: ILEMT's high-rate carrier frequencies for source X, Y, Z (Hz), seed 000 §V-C.
+#: ILEMT's high-rate carrier frequencies for source X, Y, Z (Hz), MacLachlan et al. 2025, §VIII-E.
 ILEMT_FREQUENCIES = (7500.0, 10500.0, 13500.0)
 #: The ``format`` attribute of a raw HDF5 file written by :func:`write_raw`.
 RAW_FORMAT = "openemt-raw"

@@ -2,8 +2,8 @@
 
 A simulated run visits, for each manual fixture combination (source fixture outer, sensor
 fixture inner) and each stage pattern (innermost), the pattern's stage poses, like the ILEMT
-data collection (ilemt-format.md §8.1). The true pose of every row is the kinematic chain
-``P = F_so . so_J . F_st . st_J . F_se`` (seed 000 eq. 6) evaluated at the stage pose actually
+data collection (docs/paper-procedure.md#parameter-groups). The true pose of every row is the kinematic chain
+``P = F_so . so_J . F_st . st_J . F_se`` (MacLachlan et al. 2025, eq. 6) evaluated at the stage pose actually
 reached (commanded + stage error); the dataset's ``stage`` keeps the commanded values, like a
 real log.
 """
@@ -29,7 +29,7 @@ from ._presets import Preset, get_preset
 
 __all__ = ["STAGE_SIGMA", "fixture_combinations", "simulate", "truth_calibration"]
 
-#: Default stage position error sigma per axis (m): seed 000 quotes a stage uncertainty of
+#: Default stage position error sigma per axis (m): MacLachlan et al. 2025 (§VIII-C) quote a stage uncertainty of
 #: 0.107 mm after compensation and adds it to the RMS of the 3-D error magnitude (eq. 10), so it
 #: is a 3-D RMS; per axis that is 107 um / sqrt(3) = 61.8 um.
 STAGE_SIGMA = 107e-6 / np.sqrt(3.0)
@@ -55,7 +55,7 @@ def fixture_combinations(preset, source_fixtures="all", sensor_fixtures="all", *
 
     ``combinations="paper"``: when both lists contain the home fixture (``YoutZup``, the first of
     the preset's supported codes), every source fixture with the home sensor fixture plus the
-    home source fixture with every sensor fixture, as collected for seed 000 (6 combinations for
+    home source fixture with every sensor fixture, as collected for MacLachlan et al. 2025, §VIII-D (6 combinations for
     "all" x "all" with the ILEMT rig). Otherwise (one of the lists lacks its home fixture) the
     full cross product of the two lists. ``combinations="cross"``: always the cross product
     (12 for the ILEMT rig).

@@ -1,4 +1,4 @@
-"""Commanded stage motion patterns of the ILEMT calibration apparatus (ilemt-format.md §3).
+"""Commanded stage motion patterns of the ILEMT calibration apparatus (docs/ilemt-data.md#patterns).
 
 Every pattern is an ``(N, 6)`` array of SI stage vectors ``[x, y, z, a, b, c]`` (m, rad) in the
 order the stage visits them, exactly as the ILEMT logger writes them (columns 1-6 of a ``.dat``
@@ -13,7 +13,7 @@ from .._errors import InputError
 
 __all__ = ["GRID_PITCH", "PATTERNS", "STAGE_Z_LIMIT", "stage_pattern"]
 
-#: Lowest Z the stage reaches (m). A commanded Z below it is logged as this value (§2, §3).
+#: Lowest Z the stage reaches (m). A commanded Z below it is logged as this value (docs/ilemt-data.md#z-clipping).
 STAGE_Z_LIMIT = -0.0462
 #: Pitch of the Anser-style 7 x 7 test grid (m).
 GRID_PITCH = 0.04286
@@ -135,7 +135,7 @@ def stage_pattern(name: str, *, clip_z: bool = True) -> np.ndarray:
 
     References
     ----------
-    ilemt-format.md §3; MacLachlan et al., IEEE Sensors J. 2025 (seed 000), §V-D.
+    docs/ilemt-data.md#patterns; MacLachlan et al. 2025, §VIII-D.
     """
     if not isinstance(name, str) or name not in _BUILDERS:
         raise InputError(f"expected a stage pattern name in {sorted(_BUILDERS)}, got {name!r}")

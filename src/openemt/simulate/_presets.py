@@ -3,12 +3,12 @@
 A preset is the ground truth of a simulated apparatus: the coil geometry that generates the
 couplings (finite coils, so the dipole model used by calibration and solving is only an
 approximation of it, as for real hardware), the dipole-equivalent model, and the true fixture
-transforms F_so, F_st, F_se of the calibration rig (seed 000 eq. 6).
+transforms F_so, F_st, F_se of the calibration rig (MacLachlan et al. 2025, eq. 6).
 
-The dipole-equivalent parameters of the ILEMT-style presets follow the gauge of seed 000 eq. 7
+The dipole-equivalent parameters of the ILEMT-style presets follow the gauge of MacLachlan et al. 2025, eq. 7
 (Z coils at their frame origins along +z, source Z gain 1, no Y component in the X-coil
 moments), so a calibration of simulated data can be compared with the truth entry by entry.
-Their values are chosen near the ILEMT calibrations quoted in ilemt-format.md §7.
+Their values are chosen near the ILEMT calibrations quoted in docs/ilemt-data.md#calibration-mat.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from .. import field as _field
 from .._errors import InputError
 from ..field import ILEMT_GAIN, DipoleModel
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
-from ..signal import ILEMT_FREQUENCIES  # ILEMT high-rate carriers (seed 000 §V-E)
+from ..signal import ILEMT_FREQUENCIES  # ILEMT high-rate carriers (MacLachlan et al. 2025, §VIII-E)
 
 __all__ = ["PRESETS", "Preset", "get_preset"]
 
@@ -176,7 +176,7 @@ def _dipole_approx() -> Preset:
     return _tri_axial_preset(
         "dipole-approx",
         "three separate dipole-approximating air coils (45 mm offsets) with a Premo-like sensor",
-        # seed 000 Table I / cal_9_24: X and Y coils ~45 mm from the Z coil
+        # MacLachlan et al. 2025, Table I / cal_9_24: X and Y coils ~45 mm from the Z coil
         L_so=[[0.0453, -0.0008, 0.0], [0.0014, 0.0454, 0.0], [-0.0437, -0.0430, 0.0]],
         M_so=[[0.951, -0.0007, 0.0], [0.0, 0.949, 0.0], [-0.0259, 0.0005, 1.0]],
         # each coil 40 mm across with length/diameter = sqrt(3)/2, the solenoid shape whose

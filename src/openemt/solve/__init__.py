@@ -1,4 +1,4 @@
-"""Pose solution: closed forms (seed 004 SVD, Kuipers, Kim18), a compiled batched
+"""Pose solution: closed forms (the SVD closed form of Teixeira Silva et al. 2017, Kuipers, Kim18), a compiled batched
 Levenberg-Marquardt solver for any dipole model, the Cramer-Rao bound and a chunked runner.
 
 See docs/solve.md for the algorithms, status codes, SNR definition and benchmarks.

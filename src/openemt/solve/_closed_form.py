@@ -1,6 +1,6 @@
 """Closed-form pose solutions for concentric three-axis dipole sources and sensors.
 
-For concentric coils the dipole model (seed 000 eq. 3-5, ``openemt.field``) reduces to
+For concentric coils the dipole model (MacLachlan et al. 2025, eqs. 3-5, ``openemt.field``) reduces to
 
     C = (g / d^3) M_so^T H R M_se,      H = 3 u u^T - I,
 
@@ -10,18 +10,17 @@ the model gain. Whitening with the known moments gives ``C0 = M_so^-T C M_se^-1 
 ``(2k, k, k)`` and its first left singular vector is ``+/-u``. Three solvers invert this:
 
 ``svd``
-    Teixeira Silva et al. 2017 (seed 004): distance from the three singular values (mean of the
+    Teixeira Silva et al. 2017: distance from the three singular values (mean of the
     three distance estimates of their eq. 25), direction from the first right singular vector of
     ``T = C0^T`` (= first left singular vector of ``C0``), and orientation from the Wahba
     problem ``min ||k R - H^-1 C0||`` solved by SVD with the determinant correction (Markley).
 ``kuipers``
-    Kuipers' closed form (the benchmark of seed 004): distance from the invariant
+    Kuipers' closed form (the benchmark of Teixeira Silva et al. 2017): distance from the invariant
     ``||C0||_F^2 = 6 k^2``, direction cosines from ``C0 C0^T = k^2 (I + 3 u u^T)`` (magnitudes
     from the diagonal, relative signs from the off-diagonal terms), orientation matrix
     ``H^-1 C0 / k`` read out as Z-Y-X Euler angles element by element (no orthogonalisation).
 ``kim18``
-    Kim, Song & Park 2018 as ILEMT applies it to calibrated concentric models (ilemt-format.md
-    §10.2): ``Y = C0^T = U S V^T``, ``R = V diag(1, -1, -1) U^T``,
+    Kim, Song & Park 2018 as ILEMT applies it to calibrated concentric models (docs/paper-procedure.md#kim18): ``Y = C0^T = U S V^T``, ``R = V diag(1, -1, -1) U^T``,
     ``d = (6 g / (2 s1 + s2 + s3))^(1/3)``, ``p = +/- d V[:, 0]``. Non-orthogonal moments and
     unequal gains enter through the whitening.
 
@@ -68,7 +67,7 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
     norms to normalise residuals with.
 
     Complex input is taken as measured phasors: the target is ``sign(Re z) |z|`` and the norm is
-    the spectral norm of the complex matrix, as ILEMT does (ilemt-format.md §10.1). For real input
+    the spectral norm of the complex matrix, as ILEMT does (docs/paper-procedure.md#iterative-solution). For real input
     the norms are returned as -1 and computed inside the compiled kernels.
     """
     C = np.asarray(couplings)
@@ -168,7 +167,7 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     Eigenvalues of ``C0 C0^T`` (trigonometric closed form) give the singular values; the
     eigenvector of the largest gives ``u = U[:, 0]``; the rotation is the Wahba solution for
     ``H^-1 C0 = U diag(s0/2, -s1, -s2) V^T``: ``U diag(1, -1, -1) V^T`` (the Kim18 rotation and
-    the seed-004 solution), with Markley's determinant correction when ``det C0 < 0``, found as
+    the Teixeira Silva et al. 2017 solution), with Markley's determinant correction when ``det C0 < 0``, found as
     a unit quaternion ``q`` by Davenport's q-method (``wahba_quat``) from the known singular
     values. Returns 1 (done: ``s``, ``U[:, 0]``, ``q``, ``R`` set), 2 (rank deficient) or 0
     (fall back to the SVD path: a nearly double top singular value, or no usable eigenvector).
@@ -287,11 +286,11 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
         u1 = U[1, 0]
         u2 = U[2, 0]
         if method == 0:
-            # seed 004 eq. 25: rho = cbrt(C/sigma), three estimates averaged
+            # Teixeira Silva et al. 2017, eq. 25: rho = cbrt(C/sigma), three estimates averaged
             dist = ((2.0 * gain / s[0]) ** (1.0 / 3.0) + (gain / s[1]) ** (1.0 / 3.0)
                     + (gain / s[2]) ** (1.0 / 3.0)) / 3.0
         else:
-            # Kim18 (ilemt-format.md §10.2) with 3 mu / (2 pi) = 6 gain
+            # Kim18 (docs/paper-procedure.md#kim18) with 3 mu / (2 pi) = 6 gain
             dist = (6.0 * gain / (2.0 * s[0] + s[1] + s[2])) ** (1.0 / 3.0)
     # hemisphere: p . n >= 0
     proj = u0 * n[0] + u1 * n[1] + u2 * n[2]
@@ -330,8 +329,8 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
             sph = 0.0
         euler_zyx_matrix(cps, sps, cth, sth, cph, sph, R)
     elif fast == 0:
-        # Kim18 (ilemt-format.md §10.2): Y = C0^T = V S U^T, R = V_Y diag(1,-1,-1) U_Y^T
-        # = U diag(1,-1,-1) V^T. The seed-004 Wahba step min ||k R - H^-1 C0|| gives the same
+        # Kim18 (docs/paper-procedure.md#kim18): Y = C0^T = V S U^T, R = V_Y diag(1,-1,-1) U_Y^T
+        # = U diag(1,-1,-1) V^T. The Teixeira Silva et al. 2017 Wahba step min ||k R - H^-1 C0|| gives the same
         # rotation: H^-1 C0 = U diag(s0/2, -s1, -s2) V^T. When noise makes det(U V^T) < 0 both
         # flip the axis of the smallest Wahba weight (Markley's determinant correction) so
         # that R stays a rotation.
@@ -485,7 +484,7 @@ _COMMON_DOC = """
 
 def solve_svd(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
               ambiguity_tol=1e-6, residual=True) -> SolveResult:
-    """Closed-form SVD pose solution of Teixeira Silva et al. (seed 004).
+    """Closed-form SVD pose solution of Teixeira Silva et al. (Teixeira Silva et al. 2017).
 
     Distance from the singular values, direction from the first singular vector, orientation
     from the Wahba problem solved by SVD.
@@ -496,7 +495,7 @@ def solve_svd(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
 
 def solve_kuipers(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
               ambiguity_tol=1e-6, residual=True) -> SolveResult:
-    """Kuipers' closed-form pose solution (the benchmark of seed 004).
+    """Kuipers' closed-form pose solution (the benchmark of Teixeira Silva et al. 2017).
 
     Distance from the Frobenius invariant, direction cosines from ``C0 C0^T``, orientation from
     Z-Y-X Euler angles read off ``H^-1 C0 / k``.
@@ -507,7 +506,7 @@ def solve_kuipers(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
 
 def solve_kim18(couplings, model, *, hemisphere="+x", rank_tol=1e-6,
                 ambiguity_tol=1e-6, residual=True) -> SolveResult:
-    """Kim-Song-Park 2018 closed form for calibrated concentric models (ilemt-format.md §10.2).
+    """Kim-Song-Park 2018 closed form for calibrated concentric models (docs/paper-procedure.md#kim18).
 
     Accepts non-orthogonal moments and unequal gains (through the whitening by ``M_so``,
     ``M_se``).

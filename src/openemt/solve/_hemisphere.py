@@ -2,7 +2,7 @@
 
 A dipole coupling is unchanged when the sensor position p is replaced by -p. A hemisphere names a
 direction ``n``; the solution with ``p . n >= 0`` is taken. ILEMT names hemispheres by a signed
-axis (``'+x'``, ``'-z'``, ilemt-format.md §10.1); openemt also accepts an arbitrary 3-vector.
+axis (``'+x'``, ``'-z'``, docs/paper-procedure.md#iterative-solution); openemt also accepts an arbitrary 3-vector.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def hemisphere_vectors(hemisphere, n: int, *, allow_none: bool = True) -> np.nda
 def hemisphere_from_positions(positions) -> np.ndarray:
     """ILEMT's hemisphere of known positions: the signed axis of the largest |component|.
 
-    Returns strings like ``'+x'``, shape (N,) (ilemt-format.md §10.1).
+    Returns strings like ``'+x'``, shape (N,) (docs/paper-procedure.md#iterative-solution).
     """
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:

@@ -4,7 +4,7 @@ Per sample, the unknown pose ``(R, t)`` is updated by a translation increment an
 rotation increment, ``t <- t + dt``, ``R <- exp([dphi]x) R`` (so no rotation-vector Jacobian is
 needed). The model and its analytic derivatives come from the one compiled dipole kernel
 ``openemt.field._dipole_kernel.dipole_eval``. The residual is ``C_pred - C_meas`` over all
-``n_source * n_sensor`` couplings (unnormalised, as ILEMT, ilemt-format.md §10.1).
+``n_source * n_sensor`` couplings (unnormalised, as ILEMT, docs/paper-procedure.md#iterative-solution).
 
 Single-coil sensors (``n_sensor == 1``) are 5-DOF: the roll about the sensor axis is not
 observable. The increment ``dphi`` is then restricted to the plane perpendicular to the sensor
@@ -13,7 +13,7 @@ direction to the solved axis (zero roll, with the coil position kept).
 
 Constraints: a hemisphere half-space ``t . n >= 0`` (per sample; ``n = 0`` means none) and an
 optional position box, enforced by projecting every trial point (projected LM). ILEMT's retries
-(ilemt-format.md §10.1) restart an invalid solve from the initial pose with one pose-vector
+(docs/paper-procedure.md#iterative-solution) restart an invalid solve from the initial pose with one pose-vector
 component's sign flipped, for each of the 6 components, and keep the first valid (else the best)
 result.
 """

@@ -174,7 +174,7 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
         (1e-5 is ILEMT's value for high-rate data). ``None`` disables the test and the retries.
     retries : bool
         Re-solve invalid samples from the initial pose with one pose-vector component's sign
-        flipped, each of the 6 in turn (ILEMT, ilemt-format.md §10.1).
+        flipped, each of the 6 in turn (ILEMT, docs/paper-procedure.md#iterative-solution).
     concentric_model : DipoleModel, optional
         Concentric model for the closed-form start (ILEMT: the concentric calibration).
     bounds : float or array (3, 2), optional

@@ -28,7 +28,7 @@ class Status(IntEnum):
         The solution lies on or beyond the allowed position box.
     NOT_CONVERGED
         The solver stopped (converged or stalled) but the residual is above the validity
-        threshold (ILEMT's "invalid" solutions, ilemt-format.md §10.1).
+        threshold (ILEMT's "invalid" solutions, docs/paper-procedure.md#iterative-solution).
     """
 
     CONVERGED = 0
@@ -53,7 +53,7 @@ class SolveResult:
         :class:`Status` code of each sample.
     residual : ndarray, shape (N,)
         Sum of squared coupling residuals divided by the spectral norm of the measured coupling
-        matrix (ILEMT's ``resnorm``, ilemt-format.md §10.1).
+        matrix (ILEMT's ``resnorm``, docs/paper-procedure.md#iterative-solution).
     iterations : ndarray of int32, shape (N,)
         Solver iterations (summed over retries); 0 for closed forms.
     covariance : ndarray, shape (N, 6, 6), optional

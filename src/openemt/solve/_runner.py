@@ -19,7 +19,7 @@ SOLVERS = ("lm", "svd", "kuipers", "kim18")
 
 def apply_position_correction(result: SolveResult, L) -> SolveResult:
     """Apply a 4x4 homogeneous output correction to the solved positions (orientation kept),
-    ilemt-format.md §10.3."""
+    docs/paper-procedure.md#applying-correction."""
     from ..correct import apply_linear_correction
 
     xyz = apply_linear_correction(L, result.pose_vectors[:, :3])
