@@ -261,11 +261,9 @@ def write_correction(correction: Correction, path) -> None:
 
 def read_correction(path) -> Correction:
     """Read a correction written by :func:`write_correction`."""
-    try:
-        d = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"expected a JSON correction file, got invalid JSON in {path}: "
-                         f"{exc.msg}") from None
+    from ..io._jsontext import load_json_file
+
+    d = load_json_file(path, "a JSON correction file")
     if not isinstance(d, dict):
-        raise TypeError(f"expected a JSON object in {path}, got {type(d).__name__}")
+        raise InputError(f"expected a JSON object in {path}, got {type(d).__name__}")
     return Correction.from_dict(d)

@@ -17,6 +17,7 @@ from .._errors import InputError
 from ..field import DipoleModel
 from ._atomic import atomic_path
 from ._calibration import Calibration
+from ._jsontext import load_json_file
 
 __all__ = [
     "CALIBRATION_SCHEMA",
@@ -260,13 +261,5 @@ def read_calibration(path) -> Calibration:
     if not path.is_file():
         raise FileNotFoundError(f"expected a calibration file (.json or ILEMT .mat), "
                                 f"got missing file {str(path)!r}")
-    try:
-        text = path.read_text(encoding="utf-8")
-        doc = json.loads(text)
-    except UnicodeDecodeError:
-        raise InputError(f"expected an openemt calibration JSON file, got binary data in "
-                         f"{path.name}") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"expected an openemt calibration JSON file, got invalid JSON in "
-                         f"{path.name} (line {exc.lineno}: {exc.msg})") from None
+    doc = load_json_file(path, "an openemt calibration JSON file")
     return calibration_from_dict(doc, path.name)

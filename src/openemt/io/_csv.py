@@ -82,8 +82,11 @@ def import_csv(path) -> Dataset:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"expected a couplings CSV file, got missing file {str(path)!r}")
-    with open(path, newline="", encoding="utf-8") as fh:
-        lines = fh.read().splitlines()
+    try:
+        lines = path.read_bytes().decode("utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        raise InputError(f"expected a couplings CSV file (UTF-8 text), got a byte that is not "
+                         f"UTF-8 at offset {exc.start} in {path.name}") from None
     kind = "truth"
     comments = [ln for ln in lines if ln.lstrip().startswith("#")]
     numbered = [(k, ln) for k, ln in enumerate(lines, 1)

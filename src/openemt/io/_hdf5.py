@@ -8,6 +8,7 @@ read lazily in row blocks through :func:`open_dataset_couplings`.
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Self
 
@@ -17,6 +18,7 @@ from .. import __version__
 from .._errors import InputError
 from ._atomic import atomic_path
 from ._dataset import Dataset, signed_real
+from ._jsontext import loads_json
 
 __all__ = ["DATASET_SCHEMA", "DATASET_SCHEMA_VERSION", "CouplingReader", "open_dataset_couplings",
            "read_dataset", "write_dataset"]
@@ -38,9 +40,23 @@ _UNITS = {
 }
 
 
-def _expected(got: str) -> ValueError:
-    return ValueError(f"expected an openemt dataset HDF5 file with schema_version "
+def _expected(got: str) -> InputError:
+    return InputError(f"expected an openemt dataset HDF5 file with schema_version "
                       f"{DATASET_SCHEMA_VERSION} (schema {DATASET_SCHEMA!r}), got {got}")
+
+
+@contextmanager
+def _damaged(path: Path):
+    """Turn the HDF5 library's errors on a damaged file (failed checksums, unreadable object
+    headers: ``OSError``, ``RuntimeError`` or h5py's ``KeyError`` for an object it cannot open)
+    into one clear error naming the user's file."""
+    try:
+        yield
+    except (OSError, RuntimeError, KeyError) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise _expected(f"{path.name}, which is damaged "
+                        f"({' '.join(str(exc).split())[:100]})") from None
 
 
 def _str_dtype():
@@ -60,7 +76,9 @@ def _write_array(group, name: str, a: np.ndarray, units: str | None = None) -> N
         chunks = (min(a.shape[0], CHUNK_ROWS),) + a.shape[1:]
     parts = [("_real", a.real), ("_imag", a.imag)] if a.dtype.kind == "c" else [("", a)]
     for suffix, data in parts:
-        ds = group.create_dataset(name + suffix, data=data, chunks=chunks)
+        # Fletcher-32 checksums on chunked data: a damaged file is an error, not wrong numbers
+        ds = group.create_dataset(name + suffix, data=data, chunks=chunks,
+                                  fletcher32=chunks is not None)
         if suffix:
             ds.attrs["complex_part"] = suffix[1:]
         if units is not None:
@@ -85,7 +103,9 @@ def write_dataset(ds: Dataset, path) -> Path:
     except (TypeError, ValueError) as exc:
         raise InputError(f"expected JSON-serialisable dataset `meta`, got {exc}") from None
     path = Path(path)
-    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+    # libver="latest": the newest object-header format, whose metadata carry checksums, so a
+    # damaged header is refused on open instead of being parsed (HDF5 >= 1.10 reads it)
+    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w", libver="latest") as f:
         f.attrs["schema"] = DATASET_SCHEMA
         f.attrs["schema_version"] = DATASET_SCHEMA_VERSION
         f.attrs["openemt_version"] = __version__
@@ -130,26 +150,44 @@ def _open(path):
         raise _expected(f"{path.name}, which is not a readable HDF5 file "
                         f"({' '.join(str(exc).split())[:80]})") from None
     try:
-        schema = f.attrs.get("schema")
-        version = f.attrs.get("schema_version")
-        if isinstance(schema, bytes):
-            schema = schema.decode()
-        if schema != DATASET_SCHEMA or version is None:
-            raise _expected(f"{path.name} with schema {schema!r} and schema_version {version!r}")
-        if int(version) > DATASET_SCHEMA_VERSION:
-            raise _expected(f"{path.name} with newer schema_version {int(version)} "
-                            f"(upgrade openemt)")
-        for name in ("couplings_real", "stage", "source_fixture", "sensor_fixture", "pattern",
-                     "file_index", "files"):
-            if name not in f:
-                raise _expected(f"{path.name} without the required dataset {name!r}")
-        if bool(f.attrs.get("couplings_complex", False)) and "couplings_imag" not in f:
-            raise _expected(f"{path.name} without 'couplings_imag' although couplings_complex "
-                            "is set")
+        with _damaged(path):
+            _check_header(f, path)
     except BaseException:
         f.close()
         raise
     return f
+
+
+def _check_header(f, path: Path) -> None:
+    schema = f.attrs.get("schema")
+    version = f.attrs.get("schema_version")
+    if isinstance(schema, bytes):
+        schema = schema.decode()
+    if schema != DATASET_SCHEMA or version is None:
+        raise _expected(f"{path.name} with schema {schema!r} and schema_version {version!r}")
+    if int(version) > DATASET_SCHEMA_VERSION:
+        raise _expected(f"{path.name} with newer schema_version {int(version)} "
+                        f"(upgrade openemt)")
+    for name in ("couplings_real", "stage", "source_fixture", "sensor_fixture", "pattern",
+                 "file_index", "files"):
+        if name not in f:
+            raise _expected(f"{path.name} without the required dataset {name!r}")
+    if bool(f.attrs.get("couplings_complex", False)) and "couplings_imag" not in f:
+        raise _expected(f"{path.name} without 'couplings_imag' although couplings_complex "
+                        "is set")
+    for name in ("couplings_real", "couplings_imag"):
+        d = f.get(name)
+        if d is None:
+            continue
+        if not hasattr(d, "dtype") or d.ndim != 3 or d.dtype.kind not in "fiu":
+            got = (f"a {len(d.shape)}-D {d.dtype} array" if hasattr(d, "dtype")
+                   else "a group")
+            raise _expected(f"{path.name} whose {name!r} is {got} instead of a 3-D numeric "
+                            "array (N, n_source, n_sensor)")
+    if "couplings_imag" in f and f["couplings_imag"].shape != f["couplings_real"].shape:
+        raise _expected(f"{path.name} whose 'couplings_imag' shape "
+                        f"{f['couplings_imag'].shape} differs from 'couplings_real' "
+                        f"{f['couplings_real'].shape}")
 
 
 def _read_array(group, name: str):
@@ -180,37 +218,45 @@ def read_dataset(path) -> Dataset:
     path = Path(path)
     f = _open(path)
     try:
-        try:
-            meta = json.loads(f.attrs.get("meta", "{}"))
-        except (TypeError, ValueError):
-            raise _expected(f"{path.name} with an unreadable `meta` attribute") from None
-        extra = {}
-        if "extra" in f:
-            g = f["extra"]
-            names = sorted({k[:-5] if k.endswith(("_real", "_imag")) else k for k in g})
-            extra = {k: _read_array(g, k) for k in names}
-        try:
-            return Dataset(
-                couplings=_read_array(f, "couplings"),
-                stage=f["stage"][()],
-                source_fixture=_read_array(f, "source_fixture"),
-                sensor_fixture=_read_array(f, "sensor_fixture"),
-                pattern=_read_array(f, "pattern"),
-                file_index=f["file_index"][()],
-                files=tuple(_read_array(f, "files").tolist()),
-                stage_logged=_read_array(f, "stage_logged"),
-                poses=_read_array(f, "poses"),
-                source_signs=_read_array(f, "source_signs"),
-                sensor_signs=_read_array(f, "sensor_signs"),
-                extra=extra,
-                meta=meta,
-            )
-        except (TypeError, ValueError) as exc:
-            raise _expected(f"{path.name} with inconsistent contents: {exc}") from None
-    except OSError as exc:
-        raise _expected(f"{path.name}, which is corrupt ({' '.join(str(exc).split())[:80]})") from None
+        with _damaged(path):
+            return _read_open(f, path)
     finally:
         f.close()
+
+
+def _read_open(f, path: Path) -> Dataset:
+    meta_text = f.attrs.get("meta", "{}")
+    if isinstance(meta_text, bytes):
+        meta_text = meta_text.decode("utf-8", errors="replace")
+    if not isinstance(meta_text, str):
+        raise _expected(f"{path.name} with a `meta` attribute that is not JSON text")
+    meta = loads_json(meta_text, "a JSON `meta` attribute", path.name)
+    if not isinstance(meta, dict):
+        raise _expected(f"{path.name} whose `meta` is a JSON {type(meta).__name__}, "
+                        "not an object")
+    extra = {}
+    if "extra" in f:
+        g = f["extra"]
+        names = sorted({k[:-5] if k.endswith(("_real", "_imag")) else k for k in g})
+        extra = {k: _read_array(g, k) for k in names}
+    try:
+        return Dataset(
+            couplings=_read_array(f, "couplings"),
+            stage=f["stage"][()],
+            source_fixture=_read_array(f, "source_fixture"),
+            sensor_fixture=_read_array(f, "sensor_fixture"),
+            pattern=_read_array(f, "pattern"),
+            file_index=f["file_index"][()],
+            files=tuple(_read_array(f, "files").tolist()),
+            stage_logged=_read_array(f, "stage_logged"),
+            poses=_read_array(f, "poses"),
+            source_signs=_read_array(f, "source_signs"),
+            sensor_signs=_read_array(f, "sensor_signs"),
+            extra=extra,
+            meta=meta,
+        )
+    except (TypeError, ValueError) as exc:
+        raise _expected(f"{path.name} with inconsistent contents: {exc}") from None
 
 
 class CouplingReader:
@@ -258,10 +304,11 @@ class CouplingReader:
     def __getitem__(self, key) -> np.ndarray:
         if self._file is None:
             self._set_handles(_open(self.path))
-        a = self._re[key]
-        if self._im is None:
-            return np.asarray(a, dtype=np.float64)
-        C = a + 1j * self._im[key]
+        with _damaged(self.path):
+            a = self._re[key]
+            if self._im is None:
+                return np.asarray(a, dtype=np.float64)
+            C = a + 1j * self._im[key]
         return signed_real(C) if self.real else C
 
     def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:

@@ -278,17 +278,17 @@ def _folder_signs(folder: Path):
 
 
 # -- the .dat reader ---------------------------------------------------------------------------
-def _line_error(path: Path, lineno: int, line: str) -> ValueError:
+def _line_error(path: Path, lineno: int, line: str) -> InputError:
     fields = [f for f in re.split(r"[ \t]*,[ \t]*|[ \t]+", line.strip()) if f != ""]
     if len(fields) != _N_FIELDS:
-        return ValueError(f"{path.name}: line {lineno}: expected {_N_FIELDS} fields, got {len(fields)}")
+        return InputError(f"{path.name}: line {lineno}: expected {_N_FIELDS} fields, got {len(fields)}")
     for k, tok in enumerate(fields):
         ok = (_REAL_TOKEN_RE.fullmatch(tok) if k < 6 else _CPLX_TOKEN_RE.fullmatch(tok))
         if ok is None:
             kind = "a real number" if k < 6 else "a complex number a+bi or a"
-            return ValueError(f"{path.name}: line {lineno}: field {k + 1}: expected {kind}, "
+            return InputError(f"{path.name}: line {lineno}: field {k + 1}: expected {kind}, "
                               f"got {tok[:40]!r}")
-    return ValueError(f"{path.name}: line {lineno}: expected {_N_FIELDS} numeric fields, "
+    return InputError(f"{path.name}: line {lineno}: expected {_N_FIELDS} numeric fields, "
                       f"got unparsable line")
 
 

@@ -101,7 +101,7 @@ def read_ilemt_calibration(path) -> Calibration:
                                 f"{str(path)!r}")
     try:
         d = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - loadmat raises many types on damaged files
         msg = " ".join(str(exc).split())[:120]
         raise InputError(f"expected an ILEMT calibration .mat file (MATLAB v5), got "
                          f"{path.name} that cannot be read ({type(exc).__name__}: {msg})") from None

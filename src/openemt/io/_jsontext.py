@@ -1,0 +1,68 @@
+"""JSON documents from files, read defensively: UTF-8 checked, nesting bounded, errors one line.
+
+Python's ``json`` parser recurses once per nesting level, so a file of ten thousand ``[`` ends
+in ``RecursionError``; openemt's documents are a few levels deep, and anything deeper than
+:data:`MAX_JSON_DEPTH` is refused before parsing.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .._errors import InputError
+
+__all__ = ["MAX_JSON_DEPTH", "json_depth", "load_json_file", "loads_json"]
+
+#: deepest nesting of arrays/objects accepted in a JSON document (openemt writes at most ~5)
+MAX_JSON_DEPTH = 64
+
+
+def json_depth(text: str) -> int:
+    """Deepest nesting of ``[``/``{`` in JSON text, ignoring brackets inside strings."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for ch in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
+def loads_json(text: str, what: str, where: str):
+    """Parse JSON ``text`` (a ``what`` from ``where``); one-line :class:`InputError` otherwise."""
+    if text.count("[") + text.count("{") > MAX_JSON_DEPTH:
+        depth = json_depth(text)
+        if depth > MAX_JSON_DEPTH:
+            raise InputError(f"expected {what} nested at most {MAX_JSON_DEPTH} levels deep, got "
+                             f"{depth} levels in {where}")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"expected {what}, got invalid JSON in {where} (line {exc.lineno}: "
+                         f"{exc.msg})") from None
+
+
+def load_json_file(path, what: str):
+    """Read and parse a JSON file; the errors name the file and say what was expected."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"expected {what}, got missing file {str(path)!r}")
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"expected {what} (UTF-8 JSON text), got a byte that is not UTF-8 at "
+                         f"offset {exc.start} in {path.name}") from None
+    return loads_json(text, what, path.name)
