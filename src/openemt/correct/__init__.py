@@ -4,7 +4,7 @@ Independent of any magnetic model: the corrections work on the pose output of an
 (ILEMT, NDI Aurora, Polhemus, ...) given reference poses. See docs/correction.md.
 """
 
-from ._crossval import kfold_splits, location_groups, location_kfold
+from ._crossval import MAX_FOLDS, check_folds, kfold_splits, location_groups, location_kfold
 from ._dlt import DltFit, apply_linear_correction, fit_dlt, linear_correction_rms
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._model import (
@@ -25,6 +25,7 @@ from ._poly import (
 
 __all__ = [
     "CORRECTION_METHODS",
+    "MAX_FOLDS",
     "POLY_ORDERS",
     "Correction",
     "DltFit",
@@ -33,6 +34,7 @@ __all__ = [
     "RbfCorrection",
     "apply_linear_correction",
     "axis_levels",
+    "check_folds",
     "evaluate_correction",
     "fit_correction",
     "fit_dlt",

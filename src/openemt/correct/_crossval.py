@@ -24,7 +24,9 @@ from scipy.spatial.transform import Rotation
 from .._errors import InputError
 
 __all__ = [
+    "MAX_FOLDS",
     "apply_rotation_offsets",
+    "check_folds",
     "held_out_predictions",
     "kfold_splits",
     "location_groups",
@@ -34,6 +36,23 @@ __all__ = [
     "rotation_errors",
     "rotation_offsets",
 ]
+
+
+#: Most held-out splits of one evaluation (k of k-fold, or groups held out one at a time). The
+#: order/smoothing selection runs inside every split (nested), so the cost grows with the
+#: square of the count; leave-one-out on many pairs is refused rather than run for minutes.
+MAX_FOLDS = 20
+
+
+def check_folds(k: int, n_splits_name: str = "folds") -> int:
+    """``k`` as int if ``2 <= k <= MAX_FOLDS``; InputError otherwise."""
+    try:
+        kk = int(k)
+    except (TypeError, ValueError):
+        raise InputError(f"expected an integer number of {n_splits_name}, got {k!r}") from None
+    if not 2 <= kk <= MAX_FOLDS:
+        raise InputError(f"expected 2 <= {n_splits_name} <= {MAX_FOLDS} (MAX_FOLDS), got {kk}")
+    return kk
 
 
 def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None, fold_groups=None
@@ -65,9 +84,10 @@ def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None, fold_groups=
         labels = np.unique(g)
         if len(labels) < 2:
             raise InputError(f"expected at least 2 groups to hold out, got {len(labels)}")
+        check_folds(len(labels), "groups held out")
         return [(np.flatnonzero(g != lab), np.flatnonzero(g == lab)) for lab in labels]
-    k = int(k)
-    if not 2 <= k <= n:
+    k = check_folds(k)
+    if not k <= n:
         raise InputError(f"expected 2 <= k <= n = {n} folds, got k = {k}")
     if fold_groups is not None:
         fg = np.asarray(fold_groups)

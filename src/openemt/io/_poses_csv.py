@@ -298,11 +298,11 @@ _ALL_POSE_NAMES = {f"{p}{n}{s}" for p in ("", "ref_") for n in
                    for s in ("", "_m", "_mm", "_rad", "_deg")} | {"time", "t"}
 
 
-def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
+def write_poses_csv(path, poses, reference=None, group=None, time=None, frame=None) -> Path:
     """Write poses (and reference poses) as CSV in metres and rotation vectors (rad), atomically.
 
-    Columns: ``[pose_id,][time,]x_m,y_m,z_m,rx_rad,ry_rad,rz_rad[,ref_x_m,...,ref_rz_rad]``;
-    numbers use shortest round-trip precision. Returns the path.
+    Columns: ``[pose_id,][frame,][time,]x_m,y_m,z_m,rx_rad,ry_rad,rz_rad[,ref_x_m,...,
+    ref_rz_rad]``; numbers use shortest round-trip precision. Returns the path.
     """
     P = check_poses(poses, "poses")
     if P.ndim != 3:
@@ -318,6 +318,10 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
         header += ["ref_" + n for n in names]
     num = np.hstack(blocks)
     pre_h, pre = [], []
+    if frame is not None:
+        fr = np.asarray(frame).astype(np.int64).reshape(-1)
+        if fr.shape != (len(P),):
+            raise InputError(f"expected `frame` of shape ({len(P)},), got {fr.shape}")
     if time is not None:
         pre_h.append("time")
         pre.append(np.asarray(time, dtype=float).reshape(-1))
@@ -328,9 +332,11 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow((["pose_id"] if group is not None else []) + pre_h + header)
+        w.writerow((["pose_id"] if group is not None else [])
+                   + (["frame"] if frame is not None else []) + pre_h + header)
         for k in range(len(P)):
             row = [str(g[k])] if group is not None else []
+            row += [str(int(fr[k]))] if frame is not None else []
             row += [repr(float(c[k])) for c in pre]
             row += [repr(float(v)) for v in num[k]]
             w.writerow(row)
