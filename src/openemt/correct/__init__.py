@@ -6,6 +6,8 @@ Independent of any magnetic model: the corrections work on the pose output of an
 
 from ._crossval import MAX_FOLDS, check_folds, kfold_splits, location_groups, location_kfold
 from ._dlt import DltFit, apply_linear_correction, fit_dlt, linear_correction_rms
+from ._dof import MIN_PAIRS_FACTOR, pair_requirements
+from ._identity import IdentityCorrection
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._model import (
     CORRECTION_METHODS,
@@ -22,20 +24,25 @@ from ._poly import (
     fit_polynomial,
     monomial_exponents,
 )
+from ._select import AUTO_METHODS, fit_auto_correction
 
 __all__ = [
+    "AUTO_METHODS",
     "CORRECTION_METHODS",
     "MAX_FOLDS",
+    "MIN_PAIRS_FACTOR",
     "POLY_ORDERS",
     "Correction",
     "DltFit",
     "GridCorrection",
+    "IdentityCorrection",
     "PolynomialCorrection",
     "RbfCorrection",
     "apply_linear_correction",
     "axis_levels",
     "check_folds",
     "evaluate_correction",
+    "fit_auto_correction",
     "fit_correction",
     "fit_dlt",
     "fit_grid",
@@ -46,6 +53,7 @@ __all__ = [
     "location_groups",
     "location_kfold",
     "monomial_exponents",
+    "pair_requirements",
     "read_correction",
     "write_correction",
 ]

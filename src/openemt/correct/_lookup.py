@@ -29,11 +29,11 @@ from scipy.sparse.linalg import spsolve
 
 from .._errors import InputError
 from ._crossval import (
+    ROTATION_MOMENT_M,
     apply_rotation_offsets,
     location_kfold,
     normalizer,
-    position_errors,
-    rotation_errors,
+    pair_errors,
     rotation_offsets,
 )
 
@@ -67,12 +67,14 @@ def _apply_offsets(xyz, R, values):
 def _cv_score(m, d, Rm, Rd, predict_rows) -> float:
     """Held-out score: RMS position error (m) + RMS rotation error (rad) x 0.1 m.
 
-    The 0.1 m moment puts 1 mrad of rotation on the same footing as 0.1 mm of position.
+    The 0.1 m moment (:data:`ROTATION_MOMENT_M`) puts 1 mrad of rotation on the same footing
+    as 0.1 mm of position.
     """
     xyz, R = predict_rows
-    s = np.sqrt(np.mean(position_errors(xyz, d) ** 2))
-    if R is not None and Rd is not None:
-        s += 0.1 * np.sqrt(np.mean(rotation_errors(R, Rd) ** 2))
+    et, er = pair_errors(xyz, R, d, Rd)
+    s = np.sqrt(np.mean(et ** 2))
+    if er is not None:
+        s += ROTATION_MOMENT_M * np.sqrt(np.mean(er ** 2))
     return float(s)
 
 
