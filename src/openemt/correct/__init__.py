@@ -14,6 +14,7 @@ from ._model import (
     Correction,
     evaluate_correction,
     fit_correction,
+    held_out_score_mm,
     read_correction,
     write_correction,
 )
@@ -48,6 +49,7 @@ __all__ = [
     "fit_grid",
     "fit_polynomial",
     "fit_rbf",
+    "held_out_score_mm",
     "kfold_splits",
     "linear_correction_rms",
     "location_groups",

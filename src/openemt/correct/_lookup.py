@@ -48,6 +48,8 @@ __all__ = [
 
 SMOOTHING_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
 SMOOTHING_RBF = (1e-8, 1e-6, 1e-4, 1e-2, 1.0, 10.0, 100.0)
+#: Fewest pairs of an RBF fit: its linear part has 4 terms per coordinate.
+_RBF_MIN_PAIRS = 5
 
 
 def _targets(m, d, Rm, Rd):
@@ -78,8 +80,13 @@ def _cv_score(m, d, Rm, Rd, predict_rows) -> float:
     return float(s)
 
 
-def _choose_smoothing(fit_one, m, d, Rm, Rd, grid, k, seed) -> tuple[float, dict]:
+def _choose_smoothing(fit_one, m, d, Rm, Rd, grid, k, seed, min_train: int = 1
+                      ) -> tuple[float, dict]:
     splits = location_kfold(m, k, seed=seed)
+    smallest = min(len(train) for train, _ in splits)
+    if smallest < min_train:
+        raise InputError(f"expected at least {min_train} pairs in every training fold of the "
+                         f"smoothing selection, got {smallest} of {len(m)} pairs")
     scores = {}
     for s in grid:
         xyz = np.empty_like(m)
@@ -316,12 +323,14 @@ def fit_rbf(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
     center, scale = normalizer(m)
     pts = (m - center) / scale
     y = _targets(m, d, Rm, Rd)
-    if len(m) < 5:
-        raise InputError(f"expected at least 5 pairs for an RBF correction, got {len(m)}")
+    if len(m) < _RBF_MIN_PAIRS:
+        raise InputError(f"expected at least {_RBF_MIN_PAIRS} pairs for an RBF correction, "
+                         f"got {len(m)}")
     selection = {}
     if smoothing is None:
         def fit_one(rows, s):
             return RbfCorrection(center, scale, pts[rows], y[rows], s, kernel)
-        smoothing, selection = _choose_smoothing(fit_one, m, d, Rm, Rd, SMOOTHING_RBF, k, seed)
+        smoothing, selection = _choose_smoothing(fit_one, m, d, Rm, Rd, SMOOTHING_RBF, k, seed,
+                                                 min_train=_RBF_MIN_PAIRS)
     return RbfCorrection(center=center, scale=scale, points=pts, values=y,
                          smoothing=float(smoothing), kernel=kernel, selection=selection)
