@@ -6,60 +6,19 @@ import json
 
 import numpy as np
 import pytest
+from _ndi_export import EM, EM2, OPT, SENT
+from _ndi_export import write_export as _write
 from scipy.spatial.transform import Rotation
 
 from openemt.cli import main
 from openemt.geometry import pose_from_rt
 from openemt.io import import_ndi, read_ndi_tsv, read_pose_dataset, read_poses_csv
 
-EM = "Port 10: NDI-MF2 610066   T6d0-S00108  s/n:37B31800 Channel:0"
-EM2 = "Port 11: NDI-MF2 610066   T6d0-S00109  s/n:37B31801 Channel:0"
-OPT = "Port 1: CAMP OT-Sensor-2013-05-08  s/n:38A1FC00"
-FIELDS = ["Frame", "Face", "State", "Q0", "Qx", "Qy", "Qz", "Tx", "Ty", "Tz", "Error", "Markers"]
-SENT = "-3.697314E28"
-
-
-def _header(labels):
-    cells = ["Tools"]
-    for lab in labels:
-        cells += [lab] + FIELDS
-    return "\t".join(cells)
-
-
-def _fields(label, frame, state, pose=None, err=0.1234, markers=0):
-    if pose is None:
-        return [label, str(frame), "0", state] + [SENT] * 7 + [SENT, str(markers)]
-    q = Rotation.from_matrix(pose[:3, :3]).as_quat(scalar_first=True)
-    t = pose[:3, 3] * 1e3
-    return ([label, str(frame), "0", state] + [f"{v:.6f}" for v in q]
-            + [f"{v:.4f}" for v in t] + [f"{err:.4f}", str(markers)])
-
 
 def _poses(n, seed):
     rng = np.random.default_rng(seed)
     R = Rotation.random(n, random_state=seed).as_matrix()
     return pose_from_rt(R, rng.uniform(-0.2, 0.2, (n, 3)) + [0, 0, -0.3])
-
-
-def _write(path, labels, poses, *, states=None, truncate=False, crlf=False, bom=False,
-           trailing=False, first_frame=1000):
-    """Rows of all tools; ``states[(k, tool)]`` overrides the state of one tool in row k."""
-    states = states or {}
-    n = len(poses[0])
-    lines = [_header(labels) + ("\t" if trailing else "")]
-    for k in range(n):
-        cells = [str(len(labels))]
-        for j, lab in enumerate(labels):
-            st = states.get((k, j), "OK")
-            cells += _fields(lab, first_frame + k, st,
-                             poses[j][k] if st == "OK" else None)
-        lines.append("\t".join(cells) + ("\t\t" if trailing else ""))
-    if truncate:
-        lines[-1] = lines[-1][: len(lines[-1]) // 2]
-    text = ("\r\n" if crlf else "\n").join(lines) + ("\r\n" if crlf else "\n")
-    if truncate:
-        text = text.rstrip("\r\n")
-    path.write_bytes((b"\xef\xbb\xbf" if bom else b"") + text.encode())
 
 
 def test_three_tools_labels_states_and_truncated_row(tmp_path):
