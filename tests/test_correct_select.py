@@ -127,3 +127,22 @@ def test_cli_exact_interpolant_shows_its_held_out_figure(tmp_path, capsys):
                  "100000"]) == 2
     assert "error: expected 2 <= --folds <= 20" in capsys.readouterr().err
     assert not (tmp_path / "d.json").exists()
+
+
+def test_cli_fit_reads_a_pose_dataset_with_reference_poses(tmp_path, capsys):
+    M, D = _pairs(80, 9)
+    f = write_poses_csv(tmp_path / "pairs.csv", M, D)
+    h5 = tmp_path / "pairs.h5"
+    assert main(["import", "poses", str(f), "-o", str(h5)]) == 0
+    capsys.readouterr()
+    assert main(["correct", "fit", str(h5), "-o", str(tmp_path / "c.json"), "--method", "dlt",
+                 "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["n"] == 80 and s["input_rows"][0]["n_rows"] == 80
+    assert s["held_out"]["corrected"]["trans_rms_mm"] < s["held_out"]["uncorrected"]["trans_rms_mm"]
+    # a pose dataset without reference poses is refused with one line
+    P = tmp_path / "poses.csv"
+    write_poses_csv(P, M)
+    assert main(["import", "poses", str(P), "-o", str(tmp_path / "p.h5")]) == 0
+    assert main(["correct", "fit", str(tmp_path / "p.h5"), "-o", str(tmp_path / "d.json")]) == 2
+    assert "openemt align" in capsys.readouterr().err

@@ -28,7 +28,9 @@ def register(sub) -> None:
     actions.required = True
 
     f = actions.add_parser("fit", help="fit a correction to pose pairs (CSV)")
-    f.add_argument("pairs", nargs="+", help="pose-pair CSV file(s) with ref_ columns")
+    f.add_argument("pairs", nargs="+",
+                   help="pose-pair CSV file(s) with ref_ columns (or pose datasets with "
+                        "reference poses)")
     f.add_argument("-o", "--output", required=True, help="correction JSON to write")
     f.add_argument("--method", choices=("auto", "none", "dlt", "poly", "grid", "rbf"),
                    default="poly",
@@ -68,27 +70,48 @@ def _units(p) -> None:
                    help="unit of rotation-vector columns without a _rad/_deg suffix")
 
 
+def _read_one(args, path):
+    """(measured, reference, pose_id or None, has_rotations, row report) of one pairs file."""
+    from ..io import read_pose_dataset, read_poses_csv
+
+    if _is_h5(path):
+        ds = read_pose_dataset(path)
+        ref = ds.extra.get("reference_poses")
+        if ref is None:
+            raise InputError(f"expected reference poses (extra/reference_poses) in {path}, got "
+                             f"none (write pose pairs with 'openemt align')")
+        ok = np.all(np.isfinite(ds.poses), axis=(1, 2)) & np.all(np.isfinite(ref), axis=(1, 2))
+        bad = np.flatnonzero(~ok)
+        row = {"file": str(path), "n_rows": ds.n_samples, "n_bad_rows": 0, "bad_lines": [],
+               "n_nonfinite_rows": len(bad), "nonfinite_rows": bad[:20].tolist(),
+               "nonfinite_lines": []}
+        return ds.poses, np.asarray(ref, dtype=float), None, True, row
+    t = read_poses_csv(path, length_unit=args.length_unit, angle_unit=args.angle_unit)
+    if t.reference is None:
+        raise InputError(f"expected reference columns ref_x, ref_y, ref_z in {path}, got none")
+    row = {"file": str(path), "n_rows": len(t), "n_bad_rows": len(t.bad_lines),
+           "bad_lines": list(t.bad_lines[:20]), "n_nonfinite_rows": len(t.nonfinite_lines),
+           "nonfinite_lines": list(t.nonfinite_lines[:20])}
+    return (t.poses, t.reference, t.group,
+            t.has_orientation and t.reference_has_orientation, row)
+
+
 def _read_pairs(args):
-    from ..io import average_static, read_poses_csv
+    from ..io import average_static
 
     M, D, groups, rot, rows = [], [], [], True, []
     for i, path in enumerate(args.pairs):
-        t = read_poses_csv(path, length_unit=args.length_unit, angle_unit=args.angle_unit)
-        if t.reference is None:
-            raise InputError(f"expected reference columns ref_x, ref_y, ref_z in {path}, "
-                             f"got none")
-        rot &= t.has_orientation and t.reference_has_orientation
-        rows.append({"file": str(path), "n_rows": len(t), "n_bad_rows": len(t.bad_lines),
-                     "bad_lines": list(t.bad_lines[:20]),
-                     "n_nonfinite_rows": len(t.nonfinite_lines),
-                     "nonfinite_lines": list(t.nonfinite_lines[:20])})
-        Pm, Pd = t.poses, t.reference
+        Pm, Pd, group, has_rot, row = _read_one(args, path)
+        rot &= has_rot
+        rows.append(row)
         if args.average_static:
-            if t.group is None:
+            if group is None:
                 raise InputError(f"expected a pose_id column for --average-static in {path}, "
                                  f"got none")
-            am, ad = average_static(Pm, t.group), average_static(Pd, t.group)
-            Pm, Pd = am.poses, ad.poses
+            # rows not used (reported above) must not shift the groups of either side
+            ok = np.all(np.isfinite(Pm), axis=(1, 2)) & np.all(np.isfinite(Pd), axis=(1, 2))
+            Pm, Pd, group = Pm[ok], Pd[ok], group[ok]
+            Pm, Pd = average_static(Pm, group).poses, average_static(Pd, group).poses
         M.append(Pm)
         D.append(Pd)
         groups.append(np.full(len(Pm), i))
@@ -121,8 +144,10 @@ def _row_warnings(rows) -> list:
             parts.append(f"{r['n_bad_rows']} of the wrong length (lines "
                          f"{', '.join(map(str, r['bad_lines']))})")
         if r["n_nonfinite_rows"]:
-            parts.append(f"{r['n_nonfinite_rows']} with missing or non-finite values (lines "
-                         f"{', '.join(map(str, r['nonfinite_lines']))})")
+            where = (f"lines {', '.join(map(str, r['nonfinite_lines']))}"
+                     if r["nonfinite_lines"] else
+                     f"rows {', '.join(map(str, r.get('nonfinite_rows', [])))}")
+            parts.append(f"{r['n_nonfinite_rows']} with missing or non-finite values ({where})")
         if parts:
             out.append(f"{r['file']}: rows not used: " + "; ".join(parts))
     return out
@@ -151,7 +176,8 @@ def run_fit(args) -> int:
     warnings = _row_warnings(rows) + list(st["warnings"])
     summary = {"output": str(Path(args.output)), "method": corr.method,
                "method_requested": args.method, "n": st["n"],
-               "n_dropped": int(st["n_dropped_nonfinite"]), "input_rows": rows,
+               "n_dropped": int(sum(r["n_bad_rows"] + r["n_nonfinite_rows"] for r in rows)),
+               "input_rows": rows,
                "positions_only": positions_only, "selected": _selected(corr),
                "in_sample": st["in_sample"], "held_out": st["held_out"],
                "requirements": st["requirements"], "worse_than_none": st["worse_than_none"],
