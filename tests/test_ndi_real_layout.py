@@ -146,3 +146,21 @@ def test_import_poses_csv_counts_truncated_and_missing_rows(tmp_path, capsys):
     ds = read_pose_dataset(out)
     assert ds.extra["frame"].tolist() == [1, 2, 4]
     np.testing.assert_allclose(ds.poses[2, :3, 3], [7e-3, 8e-3, 9e-3])
+
+
+def test_last_row_cut_at_every_position_is_reported_or_complete(tmp_path):
+    P = [_poses(4, 12), _poses(4, 13)]
+    f = tmp_path / "cut.tsv"
+    _write(f, [EM, OPT], P)
+    lines = f.read_text().splitlines()
+    last = lines[-1]
+    for cut in range(1, len(last)):
+        f.write_text("\n".join(lines[:-1] + [last[:cut]]))
+        rec = read_ndi_tsv(f)
+        em = rec.tool(10)
+        np.testing.assert_allclose(em.poses[:3, :3, 3], P[0][:3, :3, 3], atol=1e-7)
+        if rec.bad_rows:
+            assert [b["line"] for b in rec.bad_rows] == [5] and len(em.poses) == 3
+        else:  # only the marker count of the last tool was cut: every pose field is intact
+            assert last[cut:].strip().isdigit()
+            np.testing.assert_allclose(rec.tool(1).poses[3, :3, 3], P[1][3, :3, 3], atol=1e-7)
