@@ -31,6 +31,7 @@ COMMANDS = {
     "info": ("info", "summarise a dataset or calibration file"),
     "solve": ("solve", "solve sensor poses from a dataset's couplings"),
     "calibrate": ("calibrate", "fit a dipole-model and fixture calibration to a dataset"),
+    "align": ("align", "solve AX = YB between two pose recordings and write pose pairs"),
     "correct": ("correct", "fit or apply an output correction of poses"),
     "reproduce": ("reproduce", "reproduce a table of the MacLachlan et al. 2025s from raw data"),
     "report": ("report", "write a self-contained HTML calibration and characterization report"),

@@ -22,6 +22,8 @@ BENCHMARKS = {
     "track": ("openemt.bench._track", "live pipeline latency and position noise vs the CRB"),
     "correct": ("openemt.bench._correct",
                 "output corrections on a simulated distortion: held-out vs in-sample"),
+    "hybrid": ("openemt.bench._hybrid",
+               "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs"),
 }
 
 

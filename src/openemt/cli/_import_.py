@@ -9,7 +9,7 @@ from .._errors import InputError
 from . import command_help
 from ._common import add_common, emit
 
-__all__ = ["parse_sign_arg", "register", "run"]
+__all__ = ["parse_sign_arg", "register", "run", "run_poses"]
 
 
 def parse_sign_arg(text: str) -> tuple[str, tuple[float, float, float]]:
@@ -50,11 +50,42 @@ def register(sub) -> None:
     add_common(q)
     q.set_defaults(func=run)
 
+    n = fsub.add_parser(
+        "ndi", help="NDI Toolbox TSV exports (Aurora, Polaris): poses of one tool",
+        description="Import the poses of one tool from NDI Toolbox exports into a pose dataset "
+                    "(rows in file order; non-OK states skipped and counted; rows of the wrong "
+                    "length reported by line number).")
+    n.add_argument("files", nargs="+", help="NDI Toolbox export files (.tsv/.txt)")
+    n.add_argument("-o", "--output", required=True, help="output pose dataset (.h5)")
+    n.add_argument("--tool", default=None, metavar="PORT_OR_LABEL",
+                   help="port number (e.g. 10) or full port label of the tool; needed when a "
+                        "file holds several tools")
+    n.add_argument("--average-static", action="store_true",
+                   help="each file is one static pose: write its mean (one row per file, in "
+                        "the order given) and report the jitter")
+    add_common(n)
+    n.set_defaults(func=run_poses)
+
+    c = fsub.add_parser(
+        "poses", help="pose CSV files (any tracker or robot; optional ref_ columns)",
+        description="Import pose CSV files (columns x, y, z and qw..qz or rx..rz, optional "
+                    "ref_ columns, pose_id, frame, time) into a pose dataset.")
+    c.add_argument("files", nargs="+", help="pose CSV files")
+    c.add_argument("-o", "--output", required=True, help="output pose dataset (.h5)")
+    c.add_argument("--average-static", action="store_true",
+                   help="average the samples of each pose_id (or of each file without one)")
+    c.add_argument("--length-unit", choices=("m", "mm"), default="m",
+                   help="unit of position columns without a _m/_mm suffix")
+    c.add_argument("--angle-unit", choices=("rad", "deg"), default="rad",
+                   help="unit of rotation-vector columns without a _rad/_deg suffix")
+    add_common(c)
+    c.set_defaults(func=run_poses)
+
 
 def run(args) -> int:
     from ..io import import_ilemt_folder, write_dataset
 
-    if args.format != "ilemt":  # pragma: no cover - argparse restricts the choices
+    if args.format != "ilemt":  # pragma: no cover - the other formats run run_poses
         raise InputError(f"expected import format 'ilemt', got {args.format!r}")
     t0 = time.perf_counter()
     so = [parse_sign_arg(s) for s in args.source_signs] if args.source_signs else None
@@ -87,5 +118,41 @@ def run(args) -> int:
     }
     human = [f"imported {ds.n_samples} rows from {len(rows)} files -> {out}"]
     human += [f"  {name}: {n}" for name, n in rows.items()]
+    emit(args, summary, human)
+    return 0
+
+
+def run_poses(args) -> int:
+    """``import ndi`` and ``import poses``: a pose dataset and a summary of what was skipped."""
+    from ..io import import_ndi, import_poses_csv, write_dataset
+
+    t0 = time.perf_counter()
+    if args.format == "ndi":
+        ds, summary = import_ndi(args.files, tool=args.tool, average=args.average_static)
+    else:
+        ds, summary = import_poses_csv(args.files, average=args.average_static,
+                                       length_unit=args.length_unit,
+                                       angle_unit=args.angle_unit)
+    out = Path(args.output)
+    write_dataset(ds, out)
+    summary = {"path": str(out), "format": args.format, **summary,
+               "seconds": round(time.perf_counter() - t0, 4)}
+    human = [f"imported {ds.n_samples} poses from {len(args.files)} files -> {out}"]
+    for f in summary["files"]:
+        line = f"  {f['file']}: {f['n_valid']} of {f['n_rows']} rows"
+        if f.get("label"):
+            line += f" of {f['label']}"
+        if f.get("skipped"):
+            line += ", skipped " + ", ".join(f"{k}: {v}" for k, v in f["skipped"].items())
+        if f.get("n_nonfinite_rows"):
+            line += f", {f['n_nonfinite_rows']} with missing values (lines " \
+                    f"{', '.join(map(str, f['nonfinite_lines']))})"
+        if f["n_bad_rows"]:
+            line += f", {f['n_bad_rows']} rows of the wrong length (lines " \
+                    f"{', '.join(map(str, f['bad_lines']))})"
+        if "jitter_trans_sd_mm" in f:
+            line += (f", jitter {f['jitter_trans_sd_mm']:.3f} mm / "
+                     f"{f['jitter_rot_sd_deg']:.3f} deg")
+        human.append(line)
     emit(args, summary, human)
     return 0

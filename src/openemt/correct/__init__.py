@@ -4,14 +4,17 @@ Independent of any magnetic model: the corrections work on the pose output of an
 (ILEMT, NDI Aurora, Polhemus, ...) given reference poses. See docs/correction.md.
 """
 
-from ._crossval import kfold_splits, location_groups, location_kfold
+from ._crossval import MAX_FOLDS, check_folds, kfold_splits, location_groups, location_kfold
 from ._dlt import DltFit, apply_linear_correction, fit_dlt, linear_correction_rms
+from ._dof import MIN_PAIRS_FACTOR, pair_requirements
+from ._identity import IdentityCorrection
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._model import (
     CORRECTION_METHODS,
     Correction,
     evaluate_correction,
     fit_correction,
+    held_out_score_mm,
     read_correction,
     write_correction,
 )
@@ -22,28 +25,37 @@ from ._poly import (
     fit_polynomial,
     monomial_exponents,
 )
+from ._select import AUTO_METHODS, fit_auto_correction
 
 __all__ = [
+    "AUTO_METHODS",
     "CORRECTION_METHODS",
+    "MAX_FOLDS",
+    "MIN_PAIRS_FACTOR",
     "POLY_ORDERS",
     "Correction",
     "DltFit",
     "GridCorrection",
+    "IdentityCorrection",
     "PolynomialCorrection",
     "RbfCorrection",
     "apply_linear_correction",
     "axis_levels",
+    "check_folds",
     "evaluate_correction",
+    "fit_auto_correction",
     "fit_correction",
     "fit_dlt",
     "fit_grid",
     "fit_polynomial",
     "fit_rbf",
+    "held_out_score_mm",
     "kfold_splits",
     "linear_correction_rms",
     "location_groups",
     "location_kfold",
     "monomial_exponents",
+    "pair_requirements",
     "read_correction",
     "write_correction",
 ]

@@ -22,18 +22,43 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from .._errors import InputError
+from ..evaluate import pose_error_magnitudes
+from ..geometry import pose_from_rt
 
 __all__ = [
+    "MAX_FOLDS",
+    "ROTATION_MOMENT_M",
     "apply_rotation_offsets",
+    "check_folds",
     "held_out_predictions",
     "kfold_splits",
     "location_groups",
     "location_kfold",
     "normalizer",
-    "position_errors",
-    "rotation_errors",
+    "pair_errors",
     "rotation_offsets",
 ]
+
+
+#: Lever arm (m) that puts a rotation error on the same footing as a translation error in the
+#: scores that choose between fits: 1 mrad counts like 0.1 mm.
+ROTATION_MOMENT_M = 0.1
+
+#: Most held-out splits of one evaluation (k of k-fold, or groups held out one at a time). The
+#: order/smoothing selection runs inside every split (nested), so the cost grows with the
+#: square of the count; leave-one-out on many pairs is refused rather than run for minutes.
+MAX_FOLDS = 20
+
+
+def check_folds(k: int, n_splits_name: str = "folds") -> int:
+    """``k`` as int if ``2 <= k <= MAX_FOLDS``; InputError otherwise."""
+    try:
+        kk = int(k)
+    except (TypeError, ValueError):
+        raise InputError(f"expected an integer number of {n_splits_name}, got {k!r}") from None
+    if not 2 <= kk <= MAX_FOLDS:
+        raise InputError(f"expected 2 <= {n_splits_name} <= {MAX_FOLDS} (MAX_FOLDS), got {kk}")
+    return kk
 
 
 def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None, fold_groups=None
@@ -65,9 +90,10 @@ def kfold_splits(n: int, k: int = 5, *, seed: int = 0, groups=None, fold_groups=
         labels = np.unique(g)
         if len(labels) < 2:
             raise InputError(f"expected at least 2 groups to hold out, got {len(labels)}")
+        check_folds(len(labels), "groups held out")
         return [(np.flatnonzero(g != lab), np.flatnonzero(g == lab)) for lab in labels]
-    k = int(k)
-    if not 2 <= k <= n:
+    k = check_folds(k)
+    if not k <= n:
         raise InputError(f"expected 2 <= k <= n = {n} folds, got k = {k}")
     if fold_groups is not None:
         fg = np.asarray(fold_groups)
@@ -109,15 +135,21 @@ def held_out_predictions(fit: Callable, predict: Callable, n: int, splits) -> li
     return out
 
 
-def position_errors(xyz, reference_xyz) -> np.ndarray:
-    """Euclidean distances ``|xyz - reference_xyz|``, shape (N,)."""
-    return np.linalg.norm(np.asarray(xyz) - np.asarray(reference_xyz), axis=-1)
+def pair_errors(xyz, R, reference_xyz, reference_R) -> tuple[np.ndarray, np.ndarray | None]:
+    """Translation (m) and rotation (rad) error magnitudes of pose pairs, each shape (N,).
 
-
-def rotation_errors(R, reference_R) -> np.ndarray:
-    """Angles (rad) of ``R^T @ reference_R`` for rotation matrices (N, 3, 3), shape (N,)."""
-    E = np.swapaxes(R, -1, -2) @ reference_R
-    return np.linalg.norm(Rotation.from_matrix(E.reshape(-1, 3, 3)).as_rotvec(), axis=-1)
+    The one pose-error definition of :func:`openemt.evaluate.pose_error_magnitudes`
+    (``inv(P_measured) @ P_reference``). With ``R`` or ``reference_R`` None the pairs are
+    positions only: the translation error is ``|xyz - reference_xyz|`` and the rotation error
+    is None.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(reference_xyz, dtype=np.float64).reshape(-1, 3)
+    if R is None or reference_R is None:
+        eye = np.broadcast_to(np.eye(3), (len(xyz), 3, 3))
+        t, _ = pose_error_magnitudes(pose_from_rt(eye, xyz), pose_from_rt(eye, d))
+        return t, None
+    return pose_error_magnitudes(pose_from_rt(R, xyz), pose_from_rt(reference_R, d))
 
 
 def rotation_offsets(R, reference_R) -> np.ndarray:

@@ -29,11 +29,11 @@ from scipy.sparse.linalg import spsolve
 
 from .._errors import InputError
 from ._crossval import (
+    ROTATION_MOMENT_M,
     apply_rotation_offsets,
     location_kfold,
     normalizer,
-    position_errors,
-    rotation_errors,
+    pair_errors,
     rotation_offsets,
 )
 
@@ -48,6 +48,8 @@ __all__ = [
 
 SMOOTHING_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
 SMOOTHING_RBF = (1e-8, 1e-6, 1e-4, 1e-2, 1.0, 10.0, 100.0)
+#: Fewest pairs of an RBF fit: its linear part has 4 terms per coordinate.
+_RBF_MIN_PAIRS = 5
 
 
 def _targets(m, d, Rm, Rd):
@@ -67,17 +69,24 @@ def _apply_offsets(xyz, R, values):
 def _cv_score(m, d, Rm, Rd, predict_rows) -> float:
     """Held-out score: RMS position error (m) + RMS rotation error (rad) x 0.1 m.
 
-    The 0.1 m moment puts 1 mrad of rotation on the same footing as 0.1 mm of position.
+    The 0.1 m moment (:data:`ROTATION_MOMENT_M`) puts 1 mrad of rotation on the same footing
+    as 0.1 mm of position.
     """
     xyz, R = predict_rows
-    s = np.sqrt(np.mean(position_errors(xyz, d) ** 2))
-    if R is not None and Rd is not None:
-        s += 0.1 * np.sqrt(np.mean(rotation_errors(R, Rd) ** 2))
+    et, er = pair_errors(xyz, R, d, Rd)
+    s = np.sqrt(np.mean(et ** 2))
+    if er is not None:
+        s += ROTATION_MOMENT_M * np.sqrt(np.mean(er ** 2))
     return float(s)
 
 
-def _choose_smoothing(fit_one, m, d, Rm, Rd, grid, k, seed) -> tuple[float, dict]:
+def _choose_smoothing(fit_one, m, d, Rm, Rd, grid, k, seed, min_train: int = 1
+                      ) -> tuple[float, dict]:
     splits = location_kfold(m, k, seed=seed)
+    smallest = min(len(train) for train, _ in splits)
+    if smallest < min_train:
+        raise InputError(f"expected at least {min_train} pairs in every training fold of the "
+                         f"smoothing selection, got {smallest} of {len(m)} pairs")
     scores = {}
     for s in grid:
         xyz = np.empty_like(m)
@@ -314,12 +323,14 @@ def fit_rbf(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
     center, scale = normalizer(m)
     pts = (m - center) / scale
     y = _targets(m, d, Rm, Rd)
-    if len(m) < 5:
-        raise InputError(f"expected at least 5 pairs for an RBF correction, got {len(m)}")
+    if len(m) < _RBF_MIN_PAIRS:
+        raise InputError(f"expected at least {_RBF_MIN_PAIRS} pairs for an RBF correction, "
+                         f"got {len(m)}")
     selection = {}
     if smoothing is None:
         def fit_one(rows, s):
             return RbfCorrection(center, scale, pts[rows], y[rows], s, kernel)
-        smoothing, selection = _choose_smoothing(fit_one, m, d, Rm, Rd, SMOOTHING_RBF, k, seed)
+        smoothing, selection = _choose_smoothing(fit_one, m, d, Rm, Rd, SMOOTHING_RBF, k, seed,
+                                                 min_train=_RBF_MIN_PAIRS)
     return RbfCorrection(center=center, scale=scale, points=pts, values=y,
                          smoothing=float(smoothing), kernel=kernel, selection=selection)

@@ -15,11 +15,20 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ..evaluate import error_summary, pose_error_magnitudes
+from ..evaluate import error_summary
 from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
-from ._crossval import held_out_predictions, kfold_splits, location_kfold, position_errors
+from ._crossval import (
+    ROTATION_MOMENT_M,
+    check_folds,
+    held_out_predictions,
+    kfold_splits,
+    location_kfold,
+    pair_errors,
+)
 from ._dlt import DltFit, fit_dlt
+from ._dof import pair_requirements
+from ._identity import IdentityCorrection, fit_identity
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._poly import PolynomialCorrection, fit_polynomial
 
@@ -28,12 +37,14 @@ __all__ = [
     "Correction",
     "evaluate_correction",
     "fit_correction",
+    "held_out_score_mm",
     "read_correction",
     "write_correction",
 ]
 
 #: Correction methods: name -> (fit function, fitted-model class).
 CORRECTION_METHODS = {
+    "none": (fit_identity, IdentityCorrection),
     "dlt": (lambda m, d, Rm, Rd, **kw: fit_dlt(m, d, **kw), DltFit),
     "poly": (fit_polynomial, PolynomialCorrection),
     "grid": (fit_grid, GridCorrection),
@@ -64,10 +75,40 @@ def _split_pairs(measured, reference):
 
 def _summary(xyz, R, d_xyz, d_R) -> dict:
     """``error_summary`` of the pose errors (position-only pairs: translation keys only)."""
-    if R is None or d_R is None:
-        s = error_summary(position_errors(xyz, d_xyz), np.zeros(len(xyz)))
+    et, er = pair_errors(xyz, R, d_xyz, d_R)
+    if er is None:
+        s = error_summary(et, np.zeros(len(xyz)))
         return {k: v for k, v in s.items() if not k.startswith("rot_")}
-    return error_summary(*pose_error_magnitudes(pose_from_rt(R, xyz), pose_from_rt(d_R, d_xyz)))
+    return error_summary(et, er)
+
+
+def held_out_score_mm(summary: dict) -> float:
+    """One number to compare fits: RMS translation (mm) + RMS rotation (rad) x 100 mm
+    (:data:`ROTATION_MOMENT_M`); translation alone for position-only pairs."""
+    s = float(summary["trans_rms_mm"])
+    if "rot_rms_deg" in summary:
+        s += 1e3 * ROTATION_MOMENT_M * np.deg2rad(float(summary["rot_rms_deg"]))
+    return s
+
+
+def _warnings(method: str, n: int, params: dict, held: dict | None) -> tuple[list, bool, dict]:
+    """Warnings about too few pairs and about a correction worse held out than none."""
+    req = pair_requirements(method, params)
+    out = []
+    if n < req["min_pairs"]:
+        out.append(f"{method}: {n} pose pairs are fewer than the {req['min_pairs']} recommended "
+                   f"for its {req['parameters_per_coordinate']} parameters per coordinate "
+                   f"(docs/correction.md#how-many-pairs); its errors are unreliable")
+    worse = False
+    if held is not None and method != "none":
+        for key, unit in (("trans_rms_mm", "mm"), ("rot_rms_deg", "deg")):
+            c, u = held["corrected"].get(key), held["uncorrected"].get(key)
+            if c is not None and u is not None and np.isfinite(c) and c > u * (1 + 1e-9):
+                worse = True
+                what = "translation" if key.startswith("trans") else "rotation"
+                out.append(f"{method}: held-out {what} error {c:.4f} {unit} is worse than no "
+                           f"correction ({u:.4f} {unit})")
+    return out, worse, req
 
 
 def _jsonable(obj):
@@ -91,7 +132,7 @@ class Correction:
     Attributes
     ----------
     method : str
-        ``"dlt"``, ``"poly"``, ``"grid"`` or ``"rbf"``.
+        ``"none"``, ``"dlt"``, ``"poly"``, ``"grid"`` or ``"rbf"``.
     params : dict
         The fitted parameters (SI units; arrays), as the method's ``to_params`` gives them.
     stats : dict
@@ -123,7 +164,7 @@ class Correction:
     @property
     def corrects_orientation(self) -> bool:
         p = self.params
-        if self.method == "dlt":
+        if self.method in ("none", "dlt"):
             return False
         if self.method == "poly":
             return p.get("rot_coef") is not None
@@ -175,10 +216,10 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
     ----------
     measured, reference : array_like, shape (N, 4, 4) or (N, 3)
         Measured and reference poses (or positions only), SI units.
-    method : {"dlt", "poly", "grid", "rbf"}
+    method : {"none", "dlt", "poly", "grid", "rbf"}
     k : int
         Folds of the held-out evaluation (k-fold keeping the rows of one location together,
-        see :func:`location_kfold`; shuffled with ``seed``).
+        see :func:`location_kfold`; shuffled with ``seed``); 2 to ``MAX_FOLDS``.
     seed : int
     groups : array_like, shape (N,), optional
         Hold out one group (e.g. file) at a time instead of k random folds.
@@ -193,12 +234,16 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
     Returns
     -------
     Correction
-        ``stats["in_sample"]`` and ``stats["held_out"]`` hold ``uncorrected`` and ``corrected``
-        error summaries (mm, deg).
+        ``stats["in_sample"]`` and ``stats["held_out"]`` hold ``uncorrected`` (= the method
+        ``none``) and ``corrected`` error summaries (mm, deg). ``stats["warnings"]`` lists
+        too few pairs for the method (``stats["requirements"]``) and a held-out error worse
+        than no correction (then ``stats["worse_than_none"]`` is True).
     """
     if method not in CORRECTION_METHODS:
         raise InputError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
                          f"got {method!r}")
+    if groups is None and cross_validate:
+        k = check_folds(k)
     m, Rm, d, Rd, _ = _split_pairs(measured, reference)
     ok = np.all(np.isfinite(m), axis=1) & np.all(np.isfinite(d), axis=1)
     if Rm is not None:
@@ -243,6 +288,8 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
             "n_folds": len(splits), "seed": int(seed),
             "uncorrected": _summary(m, Rm, d, Rd),
             "corrected": _summary(xyz_ho, R_ho, d, Rd)}
+    warn, worse, req = _warnings(method, len(m), params, stats.get("held_out"))
+    stats.update({"requirements": req, "warnings": warn, "worse_than_none": worse})
     return Correction(method=method, params=params, stats=stats, meta=dict(meta or {}))
 
 

@@ -29,8 +29,7 @@ from ._crossval import (
     apply_rotation_offsets,
     location_kfold,
     normalizer,
-    position_errors,
-    rotation_errors,
+    pair_errors,
     rotation_offsets,
 )
 
@@ -245,7 +244,7 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
     off = d - m
     if order is None:
         order, selection["position"] = _select_order(
-            u, off, orders, splits, lambda pred, rows: position_errors(pred, off[rows]),
+            u, off, orders, splits, lambda pred, rows: pair_errors(pred, None, off[rows], None)[0],
             max_power)
     n_terms = len(monomial_exponents(order, max_power))
     if n_terms > n:
@@ -259,7 +258,8 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
         rho = rotation_offsets(Rm, Rd)
 
         def rot_score(pred, rows):
-            return rotation_errors(apply_rotation_offsets(pred, Rm[rows]), Rd[rows])
+            zero = np.zeros((len(rows), 3))
+            return pair_errors(zero, apply_rotation_offsets(pred, Rm[rows]), zero, Rd[rows])[1]
 
         if rot_order is None:
             rot_order, selection["orientation"] = _select_order(u, rho, orders, splits,

@@ -14,8 +14,16 @@ from ._ilemt import (
                      read_ilemt_dat,
 )
 from ._ilemt_mat import read_ilemt_calibration
-from ._ndi import NdiRecording, NdiTool, read_ndi_tsv
-from ._poses_csv import PoseTable, StaticAverage, average_static, read_poses_csv, write_poses_csv
+from ._ndi import NdiRecording, NdiTool, import_ndi, read_ndi_tsv
+from ._pose_dataset import pose_dataset, read_pose_dataset
+from ._poses_csv import (
+    PoseTable,
+    StaticAverage,
+    average_static,
+    import_poses_csv,
+    read_poses_csv,
+    write_poses_csv,
+)
 
 __all__ = ["Calibration", "Dataset", "atomic_path", "signed_real"]
 
@@ -25,4 +33,5 @@ __all__ += ["CouplingReader", "export_csv", "import_csv", "open_dataset_coupling
             "read_calibration", "read_dataset", "read_ilemt_calibration", "write_calibration",
             "write_dataset"]
 __all__ += ["NdiRecording", "NdiTool", "PoseTable", "StaticAverage", "average_static",
-            "read_ndi_tsv", "read_poses_csv", "write_poses_csv"]
+            "import_ndi", "import_poses_csv", "pose_dataset", "read_ndi_tsv", "read_pose_dataset",
+            "read_poses_csv", "write_poses_csv"]

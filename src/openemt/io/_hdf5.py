@@ -72,7 +72,7 @@ def _write_array(group, name: str, a: np.ndarray, units: str | None = None) -> N
     if a.dtype.kind == "b":
         a = a.astype(np.uint8)
     chunks = None
-    if a.ndim >= 1 and a.shape[0] > 0:
+    if a.ndim >= 1 and all(a.shape):  # HDF5 chunks must be non-empty (pose-only datasets)
         chunks = (min(a.shape[0], CHUNK_ROWS),) + a.shape[1:]
     parts = [("_real", a.real), ("_imag", a.imag)] if a.dtype.kind == "c" else [("", a)]
     for suffix, data in parts:

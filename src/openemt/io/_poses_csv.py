@@ -11,7 +11,12 @@ names the columns (case-insensitive, any order, extra columns ignored)::
   radians) or scalar-first quaternion ``qw, qx, qy, qz``; none: position-only rows (identity
   rotation, ``has_orientation`` False);
 * reference pose: the same columns with the prefix ``ref_``;
-* ``pose_id`` (or ``group``): label of the static pose a sample belongs to; ``time`` (s).
+* ``pose_id`` (or ``group``): label of the static pose a sample belongs to; ``time`` (s);
+  ``frame``: the tracker's frame number.
+
+Rows of the wrong length (a truncated last row) and rows with empty or non-finite pose values
+are read as NaN rows and listed by line number (``PoseTable.bad_lines``,
+``PoseTable.nonfinite_lines``), so the callers can count and report them.
 
 :func:`average_static` averages the samples of each static pose and reports their jitter.
 """
@@ -29,7 +34,8 @@ from .._errors import InputError
 from ..geometry import check_poses, pose_from_rt, vector_from_pose
 from ._atomic import atomic_path
 
-__all__ = ["PoseTable", "StaticAverage", "average_static", "read_poses_csv", "write_poses_csv"]
+__all__ = ["PoseTable", "StaticAverage", "average_static", "import_poses_csv", "read_poses_csv",
+           "write_poses_csv"]
 
 _LEN = {"m": 1.0, "mm": 1e-3}
 _ANG = {"rad": 1.0, "deg": np.pi / 180}
@@ -52,6 +58,12 @@ class PoseTable:
         False when the file gives positions only (rotations are then identity).
     source : str
         File the table was read from.
+    frame : ndarray of int, shape (N,) or None
+        Tracker frame numbers (``frame`` column; -1 where empty).
+    bad_lines : tuple of int
+        Line numbers of rows with the wrong number of fields (kept as NaN rows).
+    nonfinite_lines : tuple of int
+        Line numbers of the other rows with a missing or non-finite pose value.
     """
 
     poses: np.ndarray
@@ -61,6 +73,9 @@ class PoseTable:
     has_orientation: bool = True
     reference_has_orientation: bool = False
     source: str = ""
+    frame: np.ndarray | None = None
+    bad_lines: tuple = ()
+    nonfinite_lines: tuple = ()
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -212,38 +227,49 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     Returns
     -------
     PoseTable
-        Poses in metres. Empty fields read as NaN.
+        Poses in metres. Empty fields read as NaN. A row with fewer (or more, ignoring empty
+        trailing fields) fields than the header, e.g. a truncated last row, is kept as a NaN
+        row and its line number is listed in ``bad_lines``; rows with any non-finite pose
+        value are listed in ``nonfinite_lines``.
     """
     if length_unit not in _LEN:
         raise InputError(f"expected length_unit in {sorted(_LEN)}, got {length_unit!r}")
     if angle_unit not in _ANG:
         raise InputError(f"expected angle_unit in {sorted(_ANG)}, got {angle_unit!r}")
     path = Path(path)
-    with open(path, newline="") as fh:
-        lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        numbered = [(k, ln) for k, ln in enumerate(fh.read().splitlines(), 1)
+                    if ln.strip() and not ln.lstrip().startswith("#")]
+    if not numbered:
         raise InputError(f"expected a header line in {path}, got an empty file")
-    delim = "\t" if "\t" in lines[0] else ","
-    rows = list(csv.reader(lines, delimiter=delim))
+    delim = "\t" if "\t" in numbered[0][1] else ","
+    rows = list(csv.reader([ln for _, ln in numbered], delimiter=delim))
     header = [h.strip().lower() for h in rows[0]]
+    while header and not header[-1]:
+        header.pop()
     cols = {h: i for i, h in enumerate(header)}
     body = rows[1:]
+    line_no = [k for k, _ in numbered[1:]]
     gcol = cols.get("pose_id", cols.get("group"))
     tcol = cols.get("time", cols.get("t"))
+    fcol = cols.get("frame")
     num_idx = [i for i, h in enumerate(header) if i != gcol]
     data = np.full((len(body), len(header)), np.nan)
+    bad = []
     for r, row in enumerate(body):
-        if len(row) > len(header):
-            raise InputError(f"expected at most {len(header)} fields on line {r + 2} of {path}, "
-                             f"got {len(row)}")
+        while len(row) > len(header) and not row[-1].strip():
+            row.pop()
+        if len(row) != len(header):
+            bad.append(line_no[r])
+            continue
         for i in num_idx:
-            if i < len(row) and row[i].strip():
+            if row[i].strip():
                 try:
                     data[r, i] = float(row[i])
                 except ValueError:
                     if header[i] in _ALL_POSE_NAMES:
                         raise InputError(f"expected a number in column {header[i]!r} on line "
-                                         f"{r + 2} of {path}, got {row[i]!r}") from None
+                                         f"{line_no[r]} of {path}, got {row[i]!r}") from None
     P, has_rot = _poses_from_columns(cols, data, "", length_unit, angle_unit, path)
     if P is None:
         raise InputError(f"expected columns x, y, z (optionally _m/_mm) in {path}, "
@@ -253,9 +279,18 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     if gcol is not None:
         group = np.array([row[gcol].strip() if gcol < len(row) else "" for row in body], dtype=str)
     time = data[:, tcol] if tcol is not None else None
+    frame = None
+    if fcol is not None:
+        frame = np.where(np.isfinite(data[:, fcol]), data[:, fcol], -1).astype(np.int64)
+    finite = np.all(np.isfinite(P), axis=(1, 2))
+    if Pref is not None:
+        finite &= np.all(np.isfinite(Pref), axis=(1, 2))
+    bad_set = set(bad)
+    nonfinite = [line_no[r] for r in np.flatnonzero(~finite) if line_no[r] not in bad_set]
     return PoseTable(poses=P, reference=Pref, group=group, time=time, has_orientation=has_rot,
                      reference_has_orientation=bool(Pref is not None and ref_rot),
-                     source=str(path))
+                     source=str(path), frame=frame, bad_lines=tuple(bad),
+                     nonfinite_lines=tuple(int(v) for v in nonfinite))
 
 
 _ALL_POSE_NAMES = {f"{p}{n}{s}" for p in ("", "ref_") for n in
@@ -263,11 +298,11 @@ _ALL_POSE_NAMES = {f"{p}{n}{s}" for p in ("", "ref_") for n in
                    for s in ("", "_m", "_mm", "_rad", "_deg")} | {"time", "t"}
 
 
-def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
+def write_poses_csv(path, poses, reference=None, group=None, time=None, frame=None) -> Path:
     """Write poses (and reference poses) as CSV in metres and rotation vectors (rad), atomically.
 
-    Columns: ``[pose_id,][time,]x_m,y_m,z_m,rx_rad,ry_rad,rz_rad[,ref_x_m,...,ref_rz_rad]``;
-    numbers use shortest round-trip precision. Returns the path.
+    Columns: ``[pose_id,][frame,][time,]x_m,y_m,z_m,rx_rad,ry_rad,rz_rad[,ref_x_m,...,
+    ref_rz_rad]``; numbers use shortest round-trip precision. Returns the path.
     """
     P = check_poses(poses, "poses")
     if P.ndim != 3:
@@ -283,6 +318,10 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
         header += ["ref_" + n for n in names]
     num = np.hstack(blocks)
     pre_h, pre = [], []
+    if frame is not None:
+        fr = np.asarray(frame).astype(np.int64).reshape(-1)
+        if fr.shape != (len(P),):
+            raise InputError(f"expected `frame` of shape ({len(P)},), got {fr.shape}")
     if time is not None:
         pre_h.append("time")
         pre.append(np.asarray(time, dtype=float).reshape(-1))
@@ -293,10 +332,93 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None) -> Path:
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow((["pose_id"] if group is not None else []) + pre_h + header)
+        w.writerow((["pose_id"] if group is not None else [])
+                   + (["frame"] if frame is not None else []) + pre_h + header)
         for k in range(len(P)):
             row = [str(g[k])] if group is not None else []
+            row += [str(int(fr[k]))] if frame is not None else []
             row += [repr(float(c[k])) for c in pre]
             row += [repr(float(v)) for v in num[k]]
             w.writerow(row)
     return path
+
+
+def import_poses_csv(paths, *, average: bool = False, length_unit: str = "m",
+                     angle_unit: str = "rad"):
+    """Read pose CSV files into a pose dataset (see :func:`openemt.io.pose_dataset`).
+
+    Reference columns (``ref_``) go to ``extra/reference_poses``, a ``frame`` column to
+    ``extra/frame``. With ``average``, the samples of each ``pose_id`` (or, without that
+    column, of each file) are averaged into one row, in order of appearance.
+
+    Returns
+    -------
+    (Dataset, dict)
+        The dataset and a JSON-able summary (per file: rows, rows with the wrong field count
+        and rows with missing values, by line number). Rows with the wrong field count or a
+        non-finite pose are not imported.
+    """
+    from ._pose_dataset import pose_dataset
+
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("expected at least one pose CSV file, got none")
+    P, D, frames, fidx, per_file = [], [], [], [], []
+    jit = {"n_averaged": [], "jitter_trans_rms": [], "jitter_rot_rms": []}
+    has_ref = None
+    for i, path in enumerate(paths):
+        t = read_poses_csv(path, length_unit=length_unit, angle_unit=angle_unit)
+        ref = t.reference is not None
+        if has_ref is None:
+            has_ref = ref
+        elif ref != has_ref:
+            raise InputError(f"expected every file {'with' if has_ref else 'without'} ref_ "
+                             f"columns, got {path} {'with' if ref else 'without'}")
+        ok = np.all(np.isfinite(t.poses), axis=(1, 2))
+        if ref:
+            ok &= np.all(np.isfinite(t.reference), axis=(1, 2))
+        info = {"file": str(path), "n_rows": len(t), "n_valid": int(ok.sum()),
+                "n_bad_rows": len(t.bad_lines), "bad_lines": list(t.bad_lines[:20]),
+                "n_nonfinite_rows": len(t.nonfinite_lines),
+                "nonfinite_lines": list(t.nonfinite_lines[:20])}
+        per_file.append(info)
+        Pm = t.poses[ok]
+        Pd = t.reference[ok] if ref else None
+        fr = t.frame[ok] if t.frame is not None else np.full(int(ok.sum()), -1)
+        if average:
+            groups = t.group[ok] if t.group is not None else None
+            if not len(Pm):
+                raise InputError(f"expected at least one complete row to average in {path}, "
+                                 f"got none")
+            a = average_static(Pm, groups)
+            if ref:
+                Pd = average_static(Pd, groups).poses
+            g = np.zeros(len(Pm), int) if groups is None else groups
+            fr = np.array([fr[np.flatnonzero(g == lab)[0]] for lab in a.labels])
+            Pm = a.poses
+            jit["n_averaged"].append(a.counts)
+            jit["jitter_trans_rms"].append(a.jitter_trans_rms)
+            jit["jitter_rot_rms"].append(a.jitter_rot_rms)
+            info["jitter_trans_sd_mm"] = float(1e3 * np.sqrt(np.mean(a.jitter_trans_rms ** 2)))
+            info["jitter_rot_sd_deg"] = float(np.rad2deg(np.sqrt(np.mean(a.jitter_rot_rms ** 2))))
+        P.append(Pm)
+        if ref:
+            D.append(Pd)
+        frames.append(fr)
+        fidx.append(np.full(len(Pm), i))
+    extra = {"frame": np.concatenate(frames).astype(np.int64)}
+    if has_ref:
+        extra["reference_poses"] = np.concatenate(D)
+    if average:
+        extra.update({k: np.concatenate(v) for k, v in jit.items()})
+    ds = pose_dataset(np.concatenate(P), file_index=np.concatenate(fidx).astype(np.int64),
+                      files=[p.name for p in paths], extra=extra,
+                      meta={"format": "pose-csv", "averaged_static": bool(average),
+                            "provenance": {"importer": "openemt.io.import_poses_csv",
+                                           "inputs": [str(p) for p in paths]}})
+    summary = {"n_samples": ds.n_samples, "averaged_static": bool(average),
+               "has_reference": bool(has_ref),
+               "n_bad_rows": int(sum(f["n_bad_rows"] for f in per_file)),
+               "n_nonfinite_rows": int(sum(f["n_nonfinite_rows"] for f in per_file)),
+               "files": per_file}
+    return ds, summary
