@@ -132,7 +132,7 @@ def mutate_json(doc, ops):
         paths = list(_nodes(doc))
         path = paths[a % len(paths)]
         if kind == "set":
-            value = JSON_VALUES[b % len(JSON_VALUES)]
+            value = copy.deepcopy(JSON_VALUES[b % len(JSON_VALUES)])
         elif kind == "nest":  # spliced in as text by case_bytes (too deep for json.dumps)
             value = f"{_NEST}{1 + b % 5000}"
         elif kind == "delete" and path:
@@ -207,10 +207,19 @@ def _check_calibration(cal) -> str | None:
 
 
 def _check_poses(table) -> str | None:
-    P = table.poses
-    if P.ndim != 3 or P.shape[1:] != (4, 4) or not _finite(P):
-        return "non-finite or mis-shaped poses accepted"
-    R = P[:, :3, :3]
+    """Poses are finite, except rows the table reports (``bad_lines``/``nonfinite_lines``:
+    kept as NaN rows so that pairing by order still holds); rotations are orthonormal."""
+    P = np.asarray(table.poses)
+    if P.ndim != 3 or P.shape[1:] != (4, 4):
+        return f"poses of shape {P.shape}"
+    finite = np.all(np.isfinite(P), axis=(1, 2))
+    reference = getattr(table, "reference", None)
+    if reference is not None:
+        finite &= np.all(np.isfinite(reference), axis=(1, 2))
+    flagged = len(getattr(table, "bad_lines", ())) + len(getattr(table, "nonfinite_lines", ()))
+    if int(np.sum(~finite)) != flagged:
+        return f"{int(np.sum(~finite))} non-finite pose rows but {flagged} reported"
+    R = P[finite, :3, :3]
     if not np.allclose(R @ np.swapaxes(R, 1, 2), np.eye(3), atol=1e-6):
         return "non-orthonormal rotation accepted"
     return None
@@ -246,6 +255,7 @@ def prepare_targets(workdir) -> dict[str, Target]:
         read_dataset,
         read_ilemt_calibration,
         read_ilemt_dat,
+        read_ndi_tsv,
         read_poses_csv,
         write_calibration,
         write_dataset,
@@ -285,6 +295,14 @@ def prepare_targets(workdir) -> dict[str, Target]:
     corr = fit_correction(meas, ref, "dlt", k=3)
     write_correction(corr, workdir / "seed_corr.json")
 
+    def read_ndi(path):
+        rec = read_ndi_tsv(path)
+        for t in rec.tools:
+            problem = _check_poses(t)
+            if problem:
+                raise _Garbage(f"tool {t.port}: {problem}")
+        return rec
+
     def read_h5(path):
         from ..io import open_dataset_couplings
 
@@ -309,12 +327,40 @@ def prepare_targets(workdir) -> dict[str, Target]:
                read_poses_csv, _check_poses),
         Target("correction_json", "corr.json", (workdir / "seed_corr.json").read_bytes(), True,
                read_correction, _check_correction),
+        Target("ndi_tsv", "export.tsv", _ndi_seed(), False, read_ndi, lambda rec: None),
     ]
     return {t.name: t for t in targets}
 
 
 TARGETS = ("ilemt_dat", "ilemt_options", "ilemt_mat", "calibration_json", "dataset_h5",
-           "dataset_csv", "poses_csv", "correction_json")
+           "dataset_csv", "poses_csv", "correction_json", "ndi_tsv")
+
+_NDI_FIELDS = "Frame\tFace\tState\tQ0\tQx\tQy\tQz\tTx\tTy\tTz\tError\tMarkers"
+_NDI_TOOLS = ("Port 10: NDI-MF2 610066   T6d0-S00108  s/n:37B31800 Channel:0",
+              "Port 1: CAMP OT-Sensor-2013-05-08  s/n:38A1FC00")
+
+
+def _ndi_seed() -> bytes:
+    """An NDI Toolbox export in the layout real files have: the full port label in the header
+    and in every row, a ``Missing`` and a ``Too Few Markers`` row filled with the sentinel."""
+    sentinel = "\t".join(["-3.697314E28"] * 8)
+    lines = ["Tools\t" + "\t".join(f"{lab}\t{_NDI_FIELDS}" for lab in _NDI_TOOLS)]
+    for k in range(6):
+        cells = ["2"]
+        for j, lab in enumerate(_NDI_TOOLS):
+            state = {(2, 0): "Missing", (4, 1): "Too Few Markers"}.get((k, j), "OK")
+            if state == "OK":
+                pose = (f"0.991445\t0.130526\t0.0\t0.0\t{10.5 * k:.4f}\t{-20.25 + k:.4f}\t"
+                        f"{-300.125 + 2 * k:.4f}\t0.1234")
+            else:
+                pose = sentinel
+            cells.append(f"{lab}\t{1000 + k}\t0\t{state}\t{pose}\t{3 * j}")
+        lines.append("\t".join(cells))
+    return ("\r\n".join(lines) + "\r\n").encode()
+
+
+class _Garbage(Exception):
+    pass
 
 
 class _Hang(Exception):
@@ -364,6 +410,8 @@ def run_case(target: Target, content: bytes, workdir, *, time_limit: float = 10.
         value = target.read(path)
         problem = target.check(value)
         kind, msg = ("garbage", problem) if problem else ("ok", "")
+    except _Garbage as exc:
+        kind, msg = "garbage", str(exc)
     except _Hang:
         kind, msg = "hang", f"no answer within {time_limit} s"
     except InputError as exc:

@@ -142,13 +142,20 @@ def import_csv(path) -> Dataset:
             v = num[:, col[f"c_{i}_{j}"]]
             if cplx:
                 im = f"c_{i}_{j}_im"
-                v = v + 1j * (num[:, col[im]] if im in col else 0.0)
+                v = v.astype(np.complex128)
+                v.imag = num[:, col[im]] if im in col else 0.0
             C[:, i, j] = v
     pv = num[:, [col[c] for c in _POSE_COLS]]
     if all(c in col for c in _STAGE_COLS):
         stage = num[:, [col[c] for c in _STAGE_COLS]]
     else:
         stage = np.zeros((n, 6))
+    for name, cols, v in (("pose", _POSE_COLS, pv), ("stage", _STAGE_COLS, stage)):
+        bad = ~np.isfinite(v)
+        if bad.any():
+            r, k = np.argwhere(bad)[0]
+            raise InputError(f"{path.name}: line {numbered[r + 1][0]}: column {cols[k]!r}: "
+                             f"expected a finite {name} value, got {v[r, k]!r}")
     poses = pose_from_vector(pv) if kind == "truth" else None
     file_col = strs.get("file", [""] * n)
     files = list(dict.fromkeys(f for f in file_col if f))

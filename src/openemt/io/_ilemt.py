@@ -311,6 +311,11 @@ def _parse_dat(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if not groups:
         raise InputError(f"{path.name}: expected ILEMT data rows of {_N_FIELDS} fields, got an empty file")
     v = np.array(groups, dtype=np.float64)             # (N, 42)
+    finite = np.isfinite(v)
+    if not finite.all():
+        r, k = np.argwhere(~finite)[0]
+        raise InputError(f"{path.name}: data row {r + 1}: field {k + 1}: expected a finite "
+                         f"number, got {groups[r][k]!r}")
     stage = v[:, :6]
     z = v[:, 6::2] + 1j * v[:, 7::2]                    # (N, 18) complex
     # value k of a 9-block: source k % 3 into sensor k // 3 -> C[source, sensor] = block.reshape(3,3).T

@@ -237,9 +237,13 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     if angle_unit not in _ANG:
         raise InputError(f"expected angle_unit in {sorted(_ANG)}, got {angle_unit!r}")
     path = Path(path)
-    with open(path, newline="", encoding="utf-8-sig") as fh:
-        numbered = [(k, ln) for k, ln in enumerate(fh.read().splitlines(), 1)
-                    if ln.strip() and not ln.lstrip().startswith("#")]
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"expected a pose CSV file (UTF-8 text), got a byte that is not UTF-8 "
+                         f"at offset {exc.start} in {path}") from None
+    numbered = [(k, ln) for k, ln in enumerate(text.splitlines(), 1)
+                if ln.strip() and not ln.lstrip().startswith("#")]
     if not numbered:
         raise InputError(f"expected a header line in {path}, got an empty file")
     delim = "\t" if "\t" in numbered[0][1] else ","
@@ -281,7 +285,8 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     time = data[:, tcol] if tcol is not None else None
     frame = None
     if fcol is not None:
-        frame = np.where(np.isfinite(data[:, fcol]), data[:, fcol], -1).astype(np.int64)
+        f = data[:, fcol]
+        frame = np.where(np.isfinite(f) & (np.abs(f) < 2.0**62), f, -1).astype(np.int64)
     finite = np.all(np.isfinite(P), axis=(1, 2))
     if Pref is not None:
         finite &= np.all(np.isfinite(Pref), axis=(1, 2))
