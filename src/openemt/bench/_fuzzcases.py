@@ -37,8 +37,8 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["OUTCOMES", "TARGETS", "Outcome", "mutate_bytes", "mutate_json", "prepare_targets",
-           "run_case"]
+__all__ = ["CLI_COMMANDS", "OUTCOMES", "TARGETS", "CaseRunner", "Outcome", "mutate_bytes",
+           "mutate_json", "prepare_targets", "run_case", "run_cli_case"]
 
 OUTCOMES = ("ok", "rejected", "vague", "garbage", "crash", "hang")
 
@@ -363,6 +363,73 @@ class _Garbage(Exception):
     pass
 
 
+#: the CLI run on each target's file: ``{file}`` is the mutated file, ``{seed}`` the seed
+#: folder, ``{out}`` an output path in a fresh folder
+CLI_COMMANDS = {
+    "ilemt_dat": ["import", "ilemt", "{dir}", "-o", "{out}.h5", "--json"],
+    "ilemt_options": None,  # the folder import reads it through import ilemt (ilemt_dat)
+    "ilemt_mat": ["info", "{file}", "--json"],
+    "calibration_json": ["solve", "{seed}/seed.h5", "-c", "{file}", "-o", "{out}.h5", "--json"],
+    "dataset_h5": ["solve", "{file}", "-c", "{seed}/seed_cal.json", "-o", "{out}.h5", "--json"],
+    "dataset_csv": None,  # read by calibrate/report, too slow per case; the reader is fuzzed
+    "poses_csv": ["correct", "fit", "{file}", "--method", "dlt", "--folds", "3", "-o",
+                  "{out}.json", "--json"],
+    "correction_json": ["correct", "apply", "{file}", "{seed}/seed_poses.csv", "-o",
+                        "{out}.csv", "--json"],
+    "ndi_tsv": ["import", "ndi", "{file}", "--tool", "10", "-o", "{out}.h5", "--json"],
+}
+
+
+def run_cli_case(target: Target, content: bytes, workdir, seed_dir) -> Outcome:
+    """Run the target's CLI command on the mutated file, in this process, and classify it:
+    exit 0 with its output written, or exit 2 with one ``error:`` line and no output or
+    temporary file left behind (``rejected``); anything else is a ``crash`` (a traceback, exit
+    1, several error lines) or ``garbage`` (a partial or stray file)."""
+    import contextlib
+    import io
+
+    from ..cli import main
+
+    argv_t = CLI_COMMANDS.get(target.name)
+    if argv_t is None:
+        return Outcome("ok", "no command", 0.0)
+    workdir = Path(workdir)
+    if workdir.exists():
+        shutil.rmtree(workdir)
+    case_dir, out_dir = workdir / "in", workdir / "out"
+    case_dir.mkdir(parents=True)
+    out_dir.mkdir()
+    path = case_dir / target.filename
+    path.write_bytes(content)
+    out = out_dir / "result"
+    argv = [a.format(file=path, dir=case_dir, seed=seed_dir, out=out) for a in argv_t]
+    err, std = io.StringIO(), io.StringIO()
+    t0 = time.perf_counter()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(std):
+        try:
+            code = main(argv)
+        except SystemExit as exc:  # argparse
+            code = exc.code if isinstance(exc.code, int) else 2
+        except Exception as exc:  # noqa: BLE001 - main must not let anything through
+            code = f"{type(exc).__name__}: {exc}"
+    seconds = time.perf_counter() - t0
+    left = sorted(p.name for p in out_dir.iterdir())
+    lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
+    if code == 0:
+        if not left and any("{out}" in a for a in argv_t):
+            return Outcome("garbage", "exit 0 but no output file", seconds)
+        return Outcome("ok", "", seconds)
+    if code == 2:
+        errors = [ln for ln in lines if ln.startswith("error:")]
+        if left:
+            return Outcome("garbage", f"exit 2 left {left} behind", seconds)
+        if len(errors) != 1 or "Traceback" in err.getvalue():
+            return Outcome("crash", f"exit 2 with {len(errors)} error lines: {lines[-3:]}",
+                           seconds)
+        return Outcome("rejected", errors[0], seconds)
+    return Outcome("crash", f"exit {code}: {' | '.join(lines[-3:])}", seconds)
+
+
 class _Hang(Exception):
     pass
 
@@ -463,19 +530,21 @@ class CaseRunner:
 
         ctx = mp.get_context("spawn")
         parent, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child, str(self.workdir), self.time_limit),
-                                 daemon=True)
+        # not a daemon: the readers start probe processes of their own (io/_h5safe.py)
+        self._proc = ctx.Process(target=_serve, args=(child, str(self.workdir), self.time_limit))
         self._proc.start()
         child.close()
         self._conn = parent
         if not parent.poll(300) or parent.recv() != "ready":
             raise RuntimeError("the fuzz worker did not start")
 
-    def run(self, target: str, content: bytes) -> Outcome:
+    def run(self, target: str, content: bytes, *, cli: bool = False) -> Outcome:
+        """Classify one case: the reader on ``content``, or with ``cli`` the target's command
+        line (:data:`CLI_COMMANDS`) through :func:`openemt.cli.main`."""
         if self._proc is None or not self._proc.is_alive():
             self._start()
         t0 = time.perf_counter()
-        self._conn.send((target, content))
+        self._conn.send((target, content, cli))
         try:
             ready = self._conn.poll(self.time_limit + 5.0)
             if ready:
@@ -503,7 +572,11 @@ def _serve(conn, workdir, time_limit):  # pragma: no cover - runs in the child p
     conn.send("ready")
     while True:
         try:
-            name, content = conn.recv()
+            name, content, cli = conn.recv()
         except EOFError:
             return
-        conn.send(run_case(targets[name], content, workdir / "case", time_limit=time_limit))
+        if cli:
+            outcome = run_cli_case(targets[name], content, workdir / "cli", workdir / "seed")
+        else:
+            outcome = run_case(targets[name], content, workdir / "case", time_limit=time_limit)
+        conn.send(outcome)

@@ -18,6 +18,7 @@ from .. import __version__
 from .._errors import InputError
 from ._atomic import atomic_path
 from ._dataset import Dataset, signed_real
+from ._h5safe import SEAL_SIZE, check_readable, seal
 from ._jsontext import loads_json
 
 __all__ = ["DATASET_SCHEMA", "DATASET_SCHEMA_VERSION", "CouplingReader", "open_dataset_couplings",
@@ -105,35 +106,41 @@ def write_dataset(ds: Dataset, path) -> Path:
     path = Path(path)
     # libver="latest": the newest object-header format, whose metadata carry checksums, so a
     # damaged header is refused on open instead of being parsed (HDF5 >= 1.10 reads it)
-    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w", libver="latest") as f:
-        f.attrs["schema"] = DATASET_SCHEMA
-        f.attrs["schema_version"] = DATASET_SCHEMA_VERSION
-        f.attrs["openemt_version"] = __version__
-        f.attrs["n_samples"] = ds.n_samples
-        f.attrs["n_source"] = ds.n_source
-        f.attrs["n_sensor"] = ds.n_sensor
-        f.attrs["couplings_complex"] = bool(np.iscomplexobj(ds.couplings))
-        f.attrs["meta"] = meta_json
-        # couplings_real always exists; couplings_imag only for complex couplings
-        _write_array(f, "couplings" if np.iscomplexobj(ds.couplings) else "couplings_real",
-                     ds.couplings, _UNITS["couplings"])
-        _write_array(f, "stage", ds.stage, _UNITS["stage"])
-        for name in ("source_fixture", "sensor_fixture", "pattern"):
-            _write_array(f, name, getattr(ds, name))
-        _write_array(f, "file_index", ds.file_index, _UNITS["file_index"])
-        f.create_dataset("files", data=np.array(list(ds.files), dtype=object),
-                         dtype=_str_dtype(), shape=(len(ds.files),))
-        for name in ("stage_logged", "poses", "source_signs", "sensor_signs"):
-            v = getattr(ds, name)
-            if v is not None:
-                _write_array(f, name, v, _UNITS[name])
-        g = f.create_group("extra")
-        for k, v in ds.extra.items():
-            if "/" in k or k.endswith(("_real", "_imag")):
-                raise InputError(f"expected extra names without '/' or a _real/_imag suffix, "
-                                 f"got {k!r}")
-            _write_array(g, k, np.asarray(v))
+    with atomic_path(path, suffix=".h5") as tmp:
+        with h5py.File(tmp, "w", libver="latest", userblock_size=SEAL_SIZE) as f:
+            _write_contents(f, ds, meta_json)
+        seal(tmp)
     return path
+
+
+def _write_contents(f, ds: Dataset, meta_json: str) -> None:
+    f.attrs["schema"] = DATASET_SCHEMA
+    f.attrs["schema_version"] = DATASET_SCHEMA_VERSION
+    f.attrs["openemt_version"] = __version__
+    f.attrs["n_samples"] = ds.n_samples
+    f.attrs["n_source"] = ds.n_source
+    f.attrs["n_sensor"] = ds.n_sensor
+    f.attrs["couplings_complex"] = bool(np.iscomplexobj(ds.couplings))
+    f.attrs["meta"] = meta_json
+    # couplings_real always exists; couplings_imag only for complex couplings
+    _write_array(f, "couplings" if np.iscomplexobj(ds.couplings) else "couplings_real",
+                 ds.couplings, _UNITS["couplings"])
+    _write_array(f, "stage", ds.stage, _UNITS["stage"])
+    for name in ("source_fixture", "sensor_fixture", "pattern"):
+        _write_array(f, name, getattr(ds, name))
+    _write_array(f, "file_index", ds.file_index, _UNITS["file_index"])
+    f.create_dataset("files", data=np.array(list(ds.files), dtype=object),
+                     dtype=_str_dtype(), shape=(len(ds.files),))
+    for name in ("stage_logged", "poses", "source_signs", "sensor_signs"):
+        v = getattr(ds, name)
+        if v is not None:
+            _write_array(f, name, v, _UNITS[name])
+    g = f.create_group("extra")
+    for k, v in ds.extra.items():
+        if "/" in k or k.endswith(("_real", "_imag")):
+            raise InputError(f"expected extra names without '/' or a _real/_imag suffix, "
+                             f"got {k!r}")
+        _write_array(g, k, np.asarray(v))
 
 
 def _open(path):
@@ -144,6 +151,9 @@ def _open(path):
     if not path.is_file():
         raise FileNotFoundError(f"expected an openemt dataset HDF5 file, got missing file "
                                 f"{str(path)!r}")
+    reason = check_readable(path)
+    if reason:
+        raise _expected(f"{path.name}, which is damaged or not a readable HDF5 file ({reason})")
     try:
         f = h5py.File(path, "r")
     except OSError as exc:
