@@ -38,10 +38,10 @@ def test_improved_option_on_a_rotated_source_rig():
 
     from openemt.calibrate import (
         fit,
+        held_out_rows,
         improved_calibration,
         perturb_calibration,
-        test_poses,
-        test_rows,
+        solve_held_out,
     )
     from openemt.simulate import simulate, truth_calibration
 
@@ -51,8 +51,8 @@ def test_improved_option_on_a_rotated_source_rig():
         warnings.simplefilter("ignore")
         xyz = fit(ds, start, "XYZ").calibration
         conc = fit(ds, xyz, "concentric").calibration
-    test = ds.select(test_rows(ds))
-    paper = test_poses(test, xyz, concentric_model=conc.model)["summary"]
+    test = ds.select(held_out_rows(ds))
+    paper = solve_held_out(test, xyz, concentric_model=conc.model)["summary"]
     imp = improved_calibration(ds, xyz, conc.model)
     got = imp.test(test)["improved"]
     assert got["n_invalid"] == 0

@@ -16,20 +16,17 @@ from .._errors import InputError
 from ..evaluate import error_summary, pose_error_magnitudes
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES, ground_truth_poses
 
-__all__ = ["test_poses", "test_rows"]
+__all__ = ["held_out_rows", "solve_held_out"]
 
 
-
-def test_rows(dataset):
-    """Boolean mask of the paper's test rows: home source fixture, every sensor fixture, ld."""
+def held_out_rows(dataset):
+    """Boolean mask of the paper's test rows, held out of every calibration: home source
+    fixture, every sensor fixture, ``ld`` pattern."""
     return dataset.mask(pattern="ld", source_fixture=SOURCE_FIXTURES[0],
                         sensor_fixture=SENSOR_FIXTURES)
 
 
-test_rows.__test__ = False  # not a pytest test
-
-
-def test_poses(data, cal, *, solver: str = "lm", concentric_model=None,
+def solve_held_out(data, cal, *, solver: str = "lm", concentric_model=None,
                apply_correction: bool = False) -> dict:
     """Solve and score test rows with a calibration (docs/paper-procedure.md#pose-solution, docs/paper-procedure.md#test-error).
 
@@ -75,5 +72,3 @@ def test_poses(data, cal, *, solver: str = "lm", concentric_model=None,
     return {"trans": trans, "rot": rot, "summary": error_summary(trans, rot),
             "n_invalid": int((~valid).sum()), "poses": np.asarray(res.poses)}
 
-
-test_poses.__test__ = False  # not a pytest test

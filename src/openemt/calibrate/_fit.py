@@ -16,7 +16,7 @@ from ._layout import ParameterLayout
 from ._modes import CalibrationMode, get_mode, select_rows
 from ._objective import CalibrationProblem, build_problem
 
-__all__ = ["CalibrationFit", "calibrate", "fit", "residue_stats"]
+__all__ = ["CalibrationFit", "fit", "residue_stats"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,7 +199,3 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
                           free=free, residuals=r, identifiability=ident, nfev=int(res.nfev),
                           seconds=seconds)
 
-
-def calibrate(dataset, start, mode="XYZ", **kwargs) -> Calibration:
-    """Fit a calibration and return it; see :func:`fit` for the parameters."""
-    return fit(dataset, start, mode, **kwargs).calibration

@@ -66,7 +66,7 @@ def _perturbed_start(truth, mode, rng):
 
 
 def run(args) -> int:
-    from ..calibrate import fit, fit_output_correction, get_mode, test_poses, test_rows
+    from ..calibrate import fit, fit_output_correction, get_mode, held_out_rows, solve_held_out
     from ..evaluate import STAGE_UNCERTAINTY_M, combined_uncertainty
     from ..io import write_calibration, write_dataset
     from ..paper import characterization_report
@@ -95,7 +95,7 @@ def run(args) -> int:
     test_data = simulate(preset, "ld", source_fixtures=preset.source_fixtures[0],
                          sensor_fixtures="all", snr_db=args.snr_db, stage_sigma=sigma,
                          seed=args.seed + 1000)
-    test_data = test_data.select(test_rows(test_data))
+    test_data = test_data.select(held_out_rows(test_data))
     write_dataset(cal_data, out / "calibration_data.h5")
     write_dataset(test_data, out / "test_data.h5")
     step("simulate", t0)
@@ -126,9 +126,9 @@ def run(args) -> int:
     accuracy = built.summary["accuracy"]
     rows = {}
     for label, res in (("truth (dipole equivalent of the finite coils)",
-                        test_poses(test_data, truth, concentric_model=concentric.model)),
+                        solve_held_out(test_data, truth, concentric_model=concentric.model)),
                        ("start (perturbed)",
-                        test_poses(test_data, start, concentric_model=concentric.model))):
+                        solve_held_out(test_data, start, concentric_model=concentric.model))):
         s = res["summary"]
         rows[label] = {k: s[k] for k in _ROW_KEYS}
         rows[label]["n_invalid"] = int(res["n_invalid"])

@@ -342,7 +342,7 @@ def characterization_report(dataset, calibration, *, concentric=None,
     -------
     BuiltReport
     """
-    from ..calibrate import test_poses
+    from ..calibrate import solve_held_out
     from ..evaluate import characterize, fixture_labels
     from ..geometry import ground_truth_poses
     from ..io import Calibration, Dataset
@@ -369,14 +369,14 @@ def characterization_report(dataset, calibration, *, concentric=None,
         D = ground_truth_poses(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
                                dataset.source_fixture, dataset.stage, dataset.sensor_fixture)
         F_se = cal.sensor_fixture
-        conds = {"calibration": test_poses(dataset, cal, concentric_model=conc_model)}
+        conds = {"calibration": solve_held_out(dataset, cal, concentric_model=conc_model)}
         conds["calibration"]["measured"] = conds["calibration"]["poses"]
         if cal.linear_correction is not None:
-            r = test_poses(dataset, cal, concentric_model=conc_model, apply_correction=True)
+            r = solve_held_out(dataset, cal, concentric_model=conc_model, apply_correction=True)
             r["measured"] = _corrected(r["poses"], cal.linear_correction)
             conds["calibration + correction"] = r
         if concentric is not None:
-            r = test_poses(dataset, concentric, solver="kim18")
+            r = solve_held_out(dataset, concentric, solver="kim18")
             r["measured"] = r["poses"]
             conds["concentric + Kim18"] = r
     else:

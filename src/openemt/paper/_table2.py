@@ -154,25 +154,25 @@ def table2_tests(run: PaperRun):
         The test rows (home source fixture, three sensor fixtures, ld).
     results : dict
         ``default`` (XYZ, LM), ``corrected`` (with its DLT, when the fit made one) and
-        ``concentric`` (Kim18 alone): each the dict of :func:`openemt.calibrate.test_poses`.
+        ``concentric`` (Kim18 alone): each the dict of :func:`openemt.calibrate.solve_held_out`.
     seconds : dict
     """
-    from ..calibrate import test_poses, test_rows
+    from ..calibrate import held_out_rows, solve_held_out
 
     run = as_run(run, ["XYZ", "XYZ_concentric"])
-    test = run.dataset.select(test_rows(run.dataset))
+    test = run.dataset.select(held_out_rows(run.dataset))
     if len(test) == 0:
         raise InputError(f"expected soYoutZup ld test files in {str(run.folder)!r}, got none")
     xyz, conc = run.calibration("XYZ"), run.calibration("XYZ_concentric")
     seconds = {}
     t0 = time.perf_counter()
-    results = {"default": test_poses(test, xyz, concentric_model=conc.model)}
+    results = {"default": solve_held_out(test, xyz, concentric_model=conc.model)}
     seconds["test_solve_default"] = time.perf_counter() - t0
     if xyz.linear_correction is not None:
-        results["corrected"] = test_poses(test, xyz, concentric_model=conc.model,
+        results["corrected"] = solve_held_out(test, xyz, concentric_model=conc.model,
                                           apply_correction=True)
     t0 = time.perf_counter()
-    results["concentric"] = test_poses(test, conc, solver="kim18")
+    results["concentric"] = solve_held_out(test, conc, solver="kim18")
     seconds["test_solve_concentric"] = time.perf_counter() - t0
     return test, results, seconds
 

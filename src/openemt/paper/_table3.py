@@ -19,7 +19,7 @@ column                         test rows
 ``source_and_sensor_fixtures`` those plus soXoutZup/soZoutYup/soXinYup with seYoutZup (3792)
 ============================== ============================================================
 
-Each cell is the uncorrected test of :func:`openemt.calibrate.test_poses`: iterative solution
+Each cell is the uncorrected test of :func:`openemt.calibrate.solve_held_out`: iterative solution
 started from the Kim18 closed form of the concentric calibration (``XYZ_concentric_hr_cal``),
 hemisphere from the ground truth, invalid solutions kept, ILEMT's stage-coordinates error.
 """
@@ -114,7 +114,7 @@ def reproduce_table3(source) -> dict:
         (``ratio``); ``max_deviation`` = max |ratio - 1| over all cells, ``calibrations``,
         ``test_sets`` and ``seconds``.
     """
-    from ..calibrate import test_poses
+    from ..calibrate import solve_held_out
 
     t_all = time.perf_counter()
     run = as_run(source, [*TABLE3_ROWS.values(), "XYZ_concentric"], correction=False)
@@ -130,7 +130,7 @@ def reproduce_table3(source) -> dict:
     worst = 0.0
     for row, step in TABLE3_ROWS.items():
         cal = run.calibration(step)
-        r = {k: test_poses(d, cal, concentric_model=conc) for k, d in sets.items()}
+        r = {k: solve_held_out(d, cal, concentric_model=conc) for k, d in sets.items()}
         both = r["sensor_fixtures"], r["source_only"]
         cells = {
             "translation_only": _cell(r["translation_only"]["trans"],

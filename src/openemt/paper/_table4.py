@@ -221,7 +221,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     -------
     Table4Result
     """
-    from ..calibrate import test_poses
+    from ..calibrate import solve_held_out
     from ..correct import apply_linear_correction
 
     t_all = time.perf_counter()
@@ -239,7 +239,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
                          "sequence with correction=True)")
     seconds = dict(run.seconds)
     t0 = time.perf_counter()
-    solved = test_poses(data, cal, concentric_model=run.calibration("XYZ_concentric").model)
+    solved = solve_held_out(data, cal, concentric_model=run.calibration("XYZ_concentric").model)
     seconds["solve"] = time.perf_counter() - t0
     M_raw = solved["poses"]
     conditions = {"uncorrected": M_raw}
