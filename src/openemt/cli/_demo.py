@@ -44,29 +44,15 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _perturbed_start(truth, mode, rng):
-    """The truth calibration with every parameter the mode fits moved by a realistic amount:
-    coil positions and fixture translations by 1 mm, gains by 1 %, fixture rotations by 0.5 deg."""
-    from ..calibrate import ParameterLayout
-
-    layout = ParameterLayout.for_model(truth.model)
-    x = layout.pack_calibration(truth)
-    free = layout.free_indices(mode.optimize, mode.freeze)
-    scale = np.zeros(layout.size)
-    for name, s in (("L_so", 1e-3), ("L_se", 1e-3), ("M_so", 1e-2), ("M_se", 1e-2)):
-        scale[layout.slices[name]] = s
-    for name in ("F_so", "F_st", "F_se"):
-        sl = layout.slices[name]
-        scale[sl.start:sl.start + 3] = 1e-3
-        scale[sl.start + 3:sl.stop] = np.deg2rad(0.5)
-    x[free] += rng.normal(size=free.size) * scale[free]
-    F_so, F_st, F_se = layout.fixtures(x)
-    return truth.replace(model=layout.model(x, truth.model.gain), source_fixture=F_so,
-                         stage_fixture=F_st, sensor_fixture=F_se, mode="demo-start")
-
-
 def run(args) -> int:
-    from ..calibrate import fit, fit_output_correction, get_mode, held_out_rows, solve_held_out
+    from ..calibrate import (
+        fit,
+        fit_output_correction,
+        get_mode,
+        held_out_rows,
+        perturb_calibration,
+        solve_held_out,
+    )
     from ..evaluate import STAGE_UNCERTAINTY_M, combined_uncertainty
     from ..io import write_calibration, write_dataset
     from ..paper import characterization_report
@@ -104,7 +90,10 @@ def run(args) -> int:
     truth = truth_calibration(preset)
     write_calibration(truth, out / "truth_calibration.json")
     mode = get_mode("XYZ")
-    start = _perturbed_start(truth, mode, np.random.default_rng(args.seed))
+    # every fitted parameter moved by 1 mm / 1 % / 1 mm and 0.5 deg (positions, moments, fixtures)
+    start = perturb_calibration(truth, np.random.default_rng(args.seed), mode=mode, pos=1e-3,
+                                rel=1e-2, fix_t=1e-3, fix_r=np.deg2rad(0.5)
+                                ).replace(mode="demo-start")
     result = fit(cal_data, start, mode, warn=False)
     cal = result.calibration
     concentric = fit(cal_data, cal, "concentric", warn=False).calibration
