@@ -8,12 +8,14 @@ paper's staged sequence of such fits; :func:`improved_calibration` the improved 
 """
 
 from ..io import Calibration, Dataset
-from ._check import held_out_rows, solve_held_out
-from ._fit import CalibrationFit, fit, residue_stats
+from ._check import HeldOutTest, held_out_rows, solve_held_out
+from ._fit import CalibrationFit, ResidueStats, fit, residue_stats
 from ._heldout import (
     CANDIDATES,
     IMPROVED_OPTIONS,
+    CrossValidation,
     ImprovedCalibration,
+    ImprovedTest,
     cross_validate,
     improved_calibration,
 )
@@ -37,7 +39,13 @@ from ._sequence import (
     fit_output_correction,
     run_sequence,
 )
-from ._simstudy import dipole_cost, parameter_recovery, perturb_calibration
+from ._simstudy import (
+    DipoleCost,
+    ParameterRecovery,
+    dipole_cost,
+    parameter_recovery,
+    perturb_calibration,
+)
 
 __all__ = [
     "CANDIDATES",
@@ -52,15 +60,21 @@ __all__ = [
     "CalibrationFit",
     "CalibrationMode",
     "CalibrationProblem",
+    "CrossValidation",
     "Dataset",
+    "DipoleCost",
     "GridData",
+    "HeldOutTest",
     "Identifiability",
     "IdentifiabilityWarning",
     "ImprovedCalibration",
     "ImprovedProblem",
+    "ImprovedTest",
     "OutputCorrection",
     "ParameterLayout",
+    "ParameterRecovery",
     "PlanarCalibration",
+    "ResidueStats",
     "RigModel",
     "RigOptions",
     "SequenceStep",

@@ -12,10 +12,11 @@ Two studies on data from :func:`openemt.simulate.simulate`:
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._result import Result
 from ..evaluate import error_summary, pose_error_magnitudes
 from ..geometry import SOURCE_FIXTURES
 from ..io import Calibration
@@ -24,7 +25,73 @@ from ._improved import RigOptions, fit_improved
 from ._layout import ParameterLayout
 from ._modes import MODES, get_mode
 
-__all__ = ["dipole_cost", "parameter_recovery", "perturb_calibration"]
+__all__ = ["DipoleCost", "ParameterRecovery", "dipole_cost", "parameter_recovery",
+           "perturb_calibration"]
+
+
+@dataclass(frozen=True, eq=False)
+class ParameterRecovery(Result):
+    """Fitted parameters against the simulated truth, in standard errors.
+
+    Attributes
+    ----------
+    z : ndarray, shape (n_free,)
+        ``(estimate - truth) / standard error`` per free parameter.
+    labels : list of str
+        Parameter names, in the order of ``z``.
+    max_abs_z : float
+    fraction_within_3 : float
+        Fraction of ``|z| < 3``.
+    rms_residue : float
+    n_rows : int
+    rank, n_free : int
+        Jacobian rank and free parameters.
+    """
+
+    z: np.ndarray
+    labels: list
+    max_abs_z: float
+    fraction_within_3: float
+    rms_residue: float
+    n_rows: int
+    rank: int
+    n_free: int
+
+
+@dataclass(frozen=True)
+class DipoleCost(Result):
+    """Accuracy lost by the dipole model on finite coils, and regained by octupole terms.
+
+    Attributes
+    ----------
+    preset : str
+    coil_size_m : float
+        Largest source coil extent.
+    r_over_d : list of float
+        Smallest and largest source-sensor distance over ``coil_size_m`` in the test rows.
+    dipole_equivalent_no_fit, dipole_calibrated, octupole_calibrated : dict
+        ``trans_rms_mm``, ``trans_max_mm``, ``rot_rms_deg``, ``rot_max_deg`` on the held-out
+        ld rows.
+    rms_residue : dict
+        ``dipole`` and ``octupole`` calibration residues.
+    octupole_k_so, octupole_k_se : list of float
+        Fitted octupole coefficients.
+    n_calibration, n_test : int
+    seconds : float
+    """
+
+    preset: str
+    coil_size_m: float
+    r_over_d: list
+    dipole_equivalent_no_fit: dict
+    dipole_calibrated: dict
+    octupole_calibrated: dict
+    rms_residue: dict
+    octupole_k_so: list
+    octupole_k_se: list
+    n_calibration: int
+    n_test: int
+    seconds: float
 
 
 def _truth(preset) -> Calibration:
@@ -62,7 +129,8 @@ def perturb_calibration(cal: Calibration, rng, *, mode="XYZ_all", pos=5e-4, rel=
                        stage_fixture=F[1], sensor_fixture=F[2], mode="start")
 
 
-def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed=0) -> dict:
+def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed=0
+                       ) -> ParameterRecovery:
     """Fit simulated exact-dipole data and compare with the truth in standard errors.
 
     The preset's coils are replaced by their dipole equivalents (so the model is exact), stage
@@ -70,9 +138,7 @@ def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed
 
     Returns
     -------
-    dict
-        ``z`` (n_free,) = (estimate - truth) / standard error, ``labels``, ``max_abs_z``,
-        ``fraction_within_3``, ``rms_residue``, ``n_rows``.
+    ParameterRecovery
     """
     from ..simulate import get_preset, simulate
 
@@ -86,11 +152,11 @@ def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed
     x_true = lay.pack_calibration(truth)
     se = f.identifiability.standard_errors
     z = (f.x[f.free] - x_true[f.free]) / se
-    return {"z": z, "labels": [lay.label(int(i)) for i in f.free],
-            "max_abs_z": float(np.max(np.abs(z))),
-            "fraction_within_3": float(np.mean(np.abs(z) < 3.0)),
-            "rms_residue": f.calibration.stats["rms_residue"], "n_rows": len(f.problem.C_meas),
-            "rank": f.identifiability.rank, "n_free": int(f.free.size)}
+    return ParameterRecovery(
+        z=z, labels=[lay.label(int(i)) for i in f.free], max_abs_z=float(np.max(np.abs(z))),
+        fraction_within_3=float(np.mean(np.abs(z) < 3.0)),
+        rms_residue=f.calibration.stats["rms_residue"], n_rows=len(f.problem.C_meas),
+        rank=f.identifiability.rank, n_free=int(f.free.size))
 
 
 def _score(cal_like, model, test, refine=None):
@@ -113,7 +179,7 @@ def _score(cal_like, model, test, refine=None):
     return {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")}
 
 
-def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -> dict:
+def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -> DipoleCost:
     """Accuracy cost of the dipole approximation for finite coils, on held-out ld poses.
 
     Calibrates (mode ``XYZ_all`` on md rows of every fixture) the dipole model and the dipole +
@@ -143,20 +209,17 @@ def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -
     oct_cal = f.calibration.replace(sensor_fixture=F[2])
     size = _coil_size(p)
     dist = np.linalg.norm(test.poses[:, :3, 3], axis=1)
-    return {
-        "preset": p.name,
-        "coil_size_m": size,
-        "r_over_d": [float(dist.min() / size), float(dist.max() / size)],
-        "dipole_equivalent_no_fit": _score(truth, p.dipole, test),
-        "dipole_calibrated": _score(f.calibration, f.calibration.model, test),
-        "octupole_calibrated": _score(oct_cal, oct_model.dipole, test, refine=oct_model),
-        "rms_residue": {"dipole": f.calibration.stats["rms_residue"],
-                        "octupole": float(np.sqrt(r @ r / prob.base.n_rows))},
-        "octupole_k_so": np.asarray(x[prob.extra["k_so"]]).tolist(),
-        "octupole_k_se": np.asarray(x[prob.extra["k_se"]]).tolist(),
-        "n_calibration": len(md), "n_test": len(test),
-        "seconds": time.perf_counter() - t0,
-    }
+    return DipoleCost(
+        preset=p.name, coil_size_m=size,
+        r_over_d=[float(dist.min() / size), float(dist.max() / size)],
+        dipole_equivalent_no_fit=_score(truth, p.dipole, test),
+        dipole_calibrated=_score(f.calibration, f.calibration.model, test),
+        octupole_calibrated=_score(oct_cal, oct_model.dipole, test, refine=oct_model),
+        rms_residue={"dipole": f.calibration.stats["rms_residue"],
+                     "octupole": float(np.sqrt(r @ r / prob.base.n_rows))},
+        octupole_k_so=np.asarray(x[prob.extra["k_so"]]).tolist(),
+        octupole_k_se=np.asarray(x[prob.extra["k_se"]]).tolist(),
+        n_calibration=len(md), n_test=len(test), seconds=time.perf_counter() - t0)
 
 
 def _coil_size(p) -> float:
