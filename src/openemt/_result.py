@@ -74,6 +74,10 @@ class DictResult(Result, dict):
 
     __getitem__ = dict.__getitem__
 
+    def __reduce__(self):
+        # rebuilt from the fields (copy, pickle), not by setting items
+        return type(self), tuple(getattr(self, f.name) for f in dataclasses.fields(self))
+
     def _read_only(self, *args, **kwargs):
         raise TypeError(f"{type(self).__name__} is read-only")
 

@@ -158,6 +158,19 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
     -------
     CalibrationFit
 
+    Examples
+    --------
+    The paper's main calibration (``XYZ_hr_cal``) of the bundled recording, from its base
+    calibration; the residue is the one stored in the authors' file:
+
+    >>> import openemt
+    >>> folder = openemt.datasets.path("cal_9_15_premo_cmu")
+    >>> data = openemt.import_ilemt_folder(folder)
+    >>> start = openemt.read_ilemt_calibration(folder / "base_calibration.mat")
+    >>> result = openemt.fit_calibration(data, start, mode="XYZ")
+    >>> result.calibration.stats["num_points"], round(result.calibration.stats["rms_residue"], 6)
+    (426, 0.004847)
+
     References
     ----------
     MacLachlan et al. 2025 §VI; docs/ilemt-data.md#dipole-model, docs/paper-procedure.md#calibration-objective.

@@ -1,9 +1,16 @@
 """Error statistics, uncertainty, dimensionality tables, sweeps and linearity."""
 
-from ._characterize import Characterization, characterize, fixture_labels, uncertainty_summary
+from ._characterize import (
+    Characterization,
+    UncertaintySummary,
+    characterize,
+    fixture_labels,
+    uncertainty_summary,
+)
 from ._errors import (
     STAGE_UNCERTAINTY_M,
     STAGE_UNCERTAINTY_RAD,
+    ErrorSummary,
     combined_uncertainty,
     error_summary,
     pose_error_magnitudes,
@@ -16,8 +23,10 @@ __all__ = [
     "STAGE_UNCERTAINTY_M",
     "STAGE_UNCERTAINTY_RAD",
     "Characterization",
+    "ErrorSummary",
     "SweepAnalysis",
     "SweepCurve",
+    "UncertaintySummary",
     "characterize",
     "combined_uncertainty",
     "error_summary",

@@ -19,6 +19,7 @@ from ..geometry import check_poses
 from ._errors import (
     STAGE_UNCERTAINTY_M,
     STAGE_UNCERTAINTY_RAD,
+    ErrorSummary,
     combined_uncertainty,
     error_summary,
     pose_error_magnitudes,
@@ -27,29 +28,51 @@ from ._errors import (
 
 __all__ = [
     "Characterization",
+    "UncertaintySummary",
     "characterize",
     "fixture_labels",
     "uncertainty_summary",
 ]
 
 
-def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
-                        stage_uncertainty_rad: float = STAGE_UNCERTAINTY_RAD) -> dict:
-    """``error_summary`` plus u(cal) and the combined u(P) of eq. 10, in mm and degrees.
+@dataclass(frozen=True, eq=False)
+class UncertaintySummary(ErrorSummary):
+    """:class:`~openemt.evaluate.ErrorSummary` plus u(cal) and the combined u(P) of
+    MacLachlan et al. 2025, eq. 10 (also a read-only dict of ``to_dict()``).
 
-    Keys added: ``u_cal_trans_mm``, ``u_P_trans_mm``, ``u_cal_rot_deg``, ``u_P_rot_deg``,
-    ``u_stage_trans_mm``, ``u_stage_rot_deg``.
+    Attributes
+    ----------
+    u_cal_trans_mm, u_cal_rot_deg : float
+        u(cal): the RMS errors.
+    u_P_trans_mm, u_P_rot_deg : float
+        ``sqrt(u(cal)^2 + u(stage)^2)``.
+    u_stage_trans_mm, u_stage_rot_deg : float
+        The reference's standard uncertainty.
+
+    and the fields of :class:`~openemt.evaluate.ErrorSummary`.
     """
+
+    u_cal_trans_mm: float = float("nan")
+    u_P_trans_mm: float = float("nan")
+    u_cal_rot_deg: float = float("nan")
+    u_P_rot_deg: float = float("nan")
+    u_stage_trans_mm: float = float("nan")
+    u_stage_rot_deg: float = float("nan")
+
+
+def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
+                        stage_uncertainty_rad: float = STAGE_UNCERTAINTY_RAD
+                        ) -> UncertaintySummary:
+    """``error_summary`` plus u(cal) and the combined u(P) of eq. 10, in mm and degrees."""
     s = error_summary(trans_err, rot_err)
     us_mm = stage_uncertainty_m * 1e3
     us_deg = float(np.rad2deg(stage_uncertainty_rad))
-    s["u_cal_trans_mm"] = s["trans_rms_mm"]
-    s["u_P_trans_mm"] = float(combined_uncertainty(s["trans_rms_mm"], us_mm))
-    s["u_cal_rot_deg"] = s["rot_rms_deg"]
-    s["u_P_rot_deg"] = float(combined_uncertainty(s["rot_rms_deg"], us_deg))
-    s["u_stage_trans_mm"] = us_mm
-    s["u_stage_rot_deg"] = us_deg
-    return s
+    return UncertaintySummary(
+        **s.to_dict(), u_cal_trans_mm=s.trans_rms_mm,
+        u_P_trans_mm=float(combined_uncertainty(s.trans_rms_mm, us_mm)),
+        u_cal_rot_deg=s.rot_rms_deg,
+        u_P_rot_deg=float(combined_uncertainty(s.rot_rms_deg, us_deg)),
+        u_stage_trans_mm=us_mm, u_stage_rot_deg=us_deg)
 
 
 @dataclass(frozen=True, eq=False)
