@@ -17,7 +17,14 @@ from ._errors import (
     pose_error_vectors,
     pose_errors,
 )
-from ._sweeps import SweepAnalysis, SweepCurve, find_sweeps, sweep_linearity, sweep_table
+from ._sweeps import (
+    SweepAnalysis,
+    SweepCurve,
+    SweepTable,
+    find_sweeps,
+    sweep_linearity,
+    sweep_table,
+)
 
 __all__ = [
     "STAGE_UNCERTAINTY_M",
@@ -26,6 +33,7 @@ __all__ = [
     "ErrorSummary",
     "SweepAnalysis",
     "SweepCurve",
+    "SweepTable",
     "UncertaintySummary",
     "characterize",
     "combined_uncertainty",

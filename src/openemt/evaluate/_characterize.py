@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._errors import InputError
+from .._result import Result
 from ..geometry import check_poses
 from ._errors import (
     STAGE_UNCERTAINTY_M,
@@ -76,7 +77,7 @@ def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAG
 
 
 @dataclass(frozen=True, eq=False)
-class Characterization:
+class Characterization(Result):
     """Error statistics of a test set, overall and per group (e.g. fixture combination).
 
     Attributes
@@ -90,17 +91,17 @@ class Characterization:
     error_vectors : ndarray, shape (N, 6)
         Error vectors (m, rad) as :func:`pose_error_vectors`.
     groups : ndarray of str, shape (N,) or None
+
+    ``to_dict()`` gives the statistics (``overall``, ``by_group``), not the per-row arrays.
     """
 
-    overall: dict
+    _not_in_dict = ("positions", "error_vectors", "groups")
+
+    overall: UncertaintySummary
     by_group: dict = field(default_factory=dict)
     positions: np.ndarray | None = None
     error_vectors: np.ndarray | None = None
     groups: np.ndarray | None = None
-
-    def as_dict(self) -> dict:
-        """The statistics (no per-row arrays), JSON-ready."""
-        return {"overall": self.overall, "by_group": self.by_group}
 
 
 def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,

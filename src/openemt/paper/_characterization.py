@@ -107,7 +107,7 @@ class CalibrationCharacterization(Result):
         table4 = None
         if self.sweeps is not None:
             t = self.sweeps.table
-            table4 = {"direct": t["direct"], "cross": t["cross"], "n_curves": t["n_curves"]}
+            table4 = {"direct": t.direct, "cross": t.cross, "n_curves": t.n_curves}
         return {"mode": "dataset", "reference": self.reference, "n_test": self.n_test,
                 "accuracy": self.accuracy, "by_fixture": self.characterization.by_group,
                 "table4": table4, "seconds": self.seconds}

@@ -204,7 +204,7 @@ def _analyse(M, data, cal, chain):
 
 
 def _table(a) -> dict:
-    return {"direct": a.table["direct"], "cross": a.table["cross"]}
+    return {"direct": a.table.direct, "cross": a.table.cross}
 
 
 @dataclass(frozen=True, eq=False)
@@ -322,7 +322,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     a_norefit, _ = _analyse(M, data, cal, chain)
     seconds["total"] = time.perf_counter() - t_all
     summary = Table4Reproduction(
-        **_table(a), n_curves=a.table["n_curves"], paper=TABLE4_PAPER, condition=main,
+        **_table(a), n_curves=a.table.n_curves, paper=TABLE4_PAPER, condition=main,
         other={name: _table(a2) for name, (_, a2, _, _) in results.items() if name != main},
         without_fixture_refit=_table(a_norefit), fixture_refit=refit.summary(),
         curves=[c.summary() for c in a.curves], n_rows=len(data),
