@@ -5,7 +5,13 @@ see docs/paper-reproductions.md. Each reproduction returns a result dataclass wh
 ``to_dict()`` is the JSON the ``openemt reproduce`` commands print.
 """
 
-from ._characterization import CalibrationCharacterization, accuracy_row, characterize_calibration
+from ._characterization import (
+    CalibrationCharacterization,
+    PaperCharacterization,
+    accuracy_row,
+    characterize_calibration,
+    characterize_paper_run,
+)
 from ._report import BuiltReport, characterization_report, paper_report, parameter_rows
 from ._run import PaperRun, load_paper_run, sequence_steps
 from ._simulated import parameters_against_truth, truth_comparison_rows
@@ -49,6 +55,7 @@ __all__ = [
     "BuiltReport",
     "CalibrationCharacterization",
     "FixtureRefit",
+    "PaperCharacterization",
     "PaperRun",
     "Table2Column",
     "Table2Reproduction",
@@ -58,6 +65,7 @@ __all__ = [
     "accuracy_row",
     "characterization_report",
     "characterize_calibration",
+    "characterize_paper_run",
     "identify_table2_column",
     "load_paper_run",
     "paper_report",

@@ -1,5 +1,7 @@
-"""Characterization of one calibration on a test dataset with a reference (the numbers of the
-characterization report; :func:`openemt.report.characterization_document` lays them out).
+"""The numbers of the characterization reports: one calibration on a test dataset with a
+reference (:func:`characterize_calibration`), or a whole ILEMT folder with the paper's tables
+(:func:`characterize_paper_run`). :func:`openemt.report.characterization_document` and
+:func:`openemt.report.paper_document` lay them out.
 
 The test rows are solved as the paper does (docs/paper-procedure.md#pose-solution) and scored
 against the rig kinematics with the calibration's own fixtures (stage-coordinates error,
@@ -19,7 +21,13 @@ from .._errors import InputError
 from .._result import Result
 from ..evaluate import STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, combined_uncertainty
 
-__all__ = ["CalibrationCharacterization", "accuracy_row", "characterize_calibration"]
+__all__ = [
+    "CalibrationCharacterization",
+    "PaperCharacterization",
+    "accuracy_row",
+    "characterize_calibration",
+    "characterize_paper_run",
+]
 
 _KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 _U_MM = STAGE_UNCERTAINTY_M * 1e3
@@ -258,3 +266,132 @@ def characterize_calibration(dataset, calibration, *, concentric=None,
         accuracy=accuracy, main=main, characterization=char, measured=M, reference_poses=D,
         trans=test.trans, rot=test.rot, shown=np.flatnonzero(groups == first), sweeps=sweeps,
         sweep_note=note, seconds={"total": time.perf_counter() - t0})
+
+
+@dataclass(frozen=True, eq=False)
+class PaperCharacterization(Result):
+    """The paper's tables and the characterization of its main calibration on an ILEMT folder.
+
+    Attributes
+    ----------
+    run : PaperRun
+        The imported folder and its calibration sequence.
+    test : Dataset
+        Table II test rows.
+    table2 : dict of str -> dict
+        Rows ``default``, ``corrected``, ``concentric`` (:func:`accuracy_row`, with the
+        paper's values).
+    table2_column : Table2Column
+        The paper's column the folder compares with.
+    table3 : Table3Reproduction or None
+        None when the folder lacks Table III's calibration or test data.
+    table4 : Table4Result or None
+        None without sweep files.
+    default : HeldOutTest
+        The ``default`` (XYZ_hr_cal, uncorrected) test.
+    reference_poses : ndarray, shape (N, 4, 4)
+        Ground truth of the test rows.
+    characterization : Characterization
+        ``default`` per fixture combination.
+    shown : ndarray of int
+        Rows of the error-vector figure (sensor fixture YoutZup).
+    calibration_stats : list of dict
+        Residue and output-correction fit of every calibration of the sequence.
+    seconds : dict
+        Wall time per stage.
+
+    ``to_dict()`` is the ``openemt report ILEMT_DIR --json`` summary: ``mode`` (``"ilemt"``),
+    ``folder``, ``n_rows``, ``n_test``, ``table2``, ``table2_paper_column``, ``table3`` and
+    ``table4`` (without their ``seconds``; ``table4`` without its curves), ``by_fixture``,
+    ``calibration_stats`` (by calibration) and ``seconds``.
+    """
+
+    run: object
+    test: object
+    table2: dict
+    table2_column: object
+    table3: object
+    table4: object
+    default: object
+    reference_poses: np.ndarray
+    characterization: object
+    shown: np.ndarray
+    calibration_stats: list
+    seconds: dict
+
+    def _items(self) -> dict:
+        t3, t4 = self.table3, self.table4
+        return {
+            "mode": "ilemt", "folder": str(self.run.folder), "n_rows": len(self.run.dataset),
+            "n_test": len(self.test), "table2": self.table2,
+            "table2_paper_column": self.table2_column.to_dict(),
+            "table3": None if t3 is None else {k: v for k, v in t3.to_dict().items()
+                                               if k != "seconds"},
+            "table4": None if t4 is None else {k: v for k, v in t4.summary.to_dict().items()
+                                               if k not in ("curves", "seconds")},
+            "by_fixture": self.characterization.by_group,
+            "calibration_stats": {r["calibration"]: r for r in self.calibration_stats},
+            "seconds": self.seconds,
+        }
+
+
+def _sequence_stats(run) -> list:
+    rows = []
+    for name, f in run.fits.items():
+        s = f.calibration.stats
+        rows.append({"calibration": f"{name}_hr_cal", "mode": f.calibration.mode,
+                     "rms_residue": s.get("rms_residue"), "rows": s.get("num_points"),
+                     "invalid": s.get("num_invalid", ""),
+                     "uncorrected_mm": 1e3 * s["uncorrected"] if s.get("uncorrected")
+                     is not None else float("nan"),
+                     "corrected_mm": 1e3 * s["corrected"] if s.get("corrected")
+                     is not None else float("nan")})
+    return rows
+
+
+def characterize_paper_run(source) -> PaperCharacterization:
+    """Tables II-IV of MacLachlan et al. 2025 and the characterization of ``XYZ_hr_cal`` on an
+    ILEMT folder (or a :class:`PaperRun` with the whole sequence).
+
+    Table III is left out (None) when the folder lacks its data, Table IV when it has no sweep
+    files.
+    """
+    from ..evaluate import characterize, fixture_labels
+    from ..geometry import ground_truth_poses
+    from ._run import PaperRun, as_run, load_paper_run
+    from ._table2 import identify_table2_column, table2_tests
+    from ._table3 import TABLE3_ROWS, reproduce_table3, table3_test_masks
+    from ._table4 import sweep_test
+
+    run = source if isinstance(source, PaperRun) else load_paper_run(source)
+    as_run(run, ["XYZ", "XYZ_concentric"])  # the least a report needs
+    ds = run.dataset
+    seconds = dict(run.seconds)
+    xyz = run.calibration("XYZ")
+    t0 = time.perf_counter()
+    test, results, _ = table2_tests(run)
+    labels = {"default": "default (XYZ_hr_cal)", "corrected": "corrected (XYZ_hr_cal + DLT)",
+              "concentric": "concentric + Kim18"}
+    column = identify_table2_column(run, test)
+    paper = column.values or {}
+    t2 = {k: accuracy_row(labels[k], r, paper.get(k)) for k, r in results.items()}
+    seconds["table2"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    masks = table3_test_masks(ds)
+    t3 = reproduce_table3(run) if (run.has(*TABLE3_ROWS.values())
+                                   and all(m.any() for m in masks.values())) else None
+    seconds["table3"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    has_sweeps = bool(ds.mask(pattern="sweep", source_fixture="YoutZup").any())
+    t4 = sweep_test(run) if has_sweeps else None
+    seconds["table4"] = time.perf_counter() - t0
+    default = results["default"]
+    D = ground_truth_poses(xyz.source_fixture, xyz.stage_fixture, xyz.sensor_fixture,
+                           test.source_fixture, test.stage, test.sensor_fixture)
+    char = characterize(default.poses, D, groups=fixture_labels(test),
+                        sensor_fixture=xyz.sensor_fixture)
+    return PaperCharacterization(
+        run=run, test=test, table2=t2, table2_column=column, table3=t3, table4=t4,
+        default=default, reference_poses=D, characterization=char,
+        shown=np.flatnonzero(test.sensor_fixture == "YoutZup"),
+        calibration_stats=_sequence_stats(run), seconds=seconds)
