@@ -219,7 +219,7 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
     stats.update(nfev=int(res.nfev), optimizer_status=int(res.status), fit_seconds=seconds)
     if ident is not None:
         stats.update(jacobian_rank=ident.rank, n_free=ident.n_free,
-                     condition=ident.summary()["condition"],
+                     condition=ident.to_dict()["condition"],
                      undetermined_groups=list(ident.undetermined))
     F_so, F_st, F_se = layout.fixtures(x)
     files = sorted(set(data.file_names().tolist()) - {""})

@@ -295,9 +295,11 @@ class ImprovedCalibration:
                        k: v for k, v in self.correction_stats.items()}},
             provenance=prov,
             extra={"rig": self.problem.rig(self.x).to_dict(),
-                   "rig_options": self.summary()["options"]})
+                   "rig_options": self.to_dict()["options"]})
 
-    def summary(self) -> dict:
+    def to_dict(self) -> dict:
+        """JSON-ready summary: variant, options, parameter counts, residue, the rig's
+        parameters, identifiability, cross-validation, output correction, seconds."""
         rig = self.problem.rig(self.x).to_dict()
         return {"variant": self.name, "options": self.options.__dict__ | {
                     "stage_linear": list(self.options.stage_linear)},
@@ -358,6 +360,6 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
         rms_residue=float(np.sqrt(r @ r / prob.base.n_rows)), selection=selection,
         correction=corr, correction_stats=cstats, concentric_model=concentric_model,
         identifiability={"rank": ident.rank, "n_free": ident.n_free,
-                         "condition": ident.summary()["condition"],
+                         "condition": ident.to_dict()["condition"],
                          "rig_standard_errors": prob.rig(se).to_dict()},
         seconds={"cross_validation": t_sel, "fit_and_correction": time.perf_counter() - t0})

@@ -82,7 +82,9 @@ class SweepCurve:
     def is_rotation(self) -> bool:
         return self.axis.startswith("r")
 
-    def summary(self) -> dict:
+    def to_dict(self) -> dict:
+        """JSON-ready summary: label, axis, points, range, RMS and max of each magnitude."""
+
         def rm(x):
             return float(np.sqrt(np.mean(x ** 2))), float(np.max(x))
 
@@ -130,7 +132,7 @@ class SweepAnalysis(Result):
     table: SweepTable
 
     def _items(self) -> dict:
-        return {"table": self.table, "curves": [c.summary() for c in self.curves]}
+        return {"table": self.table, "curves": [c.to_dict() for c in self.curves]}
 
 
 def find_sweeps(stage, labels=None, *, tol_m: float = SWEEP_TOL_M,

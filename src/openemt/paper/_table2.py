@@ -203,7 +203,7 @@ class Table2Reproduction(DictResult):
     improved, improved_corrected : dict or None
         The improved calibration's rows (only with ``improved=True``).
     improved_model : dict or None
-        :meth:`openemt.calibrate.ImprovedCalibration.summary` (only with ``improved=True``).
+        :meth:`openemt.calibrate.ImprovedCalibration.to_dict` (only with ``improved=True``).
     n_test : int
     calibration_residues : dict
         Calibration step -> rms residue.
@@ -285,7 +285,7 @@ def reproduce_table2(source, *, improved: bool = False, cross_validation: bool =
         it = imp.test(test)
         seconds["test_solve_improved"] = time.perf_counter() - t0
         rows.update(improved=it.improved, improved_corrected=it.improved_corrected,
-                    improved_model=imp.summary())
+                    improved_model=imp.to_dict())
     column = identify_table2_column(run, test)
     seconds["total"] = time.perf_counter() - t_all
     return Table2Reproduction(

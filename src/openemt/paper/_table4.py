@@ -79,7 +79,9 @@ class FixtureRefit:
     n_rows: int
     moment: float
 
-    def summary(self) -> dict:
+    def to_dict(self) -> dict:
+        """JSON-ready summary: offsets, re-optimised fixtures, weighted RMS before and after
+        (mm), rows and moment."""
         return {"stage_offset": self.stage_offset.tolist(),
                 "sensor_offset": self.sensor_offset.tolist(),
                 "stage_fixture": self.calibration.stage_fixture.tolist(),
@@ -229,7 +231,7 @@ class Table4Reproduction(DictResult):
     without_fixture_refit : dict
         Rows of the reported condition with the calibration's own fixtures.
     fixture_refit : dict
-        :meth:`FixtureRefit.summary`.
+        :meth:`FixtureRefit.to_dict`.
     curves : list of dict
         Per-curve summaries.
     n_rows, n_invalid : int
@@ -324,8 +326,8 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     summary = Table4Reproduction(
         **_table(a), n_curves=a.table.n_curves, paper=TABLE4_PAPER, condition=main,
         other={name: _table(a2) for name, (_, a2, _, _) in results.items() if name != main},
-        without_fixture_refit=_table(a_norefit), fixture_refit=refit.summary(),
-        curves=[c.summary() for c in a.curves], n_rows=len(data),
+        without_fixture_refit=_table(a_norefit), fixture_refit=refit.to_dict(),
+        curves=[c.to_dict() for c in a.curves], n_rows=len(data),
         n_invalid=int(solved.n_invalid), files=sorted(set(data.file_names())),
         calibration="XYZ_hr_cal",
         notes=("Paper values: MacLachlan et al. 2025, Table IV, measured on another collection "
