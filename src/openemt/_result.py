@@ -42,6 +42,7 @@ class Result:
 
     __slots__ = ()
     _not_in_dict: ClassVar[tuple[str, ...]] = ()
+    __iter__ = None  # not a container: item access below is only kept for old code
 
     def _items(self) -> dict:
         """Key -> value in the order of ``to_dict()``, values as stored."""
@@ -73,6 +74,7 @@ class DictResult(Result, dict):
         dict.update(self, self.to_dict())
 
     __getitem__ = dict.__getitem__
+    __iter__ = dict.__iter__
 
     def __reduce__(self):
         # rebuilt from the fields (copy, pickle), not by setting items

@@ -53,12 +53,12 @@ class UncertaintySummary(ErrorSummary):
     and the fields of :class:`~openemt.evaluate.ErrorSummary`.
     """
 
-    u_cal_trans_mm: float = float("nan")
-    u_P_trans_mm: float = float("nan")
-    u_cal_rot_deg: float = float("nan")
-    u_P_rot_deg: float = float("nan")
-    u_stage_trans_mm: float = float("nan")
-    u_stage_rot_deg: float = float("nan")
+    u_cal_trans_mm: float
+    u_P_trans_mm: float
+    u_cal_rot_deg: float
+    u_P_rot_deg: float
+    u_stage_trans_mm: float
+    u_stage_rot_deg: float
 
 
 def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
