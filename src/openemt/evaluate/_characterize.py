@@ -124,6 +124,19 @@ def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
     Returns
     -------
     Characterization
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from openemt.evaluate import characterize
+    >>> from openemt.geometry import pose_from_vector
+    >>> reference = pose_from_vector(np.array([[0.2, 0.0, 0.0, 0.0, 0.0, 0.0],
+    ...                                        [0.2, 0.05, 0.0, 0.0, 0.0, 0.0]]))
+    >>> measured = pose_from_vector(np.array([[0.2, 0.0003, 0.0, 0.0, 0.0, 0.0],
+    ...                                       [0.2, 0.0504, 0.0, 0.0, 0.0, 0.0]]))
+    >>> c = characterize(measured, reference, groups=["a", "b"])
+    >>> round(c.overall.trans_rms_mm, 4), round(c.overall.u_P_trans_mm, 4), list(c.by_group)
+    (0.3536, 0.3694, ['a', 'b'])
     """
     M = check_poses(P_measured, "P_measured")
     D = check_poses(P_reference, "P_reference")
