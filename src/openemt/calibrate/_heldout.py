@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._result import Result
-from ..evaluate import STAGE_UNCERTAINTY_M, error_summary, pose_error_magnitudes
+from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_MM, error_summary, pose_error_magnitudes
 from ..field import OctupoleModel
 from ..geometry import SOURCE_FIXTURES, pose_from_vector
 from ..solve import refine_poses
@@ -262,10 +262,9 @@ class ImprovedCalibration:
                 continue
             res = solve_and_score(tp, xt, rows, cm, correction=corr)
             s = res.summary
-            out[name] = {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg",
-                                           "rot_max_deg")}
+            out[name] = {k: s[k] for k in ACCURACY_KEYS}
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
-                                                          STAGE_UNCERTAINTY_M * 1e3))
+                                                          STAGE_UNCERTAINTY_MM))
             resid = np.asarray(res.residual)
             out[name]["n_invalid"] = int(np.sum(~(np.isfinite(resid) & (resid < 1e-5))))
         return ImprovedTest(**out)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .._result import Result
-from ..evaluate import error_summary, pose_error_magnitudes
+from ..evaluate import ACCURACY_KEYS, error_summary, pose_error_magnitudes
 from ..geometry import SOURCE_FIXTURES
 from ..io import Calibration
 from ._fit import fit
@@ -176,7 +176,7 @@ def _score(cal_like, model, test, refine=None):
     trans, rot = pose_error_magnitudes(pose_from_vector(v), P,
                                        sensor_fixture=cal_like.sensor_fixture)
     s = error_summary(trans, rot)
-    return {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")}
+    return {k: s[k] for k in ACCURACY_KEYS}
 
 
 def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -> DipoleCost:

@@ -8,7 +8,10 @@ from ._characterize import (
     uncertainty_summary,
 )
 from ._errors import (
+    ACCURACY_KEYS,
+    STAGE_UNCERTAINTY_DEG,
     STAGE_UNCERTAINTY_M,
+    STAGE_UNCERTAINTY_MM,
     STAGE_UNCERTAINTY_RAD,
     ErrorSummary,
     combined_uncertainty,
@@ -27,7 +30,10 @@ from ._sweeps import (
 )
 
 __all__ = [
+    "ACCURACY_KEYS",
+    "STAGE_UNCERTAINTY_DEG",
     "STAGE_UNCERTAINTY_M",
+    "STAGE_UNCERTAINTY_MM",
     "STAGE_UNCERTAINTY_RAD",
     "Characterization",
     "ErrorSummary",

@@ -17,7 +17,10 @@ from ..geometry import (
 )
 
 __all__ = [
+    "ACCURACY_KEYS",
+    "STAGE_UNCERTAINTY_DEG",
     "STAGE_UNCERTAINTY_M",
+    "STAGE_UNCERTAINTY_MM",
     "STAGE_UNCERTAINTY_RAD",
     "ErrorSummary",
     "combined_uncertainty",
@@ -30,6 +33,13 @@ __all__ = [
 #: Stage standard uncertainty after compensation (MacLachlan et al. 2025, supplement): 107 um and 0.17 deg.
 STAGE_UNCERTAINTY_M = 0.107e-3
 STAGE_UNCERTAINTY_RAD = np.deg2rad(0.17)
+#: The same in the units of reports (mm, deg).
+STAGE_UNCERTAINTY_MM = STAGE_UNCERTAINTY_M * 1e3
+STAGE_UNCERTAINTY_DEG = float(np.rad2deg(STAGE_UNCERTAINTY_RAD))
+
+#: The statistics of an accuracy row: RMS and max error magnitudes, translation in mm and
+#: rotation in degrees (MacLachlan et al. 2025, Tables II and III).
+ACCURACY_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def pose_errors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:

@@ -19,7 +19,12 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import Result
-from ..evaluate import STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, combined_uncertainty
+from ..evaluate import (
+    ACCURACY_KEYS,
+    STAGE_UNCERTAINTY_DEG,
+    STAGE_UNCERTAINTY_MM,
+    combined_uncertainty,
+)
 
 __all__ = [
     "CalibrationCharacterization",
@@ -29,19 +34,15 @@ __all__ = [
     "characterize_paper_run",
 ]
 
-_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
-_U_MM = STAGE_UNCERTAINTY_M * 1e3
-_U_DEG = float(np.rad2deg(STAGE_UNCERTAINTY_RAD))
-
 
 def accuracy_row(name: str, test, paper=None) -> dict:
     """One accuracy row of a :class:`~openemt.calibrate.HeldOutTest`: ``condition``, RMS and
     max errors (mm, deg), combined uncertainties with the stage's (MacLachlan et al. 2025,
     eq. 10), ``n``, ``n_invalid`` and, if given, the ``paper`` values."""
     s = test.summary
-    row = {"condition": name, **{k: s[k] for k in _KEYS}}
-    row["trans_uncert_mm"] = float(combined_uncertainty(s["trans_rms_mm"], _U_MM))
-    row["rot_uncert_deg"] = float(combined_uncertainty(s["rot_rms_deg"], _U_DEG))
+    row = {"condition": name, **{k: s[k] for k in ACCURACY_KEYS}}
+    row["trans_uncert_mm"] = float(combined_uncertainty(s["trans_rms_mm"], STAGE_UNCERTAINTY_MM))
+    row["rot_uncert_deg"] = float(combined_uncertainty(s["rot_rms_deg"], STAGE_UNCERTAINTY_DEG))
     row["n"] = int(s["n"])
     row["n_invalid"] = int(test.n_invalid)
     if paper is not None:

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["parameters_against_truth", "truth_comparison_rows"]
+from ..evaluate import ACCURACY_KEYS
 
-_ROW_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
+__all__ = ["parameters_against_truth", "truth_comparison_rows"]
 
 #: Characterization condition -> row name in the comparison.
 _CONDITIONS = (("calibration", "calibrated"),
@@ -47,12 +47,12 @@ def truth_comparison_rows(test_data, truth, start, concentric, characterization)
     for label, cal in (("truth (dipole equivalent of the finite coils)", truth),
                        ("start (perturbed)", start)):
         row = table2_row(solve_held_out(test_data, cal, concentric_model=concentric.model))
-        rows[label] = {k: row[k] for k in (*_ROW_KEYS, "n_invalid", "trans_uncert_mm")}
+        rows[label] = {k: row[k] for k in (*ACCURACY_KEYS, "n_invalid", "trans_uncert_mm")}
     accuracy = characterization.accuracy
     for cond, label in _CONDITIONS:
         if cond in accuracy:
             r = accuracy[cond]
-            rows[label] = {k: r[k] for k in (*_ROW_KEYS, "n_invalid", "trans_uncert_mm")}
+            rows[label] = {k: r[k] for k in (*ACCURACY_KEYS, "n_invalid", "trans_uncert_mm")}
     return rows
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import DictResult
-from ..evaluate import STAGE_UNCERTAINTY_M
+from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_MM
 from ._run import PaperRun, as_run, load_paper_run
 
 __all__ = [
@@ -145,8 +145,6 @@ def identify_table2_column(run: PaperRun, test) -> Table2Column:
     return Table2Column(name, TABLE2_PAPER_COLUMNS[name], same, spread_mm, f"{name}: {basis}")
 
 
-_ROW_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
-
 
 def table2_tests(run: PaperRun):
     """Solve and score the Table II rows of a paper run.
@@ -184,8 +182,8 @@ def table2_row(t) -> dict:
     """A Table II row of a :class:`~openemt.calibrate.HeldOutTest`: RMS and max errors (mm,
     deg), ``trans_uncert_mm`` combined with the stage uncertainty and ``n_invalid``."""
     s = t.summary
-    row = {k: s[k] for k in _ROW_KEYS}
-    row["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"], STAGE_UNCERTAINTY_M * 1e3))
+    row = {k: s[k] for k in ACCURACY_KEYS}
+    row["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"], STAGE_UNCERTAINTY_MM))
     row["n_invalid"] = t.n_invalid
     return row
 

@@ -33,6 +33,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import DictResult
+from ..evaluate import ACCURACY_KEYS as _KEYS
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
 from ._run import as_run
 
@@ -49,7 +50,6 @@ __all__ = [
 TABLE3_ROWS = {"translation_only": "trans_only", "sensor_fixture": "XYZ",
                "both_fixtures": "XYZ_all"}
 TABLE3_COLUMNS = ("translation_only", "sensor_fixtures", "source_and_sensor_fixtures")
-_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def _cells(*rows):

@@ -4,7 +4,6 @@ imports this package; its functions lay out results computed elsewhere."""
 from ._figures import error_histogram_figure, error_vector_figure, sweep_figure
 from ._html import Report, figure_png
 from ._sections import (
-    ACCURACY_KEYS,
     accuracy_section,
     by_fixture_table,
     characterization_document,
@@ -17,7 +16,6 @@ from ._sections import (
 )
 
 __all__ = [
-    "ACCURACY_KEYS",
     "Report",
     "accuracy_section",
     "by_fixture_table",

@@ -10,13 +10,10 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
-
-from ..evaluate import STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD
+from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_DEG, STAGE_UNCERTAINTY_MM
 from ._html import Report
 
 __all__ = [
-    "ACCURACY_KEYS",
     "accuracy_section",
     "by_fixture_table",
     "characterization_document",
@@ -28,10 +25,6 @@ __all__ = [
     "uncertainty_paragraph",
 ]
 
-#: Error statistics shown in every accuracy table (mm and degrees).
-ACCURACY_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
-_U_MM = STAGE_UNCERTAINTY_M * 1e3
-_U_DEG = float(np.rad2deg(STAGE_UNCERTAINTY_RAD))
 
 
 def accuracy_section(rep: Report, rows, *, with_paper: bool) -> None:
@@ -45,8 +38,9 @@ def accuracy_section(rep: Report, rows, *, with_paper: bool) -> None:
             table.append({"condition": "  paper", **r["paper"]})
     rep.table(table, cols, digits=5,
               caption="Translation (mm) and rotation (deg) error magnitudes, RMS and max")
-    rep.paragraph(f"trans_uncert_mm = sqrt(RMS^2 + {_U_MM:.3f}^2) and rot_uncert_deg = "
-                  f"sqrt(RMS^2 + {_U_DEG:.2f}^2) combine the calibration error u(cal) with the "
+    u_mm, u_deg = STAGE_UNCERTAINTY_MM, STAGE_UNCERTAINTY_DEG
+    rep.paragraph(f"trans_uncert_mm = sqrt(RMS^2 + {u_mm:.3f}^2) and rot_uncert_deg = "
+                  f"sqrt(RMS^2 + {u_deg:.2f}^2) combine the calibration error u(cal) with the "
                   "stage uncertainty (MacLachlan et al. 2025, eq. 10). Invalid solutions "
                   "(residue >= 1e-5) are kept in the statistics and counted in n_invalid.",
                   note=True)
@@ -54,11 +48,12 @@ def accuracy_section(rep: Report, rows, *, with_paper: bool) -> None:
 
 def uncertainty_paragraph(rep: Report, row: dict) -> None:
     """The combined standard uncertainty of one accuracy row, spelled out."""
+    u_mm, u_deg = STAGE_UNCERTAINTY_MM, STAGE_UNCERTAINTY_DEG
     rep.paragraph(
         f"Combined standard uncertainty of a measurement (MacLachlan et al. 2025, eq. 10) for "
-        f"{row['condition']}: u(P) = sqrt({row['trans_rms_mm']:.3f}^2 + {_U_MM:.3f}^2) = "
+        f"{row['condition']}: u(P) = sqrt({row['trans_rms_mm']:.3f}^2 + {u_mm:.3f}^2) = "
         f"{row['trans_uncert_mm']:.3f} mm in translation and sqrt({row['rot_rms_deg']:.3f}^2 + "
-        f"{_U_DEG:.2f}^2) = {row['rot_uncert_deg']:.3f} deg in rotation.")
+        f"{u_deg:.2f}^2) = {row['rot_uncert_deg']:.3f} deg in rotation.")
 
 
 def by_fixture_table(rep: Report, by_group: dict, caption: str) -> None:
