@@ -38,3 +38,21 @@ def test_unknown_name_raises_attribute_error():
 
 def test_all_lists_exactly_the_lazy_names():
     assert set(openemt.__all__) == {"__version__", *openemt.SUBPACKAGES, *openemt._ATTRIBUTES}
+
+
+def test_calibration_and_dataset_where_users_look():
+    from openemt import calibrate, io
+
+    assert openemt.Calibration is calibrate.Calibration is io.Calibration
+    assert openemt.Dataset is calibrate.Dataset is io.Dataset
+    assert openemt.fit_calibration is calibrate.fit
+    assert not hasattr(calibrate, "calibrate")  # one calibration entry point
+
+
+@pytest.mark.parametrize("package", [p for p in openemt.SUBPACKAGES if p != "datasets"])
+def test_no_library_function_is_named_like_a_test(package):
+    import importlib
+
+    module = importlib.import_module(f"openemt.{package}")
+    names = [n for n in getattr(module, "__all__", dir(module)) if n.startswith("test")]
+    assert names == []

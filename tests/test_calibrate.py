@@ -12,7 +12,6 @@ from openemt.calibrate import (
     IdentifiabilityWarning,
     ParameterLayout,
     build_problem,
-    calibrate,
     fit,
     get_mode,
     residue_stats,
@@ -246,7 +245,7 @@ def test_concentric_mode_zeroes_positions(truth):
     ds = synthetic_dataset(rng, truth, n_per=20)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        cal = calibrate(ds, truth, "concentric")
+        cal = fit(ds, truth, "concentric").calibration
     assert cal.model.is_concentric
     assert cal.stats["rms_residue"] > 0
 
@@ -256,8 +255,8 @@ def test_mode_row_selection_and_errors(truth):
     ds = synthetic_dataset(rng, truth, n_per=6, source_fixtures=SOURCE_FIXTURES)
     full = residue_stats(ds, truth, "XYZ_all")
     home = residue_stats(ds, truth, "XYZ")
-    assert full["num_points"] == 4 * 3 * 6 and home["num_points"] == 3 * 6
-    assert full["rms_residue"] < 1e-12
+    assert full.num_points == 4 * 3 * 6 and home.num_points == 3 * 6
+    assert full.rms_residue < 1e-12
     with pytest.raises(ValueError, match="expected rows for mode 'trans_only'"):
         fit(ds, truth, "trans_only")
     with pytest.raises(TypeError, match="Dataset"):

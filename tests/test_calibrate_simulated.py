@@ -9,26 +9,26 @@ from openemt.calibrate import dipole_cost, parameter_recovery
 
 def test_exact_model_recovers_truth_within_standard_errors():
     r = parameter_recovery("concentric", mode="XYZ_all", snr_db=60.0, seed=0)
-    assert r["rank"] == r["n_free"] == 41
-    z = np.asarray(r["z"])
+    assert r.rank == r.n_free == 41
+    z = np.asarray(r.z)
     # 41 parameters: nearly all within 3 standard errors, none wildly off, and the standard
     # errors are of the right size (z has unit spread)
-    assert r["fraction_within_3"] >= 0.9
-    assert r["max_abs_z"] < 4.0
+    assert r.fraction_within_3 >= 0.9
+    assert r.max_abs_z < 4.0
     assert 0.6 < np.sqrt(np.mean(z ** 2)) < 1.6
 
 
 def test_dipole_approximation_cost_and_octupole_gain():
     d = dipole_cost("concentric", seed=0)
-    lo, hi = d["r_over_d"]
+    lo, hi = d.r_over_d
     assert 4.0 < lo < hi < 7.5
-    dip, octu = d["dipole_calibrated"], d["octupole_calibrated"]
+    dip, octu = d.dipole_calibrated, d.octupole_calibrated
     # the finite windings cost the dipole model tenths of a millimetre at these distances
     assert dip["trans_rms_mm"] > 0.2
     # the octupole terms give most of it back on held-out poses
     assert octu["trans_rms_mm"] < 0.4 * dip["trans_rms_mm"]
     assert octu["rot_rms_deg"] < 0.4 * dip["rot_rms_deg"]
-    assert d["rms_residue"]["octupole"] < d["rms_residue"]["dipole"]
+    assert d.rms_residue["octupole"] < d.rms_residue["dipole"]
 
 
 def test_improved_option_on_a_rotated_source_rig():
@@ -38,10 +38,10 @@ def test_improved_option_on_a_rotated_source_rig():
 
     from openemt.calibrate import (
         fit,
+        held_out_rows,
         improved_calibration,
         perturb_calibration,
-        test_poses,
-        test_rows,
+        solve_held_out,
     )
     from openemt.simulate import simulate, truth_calibration
 
@@ -51,10 +51,10 @@ def test_improved_option_on_a_rotated_source_rig():
         warnings.simplefilter("ignore")
         xyz = fit(ds, start, "XYZ").calibration
         conc = fit(ds, xyz, "concentric").calibration
-    test = ds.select(test_rows(ds))
-    paper = test_poses(test, xyz, concentric_model=conc.model)["summary"]
+    test = ds.select(held_out_rows(ds))
+    paper = solve_held_out(test, xyz, concentric_model=conc.model).summary
     imp = improved_calibration(ds, xyz, conc.model)
-    got = imp.test(test)["improved"]
+    got = imp.test(test).improved
     assert got["n_invalid"] == 0
     assert got["trans_rms_mm"] <= 1.05 * paper["trans_rms_mm"]
     assert got["rot_rms_deg"] <= 1.05 * paper["rot_rms_deg"]

@@ -76,7 +76,7 @@ def test_characterize_overall_and_groups():
     assert o["u_P_rot_deg"] > o["u_cal_rot_deg"]
     assert c.error_vectors.shape == (400, 6) and np.isnan(c.error_vectors[5]).all()
     np.testing.assert_allclose(c.positions, D[:, :3, 3])
-    assert set(c.as_dict()) == {"overall", "by_group"}
+    assert set(c.to_dict()) == {"overall", "by_group"}
     with pytest.raises(ValueError):
         characterize(M, D, groups=groups[:5])
     with pytest.raises(ValueError):

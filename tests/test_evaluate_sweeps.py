@@ -90,7 +90,7 @@ def test_sweep_linearity_recovers_known_slopes():
     assert set(t["cross"]) == {"xyz_abs_rms_deg", "xyz_abs_max_deg", "xyz_nonlin_rms_deg_per_mm",
                                "xyz_nonlin_max_deg_per_mm", "rot_abs_rms_mm", "rot_abs_max_mm",
                                "rot_nonlin_rms_mm_per_deg", "rot_nonlin_max_mm_per_deg"}
-    assert an.as_dict()["curves"][0]["n"] == 201
+    assert an.to_dict()["curves"][0]["n"] == 201
 
 
 def test_sweep_noise_is_smoothed_and_labels_split_curves():

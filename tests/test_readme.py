@@ -29,3 +29,11 @@ def test_readme_python_block_runs(index, tmp_path, monkeypatch, capsys):
         assert s["rot_rms_deg"] == pytest.approx(0.27262, abs=5e-4)
         assert "1896 poses: 0.416 mm, 0.273 deg RMS" in capsys.readouterr().out
         assert (tmp_path / "errors.png").stat().st_size > 1000
+
+
+def test_readme_links_every_docs_page():
+    text = README.read_text()
+    pages = sorted(p.name for p in (README.parent / "docs").glob("*.md"))
+    assert pages
+    missing = [p for p in pages if f"(docs/{p})" not in text]
+    assert not missing, f"docs pages not linked from README.md: {missing}"

@@ -51,16 +51,19 @@ _ATTRIBUTES = {
     "Status": ("solve", "Status"),
     # calibration, correction, evaluation
     "fit_calibration": ("calibrate", "fit"),
+    "CalibrationFit": ("calibrate", "CalibrationFit"),
     "fit_correction": ("correct", "fit_correction"),
     "pose_errors": ("evaluate", "pose_errors"),
     "error_summary": ("evaluate", "error_summary"),
+    "ErrorSummary": ("evaluate", "ErrorSummary"),
 }
 
 __all__ = [  # noqa: RUF022 - version, then the subpackages in pipeline order, then the names
     "__version__",
     "geometry", "field", "simulate", "io", "signal", "solve", "calibrate", "correct", "evaluate",
     "paper", "report", "live", "bench", "datasets",
-    "Calibration", "Dataset", "DipoleModel", "SolveResult", "Status", "error_summary",
+    "Calibration", "CalibrationFit", "Dataset", "DipoleModel", "ErrorSummary", "SolveResult",
+    "Status", "error_summary",
     "fit_calibration", "fit_correction", "import_ilemt_folder", "pose_errors",
     "pose_from_vector", "read_calibration", "read_dataset", "read_ilemt_calibration",
     "solve_kim18", "solve_kuipers", "solve_lm", "solve_svd", "vector_from_pose",

@@ -1,13 +1,23 @@
-"""Calibration of coupling models and rig fixtures: layout, objective, staged fits, uncertainty."""
+"""Calibration of coupling models and rig fixtures: layout, objective, staged fits, uncertainty.
 
-from ._check import test_poses, test_rows
-from ._fit import CalibrationFit, calibrate, fit, residue_stats
+The entry point is :func:`fit` (also ``openemt.fit_calibration``): it fits a
+:class:`~openemt.io.Calibration` (dipole model and the rig's fixture transforms) to a
+:class:`~openemt.io.Dataset`, starting from another calibration, and returns a
+:class:`CalibrationFit` whose ``calibration`` is the result. :func:`run_sequence` runs the
+paper's staged sequence of such fits; :func:`improved_calibration` the improved rig model.
+"""
+
+from ..io import Calibration, Dataset
+from ._check import HeldOutTest, held_out_rows, solve_held_out
+from ._fit import CalibrationFit, ResidueStats, fit, residue_stats
 from ._heldout import (
-                       CANDIDATES,
-                       IMPROVED_OPTIONS,
-                       ImprovedCalibration,
-                       cross_validate,
-                       improved_calibration,
+    CANDIDATES,
+    IMPROVED_OPTIONS,
+    CrossValidation,
+    ImprovedCalibration,
+    ImprovedTest,
+    cross_validate,
+    improved_calibration,
 )
 from ._identifiability import Identifiability, IdentifiabilityWarning, analyse_identifiability
 from ._improved import STAGE_LINEAR_BASIS, ImprovedProblem, RigModel, RigOptions, fit_improved
@@ -15,65 +25,78 @@ from ._layout import FIELD_NAMES, ParameterLayout
 from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, get_mode, select_rows
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
 from ._planar import (
-                       GridData,
-                       PlanarCalibration,
-                       calibrate_planar,
-                       planar_coupling,
-                       read_grid_csv,
-                       write_grid_csv,
+    GridData,
+    PlanarCalibration,
+    calibrate_planar,
+    planar_coupling,
+    read_grid_csv,
+    write_grid_csv,
 )
 from ._sequence import (
-                       PAPER_SEQUENCE,
-                       OutputCorrection,
-                       SequenceStep,
-                       fit_output_correction,
-                       run_sequence,
+    PAPER_SEQUENCE,
+    OutputCorrection,
+    SequenceStep,
+    fit_output_correction,
+    run_sequence,
 )
-from ._simstudy import dipole_cost, parameter_recovery, perturb_calibration
+from ._simstudy import (
+    DipoleCost,
+    ParameterRecovery,
+    dipole_cost,
+    parameter_recovery,
+    perturb_calibration,
+)
 
 __all__ = [
-                       "CANDIDATES",
-                       "DEFAULT_FREEZE",
-                       "DEFAULT_OPTIMIZE",
-                       "FIELD_NAMES",
-                       "IMPROVED_OPTIONS",
-                       "MODES",
-                       "PAPER_SEQUENCE",
-                       "STAGE_LINEAR_BASIS",
-                       "CalibrationFit",
-                       "CalibrationMode",
-                       "CalibrationProblem",
-                       "GridData",
-                       "Identifiability",
-                       "IdentifiabilityWarning",
-                       "ImprovedCalibration",
-                       "ImprovedProblem",
-                       "OutputCorrection",
-                       "ParameterLayout",
-                       "PlanarCalibration",
-                       "RigModel",
-                       "RigOptions",
-                       "SequenceStep",
-                       "analyse_identifiability",
-                       "build_problem",
-                       "calibrate",
-                       "calibrate_planar",
-                       "cross_validate",
-                       "dipole_cost",
-                       "fit",
-                       "fit_improved",
-                       "fit_output_correction",
-                       "fixture_twist_map",
-                       "get_mode",
-                       "improved_calibration",
-                       "parameter_recovery",
-                       "perturb_calibration",
-                       "planar_coupling",
-                       "read_grid_csv",
-                       "residue_stats",
-                       "run_sequence",
-                       "select_rows",
-                       "test_poses",
-                       "test_rows",
-                       "write_grid_csv",
+    "CANDIDATES",
+    "DEFAULT_FREEZE",
+    "DEFAULT_OPTIMIZE",
+    "FIELD_NAMES",
+    "IMPROVED_OPTIONS",
+    "MODES",
+    "PAPER_SEQUENCE",
+    "STAGE_LINEAR_BASIS",
+    "Calibration",
+    "CalibrationFit",
+    "CalibrationMode",
+    "CalibrationProblem",
+    "CrossValidation",
+    "Dataset",
+    "DipoleCost",
+    "GridData",
+    "HeldOutTest",
+    "Identifiability",
+    "IdentifiabilityWarning",
+    "ImprovedCalibration",
+    "ImprovedProblem",
+    "ImprovedTest",
+    "OutputCorrection",
+    "ParameterLayout",
+    "ParameterRecovery",
+    "PlanarCalibration",
+    "ResidueStats",
+    "RigModel",
+    "RigOptions",
+    "SequenceStep",
+    "analyse_identifiability",
+    "build_problem",
+    "calibrate_planar",
+    "cross_validate",
+    "dipole_cost",
+    "fit",
+    "fit_improved",
+    "fit_output_correction",
+    "fixture_twist_map",
+    "get_mode",
+    "held_out_rows",
+    "improved_calibration",
+    "parameter_recovery",
+    "perturb_calibration",
+    "planar_coupling",
+    "read_grid_csv",
+    "residue_stats",
+    "run_sequence",
+    "select_rows",
+    "solve_held_out",
+    "write_grid_csv",
 ]

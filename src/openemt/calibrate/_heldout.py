@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..evaluate import STAGE_UNCERTAINTY_M, error_summary, pose_error_magnitudes
+from .._result import Result
+from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_MM, error_summary, pose_error_magnitudes
 from ..field import OctupoleModel
 from ..geometry import SOURCE_FIXTURES, pose_from_vector
 from ..solve import refine_poses
@@ -23,9 +24,13 @@ from ._modes import MODES
 __all__ = [
     "CANDIDATES",
     "IMPROVED_OPTIONS",
+    "CrossValidation",
     "ImprovedCalibration",
+    "ImprovedTest",
+    "ScoredPoses",
     "cross_validate",
     "improved_calibration",
+    "solve_and_score",
     "transfer",
 ]
 
@@ -70,8 +75,71 @@ def transfer(prob: ImprovedProblem, x, rows) -> tuple[ImprovedProblem, np.ndarra
     return tp, xt
 
 
+@dataclass(frozen=True, eq=False)
+class ScoredPoses(Result):
+    """Rows solved with an improved model and scored against its ground truth.
+
+    Attributes
+    ----------
+    trans, rot : ndarray, shape (N,)
+        Error magnitudes (m, rad).
+    summary : dict
+        :func:`openemt.evaluate.error_summary` (mm, deg).
+    positions : ndarray, shape (N, 3)
+        Solved (and corrected, if a correction was given) positions (m).
+    truth : ndarray, shape (N, 4, 4)
+        Ground-truth poses of the model.
+    residual : ndarray, shape (N,)
+        Solution residuals.
+
+    ``to_dict()`` gives ``summary``.
+    """
+
+    _not_in_dict = ("trans", "rot", "positions", "truth", "residual")
+
+    trans: np.ndarray
+    rot: np.ndarray
+    summary: dict
+    positions: np.ndarray
+    truth: np.ndarray
+    residual: np.ndarray
+
+
+@dataclass(frozen=True)
+class CrossValidation(Result):
+    """Pooled held-out errors of a position-grouped cross-validation.
+
+    Attributes
+    ----------
+    trans_rms_mm, rot_rms_deg : float
+        RMS of the finite held-out errors.
+    n : int
+        Held-out rows.
+    """
+
+    trans_rms_mm: float
+    rot_rms_deg: float
+    n: int
+
+
+@dataclass(frozen=True)
+class ImprovedTest(Result):
+    """Table II rows of an improved calibration on test rows.
+
+    Attributes
+    ----------
+    improved, improved_corrected : dict or None
+        ``trans_rms_mm``, ``trans_max_mm``, ``rot_rms_deg``, ``rot_max_deg``,
+        ``trans_uncert_mm`` (combined with the stage uncertainty) and ``n_invalid``;
+        ``improved_corrected`` is None without an output correction.
+    """
+
+    improved: dict
+    improved_corrected: dict | None
+
+
 def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial="kim18",
-                    correction=None) -> dict:
+                    correction=None) -> ScoredPoses:
     """Solve ``rows`` with the improved model and score against its ground truth.
 
     The iterative dipole solution (Kim18 start from ``concentric_model``, hemisphere from the
@@ -95,8 +163,8 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
         M[:, :3, 3] = apply_linear_correction(correction, M[:, :3, 3])
     F_se = tp.layout.fixtures(xt)[2]
     trans, rot = pose_error_magnitudes(M, D, sensor_fixture=F_se)
-    return {"trans": trans, "rot": rot, "summary": error_summary(trans, rot),
-            "positions": M[:, :3, 3], "truth": D, "residual": resid}
+    return ScoredPoses(trans=trans, rot=rot, summary=error_summary(trans, rot),
+                       positions=M[:, :3, 3], truth=D, residual=resid)
 
 
 def _fit(rows, start, options):
@@ -110,11 +178,11 @@ def _fit(rows, start, options):
 
 
 def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: int = 3,
-                   seed: int = 0) -> dict:
+                   seed: int = 0) -> CrossValidation:
     """Position-grouped K-fold cross-validation on calibration rows.
 
-    Rows sharing a stage position (x, y, z) are held out together. Returns the pooled held-out
-    ``trans_rms_mm`` and ``rot_rms_deg``.
+    Rows sharing a stage position (x, y, z) are held out together; the errors of every fold
+    are pooled.
     """
     stage = md.stage if md.stage_logged is None else md.stage_logged
     key = np.round(stage[:, :3] * 1e4).astype(np.int64)
@@ -129,13 +197,13 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
         prob, x, _, _ = _fit(train, start, options)
         tp, xt = transfer(prob, x, test)
         s = solve_and_score(tp, xt, test, concentric_model)
-        trans.append(s["trans"])
-        rot.append(s["rot"])
+        trans.append(s.trans)
+        rot.append(s.rot)
     t, r = np.concatenate(trans), np.concatenate(rot)
     ok = np.isfinite(t) & np.isfinite(r)
-    return {"trans_rms_mm": float(np.sqrt(np.mean(t[ok] ** 2)) * 1e3),
-            "rot_rms_deg": float(np.rad2deg(np.sqrt(np.mean(r[ok] ** 2)))),
-            "n": int(t.size)}
+    return CrossValidation(trans_rms_mm=float(np.sqrt(np.mean(t[ok] ** 2)) * 1e3),
+                           rot_rms_deg=float(np.rad2deg(np.sqrt(np.mean(r[ok] ** 2)))),
+                           n=int(t.size))
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,7 +221,7 @@ class ImprovedCalibration:
         Fitted parameters (layout vector followed by the extra blocks).
     n_free : int
     rms_residue : float
-    selection : dict
+    selection : dict of str -> CrossValidation
         Cross-validation result of every candidate (md rows only).
     correction : ndarray (4, 4) or None
         DLT output correction fitted on the calibration rows (docs/paper-procedure.md#output-correction).
@@ -183,7 +251,7 @@ class ImprovedCalibration:
         paper = self.problem.layout.free_indices(MODES["XYZ"].optimize, MODES["XYZ"].freeze)
         return int(self.n_free - paper.size)
 
-    def test(self, rows, concentric_model=None) -> dict:
+    def test(self, rows, concentric_model=None) -> ImprovedTest:
         """Rows ``improved`` and ``improved_corrected`` on test rows (errors as Table II)."""
         cm = self.concentric_model if concentric_model is None else concentric_model
         tp, xt = transfer(self.problem, self.x, rows)
@@ -193,14 +261,13 @@ class ImprovedCalibration:
                 out[name] = None
                 continue
             res = solve_and_score(tp, xt, rows, cm, correction=corr)
-            s = res["summary"]
-            out[name] = {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg",
-                                           "rot_max_deg")}
+            s = res.summary
+            out[name] = {k: s[k] for k in ACCURACY_KEYS}
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
-                                                          STAGE_UNCERTAINTY_M * 1e3))
-            resid = np.asarray(res["residual"])
+                                                          STAGE_UNCERTAINTY_MM))
+            resid = np.asarray(res.residual)
             out[name]["n_invalid"] = int(np.sum(~(np.isfinite(resid) & (resid < 1e-5))))
-        return out
+        return ImprovedTest(**out)
 
     def to_calibration(self, start=None):
         """The dipole part, fixtures and correction as a :class:`~openemt.io.Calibration`.
@@ -227,16 +294,19 @@ class ImprovedCalibration:
                        k: v for k, v in self.correction_stats.items()}},
             provenance=prov,
             extra={"rig": self.problem.rig(self.x).to_dict(),
-                   "rig_options": self.summary()["options"]})
+                   "rig_options": self.to_dict()["options"]})
 
-    def summary(self) -> dict:
+    def to_dict(self) -> dict:
+        """JSON-ready summary: variant, options, parameter counts, residue, the rig's
+        parameters, identifiability, cross-validation, output correction, seconds."""
         rig = self.problem.rig(self.x).to_dict()
         return {"variant": self.name, "options": self.options.__dict__ | {
                     "stage_linear": list(self.options.stage_linear)},
                 "n_free": self.n_free, "extra_parameters": self.extra_parameters(),
                 "rms_residue": self.rms_residue, "rig": rig,
                 "identifiability": self.identifiability,
-                "selection_cv_md": self.selection, "correction": self.correction_stats,
+                "selection_cv_md": {k: v.to_dict() for k, v in self.selection.items()},
+                "correction": self.correction_stats,
                 "seconds": self.seconds}
 
 
@@ -277,10 +347,10 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)
     s = solve_and_score(prob, x, md, concentric_model, initial=vector_from_pose(D))
-    ok = np.isfinite(s["residual"]) & (s["residual"] < 1e-5)
+    ok = np.isfinite(s.residual) & (s.residual < 1e-5)
     corr, cstats = None, {"n_invalid": int((~ok).sum())}
     if ok.sum() >= 0.75 * len(ok):
-        d = fit_dlt(s["positions"][ok], D[ok, :3, 3])
+        d = fit_dlt(s.positions[ok], D[ok, :3, 3])
         corr = np.asarray(d.matrix)
         cstats.update(method=str(d.method), uncorrected_mm=float(d.rms_uncorrected) * 1e3,
                       corrected_mm=float(d.rms_corrected) * 1e3)
@@ -289,6 +359,6 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
         rms_residue=float(np.sqrt(r @ r / prob.base.n_rows)), selection=selection,
         correction=corr, correction_stats=cstats, concentric_model=concentric_model,
         identifiability={"rank": ident.rank, "n_free": ident.n_free,
-                         "condition": ident.summary()["condition"],
+                         "condition": ident.to_dict()["condition"],
                          "rig_standard_errors": prob.rig(se).to_dict()},
         seconds={"cross_validation": t_sel, "fit_and_correction": time.perf_counter() - t0})

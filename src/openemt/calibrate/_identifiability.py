@@ -64,8 +64,8 @@ class Identifiability:
     undetermined: tuple[str, ...]
     sigma2: float
 
-    def summary(self) -> dict:
-        """JSON-friendly summary (no arrays)."""
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no arrays)."""
         return {"n_free": self.n_free, "rank": self.rank,
                 "condition": float(self.condition) if np.isfinite(self.condition) else None,
                 "undetermined_groups": list(self.undetermined), "sigma2": self.sigma2}

@@ -29,6 +29,7 @@ from ..geometry import (
     source_fixture_rotation,
     stage_transform,
 )
+from ..solve import spectral_norms
 from ._layout import ParameterLayout
 
 __all__ = ["CalibrationProblem", "build_problem", "fixture_twist_map", "pose_twist_gradient"]
@@ -161,10 +162,6 @@ def pose_twist_gradient(d_translation, d_rotation, P) -> np.ndarray:
         [G_t, d_rotation - np.einsum("kija,kab->kijb", G_t, skew(P[:, :3, 3]))], axis=-1)
 
 
-def _spectral_norms(C: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(C, ord=2, axis=(1, 2))
-
-
 def build_problem(dataset, layout: ParameterLayout, gain: float) -> CalibrationProblem:
     """Assemble a :class:`CalibrationProblem` from every row of ``dataset``.
 
@@ -177,7 +174,7 @@ def build_problem(dataset, layout: ParameterLayout, gain: float) -> CalibrationP
     n = C.shape[0]
     if n == 0:
         raise InputError("expected at least one calibration row, got 0")
-    norms = _spectral_norms(C)
+    norms = spectral_norms(C)
     if not np.all(np.isfinite(norms)) or np.any(norms <= 0):
         raise InputError("expected finite, non-zero coupling matrices, got zero or NaN rows")
     so_J = np.zeros((n, 4, 4))

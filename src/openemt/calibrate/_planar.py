@@ -194,7 +194,8 @@ class PlanarCalibration:
         return planar_coupling(self.coils, self.gains, self.offsets, points, axes, gain=gain,
                                sensor_length=sensor_length)
 
-    def summary(self) -> dict:
+    def to_dict(self) -> dict:
+        """JSON-ready summary: gains, offsets (mm) with standard errors, residue, iterations."""
         return {"gains": self.gains.tolist(), "gains_se": self.gains_se.tolist(),
                 "offsets_mm": (self.offsets * 1e3).tolist(),
                 "offsets_se_mm": (self.offsets_se * 1e3).tolist(),

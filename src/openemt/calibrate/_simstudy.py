@@ -12,19 +12,86 @@ Two studies on data from :func:`openemt.simulate.simulate`:
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..evaluate import error_summary, pose_error_magnitudes
+from .._result import Result
+from ..evaluate import ACCURACY_KEYS, error_summary, pose_error_magnitudes
 from ..geometry import SOURCE_FIXTURES
 from ..io import Calibration
 from ._fit import fit
 from ._improved import RigOptions, fit_improved
 from ._layout import ParameterLayout
-from ._modes import MODES
+from ._modes import MODES, get_mode
 
-__all__ = ["dipole_cost", "parameter_recovery", "perturb_calibration"]
+__all__ = ["DipoleCost", "ParameterRecovery", "dipole_cost", "parameter_recovery",
+           "perturb_calibration"]
+
+
+@dataclass(frozen=True, eq=False)
+class ParameterRecovery(Result):
+    """Fitted parameters against the simulated truth, in standard errors.
+
+    Attributes
+    ----------
+    z : ndarray, shape (n_free,)
+        ``(estimate - truth) / standard error`` per free parameter.
+    labels : list of str
+        Parameter names, in the order of ``z``.
+    max_abs_z : float
+    fraction_within_3 : float
+        Fraction of ``|z| < 3``.
+    rms_residue : float
+    n_rows : int
+    rank, n_free : int
+        Jacobian rank and free parameters.
+    """
+
+    z: np.ndarray
+    labels: list
+    max_abs_z: float
+    fraction_within_3: float
+    rms_residue: float
+    n_rows: int
+    rank: int
+    n_free: int
+
+
+@dataclass(frozen=True)
+class DipoleCost(Result):
+    """Accuracy lost by the dipole model on finite coils, and regained by octupole terms.
+
+    Attributes
+    ----------
+    preset : str
+    coil_size_m : float
+        Largest source coil extent.
+    r_over_d : list of float
+        Smallest and largest source-sensor distance over ``coil_size_m`` in the test rows.
+    dipole_equivalent_no_fit, dipole_calibrated, octupole_calibrated : dict
+        ``trans_rms_mm``, ``trans_max_mm``, ``rot_rms_deg``, ``rot_max_deg`` on the held-out
+        ld rows.
+    rms_residue : dict
+        ``dipole`` and ``octupole`` calibration residues.
+    octupole_k_so, octupole_k_se : list of float
+        Fitted octupole coefficients.
+    n_calibration, n_test : int
+    seconds : float
+    """
+
+    preset: str
+    coil_size_m: float
+    r_over_d: list
+    dipole_equivalent_no_fit: dict
+    dipole_calibrated: dict
+    octupole_calibrated: dict
+    rms_residue: dict
+    octupole_k_so: list
+    octupole_k_se: list
+    n_calibration: int
+    n_test: int
+    seconds: float
 
 
 def _truth(preset) -> Calibration:
@@ -35,28 +102,35 @@ def _truth(preset) -> Calibration:
 
 def perturb_calibration(cal: Calibration, rng, *, mode="XYZ_all", pos=5e-4, rel=0.01,
                         fix_t=1e-3, fix_r=0.01) -> Calibration:
-    """A start for a fit: the free parameters of ``mode`` moved by random amounts."""
+    """A start for a fit: every parameter ``mode`` fits moved by a random normal amount.
+
+    Standard deviations: ``pos`` (m) for coil positions, ``rel`` times the largest moment
+    component of the side for coil moments, ``fix_t`` (m) and ``fix_r`` (rad) for fixture
+    translations and rotations. Parameters the mode holds keep their values; the result's
+    ``mode`` is ``"start"``.
+    """
     lay = ParameterLayout.for_model(cal.model)
-    m = MODES[mode] if isinstance(mode, str) else mode
+    m = get_mode(mode)
     x = lay.pack_calibration(cal)
     free = lay.free_indices(m.optimize, m.freeze)
-    step = np.zeros(lay.size)
+    scale = np.zeros(lay.size)
     for name in ("L_so", "L_se"):
-        step[lay.slices[name]] = rng.normal(0, pos, 3 * getattr(lay, "n_source" if name ==
-                                                                   "L_so" else "n_sensor"))
+        scale[lay.slices[name]] = pos
     for name in ("M_so", "M_se"):
         s = lay.slices[name]
-        step[s] = rel * np.abs(x[s]).max() * rng.normal(size=s.stop - s.start)
+        scale[s] = rel * np.abs(x[s]).max()
     for name in ("F_so", "F_st", "F_se"):
         s = lay.slices[name]
-        step[s] = np.r_[rng.normal(0, fix_t, 3), rng.normal(0, fix_r, 3)]
-    x[free] += step[free]
+        scale[s.start:s.start + 3] = fix_t
+        scale[s.start + 3:s.stop] = fix_r
+    x[free] += rng.normal(size=free.size) * scale[free]
     F = lay.fixtures(x)
     return cal.replace(model=lay.model(x, cal.model.gain), source_fixture=F[0],
                        stage_fixture=F[1], sensor_fixture=F[2], mode="start")
 
 
-def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed=0) -> dict:
+def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed=0
+                       ) -> ParameterRecovery:
     """Fit simulated exact-dipole data and compare with the truth in standard errors.
 
     The preset's coils are replaced by their dipole equivalents (so the model is exact), stage
@@ -64,9 +138,7 @@ def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed
 
     Returns
     -------
-    dict
-        ``z`` (n_free,) = (estimate - truth) / standard error, ``labels``, ``max_abs_z``,
-        ``fraction_within_3``, ``rms_residue``, ``n_rows``.
+    ParameterRecovery
     """
     from ..simulate import get_preset, simulate
 
@@ -80,11 +152,11 @@ def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed
     x_true = lay.pack_calibration(truth)
     se = f.identifiability.standard_errors
     z = (f.x[f.free] - x_true[f.free]) / se
-    return {"z": z, "labels": [lay.label(int(i)) for i in f.free],
-            "max_abs_z": float(np.max(np.abs(z))),
-            "fraction_within_3": float(np.mean(np.abs(z) < 3.0)),
-            "rms_residue": f.calibration.stats["rms_residue"], "n_rows": len(f.problem.C_meas),
-            "rank": f.identifiability.rank, "n_free": int(f.free.size)}
+    return ParameterRecovery(
+        z=z, labels=[lay.label(int(i)) for i in f.free], max_abs_z=float(np.max(np.abs(z))),
+        fraction_within_3=float(np.mean(np.abs(z) < 3.0)),
+        rms_residue=f.calibration.stats["rms_residue"], n_rows=len(f.problem.C_meas),
+        rank=f.identifiability.rank, n_free=int(f.free.size))
 
 
 def _score(cal_like, model, test, refine=None):
@@ -104,10 +176,10 @@ def _score(cal_like, model, test, refine=None):
     trans, rot = pose_error_magnitudes(pose_from_vector(v), P,
                                        sensor_fixture=cal_like.sensor_fixture)
     s = error_summary(trans, rot)
-    return {k: s[k] for k in ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")}
+    return {k: s[k] for k in ACCURACY_KEYS}
 
 
-def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -> dict:
+def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -> DipoleCost:
     """Accuracy cost of the dipole approximation for finite coils, on held-out ld poses.
 
     Calibrates (mode ``XYZ_all`` on md rows of every fixture) the dipole model and the dipole +
@@ -137,20 +209,17 @@ def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -
     oct_cal = f.calibration.replace(sensor_fixture=F[2])
     size = _coil_size(p)
     dist = np.linalg.norm(test.poses[:, :3, 3], axis=1)
-    return {
-        "preset": p.name,
-        "coil_size_m": size,
-        "r_over_d": [float(dist.min() / size), float(dist.max() / size)],
-        "dipole_equivalent_no_fit": _score(truth, p.dipole, test),
-        "dipole_calibrated": _score(f.calibration, f.calibration.model, test),
-        "octupole_calibrated": _score(oct_cal, oct_model.dipole, test, refine=oct_model),
-        "rms_residue": {"dipole": f.calibration.stats["rms_residue"],
-                        "octupole": float(np.sqrt(r @ r / prob.base.n_rows))},
-        "octupole_k_so": np.asarray(x[prob.extra["k_so"]]).tolist(),
-        "octupole_k_se": np.asarray(x[prob.extra["k_se"]]).tolist(),
-        "n_calibration": len(md), "n_test": len(test),
-        "seconds": time.perf_counter() - t0,
-    }
+    return DipoleCost(
+        preset=p.name, coil_size_m=size,
+        r_over_d=[float(dist.min() / size), float(dist.max() / size)],
+        dipole_equivalent_no_fit=_score(truth, p.dipole, test),
+        dipole_calibrated=_score(f.calibration, f.calibration.model, test),
+        octupole_calibrated=_score(oct_cal, oct_model.dipole, test, refine=oct_model),
+        rms_residue={"dipole": f.calibration.stats["rms_residue"],
+                     "octupole": float(np.sqrt(r @ r / prob.base.n_rows))},
+        octupole_k_so=np.asarray(x[prob.extra["k_so"]]).tolist(),
+        octupole_k_se=np.asarray(x[prob.extra["k_se"]]).tolist(),
+        n_calibration=len(md), n_test=len(test), seconds=time.perf_counter() - t0)
 
 
 def _coil_size(p) -> float:

@@ -73,7 +73,7 @@ def _planar(args) -> int:
 
     t0 = time.perf_counter()
     cal = calibrate_planar(read_grid_csv(args.dataset), sensor_length=args.sensor_length)
-    summary = {"mode": "planar", "output": args.output, **cal.summary(),
+    summary = {"mode": "planar", "output": args.output, **cal.to_dict(),
                "seconds": time.perf_counter() - t0}
     if args.output:
         with atomic_path(args.output) as tmp:
@@ -95,7 +95,7 @@ def _improved(args, dataset, start, start_path) -> int:
         with atomic_path(args.output) as tmp:
             write_calibration(cal, tmp)
     summary = {"mode": "improved", "output": args.output, "start": str(start_path),
-               **imp.summary(), "seconds": time.perf_counter() - t0}
+               **imp.to_dict(), "seconds": time.perf_counter() - t0}
     human = [(f"improved: rms_residue {imp.rms_residue:.7g}, {imp.n_free} free parameters "
               f"({imp.extra_parameters()} beyond XYZ)")]
     emit(args, summary, human)
@@ -155,7 +155,7 @@ def run(args) -> int:
         "free_groups": list(cal.free),
         "frozen_groups": list(cal.frozen),
         "jacobian_rank": ident.rank,
-        "condition": ident.summary()["condition"],
+        "condition": ident.to_dict()["condition"],
         "undetermined_groups": list(ident.undetermined),
         "correction": None if corr is None else {
             "method": corr.method, "n_invalid": corr.n_invalid,

@@ -24,7 +24,6 @@ from . import command_help
 from ._common import add_common, emit, progress
 
 PRESETS = ("dipole-approx", "concentric")
-_ROW_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def register(sub) -> None:
@@ -44,32 +43,22 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _perturbed_start(truth, mode, rng):
-    """The truth calibration with every parameter the mode fits moved by a realistic amount:
-    coil positions and fixture translations by 1 mm, gains by 1 %, fixture rotations by 0.5 deg."""
-    from ..calibrate import ParameterLayout
-
-    layout = ParameterLayout.for_model(truth.model)
-    x = layout.pack_calibration(truth)
-    free = layout.free_indices(mode.optimize, mode.freeze)
-    scale = np.zeros(layout.size)
-    for name, s in (("L_so", 1e-3), ("L_se", 1e-3), ("M_so", 1e-2), ("M_se", 1e-2)):
-        scale[layout.slices[name]] = s
-    for name in ("F_so", "F_st", "F_se"):
-        sl = layout.slices[name]
-        scale[sl.start:sl.start + 3] = 1e-3
-        scale[sl.start + 3:sl.stop] = np.deg2rad(0.5)
-    x[free] += rng.normal(size=free.size) * scale[free]
-    F_so, F_st, F_se = layout.fixtures(x)
-    return truth.replace(model=layout.model(x, truth.model.gain), source_fixture=F_so,
-                         stage_fixture=F_st, sensor_fixture=F_se, mode="demo-start")
-
-
 def run(args) -> int:
-    from ..calibrate import fit, fit_output_correction, get_mode, test_poses, test_rows
-    from ..evaluate import STAGE_UNCERTAINTY_M, combined_uncertainty
+    from ..calibrate import (
+        fit,
+        fit_output_correction,
+        get_mode,
+        held_out_rows,
+        perturb_calibration,
+    )
     from ..io import write_calibration, write_dataset
-    from ..paper import characterization_report
+    from ..paper import (
+        characterize_calibration,
+        parameter_rows,
+        parameters_against_truth,
+        truth_comparison_rows,
+    )
+    from ..report import characterization_document, simulation_section
     from ..simulate import get_preset, simulate, truth_calibration
 
     if not np.isfinite(args.snr_db) or args.snr_db <= 0:
@@ -95,7 +84,7 @@ def run(args) -> int:
     test_data = simulate(preset, "ld", source_fixtures=preset.source_fixtures[0],
                          sensor_fixtures="all", snr_db=args.snr_db, stage_sigma=sigma,
                          seed=args.seed + 1000)
-    test_data = test_data.select(test_rows(test_data))
+    test_data = test_data.select(held_out_rows(test_data))
     write_dataset(cal_data, out / "calibration_data.h5")
     write_dataset(test_data, out / "test_data.h5")
     step("simulate", t0)
@@ -104,9 +93,11 @@ def run(args) -> int:
     truth = truth_calibration(preset)
     write_calibration(truth, out / "truth_calibration.json")
     mode = get_mode("XYZ")
-    start = _perturbed_start(truth, mode, np.random.default_rng(args.seed))
-    result = fit(cal_data, start, mode, warn=False)
-    cal = result.calibration
+    # every fitted parameter moved: coil positions 1 mm, moments 1 %, fixtures 1 mm / 0.5 deg
+    start = perturb_calibration(truth, np.random.default_rng(args.seed), mode=mode, pos=1e-3,
+                                rel=1e-2, fix_t=1e-3, fix_r=np.deg2rad(0.5)
+                                ).replace(mode="demo-start")
+    cal = fit(cal_data, start, mode, warn=False).calibration
     concentric = fit(cal_data, cal, "concentric", warn=False).calibration
     write_calibration(concentric, out / "concentric_calibration.json")
     step("calibrate", t0)
@@ -120,56 +111,25 @@ def run(args) -> int:
     step("output correction", t0)
 
     t0 = time.perf_counter()
-    built = characterization_report(
-        test_data, cal, concentric=concentric,
-        title=f"openemt demo — simulated '{preset.name}' tracker")
-    accuracy = built.summary["accuracy"]
-    rows = {}
-    for label, res in (("truth (dipole equivalent of the finite coils)",
-                        test_poses(test_data, truth, concentric_model=concentric.model)),
-                       ("start (perturbed)",
-                        test_poses(test_data, start, concentric_model=concentric.model))):
-        s = res["summary"]
-        rows[label] = {k: s[k] for k in _ROW_KEYS}
-        rows[label]["n_invalid"] = int(res["n_invalid"])
-        rows[label]["trans_uncert_mm"] = float(combined_uncertainty(
-            s["trans_rms_mm"], STAGE_UNCERTAINTY_M * 1e3))
-    for cond, label in (("calibration", "calibrated"),
-                        ("calibration + correction", "calibrated + DLT correction"),
-                        ("concentric + Kim18", "concentric + Kim18")):
-        if cond in accuracy:
-            r = accuracy[cond]
-            rows[label] = {k: r[k] for k in (*_ROW_KEYS, "n_invalid", "trans_uncert_mm")}
+    result = characterize_calibration(test_data, cal, concentric=concentric)
+    rows = truth_comparison_rows(test_data, truth, start, concentric, result)
     step("solve, score and figures", t0)
 
     t0 = time.perf_counter()
-    rep = built.report
-    rep.heading("The simulation: truth, starting point, calibration")
-    rep.paragraph(preset.description)
-    rep.paragraph(
-        f"Calibration data: {cal_data.n_samples} rows (md pattern, {len(cal_data.files)} fixture "
-        f"combinations); test data: {test_data.n_samples} rows (ld pattern, home source fixture, "
-        f"three sensor fixtures). Measurement SNR {args.snr_db:g} dB, stage error "
-        f"{args.stage_error_um:g} um 3-D RMS, seed {args.seed}. Ground truth couplings come from "
-        "finite-size coil models; the calibration fits the dipole model, starting from the truth "
-        "moved by 1 mm / 1 % / 0.5 deg in every fitted parameter.")
-    rep.table([{"calibration": k, **v} for k, v in rows.items()],
-              ["calibration", *_ROW_KEYS, "trans_uncert_mm", "n_invalid"], digits=4,
-              caption="Test errors of every calibration (rig kinematics with its own fixtures)")
-    param_rows = []
-    se = cal.standard_errors
-    for name in ("L_so", "M_so", "L_se", "M_se"):
-        val, err, tv = getattr(cal.model, name), se.get(name), getattr(truth.model, name)
-        for c in range(val.shape[1]):
-            for a in range(3):
-                param_rows.append({
-                    "parameter": f"{name}[{'xyz'[a]}, coil {c}]", "fitted": float(val[a, c]),
-                    "std_error": float(err[a, c]) if err is not None else float("nan"),
-                    "truth (dipole equiv.)": float(tv[a, c])})
-    rep.table(param_rows, digits=6,
-              caption="Fitted coil parameters (m, gain units) against the dipole equivalent of "
-                      "the simulated finite coils")
-    written = built.write(out / "report.html")
+    rep = characterization_document(result, parameter_rows(cal),
+                                    title=f"openemt demo — simulated '{preset.name}' tracker")
+    simulation_section(
+        rep, description=preset.description,
+        setup=(f"Calibration data: {cal_data.n_samples} rows (md pattern, "
+               f"{len(cal_data.files)} fixture combinations); test data: "
+               f"{test_data.n_samples} rows (ld pattern, home source fixture, three sensor "
+               f"fixtures). Measurement SNR {args.snr_db:g} dB, stage error "
+               f"{args.stage_error_um:g} um 3-D RMS, seed {args.seed}. Ground truth couplings "
+               "come from finite-size coil models; the calibration fits the dipole model, "
+               "starting from the truth moved by 1 mm / 1 % / 0.5 deg in every fitted "
+               "parameter."),
+        rows=rows, parameters=parameters_against_truth(cal, truth))
+    rep.write(out / "report.html")
     step("write report", t0)
     bar.close()
     stats = cal.stats
@@ -179,7 +139,7 @@ def run(args) -> int:
         "n_calibration": cal_data.n_samples, "n_test": test_data.n_samples,
         "snr_db": args.snr_db, "stage_error_um": args.stage_error_um, "seed": args.seed,
         "rms_residue": stats.get("rms_residue"), "rows": rows,
-        "n_figures": written["n_figures"],
+        "n_figures": rep.n_figures,
         "seconds": {**seconds, "total": round(time.perf_counter() - t_all, 3)},
     }
     human = [f"openemt demo: simulated '{preset.name}' tracker -> {out}/"]

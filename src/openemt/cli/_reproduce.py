@@ -57,12 +57,12 @@ def _simulated(args) -> int:
     from ..calibrate import dipole_cost, parameter_recovery
 
     if args.table == "dipole-cost":
-        out = dipole_cost(args.preset, seed=args.seed)
+        out = dipole_cost(args.preset, seed=args.seed).to_dict()
         human = [f"{args.preset}: r/d {out['r_over_d'][0]:.1f}-{out['r_over_d'][1]:.1f}"]
         for k in ("dipole_equivalent_no_fit", "dipole_calibrated", "octupole_calibrated"):
             human.append(_fmt(k, out[k]))
     else:
-        out = parameter_recovery(args.preset, seed=args.seed)
+        out = parameter_recovery(args.preset, seed=args.seed).to_dict()
         human = [(f"{args.preset}: {out['n_free']} free parameters, max |z| "
                   f"{out['max_abs_z']:.2f}, {100 * out['fraction_within_3']:.0f}% within 3 "
                   "standard errors")]
@@ -73,7 +73,8 @@ def _simulated(args) -> int:
 def run_table2(args) -> int:
     from ..paper import reproduce_table2
 
-    out = reproduce_table2(args.folder, improved=args.improved, cross_validation=args.cv)
+    out = reproduce_table2(args.folder, improved=args.improved,
+                           cross_validation=args.cv).to_dict()
     human = [(f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
               "rot rms/max")]
     paper = out["paper"] or {}

@@ -45,7 +45,7 @@ def _cell(c) -> str:
 def run_table3(args) -> int:
     from ..paper import TABLE3_COLUMNS, TABLE3_ROWS, reproduce_table3
 
-    out = reproduce_table3(args.folder)
+    out = reproduce_table3(args.folder).to_dict()
     human = [(f"Table III on {args.folder}: per test set trans rms/max (mm), rot rms/max (deg); "
               "paper below")]
     human.append(f"{'calibration':17s}" + "".join(f"{c:>30s}" for c in TABLE3_COLUMNS))
@@ -63,7 +63,7 @@ def run_table3(args) -> int:
 def run_table4(args) -> int:
     from ..paper import reproduce_table4
 
-    out = reproduce_table4(args.folder, correction=not args.uncorrected)
+    out = reproduce_table4(args.folder, correction=not args.uncorrected).to_dict()
     human = [(f"Table IV on {args.folder} ({out['condition']}; {out['n_curves']['xyz']} "
               f"translation and {out['n_curves']['rot']} rotation sweeps): ours (paper)")]
     for row in ("direct", "cross"):

@@ -1,23 +1,46 @@
 """Error statistics, uncertainty, dimensionality tables, sweeps and linearity."""
 
-from ._characterize import Characterization, characterize, fixture_labels, uncertainty_summary
+from ._characterize import (
+    Characterization,
+    UncertaintySummary,
+    characterize,
+    fixture_labels,
+    uncertainty_summary,
+)
 from ._errors import (
+    ACCURACY_KEYS,
+    STAGE_UNCERTAINTY_DEG,
     STAGE_UNCERTAINTY_M,
+    STAGE_UNCERTAINTY_MM,
     STAGE_UNCERTAINTY_RAD,
+    ErrorSummary,
     combined_uncertainty,
     error_summary,
     pose_error_magnitudes,
     pose_error_vectors,
     pose_errors,
 )
-from ._sweeps import SweepAnalysis, SweepCurve, find_sweeps, sweep_linearity, sweep_table
+from ._sweeps import (
+    SweepAnalysis,
+    SweepCurve,
+    SweepTable,
+    find_sweeps,
+    sweep_linearity,
+    sweep_table,
+)
 
 __all__ = [
+    "ACCURACY_KEYS",
+    "STAGE_UNCERTAINTY_DEG",
     "STAGE_UNCERTAINTY_M",
+    "STAGE_UNCERTAINTY_MM",
     "STAGE_UNCERTAINTY_RAD",
     "Characterization",
+    "ErrorSummary",
     "SweepAnalysis",
     "SweepCurve",
+    "SweepTable",
+    "UncertaintySummary",
     "characterize",
     "combined_uncertainty",
     "error_summary",

@@ -15,10 +15,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._errors import InputError
+from .._result import Result
 from ..geometry import check_poses
 from ._errors import (
     STAGE_UNCERTAINTY_M,
     STAGE_UNCERTAINTY_RAD,
+    ErrorSummary,
     combined_uncertainty,
     error_summary,
     pose_error_magnitudes,
@@ -27,33 +29,55 @@ from ._errors import (
 
 __all__ = [
     "Characterization",
+    "UncertaintySummary",
     "characterize",
     "fixture_labels",
     "uncertainty_summary",
 ]
 
 
-def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
-                        stage_uncertainty_rad: float = STAGE_UNCERTAINTY_RAD) -> dict:
-    """``error_summary`` plus u(cal) and the combined u(P) of eq. 10, in mm and degrees.
+@dataclass(frozen=True, eq=False)
+class UncertaintySummary(ErrorSummary):
+    """:class:`~openemt.evaluate.ErrorSummary` plus u(cal) and the combined u(P) of
+    MacLachlan et al. 2025, eq. 10 (also a read-only dict of ``to_dict()``).
 
-    Keys added: ``u_cal_trans_mm``, ``u_P_trans_mm``, ``u_cal_rot_deg``, ``u_P_rot_deg``,
-    ``u_stage_trans_mm``, ``u_stage_rot_deg``.
+    Attributes
+    ----------
+    u_cal_trans_mm, u_cal_rot_deg : float
+        u(cal): the RMS errors.
+    u_P_trans_mm, u_P_rot_deg : float
+        ``sqrt(u(cal)^2 + u(stage)^2)``.
+    u_stage_trans_mm, u_stage_rot_deg : float
+        The reference's standard uncertainty.
+
+    and the fields of :class:`~openemt.evaluate.ErrorSummary`.
     """
+
+    u_cal_trans_mm: float
+    u_P_trans_mm: float
+    u_cal_rot_deg: float
+    u_P_rot_deg: float
+    u_stage_trans_mm: float
+    u_stage_rot_deg: float
+
+
+def uncertainty_summary(trans_err, rot_err, *, stage_uncertainty_m: float = STAGE_UNCERTAINTY_M,
+                        stage_uncertainty_rad: float = STAGE_UNCERTAINTY_RAD
+                        ) -> UncertaintySummary:
+    """``error_summary`` plus u(cal) and the combined u(P) of eq. 10, in mm and degrees."""
     s = error_summary(trans_err, rot_err)
     us_mm = stage_uncertainty_m * 1e3
     us_deg = float(np.rad2deg(stage_uncertainty_rad))
-    s["u_cal_trans_mm"] = s["trans_rms_mm"]
-    s["u_P_trans_mm"] = float(combined_uncertainty(s["trans_rms_mm"], us_mm))
-    s["u_cal_rot_deg"] = s["rot_rms_deg"]
-    s["u_P_rot_deg"] = float(combined_uncertainty(s["rot_rms_deg"], us_deg))
-    s["u_stage_trans_mm"] = us_mm
-    s["u_stage_rot_deg"] = us_deg
-    return s
+    return UncertaintySummary(
+        **s.to_dict(), u_cal_trans_mm=s.trans_rms_mm,
+        u_P_trans_mm=float(combined_uncertainty(s.trans_rms_mm, us_mm)),
+        u_cal_rot_deg=s.rot_rms_deg,
+        u_P_rot_deg=float(combined_uncertainty(s.rot_rms_deg, us_deg)),
+        u_stage_trans_mm=us_mm, u_stage_rot_deg=us_deg)
 
 
 @dataclass(frozen=True, eq=False)
-class Characterization:
+class Characterization(Result):
     """Error statistics of a test set, overall and per group (e.g. fixture combination).
 
     Attributes
@@ -67,17 +91,17 @@ class Characterization:
     error_vectors : ndarray, shape (N, 6)
         Error vectors (m, rad) as :func:`pose_error_vectors`.
     groups : ndarray of str, shape (N,) or None
+
+    ``to_dict()`` gives the statistics (``overall``, ``by_group``), not the per-row arrays.
     """
 
-    overall: dict
+    _not_in_dict = ("positions", "error_vectors", "groups")
+
+    overall: UncertaintySummary
     by_group: dict = field(default_factory=dict)
     positions: np.ndarray | None = None
     error_vectors: np.ndarray | None = None
     groups: np.ndarray | None = None
-
-    def as_dict(self) -> dict:
-        """The statistics (no per-row arrays), JSON-ready."""
-        return {"overall": self.overall, "by_group": self.by_group}
 
 
 def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
@@ -100,6 +124,19 @@ def characterize(P_measured, P_reference, *, groups=None, sensor_fixture=None,
     Returns
     -------
     Characterization
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from openemt.evaluate import characterize
+    >>> from openemt.geometry import pose_from_vector
+    >>> reference = pose_from_vector(np.array([[0.2, 0.0, 0.0, 0.0, 0.0, 0.0],
+    ...                                        [0.2, 0.05, 0.0, 0.0, 0.0, 0.0]]))
+    >>> measured = pose_from_vector(np.array([[0.2, 0.0003, 0.0, 0.0, 0.0, 0.0],
+    ...                                       [0.2, 0.0504, 0.0, 0.0, 0.0, 0.0]]))
+    >>> c = characterize(measured, reference, groups=["a", "b"])
+    >>> round(c.overall.trans_rms_mm, 4), round(c.overall.u_P_trans_mm, 4), list(c.by_group)
+    (0.3536, 0.3694, ['a', 'b'])
     """
     M = check_poses(P_measured, "P_measured")
     D = check_poses(P_reference, "P_reference")

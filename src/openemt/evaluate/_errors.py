@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from .._result import DictResult
 from ..geometry import (
     check_poses,
     error_magnitudes,
@@ -14,8 +17,12 @@ from ..geometry import (
 )
 
 __all__ = [
+    "ACCURACY_KEYS",
+    "STAGE_UNCERTAINTY_DEG",
     "STAGE_UNCERTAINTY_M",
+    "STAGE_UNCERTAINTY_MM",
     "STAGE_UNCERTAINTY_RAD",
+    "ErrorSummary",
     "combined_uncertainty",
     "error_summary",
     "pose_error_magnitudes",
@@ -26,6 +33,13 @@ __all__ = [
 #: Stage standard uncertainty after compensation (MacLachlan et al. 2025, supplement): 107 um and 0.17 deg.
 STAGE_UNCERTAINTY_M = 0.107e-3
 STAGE_UNCERTAINTY_RAD = np.deg2rad(0.17)
+#: The same in the units of reports (mm, deg).
+STAGE_UNCERTAINTY_MM = STAGE_UNCERTAINTY_M * 1e3
+STAGE_UNCERTAINTY_DEG = float(np.rad2deg(STAGE_UNCERTAINTY_RAD))
+
+#: The statistics of an accuracy row: RMS and max error magnitudes, translation in mm and
+#: rotation in degrees (MacLachlan et al. 2025, Tables II and III).
+ACCURACY_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def pose_errors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:
@@ -34,6 +48,19 @@ def pose_errors(P_measured, P_reference, sensor_fixture=None) -> np.ndarray:
     Without ``sensor_fixture`` the error is ``E = inv(P_measured) @ P_reference``. With the sensor
     fixture F_se (pose vector (6,) or pose (4, 4)) it is ILEMT's "stage coordinates" error
     ``E = F_se . inv(P_reference) . P_measured . inv(F_se)`` (docs/paper-procedure.md#test-error).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from openemt.evaluate import pose_error_magnitudes, pose_errors
+    >>> from openemt.geometry import pose_from_vector
+    >>> reference = pose_from_vector(np.array([[0.2, 0.0, 0.0, 0.0, 0.0, 0.0]]))
+    >>> measured = pose_from_vector(np.array([[0.2, 0.001, 0.0, 0.0, 0.0, 0.01]]))
+    >>> pose_errors(measured, reference).shape
+    (1, 4, 4)
+    >>> trans, rot = pose_error_magnitudes(measured, reference)  # m, rad
+    >>> float(trans[0]), float(rot[0])
+    (0.001, 0.01)
     """
     M = check_poses(P_measured, "P_measured")
     D = check_poses(P_reference, "P_reference")
@@ -61,11 +88,60 @@ def combined_uncertainty(rms, stage_uncertainty):
     return np.sqrt(np.asarray(rms, dtype=np.float64) ** 2 + stage_uncertainty ** 2)
 
 
-def error_summary(trans_err, rot_err) -> dict:
+@dataclass(frozen=True, eq=False)
+class ErrorSummary(DictResult):
+    """Statistics of translation (mm) and rotation (deg) error magnitudes.
+
+    Also a read-only dict of ``to_dict()`` (``summary["trans_rms_mm"]``), as it was a plain
+    dict before.
+
+    Attributes
+    ----------
+    trans_rms_mm, trans_max_mm, trans_p50_mm, trans_p95_mm : float
+        RMS, max, median and 95th percentile of the finite translation errors (NaN if none).
+    rot_rms_deg, rot_max_deg, rot_p50_deg, rot_p95_deg : float
+        The same of the rotation errors.
+    n : int
+        Rows, including non-finite ones.
+    n_nonfinite : int
+        Rows with a non-finite error (failed solutions), left out of the statistics.
+    """
+
+    trans_rms_mm: float
+    trans_max_mm: float
+    trans_p50_mm: float
+    trans_p95_mm: float
+    rot_rms_deg: float
+    rot_max_deg: float
+    rot_p50_deg: float
+    rot_p95_deg: float
+    n: int
+    n_nonfinite: int
+
+
+def error_summary(trans_err, rot_err) -> ErrorSummary:
     """RMS, max and percentiles of translation (reported in mm) and rotation (deg) errors.
 
     Non-finite errors (failed solves) are excluded from the statistics and counted in
     ``n_nonfinite``; ``n`` counts every row.
+
+    Parameters
+    ----------
+    trans_err, rot_err : array_like, shape (N,)
+        Translation (m) and rotation (rad) error magnitudes, e.g. from
+        :func:`pose_error_magnitudes`.
+
+    Returns
+    -------
+    ErrorSummary
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from openemt.evaluate import error_summary
+    >>> s = error_summary(np.array([3e-4, 4e-4, np.nan]), np.deg2rad([0.1, 0.2, 0.3]))
+    >>> round(s.trans_rms_mm, 4), round(s.rot_max_deg, 3), s.n, s.n_nonfinite
+    (0.3536, 0.2, 3, 1)
     """
     t = np.asarray(trans_err, dtype=np.float64)
     r = np.asarray(rot_err, dtype=np.float64)
@@ -82,8 +158,6 @@ def error_summary(trans_err, rot_err) -> dict:
                 f"p95_{unit}": float(np.percentile(x, 95))}
 
     ts, rs = stats(t_mm, "mm"), stats(r_deg, "deg")
-    out = {f"trans_{k}": v for k, v in ts.items()}
-    out.update({f"rot_{k}": v for k, v in rs.items()})
-    out["n"] = int(t.size)
-    out["n_nonfinite"] = int((~ok).sum())
-    return out
+    return ErrorSummary(**{f"trans_{k}": v for k, v in ts.items()},
+                        **{f"rot_{k}": v for k, v in rs.items()},
+                        n=int(t.size), n_nonfinite=int((~ok).sum()))

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from .._errors import InputError
+from .._result import DictResult, Result
 from ..geometry import check_poses
 from ._errors import pose_error_vectors
 
@@ -32,6 +33,7 @@ __all__ = [
     "SWEEP_AXES",
     "SweepAnalysis",
     "SweepCurve",
+    "SweepTable",
     "find_sweeps",
     "sweep_linearity",
     "sweep_table",
@@ -80,7 +82,9 @@ class SweepCurve:
     def is_rotation(self) -> bool:
         return self.axis.startswith("r")
 
-    def summary(self) -> dict:
+    def to_dict(self) -> dict:
+        """JSON-ready summary: label, axis, points, range, RMS and max of each magnitude."""
+
         def rm(x):
             return float(np.sqrt(np.mean(x ** 2))), float(np.max(x))
 
@@ -93,14 +97,42 @@ class SweepCurve:
 
 
 @dataclass(frozen=True, eq=False)
-class SweepAnalysis:
-    """All sweep curves of a test and the Table IV summary (``table``)."""
+class SweepTable(DictResult):
+    """Table IV of a set of sweep curves (also a read-only dict of ``to_dict()``).
+
+    Attributes
+    ----------
+    direct, cross : dict
+        Per kind of motion (``xyz_`` translation sweeps, ``rot_`` rotation sweeps), the max over
+        curves of each curve's RMS and max absolute error and nonlinearity, units in the keys
+        (``xyz_abs_rms_mm``, ``rot_nonlin_max_percent``, ``xyz_nonlin_rms_deg_per_mm`` ...);
+        NaN without such a sweep.
+    n_curves : dict
+        Number of ``xyz`` and ``rot`` curves.
+    """
+
+    direct: dict
+    cross: dict
+    n_curves: dict
+
+
+@dataclass(frozen=True, eq=False)
+class SweepAnalysis(Result):
+    """All sweep curves of a test and their Table IV summary.
+
+    Attributes
+    ----------
+    curves : tuple of SweepCurve
+    table : SweepTable
+
+    ``to_dict()`` gives ``table`` and the curves' summaries (``curves``).
+    """
 
     curves: tuple
-    table: dict
+    table: SweepTable
 
-    def as_dict(self) -> dict:
-        return {"table": self.table, "curves": [c.summary() for c in self.curves]}
+    def _items(self) -> dict:
+        return {"table": self.table, "curves": [c.to_dict() for c in self.curves]}
 
 
 def find_sweeps(stage, labels=None, *, tol_m: float = SWEEP_TOL_M,
@@ -225,12 +257,11 @@ def sweep_linearity(P_measured, P_reference, stage, *, labels=None, sensor_fixtu
     return SweepAnalysis(curves=tuple(curves), table=sweep_table(curves))
 
 
-def sweep_table(curves) -> dict:
+def sweep_table(curves) -> SweepTable:
     """Table IV: per kind of motion, the max over curves of each curve's RMS and max.
 
-    Returns ``{"direct": {...}, "cross": {...}, "n_curves": {...}}``; ``xyz_*`` keys come from
-    translation sweeps and ``rot_*`` keys from rotation sweeps; values are NaN if there is no
-    such sweep.
+    ``xyz_*`` keys come from translation sweeps and ``rot_*`` keys from rotation sweeps; values
+    are NaN if there is no such sweep.
     """
     units = {  # (row, motion) -> (abs unit, nonlinearity unit)
         ("direct", "xyz"): ("mm", "percent"), ("direct", "rot"): ("deg", "percent"),
@@ -253,5 +284,4 @@ def sweep_table(curves) -> dict:
         t[f"{kind}_abs_max_{ua}"] = comb("abs", "max")
         t[f"{kind}_nonlin_rms_{un}"] = comb("nonlin", "rms")
         t[f"{kind}_nonlin_max_{un}"] = comb("nonlin", "max")
-    table["n_curves"] = n
-    return table
+    return SweepTable(direct=table["direct"], cross=table["cross"], n_curves=n)

@@ -253,6 +253,18 @@ def read_calibration(path) -> Calibration:
 
     Raises ``FileNotFoundError`` for a missing file and ``ValueError`` with a one-line message
     naming the field, what was expected and what arrived for an invalid one.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import openemt
+    >>> folder = openemt.datasets.path("cal_9_15_premo_cmu")
+    >>> xyz = openemt.read_calibration(folder / "output" / "XYZ_hr_cal.mat")  # ILEMT .mat
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = openemt.write_calibration(xyz, pathlib.Path(tmp) / "xyz.json")
+    ...     back = openemt.read_calibration(path)  # openemt JSON
+    >>> back.mode, back.model.n_source, bool((back.model.M_so == xyz.model.M_so).all())
+    ('XYZ', 3, True)
     """
     path = Path(path)
     if path.suffix.lower() == ".mat":

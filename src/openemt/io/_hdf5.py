@@ -224,6 +224,18 @@ def read_dataset(path) -> Dataset:
 
     Missing, non-HDF5 or foreign files raise a one-line ``FileNotFoundError``/``ValueError``:
     ``expected an openemt dataset HDF5 file with schema_version 1 ..., got ...``.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import openemt
+    >>> md = openemt.import_ilemt_folder(openemt.datasets.path("cal_9_15_premo_cmu"),
+    ...                                  patterns="md")
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = openemt.write_dataset(md, pathlib.Path(tmp) / "md.h5")
+    ...     back = openemt.read_dataset(path)
+    >>> len(back), back.n_source, back.n_sensor, bool((back.couplings == md.couplings).all())
+    (852, 3, 3, True)
     """
     path = Path(path)
     f = _open(path)

@@ -492,6 +492,15 @@ def import_ilemt_folder(folder, *, source_signs=None, sensor_signs=None, compens
     Dataset
         With ``meta["source"]["name"]`` / ``meta["sensor"]["name"]`` from the options file and
         ``meta["provenance"]`` (openemt version, SHA-256 of every input, sign lists, compensation).
+
+    Examples
+    --------
+    >>> import openemt
+    >>> data = openemt.import_ilemt_folder(openemt.datasets.path("cal_9_15_premo_cmu"))
+    >>> len(data), len(data.files), data.couplings.shape[1:]
+    (8033, 21, (3, 3))
+    >>> int(data.mask(pattern="md").sum())
+    852
     """
     folder = Path(folder)
     if not folder.is_dir():

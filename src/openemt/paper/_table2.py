@@ -14,15 +14,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import InputError
-from ..evaluate import STAGE_UNCERTAINTY_M
+from .._result import DictResult
+from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_MM
 from ._run import PaperRun, as_run, load_paper_run
 
 __all__ = [
     "TABLE2_PAPER",
     "TABLE2_PAPER_COLUMNS",
     "Table2Column",
+    "Table2Reproduction",
     "identify_table2_column",
     "reproduce_table2",
+    "table2_row",
     "table2_tests",
 ]
 
@@ -142,8 +145,6 @@ def identify_table2_column(run: PaperRun, test) -> Table2Column:
     return Table2Column(name, TABLE2_PAPER_COLUMNS[name], same, spread_mm, f"{name}: {basis}")
 
 
-_ROW_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
-
 
 def table2_tests(run: PaperRun):
     """Solve and score the Table II rows of a paper run.
@@ -154,38 +155,97 @@ def table2_tests(run: PaperRun):
         The test rows (home source fixture, three sensor fixtures, ld).
     results : dict
         ``default`` (XYZ, LM), ``corrected`` (with its DLT, when the fit made one) and
-        ``concentric`` (Kim18 alone): each the dict of :func:`openemt.calibrate.test_poses`.
+        ``concentric`` (Kim18 alone): each a :class:`openemt.calibrate.HeldOutTest`.
     seconds : dict
     """
-    from ..calibrate import test_poses, test_rows
+    from ..calibrate import held_out_rows, solve_held_out
 
     run = as_run(run, ["XYZ", "XYZ_concentric"])
-    test = run.dataset.select(test_rows(run.dataset))
+    test = run.dataset.select(held_out_rows(run.dataset))
     if len(test) == 0:
         raise InputError(f"expected soYoutZup ld test files in {str(run.folder)!r}, got none")
     xyz, conc = run.calibration("XYZ"), run.calibration("XYZ_concentric")
     seconds = {}
     t0 = time.perf_counter()
-    results = {"default": test_poses(test, xyz, concentric_model=conc.model)}
+    results = {"default": solve_held_out(test, xyz, concentric_model=conc.model)}
     seconds["test_solve_default"] = time.perf_counter() - t0
     if xyz.linear_correction is not None:
-        results["corrected"] = test_poses(test, xyz, concentric_model=conc.model,
+        results["corrected"] = solve_held_out(test, xyz, concentric_model=conc.model,
                                           apply_correction=True)
     t0 = time.perf_counter()
-    results["concentric"] = test_poses(test, conc, solver="kim18")
+    results["concentric"] = solve_held_out(test, conc, solver="kim18")
     seconds["test_solve_concentric"] = time.perf_counter() - t0
     return test, results, seconds
 
 
-def _row(t: dict) -> dict:
-    s = t["summary"]
-    row = {k: s[k] for k in _ROW_KEYS}
-    row["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"], STAGE_UNCERTAINTY_M * 1e3))
-    row["n_invalid"] = t["n_invalid"]
+def table2_row(t) -> dict:
+    """A Table II row of a :class:`~openemt.calibrate.HeldOutTest`: RMS and max errors (mm,
+    deg), ``trans_uncert_mm`` combined with the stage uncertainty and ``n_invalid``."""
+    s = t.summary
+    row = {k: s[k] for k in ACCURACY_KEYS}
+    row["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"], STAGE_UNCERTAINTY_MM))
+    row["n_invalid"] = t.n_invalid
     return row
 
 
-def reproduce_table2(source, *, improved: bool = False, cross_validation: bool = False) -> dict:
+@dataclass(frozen=True, eq=False)
+class Table2Reproduction(DictResult):
+    """MacLachlan et al. 2025, Table II reproduced.
+
+    Attributes
+    ----------
+    default, corrected, concentric : dict or None
+        Rows (``trans_rms_mm``, ``trans_max_mm``, ``rot_rms_deg``, ``rot_max_deg``,
+        ``trans_uncert_mm`` combined with the stage uncertainty, ``n_invalid``);
+        ``corrected`` is None when the sequence made no output correction.
+    improved, improved_corrected : dict or None
+        The improved calibration's rows (only with ``improved=True``).
+    improved_model : dict or None
+        :meth:`openemt.calibrate.ImprovedCalibration.to_dict` (only with ``improved=True``).
+    n_test : int
+    calibration_residues : dict
+        Calibration step -> rms residue.
+    calibration_stats : dict
+        Calibration step -> rows, invalid rows and output-correction RMS.
+    skipped_steps : list of str
+    paper : dict or None
+        The published values of the matching column (:func:`identify_table2_column`).
+    paper_column : dict
+        :meth:`Table2Column.to_dict`.
+    seconds : dict
+        Wall time per stage.
+
+    ``to_dict()`` leaves out the three improved entries when the improved model was not run.
+    """
+
+    default: dict | None
+    corrected: dict | None
+    concentric: dict | None
+    n_test: int
+    calibration_residues: dict
+    calibration_stats: dict
+    skipped_steps: list
+    paper: dict | None
+    paper_column: dict
+    seconds: dict
+    improved: dict | None = None
+    improved_corrected: dict | None = None
+    improved_model: dict | None = None
+
+    def _items(self) -> dict:
+        out = {"default": self.default, "corrected": self.corrected,
+               "concentric": self.concentric}
+        if self.improved_model is not None:
+            out.update(improved=self.improved, improved_corrected=self.improved_corrected,
+                       improved_model=self.improved_model)
+        return {**out, "n_test": self.n_test, "calibration_residues": self.calibration_residues,
+                "calibration_stats": self.calibration_stats,
+                "skipped_steps": self.skipped_steps, "paper": self.paper,
+                "paper_column": self.paper_column, "seconds": self.seconds}
+
+
+def reproduce_table2(source, *, improved: bool = False, cross_validation: bool = False
+                     ) -> Table2Reproduction:
     """MacLachlan et al. 2025, Table II from an ILEMT folder: import, run sequence, output correction,
     scoring (docs/paper-procedure.md#table-2).
 
@@ -203,18 +263,14 @@ def reproduce_table2(source, *, improved: bool = False, cross_validation: bool =
 
     Returns
     -------
-    dict
-        JSON-ready summary: rows ``default``, ``corrected`` (None when the sequence made no
-        correction), ``concentric`` (and the improved rows), ``n_test``,
-        ``calibration_residues``, ``calibration_stats``, ``skipped_steps``, ``paper`` (the
-        published values), and ``seconds`` per stage.
+    Table2Reproduction
     """
     t_all = time.perf_counter()
     run = source if isinstance(source, PaperRun) else load_paper_run(source)
     test, results, solve_seconds = table2_tests(run)
     seconds = {**run.seconds, **solve_seconds}
-    out = {name: _row(results[name]) if name in results else None
-           for name in ("default", "corrected", "concentric")}
+    rows = {name: table2_row(results[name]) if name in results else None
+            for name in ("default", "corrected", "concentric")}
     if improved:
         from ..calibrate import CANDIDATES, improved_calibration
 
@@ -224,20 +280,17 @@ def reproduce_table2(source, *, improved: bool = False, cross_validation: bool =
                                    candidates=CANDIDATES if cross_validation else None)
         seconds["improved_calibration"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        out.update(imp.test(test))
+        it = imp.test(test)
         seconds["test_solve_improved"] = time.perf_counter() - t0
-        out["improved_model"] = imp.summary()
-    out["n_test"] = len(test)
-    out["calibration_residues"] = {k: f.calibration.stats["rms_residue"]
-                                   for k, f in run.fits.items()}
-    out["calibration_stats"] = {
-        k: {kk: f.calibration.stats.get(kk) for kk in
-            ("num_points", "num_invalid", "uncorrected", "corrected")}
-        for k, f in run.fits.items()}
-    out["skipped_steps"] = list(run.skipped)
+        rows.update(improved=it.improved, improved_corrected=it.improved_corrected,
+                    improved_model=imp.to_dict())
     column = identify_table2_column(run, test)
-    out["paper"] = column.values
-    out["paper_column"] = column.to_dict()
     seconds["total"] = time.perf_counter() - t_all
-    out["seconds"] = seconds
-    return out
+    return Table2Reproduction(
+        **rows, n_test=len(test),
+        calibration_residues={k: f.calibration.stats["rms_residue"] for k, f in run.fits.items()},
+        calibration_stats={k: {kk: f.calibration.stats.get(kk) for kk in
+                               ("num_points", "num_invalid", "uncorrected", "corrected")}
+                           for k, f in run.fits.items()},
+        skipped_steps=list(run.skipped), paper=column.values, paper_column=column.to_dict(),
+        seconds=seconds)

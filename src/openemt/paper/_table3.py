@@ -19,7 +19,7 @@ column                         test rows
 ``source_and_sensor_fixtures`` those plus soXoutZup/soZoutYup/soXinYup with seYoutZup (3792)
 ============================== ============================================================
 
-Each cell is the uncorrected test of :func:`openemt.calibrate.test_poses`: iterative solution
+Each cell is the uncorrected test of :func:`openemt.calibrate.solve_held_out`: iterative solution
 started from the Kim18 closed form of the concentric calibration (``XYZ_concentric_hr_cal``),
 hemisphere from the ground truth, invalid solutions kept, ILEMT's stage-coordinates error.
 """
@@ -27,10 +27,13 @@ hemisphere from the ground truth, invalid solutions kept, ILEMT's stage-coordina
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from .._errors import InputError
+from .._result import DictResult
+from ..evaluate import ACCURACY_KEYS as _KEYS
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
 from ._run import as_run
 
@@ -38,6 +41,7 @@ __all__ = [
     "TABLE3_COLUMNS",
     "TABLE3_PAPER",
     "TABLE3_ROWS",
+    "Table3Reproduction",
     "reproduce_table3",
     "table3_test_masks",
 ]
@@ -46,7 +50,6 @@ __all__ = [
 TABLE3_ROWS = {"translation_only": "trans_only", "sensor_fixture": "XYZ",
                "both_fixtures": "XYZ_all"}
 TABLE3_COLUMNS = ("translation_only", "sensor_fixtures", "source_and_sensor_fixtures")
-_KEYS = ("trans_rms_mm", "trans_max_mm", "rot_rms_deg", "rot_max_deg")
 
 
 def _cells(*rows):
@@ -86,6 +89,49 @@ def table3_test_masks(dataset) -> dict:
     }
 
 
+@dataclass(frozen=True, eq=False)
+class Table3Reproduction(DictResult):
+    """MacLachlan et al. 2025, Table III reproduced.
+
+    Attributes
+    ----------
+    cells : dict
+        Row (``translation_only``, ``sensor_fixture``, ``both_fixtures``) -> column
+        (``translation_only``, ``sensor_fixtures``, ``source_and_sensor_fixtures``) -> cell:
+        ``trans_rms_mm``, ``trans_max_mm``, ``rot_rms_deg``, ``rot_max_deg``, ``n``,
+        ``n_invalid``, ``n_nonfinite``, the paper's values (``paper``) and ours / paper
+        (``ratio``).
+    max_deviation : float
+        Largest ``|ratio - 1|`` over all cells.
+    within_5_percent : bool
+    calibrations : dict
+        Row -> calibration (ILEMT name).
+    calibration_residues : dict
+        Calibration step -> rms residue.
+    test_sets : dict
+        Column -> files of its test rows.
+    notes : str
+    seconds : dict
+
+    ``to_dict()`` has one entry per row (its cells) followed by the other fields.
+    """
+
+    cells: dict
+    max_deviation: float
+    within_5_percent: bool
+    calibrations: dict
+    calibration_residues: dict
+    test_sets: dict
+    notes: str
+    seconds: dict
+
+    def _items(self) -> dict:
+        return {**self.cells, "max_deviation": self.max_deviation,
+                "within_5_percent": self.within_5_percent, "calibrations": self.calibrations,
+                "calibration_residues": self.calibration_residues, "test_sets": self.test_sets,
+                "notes": self.notes, "seconds": self.seconds}
+
+
 def _cell(trans, rot, n_invalid):
     from ..evaluate import error_summary
 
@@ -95,7 +141,7 @@ def _cell(trans, rot, n_invalid):
     return out
 
 
-def reproduce_table3(source) -> dict:
+def reproduce_table3(source) -> Table3Reproduction:
     """MacLachlan et al. 2025, Table III from an ILEMT folder (or a :class:`PaperRun` of it).
 
     Parameters
@@ -106,15 +152,9 @@ def reproduce_table3(source) -> dict:
 
     Returns
     -------
-    dict
-        JSON-ready: one entry per row (``translation_only``, ``sensor_fixture``,
-        ``both_fixtures``), each a dict per column (``translation_only``, ``sensor_fixtures``,
-        ``source_and_sensor_fixtures``) of ``trans_rms_mm``, ``trans_max_mm``, ``rot_rms_deg``,
-        ``rot_max_deg``, row counts, the paper's values (``paper``) and ours / paper
-        (``ratio``); ``max_deviation`` = max |ratio - 1| over all cells, ``calibrations``,
-        ``test_sets`` and ``seconds``.
+    Table3Reproduction
     """
-    from ..calibrate import test_poses
+    from ..calibrate import solve_held_out
 
     t_all = time.perf_counter()
     run = as_run(source, [*TABLE3_ROWS.values(), "XYZ_concentric"], correction=False)
@@ -125,45 +165,44 @@ def reproduce_table3(source) -> dict:
         raise InputError(f"expected test rows for {empty} in {str(run.folder)!r}, got none")
     sets = {k: ds.select(m) for k, m in masks.items()}
     conc = run.calibration("XYZ_concentric").model
-    out: dict = {}
+    cells_of: dict = {}
     t0 = time.perf_counter()
     worst = 0.0
     for row, step in TABLE3_ROWS.items():
         cal = run.calibration(step)
-        r = {k: test_poses(d, cal, concentric_model=conc) for k, d in sets.items()}
+        r = {k: solve_held_out(d, cal, concentric_model=conc) for k, d in sets.items()}
         both = r["sensor_fixtures"], r["source_only"]
+        trans_only = r["translation_only"]
         cells = {
-            "translation_only": _cell(r["translation_only"]["trans"],
-                                      r["translation_only"]["rot"],
-                                      r["translation_only"]["n_invalid"]),
-            "sensor_fixtures": _cell(both[0]["trans"], both[0]["rot"], both[0]["n_invalid"]),
+            "translation_only": _cell(trans_only.trans, trans_only.rot, trans_only.n_invalid),
+            "sensor_fixtures": _cell(both[0].trans, both[0].rot, both[0].n_invalid),
             "source_and_sensor_fixtures": _cell(
-                np.concatenate([b["trans"] for b in both]),
-                np.concatenate([b["rot"] for b in both]), sum(b["n_invalid"] for b in both)),
+                np.concatenate([b.trans for b in both]),
+                np.concatenate([b.rot for b in both]), sum(b.n_invalid for b in both)),
         }
         for col, cell in cells.items():
             paper = TABLE3_PAPER[row][col]
             cell["paper"] = dict(paper)
             cell["ratio"] = {k: cell[k] / paper[k] for k in _KEYS}
             worst = max(worst, max(abs(v - 1.0) for v in cell["ratio"].values()))
-        out[row] = cells
+        cells_of[row] = cells
     seconds = dict(run.seconds)
     seconds["test_solves"] = time.perf_counter() - t0
-    out["max_deviation"] = worst
-    out["within_5_percent"] = bool(worst <= 0.05)
-    out["calibrations"] = {row: f"{step}_hr_cal" for row, step in TABLE3_ROWS.items()}
-    out["calibration_residues"] = {step: run.calibration(step).stats.get("rms_residue")
-                                   for step in TABLE3_ROWS.values()}
     files = ds.file_names()
-    out["test_sets"] = {
+    test_sets = {
         "translation_only": sorted(set(files[masks["translation_only"]])),
         "sensor_fixtures": sorted(set(files[masks["sensor_fixtures"]])),
         "source_and_sensor_fixtures": sorted(
             set(files[masks["sensor_fixtures"] | masks["source_only"]])),
     }
-    out["notes"] = ("Uncorrected; LM solution started from the Kim18 closed form of "
-                    "XYZ_concentric_hr_cal, hemisphere from the ground truth, invalid solutions "
-                    "kept (docs/paper-procedure.md#test-error). Paper values: MacLachlan et al. 2025, Table III.")
+    notes = ("Uncorrected; LM solution started from the Kim18 closed form of "
+             "XYZ_concentric_hr_cal, hemisphere from the ground truth, invalid solutions "
+             "kept (docs/paper-procedure.md#test-error). Paper values: MacLachlan et al. 2025, "
+             "Table III.")
     seconds["total"] = time.perf_counter() - t_all
-    out["seconds"] = seconds
-    return out
+    return Table3Reproduction(
+        cells=cells_of, max_deviation=worst, within_5_percent=bool(worst <= 0.05),
+        calibrations={row: f"{step}_hr_cal" for row, step in TABLE3_ROWS.items()},
+        calibration_residues={step: run.calibration(step).stats.get("rms_residue")
+                              for step in TABLE3_ROWS.values()},
+        test_sets=test_sets, notes=notes, seconds=seconds)

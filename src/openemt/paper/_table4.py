@@ -22,6 +22,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from .._errors import InputError
+from .._result import DictResult
 from ..geometry import check_poses, invert, pose_from_vector, source_fixture_rotation, stage_joint
 from ._run import as_run
 
@@ -29,6 +30,7 @@ __all__ = [
     "FIXTURE_MOMENT_M",
     "TABLE4_PAPER",
     "FixtureRefit",
+    "Table4Reproduction",
     "Table4Result",
     "refit_fixtures",
     "reproduce_table4",
@@ -77,7 +79,9 @@ class FixtureRefit:
     n_rows: int
     moment: float
 
-    def summary(self) -> dict:
+    def to_dict(self) -> dict:
+        """JSON-ready summary: offsets, re-optimised fixtures, weighted RMS before and after
+        (mm), rows and moment."""
         return {"stage_offset": self.stage_offset.tolist(),
                 "sensor_offset": self.sensor_offset.tolist(),
                 "stage_fixture": self.calibration.stage_fixture.tolist(),
@@ -174,8 +178,8 @@ class Table4Result:
 
     Attributes
     ----------
-    summary : dict
-        JSON-ready summary (see :func:`reproduce_table4`).
+    summary : Table4Reproduction
+        The table and its context (what :func:`reproduce_table4` returns).
     analysis : SweepAnalysis
         Curves of the reported condition (for Fig. 10 style plots).
     refit : FixtureRefit
@@ -185,7 +189,7 @@ class Table4Result:
         Ground truth with the re-optimised fixtures.
     """
 
-    summary: dict
+    summary: Table4Reproduction
     analysis: object
     refit: FixtureRefit
     poses: np.ndarray
@@ -202,7 +206,67 @@ def _analyse(M, data, cal, chain):
 
 
 def _table(a) -> dict:
-    return {"direct": a.table["direct"], "cross": a.table["cross"]}
+    return {"direct": a.table.direct, "cross": a.table.cross}
+
+
+@dataclass(frozen=True, eq=False)
+class Table4Reproduction(DictResult):
+    """MacLachlan et al. 2025, Table IV reproduced on sweep files.
+
+    Attributes
+    ----------
+    direct, cross : dict
+        Table rows of the reported condition: ``xyz_abs_rms_mm``, ``xyz_nonlin_rms_percent``,
+        ``rot_abs_max_deg``, ``xyz_nonlin_max_deg_per_mm`` ... (``xyz_`` = translation sweeps,
+        ``rot_`` = rotation sweeps, units in the keys; layout of
+        :func:`openemt.evaluate.sweep_table`).
+    n_curves : dict
+        Translation (``xyz``) and rotation (``rot``) sweep curves.
+    paper : dict
+        MacLachlan et al. 2025, Table IV in the same layout.
+    condition : str
+        ``"corrected"`` or ``"uncorrected"``.
+    other : dict
+        The other condition's name -> its ``direct``/``cross`` rows (when both were made).
+    without_fixture_refit : dict
+        Rows of the reported condition with the calibration's own fixtures.
+    fixture_refit : dict
+        :meth:`FixtureRefit.to_dict`.
+    curves : list of dict
+        Per-curve summaries.
+    n_rows, n_invalid : int
+    files : list of str
+    calibration : str
+    notes : str
+    seconds : dict
+
+    ``to_dict()`` lists ``other`` under the condition's name, as ``uncorrected`` or
+    ``corrected``.
+    """
+
+    direct: dict
+    cross: dict
+    n_curves: dict
+    paper: dict
+    condition: str
+    other: dict
+    without_fixture_refit: dict
+    fixture_refit: dict
+    curves: list
+    n_rows: int
+    n_invalid: int
+    files: list
+    calibration: str
+    notes: str
+    seconds: dict
+
+    def _items(self) -> dict:
+        return {"direct": self.direct, "cross": self.cross, "n_curves": self.n_curves,
+                "paper": self.paper, "condition": self.condition, **self.other,
+                "without_fixture_refit": self.without_fixture_refit,
+                "fixture_refit": self.fixture_refit, "curves": self.curves,
+                "n_rows": self.n_rows, "n_invalid": self.n_invalid, "files": self.files,
+                "calibration": self.calibration, "notes": self.notes, "seconds": self.seconds}
 
 
 def sweep_test(source, *, correction: bool = True) -> Table4Result:
@@ -221,7 +285,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     -------
     Table4Result
     """
-    from ..calibrate import test_poses
+    from ..calibrate import solve_held_out
     from ..correct import apply_linear_correction
 
     t_all = time.perf_counter()
@@ -239,9 +303,9 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
                          "sequence with correction=True)")
     seconds = dict(run.seconds)
     t0 = time.perf_counter()
-    solved = test_poses(data, cal, concentric_model=run.calibration("XYZ_concentric").model)
+    solved = solve_held_out(data, cal, concentric_model=run.calibration("XYZ_concentric").model)
     seconds["solve"] = time.perf_counter() - t0
-    M_raw = solved["poses"]
+    M_raw = solved.poses
     conditions = {"uncorrected": M_raw}
     if L is not None:
         Mc = M_raw.copy()
@@ -258,40 +322,28 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     seconds["fixture_refit_and_sweeps"] = time.perf_counter() - t0
     refit, a, D, M = results[main]
     a_norefit, _ = _analyse(M, data, cal, chain)
-    out = _table(a)
-    out["n_curves"] = a.table["n_curves"]
-    out["paper"] = TABLE4_PAPER
-    out["condition"] = main
-    for name, (_, a2, _, _) in results.items():
-        if name != main:
-            out[name] = _table(a2)
-    out["without_fixture_refit"] = _table(a_norefit)
-    out["fixture_refit"] = refit.summary()
-    out["curves"] = [c.summary() for c in a.curves]
-    out["n_rows"] = len(data)
-    out["n_invalid"] = int(solved["n_invalid"])
-    out["files"] = sorted(set(data.file_names()))
-    out["calibration"] = "XYZ_hr_cal"
-    out["notes"] = ("Paper values: MacLachlan et al. 2025, Table IV, measured on another collection "
-                    "(cal_9_16, dipole-approximating source); no target. Sweep points: other "
-                    "stage axes within 0.25 mm / 0.25 deg of zero; Savitzky-Golay order 2, "
-                    "window 21; fixtures re-optimised in pose space (0.05 m moment).")
     seconds["total"] = time.perf_counter() - t_all
-    out["seconds"] = seconds
-    return Table4Result(summary=out, analysis=a, refit=refit, poses=M, reference=D)
+    summary = Table4Reproduction(
+        **_table(a), n_curves=a.table.n_curves, paper=TABLE4_PAPER, condition=main,
+        other={name: _table(a2) for name, (_, a2, _, _) in results.items() if name != main},
+        without_fixture_refit=_table(a_norefit), fixture_refit=refit.to_dict(),
+        curves=[c.to_dict() for c in a.curves], n_rows=len(data),
+        n_invalid=int(solved.n_invalid), files=sorted(set(data.file_names())),
+        calibration="XYZ_hr_cal",
+        notes=("Paper values: MacLachlan et al. 2025, Table IV, measured on another collection "
+               "(cal_9_16, dipole-approximating source); no target. Sweep points: other "
+               "stage axes within 0.25 mm / 0.25 deg of zero; Savitzky-Golay order 2, "
+               "window 21; fixtures re-optimised in pose space (0.05 m moment)."),
+        seconds=seconds)
+    return Table4Result(summary=summary, analysis=a, refit=refit, poses=M, reference=D)
 
 
-def reproduce_table4(source, *, correction: bool = True) -> dict:
-    """MacLachlan et al. 2025, Table IV on the sweep files of an ILEMT folder (or a :class:`PaperRun`).
+def reproduce_table4(source, *, correction: bool = True) -> Table4Reproduction:
+    """MacLachlan et al. 2025, Table IV on the sweep files of an ILEMT folder (or a
+    :class:`PaperRun`); :func:`sweep_test` with its summary only.
 
     Returns
     -------
-    dict
-        JSON-ready: rows ``direct`` and ``cross`` with ``xyz_abs_rms_mm``,
-        ``xyz_nonlin_rms_percent``, ``rot_abs_max_deg``, ``xyz_nonlin_max_deg_per_mm`` ...
-        (``xyz_`` = translation sweeps, ``rot_`` = rotation sweeps, units in the keys; layout of
-        :func:`openemt.evaluate.sweep_table`), ``paper`` (MacLachlan et al. 2025, Table IV in the same layout),
-        the other correction condition, ``without_fixture_refit``, ``fixture_refit``,
-        per-curve summaries, row counts and ``seconds``.
+    Table4Reproduction
     """
     return sweep_test(source, correction=correction).summary

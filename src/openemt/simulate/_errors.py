@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..field import DipoleModel
+from ..field import DipoleModel, coupling
 
 __all__ = [
     "MU0",
@@ -176,13 +176,6 @@ def polarizability(d: Distortion, frequency) -> np.ndarray:
     return np.where(small, series, exact)
 
 
-def _dipole_field(M, r):
-    """Field ``(3 (M.u) u - M) / |r|^3`` of moments M (..., 3) at offsets r (..., 3)."""
-    d = np.linalg.norm(r, axis=-1, keepdims=True)
-    u = r / d
-    return (3.0 * np.sum(M * u, axis=-1, keepdims=True) * u - M) / d**3
-
-
 def distortion_coupling(model: DipoleModel, poses, position, kappa, radius) -> np.ndarray:
     """Coupling change from an induced dipole at ``position`` (source frame), (N, n_so, n_se).
 
@@ -190,22 +183,26 @@ def distortion_coupling(model: DipoleModel, poses, position, kappa, radius) -> n
     (``kappa`` per source coil: it depends on the coil's drive frequency); its field at sensor
     coil j adds ``gain * m_sensor_j . B(m_i)``. ``position`` is ``(3,)`` or ``(N, 3)`` (the object
     is fixed in the bench frame, so its source-frame position depends on the source fixture).
-    Coils are taken as their dipole equivalents (the object is a small perturbation).
+    Coils are taken as their dipole equivalents (the object is a small perturbation). Both
+    fields come from the dipole model of :mod:`openemt.field` (docs/field-models.md): ``B_i`` as
+    the coupling of the source coils into three unit coils at the object, and the induced
+    dipole's field as the coupling of three unit coils at the object into the sensor coils,
+    combined linearly in the induced moment.
     """
     P = np.asarray(poses, dtype=np.float64)
-    R, t = P[:, :3, :3], P[:, :3, 3]
     n = P.shape[0]
     q = np.broadcast_to(np.asarray(position, dtype=np.float64), (n, 3))
     kappa = np.asarray(kappa, dtype=np.complex128)
-    # field of each source coil at the object: (N, n_so, 3)
-    B = _dipole_field(model.M_so.T[None], q[:, None, :] - model.L_so.T[None])
+    unit = np.eye(3)
+    at_object = np.zeros((n, 4, 4))
+    at_object[:, :3, :3] = unit
+    at_object[:, :3, 3] = q
+    at_object[:, 3, 3] = 1.0
+    # field of each source coil at the object, B[k, i, a] (N, n_so, 3)
+    B = coupling(DipoleModel(model.L_so, model.M_so, np.zeros((3, 3)), unit, 1.0), at_object)
     m_ind = kappa[None, :, None] * radius**3 * B
-    # sensor coil positions and moments in the source frame: (N, n_se, 3)
-    p = np.einsum("kab,bj->kja", R, model.L_se) + t[:, None, :]
-    ms = np.einsum("kab,bj->kja", R, model.M_se)
-    r = p[:, None, :, :] - q[:, None, None, :]                     # (N, 1, n_se, 3)
-    d = np.linalg.norm(r, axis=-1, keepdims=True)
-    u = r / d
-    mi = m_ind[:, :, None, :]                                      # (N, n_so, 1, 3)
-    Bi = (3.0 * np.sum(mi * u, axis=-1, keepdims=True) * u - mi) / d**3
-    return model.gain * np.sum(Bi * ms[:, None, :, :], axis=-1)
+    # coupling of a unit moment along axis a at the object into sensor coil j: (N, 3, n_se)
+    rel = P.copy()
+    rel[:, :3, 3] = P[:, :3, 3] - q
+    T = coupling(DipoleModel(np.zeros((3, 3)), unit, model.L_se, model.M_se, model.gain), rel)
+    return np.einsum("kia,kaj->kij", m_ind, T)

@@ -239,6 +239,13 @@ def get_preset(name) -> Preset:
     """The simulated tracker named ``name`` (``concentric``, ``dipole-approx`` or ``anser``).
 
     A :class:`Preset` passed in is returned unchanged.
+
+    Examples
+    --------
+    >>> from openemt.simulate import get_preset
+    >>> p = get_preset("dipole-approx")
+    >>> p.n_source, p.n_sensor, p.finite, p.source_fixtures[0]
+    (3, 3, True, 'YoutZup')
     """
     if isinstance(name, Preset):
         return name
