@@ -50,11 +50,13 @@ def _check_device_name(name) -> str:
 class _Client:
     """One connected client: its non-blocking socket and its queue of unsent items."""
 
-    __slots__ = ("addr", "last_progress", "partial", "queue", "sock")
+    __slots__ = ("addr", "last_progress", "n_sent", "n_skipped", "partial", "queue", "sock")
 
     def __init__(self, sock, addr):
         self.sock = sock
         self.addr = addr
+        self.n_sent = 0
+        self.n_skipped = 0
         self.queue: collections.deque = collections.deque()
         self.partial = False              # the head item is partly sent: it must go out next
         self.last_progress = time.monotonic()
@@ -175,7 +177,15 @@ class IgtlServer:
                     "clients_max": self.clients_max,
                     "clients_dropped": self.n_clients_dropped}
 
-    def _count_sent(self, count, t_ready):
+    def clients(self) -> list:
+        """The connected clients now: ``address`` (host, port), ``sent`` and ``skipped``
+        messages, ``waiting`` (items in its queue)."""
+        with self._lock:
+            return [{"address": c.addr, "sent": c.n_sent, "skipped": c.n_skipped,
+                     "waiting": len(c.queue)} for c in self._clients]
+
+    def _count_sent(self, c, count, t_ready):
+        c.n_sent += count
         self.n_sent += count
         if t_ready is not None:
             self._latency.extend([time.perf_counter() - t_ready] * count)
@@ -264,7 +274,7 @@ class IgtlServer:
                     except OSError:                 # would block, or the client is gone
                         n = 0
                     if n == len(data):
-                        self._count_sent(count, t_ready)
+                        self._count_sent(c, count, t_ready)
                         c.last_progress = time.monotonic()
                         continue
                     c.last_progress = time.monotonic()
@@ -275,11 +285,14 @@ class IgtlServer:
                         continue
                 elif len(c.queue) >= self._max_queue:
                     # skip the oldest whole item (a partly sent head must be completed)
+                    skip = 0
                     if not c.partial:
-                        self.n_skipped += c.queue.popleft()[1]
+                        skip = c.queue.popleft()[1]
                     elif len(c.queue) > 1:
-                        self.n_skipped += c.queue[1][1]
+                        skip = c.queue[1][1]
                         del c.queue[1]
+                    c.n_skipped += skip
+                    self.n_skipped += skip
                 c.queue.append((data, count, t_ready))
         if wake:
             self._wake()
@@ -312,7 +325,7 @@ class IgtlServer:
             if n == len(data):
                 c.queue.popleft()
                 c.partial = False
-                self._count_sent(count, t_ready)
+                self._count_sent(c, count, t_ready)
             else:
                 c.queue[0] = (memoryview(data)[n:], count, t_ready)
                 c.partial = True
@@ -322,7 +335,9 @@ class IgtlServer:
         with self._lock:
             if c in self._clients:
                 self._clients.remove(c)
-                self.n_skipped += sum(item[1] for item in c.queue)
+                lost = sum(item[1] for item in c.queue)
+                c.n_skipped += lost
+                self.n_skipped += lost
                 c.queue.clear()
         try:
             c.sock.close()
