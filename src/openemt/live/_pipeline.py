@@ -11,6 +11,7 @@ valid pose is known yet. The default wraps :func:`openemt.solve.solve_lm`.
 from __future__ import annotations
 
 import collections
+import contextlib
 import time
 from dataclasses import dataclass, field
 
@@ -47,8 +48,9 @@ def lm_solver(model, *, hemisphere="+x", **kwargs):
     return solve
 
 
-def _serial(fn, *args):
-    """Call ``fn`` with numba's parallel regions on this thread limited to one thread.
+@contextlib.contextmanager
+def _serial_threads():
+    """Limit numba's parallel regions started from this thread to one thread meanwhile.
 
     A live chunk holds a handful of samples; waking a thread pool for them costs far more
     (milliseconds on a busy machine) than the solve itself (~0.1 ms per sample).
@@ -56,13 +58,20 @@ def _serial(fn, *args):
     try:
         import numba
     except ImportError:  # pragma: no cover
-        return fn(*args)
+        yield
+        return
     before = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        return fn(*args)
+        yield
     finally:
         numba.set_num_threads(before)
+
+
+def _serial(fn, *args):
+    """Call ``fn`` inside :func:`_serial_threads`."""
+    with _serial_threads():
+        return fn(*args)
 
 
 @dataclass(frozen=True, eq=False)
@@ -350,6 +359,21 @@ class TrackingPipeline:
             raise InputError(f"expected distinct sensor names, got {names}")
         self.backend = backend
         self.sensors = [_SensorState(s, i) for i, s in enumerate(sensors)]
+        # sensors of one model (e.g. one calibration file) share a solver and are solved in
+        # one batched call while all of them are tracking
+        self._groups: list = []
+        shared: dict = {}
+        for st in self.sensors:
+            if st.setup.solver is None:
+                key = (id(st.setup.model), st.setup.hemisphere)
+                if key in shared:
+                    st.solver = shared[key][0].solver
+                    shared[key].append(st)
+                    continue
+                shared[key] = [st]
+                self._groups.append(shared[key])
+            else:
+                self._groups.append([st])
         n_se = backend.layout.n_sensor
         for st in self.sensors:
             cols = st.columns
@@ -378,22 +402,49 @@ class TrackingPipeline:
     def sensor_names(self) -> list:
         return [st.setup.name for st in self.sensors]
 
-    def _solve(self, st: _SensorState, C):
-        n = C.shape[0]
-        initial = "kim18" if st.last is None else np.tile(st.last, (n, 1))
-        if self.serial_small_batches and n < 256:
-            res = _serial(st.solver, C, initial)
-        else:
-            res = st.solver(C, initial)
-        poses = np.asarray(res.poses, dtype=np.float64)
-        vecs = np.asarray(res.pose_vectors, dtype=np.float64)
-        status = np.asarray(res.status).astype(np.int8)
+    @staticmethod
+    def _remember(st: _SensorState, vecs, status) -> None:
+        if len(status) and status[-1] == _CONVERGED:      # the usual case
+            st.last = vecs[-1].copy()
+            return
         ok = status == _CONVERGED
         if np.any(ok):
             st.last = vecs[np.flatnonzero(ok)[-1]].copy()
-        elif n:
+        elif len(status):
             st.last = None            # lost: re-acquire with the closed form
-        return poses, vecs, status, np.asarray(res.residual, dtype=np.float64)
+
+    @staticmethod
+    def _unpack(res):
+        return (np.asarray(res.poses, dtype=np.float64),
+                np.asarray(res.pose_vectors, dtype=np.float64),
+                np.asarray(res.status).astype(np.int8),
+                np.asarray(res.residual, dtype=np.float64))
+
+    def _solve(self, st: _SensorState, C):
+        n = C.shape[0]
+        initial = "kim18" if st.last is None else np.tile(st.last, (n, 1))
+        out = self._unpack(st.solver(C, initial))
+        self._remember(st, out[1], out[2])
+        return out
+
+    def _solve_all(self, Cs) -> list:
+        """Solve every sensor's couplings ``Cs[k]`` (N, n_so, n_se_k); sensors of a group that
+        are all tracking go through their shared solver in one call."""
+        out = [None] * len(self.sensors)
+        for group in self._groups:
+            if len(group) > 1 and all(st.last is not None for st in group):
+                n = Cs[group[0].index].shape[0]
+                C = np.concatenate([Cs[st.index] for st in group])
+                initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
+                P, V, S, R = self._unpack(group[0].solver(C, initial))
+                for j, st in enumerate(group):
+                    sl = slice(j * n, (j + 1) * n)
+                    out[st.index] = (P[sl], V[sl], S[sl], R[sl])
+                    self._remember(st, V[sl], S[sl])
+            else:
+                for st in group:
+                    out[st.index] = self._solve(st, Cs[st.index])
+        return out
 
     @staticmethod
     def _correct(st: _SensorState, poses, vecs, status):
@@ -451,15 +502,27 @@ class TrackingPipeline:
             return steps[0] if len(steps) == 1 else tuple(steps)
         send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
         epoch = self.backend.t0_epoch
+        parts = [d if st.columns is None else
+                 Demodulated(d.couplings[:, :, st.columns], d.times, d.reference)
+                 for st in self.sensors]
+        Cs = [dk.in_phase for dk in parts]
+        if self.serial_small_batches and n * len(self.sensors) < 256:
+            with _serial_threads():
+                solved = self._solve_all(Cs)
+        else:
+            solved = self._solve_all(Cs)
+        # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
+        im2 = np.sum(d.couplings.imag ** 2, axis=1)
+        ab2 = np.sum(d.couplings.real ** 2, axis=1) + im2
+        ratios = []
         for st in self.sensors:
-            if st.columns is None:
-                dk = d
-            else:
-                dk = Demodulated(d.couplings[:, :, st.columns], d.times, d.reference)
-            poses, vecs, status, resid = self._solve(st, dk.in_phase)
+            cols = slice(None) if st.columns is None else st.columns
+            num, den = np.sqrt(im2[:, cols].sum(axis=1)), np.sqrt(ab2[:, cols].sum(axis=1))
+            ratios.append(num / np.where(den > 0, den, np.inf))
+        for st, dk, (poses, vecs, status, resid), ratio in zip(self.sensors, parts, solved,
+                                                                 ratios):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
-            ratio = dk.distortion_ratio()
             flag = ratio > self.distortion_threshold
             if self.igtl is not None:
                 pick = (status == _CONVERGED) & ((self._n_out + np.arange(n))
@@ -491,13 +554,17 @@ class TrackingPipeline:
             device_name=(device + "Status")[:20]))
 
     def _account(self, st: _SensorState, step: TrackStep):
-        codes, counts = np.unique(step.status, return_counts=True)
-        for c, k in zip(codes.tolist(), counts.tolist()):
-            st.status_counts[c] = st.status_counts.get(c, 0) + k
+        ok = step.status == _CONVERGED
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok == len(step):                  # the usual case, without np.unique
+            st.status_counts[_CONVERGED] = st.status_counts.get(_CONVERGED, 0) + n_ok
+        else:
+            codes, counts = np.unique(step.status, return_counts=True)
+            for c, k in zip(codes.tolist(), counts.tolist()):
+                st.status_counts[c] = st.status_counts.get(c, 0) + k
         st.n_distorted += int(np.count_nonzero(step.distorted))
         if self.log is not None:
             self.log.append(step, st.index)
-        ok = step.status == _CONVERGED
         if self._truth_known and np.any(ok):
             st.pending.append((step.times[ok], step.poses[ok, :3, 3]))
             st.n_pending += int(ok.sum())

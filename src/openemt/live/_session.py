@@ -19,6 +19,12 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
     from ._pipeline import SensorSetup
 
     cals = spec.calibrations()
+    # sensors calibrated by one file share its model (and so one batched solver call)
+    first: dict = {}
+    for i, s in enumerate(spec.sensors):
+        if s.calibration is not None:
+            key = s.calibration.resolve()
+            cals[i] = first.setdefault(key, cals[i])
     preset_model = None
     out = []
     for s, cols, cal in zip(spec.sensors, spec.sensor_columns(), cals):
