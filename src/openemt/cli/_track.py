@@ -72,11 +72,14 @@ def register(subparsers) -> None:
     p.add_argument("--save-raw", type=Path, default=None,
                    help="(sim) also write the raw samples to an HDF5 file for replay; needs "
                         "--duration")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed")
+    p.add_argument("--seed", type=int, default=None,
+                   help="simulation seed (default: the tracker file's [simulation], else 0)")
     p.add_argument("--noise", type=float, default=None,
-                   help="(sim) sensor noise in V rms (default as RawSignalConfig)")
-    p.add_argument("--eddy", type=float, default=0.0,
-                   help="(sim) conductive-object strength; >0 shows as quadrature/distortion")
+                   help="(sim) sensor noise in V rms (default: the tracker file's "
+                        "[simulation], else 1.5e-5)")
+    p.add_argument("--eddy", type=float, default=None,
+                   help="(sim) conductive-object strength; >0 shows as quadrature/distortion "
+                        "(default: the tracker file's [simulation], else 0)")
     p.add_argument("--window", choices=("hann", "rect"), default=None,
                    help="demodulation window (default: the tracker file's, else hann)")
     p.add_argument("--distortion-threshold", type=float, default=None,
