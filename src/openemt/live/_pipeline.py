@@ -268,6 +268,15 @@ class SensorSetup:
 class _SensorState:
     """Run-time state of one sensor: solver, warm start, filter, counters."""
 
+    @property
+    def index_of_columns(self):
+        """This sensor's coupling columns: a slice (a view, no copy) when they are
+        consecutive, else the list."""
+        c = self.columns
+        if c == list(range(c[0], c[0] + len(c))):
+            return slice(c[0], c[0] + len(c))
+        return c
+
     def __init__(self, setup: SensorSetup, index: int):
         solver = setup.solver
         if solver is None:
@@ -503,7 +512,7 @@ class TrackingPipeline:
         send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
         epoch = self.backend.t0_epoch
         parts = [d if st.columns is None else
-                 Demodulated(d.couplings[:, :, st.columns], d.times, d.reference)
+                 Demodulated(d.couplings[:, :, st.index_of_columns], d.times, d.reference)
                  for st in self.sensors]
         Cs = [dk.in_phase for dk in parts]
         if self.serial_small_batches and n * len(self.sensors) < 256:
@@ -516,7 +525,7 @@ class TrackingPipeline:
         ab2 = np.sum(d.couplings.real ** 2, axis=1) + im2
         ratios = []
         for st in self.sensors:
-            cols = slice(None) if st.columns is None else st.columns
+            cols = slice(None) if st.columns is None else st.index_of_columns
             num, den = np.sqrt(im2[:, cols].sum(axis=1)), np.sqrt(ab2[:, cols].sum(axis=1))
             ratios.append(num / np.where(den > 0, den, np.inf))
         for st, dk, (poses, vecs, status, resid), ratio in zip(self.sensors, parts, solved,
