@@ -103,6 +103,13 @@ def test_relative_calibration_path_and_values(tracker_dir):
     # carrier plan the demodulator cannot use
     (lambda s: s.replace("13500.0]", "13600.0]"), r"demodulator accepts"),
     (lambda s: s.replace('kind = "none"', 'kind = "median"'), r"`filter.kind`"),
+    # unknown sensor named in the per-sensor filter settings
+    (lambda s: s + '\n[filter.sensors.Probe]\nkind = "kalman"\n[filter.sensors.Needle]\n'
+                   'kind = "kalman"\n',
+     (r"`filter.sensors.Needle` to be the name of a sensor in \['Probe', 'Reference'\], "
+      r"got unknown sensor 'Needle'")),
+    (lambda s: s + '\n[filter.sensors.Probe]\nprocess_noise = -1.0\n',
+     r"`filter.sensors.Probe.process_noise` to be a positive number"),
     (lambda s: s.replace('format = "openemt-tracker"', 'format = "other"'), r"`format`"),
     (lambda s: s.replace("[adc]", "[adc\n"), r"valid TOML"),
 ])
@@ -124,6 +131,20 @@ def test_calibration_with_wrong_coil_count(tracker_dir):
     spec = read_tracker(p)
     with pytest.raises(ValueError, match="one channel per coil of its calibration"):
         spec.calibrations()
+
+
+def test_per_sensor_filter_settings(tracker_dir):
+    p = _write(tracker_dir, GOOD + '\n[filter.sensors.Reference]\nkind = "kalman"\n'
+                                   'process_noise = 0.001\n')
+    spec = read_tracker(p)
+    probe, ref = tracker_sensors(spec)
+    assert probe.filter.kind == "none"
+    assert ref.filter.kind == "kalman" and ref.filter.process_noise == 0.001
+    # command-line settings apply to every sensor
+    probe, ref = tracker_sensors(spec.with_filter(kind="kalman", measurement_noise=5e-6))
+    assert probe.filter.kind == ref.filter.kind == "kalman"
+    assert probe.filter.measurement_noise == ref.filter.measurement_noise == 5e-6
+    assert ref.filter.process_noise == 0.001
 
 
 def test_filter_settings_from_file_and_overrides(tracker_dir):

@@ -14,8 +14,8 @@ __all__ = ["tracker_backend", "tracker_sensors"]
 def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
     """One :class:`~openemt.live.SensorSetup` per sensor of ``spec``: its coupling columns,
     the model and linear correction of its calibration (the simulated preset's model when it
-    names none), its OpenIGTLink device name and the filter (``filter`` overrides the file's
-    ``[filter]``)."""
+    names none), its OpenIGTLink device name and its filter (the file's
+    ``[filter.sensors.<name>]``, else ``[filter]``; ``filter`` overrides both)."""
     from ._pipeline import SensorSetup
 
     cals = spec.calibrations()
@@ -38,7 +38,7 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
             model, corr = cal.model, getattr(cal, "linear_correction", None)
         out.append(SensorSetup(name=s.name, columns=cols, model=model, correction=corr,
                                hemisphere=s.hemisphere, device_name=s.device_name,
-                               filter=spec.filter if filter is None else filter))
+                               filter=s.filter_or(spec.filter) if filter is None else filter))
     return out
 
 

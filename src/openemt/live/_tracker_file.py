@@ -89,6 +89,9 @@ class SensorSpec:
     simulation_offset : tuple of 3 float
         ``--source sim`` only: this sensor follows the default trajectory shifted by this
         vector (m) in the source frame.
+    filter : FilterSpec or None
+        This sensor's own filter settings (``[filter.sensors.<name>]``); None = the
+        tracker's ``[filter]``.
     """
 
     name: str
@@ -97,6 +100,10 @@ class SensorSpec:
     device_name: str = ""
     hemisphere: str = "+x"
     simulation_offset: tuple = (0.0, 0.0, 0.0)
+    filter: FilterSpec | None = None
+
+    def filter_or(self, default: FilterSpec) -> FilterSpec:
+        return default if self.filter is None else self.filter
 
 
 @dataclass(frozen=True)
@@ -165,11 +172,16 @@ class TrackerSpec:
         return cals
 
     def with_filter(self, **changes) -> TrackerSpec:
-        """A copy with filter settings changed (command-line overrides), validated."""
+        """A copy with filter settings changed (command-line overrides, applied to the
+        tracker's ``[filter]`` and to every sensor's own settings), validated."""
         merged = {k: v for k, v in changes.items() if v is not None}
+        if not merged:
+            return self
         spec = replace(self.filter, **merged)
         _check_filter(spec, "command line")
-        return replace(self, filter=spec)
+        sensors = tuple(s if s.filter is None else replace(s, filter=replace(s.filter, **merged))
+                        for s in self.sensors)
+        return replace(self, filter=spec, sensors=sensors)
 
     def _where(self) -> str:
         return str(self.path) if self.path is not None else "tracker"
@@ -245,16 +257,16 @@ def _unknown_keys(r: _Reader, table: dict, prefix: str, allowed) -> None:
                          f"[{prefix or 'top level'}], got unknown key `{name}`")
 
 
-def _check_filter(f: FilterSpec, where: str) -> None:
+def _check_filter(f: FilterSpec, where: str, prefix: str = "filter") -> None:
     if f.kind not in _FILTER_KINDS:
-        raise InputError(f"{where}: expected `filter.kind` in {list(_FILTER_KINDS)}, got "
+        raise InputError(f"{where}: expected `{prefix}.kind` in {list(_FILTER_KINDS)}, got "
                          f"{f.kind!r}")
     for key in ("process_noise", "measurement_noise", "rotation_process_noise",
                 "rotation_measurement_noise", "max_gap"):
         v = float(getattr(f, key))
         if not (v > 0 and v < float("inf")):
-            raise InputError(f"{where}: expected `filter.{key}` to be a positive number, got "
-                             f"{v!r}")
+            raise InputError(f"{where}: expected `{prefix}.{key}` to be a positive number, "
+                             f"got {v!r}")
 
 
 def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
@@ -366,13 +378,31 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     flt = r.get(doc, "", "filter", "table", {})
     keys = ("kind", "process_noise", "measurement_noise", "rotation_process_noise",
             "rotation_measurement_noise", "max_gap")
-    _unknown_keys(r, flt, "filter", keys)
-    fkw = {}
-    for k in keys:
-        if k in flt:
-            fkw[k] = r.get(flt, "filter", k, "string" if k == "kind" else "number")
-    fspec = FilterSpec(**fkw)
-    _check_filter(fspec, where)
+    _unknown_keys(r, flt, "filter", (*keys, "sensors"))
+
+    def filter_settings(table, prefix, base):
+        fkw = {}
+        for k in keys:
+            if k in table:
+                fkw[k] = r.get(table, prefix, k, "string" if k == "kind" else "number")
+        out = replace(base, **fkw)
+        _check_filter(out, where, prefix)
+        return out
+
+    fspec = filter_settings(flt, "filter", FilterSpec())
+    # per-sensor settings: [filter.sensors.<sensor name>] on top of [filter]
+    per = r.get(flt, "filter", "sensors", "table", {})
+    names = [s.name for s in sensors]
+    for name, table in per.items():
+        if name not in names:
+            raise r.fail(f"filter.sensors.{name}", f"the name of a sensor in {names}",
+                         f"unknown sensor {name!r}")
+        if not isinstance(table, dict):
+            raise r.fail(f"filter.sensors.{name}", "a table", _show(table))
+        _unknown_keys(r, table, f"filter.sensors.{name}", keys)
+        i = names.index(name)
+        sensors[i] = replace(sensors[i], filter=filter_settings(
+            table, f"filter.sensors.{name}", fspec))
 
     sim = r.get(doc, "", "simulation", "table", {})
     _unknown_keys(r, sim, "simulation", ("preset", "noise_rms", "eddy_strength", "seed",
