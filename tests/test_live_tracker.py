@@ -313,3 +313,18 @@ def test_example_tracker_is_toml_with_documented_sections():
     doc = tomllib.loads(example_tracker("simulated").read_text())
     assert set(doc) == {"format", "version", "adc", "source", "demodulation", "sensors",
                         "filter", "simulation"}
+
+
+def test_cli_replay_without_tracker_uses_the_recordings_layout(cli, capsys, tmp_path):
+    from openemt.live import default_model, default_trajectory
+    from openemt.signal import ChannelLayout, RawSignalConfig, simulate_raw, write_raw
+
+    lay = ChannelLayout(sensor_channels=(5, 3, 4), reference_channels=(0, 2, 1))
+    raw = simulate_raw(default_model(), default_trajectory, 0.05, RawSignalConfig(layout=lay),
+                       seed=1)
+    write_raw(raw, tmp_path / "swapped.h5")
+    code = cli(["track", "--source", "replay", str(tmp_path / "swapped.h5"), "--fast",
+                "--no-igtl", "--json", "--quiet"])
+    d = json.loads(capsys.readouterr().out)
+    assert code == 0 and d["status_counts"] == {"CONVERGED": d["n_samples"]}
+    assert d["truth"]["position_error_mm_rms"] < 0.05

@@ -182,7 +182,8 @@ def run(args) -> int:
         backend = tracker_backend(spec, args.source, file=args.file, device=device,
                                   realtime=not args.fast, duration=args.duration,
                                   seed=args.seed, noise_rms=args.noise,
-                                  eddy_strength=args.eddy)
+                                  eddy_strength=args.eddy,
+                                  match_layout=args.tracker is not None)
     except ImportError as exc:                  # the optional sound-card package
         raise InputError(str(exc)) from None
     source = backend

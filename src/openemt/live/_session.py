@@ -45,13 +45,14 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
 def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
                     realtime: bool = True, duration: float | None = None, seed=None,
                     noise_rms: float | None = None, eddy_strength: float | None = None,
-                    chunk: int = 640):
+                    chunk: int = 640, match_layout: bool = True):
     """The backend of ``source`` (``"sim"``, ``"replay"`` or ``"sound"``) for a tracker.
 
     ``sim`` simulates the tracker's channel layout (every sensor follows
     :func:`~openemt.live.default_trajectory` shifted by its ``simulation_offset``, truth model
     from ``[simulation] preset``); ``replay`` reads a raw recording whose channel layout must
-    match the tracker's; ``sound`` opens the audio input ``device`` with ``adc.channels``
+    match the tracker's (``match_layout=False``: the recording's own layout is used); ``sound``
+    opens the audio input ``device`` with ``adc.channels``
     channels at ``adc.sample_rate``.
     """
     from ._backends import ReplayBackend, SimulatedBackend, SoundDeviceBackend
@@ -62,6 +63,8 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
                                   chunk=chunk)
     if source == "replay":
         b = ReplayBackend(file, realtime=realtime, chunk=chunk)
+        if not match_layout:
+            return b
         got = b.layout
         same = (got.sample_rate == layout.sample_rate
                 and got.frequencies == layout.frequencies
