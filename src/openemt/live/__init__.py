@@ -9,7 +9,7 @@ from ._backends import (
     default_model,
     default_trajectory,
 )
-from ._filter import kalman_filter_poses, new_filter_state
+from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
 from ._pipeline import (
     SensorSetup,
@@ -46,6 +46,7 @@ __all__ = [
     "default_model",
     "default_trajectory",
     "example_tracker",
+    "filter_restarts",
     "kalman_filter_poses",
     "lm_solver",
     "new_filter_state",

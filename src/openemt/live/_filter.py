@@ -35,10 +35,10 @@ from numba import njit
 from .._errors import InputError
 from ..solve._linalg import exp_so3, rotvec_from_matrix, store_pose
 
-__all__ = ["STATE_SIZE", "kalman_filter_poses", "new_filter_state"]
+__all__ = ["STATE_SIZE", "filter_restarts", "kalman_filter_poses", "new_filter_state"]
 
 #: Length of the filter state vector (see :func:`new_filter_state`).
-STATE_SIZE = 20
+STATE_SIZE = 22
 
 # initial standard deviation of the velocity at a (re)start: 1 m/s and 10 rad/s
 _V0 = 1.0
@@ -49,7 +49,8 @@ def new_filter_state() -> np.ndarray:
     """A fresh (not started) filter state.
 
     Layout: ``[started, t_last, x(3), v(3), rotvec(3), w(3), P_pos(00, 01, 11),
-    P_rot(00, 01, 11)]``.
+    P_rot(00, 01, 11), ever_started, restarts]`` (``restarts`` counts the restarts after a
+    loss or a gap, see :func:`filter_restarts`).
     """
     return np.zeros(STATE_SIZE)
 
@@ -101,6 +102,9 @@ def _kalman_kernel(vecs, times, valid, params, state, out_poses, out_vecs):
             continue
         dt = times[k] - state[1]
         if state[0] == 0.0 or dt > max_gap or dt <= 0.0:
+            if state[20] != 0.0:
+                state[21] += 1.0
+            state[20] = 1.0
             state[0] = 1.0
             for i in range(3):
                 state[2 + i] = vecs[k, i]
@@ -153,6 +157,11 @@ def _kalman_kernel(vecs, times, valid, params, state, out_poses, out_vecs):
             rv[i] = state[8 + i]
         exp_so3(rv, R)
         store_pose(k, R, t, rv, out_poses, out_vecs)
+
+
+def filter_restarts(state) -> int:
+    """Restarts of the filter after a loss or a gap so far (the first start not counted)."""
+    return int(state[21])
 
 
 def kalman_filter_poses(pose_vectors, times, valid, *, process_noise: float,

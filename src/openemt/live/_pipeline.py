@@ -20,6 +20,7 @@ import numpy as np
 from .._errors import InputError
 from ..signal import Demodulated, Demodulator
 from ..solve import Status, solve_lm
+from ._filter import filter_restarts
 
 __all__ = ["SensorSetup", "TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline",
            "lm_solver"]
@@ -301,7 +302,6 @@ class _SensorState:
         self.last = None             # last valid pose vector
         self.status_counts: dict = {}
         self.n_distorted = 0
-        self.n_restarts = 0
         self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
         self.pending: list = []
         self.n_pending = 0
@@ -478,7 +478,6 @@ class TrackingPipeline:
 
         if st.filter_state is None:
             st.filter_state = new_filter_state()
-        before = st.filter_state[0]
         ok = status == _CONVERGED
         fp, fv, _ = kalman_filter_poses(
             vecs, times, ok, process_noise=f.process_noise,
@@ -486,8 +485,6 @@ class TrackingPipeline:
             rotation_process_noise=f.rotation_process_noise,
             rotation_measurement_noise=f.rotation_measurement_noise, max_gap=f.max_gap,
             state=st.filter_state)
-        if before and not np.all(ok):
-            st.n_restarts += 1
         return fp, fv
 
     def step(self):
@@ -639,7 +636,9 @@ class TrackingPipeline:
                              "measurement_noise": f.measurement_noise,
                              "rotation_process_noise": f.rotation_process_noise,
                              "rotation_measurement_noise": f.rotation_measurement_noise,
-                             "max_gap": f.max_gap, "restarts_after_loss": st.n_restarts}
+                             "max_gap": f.max_gap,
+                             "restarts_after_loss": 0 if st.filter_state is None
+                             else filter_restarts(st.filter_state)}
         return out
 
     def summary(self, wall_seconds: float = float("nan")) -> TrackSummary:
