@@ -95,6 +95,8 @@ def test_bench_track_several_sensors_and_filter():
     assert out["igtl"]["sent"] > 0 and out["igtl"]["clients_max"] == 1
     assert out["realtime_factor"] > 0 and out["realtime_status_counts"] == {
         "CONVERGED": 2 * round(out["realtime_signal_seconds"] * 1500)}
+    assert out["realtime_baseline"]["status_counts"] == out["realtime_status_counts"]
+    assert out["igtl_pack_us_per_message"] > 0 and out["igtl_pack_us_per_message_pyigtl"] > 0
     f = out["filter"]
     assert f["position_noise_um_filtered"] < 0.8 * f["position_noise_um"]
     assert abs(f["added_lag_ms"]) < 1.0 and 0 < f["step_settle_ms"] < 20
