@@ -498,16 +498,18 @@ class IgtlServer:
                     if gone:
                         self._remove(c, "disconnected")
                         continue
-                stalled = False
+                stalled = gone = False
                 with self._lock:
                     if c.sock in w:
                         try:
                             self._flush(c)
-                        except OSError:
-                            stalled = True
+                        except OSError:                # reset by the peer: it left
+                            gone = True
                     if c.queue and now - c.last_progress > self.send_timeout:
                         stalled = True
-                if stalled:
+                if gone:
+                    self._remove(c, "disconnected")
+                elif stalled:
                     with self._lock:
                         self.n_clients_dropped += 1
                     self._remove(c, f"dropped: no data taken for {self.send_timeout:g} s")
