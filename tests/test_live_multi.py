@@ -167,3 +167,27 @@ def test_clients_come_and_go(n_clients):
         for li in ls[1:]:
             li.stop()
         assert srv.stats()["connections"] == n_clients
+
+
+def test_sensors_of_one_calibration_solved_together_give_the_same_poses():
+    import copy
+    from dataclasses import replace
+
+    from openemt.live import TrackLog
+
+    spec = read_tracker(example_tracker("simulated-2"))
+    shared = tracker_sensors(spec)
+    assert shared[0].model is shared[1].model          # one calibration file, one model
+    separate = [replace(s, model=copy.deepcopy(s.model)) for s in shared]
+    logs = []
+    for sensors in (shared, separate):
+        log = TrackLog()
+        p = TrackingPipeline(tracker_backend(spec, "sim", realtime=False, duration=0.1),
+                             sensors=sensors, log=log)
+        assert len(p._groups) == (1 if sensors is shared else 2)
+        p.run()
+        logs.append(log)
+    for name in spec.sensor_names:
+        a, b = logs[0].arrays(name), logs[1].arrays(name)
+        np.testing.assert_array_equal(a["status"], b["status"])
+        np.testing.assert_allclose(a["pose_vectors"], b["pose_vectors"], rtol=0, atol=1e-12)
