@@ -191,3 +191,28 @@ def test_sensors_of_one_calibration_solved_together_give_the_same_poses():
         a, b = logs[0].arrays(name), logs[1].arrays(name)
         np.testing.assert_array_equal(a["status"], b["status"])
         np.testing.assert_allclose(a["pose_vectors"], b["pose_vectors"], rtol=0, atol=1e-12)
+
+
+def test_per_sensor_distortion_ratio_in_any_column_order():
+    from openemt.live import TrackLog
+    from openemt.signal import Demodulated
+
+    spec = read_tracker(example_tracker("simulated-2"))
+    a, b = tracker_sensors(spec)
+    logs = {}
+    for order in ((a, b), (b, a)):                      # block layout, and reversed order
+        log = TrackLog()
+        backend = tracker_backend(spec, "sim", realtime=False, duration=0.05,
+                                  eddy_strength=0.01)
+        TrackingPipeline(backend, sensors=list(order), log=log).run()
+        logs[order[0].name] = log
+    for log in logs.values():
+        for s in (a, b):
+            arr = log.arrays(s.name)
+            C = arr["couplings"]
+            ref = Demodulated(C, arr["times"], np.ones((len(C), 3))).distortion_ratio()
+            np.testing.assert_allclose(arr["distortion"], ref, rtol=1e-12)
+            assert np.all(arr["distortion"] > 1e-4)
+            assert C.shape[2] == 3
+    np.testing.assert_array_equal(logs["Probe"].arrays("Probe")["distortion"],
+                                  logs["Reference"].arrays("Probe")["distortion"])

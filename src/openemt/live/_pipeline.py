@@ -269,14 +269,17 @@ class SensorSetup:
 class _SensorState:
     """Run-time state of one sensor: solver, warm start, filter, counters."""
 
-    @property
-    def index_of_columns(self):
-        """This sensor's coupling columns: a slice (a view, no copy) when they are
-        consecutive, else the list."""
+    def set_columns(self, columns) -> None:
+        """Set this sensor's coupling columns (None = all); ``index_of_columns`` is a slice
+        (a view, no copy) when they are consecutive, else the list."""
+        self.columns = None if columns is None else list(columns)
         c = self.columns
-        if c == list(range(c[0], c[0] + len(c))):
-            return slice(c[0], c[0] + len(c))
-        return c
+        if c is None:
+            self.index_of_columns = slice(None)
+        elif c == list(range(c[0], c[0] + len(c))):
+            self.index_of_columns = slice(c[0], c[0] + len(c))
+        else:
+            self.index_of_columns = c
 
     def __init__(self, setup: SensorSetup, index: int):
         solver = setup.solver
@@ -288,7 +291,7 @@ class _SensorState:
         self.setup = setup
         self.index = index
         self.solver = solver
-        self.columns = None if setup.columns is None else list(setup.columns)
+        self.set_columns(setup.columns)
         corr = setup.correction
         if corr is not None:
             L = np.asarray(corr, dtype=np.float64)
@@ -390,7 +393,11 @@ class TrackingPipeline:
                 raise InputError(f"expected columns of sensor {st.setup.name!r} in "
                                  f"0..{n_se - 1} (the layout's sensor channels), got {cols}")
             if cols is not None and cols == list(range(n_se)):
-                st.columns = None
+                st.set_columns(None)
+        # sensors on consecutive, equally wide column blocks in order (the tracker-file layout)
+        w = n_se // len(self.sensors)
+        self._blocks = len(self.sensors) > 1 and w * len(self.sensors) == n_se and all(
+            st.columns == list(range(i * w, (i + 1) * w)) for i, st in enumerate(self.sensors))
         self.solver = self.sensors[0].solver
         self.correction = self.sensors[0].correction
         self.demod = Demodulator(backend.layout, output_rate=output_rate, window=window,
@@ -520,11 +527,18 @@ class TrackingPipeline:
         # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
         im2 = np.sum(d.couplings.imag ** 2, axis=1)
         ab2 = np.sum(d.couplings.real ** 2, axis=1) + im2
-        ratios = []
-        for st in self.sensors:
-            cols = slice(None) if st.columns is None else st.index_of_columns
-            num, den = np.sqrt(im2[:, cols].sum(axis=1)), np.sqrt(ab2[:, cols].sum(axis=1))
-            ratios.append(num / np.where(den > 0, den, np.inf))
+        if self._blocks:                        # equal consecutive blocks: one pass
+            k = len(self.sensors)
+            num = np.sqrt(im2.reshape(n, k, -1).sum(axis=2))
+            den = np.sqrt(ab2.reshape(n, k, -1).sum(axis=2))
+            ratios = list((num / np.where(den > 0, den, np.inf)).T)
+        else:
+            ratios = []
+            for st in self.sensors:
+                cols = st.index_of_columns
+                num = np.sqrt(im2[:, cols].sum(axis=1))
+                den = np.sqrt(ab2[:, cols].sum(axis=1))
+                ratios.append(num / np.where(den > 0, den, np.inf))
         for st, dk, (poses, vecs, status, resid), ratio in zip(self.sensors, parts, solved,
                                                                  ratios):
             poses, vecs = self._correct(st, poses, vecs, status)
