@@ -85,3 +85,20 @@ def test_sounddevice_missing_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "sounddevice", None)
     with pytest.raises(ImportError, match="openemt\\[sound\\]"):
         SoundDeviceBackend(ChannelLayout())
+
+
+def test_bench_track_several_sensors_and_filter():
+    out = _track.run(_args(_track, ["--seconds", "0.2", "--noise-seconds", "0.4", "--sensors",
+                                    "2", "--rate-seconds", "0.2"]))
+    assert out["sensors"] == 2
+    assert out["status_counts"] == {"CONVERGED": 2 * round(out["signal_seconds"] * 1500)}
+    assert out["igtl"]["sent"] > 0 and out["igtl"]["clients_max"] == 1
+    assert out["realtime_factor"] > 0 and out["realtime_status_counts"] == {
+        "CONVERGED": 2 * round(out["realtime_signal_seconds"] * 1500)}
+    assert out["realtime_baseline"]["status_counts"] == out["realtime_status_counts"]
+    assert out["igtl_pack_us_per_message"] > 0 and out["igtl_pack_us_per_message_pyigtl"] > 0
+    f = out["filter"]
+    assert f["position_noise_um_filtered"] < 0.8 * f["position_noise_um"]
+    assert abs(f["added_lag_ms"]) < 1.0 and 0 < f["step_settle_ms"] < 20
+    with pytest.raises(ValueError, match="--sensors"):
+        _track.run(_args(_track, ["--sensors", "0"]))

@@ -218,3 +218,18 @@ def test_send_poses_block_arrives_as_separate_transforms(server):
     assert server.stats()["sent"] == 3 and len(server.latencies()) == 3
     with pytest.raises(ValueError, match="timestamps"):
         server.send_poses(P, [1.0])
+
+
+def test_block_packing_equals_pyigtl_byte_for_byte():
+    from openemt.live._igtl import pack_transforms
+
+    rng = np.random.default_rng(7)
+    P = pose_from_vector(rng.normal(size=(40, 6)))
+    P[:, :3, 3] *= 300.0
+    P[0, :3, 3] = [-1e6, 0.0, 1e-30]                   # extreme translations
+    ts = np.r_[rng.uniform(0, 4e9, 36), 0.0, 0.5, 1234.999999999, 1.0e9 + 1e-9]
+    for name in ("S", "ProbeToTracker", "x" * 20):
+        want = b"".join(pyigtl.TransformMessage(m, timestamp=t, device_name=name).pack()
+                        for m, t in zip(P, ts))
+        assert pack_transforms(P, ts, name) == want
+    assert pack_transforms(np.empty((0, 4, 4)), [], "S") == b""

@@ -24,6 +24,29 @@ crb_position_noise_um
     (:func:`openemt.solve.cramer_rao`). ``noise_to_crb_ratio`` should be within 1 +/- 0.2.
     ``crb_position_noise_um_from_spec`` is the bound from the simulator's noise setting alone
     (white sensor noise through the Hann frame, reference noise neglected).
+sensors
+    ``--sensors K`` tracks K tri-axial sensors on one source (3K + 3 channels, each sensor
+    its own OpenIGTLink device; the latency runs and ``realtime_factor`` use all K). The
+    latency of a sample is then counted per sensor message.
+realtime_factor
+    Seconds of signal processed per second of wall time for the K sensors, as fast as
+    possible (raw samples simulated beforehand, in 640-sample chunks; demodulation, K solves,
+    no OpenIGTLink client). Target >= 20 for 4 sensors. ``realtime_factor_cpu`` divides by
+    the process CPU time instead (less sensitive to other load). ``realtime_baseline``: the
+    same with one solver call per sensor (sensors with their own calibration files), and
+    ``realtime_speedup_vs_baseline_cpu`` (sensors sharing a calibration are solved in one
+    batched call).
+igtl_pack_us_per_message
+    CPU time to pack a TRANSFORM message in blocks of 10 with the compiled packer, against
+    ``igtl_pack_us_per_message_pyigtl`` (pyigtl, one message at a time; same bytes).
+filter
+    The constant-velocity Kalman filter (docs/live.md#filter, default noises) on the same
+    demodulated poses: ``position_noise_um`` without and with it for the static sensor
+    (``noise_reduction`` = with / without), and for a stated motion -- a 10 mm, 2 Hz sine
+    along y at 200 mm -- the ``added_lag_ms`` (phase lag of the fitted 2 Hz component,
+    filtered minus unfiltered) and the rms error to the truth without and with the filter;
+    ``step_settle_ms`` is the time after a 1 mm position step until the output stays within
+    1 % of it (``step_overshoot``: largest excess, as a fraction of the step).
 baseline
     ``one_frame_reads`` with numba's default thread pool for the one-sample solves (what the
     pipeline avoids by solving small chunks on its own thread); ``one_frame_reads`` reports
@@ -51,6 +74,10 @@ def add_arguments(parser) -> None:
                         help="samples per device read in the latency test (default 640 = 10 "
                              "frames)")
     parser.add_argument("--preset", default="concentric", help="simulated tracker")
+    parser.add_argument("--sensors", type=int, default=1,
+                        help="tri-axial sensors tracked at once (default 1)")
+    parser.add_argument("--rate-seconds", type=float, default=2.0,
+                        help="seconds of signal for the realtime factor (default 2)")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -60,28 +87,56 @@ _CLIENT = """
 import sys, time, pyigtl
 c = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=int(sys.argv[1]))
 end, seen = time.time() + float(sys.argv[2]), 0
+names = sys.argv[3].split(",")
 while time.time() < end:
-    if c.wait_for_message("openemt", timeout=0.05) is not None:
-        seen += 1
+    for name in names:
+        if c.wait_for_message(name, timeout=0.05 / len(names)) is not None:
+            seen += 1
 c.stop()
 print(seen, flush=True)
 """
 
 
-def _latency_run(model, seconds, chunk, seed, serial=True):
+def _spec(preset, k: int):
+    """A simulated tracker with ``k`` tri-axial sensors (devices S0, S1, ...) on one source:
+    sensor j on channels 3j..3j+2, references after them, 20 mm apart along x."""
+    from ..live import tracker_from_dict
+    from ..simulate import get_preset
+
+    p = get_preset(preset)
+    if (p.n_source, p.n_sensor) != (3, 3):
+        raise InputError(f"expected a tri-axial preset, got {preset!r}")
+    if not 1 <= k <= 16:
+        raise InputError(f"expected --sensors in 1..16, got {k}")
+    doc = {"format": "openemt-tracker", "version": 1,
+           "adc": {"sample_rate": 96000.0, "channels": 3 * k + 3},
+           "source": {"frequencies": list(p.frequencies),
+                      "reference_channels": [3 * k, 3 * k + 1, 3 * k + 2]},
+           "sensors": [{"name": f"S{j}", "channels": [3 * j, 3 * j + 1, 3 * j + 2],
+                        "simulation_offset": [0.02 * j, 0.0, 0.0]} for j in range(k)],
+           "simulation": {"preset": p.name}}
+    return tracker_from_dict(doc)
+
+
+def _latency_run(spec, seconds, chunk, seed, serial=True):
     import subprocess
     import sys
 
-    from ..live import IgtlServer, SimulatedBackend, TrackingPipeline
+    from ..live import IgtlServer, TrackingPipeline
+    from ..live._session import tracker_backend, tracker_sensors
 
-    backend = SimulatedBackend(model, seed=seed, realtime=True, duration=seconds, chunk=chunk)
-    srv = IgtlServer(port=0, device_name="openemt", max_queue=64)
+    backend = tracker_backend(spec, "sim", realtime=True, duration=seconds, chunk=chunk,
+                              seed=seed)
+    names = [s.device_name for s in spec.sensors]
+    srv = IgtlServer(port=0, device_name=names[0], max_queue=64)
     client = subprocess.Popen([sys.executable, "-c", _CLIENT, str(srv.port),
-                               str(seconds * 20 + 30)], stdout=subprocess.DEVNULL)
+                               str(seconds * 20 + 30), ",".join(names)],
+                              stdout=subprocess.DEVNULL)
     try:
         if not srv.wait_for_client(30.0):
             raise OSError("expected a loopback OpenIGTLink client to connect, got none in 30 s")
-        pipe = TrackingPipeline(backend, model, igtl=srv, serial_small_batches=serial)
+        pipe = TrackingPipeline(backend, sensors=tracker_sensors(spec), igtl=srv,
+                                serial_small_batches=serial)
         backend.restart_clock()
         t0 = time.perf_counter()
         s = pipe.run()
@@ -108,21 +163,23 @@ def run(args) -> dict:
 
     model = get_preset(args.preset).dipole
     seconds = float(args.seconds)
-    if not seconds > 0 or not args.noise_seconds > 0:
-        raise InputError(f"expected positive --seconds and --noise-seconds, got {seconds} and "
-                         f"{args.noise_seconds}")
+    if not seconds > 0 or not args.noise_seconds > 0 or not args.rate_seconds > 0:
+        raise InputError(f"expected positive --seconds, --noise-seconds and --rate-seconds, "
+                         f"got {seconds}, {args.noise_seconds} and {args.rate_seconds}")
+    spec = _spec(args.preset, int(args.sensors))
 
     # compile / load every numba kernel the pipeline uses before anything is timed
-    _latency_run(model, 0.05, args.chunk, args.seed)
-    s, send, wall, stats = _latency_run(model, seconds, args.chunk, args.seed)
-    s1, send1, wall1, _ = _latency_run(model, min(seconds, 1.0), 64, args.seed)
-    _, sendb, _, _ = _latency_run(model, min(seconds, 1.0), 64, args.seed, serial=False)
+    _latency_run(spec, 0.05, args.chunk, args.seed)
+    s, send, wall, stats = _latency_run(spec, seconds, args.chunk, args.seed)
+    s1, send1, wall1, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed)
+    _, sendb, _, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed, serial=False)
 
     def pct(a, q):
         return float(np.percentile(a, q)) if len(a) else None
 
     out = {
-        "preset": args.preset, "output_rate": 1500.0, "chunk_samples": args.chunk,
+        "preset": args.preset, "sensors": int(args.sensors), "output_rate": 1500.0,
+        "chunk_samples": args.chunk,
         "latency_ms_p50": pct(send, 50), "latency_ms_p99": pct(send, 99),
         "latency_ms_max": pct(send, 100), "latency_samples": len(send),
         "latency_target_p99_ms": 2.0,
@@ -143,6 +200,7 @@ def run(args) -> dict:
                                         if len(send1) and len(sendb) else None)},
         "load_average": list(os.getloadavg()), "cpu_count": os.cpu_count(),
     }
+    out.update(_realtime_factor(spec, float(args.rate_seconds), args.chunk, args.seed))
 
     # --- noise of a static sensor at 200 mm vs the Cramer-Rao bound
     pose = pose_from_vector(np.array([0.2, 0.0, 0.0, 0.1, -0.2, 0.3]))
@@ -180,4 +238,167 @@ def run(args) -> dict:
         "coupling_noise_rms_measured": float(np.sqrt(np.mean(np.diag(cov_c)))),
         "coupling_magnitude_max": float(np.abs(model.coupling(pose[None])).max()),
     })
+    out["filter"] = _filter_report(model, a, ok, noise_um, args.seed)
+    out["load_average_end"] = list(os.getloadavg())
     return out
+
+
+class _Memory:
+    """Backend over raw samples held in memory (the realtime factor excludes simulation)."""
+
+    def __init__(self, samples, layout, chunk):
+        self.samples, self.layout, self.chunk = samples, layout, int(chunk)
+        self.t0_epoch = 0.0
+        self._i = 0
+
+    def read(self):
+        i = self._i
+        if i >= len(self.samples):
+            return None
+        self._i = i + self.chunk
+        return self.samples[i:i + self.chunk]
+
+    def truth_poses(self, times):
+        return None
+
+    def close(self):
+        pass
+
+
+def _realtime_factor(spec, seconds, chunk, seed) -> dict:
+    from ..live import TrackingPipeline
+    from ..live._session import tracker_backend, tracker_sensors
+
+    sim = tracker_backend(spec, "sim", realtime=False, duration=seconds, chunk=96000,
+                          seed=seed)
+    parts = []
+    while (x := sim.read()) is not None:
+        parts.append(x)
+    raw = np.concatenate(parts)
+    import copy
+    from dataclasses import replace
+
+    shared = tracker_sensors(spec)
+    # baseline: every sensor with its own model object (as with one calibration file per
+    # sensor), so each is solved in its own call
+    separate = [replace(st, model=copy.deepcopy(st.model)) for st in shared]
+
+    def timed(sensors):
+        TrackingPipeline(_Memory(raw[:6400], sim.layout, chunk), sensors=sensors).run()
+        pipe = TrackingPipeline(_Memory(raw, sim.layout, chunk), sensors=sensors)
+        c0, t0 = time.process_time(), time.perf_counter()
+        s = pipe.run()
+        return s, time.perf_counter() - t0, time.process_time() - c0
+
+    s, wall, cpu = timed(shared)
+    sb, wallb, cpub = timed(separate)
+    out = {"realtime_factor": s.signal_seconds / wall,
+           "realtime_factor_cpu": s.signal_seconds / cpu if cpu > 0 else None,
+           "realtime_factor_target": 20.0,
+           "realtime_signal_seconds": s.signal_seconds,
+           "realtime_status_counts": s.status_counts,
+           "realtime_baseline": {
+               "what": "one solver call per sensor and chunk (one calibration file per sensor)",
+               "realtime_factor": sb.signal_seconds / wallb,
+               "realtime_factor_cpu": sb.signal_seconds / cpub if cpub > 0 else None,
+               "status_counts": sb.status_counts}}
+    out["realtime_speedup_vs_baseline_cpu"] = (
+        out["realtime_factor_cpu"] / out["realtime_baseline"]["realtime_factor_cpu"]
+        if out["realtime_factor_cpu"] and out["realtime_baseline"]["realtime_factor_cpu"]
+        else None)
+    out.update(_packing(len(spec.sensors)))
+    return out
+
+
+def _packing(k: int) -> dict:
+    """CPU time to pack one chunk's TRANSFORM messages (10 per sensor): the compiled block
+    packer against pyigtl's one-message-at-a-time packing."""
+    import pyigtl
+
+    from ..live._igtl import pack_transforms
+
+    M = np.repeat(np.eye(4)[None], 10, axis=0)
+    M[:, :3, 3] = [200.0, 10.0, -5.0]
+    ts = time.time() + np.arange(10) / 1500.0
+    pack_transforms(M, ts, "S0")
+
+    def per_message(fn, reps=200):
+        c0 = time.process_time()
+        for _ in range(reps):
+            fn()
+        return 1e6 * (time.process_time() - c0) / (reps * 10)
+
+    ours = per_message(lambda: pack_transforms(M, ts, "S0"))
+    theirs = per_message(lambda: b"".join(
+        pyigtl.TransformMessage(m, timestamp=t, device_name="S0").pack()
+        for m, t in zip(M, ts)))
+    return {"igtl_pack_us_per_message": ours, "igtl_pack_us_per_message_pyigtl": theirs,
+            "igtl_pack_speedup": theirs / ours if ours > 0 else None,
+            "igtl_pack_us_per_chunk": 10 * k * ours}
+
+
+def _filter_report(model, noise_log, ok, noise_um, seed) -> dict:
+    """Noise with/without the Kalman filter (static run), lag at a 2 Hz sine, step settling."""
+    from ..live import FilterSpec, SimulatedBackend, TrackingPipeline, TrackLog
+    from ..live._filter import kalman_filter_poses
+
+    f = FilterSpec(kind="kalman")
+    kw = {k: getattr(f, k) for k in ("process_noise", "measurement_noise",
+                                     "rotation_process_noise", "rotation_measurement_noise",
+                                     "max_gap")}
+    # static: the same demodulated poses, filtered
+    t = noise_log["times"][ok]
+    _, fv, _ = kalman_filter_poses(noise_log["pose_vectors"][ok], t, np.ones(len(t), bool),
+                                   **kw)
+    settle = 150                                        # skip the filter's first 0.1 s
+    filt_um = 1e6 * float(np.sqrt(np.trace(np.cov(fv[settle:, :3].T))))
+    raw_um = 1e6 * float(np.sqrt(np.trace(np.cov(noise_log["pose_vectors"][ok][settle:, :3].T))))
+
+    # motion: 10 mm, 2 Hz sine along y at (200, 0, 0) mm
+    freq, amp = 2.0, 0.010
+    base = np.array([0.2, 0.0, 0.0, 0.1, -0.2, 0.3])
+
+    def trajectory(tt):
+        from ..geometry import pose_from_vector
+
+        v = np.tile(base, (len(tt), 1))
+        v[:, 1] += amp * np.sin(2 * np.pi * freq * np.asarray(tt))
+        return pose_from_vector(v)
+
+    log = TrackLog()
+    TrackingPipeline(SimulatedBackend(model, trajectory, seed=seed + 2, duration=2.0,
+                                      chunk=6400), model, log=log).run()
+    a = log.arrays()
+    good = a["status"] == 0
+    tt, y = a["times"][good], a["pose_vectors"][good]
+    _, fy, _ = kalman_filter_poses(y, tt, np.ones(len(tt), bool), **kw)
+    truth = trajectory(tt)[:, 1, 3]
+
+    def phase(sig):
+        A = np.column_stack([np.sin(2 * np.pi * freq * tt), np.cos(2 * np.pi * freq * tt),
+                             np.ones_like(tt)])
+        c = np.linalg.lstsq(A[settle:], sig[settle:], rcond=None)[0]
+        return np.arctan2(c[1], c[0])
+
+    lag_ms = 1e3 * (phase(y[:, 1]) - phase(fy[:, 1])) / (2 * np.pi * freq)
+    # step response (noise-free): time until the output stays within 1 % of a 1 mm step
+    n = 300
+    st = np.tile(base, (n, 1))
+    st[100:, 0] += 1e-3
+    _, fs_, _ = kalman_filter_poses(st, np.arange(n) / 1500.0, np.ones(n, bool), **kw)
+    err = np.abs(fs_[100:, 0] - st[100:, 0]) / 1e-3
+    worst = np.maximum.accumulate(err[::-1])[::-1]
+    settle_samples = int(np.argmax(worst < 0.01))
+    return {
+        "kind": "kalman", **kw,
+        "position_noise_um": raw_um, "position_noise_um_filtered": filt_um,
+        "noise_reduction": filt_um / raw_um,
+        "motion": "10 mm, 2 Hz sine along y at (200, 0, 0) mm",
+        "added_lag_ms": float(lag_ms),
+        "motion_error_um_rms": 1e6 * float(np.sqrt(np.mean((y[settle:, 1]
+                                                           - truth[settle:]) ** 2))),
+        "motion_error_um_rms_filtered": 1e6 * float(np.sqrt(np.mean((fy[settle:, 1]
+                                                                    - truth[settle:]) ** 2))),
+        "step_settle_ms": 1e3 * settle_samples / 1500.0,
+        "step_overshoot": float(max(0.0, np.max(fs_[100:, 0] - st[100:, 0]) / 1e-3)),
+    }

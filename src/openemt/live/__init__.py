@@ -1,4 +1,5 @@
-"""Live tracking: acquisition backends, the real-time pipeline and OpenIGTLink output."""
+"""Live tracking: tracker description files, acquisition backends, the real-time pipeline (one
+or several sensors, optional tracking filter) and OpenIGTLink output."""
 
 from ._backends import (
     Backend,
@@ -8,21 +9,47 @@ from ._backends import (
     default_model,
     default_trajectory,
 )
+from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
-from ._pipeline import TrackingPipeline, TrackLog, TrackStep, TrackSummary, lm_solver
+from ._pipeline import (
+    SensorSetup,
+    TrackingPipeline,
+    TrackLog,
+    TrackStep,
+    TrackSummary,
+    lm_solver,
+)
+from ._tracker_file import (
+    FilterSpec,
+    SensorSpec,
+    TrackerSpec,
+    example_tracker,
+    read_tracker,
+    tracker_from_dict,
+)
 
 __all__ = [
     "DEFAULT_IGTL_PORT",
     "Backend",
+    "FilterSpec",
     "IgtlServer",
     "ReplayBackend",
+    "SensorSetup",
+    "SensorSpec",
     "SimulatedBackend",
     "SoundDeviceBackend",
     "TrackLog",
     "TrackStep",
     "TrackSummary",
+    "TrackerSpec",
     "TrackingPipeline",
     "default_model",
     "default_trajectory",
+    "example_tracker",
+    "filter_restarts",
+    "kalman_filter_poses",
     "lm_solver",
+    "new_filter_state",
+    "read_tracker",
+    "tracker_from_dict",
 ]

@@ -30,6 +30,8 @@ __all__ = [
     "SoundDeviceBackend",
     "default_model",
     "default_trajectory",
+    "import_sounddevice",
+    "list_audio_inputs",
 ]
 
 logger = logging.getLogger(__name__)
@@ -59,6 +61,38 @@ def default_model():
     except ImportError:  # pragma: no cover - simulate always ships with openemt
         from ..field import DipoleModel
         return DipoleModel.concentric()
+
+
+class _StackedModel:
+    """Several sensors of one coupling model side by side, for the raw-signal simulator:
+    ``coupling(poses (N, K, 4, 4)) -> (N, n_source, K * n_sensor)`` (sensor k's coils in
+    columns ``k * n_sensor ...``)."""
+
+    def __init__(self, model, k: int):
+        self.model = model
+        self.k = int(k)
+        self.n_source = model.n_source
+        self.n_sensor = model.n_sensor * self.k
+
+    def coupling(self, poses):
+        P = np.asarray(poses, dtype=np.float64)
+        n = P.shape[0]
+        C = self.model.coupling(np.ascontiguousarray(P.reshape(n * self.k, 4, 4)))
+        so, se = C.shape[1:]
+        return C.reshape(n, self.k, so, se).transpose(0, 2, 1, 3).reshape(n, so, self.k * se)
+
+
+def _offset_trajectory(trajectory, offsets):
+    """``trajectory`` shifted by each of ``offsets`` (K, 3) m: ``times -> (N, K, 4, 4)``."""
+    off = np.asarray(offsets, dtype=np.float64)
+
+    def poses(t):
+        P = np.asarray(trajectory(t), dtype=np.float64)
+        out = np.repeat(P[:, None], len(off), axis=1)
+        out[:, :, :3, 3] += off[None]
+        return out
+
+    return poses
 
 
 class Backend:
@@ -103,16 +137,30 @@ class SimulatedBackend(Backend):
         Pace reads so samples arrive at the sample rate of the wall clock.
     duration : float, optional
         Seconds of signal before ``read`` returns None (None = endless).
+    offsets : array (K, 3), optional
+        Several sensors of the same model: sensor k follows ``trajectory`` shifted by
+        ``offsets[k]`` (m); the layout of ``config`` must list K times the model's sensor
+        channels (sensor 0's first). :meth:`truth_poses` is then ``(N, K, 4, 4)``.
     """
 
     def __init__(self, model=None, trajectory=None, config: RawSignalConfig | None = None, *,
                  seed: int = 0, chunk: int = 640, realtime: bool = False,
-                 duration: float | None = None):
+                 duration: float | None = None, offsets=None):
         self.model = default_model() if model is None else model
         if config is None:
             config = RawSignalConfig(mains_amplitudes=(0.01, 0.002, 0.003))
-        self._sim = RawSimulator(self.model, default_trajectory if trajectory is None
-                                 else trajectory, config, seed=seed)
+        traj = default_trajectory if trajectory is None else trajectory
+        sim_model = self.model
+        if offsets is not None:
+            off = np.asarray(offsets, dtype=np.float64)
+            if off.ndim != 2 or off.shape[1] != 3 or len(off) < 1:
+                raise InputError(f"expected `offsets` of shape (K, 3), got {off.shape}")
+            if not callable(traj):
+                fixed = np.asarray(traj, dtype=np.float64)
+                traj = lambda t: np.broadcast_to(fixed, (len(t), 4, 4))
+            traj = _offset_trajectory(traj, off)
+            sim_model = _StackedModel(self.model, len(off))
+        self._sim = RawSimulator(sim_model, traj, config, seed=seed)
         self.layout = config.layout
         self.chunk = int(chunk)
         if self.chunk < 1:
@@ -204,6 +252,42 @@ class ReplayBackend(Backend):
         return P[k]
 
 
+def import_sounddevice():
+    """The optional ``sounddevice`` module, or an ImportError saying how to install it."""
+    try:
+        import sounddevice
+    except (ImportError, OSError) as exc:   # OSError: the PortAudio library is missing
+        extra = "" if isinstance(exc, ImportError) else f" ({exc})"
+        raise ImportError("expected the optional package 'sounddevice' for the sound-card "
+                          "backend (pip install sounddevice, or pip install "
+                          f"'openemt[sound]'), got it missing{extra}") from None
+    if sounddevice is None:   # pragma: no cover - blocked in sys.modules
+        raise ImportError("expected the optional package 'sounddevice' (pip install "
+                          "sounddevice), got it missing")
+    return sounddevice
+
+
+def list_audio_inputs() -> list:
+    """Audio input devices seen by ``sounddevice``: dicts with ``index``, ``name``,
+    ``max_input_channels``, ``default_samplerate`` and ``hostapi`` (name)."""
+    sd = import_sounddevice()
+    try:
+        apis = [a["name"] for a in sd.query_hostapis()]
+    except Exception:  # noqa: BLE001 - host API names are cosmetic
+        apis = []
+    out = []
+    for i, d in enumerate(sd.query_devices()):
+        if int(d.get("max_input_channels", 0)) <= 0:
+            continue
+        api = d.get("hostapi")
+        out.append({"index": int(d.get("index", i)), "name": str(d.get("name", "")),
+                    "max_input_channels": int(d["max_input_channels"]),
+                    "default_samplerate": float(d.get("default_samplerate", 0.0)),
+                    "hostapi": apis[api] if isinstance(api, int) and api < len(apis)
+                    else api})
+    return out
+
+
 class SoundDeviceBackend(Backend):
     """A multi-channel audio interface (96 kS/s, e.g. 8-in) through ``sounddevice``.
 
@@ -220,15 +304,18 @@ class SoundDeviceBackend(Backend):
         Block size (samples).
     timeout : float
         Seconds ``read`` waits for a block before giving up (returns None).
+    channels : int, optional
+        Input channels to open (default: enough for the layout); a tracker file's
+        ``adc.channels``.
     """
 
     def __init__(self, layout: ChannelLayout, *, device=None, chunk: int = 64 * 16,
-                 timeout: float = 1.0, max_blocks: int = 64):
-        try:
-            import sounddevice
-        except ImportError:
-            raise ImportError("expected the optional package 'sounddevice' for the sound-card "
-                              "backend (pip install 'openemt[sound]'), got it missing") from None
+                 timeout: float = 1.0, max_blocks: int = 64, channels: int | None = None):
+        sounddevice = import_sounddevice()
+        n_ch = layout.n_channels if channels is None else int(channels)
+        if n_ch < layout.n_channels:
+            raise InputError(f"expected at least {layout.n_channels} input channels for the "
+                             f"layout, got {n_ch}")
         self.layout = layout
         self.timeout = float(timeout)
         self.n_overflow = 0
@@ -243,7 +330,7 @@ class SoundDeviceBackend(Backend):
                 self.n_overflow += 1
 
         self._stream = sounddevice.InputStream(samplerate=layout.sample_rate,
-                                               channels=layout.n_channels, dtype="float32",
+                                               channels=n_ch, dtype="float32",
                                                blocksize=int(chunk), device=device,
                                                callback=callback)
         self.t0_epoch = time.time()

@@ -1,19 +1,22 @@
 """OpenIGTLink output: a TRANSFORM server that 3D Slicer's OpenIGTLinkIF module connects to.
 
 Poses are metres inside openemt; OpenIGTLink transforms for Slicer are in **millimetres**
-(Slicer's convention), so :meth:`IgtlServer.send_pose` scales the translation by 1000 at this
+(Slicer's convention), so :meth:`IgtlServer.send_poses` scales the translation by 1000 at this
 edge and nowhere else. The message transports the 4x4 pose as float32 (about 1e-5 mm and
-1e-7 rad of rounding at 200 mm).
+1e-7 rad of rounding at 200 mm). Messages are packed by pyigtl.
 
-The server is pyigtl's ``OpenIGTLinkServer`` (message packing, socket server) with its own
-connection handler so that it
+The server serves any number of clients at once (several Slicer instances, a recorder) and
 
-- never grows memory: poses wait in a bounded queue (``max_queue``, oldest dropped first, a
-  tracker wants the newest pose) and nothing is queued while no client is connected;
-- notices a client that disconnects and accepts the next one (Slicer reconnecting);
-- drops a client whose socket stays blocked longer than ``send_timeout`` (a stalled viewer
-  cannot stall the tracker);
-- shuts down within about ``poll`` seconds and leaves no thread behind.
+- sends from the caller's thread with non-blocking writes, one per client, so that no client
+  can hold up the tracker or the other clients; what a client's socket does not take at once
+  waits in that client's bounded queue (``max_queue`` items; when it is full the oldest whole
+  item is skipped and counted in ``messages_skipped``, a tracker wants the newest pose);
+- flushes the queues from one I/O thread that waits on all sockets with ``select`` (which also
+  accepts new clients and notices clients that leave, e.g. Slicer reconnecting);
+- drops a client whose socket has taken no byte for ``send_timeout`` seconds while data was
+  waiting (``clients_dropped``); the others are not delayed by it at all;
+- queues nothing while no client is connected, and shuts down within about ``poll`` seconds,
+  leaving no thread behind.
 """
 
 from __future__ import annotations
@@ -22,17 +25,16 @@ import collections
 import logging
 import select
 import socket
-import socketserver
 import threading
 import time
 
 import numpy as np
 import pyigtl
-from pyigtl.comm import OpenIGTLinkBase
+from numba import njit
 
 from .._errors import InputError
 
-__all__ = ["DEFAULT_IGTL_PORT", "IgtlServer"]
+__all__ = ["DEFAULT_IGTL_PORT", "IgtlServer", "pack_transforms"]
 
 #: The OpenIGTLink port 3D Slicer's client connector uses by default.
 DEFAULT_IGTL_PORT = 18944
@@ -40,49 +42,126 @@ DEFAULT_IGTL_PORT = 18944
 logger = logging.getLogger(__name__)
 
 
-class _Handler(socketserver.BaseRequestHandler):
-    """One connected client: send queued transforms until it leaves or the server stops."""
-
-    def handle(self):
-        srv: _Server = self.server
-        owner = srv.owner
-        sock = self.request
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(owner.send_timeout)
-        owner._attach(sock)
-        try:
-            while not srv.communication_thread_stop_requested:
-                owner._wait(owner.poll)
-                readable, _, _ = select.select([sock], [], [], 0)
-                # a client message (ignored) or the client closing
-                if readable and not sock.recv(65536):
-                    logger.info("OpenIGTLink client disconnected")
-                    break
-                with owner._send_lock:          # taken before the batch: keeps the order
-                    for data, count, t_ready in owner._take():
-                        sock.sendall(data)
-                        owner._sent(count, t_ready)
-        except OSError as exc:  # includes socket.timeout: stalled or vanished client
-            logger.warning("OpenIGTLink client dropped: %s", exc)
-        finally:
-            owner._detach()
+# An OpenIGTLink version-1 TRANSFORM message: a 58-byte header (version, type, device name,
+# timestamp as seconds and 2^-32 fractions, body size, CRC-64 of the body) and a 48-byte body
+# (the upper 3x4 of the matrix column by column, big-endian float32) -- the bytes pyigtl packs.
+_MSG = 58 + 48
 
 
-class _Server(pyigtl.OpenIGTLinkServer):
-    """pyigtl's server with our handler, no process signal handlers, explicit lifetime."""
+def _crc64_table() -> np.ndarray:
+    """Table of the CRC-64 of OpenIGTLink (ECMA-182 polynomial, MSB first, no reflection)."""
+    poly, top, mask = 0x42F0E1EBA9EA3693, 1 << 63, (1 << 64) - 1
+    table = np.zeros(256, np.uint64)
+    for i in range(256):
+        c = i << 56
+        for _ in range(8):
+            c = ((c << 1) ^ poly) & mask if c & top else (c << 1) & mask
+        table[i] = c
+    return table
 
-    allow_reuse_address = True
 
-    def __init__(self, owner, host: str, port: int):
-        OpenIGTLinkBase.__init__(self)
-        self.owner = owner
-        self.host = host
-        socketserver.TCPServer.__init__(self, (host, port), _Handler)
-        self.port = self.server_address[1]
+_CRC_TABLE = _crc64_table()
+def _fraction_bases() -> np.ndarray:
+    """The halving bases of OpenIGTLink's nanoseconds -> 2^-32 fraction conversion."""
+    out, base = [], 1_000_000_000
+    for _ in range(32):
+        base = (base + 1) >> 1
+        out.append(base)
+    return np.array(out, dtype=np.int64)
+
+
+_FRAC_BASES = _fraction_bases()
+
+
+@njit(cache=True)
+def _pack_kernel(M, sec, nanosec, device, table, bases, out):
+    f = np.empty(12, np.float32)
+    u = f.view(np.uint32)
+    for k in range(M.shape[0]):
+        o = k * 106
+        out[o] = 0
+        out[o + 1] = 1                                   # version 1
+        name = "TRANSFORM"
+        for i in range(12):
+            out[o + 2 + i] = ord(name[i]) if i < 9 else 0
+        for i in range(20):
+            out[o + 14 + i] = device[i]
+        frac = np.uint64(0)
+        ns = nanosec[k]
+        for b in range(32):
+            if ns >= bases[b]:
+                frac |= np.uint64(1) << np.uint64(31 - b)
+                ns -= bases[b]
+        s = np.uint64(sec[k])
+        for i in range(4):
+            out[o + 34 + i] = (s >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
+            out[o + 38 + i] = (frac >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
+        for i in range(8):
+            out[o + 42 + i] = 48 if i == 7 else 0          # body size
+        for c in range(4):
+            for r in range(3):
+                f[3 * c + r] = M[k, r, c]
+        crc = np.uint64(0)
+        for i in range(12):
+            w = u[i]
+            for j in range(4):
+                byte = (w >> np.uint32(8 * (3 - j))) & np.uint32(0xFF)
+                out[o + 58 + 4 * i + j] = byte
+                idx = ((crc >> np.uint64(56)) ^ np.uint64(byte)) & np.uint64(0xFF)
+                crc = table[idx] ^ (crc << np.uint64(8))
+        for i in range(8):
+            out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
+
+
+def pack_transforms(matrices, timestamps, device_name: str) -> bytes:
+    """Pack N TRANSFORM messages at once, byte for byte what pyigtl's
+    ``TransformMessage.pack`` gives, in a compiled loop (a block of poses costs about as much
+    as one pyigtl message).
+
+    Parameters
+    ----------
+    matrices : ndarray, shape (N, 4, 4)
+        Transforms as sent (the caller scales metres to millimetres).
+    timestamps : array of N floats
+        Seconds since the epoch, in [0, 2**32).
+    device_name : str
+        1-20 ASCII characters.
+    """
+    M = np.ascontiguousarray(matrices, dtype=np.float64)
+    ts = np.asarray(timestamps, dtype=np.float64)
+    sec = np.trunc(ts)
+    dev = np.zeros(20, np.uint8)
+    raw = device_name.encode("ascii")[:20]
+    dev[:len(raw)] = np.frombuffer(raw, np.uint8)
+    out = np.empty(M.shape[0] * _MSG, np.uint8)
+    _pack_kernel(M, sec.astype(np.int64), ((ts - sec) * 1e9).astype(np.int64), dev,
+                 _CRC_TABLE, _FRAC_BASES, out)
+    return out.tobytes()
+
+
+def _check_device_name(name) -> str:
+    if not isinstance(name, str) or not name or len(name) > 20 or not name.isascii():
+        raise InputError(f"expected a `device_name` of 1-20 ASCII characters, got {name!r}")
+    return name
+
+
+class _Client:
+    """One connected client: its non-blocking socket and its queue of unsent items."""
+
+    __slots__ = ("addr", "last_progress", "n_sent", "n_skipped", "partial", "queue", "sock")
+
+    def __init__(self, sock, addr):
+        self.sock = sock
+        self.addr = addr
+        self.n_sent = 0
+        self.n_skipped = 0
+        self.queue: collections.deque = collections.deque()
+        self.partial = False              # the head item is partly sent: it must go out next
+        self.last_progress = time.monotonic()
 
 
 class IgtlServer:
-    """Serve sensor poses as OpenIGTLink TRANSFORM messages.
+    """Serve sensor poses as OpenIGTLink TRANSFORM messages to any number of clients.
 
     Parameters
     ----------
@@ -91,14 +170,15 @@ class IgtlServer:
     host : str
         Interface to listen on ("127.0.0.1" for local viewers; "0.0.0.0" for the network).
     device_name : str
-        OpenIGTLink device name = the transform node name in Slicer.
+        Default OpenIGTLink device name = the transform node name in Slicer (each call of
+        :meth:`send_poses` may name another device, one per sensor).
     max_queue : int
-        Items (a pose, or a block of poses from :meth:`send_poses`) waiting for a slow client;
-        older ones are dropped first.
+        Items (a pose, or a block of poses from :meth:`send_poses`) waiting per client for a
+        slow reader; older ones are skipped first.
     send_timeout : float
-        A client whose socket blocks longer than this (s) is disconnected.
+        A client whose socket takes no data for this long (s) while data waits is dropped.
     poll : float
-        Wake-up period of the sender thread (s); bounds the shutdown time.
+        Wake-up period of the I/O thread (s); bounds the shutdown time.
 
     Examples
     --------
@@ -109,107 +189,108 @@ class IgtlServer:
     def __init__(self, port: int = DEFAULT_IGTL_PORT, *, host: str = "127.0.0.1",
                  device_name: str = "openemt", max_queue: int = 16, send_timeout: float = 1.0,
                  poll: float = 0.02):
-        if not isinstance(device_name, str) or not device_name or len(device_name) > 20:
-            raise InputError(f"expected a `device_name` of 1-20 characters, got {device_name!r}")
+        self.device_name = _check_device_name(device_name)
         if int(max_queue) < 1:
             raise InputError(f"expected `max_queue` >= 1, got {max_queue!r}")
         port = int(port)
         if not 0 <= port <= 65535:
             raise InputError(f"expected a TCP `port` in 0..65535, got {port}")
-        self.device_name = device_name
+        if not float(send_timeout) > 0:
+            raise InputError(f"expected a positive `send_timeout`, got {send_timeout!r}")
         self.send_timeout = float(send_timeout)
         self.poll = float(poll)
-        self._queue: collections.deque = collections.deque()
         self._max_queue = int(max_queue)
-        self._cond = threading.Condition()
-        self._send_lock = threading.Lock()
-        self._direct = None
-        self._partial = False
-        self._connected = False
+        self._lock = threading.Lock()
+        self._clients: list[_Client] = []
         self.n_queued = 0
         self.n_sent = 0
-        self.n_dropped = 0
+        self.n_skipped = 0
         self.n_no_client = 0
         self.n_connections = 0
+        self.n_clients_dropped = 0
+        self.clients_max = 0
         self._latency = collections.deque(maxlen=200_000)
         self._closed = False
+        self._stop = False
+        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
-            self._server = _Server(self, host, port)
+            listener.bind((host, port))
+            listener.listen(8)
         except OSError as exc:
+            listener.close()
             raise OSError(f"expected a free TCP port for OpenIGTLink on {host}:{port}, got "
                           f"{exc.strerror or exc}") from None
-        self._thread = threading.Thread(target=self._server.serve_forever,
-                                        kwargs={"poll_interval": self.poll},
-                                        name="openemt-igtl", daemon=True)
+        listener.setblocking(False)
+        self._listener = listener
+        self._port = listener.getsockname()[1]
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._thread = threading.Thread(target=self._io_loop, name="openemt-igtl", daemon=True)
         self._thread.start()
 
     # ------------------------------------------------------------------ state
     @property
     def port(self) -> int:
         """The TCP port actually listened on."""
-        return self._server.port
+        return self._port
 
     @property
     def connected(self) -> bool:
-        """True while a client is connected."""
-        return self._connected
+        """True while at least one client is connected."""
+        return bool(self._clients)
+
+    @property
+    def n_clients(self) -> int:
+        """Clients connected now."""
+        return len(self._clients)
+
+    @property
+    def n_dropped(self) -> int:
+        """Messages skipped for slow clients (alias of ``messages_skipped``)."""
+        return self.n_skipped
 
     @property
     def queue_length(self) -> int:
-        return len(self._queue)
+        """Longest client queue now (items)."""
+        with self._lock:
+            return max((len(c.queue) for c in self._clients), default=0)
 
     def latencies(self) -> np.ndarray:
-        """Seconds from ``t_ready`` (given to :meth:`send_pose`) to the end of the socket send,
-        for the most recent (up to 200 000) sent poses."""
+        """Seconds from ``t_ready`` (given to :meth:`send_poses`) to the end of the socket send,
+        per delivered message and client, for the most recent (up to 200 000) deliveries."""
         return np.asarray(self._latency)
 
     def stats(self) -> dict:
-        """Counters: queued, sent, dropped (queue full), no_client (nobody listening),
-        connections."""
-        return {"queued": self.n_queued, "sent": self.n_sent, "dropped": self.n_dropped,
-                "no_client": self.n_no_client, "connections": self.n_connections}
+        """Counters, per message and client: ``queued`` (accepted for a client), ``sent``
+        (written to a client's socket), ``messages_skipped`` (= ``dropped``: shed from a slow
+        client's full queue), ``no_client`` (nobody listening); and ``connections`` (accepted
+        so far), ``clients`` (now), ``clients_max`` (most at once), ``clients_dropped`` (cut off
+        after ``send_timeout`` without progress)."""
+        with self._lock:
+            return {"queued": self.n_queued, "sent": self.n_sent, "dropped": self.n_skipped,
+                    "messages_skipped": self.n_skipped, "no_client": self.n_no_client,
+                    "connections": self.n_connections, "clients": len(self._clients),
+                    "clients_max": self.clients_max,
+                    "clients_dropped": self.n_clients_dropped}
 
-    def _attach(self, sock):
-        direct = sock.dup()                 # non-blocking twin for the caller's fast path
-        direct.setblocking(False)
-        with self._cond:
-            self._connected = True
-            self._direct = direct
-            self.n_connections += 1
+    def clients(self) -> list:
+        """The connected clients now: ``address`` (host, port), ``sent`` and ``skipped``
+        messages, ``waiting`` (items in its queue)."""
+        with self._lock:
+            return [{"address": c.addr, "sent": c.n_sent, "skipped": c.n_skipped,
+                     "waiting": len(c.queue)} for c in self._clients]
 
-    def _detach(self):
-        with self._send_lock, self._cond:
-            self._connected = False
-            self._queue.clear()
-            self._partial = False
-            if self._direct is not None:
-                self._direct.close()
-                self._direct = None
-
-    def _wait(self, timeout):
-        with self._cond:
-            if not self._queue:
-                self._cond.wait(timeout)
-
-    def _take(self):
-        with self._cond:
-            batch = list(self._queue)
-            self._queue.clear()
-            self._partial = False
-        return batch
-
-    def _sent(self, count, t_ready):
-        with self._cond:
-            self._count_sent(count, t_ready)
-
-    def _count_sent(self, count, t_ready):
+    def _count_sent(self, c, count, t_ready):
+        c.n_sent += count
         self.n_sent += count
         if t_ready is not None:
             self._latency.extend([time.perf_counter() - t_ready] * count)
 
     # ------------------------------------------------------------------ sending
     def send_pose(self, pose, *, timestamp: float | None = None,
-                  t_ready: float | None = None) -> bool:
+                  t_ready: float | None = None, device_name: str | None = None) -> bool:
         """Queue one pose (metres) as a TRANSFORM in millimetres.
 
         Parameters
@@ -219,8 +300,10 @@ class IgtlServer:
         timestamp : float, optional
             Acquisition time (s since the epoch) written into the message.
         t_ready : float, optional
-            ``time.perf_counter()`` when the pose's couplings were available; the sender records
-            the latency to the end of the socket send.
+            ``time.perf_counter()`` when the pose's couplings were available; the server
+            records the latency to the end of the socket send.
+        device_name : str, optional
+            Device name of the message (default: the server's ``device_name``).
 
         Returns
         -------
@@ -231,11 +314,12 @@ class IgtlServer:
         if P.shape != (4, 4):
             raise InputError(f"expected `pose` of shape (4, 4), got {P.shape}")
         return self.send_poses(P[None], None if timestamp is None else [timestamp],
-                               t_ready=t_ready)
+                               t_ready=t_ready, device_name=device_name)
 
-    def send_poses(self, poses, timestamps=None, *, t_ready: float | None = None) -> bool:
-        """Queue several poses (metres) as consecutive TRANSFORMs, written to the socket in one
-        piece (one system call for a block of samples).
+    def send_poses(self, poses, timestamps=None, *, t_ready: float | None = None,
+                   device_name: str | None = None) -> bool:
+        """Queue several poses (metres) as consecutive TRANSFORMs, written to each client's
+        socket in one piece (one system call per client for a block of samples).
 
         Parameters
         ----------
@@ -244,6 +328,8 @@ class IgtlServer:
             Acquisition times (s since the epoch).
         t_ready : float, optional
             See :meth:`send_pose`; the latency is recorded for each of the N poses.
+        device_name : str, optional
+            See :meth:`send_pose`.
         """
         P = np.asarray(poses, dtype=np.float64)
         if P.ndim != 3 or P.shape[1:] != (4, 4):
@@ -251,78 +337,197 @@ class IgtlServer:
         ts = [None] * len(P) if timestamps is None else [float(t) for t in timestamps]
         if len(ts) != len(P):
             raise InputError(f"expected {len(P)} timestamps, got {len(ts)}")
+        name = self.device_name if device_name is None else _check_device_name(device_name)
         if len(P) == 0:
             return False
-        if not self._connected:                  # cheap exit before packing
-            with self._cond:
+        if not self._clients:                    # cheap exit before packing
+            with self._lock:
                 self.n_no_client += len(P)
             return False
         M = P.copy()
         M[:, :3, 3] *= 1000.0                    # metres -> millimetres (Slicer convention)
-        data = b"".join(pyigtl.TransformMessage(m, timestamp=t, device_name=self.device_name)
-                        .pack() for m, t in zip(M, ts))
+        if timestamps is None:
+            stamps = np.full(len(P), time.time())
+        else:
+            stamps = np.asarray(ts, dtype=np.float64)
+        if np.all(np.isfinite(M)) and np.all(stamps >= 0) and np.all(stamps < 2.0 ** 32):
+            data = pack_transforms(M, stamps, name)
+        else:                                    # unusual values: pyigtl's own checks
+            data = b"".join(pyigtl.TransformMessage(m, timestamp=t, device_name=name).pack()
+                            for m, t in zip(M, stamps))
         return self._enqueue(data, len(P), t_ready)
 
     def send_message(self, message, t_ready: float | None = None) -> bool:
         """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status)."""
         return self._enqueue(message.pack(), 1, t_ready)
 
-    def _enqueue(self, data: bytes, count: int, t_ready):
-        with self._cond:
+    def _enqueue(self, data: bytes, count: int, t_ready) -> bool:
+        wake = False
+        with self._lock:
             if self._closed:
                 return False
-            if not self._connected:
+            if not self._clients:
                 self.n_no_client += count
                 return False
-            self.n_queued += count
-            # fast path: nothing waiting and the sender idle -> non-blocking send right here
-            # (no thread hand-over, so no wait for the interpreter to switch threads)
-            if (not self._queue and self._direct is not None
-                    and self._send_lock.acquire(blocking=False)):
-                try:
-                    n = self._direct.send(data)
-                except OSError:                 # would block, or the client is gone
-                    n = 0
-                finally:
-                    self._send_lock.release()
-                if n == len(data):
-                    self._count_sent(count, t_ready)
-                    return True
-                if n:                           # the rest must go out next, never dropped
-                    self._queue.append((data[n:], count, t_ready))
-                    self._partial = True
-                    self._cond.notify()
-                    return True
-            if len(self._queue) >= self._max_queue:
-                # drop the oldest whole item (a partly sent head must be completed)
-                if not self._partial:
-                    self.n_dropped += self._queue.popleft()[1]
-                elif len(self._queue) > 1:
-                    self.n_dropped += self._queue[1][1]
-                    del self._queue[1]
-            self._queue.append((data, count, t_ready))
-            self._cond.notify()
+            for c in self._clients:
+                self.n_queued += count
+                if not c.queue:
+                    # fast path: nothing waiting -> non-blocking send right here (no thread
+                    # hand-over); a client that cannot take it never blocks the others
+                    try:
+                        n = c.sock.send(data)
+                    except OSError:                 # would block, or the client is gone
+                        n = 0
+                    if n == len(data):
+                        self._count_sent(c, count, t_ready)
+                        c.last_progress = time.monotonic()
+                        continue
+                    c.last_progress = time.monotonic()
+                    wake = True
+                    if n:                           # the rest must go out next, never skipped
+                        c.queue.append((memoryview(data)[n:], count, t_ready))
+                        c.partial = True
+                        continue
+                elif len(c.queue) >= self._max_queue:
+                    # skip the oldest whole item (a partly sent head must be completed)
+                    skip = 0
+                    if not c.partial:
+                        skip = c.queue.popleft()[1]
+                    elif len(c.queue) > 1:
+                        skip = c.queue[1][1]
+                        del c.queue[1]
+                    c.n_skipped += skip
+                    self.n_skipped += skip
+                c.queue.append((data, count, t_ready))
+        if wake:
+            self._wake()
         return True
 
-    def wait_for_client(self, timeout: float) -> bool:
-        """Block until a client is connected or ``timeout`` seconds pass."""
+    def _wake(self):
+        try:
+            self._wake_w.send(b"\0")
+        except OSError:                             # full: the I/O thread is awake anyway
+            pass
+
+    def wait_for_client(self, timeout: float, count: int = 1) -> bool:
+        """Block until at least ``count`` clients are connected or ``timeout`` seconds pass."""
         end = time.monotonic() + float(timeout)
-        while not self._connected and time.monotonic() < end:
+        while len(self._clients) < count and time.monotonic() < end:
             time.sleep(0.005)
-        return self._connected
+        return len(self._clients) >= count
+
+    # ------------------------------------------------------------------ I/O thread
+    def _flush(self, c: _Client) -> None:
+        """Send what ``c``'s socket takes now (lock held; non-blocking)."""
+        while c.queue:
+            data, count, t_ready = c.queue[0]
+            try:
+                n = c.sock.send(data)
+            except BlockingIOError:
+                return
+            if n:
+                c.last_progress = time.monotonic()
+            if n == len(data):
+                c.queue.popleft()
+                c.partial = False
+                self._count_sent(c, count, t_ready)
+            else:
+                c.queue[0] = (memoryview(data)[n:], count, t_ready)
+                c.partial = True
+                return
+
+    def _remove(self, c: _Client, why: str) -> None:
+        with self._lock:
+            if c in self._clients:
+                self._clients.remove(c)
+                lost = sum(item[1] for item in c.queue)
+                c.n_skipped += lost
+                self.n_skipped += lost
+                c.queue.clear()
+        try:
+            c.sock.close()
+        except OSError:  # pragma: no cover
+            pass
+        logger.info("OpenIGTLink client %s %s", c.addr, why)
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                sock, addr = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:  # pragma: no cover - listener closed
+                return
+            sock.setblocking(False)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                self._clients.append(_Client(sock, addr))
+                self.n_connections += 1
+                self.clients_max = max(self.clients_max, len(self._clients))
+            logger.info("OpenIGTLink client %s connected", addr)
+
+    def _io_loop(self) -> None:
+        while not self._stop:
+            with self._lock:
+                clients = list(self._clients)
+                writers = [c.sock for c in clients if c.queue]
+            readers = [self._listener, self._wake_r] + [c.sock for c in clients]
+            try:
+                r, w, _ = select.select(readers, writers, [], self.poll)
+            except (OSError, ValueError):          # a socket closed under us: look again
+                continue
+            if self._stop:
+                break
+            if self._wake_r in r:
+                try:
+                    while self._wake_r.recv(4096):
+                        pass
+                except OSError:
+                    pass
+            if self._listener in r:
+                self._accept()
+            now = time.monotonic()
+            for c in clients:
+                if c.sock in r:                    # a client message (ignored) or leaving
+                    try:
+                        gone = not c.sock.recv(65536)
+                    except BlockingIOError:
+                        gone = False
+                    except OSError:
+                        gone = True
+                    if gone:
+                        self._remove(c, "disconnected")
+                        continue
+                stalled = gone = False
+                with self._lock:
+                    if c.sock in w:
+                        try:
+                            self._flush(c)
+                        except OSError:                # reset by the peer: it left
+                            gone = True
+                    if c.queue and now - c.last_progress > self.send_timeout:
+                        stalled = True
+                if gone:
+                    self._remove(c, "disconnected")
+                elif stalled:
+                    with self._lock:
+                        self.n_clients_dropped += 1
+                    self._remove(c, f"dropped: no data taken for {self.send_timeout:g} s")
 
     # ------------------------------------------------------------------ lifetime
     def close(self) -> None:
-        """Stop serving, disconnect the client and join the server thread (idempotent)."""
-        with self._cond:
+        """Stop serving, disconnect the clients and join the I/O thread (idempotent)."""
+        with self._lock:
             if self._closed:
                 return
             self._closed = True
-            self._server.communication_thread_stop_requested = True
-            self._cond.notify_all()
-        self._server.shutdown()
-        self._server.server_close()
-        self._thread.join(timeout=self.send_timeout + 5 * self.poll + 1.0)
+        self._stop = True
+        self._wake()
+        self._thread.join(timeout=5 * self.poll + 1.0)
+        for c in list(self._clients):
+            self._remove(c, "disconnected (server closing)")
+        for s in (self._listener, self._wake_r, self._wake_w):
+            s.close()
 
     @property
     def closed(self) -> bool:

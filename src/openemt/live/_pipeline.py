@@ -11,16 +11,19 @@ valid pose is known yet. The default wraps :func:`openemt.solve.solve_lm`.
 from __future__ import annotations
 
 import collections
+import contextlib
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .._errors import InputError
-from ..signal import Demodulator
+from ..signal import Demodulated, Demodulator
 from ..solve import Status, solve_lm
+from ._filter import filter_restarts
 
-__all__ = ["TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline", "lm_solver"]
+__all__ = ["SensorSetup", "TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline",
+           "lm_solver"]
 
 _CONVERGED = int(Status.CONVERGED)
 
@@ -46,8 +49,9 @@ def lm_solver(model, *, hemisphere="+x", **kwargs):
     return solve
 
 
-def _serial(fn, *args):
-    """Call ``fn`` with numba's parallel regions on this thread limited to one thread.
+@contextlib.contextmanager
+def _serial_threads():
+    """Limit numba's parallel regions started from this thread to one thread meanwhile.
 
     A live chunk holds a handful of samples; waking a thread pool for them costs far more
     (milliseconds on a busy machine) than the solve itself (~0.1 ms per sample).
@@ -55,13 +59,20 @@ def _serial(fn, *args):
     try:
         import numba
     except ImportError:  # pragma: no cover
-        return fn(*args)
+        yield
+        return
     before = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        return fn(*args)
+        yield
     finally:
         numba.set_num_threads(before)
+
+
+def _serial(fn, *args):
+    """Call ``fn`` inside :func:`_serial_threads`."""
+    with _serial_threads():
+        return fn(*args)
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,28 +141,48 @@ class TrackSummary:
 
 
 class TrackLog:
-    """Accumulates per-sample outputs; writes HDF5 (``.h5``/``.hdf5``) or CSV (``.csv``).
+    """Accumulates per-sample outputs of every sensor; writes HDF5 (``.h5``/``.hdf5``) or CSV.
 
-    HDF5 datasets: ``times`` (s), ``poses`` (N, 4, 4) m, ``pose_vectors`` (N, 6) m/rad,
+    One sensor (the layout of ``openemt track`` without a tracker file, version 1): HDF5
+    datasets at the root: ``times`` (s), ``poses`` (N, 4, 4) m, ``pose_vectors`` (N, 6) m/rad,
     ``status`` int8, ``residual``, ``distortion``, ``distorted`` bool, ``couplings`` complex
-    (N, n_source, n_sensor); attrs ``format = "openemt-track"``, ``version = 1``.
-    CSV columns: ``time_s, x_m, y_m, z_m, rx_rad, ry_rad, rz_rad, status, residual,
-    distortion, distorted``.
+    (N, n_source, n_sensor); attrs ``format = "openemt-track"``, ``version = 1``. CSV columns:
+    ``time_s, x_m, y_m, z_m, rx_rad, ry_rad, rz_rad, status, residual, distortion, distorted``.
+
+    Several sensors (version 2): the same datasets, one group per sensor
+    (``/sensors/<name>/times``, ...), and the attribute ``sensors`` listing the names in
+    tracker-file order. CSV: the column ``sensor`` (its name) after ``time_s``, one row per
+    sensor and sample, sensors of one sample next to each other.
     """
 
     _KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
              "distorted", "couplings")
 
-    def __init__(self):
-        self._parts = {k: [] for k in self._KEYS}
+    def __init__(self, sensor_names=None):
+        self.sensor_names = tuple(sensor_names) if sensor_names is not None else ("openemt",)
+        self._parts = [{k: [] for k in self._KEYS} for _ in self.sensor_names]
 
-    def append(self, step: TrackStep) -> None:
+    def set_sensors(self, names) -> None:
+        """Name the sensors (before anything is appended)."""
+        names = tuple(names)
+        if any(any(v) for p in self._parts for v in p.values()) and names != self.sensor_names:
+            raise InputError(f"expected sensors {self.sensor_names} for a log that holds "
+                             f"samples, got {names}")
+        self.sensor_names = names
+        self._parts = [{k: [] for k in self._KEYS} for _ in names]
+
+    def append(self, step: TrackStep, sensor: int = 0) -> None:
         if len(step):
+            parts = self._parts[sensor]
             for k in self._KEYS:
-                self._parts[k].append(getattr(step, k))
+                parts[k].append(getattr(step, k))
 
-    def arrays(self) -> dict:
-        return {k: (np.concatenate(v) if v else np.empty(0)) for k, v in self._parts.items()}
+    def arrays(self, sensor: int | str = 0) -> dict:
+        """The arrays of one sensor (index or name)."""
+        if isinstance(sensor, str):
+            sensor = self.sensor_names.index(sensor)
+        return {k: (np.concatenate(v) if v else np.empty(0))
+                for k, v in self._parts[sensor].items()}
 
     def write(self, path) -> None:
         from pathlib import Path
@@ -159,115 +190,281 @@ class TrackLog:
         from ..io import atomic_path
 
         path = Path(path)
-        a = self.arrays()
         suffix = path.suffix.lower()
+        multi = len(self.sensor_names) > 1
         if suffix in (".h5", ".hdf5"):
             import h5py
 
             with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
                 f.attrs["format"] = "openemt-track"
-                f.attrs["version"] = 1
-                for k, v in a.items():
-                    f.create_dataset(k, data=v)
+                f.attrs["version"] = 2 if multi else 1
+                if multi:
+                    f.attrs["sensors"] = list(self.sensor_names)
+                for i, name in enumerate(self.sensor_names):
+                    g = f.create_group(f"sensors/{name}") if multi else f
+                    for k, v in self.arrays(i).items():
+                        g.create_dataset(k, data=v)
         elif suffix == ".csv":
-            n = len(a["times"])
-            pv = a["pose_vectors"].reshape(n, 6)
-            table = np.column_stack([a["times"], pv, a["status"], a["residual"],
-                                     a["distortion"], a["distorted"].astype(int)])
-            header = ("time_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,"
-                      "distorted")
+            tables = []
+            for i in range(len(self.sensor_names)):
+                a = self.arrays(i)
+                n = len(a["times"])
+                pv = a["pose_vectors"].reshape(n, 6)
+                tables.append(np.column_stack([a["times"], pv, a["status"], a["residual"],
+                                               a["distortion"], a["distorted"].astype(int)]))
+            cols = "x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted"
+            fmt = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d"]
             with atomic_path(path, suffix=".csv") as tmp:
-                np.savetxt(tmp, table, delimiter=",", header=header, comments="",
-                           fmt=["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d"])
+                if not multi:
+                    np.savetxt(tmp, tables[0], delimiter=",", header=f"time_s,{cols}",
+                               comments="", fmt=fmt)
+                    return
+                line = ",".join(fmt)
+                with open(tmp, "w", encoding="utf-8") as fh:
+                    fh.write(f"time_s,sensor,{cols}\n")
+                    n = min(len(t) for t in tables)
+                    for r in range(n):
+                        for name, t in zip(self.sensor_names, tables):
+                            row = line % tuple(t[r])
+                            head, rest = row.split(",", 1)
+                            fh.write(f"{head},{name},{rest}\n")
         else:
             raise InputError(f"expected a log file ending in .h5, .hdf5 or .csv, got "
                              f"{str(path)!r}")
 
 
+@dataclass(frozen=True)
+class SensorSetup:
+    """One sensor of a pipeline.
+
+    Attributes
+    ----------
+    name : str
+        Sensor name (log, summary).
+    columns : tuple of int, optional
+        Columns of the demodulated coupling matrix holding this sensor's coils (None = all).
+    model : DipoleModel, optional
+        Model for the default solver.
+    solver : callable, optional
+        See the module docstring (default :func:`lm_solver` of ``model``).
+    correction : ndarray (4, 4), optional
+        Linear position correction of valid poses.
+    hemisphere : str
+    device_name : str, optional
+        OpenIGTLink device name (default: the server's).
+    filter : FilterSpec, optional
+        Tracking filter (None or kind "none" = off).
+    """
+
+    name: str = "openemt"
+    columns: tuple | None = None
+    model: object = None
+    solver: object = None
+    correction: object = None
+    hemisphere: str = "+x"
+    device_name: str | None = None
+    filter: object = None
+
+
+class _SensorState:
+    """Run-time state of one sensor: solver, warm start, filter, counters."""
+
+    def set_columns(self, columns) -> None:
+        """Set this sensor's coupling columns (None = all); ``index_of_columns`` is a slice
+        (a view, no copy) when they are consecutive, else the list."""
+        self.columns = None if columns is None else list(columns)
+        c = self.columns
+        if c is None:
+            self.index_of_columns = slice(None)
+        elif c == list(range(c[0], c[0] + len(c))):
+            self.index_of_columns = slice(c[0], c[0] + len(c))
+        else:
+            self.index_of_columns = c
+
+    def __init__(self, setup: SensorSetup, index: int):
+        solver = setup.solver
+        if solver is None:
+            if setup.model is None:
+                raise InputError(f"expected a `model` or a `solver` for sensor "
+                                 f"{setup.name!r}, got neither")
+            solver = lm_solver(setup.model, hemisphere=setup.hemisphere)
+        self.setup = setup
+        self.index = index
+        self.solver = solver
+        self.set_columns(setup.columns)
+        corr = setup.correction
+        if corr is not None:
+            L = np.asarray(corr, dtype=np.float64)
+            if L.shape != (4, 4) or not np.all(np.isfinite(L)):
+                raise InputError(f"expected a finite (4, 4) `correction`, got shape {L.shape}")
+            corr = L
+        self.correction = corr
+        f = setup.filter
+        self.filter = f if f is not None and getattr(f, "enabled", False) else None
+        self.filter_state = None
+        self.last = None             # last valid pose vector
+        self.status_counts: dict = {}
+        self.n_distorted = 0
+        self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
+        self.pending: list = []
+        self.n_pending = 0
+
+
 class TrackingPipeline:
-    """Raw samples to poses, live.
+    """Raw samples to poses, live, for one or several sensors.
+
+    Every chunk is demodulated once for all sensor channels; each sensor's couplings (its
+    columns of the coupling matrix) are then solved, corrected, filtered, logged and streamed
+    as its own OpenIGTLink TRANSFORM device in the same pass.
 
     Parameters
     ----------
     backend : Backend
         Source of raw chunks (:mod:`openemt.live`).
     model : DipoleModel
-        Model for the default solver (ignored when ``solver`` is given).
+        Model for the default solver of a single sensor (ignored when ``sensors`` is given).
     solver : callable, optional
         See the module docstring; default :func:`lm_solver` (``model``, ``hemisphere``).
     hemisphere : str
         Hemisphere for (re)acquisition with the closed-form start.
     correction : ndarray, shape (4, 4), optional
-        Linear position correction (docs/paper-procedure.md#applying-correction) applied to valid poses.
+        Linear position correction (docs/paper-procedure.md#applying-correction) applied to
+        valid poses.
+    sensors : sequence of SensorSetup, optional
+        Several sensors (each with its columns, model or solver, correction, device name and
+        filter); replaces ``model``, ``solver``, ``hemisphere``, ``correction`` and ``filter``.
+    filter : FilterSpec, optional
+        Tracking filter of the single sensor (docs/live.md#filter).
     output_rate, window, phase
         Demodulator settings (:class:`openemt.signal.Demodulator`).
     distortion_threshold : float
         Quadrature ratio above which a sample is flagged as distorted.
     igtl : IgtlServer, optional
-        Receives every ``igtl_every``-th valid pose, and every ``status_every`` samples a
-        STRING message on device ``<device_name>Status`` such as
+        Receives every ``igtl_every``-th valid pose of each sensor (device name: the sensor's
+        ``device_name``, else the server's), and every ``status_every`` samples a STRING
+        message per sensor on device ``<device name>Status`` (cut to 20 characters) such as
         ``"CONVERGED distorted=0 quadrature=1.2e-05"`` (the latest sample), which Slicer shows
         as a text node.
     log : TrackLog, optional
+        Gets the sensor names of the pipeline.
     serial_small_batches : bool
         Solve chunks of fewer than 256 samples with numba's parallel regions limited to this
         thread (see ``openemt bench track``'s baseline for why).
     """
 
     def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
-                 output_rate: float = 1500.0, window: str = "hann", phase=None,
-                 distortion_threshold: float = 1e-3, igtl=None, log: TrackLog | None = None,
-                 igtl_every: int = 1, status_every: int = 150,
-                 serial_small_batches: bool = True):
-        if solver is None:
-            if model is None:
+                 sensors=None, filter=None, output_rate: float = 1500.0,
+                 window: str = "hann", phase=None, distortion_threshold: float = 1e-3,
+                 igtl=None, log: TrackLog | None = None, igtl_every: int = 1,
+                 status_every: int = 150, serial_small_batches: bool = True):
+        if sensors is None:
+            if solver is None and model is None:
                 raise InputError("expected a `model` or a `solver`, got neither")
-            solver = lm_solver(model, hemisphere=hemisphere)
+            name = igtl.device_name if igtl is not None else "openemt"
+            sensors = [SensorSetup(name=name, model=model, solver=solver, correction=correction,
+                                   hemisphere=hemisphere, filter=filter)]
+        sensors = list(sensors)
+        if not sensors:
+            raise InputError("expected at least one sensor, got none")
+        names = [s.name for s in sensors]
+        if len(set(names)) != len(names):
+            raise InputError(f"expected distinct sensor names, got {names}")
         self.backend = backend
-        self.solver = solver
+        self.sensors = [_SensorState(s, i) for i, s in enumerate(sensors)]
+        # sensors of one model (e.g. one calibration file) share a solver and are solved in
+        # one batched call while all of them are tracking
+        self._groups: list = []
+        shared: dict = {}
+        for st in self.sensors:
+            if st.setup.solver is None:
+                key = (id(st.setup.model), st.setup.hemisphere)
+                if key in shared:
+                    st.solver = shared[key][0].solver
+                    shared[key].append(st)
+                    continue
+                shared[key] = [st]
+                self._groups.append(shared[key])
+            else:
+                self._groups.append([st])
+        n_se = backend.layout.n_sensor
+        for st in self.sensors:
+            cols = st.columns
+            if cols is not None and (not cols or min(cols) < 0 or max(cols) >= n_se):
+                raise InputError(f"expected columns of sensor {st.setup.name!r} in "
+                                 f"0..{n_se - 1} (the layout's sensor channels), got {cols}")
+            if cols is not None and cols == list(range(n_se)):
+                st.set_columns(None)
+        # sensors on consecutive, equally wide column blocks in order (the tracker-file layout)
+        w = n_se // len(self.sensors)
+        self._blocks = len(self.sensors) > 1 and w * len(self.sensors) == n_se and all(
+            st.columns == list(range(i * w, (i + 1) * w)) for i, st in enumerate(self.sensors))
+        self.solver = self.sensors[0].solver
+        self.correction = self.sensors[0].correction
         self.demod = Demodulator(backend.layout, output_rate=output_rate, window=window,
                                  phase=phase)
-        if correction is not None:
-            L = np.asarray(correction, dtype=np.float64)
-            if L.shape != (4, 4) or not np.all(np.isfinite(L)):
-                raise InputError(f"expected a finite (4, 4) `correction`, got shape {L.shape}")
-            correction = L
-        self.correction = correction
         self.distortion_threshold = float(distortion_threshold)
         self.igtl = igtl
         self.log = log
+        if log is not None:
+            log.set_sensors(names)
         self.igtl_every = max(1, int(igtl_every))
         self.status_every = max(1, int(status_every))
         self.serial_small_batches = bool(serial_small_batches)
-        self._last = None             # last valid pose vector
         self._n_out = 0
-        self._status_counts: dict = {}
-        self._n_distorted = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
-        self._err_n, self._err_ss, self._err_max = 0, 0.0, 0.0
-        self._pending: list = []
-        self._n_pending = 0
         self._truth_known = backend.truth_poses(np.zeros(1)) is not None
 
-    def _solve(self, C):
-        n = C.shape[0]
-        initial = "kim18" if self._last is None else np.tile(self._last, (n, 1))
-        if self.serial_small_batches and n < 256:
-            res = _serial(self.solver, C, initial)
-        else:
-            res = self.solver(C, initial)
-        poses = np.asarray(res.poses, dtype=np.float64)
-        vecs = np.asarray(res.pose_vectors, dtype=np.float64)
-        status = np.asarray(res.status).astype(np.int8)
+    @property
+    def sensor_names(self) -> list:
+        return [st.setup.name for st in self.sensors]
+
+    @staticmethod
+    def _remember(st: _SensorState, vecs, status) -> None:
+        if len(status) and status[-1] == _CONVERGED:      # the usual case
+            st.last = vecs[-1].copy()
+            return
         ok = status == _CONVERGED
         if np.any(ok):
-            self._last = vecs[np.flatnonzero(ok)[-1]].copy()
-        elif n:
-            self._last = None         # lost: re-acquire with the closed form
-        return poses, vecs, status, np.asarray(res.residual, dtype=np.float64)
+            st.last = vecs[np.flatnonzero(ok)[-1]].copy()
+        elif len(status):
+            st.last = None            # lost: re-acquire with the closed form
 
-    def _correct(self, poses, vecs, status):
-        if self.correction is None:
+    @staticmethod
+    def _unpack(res):
+        return (np.asarray(res.poses, dtype=np.float64),
+                np.asarray(res.pose_vectors, dtype=np.float64),
+                np.asarray(res.status).astype(np.int8),
+                np.asarray(res.residual, dtype=np.float64))
+
+    def _solve(self, st: _SensorState, C):
+        n = C.shape[0]
+        initial = "kim18" if st.last is None else np.tile(st.last, (n, 1))
+        out = self._unpack(st.solver(C, initial))
+        self._remember(st, out[1], out[2])
+        return out
+
+    def _solve_all(self, Cs) -> list:
+        """Solve every sensor's couplings ``Cs[k]`` (N, n_so, n_se_k); sensors of a group that
+        are all tracking go through their shared solver in one call."""
+        out = [None] * len(self.sensors)
+        for group in self._groups:
+            if len(group) > 1 and all(st.last is not None for st in group):
+                n = Cs[group[0].index].shape[0]
+                C = np.concatenate([Cs[st.index] for st in group])
+                initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
+                P, V, S, R = self._unpack(group[0].solver(C, initial))
+                for j, st in enumerate(group):
+                    sl = slice(j * n, (j + 1) * n)
+                    out[st.index] = (P[sl], V[sl], S[sl], R[sl])
+                    self._remember(st, V[sl], S[sl])
+            else:
+                for st in group:
+                    out[st.index] = self._solve(st, Cs[st.index])
+        return out
+
+    @staticmethod
+    def _correct(st: _SensorState, poses, vecs, status):
+        if st.correction is None:
             return poses, vecs
         from ..correct import apply_linear_correction
         from ..geometry import vector_from_pose
@@ -276,81 +473,141 @@ class TrackingPipeline:
         if not np.any(ok):
             return poses, vecs
         poses = poses.copy()
-        poses[ok, :3, 3] = apply_linear_correction(self.correction, poses[ok, :3, 3])
+        poses[ok, :3, 3] = apply_linear_correction(st.correction, poses[ok, :3, 3])
         return poses, vector_from_pose(poses)
 
-    def step(self) -> TrackStep | None:
-        """Read and process one backend chunk; None at the end of the data."""
+    @staticmethod
+    def _filter(st: _SensorState, times, poses, vecs, status):
+        f = st.filter
+        if f is None:
+            return poses, vecs
+        from ._filter import kalman_filter_poses, new_filter_state
+
+        if st.filter_state is None:
+            st.filter_state = new_filter_state()
+        ok = status == _CONVERGED
+        fp, fv, _ = kalman_filter_poses(
+            vecs, times, ok, process_noise=f.process_noise,
+            measurement_noise=f.measurement_noise,
+            rotation_process_noise=f.rotation_process_noise,
+            rotation_measurement_noise=f.rotation_measurement_noise, max_gap=f.max_gap,
+            state=st.filter_state)
+        return fp, fv
+
+    def step(self):
+        """Read and process one backend chunk; None at the end of the data.
+
+        Returns the chunk's :class:`TrackStep` (one sensor) or a tuple of them, one per sensor
+        (several sensors)."""
         chunk = self.backend.read()
         if chunk is None:
             return None
         d = self.demod.process(chunk)
         t_ready = time.perf_counter()
         n = len(d)
+        steps = []
         if n == 0:
             e = np.empty(0)
-            return TrackStep(d.times, d.couplings, np.empty((0, 4, 4)), np.empty((0, 6)),
-                             np.empty(0, np.int8), e, e, np.empty(0, bool), t_ready)
-        poses, vecs, status, resid = self._solve(d.in_phase)
-        poses, vecs = self._correct(poses, vecs, status)
-        ratio = d.distortion_ratio()
-        flag = ratio > self.distortion_threshold
-        if self.igtl is not None:
-            epoch = self.backend.t0_epoch
-            pick = (status == _CONVERGED) & ((self._n_out + np.arange(n)) % self.igtl_every == 0)
-            if np.any(pick):
-                self.igtl.send_poses(poses[pick], epoch + d.times[pick], t_ready=t_ready)
-            self._latency.extend([time.perf_counter() - t_ready] * n)
-            if (self._n_out + n) // self.status_every > self._n_out // self.status_every:
-                self._send_status(int(status[-1]), bool(flag[-1]), float(ratio[-1]),
-                                  epoch + d.times[-1])
+            for _ in self.sensors:
+                steps.append(TrackStep(d.times, d.couplings, np.empty((0, 4, 4)),
+                                       np.empty((0, 6)), np.empty(0, np.int8), e, e,
+                                       np.empty(0, bool), t_ready))
+            return steps[0] if len(steps) == 1 else tuple(steps)
+        send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
+        epoch = self.backend.t0_epoch
+        parts = [d if st.columns is None else
+                 Demodulated(d.couplings[:, :, st.index_of_columns], d.times, d.reference)
+                 for st in self.sensors]
+        Cs = [dk.in_phase for dk in parts]
+        if self.serial_small_batches and n * len(self.sensors) < 256:
+            with _serial_threads():
+                solved = self._solve_all(Cs)
         else:
-            self._latency.extend([time.perf_counter() - t_ready] * n)
-        step = TrackStep(d.times, d.couplings, poses, vecs, status, resid, ratio, flag, t_ready)
-        self._account(step)
-        return step
+            solved = self._solve_all(Cs)
+        # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
+        im2 = np.sum(d.couplings.imag ** 2, axis=1)
+        ab2 = np.sum(d.couplings.real ** 2, axis=1) + im2
+        if self._blocks:                        # equal consecutive blocks: one pass
+            k = len(self.sensors)
+            num = np.sqrt(im2.reshape(n, k, -1).sum(axis=2))
+            den = np.sqrt(ab2.reshape(n, k, -1).sum(axis=2))
+            ratios = list((num / np.where(den > 0, den, np.inf)).T)
+        else:
+            ratios = []
+            for st in self.sensors:
+                cols = st.index_of_columns
+                num = np.sqrt(im2[:, cols].sum(axis=1))
+                den = np.sqrt(ab2[:, cols].sum(axis=1))
+                ratios.append(num / np.where(den > 0, den, np.inf))
+        for st, dk, (poses, vecs, status, resid), ratio in zip(self.sensors, parts, solved,
+                                                                 ratios):
+            poses, vecs = self._correct(st, poses, vecs, status)
+            poses, vecs = self._filter(st, d.times, poses, vecs, status)
+            flag = ratio > self.distortion_threshold
+            if self.igtl is not None:
+                pick = (status == _CONVERGED) & ((self._n_out + np.arange(n))
+                                                 % self.igtl_every == 0)
+                device = st.setup.device_name or self.igtl.device_name
+                if np.any(pick):
+                    self.igtl.send_poses(poses[pick], epoch + d.times[pick], t_ready=t_ready,
+                                         device_name=device)
+                if send_status:
+                    self._send_status(device, int(status[-1]), bool(flag[-1]),
+                                      float(ratio[-1]), epoch + d.times[-1])
+            step = TrackStep(d.times, dk.couplings, poses, vecs, status, resid, ratio, flag,
+                             t_ready)
+            self._account(st, step)
+            steps.append(step)
+        self._latency.extend([time.perf_counter() - t_ready] * n)
+        self._n_out += n
+        return steps[0] if len(steps) == 1 else tuple(steps)
 
-    def _send_status(self, code, distorted, ratio, timestamp):
+    def _send_status(self, device, code, distorted, ratio, timestamp):
         import pyigtl
 
         try:
             name = Status(code).name
         except ValueError:  # pragma: no cover - a custom solver's own code
             name = str(code)
-        device = (self.igtl.device_name + "Status")[:20]
         self.igtl.send_message(pyigtl.StringMessage(
             f"{name} distorted={int(distorted)} quadrature={ratio:.2e}", timestamp=timestamp,
-            device_name=device))
+            device_name=(device + "Status")[:20]))
 
-    def _account(self, step: TrackStep):
-        self._n_out += len(step)
-        codes, counts = np.unique(step.status, return_counts=True)
-        for c, k in zip(codes.tolist(), counts.tolist()):
-            self._status_counts[c] = self._status_counts.get(c, 0) + k
-        self._n_distorted += int(np.count_nonzero(step.distorted))
-        if self.log is not None:
-            self.log.append(step)
+    def _account(self, st: _SensorState, step: TrackStep):
         ok = step.status == _CONVERGED
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok == len(step):                  # the usual case, without np.unique
+            st.status_counts[_CONVERGED] = st.status_counts.get(_CONVERGED, 0) + n_ok
+        else:
+            codes, counts = np.unique(step.status, return_counts=True)
+            for c, k in zip(codes.tolist(), counts.tolist()):
+                st.status_counts[c] = st.status_counts.get(c, 0) + k
+        st.n_distorted += int(np.count_nonzero(step.distorted))
+        if self.log is not None:
+            self.log.append(step, st.index)
         if self._truth_known and np.any(ok):
-            self._pending.append((step.times[ok], step.poses[ok, :3, 3]))
-            self._n_pending += int(ok.sum())
-            if self._n_pending >= 1500:       # compare with the truth in batches (cheaper)
-                self._flush_truth()
+            st.pending.append((step.times[ok], step.poses[ok, :3, 3]))
+            st.n_pending += int(ok.sum())
+            if st.n_pending >= 1500:       # compare with the truth in batches (cheaper)
+                self._flush_truth(st)
 
-    def _flush_truth(self):
-        if not self._pending:
+    def _flush_truth(self, st: _SensorState):
+        if not st.pending:
             return
-        t = np.concatenate([p[0] for p in self._pending])
-        xyz = np.concatenate([p[1] for p in self._pending])
-        self._pending, self._n_pending = [], 0
+        t = np.concatenate([p[0] for p in st.pending])
+        xyz = np.concatenate([p[1] for p in st.pending])
+        st.pending, st.n_pending = [], 0
         truth = self.backend.truth_poses(t)
         if truth is None:
             self._truth_known = False
             return
+        truth = np.asarray(truth)
+        if truth.ndim == 4:                # (N, n_sensors, 4, 4): one pose per sensor
+            truth = truth[:, st.index]
         err = np.linalg.norm(xyz - truth[:, :3, 3], axis=1)
-        self._err_n += err.size
-        self._err_ss += float(np.sum(err ** 2))
-        self._err_max = max(self._err_max, float(err.max()))
+        st.err_n += err.size
+        st.err_ss += float(np.sum(err ** 2))
+        st.err_max = max(st.err_max, float(err.max()))
 
     def run(self, duration: float | None = None, *, max_steps: int | None = None,
             stop=None) -> TrackSummary:
@@ -374,16 +631,42 @@ class TrackingPipeline:
             pass
         return self.summary(time.perf_counter() - t_wall)
 
-    def summary(self, wall_seconds: float = float("nan")) -> TrackSummary:
-        """Summary of everything processed so far."""
+    def _sensor_summary(self, st: _SensorState) -> dict:
         names = {int(s): s.name for s in Status}
-        counts = {names.get(c, str(c)): k for c, k in sorted(self._status_counts.items())}
-        self._flush_truth()
+        counts = {names.get(c, str(c)): k for c, k in sorted(st.status_counts.items())}
+        self._flush_truth(st)
+        n = self._n_out
+        out = {"status_counts": counts,
+               "distorted_fraction": (st.n_distorted / n) if n else 0.0,
+               "device_name": (st.setup.device_name or self.igtl.device_name)
+               if self.igtl is not None else None,
+               "truth": None, "filter": None}
+        if st.err_n:
+            out["truth"] = {"position_error_mm_rms": 1e3 * float(np.sqrt(st.err_ss / st.err_n)),
+                            "position_error_mm_max": 1e3 * st.err_max}
+        if st.filter is not None:
+            f = st.filter
+            out["filter"] = {"kind": f.kind, "process_noise": f.process_noise,
+                             "measurement_noise": f.measurement_noise,
+                             "rotation_process_noise": f.rotation_process_noise,
+                             "rotation_measurement_noise": f.rotation_measurement_noise,
+                             "max_gap": f.max_gap,
+                             "restarts_after_loss": 0 if st.filter_state is None
+                             else filter_restarts(st.filter_state)}
+        return out
+
+    def summary(self, wall_seconds: float = float("nan")) -> TrackSummary:
+        """Summary of everything processed so far. With several sensors ``status_counts`` and
+        ``distorted_fraction`` add up all sensors, ``truth`` is the worst sensor's, and
+        ``extra["sensors"]`` holds each sensor's own."""
+        per = {st.setup.name: self._sensor_summary(st) for st in self.sensors}
         lat = np.asarray(self._latency) * 1e3
-        truth = None
-        if self._err_n:
-            truth = {"position_error_mm_rms": 1e3 * float(np.sqrt(self._err_ss / self._err_n)),
-                     "position_error_mm_max": 1e3 * self._err_max}
+        counts: dict = {}
+        for v in per.values():
+            for k, c in v["status_counts"].items():
+                counts[k] = counts.get(k, 0) + c
+        truths = [v["truth"] for v in per.values() if v["truth"]]
+        truth = max(truths, key=lambda t: t["position_error_mm_rms"]) if truths else None
         igtl = None
         if self.igtl is not None:
             igtl = dict(self.igtl.stats(), port=self.igtl.port,
@@ -393,9 +676,17 @@ class TrackingPipeline:
                 igtl["send_latency_ms_p50"] = float(np.percentile(sl, 50))
                 igtl["send_latency_ms_p99"] = float(np.percentile(sl, 99))
         n = self._n_out
+        k = len(self.sensors)
+        extra = {}
+        if k > 1:
+            extra["sensors"] = per
+        elif per[self.sensors[0].setup.name]["filter"] is not None:
+            extra["filter"] = per[self.sensors[0].setup.name]["filter"]
         return TrackSummary(
             n_samples=n, signal_seconds=n / self.demod.output_rate, wall_seconds=wall_seconds,
-            status_counts=counts, distorted_fraction=(self._n_distorted / n) if n else 0.0,
+            status_counts=counts,
+            distorted_fraction=(sum(st.n_distorted for st in self.sensors) / (n * k))
+            if n else 0.0,
             latency_ms_p50=float(np.percentile(lat, 50)) if lat.size else None,
             latency_ms_p99=float(np.percentile(lat, 99)) if lat.size else None,
-            igtl=igtl, truth=truth)
+            igtl=igtl, truth=truth, extra=extra)
