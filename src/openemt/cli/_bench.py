@@ -24,6 +24,9 @@ BENCHMARKS = {
                 "output corrections on a simulated distortion: held-out vs in-sample"),
     "hybrid": ("openemt.bench._hybrid",
                "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs"),
+    "fuzz": ("openemt.bench._fuzz",
+             "mutated files for every reader and command, generated couplings for every solver: "
+             "crashes, hangs, silent garbage"),
 }
 
 
