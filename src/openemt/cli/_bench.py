@@ -25,8 +25,7 @@ BENCHMARKS = {
     "hybrid": ("openemt.bench._hybrid",
                "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs"),
     "fuzz": ("openemt.bench._fuzz",
-             "mutated files for every reader and command, generated couplings for every solver: "
-             "crashes, hangs, silent garbage"),
+             "fuzzed files for every reader and command and couplings for every solver"),
 }
 
 
