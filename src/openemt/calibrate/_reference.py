@@ -238,7 +238,8 @@ def _hemisphere(info, hemisphere):
 
 
 def _hand_eye_start(C, B, model, hemisphere) -> tuple[np.ndarray, np.ndarray, dict]:
-    from ..align import fit_axyb
+    from ..align import fit_axyb, reference_in_measured_frame
+    from ..evaluate import pose_error_magnitudes
     from ..solve import solve_lm
 
     res = solve_lm(C, model, initial="kim18", hemisphere=hemisphere)
@@ -246,12 +247,65 @@ def _hand_eye_start(C, B, model, hemisphere) -> tuple[np.ndarray, np.ndarray, di
     if ok.sum() < MIN_REFERENCE_POSES:
         raise InputError(f"expected at least {MIN_REFERENCE_POSES} poses solvable with the "
                          f"start model for the hand-eye start, got {int(ok.sum())}")
-    he = fit_axyb(res.poses[ok], B[ok], folds=0)
+    A, Bk = res.poses[ok], B[ok]
+    try:
+        he = fit_axyb(A, Bk, folds=0)
+    except InputError:
+        # rotations about one axis only (a stage with one rotary axis, a turntable): the
+        # rotation-only closed form is degenerate; take R_Y from the translations instead
+        X, Y = _translation_start(A, Bk)
+        t, r = pose_error_magnitudes(A, reference_in_measured_frame(Bk, X, Y))
+        return X, Y, {"method": "translations", "n_pairs": int(ok.sum()), "n_outliers": 0,
+                      "residual_trans_rms_mm": float(1e3 * np.sqrt(np.mean(t ** 2))),
+                      "residual_rot_rms_deg": float(np.rad2deg(np.sqrt(np.mean(r ** 2))))}
     s = he.summary()
     return he.X, he.Y, {"method": "hand-eye", "n_pairs": int(ok.sum()),
                         "n_outliers": s["n_outliers"],
                         "residual_trans_rms_mm": s["residual_trans_rms_mm"],
                         "residual_rot_rms_deg": s["residual_rot_rms_deg"]}
+
+
+def _nearest_rotation(M) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(M)
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+
+
+def _translation_start(A, B, tol=0.0175) -> tuple[np.ndarray, np.ndarray]:
+    """X and Y of ``A_i X = Y B_i`` when the reference rotations share one axis.
+
+    Rows whose reference rotations agree within ``tol`` (rad) also share the measured rotation, so
+    their translation differences obey ``dt_A = R_Y dt_B``: ``R_Y`` by orthogonal Procrustes
+    (Kabsch), ``R_X`` as the nearest rotation to the mean of ``R_A^T R_Y R_B``, then the
+    translations by minimum-norm linear least squares (the part along the common axis is not
+    determined by the poses; the coupling fit needs it held, e.g. ``z_se_fix``).
+    """
+    from ..geometry import pose_from_rt
+
+    n = len(A)
+    group = np.full(n, -1)
+    for i in range(n):
+        if group[i] >= 0:
+            continue
+        rel = Rotation.from_matrix(np.swapaxes(B[:, :3, :3], 1, 2) @ B[i, :3, :3])
+        group[(rel.magnitude() < tol) & (group < 0)] = i
+    dA, dB = [], []
+    for g in np.unique(group):
+        rows = group == g
+        if rows.sum() >= 2:
+            dA.append(A[rows, :3, 3] - A[rows, :3, 3].mean(axis=0))
+            dB.append(B[rows, :3, 3] - B[rows, :3, 3].mean(axis=0))
+    if not dA:
+        raise InputError("expected reference poses with rotations about several axes, or "
+                         "several translations at one rotation, got neither")
+    dA, dB = np.vstack(dA), np.vstack(dB)
+    Ry = _nearest_rotation(dA.T @ dB)
+    Rx = _nearest_rotation(np.einsum("kba,bc,kcd->ad", A[:, :3, :3], Ry, B[:, :3, :3]))
+    M = np.zeros((3 * n, 6))
+    M[:, :3] = A[:, :3, :3].reshape(3 * n, 3)
+    M[:, 3:] = -np.tile(np.eye(3), (n, 1))
+    d = (np.einsum("ab,kb->ka", Ry, B[:, :3, 3]) - A[:, :3, 3]).ravel()
+    t = np.linalg.lstsq(M, d, rcond=None)[0]
+    return pose_from_rt(Rx, t[:3]), pose_from_rt(Ry, t[3:])
 
 
 def _start_xy(start, C, B, hemisphere):
