@@ -353,6 +353,23 @@ def _xy_identifiability(J, free, layout, ident, null_tol=1e-4) -> dict:
             "ill_conditioned": bool(undetermined) or not cond < XY_CONDITION_LIMIT}
 
 
+def _row_covariance(J, r, n_rows, ident) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter covariance robust to errors shared by the entries of a row (sandwich
+    estimator with rows as clusters, White 1980; Liang and Zeger 1986).
+
+    A reference pose error moves all ``n_so x n_se`` couplings of its row together, so the
+    residuals are not independent within a row and ``s^2 (J^T J)^-1`` misstates the spread:
+    ``cov = (J^T J)^+ (sum_i g_i g_i^T) (J^T J)^+ m / (m - rank)`` with ``g_i = J_i^T r_i``
+    summed over row i. Undetermined parameters keep an infinite standard error.
+    """
+    m, p = J.shape
+    bread = ident.covariance / ident.sigma2 if ident.sigma2 > 0 else ident.covariance
+    g = (J.reshape(n_rows, -1, p) * r.reshape(n_rows, -1, 1)).sum(axis=1)
+    cov = bread @ (g.T @ g) @ bread * (m / max(m - ident.rank, 1))
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return cov, np.where(np.isfinite(ident.standard_errors), se, np.inf)
+
+
 def score_reference(calibration, couplings, B, *, X=None, Y=None, noise_trans=None,
                     noise_rot=None) -> dict:
     """Solve couplings with a calibration and compare with the reference, as the paper's
@@ -507,8 +524,9 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
         for m in messages:
             warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
 
+    cov_free, se_free = _row_covariance(J[:, free], r, n, ident)
     se_full = np.zeros(layout.size)
-    se_full[free] = ident.standard_errors
+    se_full[free] = se_free
     fix_idx = np.concatenate([layout.groups["st_fix"], layout.groups["se_fix"]])
     pos = {int(k): i for i, k in enumerate(free)}
     cov_vec = np.zeros((12, 12))
@@ -516,10 +534,10 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     for a, ka in enumerate(fix_idx):
         if int(ka) not in pos:
             continue
-        bad[a] = not np.isfinite(ident.standard_errors[pos[int(ka)]])
+        bad[a] = not np.isfinite(se_free[pos[int(ka)]])
         for b, kb in enumerate(fix_idx):
             if int(kb) in pos:
-                cov_vec[a, b] = ident.covariance[pos[int(ka)], pos[int(kb)]]
+                cov_vec[a, b] = cov_free[pos[int(ka)], pos[int(kb)]]
     _, F_st, F_se = layout.fixtures(x)
     X, Y = _xy_of(F_st, F_se)
     cov_xy, X_se, Y_se = _xy_covariance(F_st, F_se, cov_vec, bad)
