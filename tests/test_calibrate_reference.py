@@ -131,6 +131,14 @@ def test_bad_input():
     no_ref = replace(ds, extra={})
     with pytest.raises(ValueError, match="reference poses"):
         fit_reference(no_ref, start)
+    B = ds.extra["reference_poses"].copy()
+    B[4, :3, :3] *= 1.01  # scaled, not a rotation
+    with pytest.raises(ValueError, match="orthonormal rotations.*row 4"):
+        fit_reference(replace(ds, extra={**ds.extra, "reference_poses": B}), start)
+    B = ds.extra["reference_poses"].copy()
+    B[2, 0, 3] = np.nan
+    with pytest.raises(ValueError, match="finite couplings and reference poses"):
+        fit_reference(replace(ds, extra={**ds.extra, "reference_poses": B}), start)
 
 
 def _main(argv):

@@ -93,6 +93,15 @@ def reference_poses(dataset) -> tuple[np.ndarray, dict]:
     if B.shape != (dataset.n_samples, 4, 4):
         raise InputError(f"expected reference poses of shape ({dataset.n_samples}, 4, 4), got "
                          f"{B.shape}")
+    Bf = np.where(np.isfinite(B), B, np.eye(4))  # non-finite rows are refused by the fit
+    R = Bf[:, :3, :3]
+    off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2), initial=0.0)
+    bottom = np.abs(Bf[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1, initial=0.0)
+    bad = np.flatnonzero((off > 1e-6) | (bottom > 0))
+    if bad.size:
+        raise InputError(f"expected reference poses with orthonormal rotations and a last row "
+                         f"[0, 0, 0, 1], got {len(bad)} rows that are not (first: row "
+                         f"{int(bad[0])})")
     info = dict(dataset.meta.get("reference") or {})
     return B, info
 
