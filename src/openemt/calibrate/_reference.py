@@ -97,7 +97,7 @@ def reference_poses(dataset) -> tuple[np.ndarray, dict]:
     R = Bf[:, :3, :3]
     off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2), initial=0.0)
     bottom = np.abs(Bf[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1, initial=0.0)
-    bad = np.flatnonzero((off > 1e-6) | (bottom > 0))
+    bad = np.flatnonzero(np.all(np.isfinite(B), axis=(1, 2)) & ((off > 1e-6) | (bottom > 0)))
     if bad.size:
         raise InputError(f"expected reference poses with orthonormal rotations and a last row "
                          f"[0, 0, 0, 1], got {len(bad)} rows that are not (first: row "
