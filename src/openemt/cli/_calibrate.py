@@ -26,11 +26,22 @@ def register(sub) -> None:
     p.add_argument("--from", dest="start", metavar="CAL",
                    help="starting calibration (.json or ILEMT .mat); default: the folder's "
                         "base_calibration.mat")
-    p.add_argument("--mode", default="XYZ", choices=sorted(MODES) + ["improved", "planar"],
+    p.add_argument("--mode", default="XYZ",
+                   choices=sorted(MODES) + ["improved", "planar", "reference"],
                    help="calibration mode (default XYZ); 'improved': openemt's rig and "
                         "octupole model on the md rows (start from an XYZ calibration); "
                         "'planar': per-coil gain and offset of an Anser-style board from a "
-                        "grid CSV (x, y, z, ux, uy, uz, one column per coil)")
+                        "grid CSV (x, y, z, ux, uy, uz, one column per coil); 'reference': "
+                        "coil model and the X, Y of A X = Y B against the reference poses of "
+                        "a robot arm or optical tracker (docs/reference-calibration.md)")
+    p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
+                   help="reference mode: hold out this fraction of the poses at random and "
+                        "report their error with the calibration fitted on the others")
+    p.add_argument("--seed", type=int, default=0,
+                   help="reference mode: seed of the held-out choice (default 0)")
+    p.add_argument("--hemisphere", default=None,
+                   help="reference mode: hemisphere of the sensor for the start solve (+x, "
+                        "-x, ...; default: the dataset's, else +x)")
     p.add_argument("--sensor-length", type=float, default=0.0, metavar="M",
                    help="planar mode: sensor coil length (m) for the field average")
     p.add_argument("-o", "--output", metavar="CAL.json", help="write the calibration here")
@@ -102,12 +113,93 @@ def _improved(args, dataset, start, start_path) -> int:
     return 0
 
 
+def _reference_start(args, dataset):
+    from ..io import read_calibration
+
+    if args.start is not None:
+        return read_calibration(args.start), str(args.start)
+    cand = Path(args.dataset) / "base_calibration.mat"
+    if cand.is_file():
+        return read_calibration(cand), str(cand)
+    preset = dataset.meta.get("preset")
+    if preset is None:
+        raise InputError("expected --from CAL (the dataset names no simulated preset and has "
+                         "no base_calibration.mat), got none")
+    from ..simulate import nominal_calibration
+
+    return nominal_calibration(preset), f"nominal model of preset {preset}"
+
+
+def _reference(args) -> int:
+    from ..calibrate import fit_reference, stage_reference
+    from ..io import atomic_path, write_calibration
+
+    t0 = time.perf_counter()
+    dataset = load_dataset(args.dataset)
+    note = None
+    if "reference_poses" not in dataset.extra:
+        dataset = stage_reference(dataset)
+        note = ("no reference poses in the dataset: the stage motion of the home fixture "
+                "combination's md rows is the reference")
+    start, start_path = _reference_start(args, dataset)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        f = fit_reference(dataset, start, hemisphere=args.hemisphere,
+                          freeze=_groups(args.freeze) or (), holdout=args.holdout,
+                          seed=args.seed)
+    cal = f.calibration
+    stats = {**cal.stats, "seconds": time.perf_counter() - t0}
+    cal = cal.replace(stats=stats, provenance={**cal.provenance, "start_file": start_path})
+    if args.output:
+        with atomic_path(args.output) as tmp:
+            write_calibration(cal, tmp)
+    ident = f.identifiability
+    summary = {
+        "mode": "reference",
+        "output": args.output,
+        "start": start_path,
+        "start_xy": f.start,
+        "rms_residue": f.rms_residue,
+        "num_points": f.n_train,
+        "n_free": int(f.free.size),
+        "jacobian_rank": ident["rank"],
+        "condition": ident["condition"],
+        "xy_condition": ident["xy_condition"],
+        "undetermined": ident["undetermined"],
+        "ill_conditioned": ident["ill_conditioned"],
+        "X": f.X, "Y": f.Y, "X_se": f.X_se, "Y_se": f.Y_se,
+        "se_units": "m, m, m, rad, rad, rad (translation; left rotation about parent axes)",
+        "holdout": f.holdout or None,
+        "reference": {k: v for k, v in cal.extra["reference"].items()
+                      if k in ("kind", "noise_trans_m", "noise_rot_rad")},
+        "note": note,
+        "warnings": [str(w.message) for w in caught],
+        "seconds": {"fit": f.seconds, "total": stats["seconds"]},
+    }
+    human = [(f"reference: rms_residue {f.rms_residue:.7g} over {f.n_train} poses, "
+              f"{f.free.size} free parameters (rank {ident['rank']}), X/Y condition "
+              f"{ident['xy_condition'] or float('inf'):.3g}")]
+    if f.holdout:
+        h = f.holdout
+        human.append(f"held out {h['n']} poses: {h['trans_rms_mm']:.4f} mm RMS "
+                     f"({h['trans_max_mm']:.4f} max), {h['rot_rms_deg']:.4f} deg RMS")
+    if note:
+        human.append(f"note: {note}")
+    human += [f"warning: {w}" for w in summary["warnings"]]
+    if args.output:
+        human.append(f"wrote {args.output}")
+    emit(args, summary, human)
+    return 0
+
+
 def run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, select_rows
     from ..io import atomic_path, read_calibration, write_calibration
 
     if args.mode == "planar":
         return _planar(args)
+    if args.mode == "reference":
+        return _reference(args)
     t0 = time.perf_counter()
     dataset = load_dataset(args.dataset)
     start_path = args.start

@@ -51,6 +51,18 @@ def register(subparsers) -> None:
                    help=_DISTORTION_HELP)
     p.add_argument("--no-clip-z", action="store_true",
                    help="log Z = -50 mm as commanded instead of the stage limit -46.2 mm")
+    p.add_argument("--reference", default=None, choices=("robot", "optical"),
+                   help="simulate a reference-pose collection instead: the sensor on a robot "
+                        "flange or optical marker (unknown X, Y), couplings at --n-poses "
+                        "random poses in the tracker's volume (docs/reference-calibration.md)")
+    p.add_argument("--n-poses", type=int, default=300,
+                   help="reference collection: number of poses (default 300)")
+    p.add_argument("--reference-noise-mm", type=float, default=None, metavar="MM",
+                   help="reference collection: pose noise of the reference, 3-D RMS in mm "
+                        "(default robot 0.05, optical 0.25)")
+    p.add_argument("--reference-noise-deg", type=float, default=None, metavar="DEG",
+                   help="reference collection: rotation noise of the reference, RMS angle in "
+                        "degrees (default robot 0.02, optical 0.1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("-o", "--output", required=True, type=Path, help="output dataset (.h5)")
     p.add_argument("--truth-calibration", type=Path, default=None, metavar="CAL.json",
@@ -111,13 +123,36 @@ def run(args) -> int:
         raise InputError(f"expected different paths for -o and --truth-calibration, got "
                          f"{str(args.output)!r} twice")
 
-    ds = simulate(args.preset, args.pattern, source_fixtures=_codes(args.source_fixtures),
-                  sensor_fixtures=_codes(args.sensor_fixtures), combinations=args.combinations,
-                  snr_db=args.snr_db, noise_abs=args.noise_abs, stage_sigma=args.stage_sigma,
-                  drift=drift, distortion=distortion or None, clip_z=not args.no_clip_z,
-                  seed=args.seed)
-    cal = truth_calibration(args.preset) if args.truth_calibration is not None else None
+    if args.reference is not None:
+        from ..simulate import reference_truth_calibration, simulate_reference
 
+        if args.pattern is not None or args.distortion or args.drift is not None:
+            raise InputError("expected no --pattern, --distortion or --drift with --reference "
+                             "(a reference collection draws its own poses), got some")
+        mm, deg = args.reference_noise_mm, args.reference_noise_deg
+        ds = simulate_reference(args.preset, args.reference, args.n_poses,
+                                noise_trans=None if mm is None else mm * 1e-3,
+                                noise_rot=None if deg is None else np.deg2rad(deg),
+                                snr_db=args.snr_db, noise_abs=args.noise_abs, seed=args.seed)
+        cal = None
+        if args.truth_calibration is not None:
+            cal = reference_truth_calibration(args.preset, ds.meta["truth"]["X"],
+                                              ds.meta["truth"]["Y"])
+    else:
+        ds = _simulate_rig(args, simulate, drift, distortion)
+        cal = truth_calibration(args.preset) if args.truth_calibration is not None else None
+    return _write(args, ds, cal, write_dataset, write_calibration)
+
+
+def _simulate_rig(args, simulate, drift, distortion):
+    return simulate(args.preset, args.pattern, source_fixtures=_codes(args.source_fixtures),
+                    sensor_fixtures=_codes(args.sensor_fixtures), combinations=args.combinations,
+                    snr_db=args.snr_db, noise_abs=args.noise_abs, stage_sigma=args.stage_sigma,
+                    drift=drift, distortion=distortion or None, clip_z=not args.no_clip_z,
+                    seed=args.seed)
+
+
+def _write(args, ds, cal, write_dataset, write_calibration) -> int:
     existed = args.output.exists()
     write_dataset(ds, args.output)
     if cal is not None:
@@ -136,11 +171,14 @@ def run(args) -> int:
         "n_sensor": ds.n_sensor,
         "complex": bool(np.iscomplexobj(ds.couplings)),
         "preset": args.preset,
-        "patterns": ds.meta["patterns"],
+        "patterns": ds.meta.get("patterns", [args.reference]),
         "files": list(ds.files),
         "seed": args.seed,
         "errors": ds.meta["errors"],
     }
+    if "reference" in ds.meta:
+        summary["reference"] = ds.meta["reference"]
+        summary["truth"] = {k: ds.meta["truth"][k] for k in ("X", "Y")}
     human = [(f"simulated {ds.n_samples} samples ({ds.n_source} x {ds.n_sensor} couplings) of "
              f"preset {args.preset}: {len(ds.files)} blocks -> {args.output}")]
     if cal is not None:

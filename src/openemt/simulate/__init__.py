@@ -15,23 +15,35 @@ from ._errors import (
 )
 from ._patterns import GRID_PITCH, PATTERNS, STAGE_Z_LIMIT, stage_pattern
 from ._presets import PRESETS, Preset, get_preset
+from ._reference import (
+    REFERENCE_KINDS,
+    ReferenceKind,
+    nominal_calibration,
+    reference_truth_calibration,
+    simulate_reference,
+)
 
 __all__ = [
     "GRID_PITCH",
     "PATTERNS",
     "PRESETS",
+    "REFERENCE_KINDS",
     "STAGE_SIGMA",
     "STAGE_Z_LIMIT",
     "Distortion",
     "Preset",
+    "ReferenceKind",
     "add_noise",
     "distortion_coupling",
     "drift_factors",
     "fixture_combinations",
     "get_preset",
     "noise_sigma",
+    "nominal_calibration",
     "polarizability",
+    "reference_truth_calibration",
     "simulate",
+    "simulate_reference",
     "stage_pattern",
     "truth_calibration",
 ]
