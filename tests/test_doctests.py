@@ -12,7 +12,8 @@ import openemt
 
 #: Packages whose every module's examples run here, and single modules besides them.
 PACKAGES = ("calibrate", "evaluate", "paper", "report", "signal", "simulate")
-MODULES = ("openemt", "openemt.io._calfile", "openemt.io._hdf5", "openemt.io._ilemt")
+MODULES = ("openemt", "openemt.io._calfile", "openemt.io._hdf5", "openemt.io._ilemt",
+           "openemt.correct._model")
 
 
 def _modules():
@@ -42,5 +43,5 @@ def test_the_main_functions_have_examples():
     for func in (openemt.read_dataset, openemt.import_ilemt_folder, openemt.read_calibration,
                  openemt.fit_calibration, openemt.pose_errors, openemt.error_summary,
                  simulate.simulate, simulate.truth_calibration, signal.demodulate,
-                 calibrate.solve_held_out):
+                 calibrate.solve_held_out, openemt.fit_correction):
         assert "Examples\n" in (func.__doc__ or ""), func.__qualname__

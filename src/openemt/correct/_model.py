@@ -238,6 +238,23 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
         ``none``) and ``corrected`` error summaries (mm, deg). ``stats["warnings"]`` lists
         too few pairs for the method (``stats["requirements"]``) and a held-out error worse
         than no correction (then ``stats["worse_than_none"]`` is True).
+
+    Examples
+    --------
+    Correct a smoothly distorted tracker (about 1 mm RMS, the simulated distortion of
+    ``openemt bench correct``) with a second-order polynomial; the held-out error is the one
+    to trust:
+
+    >>> import numpy as np
+    >>> from openemt.bench._correct import distorted_poses
+    >>> from openemt.correct import fit_correction
+    >>> measured, reference = distorted_poses(300, np.random.default_rng(0))
+    >>> corr = fit_correction(measured, reference, "poly", order=2)
+    >>> held_out = corr.stats["held_out"]
+    >>> round(held_out["uncorrected"]["trans_rms_mm"], 2), round(held_out["corrected"]["trans_rms_mm"], 2)
+    (0.95, 0.2)
+    >>> corr.apply(measured).shape
+    (300, 4, 4)
     """
     if method not in CORRECTION_METHODS:
         raise InputError(f"expected a correction method in {sorted(CORRECTION_METHODS)}, "
