@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import InputError
+from ..calibrate._check import ILEMT_VALID_RESNORM
 from ..evaluate import STAGE_UNCERTAINTY_M, STAGE_UNCERTAINTY_RAD, combined_uncertainty
 from ._run import PaperRun, as_run, load_paper_run
 
@@ -400,7 +401,7 @@ def characterization_report(dataset, calibration, *, concentric=None,
         for name, (r, M) in variants.items():
             trans, rot = pose_error_magnitudes(M, D)  # NaN for failed solves
             conds[name] = {"trans": trans, "rot": rot, "summary": error_summary(trans, rot),
-                           "n_invalid": int((~(np.asarray(r.residual) < 1e-5)).sum()),
+                           "n_invalid": int((~(np.asarray(r.residual) < ILEMT_VALID_RESNORM)).sum()),
                            "poses": r.poses,
                            "measured": M}
     rows = [_accuracy_row(name, r) for name, r in conds.items()]
