@@ -227,7 +227,7 @@ def test_lm_matches_scipy_least_squares_with_noise():
     P = random_poses(rng, 15, center=(0.0, 0.25, 0.0), spread=0.05)
     C = model.coupling(P)
     C = C + 1e-4 * np.abs(C).mean() * rng.normal(size=C.shape)
-    res = solve_lm(C, model, hemisphere="+y", valid_threshold=None)
+    res = solve_lm(C, model, hemisphere="+y", max_relative_residual=None)
     for k in range(15):
         def fun(x, k=k):
             return (model.coupling(pose_from_vector(x[None]))[0] - C[k]).ravel()
@@ -315,7 +315,7 @@ def test_lm_covariance_and_cramer_rao_monte_carlo():
     n = 3000
     C = C0 + sigma * rng.normal(size=(n, 3, 3))
     res = solve_lm(C, model, hemisphere="+y", initial=np.tile(
-        np.concatenate([P[0, :3, 3], np.zeros(3)]), (n, 1)), valid_threshold=None,
+        np.concatenate([P[0, :3, 3], np.zeros(3)]), (n, 1)), max_relative_residual=None,
         covariance=True)
     crb = cramer_rao(model, P, sigma)[0]
     emp = np.cov((res.pose_vectors - res.pose_vectors.mean(0)).T)

@@ -66,6 +66,20 @@ def test_solve_command_writes_poses_and_counts(files, solver, capsys):
     np.testing.assert_allclose(res.pose_vectors[ok, :3], res.poses[ok, :3, 3])
 
 
+@pytest.mark.parametrize("solver", ["lm", "kim18"])
+def test_solve_command_validity_options(files, solver, capsys):
+    tmp, _, _ = files
+    base = ["solve", str(tmp / "data.h5"), "--calibration", str(tmp / "cal.json"), "--solver",
+            solver, "-o", str(tmp / "poses.h5"), "--json"]
+    for extra, key in ((["--max-relative-residual", "1e-300"], "not_converged"),
+                       (["--max-range", "0.1"], "out_of_volume")):
+        args = _parser().parse_args(base + extra)
+        assert args.func(args) == 0
+        counts = json.loads(capsys.readouterr().out)["status_counts"]
+        assert counts[key] == 49 and counts["converged"] == 0
+    assert np.all(read_poses(tmp / "poses.h5").relative_residual[np.arange(50) != 3] < 1e-9)
+
+
 def test_solve_command_bad_input_leaves_no_file(files):
     tmp, _, _ = files
     bad = tmp / "not_a_dataset.h5"

@@ -115,10 +115,11 @@ def _stats(P_est, P, truth_vars):
 def _solve_all(C, model):
     from ..solve import solve_kim18, solve_kuipers, solve_lm, solve_svd
 
-    out = {"svd": solve_svd(C, hemisphere=HEMISPHERE, model=model),
-           "kuipers": solve_kuipers(C, hemisphere=HEMISPHERE, model=model),
+    out = {"svd": solve_svd(C, model, hemisphere=HEMISPHERE),
+           "kuipers": solve_kuipers(C, model, hemisphere=HEMISPHERE),
            "kim18": solve_kim18(C, model, hemisphere=HEMISPHERE)}
-    out["lm"] = solve_lm(C, model, initial="svd", hemisphere=HEMISPHERE, valid_threshold=None)
+    out["lm"] = solve_lm(C, model, hemisphere=HEMISPHERE, initial="svd",
+                         max_relative_residual=None)
     return out
 
 

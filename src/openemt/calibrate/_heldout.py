@@ -17,6 +17,7 @@ from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_MM, error_summary, pose_
 from ..field import OctupoleModel
 from ..geometry import SOURCE_FIXTURES, pose_from_vector
 from ..solve import refine_poses
+from ._check import ILEMT_VALID_RESNORM
 from ._identifiability import analyse_identifiability
 from ._improved import ImprovedProblem, RigOptions, fit_improved
 from ._modes import MODES
@@ -154,7 +155,7 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
     hemi = hemisphere_from_positions(D[:, :3, 3])
     init = initial if isinstance(initial, str) else np.asarray(initial)
     res = solve_lm(rows.couplings, dip, initial=init, hemisphere=hemi, bounds=0.4,
-                   concentric_model=concentric_model)
+                   concentric_model=concentric_model, retry_resnorm=ILEMT_VALID_RESNORM)
     v, resid = res.pose_vectors, np.asarray(res.residual)
     if isinstance(model, OctupoleModel):
         v, resid = refine_poses(model, rows.couplings, v)
@@ -266,7 +267,7 @@ class ImprovedCalibration:
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
                                                           STAGE_UNCERTAINTY_MM))
             resid = np.asarray(res.residual)
-            out[name]["n_invalid"] = int(np.sum(~(np.isfinite(resid) & (resid < 1e-5))))
+            out[name]["n_invalid"] = int(np.sum(~(np.isfinite(resid) & (resid < ILEMT_VALID_RESNORM))))
         return ImprovedTest(**out)
 
     def to_calibration(self, start=None):
@@ -347,7 +348,7 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)
     s = solve_and_score(prob, x, md, concentric_model, initial=vector_from_pose(D))
-    ok = np.isfinite(s.residual) & (s.residual < 1e-5)
+    ok = np.isfinite(s.residual) & (s.residual < ILEMT_VALID_RESNORM)
     corr, cstats = None, {"n_invalid": int((~ok).sum())}
     if ok.sum() >= 0.75 * len(ok):
         d = fit_dlt(s.positions[ok], D[ok, :3, 3])

@@ -22,6 +22,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..geometry import ground_truth_poses, vector_from_pose
+from ._check import ILEMT_VALID_RESNORM
 from ._fit import CalibrationFit, fit
 from ._modes import get_mode, select_rows
 
@@ -105,13 +106,14 @@ def _solve_rows(data, cal, solver: str, truth_poses):
         res = solve_kim18(data.couplings, cal.model, hemisphere=hemi)
     elif solver == "lm":
         res = solve_lm(data.couplings, cal.model, initial=vector_from_pose(truth_poses),
-                       hemisphere=hemi, bounds=0.4)
+                       hemisphere=hemi, bounds=0.4, retry_resnorm=ILEMT_VALID_RESNORM)
     else:
         raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
     return res.poses[:, :3, 3], np.asarray(res.residual, dtype=np.float64)
 
 
-def fit_output_correction(data, cal, *, solver: str = "lm", valid_threshold: float = 1e-5,
+def fit_output_correction(data, cal, *, solver: str = "lm",
+                          valid_threshold: float = ILEMT_VALID_RESNORM,
                           min_valid: float = 0.75) -> OutputCorrection:
     """Fit the DLT output correction on calibration rows (docs/paper-procedure.md#output-correction).
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from .._constants import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 from .._errors import InputError
 
 __all__ = ["register", "run"]
@@ -24,17 +25,21 @@ def register(subparsers) -> None:
                    help="calibration (openemt JSON or ILEMT .mat)")
     p.add_argument("--solver", choices=("lm", "svd", "kuipers", "kim18"), default="lm")
     p.add_argument("-o", "--output", type=Path, required=True, help="output poses HDF5 file")
-    p.add_argument("--hemisphere", default=None,
-                   help="hemisphere of the sensor: +x, -x, +y, -y, +z, -z (closed forms: +x "
-                        "by default; lm: unconstrained by default)")
+    p.add_argument("--hemisphere", default="+x",
+                   help="hemisphere of the sensor: +x, -x, +y, -y, +z, -z (default +x); "
+                        "'none': unconstrained (lm only)")
     p.add_argument("--concentric-calibration", type=Path, default=None,
                    help="concentric calibration whose Kim18 solution starts the LM solver")
     p.add_argument("--initial", default="kim18",
                    choices=("kim18", "svd", "kuipers", "track", "multistart"),
                    help="LM start (default kim18)")
     p.add_argument("--max-iter", type=int, default=100)
-    p.add_argument("--valid-threshold", type=float, default=1e-5,
-                   help="residual below which a solution is valid (default 1e-5)")
+    p.add_argument("--max-relative-residual", type=float, default=MAX_RELATIVE_RESIDUAL,
+                   help="largest relative coupling residual ||C_pred - C||/||C|| of a "
+                        f"converged pose (default {MAX_RELATIVE_RESIDUAL}; all solvers)")
+    p.add_argument("--max-range", type=float, default=MAX_RANGE_M,
+                   help="largest plausible sensor distance from the source in m (default "
+                        f"{MAX_RANGE_M}); farther poses are out_of_volume")
     p.add_argument("--bounds", type=float, default=None,
                    help="position box half-width in m (LM); solutions on it are out_of_volume")
     p.add_argument("--no-correction", action="store_true",
@@ -55,10 +60,14 @@ def run(args) -> int:
     from ._common import emit, progress
 
     cal = read_calibration(args.calibration)
-    options = {}
+    options = {"max_relative_residual": args.max_relative_residual,
+               "max_range": args.max_range}
+    hemisphere = None if args.hemisphere.lower() == "none" else args.hemisphere
+    if hemisphere is None and args.solver != "lm":
+        raise InputError(f"expected a hemisphere such as +x for --solver {args.solver}, got "
+                         f"'none'")
     if args.solver == "lm":
-        options.update(max_iter=args.max_iter, valid_threshold=args.valid_threshold,
-                       bounds=args.bounds, initial=args.initial)
+        options.update(max_iter=args.max_iter, bounds=args.bounds, initial=args.initial)
         if args.concentric_calibration is not None:
             options["concentric_model"] = read_calibration(args.concentric_calibration).model
     elif args.bounds is not None or args.concentric_calibration is not None:
@@ -82,7 +91,7 @@ def run(args) -> int:
             try:
                 for start, res in solve_chunks(reader, cal, chunk_rows=args.chunk_rows,
                                                scheduler=args.scheduler, solver=args.solver,
-                                               hemisphere=args.hemisphere,
+                                               hemisphere=hemisphere,
                                                apply_correction=not args.no_correction,
                                                **options):
                     writer.write(start, res)

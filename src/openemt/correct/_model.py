@@ -54,6 +54,104 @@ CORRECTION_METHODS = {
 _FORMAT = "openemt.correction"
 _VERSION = 1
 
+#: Highest polynomial order a correction file may name (C(order + 3, 3) monomials: 1771 at
+#: order 20, far above the orders a fit selects, ``POLY_ORDERS``). A larger order in a file is
+#: an error before anything is allocated.
+MAX_POLY_ORDER = 20
+
+
+def _numbers(p: dict, key: str, where: str, shape=None, *, optional: bool = False):
+    """``params[key]`` as a finite float64 array (of ``shape``; ``None`` in it: any size)."""
+    v = p.get(key)
+    if v is None:
+        if optional:
+            return None
+        raise InputError(f"{where}expected `params.{key}` as finite numbers, got "
+                         f"{'null' if key in p else 'no such field'}")
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}expected `params.{key}` as finite numbers, got null or "
+                         f"non-numbers") from None
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{where}expected finite numbers in `params.{key}`, got "
+                         f"{int((~np.isfinite(a)).sum())} NaN/inf")
+    if shape is not None and (a.ndim != len(shape) or any(
+            s is not None and s != n for s, n in zip(shape, a.shape))):
+        want = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
+        raise InputError(f"{where}expected `params.{key}` of shape {want}, got {a.shape}")
+    return a
+
+
+def _order(p: dict, key: str, where: str, *, optional: bool = False):
+    v = p.get(key)
+    if v is None and optional:
+        return None
+    if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= MAX_POLY_ORDER:
+        raise InputError(f"{where}expected `params.{key}` an integer 0..{MAX_POLY_ORDER} "
+                         f"(MAX_POLY_ORDER), got {v!r}")
+    return v
+
+
+def _positive_scale(p: dict, where: str) -> None:
+    s = _numbers(p, "scale", where, ())
+    if not s != 0:
+        raise InputError(f"{where}expected a non-zero finite `params.scale`, got {float(s)}")
+
+
+def _check_params(method: str, p: dict, where: str) -> None:
+    """Validate a correction's parameters before they are used (shapes, finite coefficients,
+    bounded sizes); raises InputError naming the field."""
+    if method == "dlt":
+        from ..io._calibration import check_correction_matrix
+
+        check_correction_matrix(p.get("matrix"), "params.matrix", where)
+        return
+    if method in ("poly", "rbf"):
+        _numbers(p, "center", where, (3,))
+        _positive_scale(p, where)
+    if method == "poly":
+        from ._poly import monomial_exponents
+
+        mp = p.get("max_power")
+        if mp is not None and (not isinstance(mp, list) or len(mp) != 3 or not all(
+                m is None or (isinstance(m, int) and not isinstance(m, bool) and m >= 0)
+                for m in mp)):
+            raise InputError(f"{where}expected `params.max_power` null or 3 entries of null or "
+                             f"a non-negative integer, got {mp!r}")
+        for order_key, coef_key, optional in (("pos_order", "pos_coef", False),
+                                              ("rot_order", "rot_coef", True)):
+            order = _order(p, order_key, where, optional=optional)
+            if order is None:
+                if p.get(coef_key) is not None:
+                    raise InputError(f"{where}expected `params.{coef_key}` null without "
+                                     f"`params.{order_key}`, got coefficients")
+                continue
+            n_terms = len(monomial_exponents(order, mp))
+            _numbers(p, coef_key, where, (n_terms, 3))
+    elif method == "grid":
+        lo = _numbers(p, "lower", where, (3,))
+        hi = _numbers(p, "upper", where, (3,))
+        if not np.all(lo < hi):
+            raise InputError(f"{where}expected `params.lower` < `params.upper` on every axis, "
+                             f"got {lo.tolist()} and {hi.tolist()}")
+        shape = p.get("shape")
+        if not isinstance(shape, list) or len(shape) != 3 or not all(
+                isinstance(s, int) and not isinstance(s, bool) and s >= 2 for s in shape):
+            raise InputError(f"{where}expected `params.shape` 3 integers >= 2, got {shape!r}")
+        vals = _numbers(p, "values", where)
+        if vals.ndim != 4 or list(vals.shape[:3]) != shape or vals.shape[3] not in (3, 6):
+            raise InputError(f"{where}expected `params.values` of shape ({shape[0]}, "
+                             f"{shape[1]}, {shape[2]}, 3 or 6), got {vals.shape}")
+        _numbers(p, "smoothing", where, ())
+    elif method == "rbf":
+        pts = _numbers(p, "points", where, (None, 3))
+        vals = _numbers(p, "values", where)
+        if vals.ndim != 2 or vals.shape[0] != len(pts) or vals.shape[1] not in (3, 6):
+            raise InputError(f"{where}expected `params.values` of shape ({len(pts)}, 3 or 6), "
+                             f"got {vals.shape}")
+        _numbers(p, "smoothing", where, ())
+
 
 def _split_pairs(measured, reference):
     """Validate pairs; return (m_xyz, m_R or None, d_xyz, d_R or None, is_pose)."""
@@ -192,10 +290,32 @@ class Correction:
                 "meta": _jsonable(self.meta)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> Correction:
+    def from_dict(cls, d: dict, source: str = "") -> Correction:
+        """Validate a correction document (as :func:`write_correction` writes it) and build the
+        correction; ``source`` names the file in error messages."""
+        where = f"correction file {source}: " if source else "correction: "
+        if not isinstance(d, dict):
+            raise InputError(f"{where}expected a JSON object, got {type(d).__name__}")
         if d.get("format") != _FORMAT:
-            raise InputError(f"expected a {_FORMAT!r} document, got format {d.get('format')!r}")
-        obj = cls(method=str(d["method"]), params=dict(d["params"]),
+            raise InputError(f"{where}expected format {_FORMAT!r}, got {d.get('format')!r}")
+        version = d.get("version")
+        if not isinstance(version, int) or isinstance(version, bool) or not (
+                1 <= version <= _VERSION):
+            raise InputError(f"{where}expected version 1..{_VERSION}, got {version!r}")
+        method = d.get("method")
+        if method not in CORRECTION_METHODS:
+            raise InputError(f"{where}expected `method` in {sorted(CORRECTION_METHODS)}, got "
+                             f"{method!r}")
+        params = d.get("params")
+        if not isinstance(params, dict):
+            raise InputError(f"{where}expected `params` to be an object, got "
+                             f"{type(params).__name__}")
+        for name in ("stats", "meta"):
+            if d.get(name) is not None and not isinstance(d[name], dict):
+                raise InputError(f"{where}expected `{name}` to be an object, got "
+                                 f"{type(d[name]).__name__}")
+        _check_params(method, params, where)
+        obj = cls(method=method, params=dict(params),
                   stats=dict(d.get("stats") or {}), meta=dict(d.get("meta") or {}))
         # normalise params through the model so arrays have their numpy types again
         return cls(method=obj.method, params=obj.model.to_params(), stats=obj.stats,
@@ -324,10 +444,11 @@ def write_correction(correction: Correction, path) -> None:
 
 
 def read_correction(path) -> Correction:
-    """Read a correction written by :func:`write_correction`."""
+    """Read a correction written by :func:`write_correction`, validated
+    (docs/correction.md#correction-files): known format version, finite coefficients, non-zero
+    scale, polynomial orders at most ``MAX_POLY_ORDER``, sizes consistent."""
     from ..io._jsontext import load_json_file
 
+    path = Path(path)
     d = load_json_file(path, "a JSON correction file")
-    if not isinstance(d, dict):
-        raise InputError(f"expected a JSON object in {path}, got {type(d).__name__}")
-    return Correction.from_dict(d)
+    return Correction.from_dict(d, path.name)

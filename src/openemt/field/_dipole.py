@@ -148,6 +148,9 @@ def _split(poses):
 def coupling(model: DipoleModel, poses) -> np.ndarray:
     """Predicted couplings ``(N, n_source, n_sensor)`` for sensor poses ``(N, 4, 4)``.
 
+    A source and sensor coil at the same point (distance 0) have no defined dipole coupling:
+    that entry is NaN (never an exception), so the sample is flagged and the batch goes on.
+
     References
     ----------
     MacLachlan et al. 2025, eqs. 3-5; docs/ilemt-data.md#dipole-model.

@@ -8,6 +8,9 @@ Conventions (all arrays float64, C-contiguous):
   L_se, M_se : (3, n_se)  sensor coil positions and moments, sensor frame
   R, t       : (3, 3), (3,)  pose of the sensor in the source frame
   gain       : scalar, C = gain * m_se . B, B = (3 (M.u) u - M) / d^3  (ILEMT uses 1/250)
+
+A coil pair at zero distance (d = 0) has no defined coupling: its entries and derivatives are
+NaN.
 """
 
 from __future__ import annotations
@@ -57,9 +60,14 @@ def dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, C, dC_dt, dC_dphi, dC_dMso, 
             rz = pz - L_so[2, i]
             if rx != qx or ry != qy or rz != qz:
                 d2 = rx * rx + ry * ry + rz * rz
-                inv_d2 = 1.0 / d2
-                inv_d3 = inv_d2 / np.sqrt(d2)
-                inv_d5 = inv_d3 * inv_d2
+                if d2 > 0.0:
+                    inv_d2 = 1.0 / d2
+                    inv_d3 = inv_d2 / np.sqrt(d2)
+                    inv_d5 = inv_d3 * inv_d2
+                else:
+                    # coils at the same point: the dipole field is undefined there (NaN
+                    # couplings and derivatives, never an exception)
+                    inv_d2 = inv_d3 = inv_d5 = np.nan
                 qx = rx
                 qy = ry
                 qz = rz

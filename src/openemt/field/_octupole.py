@@ -33,8 +33,14 @@ def _octupole_pair(r, M, m, gain, want_grad):
     """Octupole coupling of source moments ``M`` at offset ``r`` (source -> sensor) into ``m``.
 
     Shapes broadcast: ``r, M, m (..., 3)``. Returns ``C (...)`` and, if wanted, the gradients
-    with respect to ``r``, ``M`` and ``m`` (each ``(..., 3)``), for ``kappa = 1``.
+    with respect to ``r``, ``M`` and ``m`` (each ``(..., 3)``), for ``kappa = 1``. Coils at zero
+    distance give NaN (the field is undefined there), without a warning.
     """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _octupole_pair_values(r, M, m, gain, want_grad)
+
+
+def _octupole_pair_values(r, M, m, gain, want_grad):
     d2 = np.sum(r * r, axis=-1)
     d = np.sqrt(d2)
     u = r / d[..., None]

@@ -16,7 +16,7 @@ from .. import __version__
 from .._errors import InputError
 from ..field import DipoleModel
 from ._atomic import atomic_path
-from ._calibration import Calibration
+from ._calibration import Calibration, check_correction_matrix, check_model_moments
 from ._jsontext import load_json_file
 
 __all__ = [
@@ -184,19 +184,26 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
         dm = DipoleModel(gain=float(gain), **arrays)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{_where(src)}{exc}") from None
+    check_model_moments(dm, _where(src))
     fix = _get(doc, "fixtures", src, dict)
     fixtures = {f"{k}_fixture": _array(_get(fix, k, src, list, f"fixtures.{k}"), f"fixtures.{k}",
                                        (6,), src)
                 for k in ("source", "stage", "sensor")}
     L = doc.get("linear_correction")
     if L is not None:
-        L = _array(L, "linear_correction", (4, 4), src)
+        L = check_correction_matrix(_array(L, "linear_correction", (4, 4), src),
+                                    where=_where(src))
     se_doc = doc.get("standard_errors") or {}
     if not isinstance(se_doc, dict):
         raise InputError(f"{_where(src)}expected `standard_errors` to be an object, "
                          f"got {_describe(se_doc)}")
     std = {str(k): _array(v, f"standard_errors.{k}", None, src, allow_nan=True)
            for k, v in se_doc.items()}
+    for k, v in std.items():
+        ref = arrays.get(k)
+        if ref is not None and v.shape != ref.shape:
+            raise InputError(f"{_where(src)}expected `standard_errors.{k}` of shape "
+                             f"{ref.shape} (as model.{k}), got shape {v.shape}")
     for name in ("free", "frozen"):
         v = doc.get(name) or []
         if not isinstance(v, list) or not all(isinstance(x, str) for x in v):

@@ -15,7 +15,42 @@ from .._errors import InputError
 from ..field import DipoleModel, OctupoleModel
 from ..geometry import pose_from_vector
 
-__all__ = ["Calibration"]
+__all__ = ["MAX_CORRECTION_CONDITION", "Calibration", "check_correction_matrix",
+           "check_model_moments"]
+
+#: Largest condition number of a homogeneous 4x4 output correction. A fitted correction is
+#: close to the identity (condition ~1); a matrix beyond this is singular in practice (an
+#: all-zero matrix, a zero row) and would turn every corrected position into NaN or garbage.
+MAX_CORRECTION_CONDITION = 1e12
+
+
+def check_correction_matrix(L, name: str = "linear_correction", where: str = "") -> np.ndarray:
+    """A finite, non-singular homogeneous (4, 4) correction as float64, or an InputError naming
+    ``where`` (e.g. ``"calibration file cal.json: "``) and ``name``."""
+    try:
+        a = np.asarray(L, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}expected `{name}` as a (4, 4) matrix of numbers, got "
+                         f"{type(L).__name__}") from None
+    if a.shape != (4, 4):
+        raise InputError(f"{where}expected `{name}` of shape (4, 4), got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{where}expected finite numbers in `{name}`, got NaN/inf/null")
+    cond = np.linalg.cond(a) if np.any(a) else np.inf
+    if not cond <= MAX_CORRECTION_CONDITION:
+        raise InputError(f"{where}expected a non-singular `{name}` (condition number <= "
+                         f"{MAX_CORRECTION_CONDITION:g}), got condition number {cond:.3g}")
+    return a
+
+
+def check_model_moments(model, where: str = "") -> None:
+    """Every coil of a loaded model must have a non-zero moment (a zero moment couples to
+    nothing: a damaged or placeholder calibration)."""
+    for name in ("M_so", "M_se"):
+        zero = np.flatnonzero(~np.any(getattr(model, name) != 0, axis=0))
+        if zero.size:
+            raise InputError(f"{where}expected non-zero coil moments in `{name}`, got all-zero "
+                             f"column(s) {zero.tolist()}")
 
 
 def _vec6(v, name):
@@ -72,10 +107,8 @@ class Calibration:
         for name in ("source_fixture", "stage_fixture", "sensor_fixture"):
             object.__setattr__(self, name, _vec6(getattr(self, name), name))
         if self.linear_correction is not None:
-            L = np.asarray(self.linear_correction, dtype=np.float64)
-            if L.shape != (4, 4) or not np.all(np.isfinite(L)):
-                raise InputError(f"expected a finite (4, 4) `linear_correction`, got {L.shape}")
-            object.__setattr__(self, "linear_correction", L)
+            object.__setattr__(self, "linear_correction",
+                               check_correction_matrix(self.linear_correction))
         object.__setattr__(self, "free", tuple(self.free))
         object.__setattr__(self, "frozen", tuple(self.frozen))
 

@@ -10,7 +10,7 @@ import numpy as np
 from .. import __version__
 from .._errors import InputError
 from ..field import DipoleModel
-from ._calibration import Calibration
+from ._calibration import Calibration, check_correction_matrix, check_model_moments
 from ._ilemt import file_sha256
 
 __all__ = ["read_ilemt_calibration"]
@@ -71,7 +71,11 @@ def _matrix(d: dict, key: str, shape, path: Path) -> np.ndarray:
     if a.dtype.kind not in "iuf" or a.shape != shape:
         raise InputError(f"{path.name}: expected {key!r} to be a real {shape} array, "
                          f"got {a.dtype} {a.shape}")
-    return a.astype(np.float64)
+    a = a.astype(np.float64)
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{path.name}: expected finite numbers in {key!r}, got "
+                         f"{int((~np.isfinite(a)).sum())} NaN/inf")
+    return a
 
 
 def read_ilemt_calibration(path) -> Calibration:
@@ -112,9 +116,13 @@ def read_ilemt_calibration(path) -> Calibration:
         M_se=_matrix(d, "d_sensor_moment", (3, 3), path),
         gain=_GAIN,
     )
+    check_model_moments(model, f"{path.name}: ")
     fixtures = {k: _matrix(d, k, (6,), path)
                 for k in ("source_fixture", "stage_fixture", "sensor_fixture")}
-    L = _matrix(d, "linear_correction", (4, 4), path) if "linear_correction" in d else None
+    L = None
+    if "linear_correction" in d:
+        L = check_correction_matrix(_matrix(d, "linear_correction", (4, 4), path),
+                                    where=f"{path.name}: ")
 
     stats = _jsonable(d["stats"]) if "stats" in d else {}
     if not isinstance(stats, dict):

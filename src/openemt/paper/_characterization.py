@@ -19,6 +19,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import Result
+from ..calibrate._check import ILEMT_VALID_RESNORM
 from ..evaluate import (
     ACCURACY_KEYS,
     STAGE_UNCERTAINTY_DEG,
@@ -175,7 +176,7 @@ def _pose_conditions(dataset, cal, concentric, D):
     for name, (r, M) in variants.items():
         trans, rot = pose_error_magnitudes(M, D)  # NaN for failed solves
         test = HeldOutTest(trans=trans, rot=rot, summary=error_summary(trans, rot),
-                           n_invalid=int((~(np.asarray(r.residual) < 1e-5)).sum()),
+                           n_invalid=int((~(np.asarray(r.residual) < ILEMT_VALID_RESNORM)).sum()),
                            poses=np.asarray(r.poses))
         conds[name] = (test, M)
     return conds

@@ -36,7 +36,7 @@ from numba import njit
 from .._errors import InputError
 from ..field import DipoleModel
 from ..field._dipole_kernel import dipole_eval
-from ._hemisphere import hemisphere_vectors
+from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._linalg import (
     dominant_eigvec,
     euler_zyx_matrix,
@@ -50,13 +50,34 @@ from ._linalg import (
     sym3_lambda_max,
     wahba_quat,
 )
-from ._result import SolveResult, Status
+from ._packing import (
+    M_GAIN,
+    O_AMBIGUITY_TOL,
+    O_MAX_RANGE,
+    O_MAX_RELATIVE_RESIDUAL,
+    O_RANK_TOL,
+    pack_model,
+    pack_options,
+    unpack_model,
+)
+from ._result import ST_CONVERGED, ST_INVALID_INPUT, SolveResult
+from ._validity import (
+    MAX_RANGE_M,
+    MAX_RELATIVE_RESIDUAL,
+    check_validity_options,
+    classify,
+    relative_residual,
+)
 
-__all__ = ["check_couplings", "solve_kim18", "solve_kuipers", "solve_svd", "spectral_norms"]
+__all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "new_outputs",
+           "normalise_coupling", "result_from_outputs", "solve_kim18", "solve_kuipers",
+           "solve_svd", "spectral_norms", "whitening"]
 
-_METHODS = {"svd": 0, "kuipers": 1, "kim18": 2}
-_INVALID = np.int8(Status.INVALID_INPUT)
-_AMBIG = np.int8(Status.AMBIGUOUS)
+#: closed-form method codes of the compiled kernel
+CF_SVD = 0
+CF_KUIPERS = 1
+CF_KIM18 = 2
+_METHODS = {"svd": CF_SVD, "kuipers": CF_KUIPERS, "kim18": CF_KIM18}
 
 
 # ------------------------------------------------------------------------------------------
@@ -217,15 +238,22 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
 
 
 @njit(cache=True, inline="always")
-def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B,
-                      q, M):
-    """``closed_form_one`` with the rotation's quaternion: ``q`` (4,) is set when the fast
-    path produced it and ``q[0] = -1`` otherwise; ``M`` is (4, 4) scratch."""
+def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
+    """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``.
+
+    ``W`` (2, 3, 3) holds the whitening matrices ``M_so^-T`` and ``M_se^-1``; ``n`` the
+    hemisphere direction; ``cws`` the scratch of :func:`closed_form_scratch`, whose ``q`` (4,)
+    is the rotation's quaternion when the fast path produced it (``q[0] = -1`` otherwise).
+    Returns ``ST_CONVERGED`` (a pose was found; the caller judges it) or ``ST_INVALID_INPUT``.
+    """
+    C0, U, s, V, B, q, M = cws
+    Wso = W[0]
+    Wse = W[1]
     q[0] = -1.0
     for i in range(3):
         for j in range(3):
             if not np.isfinite(C[i, j]):
-                return 2
+                return ST_INVALID_INPUT
     # C0 = Wso C Wse (whitened coupling, = k H R), as two 3x3 products
     for i in range(3):
         for j in range(3):
@@ -237,20 +265,20 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
     u1 = 0.0
     u2 = 0.0
     fast = 0
-    if method == 1:
+    if method == CF_KUIPERS:
         # Kuipers: invariants of C0 C0^T = k^2 (I + 3 u u^T)
         for i in range(3):
             for j in range(3):
                 B[i, j] = C0[i, 0] * C0[j, 0] + C0[i, 1] * C0[j, 1] + C0[i, 2] * C0[j, 2]
         k2 = (B[0, 0] + B[1, 1] + B[2, 2]) / 6.0
         if not k2 > 0.0:
-            return 2
+            return ST_INVALID_INPUT
         k = np.sqrt(k2)
         det = (C0[0, 0] * (C0[1, 1] * C0[2, 2] - C0[1, 2] * C0[2, 1])
                - C0[0, 1] * (C0[1, 0] * C0[2, 2] - C0[1, 2] * C0[2, 0])
                + C0[0, 2] * (C0[1, 0] * C0[2, 1] - C0[1, 1] * C0[2, 0]))
         if not abs(det) > rank_tol * 2.0 * k2 * k:
-            return 2
+            return ST_INVALID_INPUT
         m = 0
         best = -np.inf
         for i in range(3):
@@ -264,7 +292,7 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
                     if j != i:
                         B[i, j] = B[i, j] / k2 / 3.0
         if not best > 0.0:
-            return 2
+            return ST_INVALID_INPUT
         sq = np.sqrt(best)
         u0 = B[0, m] / sq
         u1 = B[1, m] / sq
@@ -277,15 +305,15 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
     else:
         fast = _fast_concentric(C0, rank_tol, s, U, R, B, V, q, M)
         if fast == 2:
-            return 2
+            return ST_INVALID_INPUT
         if fast == 0:
             svd3(C0, U, s, V)
             if not s[0] > 0.0 or not s[2] > rank_tol * s[0]:
-                return 2
+                return ST_INVALID_INPUT
         u0 = U[0, 0]
         u1 = U[1, 0]
         u2 = U[2, 0]
-        if method == 0:
+        if method == CF_SVD:
             # Teixeira Silva et al. 2017, eq. 25: rho = cbrt(C/sigma), three estimates averaged
             dist = ((2.0 * gain / s[0]) ** (1.0 / 3.0) + (gain / s[1]) ** (1.0 / 3.0)
                     + (gain / s[2]) ** (1.0 / 3.0)) / 3.0
@@ -300,7 +328,7 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
     t[1] = dist * u1
     t[2] = dist * u2
     # orientation
-    if method == 1:
+    if method == CF_KUIPERS:
         k = np.sqrt(k2)
         # A = H^-1 C0 / k with H^-1 = 1.5 u u^T - I
         uv = (u0, u1, u2)
@@ -352,68 +380,135 @@ def _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C
         for i in range(3):
             for j in range(3):
                 R[i, j] = d0 * U[i, 0] * V[j, 0] + d1 * U[i, 1] * V[j, 1] + d2 * U[i, 2] * V[j, 2]
-    if abs(proj) < ambig_tol:
-        return 3
-    return 0
+    return ST_CONVERGED
 
 
 @njit(cache=True)
-def closed_form_one(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s, V, B):
-    """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``; returns a status code
-    (0 ok, INVALID_INPUT, AMBIGUOUS). ``C0, U, V, B`` are 3x3 scratch, ``s`` (3,) scratch."""
-    q = np.empty(4)
-    M = np.empty((4, 4))
-    return _closed_form_core(method, C, Wso, Wse, gain, n, rank_tol, ambig_tol, R, t, C0, U, s,
-                             V, B, q, M)
+def closed_form_scratch():
+    """Scratch arrays of :func:`closed_form_one`: ``(C0, U, s, V, B, q, M)``."""
+    return (np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty((3, 3)),
+            np.empty(4), np.empty((4, 4)))
 
 
 @njit(cache=True)
-def _closed_form_batch(method, C, cnorm, Wso, Wse, L_so, M_so, L_se, M_se, gain, nvec, rank_tol,
-                       ambig_tol, want_res, poses, vecs, status, residual):
+def normalise_coupling(Cm, cn_in, Cn, G):
+    """``Cn = Cm / s`` with ``s = ||Cm||_F`` (computed without overflow or underflow).
+
+    Returns ``(s, res_fac)`` with ``res_fac = s^2 / ||Cm||_2``, so that the sum of squares of
+    a normalised residual times ``res_fac`` is ILEMT's resnorm; ``cn_in`` is the spectral norm
+    when known (complex input), else negative. ``s = 0`` marks invalid input (non-finite or
+    zero). Solving the normalised coupling with the gain divided by ``s`` gives the same pose
+    for couplings of any scale (docs/solve.md#validity-rule).
+    """
+    mx = 0.0
+    for i in range(Cm.shape[0]):
+        for j in range(Cm.shape[1]):
+            v = Cm[i, j]
+            if not np.isfinite(v):
+                return 0.0, 0.0
+            mx = max(mx, abs(v))
+    if not mx > 0.0:
+        return 0.0, 0.0
+    ss = 0.0
+    for i in range(Cm.shape[0]):
+        for j in range(Cm.shape[1]):
+            v = Cm[i, j] / mx
+            ss += v * v
+    s = mx * np.sqrt(ss)
+    if not np.isfinite(s):
+        return 0.0, 0.0
+    for i in range(Cm.shape[0]):
+        for j in range(Cm.shape[1]):
+            Cn[i, j] = Cm[i, j] / s
+    if cn_in < 0.0:
+        sn = spectral_norm(Cn, G)
+        if not sn > 0.0:
+            return 0.0, 0.0
+        return s, s / sn
+    if not (cn_in > 0.0 and np.isfinite(cn_in)):
+        return 0.0, 0.0
+    return s, s * (s / cn_in)
+
+
+@njit(cache=True)
+def residuals_at(mdl, R, t, Ck, cn_in, Cp, G, scratch):
+    """``(resnorm, relative residual)`` of the pose ``(R, t)`` for the measured coupling ``Ck``
+    under the packed model ``mdl``, evaluated at the couplings' own scale. ``cn_in`` is the
+    spectral norm of ``Ck`` if known, else negative; ``Cp`` receives the predicted coupling;
+    ``G`` (n_se, n_se) and ``scratch`` (n_so, n_se, 3) are scratch."""
+    L_so, M_so, L_se, M_se, gain = unpack_model(mdl, 1.0)
+    dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, scratch, scratch, scratch, scratch,
+                False)
+    ss = 0.0
+    for i in range(Ck.shape[0]):
+        for j in range(Ck.shape[1]):
+            ss += (Cp[i, j] - Ck[i, j]) ** 2
+    cn = cn_in if cn_in >= 0.0 else spectral_norm(Ck, G)
+    return ss / cn, relative_residual(Cp, Ck)
+
+
+@njit(cache=True)
+def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
+    poses, vecs, status, residual, relres, iterations = out
     N = C.shape[0]
     R = np.empty((3, 3))
     t = np.empty(3)
-    C0 = np.empty((3, 3))
-    U = np.empty((3, 3))
-    V = np.empty((3, 3))
-    B = np.empty((3, 3))
-    s = np.empty(3)
+    cws = closed_form_scratch()
+    q = cws[5]
+    Cn = np.empty((3, 3))
+    G = np.empty((3, 3))
     Cp = np.empty((3, 3))
     rv = np.empty(3)
-    q = np.empty(4)
-    M = np.empty((4, 4))
     dummy = np.empty((3, 3, 3))
-    one_n = 1 if nvec.shape[0] == 1 else 0
-    if want_res:
-        # spectral norms of real input first, in a pass of independent samples
-        for k in range(N):
-            if cnorm[k] < 0.0:
-                cnorm[k] = _spectral_norm33(C[k])
+    lo = np.full(3, -np.inf)
+    hi = np.full(3, np.inf)
+    one_n = nvec.shape[0] == 1
     for k in range(N):
-        st = _closed_form_core(method, C[k], Wso, Wse, gain, nvec[k if one_n == 0 else 0],
-                               rank_tol, ambig_tol, R, t, C0, U, s, V, B, q, M)
-        if st == 2:
-            status[k] = 2
-            residual[k] = np.nan
-            store_nan_pose(k, poses, vecs)
+        iterations[k] = 0
+        n = nvec[0] if one_n else nvec[k]
+        s = normalise_coupling(C[k], cnorm[k], Cn, G)[0]
+        if not s > 0.0:
+            _store_invalid(k, out)
             continue
-        status[k] = st
+        if closed_form_one(method, Cn, W, mdl[M_GAIN] / s, n, opts[O_RANK_TOL], R, t,
+                           cws) == ST_INVALID_INPUT:
+            _store_invalid(k, out)
+            continue
         if q[0] >= 0.0:
             rotvec_from_quat(q, rv)
         else:
             rotvec_from_matrix(R, rv)
         store_pose(k, R, t, rv, poses, vecs)
-        if not want_res:
-            residual[k] = np.nan
-            continue
-        dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dummy, dummy, dummy, dummy, False)
-        nrm = cnorm[k]
-        ss = 0.0
-        for i in range(3):
-            for j in range(3):
-                d = Cp[i, j] - C[k, i, j]
-                ss += d * d
-        residual[k] = ss / nrm
+        residual[k], rho = residuals_at(mdl, R, t, C[k], cnorm[k], Cp, G, dummy)
+        relres[k] = rho
+        status[k] = classify(False, rho, t, n, lo, hi, opts[O_AMBIGUITY_TOL],
+                             opts[O_MAX_RELATIVE_RESIDUAL], opts[O_MAX_RANGE])
+
+
+@njit(cache=True)
+def _store_invalid(k, out):
+    """Row ``k`` of the outputs ``(poses, vecs, status, residual, relres, iterations)``: NaN
+    pose, ``INVALID_INPUT``."""
+    poses, vecs, status, residual, relres, iterations = out
+    store_nan_pose(k, poses, vecs)
+    status[k] = ST_INVALID_INPUT
+    residual[k] = np.nan
+    relres[k] = np.nan
+    iterations[k] = 0
+
+
+def new_outputs(n: int) -> tuple:
+    """Output arrays of the compiled solvers for ``n`` samples: ``(poses, pose_vectors,
+    status, residual, relative_residual, iterations)``."""
+    return (np.empty((n, 4, 4)), np.empty((n, 6)), np.empty(n, dtype=np.int8), np.empty(n),
+            np.empty(n), np.empty(n, dtype=np.int32))
+
+
+def result_from_outputs(out, solver: str) -> SolveResult:
+    """:class:`SolveResult` of the arrays of :func:`new_outputs`."""
+    poses, vecs, status, residual, relres, iterations = out
+    return SolveResult(poses, vecs, status, residual, iterations, solver=solver,
+                       relative_residual=relres)
 
 
 def _concentric_model(model, name) -> DipoleModel:
@@ -434,25 +529,26 @@ def _concentric_model(model, name) -> DipoleModel:
     return model
 
 
-def _solve_closed_form(method, couplings, hemisphere, model, rank_tol, ambiguity_tol,
-                       residual=True):
+def whitening(model) -> np.ndarray:
+    """``(2, 3, 3)`` whitening matrices ``[M_so^-T, M_se^-1]`` of a concentric 3x3 model."""
+    return np.ascontiguousarray(np.stack([np.linalg.inv(model.M_so.T), np.linalg.inv(model.M_se)]))
+
+
+def _solve_closed_form(method, couplings, model, hemisphere, rank_tol, ambiguity_tol,
+                       max_relative_residual, max_range):
     model = _concentric_model(model, method)
+    max_rel, max_range = check_validity_options(max_relative_residual, max_range)
     C, cnorm = check_couplings(couplings, 3, 3)
     n = C.shape[0]
     # one hemisphere for all samples: pass a single row (the kernel broadcasts it)
     uniform = isinstance(hemisphere, str) or np.shape(hemisphere) == (3,)
     nvec = hemisphere_vectors(hemisphere, 1 if uniform else n, allow_none=False)
-    Wso = np.ascontiguousarray(np.linalg.inv(model.M_so.T))
-    Wse = np.ascontiguousarray(np.linalg.inv(model.M_se))
-    want_residual = residual
-    poses = np.empty((n, 4, 4))
-    vecs = np.empty((n, 6))
-    status = np.empty(n, dtype=np.int8)
-    residual = np.empty(n)
-    _closed_form_batch(_METHODS[method], C, cnorm, Wso, Wse, model.L_so, model.M_so, model.L_se,
-                       model.M_se, model.gain, nvec, float(rank_tol), float(ambiguity_tol),
-                       bool(want_residual), poses, vecs, status, residual)
-    return SolveResult(poses, vecs, status, residual, np.zeros(n, dtype=np.int32), solver=method)
+    opts = pack_options(rank_tol=rank_tol, ambiguity_tol=ambiguity_tol,
+                        max_relative_residual=max_rel, max_range=max_range)
+    out = new_outputs(n)
+    _closed_form_batch(_METHODS[method], C, cnorm, whitening(model), pack_model(model), nvec,
+                       opts, out)
+    return result_from_outputs(out, method)
 
 
 _COMMON_DOC = """
@@ -461,60 +557,65 @@ _COMMON_DOC = """
     couplings : ndarray, shape (N, 3, 3)
         Signed real couplings ``C[k, source, sensor]`` (complex phasors are accepted and converted
         with ``sign(Re z) |z|``; their complex spectral norm then normalises the residual).
-    hemisphere : str, array_like (3,), sequence of str (N,) or array (N, 3)
-        Resolves the +/- position ambiguity: the solution with ``p . n >= 0``.
     model : DipoleModel, optional
         A concentric 3x3 model giving the moments and gain (ideal unit orthogonal coils with
         ``gain = 1/250`` if omitted).
+    hemisphere : str, array_like (3,), sequence of str (N,) or array (N, 3)
+        Resolves the +/- position ambiguity: the solution with ``p . n >= 0`` (default
+        ``'+x'``, as every solver).
     rank_tol : float
         Coupling matrices with ``s3 < rank_tol * s1`` (after whitening) are INVALID_INPUT.
     ambiguity_tol : float
-        Samples with ``|u . n| < ambiguity_tol`` are flagged AMBIGUOUS (pose still returned).
-    residual : bool
-        Evaluate the model at the solution for ``residual`` (default). ``False`` skips it (about
-        half the cost) and returns NaN residuals.
+        Samples with ``|u . n| <= ambiguity_tol`` are flagged AMBIGUOUS (pose still returned).
+    max_relative_residual, max_range : float or None
+        The validity rule (docs/solve.md#validity-rule): a pose is CONVERGED only if
+        ``||C_model(pose) - C||_F / ||C||_F <= max_relative_residual`` (default
+        ``MAX_RELATIVE_RESIDUAL`` = 0.01) and it lies within ``max_range`` m of the source
+        (default ``MAX_RANGE_M`` = 3). ``None`` disables a test.
 
     Returns
     -------
     SolveResult
-        ``status`` is CONVERGED, AMBIGUOUS or INVALID_INPUT; ``residual`` is ILEMT's resnorm of
-        the closed-form pose under ``model``; ``iterations`` are 0.
+        ``status`` is CONVERGED, NOT_CONVERGED, OUT_OF_VOLUME, AMBIGUOUS or INVALID_INPUT;
+        ``residual`` is ILEMT's resnorm of the closed-form pose under ``model``,
+        ``relative_residual`` the unit-free residual; ``iterations`` are 0.
 """
 
 
-def solve_svd(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
-              ambiguity_tol=1e-6, residual=True) -> SolveResult:
+def solve_svd(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=1e-6,
+              ambiguity_tol=1e-6, max_relative_residual=MAX_RELATIVE_RESIDUAL,
+              max_range=MAX_RANGE_M) -> SolveResult:
     """Closed-form SVD pose solution of Teixeira Silva et al. (Teixeira Silva et al. 2017).
 
     Distance from the singular values, direction from the first singular vector, orientation
     from the Wahba problem solved by SVD.
     """
-    return _solve_closed_form("svd", couplings, hemisphere, model, rank_tol, ambiguity_tol,
-                              residual)
+    return _solve_closed_form("svd", couplings, model, hemisphere, rank_tol, ambiguity_tol,
+                              max_relative_residual, max_range)
 
 
-def solve_kuipers(couplings, *, hemisphere="+x", model=None, rank_tol=1e-6,
-              ambiguity_tol=1e-6, residual=True) -> SolveResult:
+def solve_kuipers(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=1e-6,
+                  ambiguity_tol=1e-6, max_relative_residual=MAX_RELATIVE_RESIDUAL,
+                  max_range=MAX_RANGE_M) -> SolveResult:
     """Kuipers' closed-form pose solution (the benchmark of Teixeira Silva et al. 2017).
 
     Distance from the Frobenius invariant, direction cosines from ``C0 C0^T``, orientation from
     Z-Y-X Euler angles read off ``H^-1 C0 / k``.
     """
-    return _solve_closed_form("kuipers", couplings, hemisphere, model, rank_tol, ambiguity_tol,
-                              residual)
+    return _solve_closed_form("kuipers", couplings, model, hemisphere, rank_tol, ambiguity_tol,
+                              max_relative_residual, max_range)
 
 
-def solve_kim18(couplings, model, *, hemisphere="+x", rank_tol=1e-6,
-                ambiguity_tol=1e-6, residual=True) -> SolveResult:
+def solve_kim18(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=1e-6,
+                ambiguity_tol=1e-6, max_relative_residual=MAX_RELATIVE_RESIDUAL,
+                max_range=MAX_RANGE_M) -> SolveResult:
     """Kim-Song-Park 2018 closed form for calibrated concentric models (docs/paper-procedure.md#kim18).
 
     Accepts non-orthogonal moments and unequal gains (through the whitening by ``M_so``,
     ``M_se``).
     """
-    if model is None:
-        raise TypeError("expected a concentric DipoleModel for solve_kim18, got None")
-    return _solve_closed_form("kim18", couplings, hemisphere, model, rank_tol, ambiguity_tol,
-                              residual)
+    return _solve_closed_form("kim18", couplings, model, hemisphere, rank_tol, ambiguity_tol,
+                              max_relative_residual, max_range)
 
 
 for _f in (solve_svd, solve_kuipers, solve_kim18):

@@ -13,7 +13,10 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["hemisphere_from_positions", "hemisphere_vectors"]
+__all__ = ["DEFAULT_HEMISPHERE", "hemisphere_from_positions", "hemisphere_vectors"]
+
+#: Hemisphere every solver uses when none is given: the sensor in front of the source's x axis.
+DEFAULT_HEMISPHERE = "+x"
 
 _AXIS_RE = re.compile(r"^\s*([+-]?)\s*([xyzXYZ])\s*$")
 

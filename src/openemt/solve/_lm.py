@@ -24,12 +24,38 @@ import numpy as np
 from numba import njit
 
 from ..field._dipole_kernel import dipole_eval
-from ._closed_form import closed_form_one, spectral_norm
-from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix, store_nan_pose, store_pose
+from ._closed_form import (
+    CF_KIM18,
+    _store_invalid,
+    closed_form_one,
+    closed_form_scratch,
+    normalise_coupling,
+    residuals_at,
+)
+from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix, store_pose
+from ._packing import (
+    O_AMBIGUITY_TOL,
+    O_CF_GAIN,
+    O_FIVE_DOF,
+    O_MAX_ITER,
+    O_MAX_RANGE,
+    O_MAX_RELATIVE_RESIDUAL,
+    O_RETRIES,
+    O_RETRY_RELATIVE,
+    O_RETRY_RESNORM,
+    O_USE_CLOSED_FORM,
+    O_XTOL,
+    unpack_model,
+)
+from ._result import ST_CONVERGED, ST_INVALID_INPUT
+from ._validity import classify
 
-__all__ = ["lm_batch", "lm_track"]
+__all__ = ["STOP_CONVERGED", "STOP_ITERATION_LIMIT", "lm_batch", "lm_track"]
 
-_BIG = 1e300
+#: how one LM run ended: its convergence test held (or no decrease was possible) ...
+STOP_CONVERGED = 0
+#: ... or it reached the iteration limit
+STOP_ITERATION_LIMIT = 1
 
 
 @njit(cache=True, inline="always")
@@ -80,7 +106,8 @@ def _rot_basis(R, M_se, five, basis):
 
 
 @njit(cache=True, inline="always")
-def _eval(L_so, M_so, L_se, M_se, gain, Cm, R, t, Cp, dt, dphi, d1, d2, want):
+def _eval(geo, Cm, R, t, Cp, dt, dphi, d1, d2, want):
+    L_so, M_so, L_se, M_se, gain = geo
     dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dt, dphi, d1, d2, want)
     ss = 0.0
     for i in range(Cm.shape[0]):
@@ -90,21 +117,54 @@ def _eval(L_so, M_so, L_se, M_se, gain, Cm, R, t, Cp, dt, dphi, d1, d2, want):
     return ss
 
 
+@njit(cache=True, inline="always")
+def _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2):
+    """The pose ``(R2, t2)`` one step ``delta`` from ``(R, t)``, projected onto the
+    constraints (``phi`` receives the rotation increment)."""
+    for a in range(3):
+        t2[a] = t[a] + delta[a]
+    _project(t2, n, lo, hi)
+    for a in range(3):
+        acc = 0.0
+        for c in range(nr):
+            acc += basis[a, c] * delta[3 + c]
+        phi[a] = acc
+    exp_so3(phi, dR)
+    for a in range(3):
+        for b in range(3):
+            R2[a, b] = dR[a, 0] * R[0, b] + dR[a, 1] * R[1, b] + dR[a, 2] * R[2, b]
+
+
+@njit(cache=True, inline="always")
+def _copy_pose(R_from, t_from, R_to, t_to):
+    for a in range(3):
+        t_to[a] = t_from[a]
+        for b in range(3):
+            R_to[a, b] = R_from[a, b]
+
+
 @njit(cache=True)
-def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, xtol,
-            Cp, dt, dphi, Cp2, dt2, dphi2, d1, d2, Jb, JtJ, A, Lc, g, delta, basis, R2, t2, dR,
-            phi):
-    """Levenberg-Marquardt from ``(R, t)`` (updated in place). Returns (cost, iterations, code)
-    with code 0 = converged (or stalled at a minimum), 1 = iteration limit."""
+def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
+    """Levenberg-Marquardt from ``(R, t)`` (updated in place). Returns ``(cost, iterations,
+    stop)`` with ``stop`` = ``STOP_CONVERGED`` (converged, or stalled at a minimum) or
+    ``STOP_ITERATION_LIMIT``."""
+    (Cp, dt, dphi, Cp2, dt2, dphi2, d1, d2, Jb, JtJ, A, Lc, g, delta, basis, R2, t2, dR,
+     phi) = lmw
+    lo = box[0]
+    hi = box[1]
+    M_se = geo[3]
+    five = opts[O_FIVE_DOF] != 0.0
+    max_iter = int(opts[O_MAX_ITER])
+    xtol = opts[O_XTOL]
     n_so = Cm.shape[0]
     n_se = Cm.shape[1]
     _project(t, n, lo, hi)
-    cost = _eval(L_so, M_so, L_se, M_se, gain, Cm, R, t, Cp, dt, dphi, d1, d2, True)
+    cost = _eval(geo, Cm, R, t, Cp, dt, dphi, d1, d2, True)
     lam = 1e-4
     lam_small = 1e-3
     prev_rel = 0.0
     it = 0
-    code = 1
+    stop = STOP_ITERATION_LIMIT
     while it < max_iter:
         it += 1
         nr = _rot_basis(R, M_se, five, basis)
@@ -151,23 +211,9 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
                     sr2 += delta[3 + c] * delta[3 + c]
                 tn = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
                 if np.sqrt(st2) <= xtol * (tn + xtol) and np.sqrt(sr2) <= xtol:
-                    for a in range(3):
-                        t[a] += delta[a]
-                    _project(t, n, lo, hi)
-                    for a in range(3):
-                        acc = 0.0
-                        for c in range(nr):
-                            acc += basis[a, c] * delta[3 + c]
-                        phi[a] = acc
-                    exp_so3(phi, dR)
-                    for a in range(3):
-                        for b in range(3):
-                            R2[a, b] = (dR[a, 0] * R[0, b] + dR[a, 1] * R[1, b]
-                                        + dR[a, 2] * R[2, b])
-                    for a in range(3):
-                        for b in range(3):
-                            R[a, b] = R2[a, b]
-                    return cost, it, 0
+                    _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2)
+                    _copy_pose(R2, t2, R, t)
+                    return cost, it, STOP_CONVERGED
             if ok:
                 # trust limit: one step moves the sensor by at most half its distance (keeps
                 # an unconstrained solve from running off to infinity, where C -> 0)
@@ -177,18 +223,7 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
                     f = np.sqrt(0.25 * tn2 / st2)
                     for a in range(npar):
                         delta[a] *= f
-                for a in range(3):
-                    t2[a] = t[a] + delta[a]
-                _project(t2, n, lo, hi)
-                for a in range(3):
-                    acc = 0.0
-                    for c in range(nr):
-                        acc += basis[a, c] * delta[3 + c]
-                    phi[a] = acc
-                exp_so3(phi, dR)
-                for a in range(3):
-                    for b in range(3):
-                        R2[a, b] = dR[a, 0] * R[0, b] + dR[a, 1] * R[1, b] + dR[a, 2] * R[2, b]
+                _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2)
                 # linear-rate prediction: if this step is much smaller than the previous
                 # accepted one and the step after it would be below tolerance, this is the
                 # last step; its Jacobian is not needed
@@ -197,15 +232,11 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
                           np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]))
                 final = (prev_rel > 0.0 and lam <= lam_small and rel < 0.5 * prev_rel
                          and rel * rel / prev_rel <= xtol)
-                cost2 = _eval(L_so, M_so, L_se, M_se, gain, Cm, R2, t2, Cp2, dt2, dphi2, d1, d2,
-                              not final)
+                cost2 = _eval(geo, Cm, R2, t2, Cp2, dt2, dphi2, d1, d2, not final)
                 if cost2 <= cost:
                     if final:
-                        for a in range(3):
-                            t[a] = t2[a]
-                            for b in range(3):
-                                R[a, b] = R2[a, b]
-                        return cost2, it, 0
+                        _copy_pose(R2, t2, R, t)
+                        return cost2, it, STOP_CONVERGED
                     accepted = True
                     prev_rel = rel
                     break
@@ -213,7 +244,7 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
             if lam > 1e12:
                 break
         if not accepted:
-            code = 0  # no decrease possible: at a minimum within rounding
+            stop = STOP_CONVERGED  # no decrease possible: at a minimum within rounding
             break
         # accept
         step_t = 0.0
@@ -223,9 +254,7 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
             step_t += (t2[a] - t[a]) ** 2
             norm_t += t2[a] * t2[a]
             step_r += phi[a] * phi[a]
-            t[a] = t2[a]
-            for b in range(3):
-                R[a, b] = R2[a, b]
+        _copy_pose(R2, t2, R, t)
         for i in range(n_so):
             for j in range(n_se):
                 Cp[i, j] = Cp2[i, j]
@@ -237,9 +266,9 @@ def _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five, max_iter, x
         lam = max(lam * 0.1, 1e-12)
         if small_cost or (np.sqrt(step_t) <= xtol * (np.sqrt(norm_t) + xtol)
                           and np.sqrt(step_r) <= xtol):
-            code = 0
+            stop = STOP_CONVERGED
             break
-    return cost, it, code
+    return cost, it, stop
 
 
 @njit(cache=True)
@@ -274,23 +303,28 @@ def _canonical_5dof(R, t, L_se, M_se):
         t[i] = p[i] - (R[i, 0] * L_se[0, 0] + R[i, 1] * L_se[1, 0] + R[i, 2] * L_se[2, 0])
 
 
+@njit(cache=True, inline="always")
+def _acceptable(cost, res_fac, opts):
+    """No retry needed: the retry test (ILEMT's resnorm test and/or the relative residual)
+    holds for the normalised cost ``cost``."""
+    return cost * res_fac < opts[O_RETRY_RESNORM] and np.sqrt(cost) <= opts[O_RETRY_RELATIVE]
+
+
 @njit(cache=True)
-def _solve_sample(L_so, M_so, L_se, M_se, gain, Cm, cn, init, fallback, has_fallback, n, lo,
-                  hi, five, max_iter, xtol, thr, retries, R, t, Rb, tb, ws_f):
-    """Solve one sample from pose vector ``init`` with ILEMT's retry rule; the best pose goes
-    to ``Rb, tb``. Returns (residual, iterations, code)."""
-    (Cp, dt, dphi, Cp2, dt2, dphi2, d1, d2, Jb, JtJ, A, Lc, g, delta, basis, R2, t2, dR, phi,
-     v0) = ws_f
-    best = _BIG
-    best_code = 1
+def _solve_sample(geo, Cm, res_fac, starts, n_bases, n, box, opts, retries, sw, lmw):
+    """Solve one sample from the pose vectors ``starts[:n_bases]`` with ILEMT's retry rule; the
+    best pose goes to ``sw``'s ``Rb, tb`` (NaN if no run gave a finite cost). Returns
+    ``(cost, iterations, stop)`` of the best run."""
+    R, t, Rb, tb, v0, rv = sw
+    best = np.inf
+    best_stop = STOP_ITERATION_LIMIT
     total_it = 0
-    n_bases = 2 if has_fallback else 1
+    tb[:] = np.nan
+    Rb[:, :] = np.nan
     n_flips = 6 if retries else 0
-    # plain solves from each base first, then ILEMT's sign-flip retries of the last base
+    # plain solves from each start first, then ILEMT's sign-flip retries of the last start
     for trial in range(n_bases + n_flips):
-        src = init
-        if has_fallback and trial >= 1:
-            src = fallback
+        src = starts[min(trial, n_bases - 1)]
         for a in range(6):
             v0[a] = src[a]
         # ILEMT: an initial pose outside the hemisphere gets its translation negated
@@ -301,178 +335,136 @@ def _solve_sample(L_so, M_so, L_se, M_se, gain, Cm, cn, init, fallback, has_fall
             v0[c] = -v0[c]
         for a in range(3):
             t[a] = v0[a]
-            phi[a] = v0[3 + a]
-        exp_so3(phi, R)
-        cost, it, code = _lm_one(L_so, M_so, L_se, M_se, gain, Cm, R, t, n, lo, hi, five,
-                                 max_iter, xtol, Cp, dt, dphi, Cp2, dt2, dphi2, d1, d2, Jb,
-                                 JtJ, A, Lc, g, delta, basis, R2, t2, dR, phi)
+            rv[a] = v0[3 + a]
+        exp_so3(rv, R)
+        cost, it, stop = _lm_one(geo, Cm, R, t, n, box, opts, lmw)
         total_it += it
-        res = cost / cn
-        if res < best:
-            best = res
-            best_code = code
-            for a in range(3):
-                tb[a] = t[a]
-                for b in range(3):
-                    Rb[a, b] = R[a, b]
-        if best < thr:
+        if cost < best:
+            best = cost
+            best_stop = stop
+            _copy_pose(R, t, Rb, tb)
+        if _acceptable(best, res_fac, opts):
             break
-    return best, total_it, best_code
+    return best, total_it, best_stop
 
 
 @njit(cache=True)
 def _workspace(n_so, n_se):
+    """Scratch of one solve: ``(lmw, sw, Cn, G)`` -- the LM run's arrays, the sample's poses
+    ``(R, t, Rb, tb, v0, rv)``, the normalised coupling and spectral-norm scratch."""
     m = n_so * n_se
-    return (np.empty((n_so, n_se)), np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)),
-            np.empty((n_so, n_se)), np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)),
-            np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)), np.empty((m, 6)),
-            np.empty((6, 6)), np.empty((6, 6)), np.empty((6, 6)), np.empty(6), np.empty(6),
-            np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3),
-            np.empty(6))
+    lmw = (np.empty((n_so, n_se)), np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)),
+           np.empty((n_so, n_se)), np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)),
+           np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)), np.empty((m, 6)),
+           np.empty((6, 6)), np.empty((6, 6)), np.empty((6, 6)), np.empty(6), np.empty(6),
+           np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3))
+    sw = (np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(6),
+          np.empty(3))
+    return lmw, sw, np.empty((n_so, n_se)), np.empty((n_se, n_se))
 
 
 @njit(cache=True)
-def _finish(k, Cm, cn, res, it, code, Rb, tb, n, lo, hi, five, L_se, M_se, thr, ambig_tol,
-            poses, vecs, status, residual, iterations, rv):
-    if five:
-        _canonical_5dof(Rb, tb, L_se, M_se)
+def _finish(k, mdl, Ck, cn_in, n, box, opts, it, stop, sw, lmw, G, out):
+    """Store sample ``k``'s best pose (in ``sw``) and judge it by the validity rule, with the
+    residuals evaluated at the pose stored and the couplings' own scale."""
+    Rb = sw[2]
+    tb = sw[3]
+    rv = sw[5]
+    poses, vecs, status, residual, relres, iterations = out
+    finite = np.all(np.isfinite(tb)) and np.all(np.isfinite(Rb))
+    if opts[O_FIVE_DOF] != 0.0 and finite:
+        geo = unpack_model(mdl, 1.0)
+        _canonical_5dof(Rb, tb, geo[2], geo[3])
     rotvec_from_matrix(Rb, rv)
     store_pose(k, Rb, tb, rv, poses, vecs)
-    residual[k] = res
-    iterations[k] = it
-    on_box = False
-    for a in range(3):
-        if tb[a] <= lo[a] or tb[a] >= hi[a]:
-            on_box = True
-    nt = np.sqrt(tb[0] * tb[0] + tb[1] * tb[1] + tb[2] * tb[2])
-    dn = tb[0] * n[0] + tb[1] * n[1] + tb[2] * n[2]
-    has_h = n[0] != 0.0 or n[1] != 0.0 or n[2] != 0.0
-    if on_box:
-        status[k] = 4
-    elif has_h and dn <= ambig_tol * nt:
-        status[k] = 3
-    elif code == 1:
-        status[k] = 1
-    elif not res < thr:
-        status[k] = 5
-    else:
-        status[k] = 0
-
-
-@njit(cache=True)
-def _bad_input(Cm, cn):
-    if not (cn > 0.0 and np.isfinite(cn)):
-        return True
-    for i in range(Cm.shape[0]):
-        for j in range(Cm.shape[1]):
-            if not np.isfinite(Cm[i, j]):
-                return True
-    return False
-
-
-@njit(cache=True)
-def _mark_invalid(k, poses, vecs, status, residual, iterations):
-    store_nan_pose(k, poses, vecs)
-    status[k] = 2
+    rho = np.nan
     residual[k] = np.nan
-    iterations[k] = 0
+    if finite:
+        residual[k], rho = residuals_at(mdl, Rb, tb, Ck, cn_in, lmw[0], G, lmw[1])
+    relres[k] = rho
+    iterations[k] = it
+    status[k] = classify(stop == STOP_ITERATION_LIMIT, rho, tb, n, box[0], box[1],
+                         opts[O_AMBIGUITY_TOL], opts[O_MAX_RELATIVE_RESIDUAL],
+                         opts[O_MAX_RANGE])
 
 
 @njit(cache=True, nogil=True)
-def lm_batch(L_so, M_so, L_se, M_se, gain, C, cnorm, init, nvec, lo, hi, five, max_iter, xtol,
-             thr, ambig_tol, retries, poses, vecs, status, residual, iterations):
+def lm_batch(mdl, C, cnorm, init, nvec, box, opts, out):
     """Independent LM solves of every sample (releases the GIL: callers may run row blocks in
-    threads)."""
+    threads).
+
+    ``mdl``: packed model (:func:`~openemt.solve._packing.pack_model`); ``C`` (N, n_so, n_se)
+    real couplings; ``cnorm`` (N,) their spectral norms (negative: compute); ``init`` (N, 6)
+    start pose vectors; ``nvec`` (N, 3) hemispheres; ``box`` (2, 3) position box; ``opts`` the
+    options array (``O_*``); ``out`` the arrays of ``new_outputs``.
+    """
     N = C.shape[0]
-    n_so = C.shape[1]
-    n_se = C.shape[2]
-    ws = _workspace(n_so, n_se)
-    G = np.empty((n_se, n_se))
-    R = np.empty((3, 3))
-    t = np.empty(3)
-    Rb = np.empty((3, 3))
-    tb = np.empty(3)
-    rv = np.empty(3)
-    dummy = np.empty(6)
+    lmw, sw, Cn, G = _workspace(C.shape[1], C.shape[2])
+    starts = np.empty((1, 6))
+    retries = opts[O_RETRIES] != 0.0
     for k in range(N):
-        cn = cnorm[k]
-        if cn < 0.0:
-            cn = spectral_norm(C[k], G)
-        if _bad_input(C[k], cn) or not np.all(np.isfinite(init[k])):
-            _mark_invalid(k, poses, vecs, status, residual, iterations)
+        s, res_fac = normalise_coupling(C[k], cnorm[k], Cn, G)
+        if not s > 0.0 or not np.all(np.isfinite(init[k])):
+            _store_invalid(k, out)
             continue
-        res, it, code = _solve_sample(L_so, M_so, L_se, M_se, gain, C[k], cn, init[k], dummy,
-                                      False, nvec[k], lo, hi, five, max_iter, xtol, thr,
-                                      retries, R, t, Rb, tb, ws)
-        _finish(k, C[k], cn, res, it, code, Rb, tb, nvec[k], lo, hi, five, L_se, M_se, thr,
-                ambig_tol, poses, vecs, status, residual, iterations, rv)
+        geo = unpack_model(mdl, s)
+        starts[0] = init[k]
+        it, stop = _solve_sample(geo, Cn, res_fac, starts, 1, nvec[k], box, opts, retries, sw,
+                                 lmw)[1:]
+        _finish(k, mdl, C[k], cnorm[k], nvec[k], box, opts, it, stop, sw, lmw, G, out)
 
 
 @njit(cache=True, nogil=True)
-def lm_track(L_so, M_so, L_se, M_se, gain, C, cnorm, first, use_cf, Wso, Wse, cf_gain, nvec, lo,
-             hi, five, max_iter, xtol, thr, ambig_tol, retries, poses, vecs, status, residual,
-             iterations):
+def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
     """Sequential tracking: each sample starts from the previous valid solution (the first from
-    ``first``). An invalid result is re-solved from the Kim18 closed form of the sample under
-    the concentric moments ``Wso = M_so^-T``, ``Wse = M_se^-1`` (if ``use_cf``), then with the
-    sign-flip retries."""
+    ``first``). A sample failing the retry test is re-solved from the Kim18 closed form of the
+    sample under the concentric whitening ``W = [M_so^-T, M_se^-1]`` and gain
+    ``opts[O_CF_GAIN]`` (if ``opts[O_USE_CLOSED_FORM]``), then with the sign-flip retries.
+    Arguments as :func:`lm_batch`."""
     N = C.shape[0]
-    n_so = C.shape[1]
-    n_se = C.shape[2]
-    ws = _workspace(n_so, n_se)
-    G = np.empty((n_se, n_se))
-    R = np.empty((3, 3))
-    t = np.empty(3)
-    Rb = np.empty((3, 3))
-    tb = np.empty(3)
-    rv = np.empty(3)
+    lmw, sw, Cn, G = _workspace(C.shape[1], C.shape[2])
+    R, t, Rb, tb, _, rv = sw
+    status = out[2]
+    vecs = out[1]
+    cws = closed_form_scratch()
+    starts = np.empty((1, 6))
     prev = first.copy()
-    fb = np.empty(6)
-    C0 = np.empty((3, 3))
-    U = np.empty((3, 3))
-    V = np.empty((3, 3))
-    B = np.empty((3, 3))
-    s = np.empty(3)
     ncf = np.zeros(3)
+    Rsave = np.empty((3, 3))
+    tsave = np.empty(3)
+    use_cf = opts[O_USE_CLOSED_FORM] != 0.0
+    retries = opts[O_RETRIES] != 0.0
     for k in range(N):
-        cn = cnorm[k]
-        if cn < 0.0:
-            cn = spectral_norm(C[k], G)
-        if _bad_input(C[k], cn):
-            _mark_invalid(k, poses, vecs, status, residual, iterations)
+        s, res_fac = normalise_coupling(C[k], cnorm[k], Cn, G)
+        if not s > 0.0:
+            _store_invalid(k, out)
             continue
-        res, it, code = _solve_sample(L_so, M_so, L_se, M_se, gain, C[k], cn, prev, prev,
-                                      False, nvec[k], lo, hi, five, max_iter, xtol, thr, False,
-                                      R, t, Rb, tb, ws)
-        if not res < thr and (use_cf or retries):
-            has_fb = False
+        geo = unpack_model(mdl, s)
+        starts[0] = prev
+        cost, it, stop = _solve_sample(geo, Cn, res_fac, starts, 1, nvec[k], box, opts, False,
+                                       sw, lmw)
+        if not _acceptable(cost, res_fac, opts) and (use_cf or retries):
+            starts[0] = prev
             if use_cf:
                 ncf[:] = nvec[k]
                 if ncf[0] == 0.0 and ncf[1] == 0.0 and ncf[2] == 0.0:
                     ncf[0] = 1.0
-                st = closed_form_one(2, C[k], Wso, Wse, cf_gain, ncf, 1e-6, 0.0, R, t, C0, U,
-                                     s, V, B)
-                if st != 2:
-                    has_fb = True
+                if closed_form_one(CF_KIM18, Cn, W, opts[O_CF_GAIN] / s, ncf, 1e-6, R, t,
+                                   cws) != ST_INVALID_INPUT:
                     rotvec_from_matrix(R, rv)
                     for a in range(3):
-                        fb[a] = t[a]
-                        fb[3 + a] = rv[a]
-            Rsave = Rb.copy()
-            tsave = tb.copy()
-            res2, it2, code2 = _solve_sample(L_so, M_so, L_se, M_se, gain, C[k], cn,
-                                             fb if has_fb else prev, prev, False, nvec[k], lo,
-                                             hi, five, max_iter, xtol, thr, retries, R, t, Rb,
-                                             tb, ws)
+                        starts[0, a] = t[a]
+                        starts[0, 3 + a] = rv[a]
+            _copy_pose(Rb, tb, Rsave, tsave)
+            cost2, it2, stop2 = _solve_sample(geo, Cn, res_fac, starts, 1, nvec[k], box, opts,
+                                              retries, sw, lmw)
             it += it2
-            if res2 < res:
-                res = res2
-                code = code2
+            if cost2 < cost:
+                cost = cost2
+                stop = stop2
             else:
-                Rb[:, :] = Rsave
-                tb[:] = tsave
-        _finish(k, C[k], cn, res, it, code, Rb, tb, nvec[k], lo, hi, five, L_se, M_se, thr,
-                ambig_tol, poses, vecs, status, residual, iterations, rv)
-        if status[k] == 0:
+                _copy_pose(Rsave, tsave, Rb, tb)
+        _finish(k, mdl, C[k], cnorm[k], nvec[k], box, opts, it, stop, sw, lmw, G, out)
+        if status[k] == ST_CONVERGED:
             for a in range(6):
                 prev[a] = vecs[k, a]

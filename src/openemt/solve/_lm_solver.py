@@ -8,10 +8,20 @@ import numpy as np
 from .._errors import InputError
 from ..field import DipoleModel
 from ..geometry import check_pose_vectors
-from ._closed_form import check_couplings, solve_kim18, solve_kuipers, solve_svd
-from ._hemisphere import hemisphere_vectors
+from ._closed_form import (
+    check_couplings,
+    new_outputs,
+    result_from_outputs,
+    solve_kim18,
+    solve_kuipers,
+    solve_svd,
+    whitening,
+)
+from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch, lm_track
-from ._result import SolveResult
+from ._packing import O_MAX_ITER, O_RETRIES, pack_box, pack_model, pack_options
+from ._result import SolveResult, Status
+from ._validity import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL, check_validity_options
 
 __all__ = ["solve_lm"]
 
@@ -53,8 +63,8 @@ def _closed_form_start(couplings, model, conc, method, hemi, explicit, n_correct
     f = _CLOSED[method]
 
     def closed(c):
-        return (f(c, conc, hemisphere=hemi) if method == "kim18"
-                else f(c, hemisphere=hemi, model=conc))
+        # a start: judged by the LM solution, not here
+        return f(c, conc, hemisphere=hemi, max_relative_residual=None, max_range=None)
 
     res = closed(couplings)
     if explicit or model.is_concentric:
@@ -70,7 +80,7 @@ def _closed_form_start(couplings, model, conc, method, hemi, explicit, n_correct
         keep = ~np.all(np.isfinite(nxt.pose_vectors), axis=1)
         vecs = np.where(keep[:, None], res.pose_vectors, nxt.pose_vectors)
         poses = np.where(keep[:, None, None], res.poses, nxt.poses)
-        res = SolveResult(poses, vecs, res.status, res.residual, res.iterations)
+        res = res.replace(poses=poses, pose_vectors=vecs)
     return res.pose_vectors
 
 
@@ -88,48 +98,45 @@ def _bounds(bounds):
     return np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1])
 
 
-def _multistart_init(C, cnorm, model, nvec, lo, hi, five, xtol, thr):
+def _multistart_init(C, cnorm, mdl, model, nvec, box, opts):
     """Best of a coarse set of starts per sample: 14 directions x 4 orientations at the
-    distance suggested by the coupling magnitude."""
+    distance suggested by the coupling magnitude (30 iterations each, no retries)."""
     dirs = [np.eye(3)[i] * s for i in range(3) for s in (1.0, -1.0)]
     dirs += [np.array([a, b, c]) / np.sqrt(3) for a in (1, -1) for b in (1, -1) for c in (1, -1)]
     rots = [np.zeros(3), np.array([np.pi, 0, 0]), np.array([0, np.pi, 0]),
             np.array([0, 0, np.pi])]
     scale = model.gain * np.linalg.norm(model.M_so) * np.linalg.norm(model.M_se)
     fro = np.linalg.norm(C.reshape(C.shape[0], -1), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         dist = np.cbrt(scale / fro)
-    dist = np.where(np.isfinite(dist), dist, 0.1)
+    dist = np.where(np.isfinite(dist) & (dist > 0), dist, 0.1)
+    quick = opts.copy()
+    quick[O_MAX_ITER] = 30
+    quick[O_RETRIES] = 0.0
     n = C.shape[0]
     best_res = np.full(n, np.inf)
     best = np.zeros((n, 6))
+    best[:, 0] = dist
     for d in dirs:
         for r in rots:
             init = np.empty((n, 6))
             init[:, :3] = dist[:, None] * d
             init[:, 3:] = r
-            out = _run_batch(C, cnorm, init, model, nvec, lo, hi, five, 30, xtol, thr, 1.0,
-                             False)
-            better = out.residual < best_res
-            best_res[better] = out.residual[better]
+            out = _run_batch(C, cnorm, init, mdl, nvec, box, quick)
+            better = out.relative_residual < best_res
+            best_res[better] = out.relative_residual[better]
             best[better] = out.pose_vectors[better]
     return best
 
 
-def _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr, ambig, retries):
+def _run_batch(C, cnorm, init, mdl, nvec, box, opts):
     n = C.shape[0]
-    poses = np.empty((n, 4, 4))
-    vecs = np.empty((n, 6))
-    status = np.empty(n, dtype=np.int8)
-    residual = np.empty(n)
-    iterations = np.empty(n, dtype=np.int32)
-    args = (model.L_so, model.M_so, model.L_se, model.M_se, model.gain)
-    init = np.ascontiguousarray(init)
-    opts = (lo, hi, five, int(max_iter), float(xtol), float(thr), float(ambig), bool(retries))
+    out = new_outputs(n)
+    init = np.ascontiguousarray(init, dtype=np.float64)
 
     def block(a, b):
-        lm_batch(*args, C[a:b], cnorm[a:b], init[a:b], nvec[a:b], *opts, poses[a:b], vecs[a:b],
-                 status[a:b], residual[a:b], iterations[a:b])
+        lm_batch(mdl, C[a:b], cnorm[a:b], init[a:b], nvec[a:b], box, opts,
+                 tuple(o[a:b] for o in out))
 
     threads = numba.get_num_threads()
     if threads <= 1 or n < 512:
@@ -141,12 +148,35 @@ def _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr, a
         edges = np.linspace(0, n, 4 * threads + 1).astype(int)
         with ThreadPoolExecutor(threads) as pool:
             list(pool.map(block, edges[:-1], edges[1:]))
-    return SolveResult(poses, vecs, status, residual, iterations, solver="lm")
+    return result_from_outputs(out, "lm")
 
 
-def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100,
-             valid_threshold=1e-5, retries=True, concentric_model=None, bounds=None,
-             xtol=1e-8, ambiguity_tol=1e-9, covariance=False, fallback=None) -> SolveResult:
+def _first_start(C, cnorm, model, conc, mdl, nvec, box, opts, hemisphere):
+    """Start of tracking: the Kim18 closed form (if a concentric model applies) of the first
+    sample with finite non-zero couplings, else the multi-start solution of that sample; the
+    unit distance along the hemisphere if there is no such sample."""
+    flat = C.reshape(C.shape[0], -1)
+    ok = np.flatnonzero(np.all(np.isfinite(flat), axis=1) & np.any(flat != 0, axis=1))
+    if not ok.size:
+        first = np.zeros(6)
+        first[:3] = nvec[0] if np.any(nvec[0]) else (1.0, 0.0, 0.0)
+        return first
+    k0 = ok[0]
+    if conc is not None:
+        hemi = (nvec[k0] if hemisphere is not None and np.any(nvec[k0])
+                else DEFAULT_HEMISPHERE)
+        first = solve_kim18(C[k0:k0 + 1], conc, hemisphere=hemi, max_relative_residual=None,
+                            max_range=None).pose_vectors[0]
+        if np.all(np.isfinite(first)):
+            return first
+    return _multistart_init(C[k0:k0 + 1], cnorm[k0:k0 + 1], mdl, model, nvec[k0:k0 + 1], box,
+                            opts)[0]
+
+
+def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="kim18",
+             max_iter=100, max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
+             retries=True, retry_resnorm=None, concentric_model=None, bounds=None, xtol=1e-8,
+             ambiguity_tol=1e-9, covariance=False, fallback=None) -> SolveResult:
     """Levenberg-Marquardt pose solution for any dipole model, compiled and batched.
 
     Parameters
@@ -154,27 +184,37 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
     couplings : ndarray, shape (N, n_source, n_sensor)
         Signed real couplings (complex phasors are accepted: target ``sign(Re z)|z|``, residual
         normalised by the complex spectral norm, as ILEMT).
-    model : DipoleModel
-        The coil model (concentric or not). 6-DOF needs >= 6 couplings; a single-coil sensor
-        (``n_sensor == 1``) gives a 5-DOF solve whose roll about the sensor axis is reported
-        as zero (shortest-arc rotation of the coil axis).
+    model : DipoleModel, optional
+        The coil model (concentric or not; ideal concentric coils with gain 1/250 if omitted).
+        6-DOF needs >= 6 couplings; a single-coil sensor (``n_sensor == 1``) gives a 5-DOF
+        solve whose roll about the sensor axis is reported as zero (shortest-arc rotation of
+        the coil axis).
+    hemisphere : None, str, (3,), (N,) str or (N, 3)
+        Constraint ``t . n >= 0`` (ILEMT's hemisphere bound); default ``'+x'`` as every solver;
+        ``None`` for no constraint (the closed-form start then uses ``'+x'``).
     initial : {'kim18', 'svd', 'kuipers', 'track', 'multistart'} or array (N, 6) / (6,)
         Closed-form start (needs a 3x3 model; uses ``concentric_model`` as is, or else the
         model's moments with the coil offsets dropped and a fixed-point correction of the offset
         effect, see ``_closed_form_start``), tracking (each sample starts from the previous valid
         solution; the first and any failed sample from the Kim18 closed form when available,
         else multi-start), a coarse multi-start grid, or given pose vectors.
-    hemisphere : None, str, (3,), (N,) str or (N, 3)
-        Constraint ``t . n >= 0`` (ILEMT's hemisphere bound); ``None`` for none. The closed-form
-        start uses ``'+x'`` when no hemisphere is given.
     max_iter : int
         Iterations per LM run.
-    valid_threshold : float or None
-        A solution is valid if its residual (sum of squares / spectral norm of C) is below this
-        (1e-5 is ILEMT's value for high-rate data). ``None`` disables the test and the retries.
+    max_relative_residual, max_range : float or None
+        The validity rule (docs/solve.md#validity-rule): a solution is CONVERGED only if it
+        is finite, within ``max_range`` m of the source (default ``MAX_RANGE_M`` = 3), the LM
+        run converged and ``||C_model(pose) - C||_F / ||C||_F <= max_relative_residual``
+        (default ``MAX_RELATIVE_RESIDUAL`` = 0.01). ``None`` disables a test.
     retries : bool
-        Re-solve invalid samples from the initial pose with one pose-vector component's sign
-        flipped, each of the 6 in turn (ILEMT, docs/paper-procedure.md#iterative-solution).
+        Re-solve a sample failing the retry test from the initial pose with one pose-vector
+        component's sign flipped, each of the 6 in turn (ILEMT,
+        docs/paper-procedure.md#iterative-solution).
+    retry_resnorm : float, optional
+        The retry test. ``None`` (default): retry while the relative residual is above
+        ``max_relative_residual``. A number: ILEMT's own test instead, retry while the resnorm
+        (sum of squared residuals / spectral norm of C, in the couplings' units) is at least
+        this; for reproducing the paper's procedure. Either way the status follows the
+        validity rule.
     concentric_model : DipoleModel, optional
         Concentric model for the closed-form start (ILEMT: the concentric calibration).
     bounds : float or array (3, 2), optional
@@ -197,52 +237,41 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
     -------
     SolveResult
     """
-    model = _check_model(model)
+    model = _check_model(DipoleModel.concentric() if model is None else model)
+    max_rel, max_range = check_validity_options(max_relative_residual, max_range)
     C, cnorm = check_couplings(couplings, model.n_source, model.n_sensor)
     n = C.shape[0]
     nvec = hemisphere_vectors(hemisphere, n)
-    lo, hi = _bounds(bounds)
-    five = model.n_sensor == 1
-    thr = np.inf if valid_threshold is None else float(valid_threshold)
-    if not thr > 0:
-        raise InputError(f"expected a positive `valid_threshold`, got {valid_threshold!r}")
-    retries = bool(retries) and np.isfinite(thr)
+    box = pack_box(*_bounds(bounds))
     if int(max_iter) < 1:
         raise InputError(f"expected `max_iter` >= 1, got {max_iter!r}")
+    if retry_resnorm is None:
+        retry_res, retry_rel = np.inf, max_rel
+    else:
+        try:
+            retry_res = float(retry_resnorm)
+        except (TypeError, ValueError):
+            retry_res = np.nan
+        if not retry_res > 0:
+            raise InputError(f"expected a positive `retry_resnorm`, got {retry_resnorm!r}")
+        retry_rel = np.inf
+    retries = bool(retries) and (np.isfinite(retry_res) or np.isfinite(retry_rel))
     conc = _concentric_for(model, concentric_model)
-    cf_hemi = hemisphere if hemisphere is not None else "+x"
+    cf_hemi = hemisphere if hemisphere is not None else DEFAULT_HEMISPHERE
+    mdl = pack_model(model)
+    opts = pack_options(max_iter=int(max_iter), xtol=xtol, retry_resnorm=retry_res,
+                        retry_relative=retry_rel, ambiguity_tol=ambiguity_tol,
+                        max_relative_residual=max_rel, max_range=max_range, retries=retries,
+                        five_dof=model.n_sensor == 1, use_closed_form=conc is not None,
+                        cf_gain=(conc or model).gain)
 
     if isinstance(initial, str) and initial == "track":
-        if n == 0:
-            return _run_batch(C, cnorm, np.zeros((0, 6)), model, nvec, lo, hi, five, max_iter,
-                              xtol, thr, ambiguity_tol, retries)
-        if conc is not None:
-            Wso = np.ascontiguousarray(np.linalg.inv(conc.M_so.T))
-            Wse = np.ascontiguousarray(np.linalg.inv(conc.M_se))
-            # first start: the closed form of the first sample with finite couplings
-            ok = np.flatnonzero(np.all(np.isfinite(C.reshape(n, -1)), axis=1))
-            k0 = ok[0] if ok.size else 0
-            first = solve_kim18(C[k0:k0 + 1], conc, hemisphere=hemisphere_vectors(
-                cf_hemi, n)[k0] if hemisphere is not None else "+x").pose_vectors[0]
-            cf_gain = conc.gain
-        else:
-            Wso = Wse = np.eye(3)
-            k0 = 0
-            first = _multistart_init(C[:1], cnorm[:1], model, nvec[:1], lo, hi, five, xtol,
-                                     thr)[0]
-            cf_gain = model.gain
-        if not np.all(np.isfinite(first)):
-            first = np.zeros(6)
-        poses = np.empty((n, 4, 4))
-        vecs = np.empty((n, 6))
-        status = np.empty(n, dtype=np.int8)
-        residual = np.empty(n)
-        iterations = np.empty(n, dtype=np.int32)
-        lm_track(model.L_so, model.M_so, model.L_se, model.M_se, model.gain, C, cnorm,
-                 np.ascontiguousarray(first, dtype=np.float64), conc is not None, Wso, Wse,
-                 float(cf_gain), nvec, lo, hi, five, int(max_iter), float(xtol), thr,
-                 float(ambiguity_tol), retries, poses, vecs, status, residual, iterations)
-        result = SolveResult(poses, vecs, status, residual, iterations, solver="lm")
+        first = _first_start(C, cnorm, model, conc, mdl, nvec, box, opts, hemisphere)
+        W = whitening(conc) if conc is not None else np.zeros((2, 3, 3))
+        out = new_outputs(n)
+        lm_track(mdl, C, cnorm, np.ascontiguousarray(first, dtype=np.float64), W, nvec, box,
+                 opts, out)
+        result = result_from_outputs(out, "lm")
     else:
         if isinstance(initial, str):
             if initial in _CLOSED:
@@ -253,7 +282,7 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
                 init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
                                           concentric_model is not None)
             elif initial == "multistart":
-                init = _multistart_init(C, cnorm, model, nvec, lo, hi, five, xtol, thr)
+                init = _multistart_init(C, cnorm, mdl, model, nvec, box, opts)
             else:
                 raise InputError(f"expected `initial` in 'kim18', 'svd', 'kuipers', 'track', "
                                  f"'multistart' or pose vectors (N, 6), got {initial!r}")
@@ -264,28 +293,25 @@ def solve_lm(couplings, model, *, initial="kim18", hemisphere=None, max_iter=100
             if init.shape != (n, 6):
                 raise InputError(f"expected `initial` pose vectors of shape ({n}, 6) or (6,), "
                                  f"got {init.shape}")
-        result = _run_batch(C, cnorm, init, model, nvec, lo, hi, five, max_iter, xtol, thr,
-                            ambiguity_tol, retries)
+        result = _run_batch(C, cnorm, init, mdl, nvec, box, opts)
     if fallback is not None:
         if fallback != "multistart":
             raise InputError(f"expected fallback None or 'multistart', got {fallback!r}")
-        redo = np.flatnonzero(np.isin(result.status, (1, 5)))
+        redo = np.flatnonzero(np.isin(result.status, (Status.MAX_ITERATIONS,
+                                                      Status.NOT_CONVERGED)))
         if redo.size:
-            init2 = _multistart_init(C[redo], cnorm[redo], model, nvec[redo], lo, hi, five,
-                                     xtol, thr)
-            again = _run_batch(C[redo], cnorm[redo], init2, model, nvec[redo], lo, hi, five,
-                               max_iter, xtol, thr, ambiguity_tol, retries)
-            better = again.residual < result.residual[redo]
+            init2 = _multistart_init(C[redo], cnorm[redo], mdl, model, nvec[redo], box, opts)
+            again = _run_batch(C[redo], cnorm[redo], init2, mdl, nvec[redo], box, opts)
+            better = again.relative_residual < result.relative_residual[redo]
             rows = redo[better]
             fields = {f: getattr(result, f).copy() for f in
-                      ("poses", "pose_vectors", "status", "residual", "iterations")}
+                      ("poses", "pose_vectors", "status", "residual", "iterations",
+                       "relative_residual")}
             for f, arr in fields.items():
                 arr[rows] = getattr(again, f)[better]
-            result = SolveResult(**fields, solver="lm")
+            result = result.replace(**fields)
     if covariance:
         from ._crb import solver_covariance
 
-        result = SolveResult(result.poses, result.pose_vectors, result.status, result.residual,
-                             result.iterations, solver_covariance(model, result, C, cnorm),
-                             result.solver)
+        result = result.replace(covariance=solver_covariance(model, result, C, cnorm))
     return result

@@ -3,7 +3,8 @@
 Layout: root attributes ``schema = "openemt.poses"``, ``schema_version``, ``openemt_version``,
 ``n_samples``, ``solver``, ``status_names`` (JSON list, index = code), ``meta`` (JSON); datasets
 ``poses`` (N, 4, 4), ``pose_vectors`` (N, 6), ``status`` (N,) int8, ``residual`` (N,),
-``iterations`` (N,) int32.
+``iterations`` (N,) int32, ``relative_residual`` (N,) (the residual the status is judged by;
+absent from files written before it existed).
 """
 
 from __future__ import annotations
@@ -23,12 +24,13 @@ POSES_SCHEMA = "openemt.poses"
 POSES_SCHEMA_VERSION = 1
 _FIELDS = {"poses": ((4, 4), np.float64), "pose_vectors": ((6,), np.float64),
            "status": ((), np.int8), "residual": ((), np.float64),
-           "iterations": ((), np.int32)}
+           "iterations": ((), np.int32), "relative_residual": ((), np.float64)}
 _UNITS = {"poses": "homogeneous 4x4, translation in m (sensor frame -> source frame)",
           "pose_vectors": "m, m, m, rad, rad, rad ([x, y, z] and rotation vector)",
           "status": "openemt.solve.Status code (see attribute status_names)",
           "residual": "sum of squared coupling residuals / spectral norm of C",
-          "iterations": "solver iterations"}
+          "iterations": "solver iterations",
+          "relative_residual": "||C_pred - C_meas||_F / ||C_meas||_F (unit-free)"}
 
 
 class PoseWriter:
@@ -60,7 +62,8 @@ class PoseWriter:
     def write(self, start: int, result: SolveResult) -> None:
         stop = start + len(result)
         for name, d in self._ds.items():
-            d[start:stop] = getattr(result, name)
+            v = getattr(result, name)
+            d[start:stop] = np.nan if v is None else v
         self.counts += np.bincount(result.status.astype(np.int64), minlength=len(Status))
 
     def status_counts(self) -> dict[str, int]:
@@ -82,4 +85,6 @@ def read_poses(path) -> SolveResult:
         if schema != POSES_SCHEMA:
             raise InputError(f"expected an openemt poses file (schema {POSES_SCHEMA!r}), got "
                              f"schema {schema!r} in {path.name}")
-        return SolveResult(*(f[name][()] for name in _FIELDS), solver=str(f.attrs["solver"]))
+        fields = {name: f[name][()] for name in _FIELDS if name in f}
+        fields.setdefault("relative_residual", None)
+        return SolveResult(**fields, solver=str(f.attrs["solver"]))

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._validity import MAX_RELATIVE_RESIDUAL, check_validity_options, rejudge, relative_residuals
+
 __all__ = ["refine_poses", "refine_result"]
 
 
@@ -50,19 +52,24 @@ def refine_poses(model, couplings, pose_vectors, *, iterations: int = 10,
     return v, res
 
 
-def refine_result(result, model, couplings):
+def refine_result(result, model, couplings, *, max_relative_residual=MAX_RELATIVE_RESIDUAL):
     """A :class:`SolveResult` refined for ``model`` (:func:`refine_poses` on every sample with a
-    finite pose); status and iterations are kept, poses and residuals replaced."""
+    finite pose): poses and residuals replaced, and CONVERGED / NOT_CONVERGED judged again by
+    the relative residual under ``model`` (docs/solve.md#validity-rule); iterations kept."""
     from ..geometry import pose_from_vector
-    from ._result import SolveResult
+    from ..io import signed_real
 
+    max_rel, _ = check_validity_options(max_relative_residual, None)
     ok = np.all(np.isfinite(result.pose_vectors), axis=1)
     vecs = result.pose_vectors.copy()
     poses = result.poses.copy()
     residual = result.residual.copy()
+    rho = np.full(len(result), np.nan)
     if ok.any():
         C = np.asarray(couplings)[ok]
         vecs[ok], residual[ok] = refine_poses(model, C, result.pose_vectors[ok])
         poses[ok] = pose_from_vector(vecs[ok])
-    return SolveResult(poses, vecs, result.status, residual, result.iterations,
-                       result.covariance, result.solver)
+        rho[ok] = relative_residuals(model.coupling(poses[ok]), signed_real(C))
+    status = rejudge(result.status, np.where(ok, rho, np.inf), max_rel)
+    return result.replace(poses=poses, pose_vectors=vecs, residual=residual, status=status,
+                          relative_residual=rho)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -16,7 +17,8 @@ class Status(IntEnum):
     """Outcome of one sample's pose solution.
 
     CONVERGED
-        The solver converged and the normalised residual is below the validity threshold.
+        The solver converged, the pose is finite and within the plausible range, and the
+        relative residual is at most the validity threshold (docs/solve.md#validity-rule).
     MAX_ITERATIONS
         The iteration limit was reached before the convergence tests held.
     INVALID_INPUT
@@ -25,10 +27,11 @@ class Status(IntEnum):
         The position lies (numerically) on the hemisphere boundary, so the +/- dipole
         ambiguity could not be resolved; the pose returned is one of the two candidates.
     OUT_OF_VOLUME
-        The solution lies on or beyond the allowed position box.
+        The pose is not finite, farther than the plausible range from the source origin, or on
+        or beyond the allowed position box.
     NOT_CONVERGED
-        The solver stopped (converged or stalled) but the residual is above the validity
-        threshold (ILEMT's "invalid" solutions, docs/paper-procedure.md#iterative-solution).
+        The solver stopped (converged or stalled) but the relative residual is above the
+        validity threshold.
     """
 
     CONVERGED = 0
@@ -37,6 +40,15 @@ class Status(IntEnum):
     AMBIGUOUS = 3
     OUT_OF_VOLUME = 4
     NOT_CONVERGED = 5
+
+
+# the codes as int8 module constants, usable inside compiled kernels
+ST_CONVERGED = np.int8(Status.CONVERGED)
+ST_MAX_ITERATIONS = np.int8(Status.MAX_ITERATIONS)
+ST_INVALID_INPUT = np.int8(Status.INVALID_INPUT)
+ST_AMBIGUOUS = np.int8(Status.AMBIGUOUS)
+ST_OUT_OF_VOLUME = np.int8(Status.OUT_OF_VOLUME)
+ST_NOT_CONVERGED = np.int8(Status.NOT_CONVERGED)
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,6 +72,9 @@ class SolveResult:
         Pose-vector covariance from the solver's Gauss-Newton approximation, when requested.
     solver : str
         Name of the solver that produced the result.
+    relative_residual : ndarray, shape (N,), optional
+        ``||C_pred - C_meas||_F / ||C_meas||_F``, the unit-free residual the status is judged
+        by (docs/solve.md#validity-rule); NaN where the input is invalid.
     """
 
     poses: np.ndarray
@@ -69,6 +84,7 @@ class SolveResult:
     iterations: np.ndarray
     covariance: np.ndarray | None = None
     solver: str = ""
+    relative_residual: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.status.shape[0]
@@ -88,7 +104,9 @@ class SolveResult:
         idx = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
         return SolveResult(self.poses[idx], self.pose_vectors[idx], self.status[idx],
                            self.residual[idx], self.iterations[idx],
-                           None if self.covariance is None else self.covariance[idx], self.solver)
+                           None if self.covariance is None else self.covariance[idx], self.solver,
+                           None if self.relative_residual is None
+                           else self.relative_residual[idx])
 
     @staticmethod
     def concatenate(results) -> SolveResult:
@@ -96,10 +114,16 @@ class SolveResult:
         results = list(results)
         if not results:
             raise InputError("expected at least one SolveResult to concatenate, got none")
-        cov = None
-        if all(r.covariance is not None for r in results):
-            cov = np.concatenate([r.covariance for r in results])
+        opt = {}
+        for f in ("covariance", "relative_residual"):
+            opt[f] = None
+            if all(getattr(r, f) is not None for r in results):
+                opt[f] = np.concatenate([getattr(r, f) for r in results])
         return SolveResult(*(np.concatenate([getattr(r, f) for r in results])
                              for f in ("poses", "pose_vectors", "status", "residual",
                                        "iterations")),
-                           covariance=cov, solver=results[0].solver)
+                           solver=results[0].solver, **opt)
+
+    def replace(self, **fields) -> SolveResult:
+        """A copy with the given fields replaced."""
+        return dataclasses.replace(self, **fields)

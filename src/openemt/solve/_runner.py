@@ -7,9 +7,11 @@ import numpy as np
 from .._errors import InputError
 from ..io import Calibration
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd
+from ._hemisphere import DEFAULT_HEMISPHERE
 from ._lm_solver import solve_lm
 from ._refine import refine_result
 from ._result import SolveResult
+from ._validity import MAX_RELATIVE_RESIDUAL
 
 __all__ = ["SOLVERS", "apply_position_correction", "solve", "solve_chunks"]
 
@@ -27,11 +29,11 @@ def apply_position_correction(result: SolveResult, L) -> SolveResult:
     vecs = result.pose_vectors.copy()
     poses[:, :3, 3] = xyz
     vecs[:, :3] = xyz
-    return SolveResult(poses, vecs, result.status, result.residual, result.iterations,
-                       result.covariance, result.solver)
+    return result.replace(poses=poses, pose_vectors=vecs)
 
 
-def solve(couplings, calibration: Calibration, *, solver: str = "lm", hemisphere=None,
+def solve(couplings, calibration: Calibration, *, solver: str = "lm",
+          hemisphere=DEFAULT_HEMISPHERE,
           apply_correction: bool = True, concentric_calibration: Calibration | None = None,
           **options) -> SolveResult:
     """Solve poses with a calibration's model, then apply its output correction if present.
@@ -47,13 +49,15 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm", hemisphere
     solver : {'lm', 'svd', 'kuipers', 'kim18'}
         ``svd``, ``kuipers`` and ``kim18`` need a concentric 3x3 model.
     hemisphere : see :func:`solve_lm`
-        Closed forms default to ``'+x'`` when None.
+        Default ``'+x'``; ``None`` (LM only) for no constraint.
     apply_correction : bool
         Apply ``calibration.linear_correction`` to the positions when present.
     concentric_calibration : Calibration, optional
         Its model starts the LM solver (ILEMT's ``concentric_cal_file``).
     **options
-        Passed to the solver (``max_iter``, ``valid_threshold``, ``bounds``, ``initial``, ...).
+        Passed to the solver (``max_iter``, ``max_relative_residual``, ``max_range``,
+        ``bounds``, ``initial``, ...). ``max_relative_residual`` also judges the refinement
+        under an improved calibration's octupole terms.
     """
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, got {type(calibration).__name__}")
@@ -65,16 +69,14 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm", hemisphere
             options.setdefault("concentric_model", concentric_calibration.model)
         result = solve_lm(couplings, model, hemisphere=hemisphere, **options)
     else:
-        hemi = "+x" if hemisphere is None else hemisphere
-        if solver == "kim18":
-            result = solve_kim18(couplings, model, hemisphere=hemi, **options)
-        else:
-            f = solve_svd if solver == "svd" else solve_kuipers
-            result = f(couplings, hemisphere=hemi, model=model, **options)
+        hemi = DEFAULT_HEMISPHERE if hemisphere is None else hemisphere
+        f = {"kim18": solve_kim18, "svd": solve_svd, "kuipers": solve_kuipers}[solver]
+        result = f(couplings, model, hemisphere=hemi, **options)
     full = calibration.coupling_model
     if full is not model:
         # octupole terms of an improved calibration: refine the dipole solution for them
-        result = refine_result(result, full, couplings)
+        result = refine_result(result, full, couplings, max_relative_residual=options.get(
+            "max_relative_residual", MAX_RELATIVE_RESIDUAL))
     if apply_correction and calibration.linear_correction is not None:
         result = apply_position_correction(result, calibration.linear_correction)
     return result
@@ -88,7 +90,8 @@ def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_cor
 
 
 def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 262144,
-                 scheduler=None, max_in_flight: int = 2, solver: str = "lm", hemisphere=None,
+                 scheduler=None, max_in_flight: int = 2, solver: str = "lm",
+                 hemisphere=DEFAULT_HEMISPHERE,
                  apply_correction: bool = True, **options):
     """Solve a (possibly larger-than-memory) coupling array block by block.
 

@@ -17,7 +17,8 @@ names the status):
    ``MAX_ITERATIONS``);
 5. ``rho <= max_relative_residual`` (else ``NOT_CONVERGED``).
 
-The defaults are the named constants below; every solver takes them as keyword arguments
+The defaults are the named constants ``MAX_RELATIVE_RESIDUAL`` (0.01) and ``MAX_RANGE_M``
+(3 m) of ``openemt._constants``, re-exported here; every solver takes them as keyword arguments
 (``max_relative_residual=``, ``max_range=``) and the CLI as options. See docs/solve.md.
 """
 
@@ -26,29 +27,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._constants import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 from .._errors import InputError
-from ._result import Status
+from ._result import (
+    ST_AMBIGUOUS,
+    ST_CONVERGED,
+    ST_MAX_ITERATIONS,
+    ST_NOT_CONVERGED,
+    ST_OUT_OF_VOLUME,
+)
 
 __all__ = ["MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "check_validity_options", "classify",
-           "relative_residual", "relative_residuals"]
-
-#: Largest relative coupling residual ``||C_pred - C_meas||_F / ||C_meas||_F`` of a valid
-#: solution. 1 % is above the noise and model error of a calibrated tracker (the bundled ILEMT
-#: data solve with rho of 0.1 % median, 0.7 % at most under the authors' calibration) and far
-#: below what a wrong pose or garbage input leaves (random matrices: rho > 30 %).
-MAX_RELATIVE_RESIDUAL = 0.01
-
-#: Largest plausible sensor distance from the source origin, in metres. No magnetic tracker
-#: measures beyond a few metres; a solution further out is a solver running off towards zero
-#: coupling, not a position.
-MAX_RANGE_M = 3.0
-
-_CONVERGED = np.int8(Status.CONVERGED)
-_MAX_ITER = np.int8(Status.MAX_ITERATIONS)
-_AMBIG = np.int8(Status.AMBIGUOUS)
-_OUT = np.int8(Status.OUT_OF_VOLUME)
-_NOT_CONV = np.int8(Status.NOT_CONVERGED)
-
+           "rejudge", "relative_residual", "relative_residuals"]
 
 def check_validity_options(max_relative_residual, max_range) -> tuple[float, float]:
     """Validate the two thresholds of the rule (positive; ``None`` or ``inf`` disables one)."""
@@ -67,17 +57,35 @@ def check_validity_options(max_relative_residual, max_range) -> tuple[float, flo
 
 @njit(cache=True, inline="always")
 def relative_residual(Cp, Cm):
-    """``||Cp - Cm||_F / ||Cm||_F`` of one coupling matrix (NaN if ``Cm`` is zero)."""
+    """``||Cp - Cm||_F / ||Cm||_F`` of one coupling matrix (NaN if ``Cm`` is zero), computed on
+    the matrices divided by ``max |Cm|`` so that no scale under- or overflows."""
+    mx = 0.0
+    for i in range(Cm.shape[0]):
+        for j in range(Cm.shape[1]):
+            mx = max(mx, abs(Cm[i, j]))
+    if not mx > 0.0:
+        return np.nan
     num = 0.0
     den = 0.0
     for i in range(Cm.shape[0]):
         for j in range(Cm.shape[1]):
-            r = Cp[i, j] - Cm[i, j]
+            r = (Cp[i, j] - Cm[i, j]) / mx
+            c = Cm[i, j] / mx
             num += r * r
-            den += Cm[i, j] * Cm[i, j]
-    if not den > 0.0:
-        return np.nan
+            den += c * c
     return np.sqrt(num / den)
+
+
+def rejudge(status, rho, max_relative_residual) -> np.ndarray:
+    """Statuses after the relative residual changed (e.g. a refinement under a fuller model):
+    CONVERGED and NOT_CONVERGED samples are judged again by step 5 of the rule; the others keep
+    their status."""
+    status = np.array(status, dtype=np.int8)
+    open_ = (status == ST_CONVERGED) | (status == ST_NOT_CONVERGED)
+    good = np.asarray(rho) <= max_relative_residual
+    status[open_ & good] = ST_CONVERGED
+    status[open_ & ~good] = ST_NOT_CONVERGED
+    return status
 
 
 def relative_residuals(predicted, measured) -> np.ndarray:
@@ -114,18 +122,18 @@ def classify(hit_limit, rho, t, n, lo, hi, ambig_tol, max_rel, max_range):
     """
     nt2 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2]
     if not np.isfinite(nt2):
-        return _OUT
+        return ST_OUT_OF_VOLUME
     nt = np.sqrt(nt2)
     if nt > max_range:
-        return _OUT
+        return ST_OUT_OF_VOLUME
     for a in range(3):
         if t[a] <= lo[a] or t[a] >= hi[a]:
-            return _OUT
+            return ST_OUT_OF_VOLUME
     has_n = n[0] != 0.0 or n[1] != 0.0 or n[2] != 0.0
     if has_n and t[0] * n[0] + t[1] * n[1] + t[2] * n[2] <= ambig_tol * nt:
-        return _AMBIG
+        return ST_AMBIGUOUS
     if hit_limit:
-        return _MAX_ITER
+        return ST_MAX_ITERATIONS
     if not rho <= max_rel:
-        return _NOT_CONV
-    return _CONVERGED
+        return ST_NOT_CONVERGED
+    return ST_CONVERGED

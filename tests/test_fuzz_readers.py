@@ -1,0 +1,144 @@
+"""Property-based fuzzing of every reader: mutated files are read or refused with a clear
+error, never crash, hang or return non-finite values silently (bounded here; the long run is
+``openemt bench fuzz``)."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from openemt._errors import InputError
+from openemt.bench._fuzzcases import (
+    BYTE_OPS,
+    JSON_OPS,
+    TARGETS,
+    CaseRunner,
+    case_bytes,
+    prepare_targets,
+)
+from openemt.io import read_calibration, read_dataset, write_dataset
+from openemt.io._jsontext import MAX_JSON_DEPTH
+
+ops = st.lists(st.tuples(st.sampled_from(BYTE_OPS), st.integers(0, 2**30),
+                         st.integers(0, 2**30)), min_size=1, max_size=4)
+json_ops = st.lists(st.tuples(st.sampled_from(JSON_OPS), st.integers(0, 2**30),
+                              st.integers(0, 2**30)), min_size=0, max_size=3)
+
+
+@pytest.fixture(scope="module")
+def fuzz(tmp_path_factory):
+    work = tmp_path_factory.mktemp("fuzz")
+    targets = prepare_targets(work / "seed")
+    with CaseRunner(work / "runner", time_limit=10.0) as runner:
+        yield targets, runner
+
+
+@pytest.mark.parametrize("name", TARGETS)
+def test_seed_files_read(fuzz, name):
+    targets, runner = fuzz
+    assert runner.run(name, targets[name].seed).kind == "ok"
+
+
+@pytest.mark.parametrize("name", TARGETS)
+def test_mutated_files_are_read_or_refused_cleanly(fuzz, name):
+    targets, runner = fuzz
+    target = targets[name]
+
+    @settings(max_examples=40, deadline=None, derandomize=True, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(ops=ops, jops=json_ops)
+    def check(ops, jops):
+        outcome = runner.run(name, case_bytes(target, ops, jops if target.json else ()))
+        assert outcome.kind in ("ok", "rejected"), (name, ops, jops, outcome)
+        if outcome.kind == "rejected":
+            assert "\n" not in outcome.message.strip() and len(outcome.message) > 15, outcome
+
+    check()
+
+
+def test_runner_reports_hangs_and_crashes_of_compiled_code(tmp_path):
+    from openemt.bench import _fuzzcases
+
+    with CaseRunner(tmp_path, time_limit=0.5) as runner:
+        assert runner.run("ilemt_dat", b"").kind == "rejected"
+    assert set(_fuzzcases.OUTCOMES) >= {"hang", "crash", "garbage", "vague"}
+
+
+# ---- regression cases found by fuzzing and by hand -------------------------------------
+
+
+def test_deeply_nested_calibration_json_is_refused(tmp_path):
+    p = tmp_path / "cal.json"
+    p.write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(InputError, match=f"at most {MAX_JSON_DEPTH} levels"):
+        read_calibration(p)
+
+
+def test_non_utf8_calibration_json_is_refused(tmp_path):
+    p = tmp_path / "cal.json"
+    p.write_bytes(b'{"a": "\xff"}')
+    with pytest.raises(InputError, match="not UTF-8 at offset 7 in cal.json"):
+        read_calibration(p)
+
+
+@pytest.fixture
+def dataset_file(tmp_path):
+    from openemt.bench._fuzzcases import _small_dataset
+
+    p = tmp_path / "data.h5"
+    write_dataset(_small_dataset(), p)
+    return p
+
+
+@pytest.mark.parametrize("kind", ["1-D", "2-D", "group"])
+def test_couplings_of_the_wrong_shape_are_refused(dataset_file, kind):
+    with h5py.File(dataset_file, "a") as f:
+        n = f["couplings_real"].shape[0]
+        del f["couplings_real"]
+        if kind == "group":
+            f.create_group("couplings_real")
+        else:
+            f["couplings_real"] = np.zeros(n if kind == "1-D" else (n, 9))
+    with pytest.raises(InputError, match="instead of a 3-D numeric array"):
+        read_dataset(dataset_file)
+    from openemt.cli import main
+
+    assert main(["solve", dataset_file, "-c", "x.json", "-o", dataset_file.parent / "o.h5"]) == 2
+
+
+def test_meta_that_is_a_json_list_is_refused(dataset_file):
+    with h5py.File(dataset_file, "a") as f:
+        f.attrs["meta"] = json.dumps([1, 2])
+    with pytest.raises(InputError, match="`meta` is a JSON list"):
+        read_dataset(dataset_file)
+
+
+def test_damaged_dataset_file_is_refused_not_parsed(dataset_file):
+    data = bytearray(dataset_file.read_bytes())
+    for k in range(200, len(data), 997):  # scatter damage over headers and data
+        data[k] ^= 0x5A
+    dataset_file.write_bytes(bytes(data))
+    with pytest.raises(InputError, match="data.h5"):
+        read_dataset(dataset_file)
+
+
+def test_sealed_files_skip_the_probe_and_edited_files_are_probed(dataset_file, monkeypatch):
+    from openemt.io import _h5safe
+
+    assert _h5safe.seal_matches(dataset_file)
+    with h5py.File(dataset_file, "a") as f:  # a user edits the file with another tool
+        f.attrs["note"] = "edited"
+    assert not _h5safe.seal_matches(dataset_file)
+    assert read_dataset(dataset_file).n_samples == 12  # probed in a child, then read
+
+    def stuck(path):  # libhdf5 looping on a damaged file
+        import time
+        time.sleep(60)
+
+    monkeypatch.setattr(_h5safe, "_walk", stuck)
+    monkeypatch.setattr(_h5safe, "_checked", set())
+    reason = _h5safe.check_readable(dataset_file, timeout=1.0)
+    assert reason == "reading its structure did not finish within 1 s"

@@ -1,0 +1,157 @@
+"""The one validity rule of every solver (docs/solve.md#validity-rule): statuses are judged by
+the relative residual, so they do not depend on the scale of the couplings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_solve import dipole_approx_model
+
+from openemt.evaluate import pose_error_magnitudes
+from openemt.field import DipoleModel
+from openemt.geometry import pose_from_vector
+from openemt.solve import (
+    Status,
+    hemisphere_from_positions,
+    solve_kim18,
+    solve_kuipers,
+    solve_lm,
+    solve_svd,
+)
+from openemt.solve._validity import MAX_RELATIVE_RESIDUAL, relative_residuals
+
+CLOSED = {"svd": solve_svd, "kuipers": solve_kuipers, "kim18": solve_kim18}
+
+
+def _poses(rng, n, dmin, dmax):
+    d = rng.uniform(dmin, dmax, n)
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    v = np.empty((n, 6))
+    v[:, :3] = d[:, None] * u
+    rv = rng.normal(size=(n, 3))
+    v[:, 3:] = rv * (rng.uniform(0, np.pi, n) / np.linalg.norm(rv, axis=1))[:, None]
+    return pose_from_vector(v)
+
+
+def _mixed_batch(model, rng):
+    """Couplings with every kind of outcome: clean, slightly and very noisy, garbage, NaN and
+    zero rows."""
+    P = _poses(rng, 40, 0.15, 0.6)
+    C = model.coupling(P)
+    rel = np.repeat([1e-4, 3e-3, 0.05, 0.3], 10)
+    noise = rng.normal(size=C.shape)
+    C = C + rel[:, None, None] * np.linalg.norm(C, axis=(1, 2))[:, None, None] * noise / 3
+    C = np.concatenate([C, rng.normal(size=(5, 3, 3)) * np.abs(C).mean(),
+                        np.full((1, 3, 3), np.nan), np.zeros((1, 3, 3))])
+    hemi = np.concatenate([hemisphere_from_positions(P[:, :3, 3]), ["+x"] * 7])
+    return C, hemi
+
+
+def _solve(name, C, model, hemi):
+    if name == "lm":
+        return solve_lm(C, model, hemisphere=hemi)
+    return CLOSED[name](C, model, hemisphere=hemi)
+
+
+@pytest.mark.parametrize("name", ["lm", "svd", "kuipers", "kim18"])
+@pytest.mark.parametrize("scale", [1e-150, 1e-8, 1e100])
+def test_statuses_do_not_depend_on_the_coupling_scale(name, scale):
+    rng = np.random.default_rng(3)
+    model = DipoleModel.concentric() if name != "lm" else dipole_approx_model()
+    C, hemi = _mixed_batch(model, rng)
+    ref = _solve(name, C, model, hemi)
+    counts = ref.status_counts()
+    # the batch really exercises the rule: valid and invalid outcomes of several kinds
+    assert counts["converged"] >= 15 and counts["not_converged"] >= 10
+    assert counts["invalid_input"] == 2
+    scaled = _solve(name, C * scale, model.replace(gain=model.gain * scale), hemi)
+    np.testing.assert_array_equal(scaled.status, ref.status)
+    np.testing.assert_allclose(scaled.relative_residual, ref.relative_residual, rtol=1e-6,
+                               atol=1e-12)
+    ok = ref.status == Status.CONVERGED
+    np.testing.assert_allclose(scaled.pose_vectors[ok], ref.pose_vectors[ok], atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["lm", "svd", "kuipers", "kim18"])
+def test_tesla_scale_couplings_are_judged_as_unit_scale(name):
+    """Couplings near 1e-8 (a planar board's teslas) against the same geometry near 1: the
+    same statuses, so an absolute residual threshold cannot leak into the rule."""
+    rng = np.random.default_rng(4)
+    unit = DipoleModel.concentric() if name != "lm" else dipole_approx_model()
+    C, hemi = _mixed_batch(unit, rng)
+    tesla = unit.replace(gain=unit.gain * 1e-8)
+    a = _solve(name, C, unit, hemi)
+    b = _solve(name, C * 1e-8, tesla, hemi)
+    np.testing.assert_array_equal(a.status, b.status)
+    assert b.status_counts()["not_converged"] >= 10
+
+
+@pytest.mark.parametrize("name", ["lm", "svd", "kuipers", "kim18"])
+def test_random_matrices_are_never_converged(name):
+    rng = np.random.default_rng(5)
+    G = rng.normal(size=(300, 3, 3))
+    for scale in (1.0, 1e-8):
+        res = _solve(name, G * scale, DipoleModel.concentric(gain=scale / 250), "+x")
+        assert not np.any(res.status == Status.CONVERGED)
+        assert np.all(res.relative_residual > MAX_RELATIVE_RESIDUAL)
+
+
+@pytest.mark.parametrize("initial", ["kim18", "track", "multistart"])
+def test_non_concentric_converged_poses_are_right(initial):
+    """Noise-free couplings of a model with coil offsets at 0.5 to 2.9 m: a pose reported as
+    converged is within 1 mm and 0.1 deg of the truth."""
+    rng = np.random.default_rng(6)
+    model = dipole_approx_model()
+    P = _poses(rng, 120, 0.5, 2.9)
+    C = model.coupling(P)
+    res = solve_lm(C, model, hemisphere=hemisphere_from_positions(P[:, :3, 3]), initial=initial)
+    ok = res.status == Status.CONVERGED
+    assert ok.sum() >= 100
+    trans, rot = pose_error_magnitudes(res.poses[ok], P[ok])
+    assert np.max(trans) < 1e-3
+    assert np.degrees(np.max(rot)) < 0.1
+
+
+def test_relative_residual_is_reported_and_matches_the_definition():
+    rng = np.random.default_rng(7)
+    model = dipole_approx_model()
+    C, hemi = _mixed_batch(model, rng)
+    res = solve_lm(C, model, hemisphere=hemi)
+    ok = np.all(np.isfinite(res.pose_vectors), axis=1)
+    expect = relative_residuals(model.coupling(res.poses[ok]), C[ok])
+    np.testing.assert_allclose(res.relative_residual[ok], expect, rtol=1e-9)
+    conv = res.status == Status.CONVERGED
+    assert np.all(res.relative_residual[conv] <= MAX_RELATIVE_RESIDUAL)
+    assert np.all(res.relative_residual[res.status == Status.NOT_CONVERGED]
+                  > MAX_RELATIVE_RESIDUAL)
+
+
+def test_threshold_is_a_keyword_of_every_solver():
+    rng = np.random.default_rng(8)
+    model = DipoleModel.concentric()
+    P = _poses(rng, 20, 0.2, 0.4)
+    C = model.coupling(P) * (1 + 1e-3 * rng.normal(size=(20, 3, 3)))
+    hemi = hemisphere_from_positions(P[:, :3, 3])
+    for f in (solve_lm, *CLOSED.values()):
+        assert np.all(f(C, model, hemisphere=hemi).status == Status.CONVERGED)
+        strict = f(C, model, hemisphere=hemi, max_relative_residual=1e-6)
+        assert np.all(strict.status == Status.NOT_CONVERGED)
+        # the plausible range: these poses are beyond 10 cm
+        near = f(C, model, hemisphere=hemi, max_range=0.1)
+        assert np.all(near.status == Status.OUT_OF_VOLUME)
+    for bad in (0, -1, np.nan, "x"):
+        with pytest.raises(ValueError, match="max_relative_residual"):
+            solve_svd(C, model, max_relative_residual=bad)
+
+
+def test_far_solutions_are_out_of_volume():
+    """A solution farther than the plausible range is never converged (here: couplings of a
+    sensor 5 m away)."""
+    model = DipoleModel.concentric()
+    P = pose_from_vector(np.array([[5.0, 0.1, 0.2, 0.1, 0.2, 0.3]]))
+    C = model.coupling(P)
+    for f in (solve_lm, *CLOSED.values()):
+        res = f(C, model)
+        assert res.status[0] == Status.OUT_OF_VOLUME
+        assert f(C, model, max_range=None).status[0] == Status.CONVERGED
