@@ -25,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .._errors import InputError
 from ..field import OctupoleModel, coupling_jacobians
@@ -42,6 +41,7 @@ from ..geometry import (
     sensor_fixture_rotation,
 )
 from ._layout import ParameterLayout
+from ._lsq import fit_free_parameters
 from ._objective import build_problem, fixture_twist_map
 
 __all__ = ["STAGE_LINEAR_BASIS", "ImprovedProblem", "RigModel", "RigOptions", "fit_improved"]
@@ -291,13 +291,5 @@ def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize
     x0[:layout.size] = layout.pack_calibration(start)
     free = np.r_[layout.free_indices(optimize, freeze), np.arange(layout.size, prob.size)]
 
-    def full(xf):
-        x = x0.copy()
-        x[free] = xf
-        return x
-
-    res = least_squares(lambda xf: prob.residuals(full(xf)), x0[free],
-                        jac=lambda xf: prob.residuals_and_jacobian(full(xf))[1][:, free],
-                        method="lm", x_scale="jac", ftol=tol, xtol=tol, gtol=tol,
-                        max_nfev=max_nfev)
-    return prob, full(res.x), free, res
+    x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
+    return prob, x, free, res

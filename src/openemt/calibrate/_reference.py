@@ -27,7 +27,6 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from .. import __version__
@@ -35,6 +34,7 @@ from .._errors import InputError
 from ..io import Calibration, Dataset
 from ._identifiability import IdentifiabilityWarning, analyse_identifiability
 from ._layout import ParameterLayout
+from ._lsq import fit_free_parameters
 from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE
 from ._objective import CalibrationProblem
 
@@ -505,16 +505,7 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     frz = tuple(DEFAULT_FREEZE) + tuple(freeze)
     free = layout.free_indices(DEFAULT_OPTIMIZE, frz)
 
-    def full(xf):
-        x = x0.copy()
-        x[free] = xf
-        return x
-
-    res = least_squares(lambda xf: prob.residuals(full(xf)), x0[free],
-                        jac=lambda xf: prob.residuals_and_jacobian(full(xf))[1][:, free],
-                        method="lm", x_scale="jac", ftol=tol, xtol=tol, gtol=tol,
-                        max_nfev=max_nfev)
-    x = full(res.x)
+    x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
     r, J = prob.residuals_and_jacobian(x)
     groups = [g for g in DEFAULT_OPTIMIZE if g not in frz]
     ident = analyse_identifiability(J[:, free], r, free, layout, groups, warn=False)
