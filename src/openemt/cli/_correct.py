@@ -10,6 +10,7 @@ reports the errors before and after.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +127,8 @@ def _method_options(args, method) -> dict:
         if args.rot_order is not None:
             opts["rot_order"] = args.rot_order
     if method in ("grid", "rbf") and args.smoothing is not None:
+        if not 0 <= args.smoothing < math.inf:
+            raise InputError(f"expected a finite --smoothing >= 0, got {args.smoothing}")
         opts["smoothing"] = args.smoothing
     if method == "grid" and args.grid_shape:
         try:

@@ -3,6 +3,7 @@ OpenIGTLink, for the sensors of a tracker description file."""
 
 from __future__ import annotations
 
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -140,8 +141,12 @@ def run(args) -> int:
     from ..signal import RawSignal, write_raw
     from ._common import emit
 
-    if args.duration is not None and not args.duration > 0:
-        raise InputError(f"expected a positive --duration, got {args.duration}")
+    if args.duration is not None and not 0 < args.duration < math.inf:
+        raise InputError(f"expected a positive, finite --duration in seconds (leave it out to run "
+                         f"until Ctrl-C), got {args.duration}")
+    if args.distortion_threshold is not None and not 0 <= args.distortion_threshold < math.inf:
+        raise InputError(f"expected a finite --distortion-threshold >= 0, got "
+                         f"{args.distortion_threshold}")
     if args.tracker is not None:
         for opt, v in (("--preset", args.preset), ("--calibration", args.calibration),
                        ("--device-name", args.device_name)):

@@ -167,6 +167,9 @@ class SimulatedBackend(Backend):
             raise InputError(f"expected `chunk` >= 1, got {chunk!r}")
         self.realtime = bool(realtime)
         fs = self.layout.sample_rate
+        if duration is not None and not 0 < float(duration) < np.inf:
+            raise InputError(f"expected a positive, finite `duration` in seconds (None: no end), "
+                             f"got {duration!r}")
         self._end = None if duration is None else round(float(duration) * fs)
         self._block = 9600
         self._buf = np.empty((0, self.layout.n_channels))
