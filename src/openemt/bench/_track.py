@@ -37,6 +37,7 @@ import time
 
 import numpy as np
 
+from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 
 __all__ = ["add_arguments", "run"]
@@ -122,7 +123,7 @@ def run(args) -> dict:
         return float(np.percentile(a, q)) if len(a) else None
 
     out = {
-        "preset": args.preset, "output_rate": 1500.0, "chunk_samples": args.chunk,
+        "preset": args.preset, "output_rate": OUTPUT_RATE_HZ, "chunk_samples": args.chunk,
         "latency_ms_p50": pct(send, 50), "latency_ms_p99": pct(send, 99),
         "latency_ms_max": pct(send, 100), "latency_samples": len(send),
         "latency_target_p99_ms": 2.0,

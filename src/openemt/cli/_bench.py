@@ -22,6 +22,8 @@ BENCHMARKS = {
     "track": ("openemt.bench._track", "live pipeline latency and position noise vs the CRB"),
     "correct": ("openemt.bench._correct",
                 "output corrections on a simulated distortion: held-out vs in-sample"),
+    "compile": ("openemt.bench._compile",
+                "numba compile time per kernel in a fresh process (empty cache) and cached"),
 }
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .._constants import OUTPUT_RATE_HZ, SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
 
 __all__ = ["register", "run"]
@@ -127,7 +128,7 @@ def run(args) -> int:
         if args.noise is not None:
             kw["noise_rms"] = args.noise
         layout = ChannelLayout(frequencies=tuple(preset.frequencies))
-        cfg = RawSignalConfig(layout=layout, mains_amplitudes=(0.01, 0.002, 0.003), **kw)
+        cfg = RawSignalConfig(layout=layout, mains_amplitudes=SIMULATED_MAINS_AMPLITUDES_V, **kw)
         backend = SimulatedBackend(preset.dipole, config=cfg, seed=args.seed,
                                    realtime=not args.fast, duration=args.duration)
     model, correction = _model_and_correction(args)
@@ -161,7 +162,7 @@ def run(args) -> int:
     if args.save_raw is not None:
         fs = backend.layout.sample_rate
         samples = np.concatenate(source.chunks) if source.chunks else np.empty((0, 6))
-        tt = np.arange(0.0, samples.shape[0] / fs, 1.0 / 1500.0)
+        tt = np.arange(0.0, samples.shape[0] / fs, 1.0 / OUTPUT_RATE_HZ)
         write_raw(RawSignal(samples=samples, layout=backend.layout, truth_times=tt,
                             truth_couplings=backend.true_couplings(tt),
                             truth_poses=backend.truth_poses(tt)), args.save_raw)

@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from .._constants import SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
 from ..geometry import pose_from_vector
 from ..signal import ChannelLayout, RawSignalConfig, RawSimulator, read_raw
@@ -110,7 +111,7 @@ class SimulatedBackend(Backend):
                  duration: float | None = None):
         self.model = default_model() if model is None else model
         if config is None:
-            config = RawSignalConfig(mains_amplitudes=(0.01, 0.002, 0.003))
+            config = RawSignalConfig(mains_amplitudes=SIMULATED_MAINS_AMPLITUDES_V)
         self._sim = RawSimulator(self.model, default_trajectory if trajectory is None
                                  else trajectory, config, seed=seed)
         self.layout = config.layout

@@ -112,7 +112,8 @@ def _accuracy_section(rep, rows, *, with_paper: bool):
               caption="Translation (mm) and rotation (deg) error magnitudes, RMS and max")
     rep.paragraph(f"trans_uncert_mm = sqrt(RMS^2 + {_U_MM:.3f}^2) and rot_uncert_deg = "
                   f"sqrt(RMS^2 + {_U_DEG:.2f}^2) combine the calibration error u(cal) with the "
-                  "stage uncertainty (MacLachlan et al. 2025, eq. 10). Invalid solutions (residue >= 1e-5) are "
+                  "stage uncertainty (MacLachlan et al. 2025, eq. 10). Invalid solutions (residue >= "
+                  f"{ILEMT_VALID_RESNORM:g}) are "
                   "kept in the statistics and counted in n_invalid.", note=True)
 
 
@@ -388,7 +389,7 @@ def characterization_report(dataset, calibration, *, concentric=None,
         F_se = None
         hemi = hemisphere_from_positions(D[:, :3, 3])
         res = solve(dataset.signed_real(), cal, hemisphere=hemi, apply_correction=False,
-                    concentric_calibration=concentric)
+                    concentric_calibration=concentric, retry_resnorm=ILEMT_VALID_RESNORM)
         variants = {"calibration": (res, res.poses)}
         if cal.linear_correction is not None:
             variants["calibration + correction"] = (res, _corrected(res.poses,

@@ -219,7 +219,7 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
         Concentric model for the closed-form start (ILEMT: the concentric calibration).
     bounds : float or array (3, 2), optional
         Position box (half-width in m, or [low, high] per axis); a solution on its boundary is
-        OUT_OF_VOLUME. ILEMT uses 0.4 m.
+        OUT_OF_VOLUME. ILEMT uses ``ILEMT_POSITION_BOX_M`` (0.4 m).
     xtol : float
         Convergence when the relative translation step and the rotation step (rad) are below it
         (the step after that would be ~xtol^2 for these small-residual problems).
