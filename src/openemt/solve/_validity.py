@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._constants import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
+from .._constants import EXPLORE_RELATIVE_RESIDUAL, MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 from .._errors import InputError
 from ._packing import O_AMBIGUITY_TOL, O_MAX_RANGE, O_MAX_RELATIVE_RESIDUAL
 from ._result import (
@@ -38,7 +38,7 @@ from ._result import (
     ST_OUT_OF_VOLUME,
 )
 
-__all__ = ["MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "check_validity_options", "classify",
+__all__ = ["EXPLORE_RELATIVE_RESIDUAL", "MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "check_validity_options", "classify",
            "rejudge", "relative_residual", "relative_residuals"]
 
 def check_validity_options(max_relative_residual, max_range) -> tuple[float, float]:
