@@ -152,8 +152,11 @@ def dipole_batch(mdl, Rs, ts, C):
     geo = unpack_model(mdl, 1.0)
     dummy = np.empty((C.shape[1], C.shape[2], 3))
     jac = (dummy, dummy, dummy, dummy)
+    # the flag as a run-time value (not a literal), so that every caller shares one compiled
+    # specialisation of dipole_eval
+    want = np.zeros(1, dtype=np.bool_)
     for k in range(Rs.shape[0]):
-        dipole_eval(geo, Rs[k], ts[k], C[k], jac, False)
+        dipole_eval(geo, Rs[k], ts[k], C[k], jac, want[0])
 
 
 @njit(cache=True)
@@ -162,6 +165,7 @@ def dipole_batch_jac(mdl, Rs, ts, C, jac):
     (each (N, n_so, n_se, 3)) for a batch (see ``dipole_eval``)."""
     geo = unpack_model(mdl, 1.0)
     dt, dphi, dMso, dMse = jac
+    want = np.ones(1, dtype=np.bool_)  # run-time flag, as in dipole_batch
     for k in range(Rs.shape[0]):
-        dipole_eval(geo, Rs[k], ts[k], C[k], (dt[k], dphi[k], dMso[k], dMse[k]), True)
+        dipole_eval(geo, Rs[k], ts[k], C[k], (dt[k], dphi[k], dMso[k], dMse[k]), want[0])
 

@@ -430,7 +430,8 @@ def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac):
     :func:`normalise_coupling`) under the packed model ``mdl``, evaluated at the couplings'
     own scale. ``Cp`` receives the predicted coupling; ``jac`` (the derivative arrays of
     ``dipole_eval``, unused) is scratch."""
-    dipole_eval(geo, R, t, Cp, jac, False)
+    no_jac = Ck.shape[0] < 0  # False at run time: one dipole_eval specialisation for all
+    dipole_eval(geo, R, t, Cp, jac, no_jac)
     inv = 1.0 / s
     ss = 0.0
     rr = 0.0

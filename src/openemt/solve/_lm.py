@@ -159,7 +159,8 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     n_so = Cm.shape[0]
     n_se = Cm.shape[1]
     _project(t, n, lo, hi)
-    cost = _eval(geo, Cm, R, t, Cp, jac, True)
+    with_jac = n_so > 0  # True at run time: one dipole_eval specialisation for all callers
+    cost = _eval(geo, Cm, R, t, Cp, jac, with_jac)
     lam = 1e-4
     lam_small = 1e-3
     prev_rel = 0.0
