@@ -50,8 +50,8 @@ def skewed_concentric(rng):
 
 
 CLOSED = {
-    "svd": lambda C, m, **kw: solve_svd(C, model=m, **kw),
-    "kuipers": lambda C, m, **kw: solve_kuipers(C, model=m, **kw),
+    "svd": lambda C, m, **kw: solve_svd(C, m, **kw),
+    "kuipers": lambda C, m, **kw: solve_kuipers(C, m, **kw),
     "kim18": lambda C, m, **kw: solve_kim18(C, m, **kw),
 }
 
@@ -158,7 +158,7 @@ def test_closed_form_input_validation():
     with pytest.raises(ValueError, match="concentric"):
         solve_kim18(np.ones((1, 3, 3)), dipole_approx_model())
     with pytest.raises(ValueError, match="hemisphere"):
-        solve_kuipers(np.ones((2, 3, 3)), hemisphere=None, model=model)
+        solve_kuipers(np.ones((2, 3, 3)), model, hemisphere=None)
 
 
 def test_complex_input_uses_signed_real_and_complex_norm():
@@ -433,7 +433,7 @@ def test_closed_form_far_from_dipole_matches_numpy_svd(name):
     P = random_poses(rng, 400, center=(0.2, 0.0, 0.0), spread=0.08)
     C = offset.coupling(P)
     C = C * (1 + 0.02 * rng.normal(size=C.shape))
-    res = solve_svd(C, model=model) if name == "svd" else solve_kim18(C, model)
+    res = solve_svd(C, model) if name == "svd" else solve_kim18(C, model)
     C0 = np.linalg.inv(model.M_so.T) @ C @ np.linalg.inv(model.M_se)
     n_close = n_neg = 0
     for k in range(len(C)):

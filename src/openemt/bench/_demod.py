@@ -30,6 +30,7 @@ import time
 
 import numpy as np
 
+from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 
 __all__ = ["add_arguments", "run"]
@@ -106,7 +107,7 @@ def run(args) -> dict:
 
     stream()  # warm caches
     wall, cpu = _time(stream, args.repeats)
-    hop, L = frame_length(lay, 1500.0, args.window)
+    hop, L = frame_length(lay, OUTPUT_RATE_HZ, args.window)
     base_secs = min(seconds, 2.0)
     nb = int(base_secs * lay.sample_rate)
     bwall, _ = _time(lambda: _fft_baseline(x[:nb], lay, hop, L, args.window), 1)
@@ -116,7 +117,7 @@ def run(args) -> dict:
 
     out = {
         "channels": {"sensor": lay.n_sensor, "reference": lay.n_source},
-        "sample_rate": lay.sample_rate, "output_rate": 1500.0, "window": args.window,
+        "sample_rate": lay.sample_rate, "output_rate": OUTPUT_RATE_HZ, "window": args.window,
         "frame_samples": L, "hop_samples": hop, "chunk_samples": chunk,
         "signal_seconds": seconds,
         "realtime_factor": seconds / wall,
@@ -168,7 +169,7 @@ def run(args) -> dict:
     noise = {}
     for window in ("hann", "rect"):
         d = demodulate(r.samples, r.layout, window=window)
-        _, L = frame_length(r.layout, 1500.0, window)
+        _, L = frame_length(r.layout, OUTPUT_RATE_HZ, window)
         w = frame_window(window, L)
         noise[window] = {"measured": float(np.sqrt(np.mean(d.in_phase.var(axis=0)))),
                          "predicted": float(sigma * np.sqrt(2 * np.sum(w ** 2)) / np.sum(w))}

@@ -60,6 +60,7 @@ import time
 
 import numpy as np
 
+from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 
 __all__ = ["add_arguments", "run"]
@@ -178,7 +179,7 @@ def run(args) -> dict:
         return float(np.percentile(a, q)) if len(a) else None
 
     out = {
-        "preset": args.preset, "sensors": int(args.sensors), "output_rate": 1500.0,
+        "preset": args.preset, "sensors": int(args.sensors), "output_rate": OUTPUT_RATE_HZ,
         "chunk_samples": args.chunk,
         "latency_ms_p50": pct(send, 50), "latency_ms_p99": pct(send, 99),
         "latency_ms_max": pct(send, 100), "latency_samples": len(send),
@@ -319,7 +320,7 @@ def _packing(k: int) -> dict:
 
     M = np.repeat(np.eye(4)[None], 10, axis=0)
     M[:, :3, 3] = [200.0, 10.0, -5.0]
-    ts = time.time() + np.arange(10) / 1500.0
+    ts = time.time() + np.arange(10) / OUTPUT_RATE_HZ
     pack_transforms(M, ts, "S0")
 
     def per_message(fn, reps=200):
@@ -385,7 +386,7 @@ def _filter_report(model, noise_log, ok, noise_um, seed) -> dict:
     n = 300
     st = np.tile(base, (n, 1))
     st[100:, 0] += 1e-3
-    _, fs_, _ = kalman_filter_poses(st, np.arange(n) / 1500.0, np.ones(n, bool), **kw)
+    _, fs_, _ = kalman_filter_poses(st, np.arange(n) / OUTPUT_RATE_HZ, np.ones(n, bool), **kw)
     err = np.abs(fs_[100:, 0] - st[100:, 0]) / 1e-3
     worst = np.maximum.accumulate(err[::-1])[::-1]
     settle_samples = int(np.argmax(worst < 0.01))
@@ -399,6 +400,6 @@ def _filter_report(model, noise_log, ok, noise_um, seed) -> dict:
                                                            - truth[settle:]) ** 2))),
         "motion_error_um_rms_filtered": 1e6 * float(np.sqrt(np.mean((fy[settle:, 1]
                                                                     - truth[settle:]) ** 2))),
-        "step_settle_ms": 1e3 * settle_samples / 1500.0,
+        "step_settle_ms": 1e3 * settle_samples / OUTPUT_RATE_HZ,
         "step_overshoot": float(max(0.0, np.max(fs_[100:, 0] - st[100:, 0]) / 1e-3)),
     }

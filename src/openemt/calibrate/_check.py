@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._constants import ILEMT_POSITION_BOX_M
 from .._errors import InputError
 from .._result import Result
 from ..evaluate import error_summary, pose_error_magnitudes
@@ -107,8 +108,9 @@ def solve_held_out(data, cal, *, solver: str = "lm", concentric_model=None,
     if solver == "kim18":
         res = solve_kim18(data.couplings, cal.model, hemisphere=hemi)
     elif solver == "lm":
-        res = solve_lm(data.couplings, cal.model, initial="kim18", hemisphere=hemi, bounds=0.4,
-                       concentric_model=concentric_model, retry_resnorm=ILEMT_VALID_RESNORM)
+        res = solve_lm(data.couplings, cal.model, initial="kim18", hemisphere=hemi,
+                       bounds=ILEMT_POSITION_BOX_M, concentric_model=concentric_model,
+                       retry_resnorm=ILEMT_VALID_RESNORM)
     else:
         raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
     M = np.array(res.poses)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._constants import ILEMT_POSITION_BOX_M
 from .._result import Result
 from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_MM, error_summary, pose_error_magnitudes
 from ..field import OctupoleModel
@@ -154,8 +155,9 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
     dip = model.dipole if isinstance(model, OctupoleModel) else model
     hemi = hemisphere_from_positions(D[:, :3, 3])
     init = initial if isinstance(initial, str) else np.asarray(initial)
-    res = solve_lm(rows.couplings, dip, initial=init, hemisphere=hemi, bounds=0.4,
-                   concentric_model=concentric_model, retry_resnorm=ILEMT_VALID_RESNORM)
+    res = solve_lm(rows.couplings, dip, initial=init, hemisphere=hemi,
+                   bounds=ILEMT_POSITION_BOX_M, concentric_model=concentric_model,
+                   retry_resnorm=ILEMT_VALID_RESNORM)
     v, resid = res.pose_vectors, np.asarray(res.residual)
     if isinstance(model, OctupoleModel):
         v, resid = refine_poses(model, rows.couplings, v)

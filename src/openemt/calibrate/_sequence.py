@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._constants import ILEMT_POSITION_BOX_M
 from .._errors import InputError
 from ..geometry import ground_truth_poses, vector_from_pose
 from ._check import ILEMT_VALID_RESNORM
@@ -106,7 +107,8 @@ def _solve_rows(data, cal, solver: str, truth_poses):
         res = solve_kim18(data.couplings, cal.model, hemisphere=hemi)
     elif solver == "lm":
         res = solve_lm(data.couplings, cal.model, initial=vector_from_pose(truth_poses),
-                       hemisphere=hemi, bounds=0.4, retry_resnorm=ILEMT_VALID_RESNORM)
+                       hemisphere=hemi, bounds=ILEMT_POSITION_BOX_M,
+                       retry_resnorm=ILEMT_VALID_RESNORM)
     else:
         raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
     return res.poses[:, :3, 3], np.asarray(res.residual, dtype=np.float64)

@@ -26,6 +26,8 @@ BENCHMARKS = {
                "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs"),
     "fuzz": ("openemt.bench._fuzz",
              "fuzzed files for every reader and command and couplings for every solver"),
+    "compile": ("openemt.bench._compile",
+                "numba compile time per kernel in a fresh process (empty cache) and cached"),
 }
 
 

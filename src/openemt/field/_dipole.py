@@ -15,7 +15,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..geometry import check_pose_vectors, check_poses, left_jacobian_so3, pose_from_vector
-from ._dipole_kernel import dipole_batch, dipole_batch_jac
+from ._dipole_kernel import dipole_batch, dipole_batch_jac, pack_model
 
 __all__ = [
     "ILEMT_GAIN",
@@ -157,7 +157,7 @@ def coupling(model: DipoleModel, poses) -> np.ndarray:
     """
     R, t = _split(poses)
     C = np.empty((R.shape[0], model.n_source, model.n_sensor))
-    dipole_batch(model.L_so, model.M_so, model.L_se, model.M_se, model.gain, R, t, C)
+    dipole_batch(pack_model(model), R, t, C)
     return C
 
 
@@ -167,8 +167,7 @@ def coupling_jacobians(model: DipoleModel, poses) -> CouplingJacobians:
     n, ns, ne = R.shape[0], model.n_source, model.n_sensor
     C = np.empty((n, ns, ne))
     dt, dphi, dMso, dm = (np.empty((n, ns, ne, 3)) for _ in range(4))
-    dipole_batch_jac(model.L_so, model.M_so, model.L_se, model.M_se, model.gain, R, t, C, dt, dphi,
-                     dMso, dm)
+    dipole_batch_jac(pack_model(model), R, t, C, (dt, dphi, dMso, dm))
     # p_j = R L_se_j + t, m_j = R M_se_j: gradients in sensor coordinates are R^T g
     d_L_se = np.einsum("kba,kijb->kija", R, dt)
     d_M_se = np.einsum("kba,kijb->kija", R, dm)

@@ -4,10 +4,15 @@ This is the one implementation of MacLachlan et al. 2025, eqs. 3-5. The batched 
 and the compiled solvers call these functions; nothing else re-derives the formula.
 
 Conventions (all arrays float64, C-contiguous):
+  geo        : the tuple (L_so, M_so, L_se, M_se, gain) of :func:`unpack_model`
   L_so, M_so : (3, n_so)  source coil positions (m) and moments (gain units), source frame
   L_se, M_se : (3, n_se)  sensor coil positions and moments, sensor frame
-  R, t       : (3, 3), (3,)  pose of the sensor in the source frame
   gain       : scalar, C = gain * m_se . B, B = (3 (M.u) u - M) / d^3  (ILEMT uses 1/250)
+  R, t       : (3, 3), (3,)  pose of the sensor in the source frame
+
+Compiled callers get a model as one packed float64 array (:func:`pack_model`: ``[n_source,
+n_sensor, gain, L_so, M_so, L_se, M_se]``, matrices row-major), read through the named header
+indices ``M_*``, rather than as separate arrays that could be passed in the wrong order.
 
 A coil pair at zero distance (d = 0) has no defined coupling: its entries and derivatives are
 NaN.
@@ -18,13 +23,45 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["dipole_batch", "dipole_batch_jac", "dipole_eval"]
+__all__ = ["M_GAIN", "M_N_SENSOR", "M_N_SOURCE", "dipole_batch", "dipole_batch_jac",
+           "dipole_eval", "pack_model", "unpack_model"]
+
+# packed model array: header entries, then the four coil matrices
+M_N_SOURCE = 0
+M_N_SENSOR = 1
+M_GAIN = 2
+_M_HEADER = 3
 
 
-@njit(cache=True, fastmath=False)
-def dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, C, dC_dt, dC_dphi, dC_dMso, dC_dMse_src,
-                want_jac):
-    """Coupling of one pose and, if ``want_jac``, its derivatives.
+def pack_model(model) -> np.ndarray:
+    """One float64 array holding a :class:`~openemt.field.DipoleModel`'s coils and gain."""
+    parts = [np.array([model.n_source, model.n_sensor, model.gain], dtype=np.float64)]
+    parts += [np.asarray(getattr(model, f), dtype=np.float64).ravel()
+              for f in ("L_so", "M_so", "L_se", "M_se")]
+    return np.concatenate(parts)
+
+
+@njit(inline="always")
+def unpack_model(mdl, scale):
+    """``(L_so, M_so, L_se, M_se, gain / scale)``: views of a packed model array, with the gain
+    divided by the scale the couplings were divided by (1 for none)."""
+    n_so = int(mdl[M_N_SOURCE])
+    n_se = int(mdl[M_N_SENSOR])
+    o = _M_HEADER
+    L_so = mdl[o:o + 3 * n_so].reshape((3, n_so))
+    o += 3 * n_so
+    M_so = mdl[o:o + 3 * n_so].reshape((3, n_so))
+    o += 3 * n_so
+    L_se = mdl[o:o + 3 * n_se].reshape((3, n_se))
+    o += 3 * n_se
+    M_se = mdl[o:o + 3 * n_se].reshape((3, n_se))
+    return L_so, M_so, L_se, M_se, mdl[M_GAIN] / scale
+
+
+@njit(fastmath=False)
+def dipole_eval(geo, R, t, C, jac, want_jac):
+    """Coupling of one pose and, if ``want_jac``, its derivatives
+    ``jac = (dC_dt, dC_dphi, dC_dMso, dC_dMse_src)``.
 
     Outputs (written in place):
       C        (n_so, n_se)
@@ -35,6 +72,8 @@ def dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, C, dC_dt, dC_dphi, dC_dMso, 
     The position gradient d C[i, j] / d p_j equals dC_dt[i, j]; from it follow the derivatives
     for L_so (negated) and L_se (rotated by R^T) -- see ``dipole_batch_jac``.
     """
+    L_so, M_so, L_se, M_se, gain = geo
+    dC_dt, dC_dphi, dC_dMso, dC_dMse_src = jac
     n_so = L_so.shape[1]
     n_se = L_se.shape[1]
     # distance terms of the previous coil pair: coils at the same offset (concentric coils)
@@ -107,21 +146,26 @@ def dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, C, dC_dt, dC_dphi, dC_dMso, 
 
 
 @njit(cache=True)
-def dipole_batch(L_so, M_so, L_se, M_se, gain, Rs, ts, C):
-    """Couplings ``C (N, n_so, n_se)`` for poses ``Rs (N, 3, 3)``, ``ts (N, 3)``."""
-    n_so = L_so.shape[1]
-    n_se = L_se.shape[1]
-    dummy = np.empty((n_so, n_se, 3))
+def dipole_batch(mdl, Rs, ts, C):
+    """Couplings ``C (N, n_so, n_se)`` of the packed model ``mdl`` for poses
+    ``Rs (N, 3, 3)``, ``ts (N, 3)``."""
+    geo = unpack_model(mdl, 1.0)
+    dummy = np.empty((C.shape[1], C.shape[2], 3))
+    jac = (dummy, dummy, dummy, dummy)
+    # the flag as a run-time value (not a literal), so that every caller shares one compiled
+    # specialisation of dipole_eval
+    want = np.zeros(1, dtype=np.bool_)
     for k in range(Rs.shape[0]):
-        dipole_eval(L_so, M_so, L_se, M_se, gain, Rs[k], ts[k], C[k], dummy, dummy, dummy,
-                    dummy, False)
+        dipole_eval(geo, Rs[k], ts[k], C[k], jac, want[0])
 
 
 @njit(cache=True)
-def dipole_batch_jac(L_so, M_so, L_se, M_se, gain, Rs, ts, C, dC_dt, dC_dphi, dC_dMso,
-                     dC_dMse_src):
-    """Couplings and per-sample derivatives for a batch (see ``dipole_eval``)."""
+def dipole_batch_jac(mdl, Rs, ts, C, jac):
+    """Couplings and per-sample derivatives ``jac = (dC_dt, dC_dphi, dC_dMso, dC_dMse_src)``
+    (each (N, n_so, n_se, 3)) for a batch (see ``dipole_eval``)."""
+    geo = unpack_model(mdl, 1.0)
+    dt, dphi, dMso, dMse = jac
+    want = np.ones(1, dtype=np.bool_)  # run-time flag, as in dipole_batch
     for k in range(Rs.shape[0]):
-        dipole_eval(L_so, M_so, L_se, M_se, gain, Rs[k], ts[k], C[k], dC_dt[k], dC_dphi[k],
-                    dC_dMso[k], dC_dMse_src[k], True)
+        dipole_eval(geo, Rs[k], ts[k], C[k], (dt[k], dphi[k], dMso[k], dMse[k]), want[0])
 

@@ -2,21 +2,21 @@
 
 from __future__ import annotations
 
+import struct
 import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from ..field import DipoleModel
+from ..field import ILEMT_GAIN, DipoleModel
 from ._calibration import Calibration, check_correction_matrix, check_model_moments
 from ._ilemt import file_sha256
 
 __all__ = ["read_ilemt_calibration"]
 
-#: ILEMT's fixed coupling scale (1/250, docs/ilemt-data.md#dipole-model).
-_GAIN = 1.0 / 250.0
 
 _QUADRUPOLE_FIELDS = ("q_source_pos", "q_source_moment", "q_sensor_pos", "q_sensor_moment",
                       "q_source_distance", "q_sensor_distance", "pin_quadrupole")
@@ -98,6 +98,7 @@ def read_ilemt_calibration(path) -> Calibration:
         since the dipole model ignores them).
     """
     import scipy.io
+    from scipy.io.matlab import MatReadError
 
     path = Path(path)
     if not path.is_file():
@@ -105,7 +106,8 @@ def read_ilemt_calibration(path) -> Calibration:
                                 f"{str(path)!r}")
     try:
         d = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
-    except Exception as exc:  # noqa: BLE001 - loadmat raises many types on damaged files
+    except (ValueError, TypeError, OSError, KeyError, IndexError, EOFError, NotImplementedError,
+            MatReadError, zlib.error, struct.error) as exc:
         msg = " ".join(str(exc).split())[:120]
         raise InputError(f"expected an ILEMT calibration .mat file (MATLAB v5), got "
                          f"{path.name} that cannot be read ({type(exc).__name__}: {msg})") from None
@@ -114,7 +116,7 @@ def read_ilemt_calibration(path) -> Calibration:
         M_so=_matrix(d, "d_source_moment", (3, 3), path),
         L_se=_matrix(d, "d_sensor_pos", (3, 3), path),
         M_se=_matrix(d, "d_sensor_moment", (3, 3), path),
-        gain=_GAIN,
+        gain=ILEMT_GAIN,
     )
     check_model_moments(model, f"{path.name}: ")
     fixtures = {k: _matrix(d, k, (6,), path)

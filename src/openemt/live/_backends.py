@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from .._constants import SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
 from ..geometry import pose_from_vector
 from ..signal import ChannelLayout, RawSignalConfig, RawSimulator, read_raw
@@ -148,7 +149,7 @@ class SimulatedBackend(Backend):
                  duration: float | None = None, offsets=None):
         self.model = default_model() if model is None else model
         if config is None:
-            config = RawSignalConfig(mains_amplitudes=(0.01, 0.002, 0.003))
+            config = RawSignalConfig(mains_amplitudes=SIMULATED_MAINS_AMPLITUDES_V)
         traj = default_trajectory if trajectory is None else trajectory
         sim_model = self.model
         if offsets is not None:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 from ..signal import Demodulated, Demodulator
 from ..solve import Status, solve_lm
@@ -353,7 +354,7 @@ class TrackingPipeline:
     """
 
     def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
-                 sensors=None, filter=None, output_rate: float = 1500.0,
+                 sensors=None, filter=None, output_rate: float = OUTPUT_RATE_HZ,
                  window: str = "hann", phase=None, distortion_threshold: float = 1e-3,
                  igtl=None, log: TrackLog | None = None, igtl_every: int = 1,
                  status_every: int = 150, serial_small_batches: bool = True):

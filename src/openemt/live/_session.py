@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._constants import SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
 from ._tracker_file import TrackerSpec
 
@@ -90,7 +91,7 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
                          f"{preset.n_source} carriers for the simulated preset "
                          f"{preset.name!r}, got {sorted(n_coils)} coils and "
                          f"{len(spec.frequencies)} carriers")
-    kw = {"mains_amplitudes": sim.get("mains_amplitudes", (0.01, 0.002, 0.003))}
+    kw = {"mains_amplitudes": sim.get("mains_amplitudes", SIMULATED_MAINS_AMPLITUDES_V)}
     for key, over in (("noise_rms", noise_rms), ("eddy_strength", eddy_strength)):
         v = sim.get(key) if over is None else over
         if v is not None:

@@ -18,6 +18,7 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 
 __all__ = [
@@ -117,7 +118,7 @@ class TrackerSpec:
     sensors: tuple
     sensor_gain: float = 1.0
     reference_gain: float = 1.0
-    output_rate: float = 1500.0
+    output_rate: float = OUTPUT_RATE_HZ
     window: str = "hann"
     distortion_threshold: float = 1e-3
     filter: FilterSpec = field(default_factory=FilterSpec)
@@ -328,7 +329,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
 
     dem = r.get(doc, "", "demodulation", "table", {})
     _unknown_keys(r, dem, "demodulation", ("output_rate", "window", "distortion_threshold"))
-    rate = r.get(dem, "demodulation", "output_rate", "number", 1500.0)
+    rate = r.get(dem, "demodulation", "output_rate", "number", OUTPUT_RATE_HZ)
     if not 0 < rate <= fs:
         raise r.fail("demodulation.output_rate", f"a rate in (0, {fs:g}] Hz", rate)
     window = r.get(dem, "demodulation", "window", "string", "hann")

@@ -163,7 +163,7 @@ def _pose_conditions(dataset, cal, concentric, D):
 
     hemi = hemisphere_from_positions(D[:, :3, 3])
     res = solve(dataset.signed_real(), cal, hemisphere=hemi, apply_correction=False,
-                concentric_calibration=concentric)
+                concentric_calibration=concentric, retry_resnorm=ILEMT_VALID_RESNORM)
     variants = {"calibration": (res, res.poses)}
     if cal.linear_correction is not None:
         variants["calibration + correction"] = (res, corrected_poses(res.poses,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 
+from ..calibrate._check import ILEMT_VALID_RESNORM
 from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_DEG, STAGE_UNCERTAINTY_MM
 from ._html import Report
 
@@ -42,7 +43,8 @@ def accuracy_section(rep: Report, rows, *, with_paper: bool) -> None:
     rep.paragraph(f"trans_uncert_mm = sqrt(RMS^2 + {u_mm:.3f}^2) and rot_uncert_deg = "
                   f"sqrt(RMS^2 + {u_deg:.2f}^2) combine the calibration error u(cal) with the "
                   "stage uncertainty (MacLachlan et al. 2025, eq. 10). Invalid solutions "
-                  "(residue >= 1e-5) are kept in the statistics and counted in n_invalid.",
+                  f"(residue >= {ILEMT_VALID_RESNORM:g}) are kept in the statistics and counted "
+                  "in n_invalid.",
                   note=True)
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 from ._rawsim import ChannelLayout
 
@@ -79,7 +80,7 @@ class Demodulated:
         return num / np.where(den > 0, den, np.inf)
 
 
-def frame_length(layout: ChannelLayout, output_rate: float = 1500.0,
+def frame_length(layout: ChannelLayout, output_rate: float = OUTPUT_RATE_HZ,
                  window: str = "hann") -> tuple[int, int]:
     """Hop ``H`` and frame length ``L`` (samples) for a layout; validates the carrier plan.
 
@@ -159,7 +160,7 @@ class Demodulator:
     concatenated samples. At most ``L + H`` samples are buffered.
     """
 
-    def __init__(self, layout: ChannelLayout, *, output_rate: float = 1500.0,
+    def __init__(self, layout: ChannelLayout, *, output_rate: float = OUTPUT_RATE_HZ,
                  window: str = "hann", phase=None, t0: float = 0.0):
         if not isinstance(layout, ChannelLayout):
             raise TypeError(f"expected `layout` to be a ChannelLayout, got "
@@ -237,7 +238,7 @@ class Demodulator:
         return Demodulated(C, times, ref / self.layout.reference_gain)
 
 
-def demodulate(samples, layout: ChannelLayout, *, output_rate: float = 1500.0,
+def demodulate(samples, layout: ChannelLayout, *, output_rate: float = OUTPUT_RATE_HZ,
                window: str = "hann", phase=None, t0: float = 0.0) -> Demodulated:
     """Demodulate raw samples ``(n_samples, n_channels)`` into complex couplings.
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 
 __all__ = [
@@ -321,7 +322,7 @@ class RawSimulator:
 
 
 def simulate_raw(model, trajectory, duration: float, config: RawSignalConfig | None = None, *,
-                 seed=0, truth_rate: float = 1500.0, coupling_stride: int = 4) -> RawSignal:
+                 seed=0, truth_rate: float = OUTPUT_RATE_HZ, coupling_stride: int = 4) -> RawSignal:
     """Simulate ``duration`` seconds of raw samples along a trajectory.
 
     Parameters

@@ -30,6 +30,8 @@ Each resolves the +/- ambiguity with the hemisphere direction ``n``: the solutio
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -38,6 +40,7 @@ from ..field import DipoleModel
 from ..field._dipole_kernel import dipole_eval
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._linalg import (
+    det33,
     dominant_eigvec,
     euler_zyx_matrix,
     quat_matrix,
@@ -52,9 +55,6 @@ from ._linalg import (
 )
 from ._packing import (
     M_GAIN,
-    O_AMBIGUITY_TOL,
-    O_MAX_RANGE,
-    O_MAX_RELATIVE_RESIDUAL,
     O_RANK_TOL,
     pack_model,
     pack_options,
@@ -66,7 +66,6 @@ from ._validity import (
     MAX_RELATIVE_RESIDUAL,
     check_validity_options,
     classify,
-    relative_residual,
 )
 
 __all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "new_outputs",
@@ -78,6 +77,10 @@ CF_SVD = 0
 CF_KUIPERS = 1
 CF_KIM18 = 2
 _METHODS = {"svd": CF_SVD, "kuipers": CF_KUIPERS, "kim18": CF_KIM18}
+# outcomes of the fast concentric path
+_FAST_USE_SVD = 0
+_FAST_DONE = 1
+_FAST_RANK_DEFICIENT = 2
 
 
 # ------------------------------------------------------------------------------------------
@@ -110,7 +113,7 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
             np.full(C.shape[0], -1.0))
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _spectral_norm33(C):
     """Spectral norm of a real 3x3 matrix: square root of the top eigenvalue of ``C^T C``."""
     c00, c01, c02 = C[0, 0], C[0, 1], C[0, 2]
@@ -125,7 +128,7 @@ def _spectral_norm33(C):
     return np.sqrt(max(lam, 0.0))
 
 
-@njit(cache=True)
+@njit
 def spectral_norm(C, G):
     """Spectral norm of a real matrix ``C`` (n_so, n_se); ``G`` is (n_se, n_se) scratch."""
     n_so, n_se = C.shape
@@ -143,7 +146,9 @@ def spectral_norm(C, G):
         return np.sqrt(max(sym3_lambda_max(G[0, 0], G[0, 1], G[0, 2], G[1, 1], G[1, 2],
                                             G[2, 2]), 0.0))
     # power iteration on the Gram matrix (other sizes; not on the hot path of 3x3 trackers)
-    v = np.ones(n_se) / np.sqrt(n_se)
+    v = np.empty(n_se)
+    for a in range(n_se):
+        v[a] = 1.0 / np.sqrt(n_se)
     w = np.empty(n_se)
     lam = 0.0
     for _ in range(200):
@@ -152,14 +157,18 @@ def spectral_norm(C, G):
             for b in range(n_se):
                 acc += G[a, b] * v[b]
             w[a] = acc
-        nw = np.sqrt(np.sum(w * w))
+        nw = 0.0
+        for a in range(n_se):
+            nw += w[a] * w[a]
+        nw = np.sqrt(nw)
         if nw == 0.0:
             return 0.0
         if abs(nw - lam) <= 1e-15 * nw:
             lam = nw
             break
         lam = nw
-        v[:] = w / nw
+        for a in range(n_se):
+            v[a] = w[a] / nw
     return np.sqrt(lam)
 
 
@@ -181,7 +190,7 @@ def _spectral_norms(C):
 # ------------------------------------------------------------------------------------------
 # the compiled kernel
 # ------------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     """Singular values, dominant direction and rotation of ``C0 = k H R`` without a full SVD.
 
@@ -190,8 +199,9 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     ``H^-1 C0 = U diag(s0/2, -s1, -s2) V^T``: ``U diag(1, -1, -1) V^T`` (the Kim18 rotation and
     the Teixeira Silva et al. 2017 solution), with Markley's determinant correction when ``det C0 < 0``, found as
     a unit quaternion ``q`` by Davenport's q-method (``wahba_quat``) from the known singular
-    values. Returns 1 (done: ``s``, ``U[:, 0]``, ``q``, ``R`` set), 2 (rank deficient) or 0
-    (fall back to the SVD path: a nearly double top singular value, or no usable eigenvector).
+    values. Returns ``_FAST_DONE`` (``s``, ``U[:, 0]``, ``q``, ``R`` set), ``_FAST_RANK_DEFICIENT``
+    or ``_FAST_USE_SVD`` (fall back to the SVD path: a nearly double top singular value, or no
+    usable eigenvector).
     """
     for i in range(3):
         for j in range(i + 1):
@@ -200,18 +210,18 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
             G[j, i] = acc
     sym3_eigvals(G, s)
     if not s[0] > 0.0:
-        return 2
+        return _FAST_RANK_DEFICIENT
     lam0 = s[0]
     lam1 = s[1]
     for i in range(3):
         s[i] = np.sqrt(max(s[i], 0.0))
     if not s[2] > rank_tol * s[0]:
-        return 2
+        return _FAST_RANK_DEFICIENT
     if not lam0 > 1.05 * lam1:
-        return 0
+        return _FAST_USE_SVD
     u = X[0]
     if not dominant_eigvec(G, lam0, u):
-        return 0
+        return _FAST_USE_SVD
     u0, u1, u2 = u[0], u[1], u[2]
     U[0, 0], U[1, 0], U[2, 0] = u0, u1, u2
     # G <- H^-1 C0 / k with H^-1 = 1.5 u u^T - I and k = (s0/2 + s1 + s2)/3; its singular
@@ -226,18 +236,25 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
         G[0, j] = (1.5 * u0 * dot - C0[0, j]) * ik
         G[1, j] = (1.5 * u1 * dot - C0[1, j]) * ik
         G[2, j] = (1.5 * u2 * dot - C0[2, j]) * ik
-    det = (C0[0, 0] * (C0[1, 1] * C0[2, 2] - C0[1, 2] * C0[2, 1])
-           - C0[0, 1] * (C0[1, 0] * C0[2, 2] - C0[1, 2] * C0[2, 0])
-           + C0[0, 2] * (C0[1, 0] * C0[2, 1] - C0[1, 1] * C0[2, 0]))
+    det = det33(C0)
     if det < 0.0:
         lam -= 2.0 * min(w0, min(w1, w2))
     if not wahba_quat(G, lam * ik, q, M):
-        return 0
+        return _FAST_USE_SVD
     quat_matrix(q, R)
-    return 1
+    return _FAST_DONE
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
+def _cos_sin(x, y):
+    """Cosine and sine of ``atan2(y, x)`` (angle 0 for ``x = y = 0``)."""
+    h = np.sqrt(x * x + y * y)
+    if h > 0.0:
+        return x / h, y / h
+    return 1.0, 0.0
+
+
+@njit
 def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
     """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``.
 
@@ -264,7 +281,7 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
     u0 = 0.0
     u1 = 0.0
     u2 = 0.0
-    fast = 0
+    fast = _FAST_USE_SVD
     if method == CF_KUIPERS:
         # Kuipers: invariants of C0 C0^T = k^2 (I + 3 u u^T)
         for i in range(3):
@@ -274,9 +291,7 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
         if not k2 > 0.0:
             return ST_INVALID_INPUT
         k = np.sqrt(k2)
-        det = (C0[0, 0] * (C0[1, 1] * C0[2, 2] - C0[1, 2] * C0[2, 1])
-               - C0[0, 1] * (C0[1, 0] * C0[2, 2] - C0[1, 2] * C0[2, 0])
-               + C0[0, 2] * (C0[1, 0] * C0[2, 1] - C0[1, 1] * C0[2, 0]))
+        det = det33(C0)
         if not abs(det) > rank_tol * 2.0 * k2 * k:
             return ST_INVALID_INPUT
         m = 0
@@ -304,9 +319,9 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
         dist = (gain / k) ** (1.0 / 3.0)
     else:
         fast = _fast_concentric(C0, rank_tol, s, U, R, B, V, q, M)
-        if fast == 2:
+        if fast == _FAST_RANK_DEFICIENT:
             return ST_INVALID_INPUT
-        if fast == 0:
+        if fast == _FAST_USE_SVD:
             svd3(C0, U, s, V)
             if not s[0] > 0.0 or not s[2] > rank_tol * s[0]:
                 return ST_INVALID_INPUT
@@ -341,33 +356,17 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
         # of the angles taken directly from the matrix entries instead of through the angles
         sth = min(max(-B[2, 0], -1.0), 1.0)
         cth = np.sqrt(1.0 - sth * sth)
-        h = np.sqrt(B[0, 0] * B[0, 0] + B[1, 0] * B[1, 0])
-        if h > 0.0:
-            cps = B[0, 0] / h
-            sps = B[1, 0] / h
-        else:
-            cps = 1.0
-            sps = 0.0
-        h = np.sqrt(B[2, 1] * B[2, 1] + B[2, 2] * B[2, 2])
-        if h > 0.0:
-            cph = B[2, 2] / h
-            sph = B[2, 1] / h
-        else:
-            cph = 1.0
-            sph = 0.0
+        cps, sps = _cos_sin(B[0, 0], B[1, 0])
+        cph, sph = _cos_sin(B[2, 2], B[2, 1])
         euler_zyx_matrix(cps, sps, cth, sth, cph, sph, R)
-    elif fast == 0:
+    elif fast == _FAST_USE_SVD:
         # Kim18 (docs/paper-procedure.md#kim18): Y = C0^T = V S U^T, R = V_Y diag(1,-1,-1) U_Y^T
         # = U diag(1,-1,-1) V^T. The Teixeira Silva et al. 2017 Wahba step min ||k R - H^-1 C0|| gives the same
         # rotation: H^-1 C0 = U diag(s0/2, -s1, -s2) V^T. When noise makes det(U V^T) < 0 both
         # flip the axis of the smallest Wahba weight (Markley's determinant correction) so
         # that R stays a rotation.
-        detU = (U[0, 0] * (U[1, 1] * U[2, 2] - U[1, 2] * U[2, 1])
-                - U[0, 1] * (U[1, 0] * U[2, 2] - U[1, 2] * U[2, 0])
-                + U[0, 2] * (U[1, 0] * U[2, 1] - U[1, 1] * U[2, 0]))
-        detV = (V[0, 0] * (V[1, 1] * V[2, 2] - V[1, 2] * V[2, 1])
-                - V[0, 1] * (V[1, 0] * V[2, 2] - V[1, 2] * V[2, 0])
-                + V[0, 2] * (V[1, 0] * V[2, 1] - V[1, 1] * V[2, 0]))
+        detU = det33(U)
+        detV = det33(V)
         d0, d1, d2 = 1.0, -1.0, -1.0
         if detU * detV < 0.0:
             w0, w1, w2 = 0.5 * s[0], s[1], s[2]
@@ -383,68 +382,65 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
     return ST_CONVERGED
 
 
-@njit(cache=True)
+@njit
 def closed_form_scratch():
     """Scratch arrays of :func:`closed_form_one`: ``(C0, U, s, V, B, q, M)``."""
     return (np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty((3, 3)),
             np.empty(4), np.empty((4, 4)))
 
 
-@njit(cache=True)
+@njit(inline="always")
 def normalise_coupling(Cm, cn_in, Cn, G):
-    """``Cn = Cm / s`` with ``s = ||Cm||_F`` (computed without overflow or underflow).
+    """``Cn = Cm / s`` with ``s`` the power of two just above ``max |Cm|``: an exact scaling,
+    so the normalised coupling solved with the gain divided by ``s`` gives bit for bit the pose
+    of the unscaled problem, for couplings of any scale (docs/solve.md#validity-rule).
 
-    Returns ``(s, res_fac)`` with ``res_fac = s^2 / ||Cm||_2``, so that the sum of squares of
-    a normalised residual times ``res_fac`` is ILEMT's resnorm; ``cn_in`` is the spectral norm
-    when known (complex input), else negative. ``s = 0`` marks invalid input (non-finite or
-    zero). Solving the normalised coupling with the gain divided by ``s`` gives the same pose
-    for couplings of any scale (docs/solve.md#validity-rule).
+    Returns ``(s, cn, fn)``: the scale, ``cn = ||Cm||_2`` (the spectral norm ILEMT's resnorm is
+    divided by; ``cn_in`` when known (complex input), else computed here for negative
+    ``cn_in``) and ``fn = ||Cn||_F``. ``s = 0`` marks invalid input: non-finite, zero, or a
+    largest magnitude outside about 1e-307..1e307.
     """
     mx = 0.0
     for i in range(Cm.shape[0]):
         for j in range(Cm.shape[1]):
             v = Cm[i, j]
             if not np.isfinite(v):
-                return 0.0, 0.0
+                return 0.0, 0.0, 0.0
             mx = max(mx, abs(v))
-    if not mx > 0.0:
-        return 0.0, 0.0
+    s = math.ldexp(1.0, math.frexp(mx)[1])
+    inv = 1.0 / s
+    if not (mx > 0.0 and np.isfinite(s) and np.isfinite(inv)):
+        return 0.0, 0.0, 0.0
     ss = 0.0
     for i in range(Cm.shape[0]):
         for j in range(Cm.shape[1]):
-            v = Cm[i, j] / mx
-            ss += v * v
-    s = mx * np.sqrt(ss)
-    if not np.isfinite(s):
-        return 0.0, 0.0
-    for i in range(Cm.shape[0]):
-        for j in range(Cm.shape[1]):
-            Cn[i, j] = Cm[i, j] / s
-    if cn_in < 0.0:
-        sn = spectral_norm(Cn, G)
-        if not sn > 0.0:
-            return 0.0, 0.0
-        return s, s / sn
-    if not (cn_in > 0.0 and np.isfinite(cn_in)):
-        return 0.0, 0.0
-    return s, s * (s / cn_in)
+            c = Cm[i, j] * inv
+            Cn[i, j] = c
+            ss += c * c
+    cn = cn_in if cn_in >= 0.0 else spectral_norm(Cn, G) * s
+    if not (cn > 0.0 and np.isfinite(cn)):
+        return 0.0, 0.0, 0.0
+    return s, cn, np.sqrt(ss)
 
 
-@njit(cache=True)
-def residuals_at(mdl, R, t, Ck, cn_in, Cp, G, scratch):
+@njit(inline="always")
+def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac):
     """``(resnorm, relative residual)`` of the pose ``(R, t)`` for the measured coupling ``Ck``
-    under the packed model ``mdl``, evaluated at the couplings' own scale. ``cn_in`` is the
-    spectral norm of ``Ck`` if known, else negative; ``Cp`` receives the predicted coupling;
-    ``G`` (n_se, n_se) and ``scratch`` (n_so, n_se, 3) are scratch."""
-    L_so, M_so, L_se, M_se, gain = unpack_model(mdl, 1.0)
-    dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, scratch, scratch, scratch, scratch,
-                False)
+    (scale ``s``, spectral norm ``cn``, normalised Frobenius norm ``fn``, from
+    :func:`normalise_coupling`) under the packed model ``mdl``, evaluated at the couplings'
+    own scale. ``Cp`` receives the predicted coupling; ``jac`` (the derivative arrays of
+    ``dipole_eval``, unused) is scratch."""
+    no_jac = Ck.shape[0] < 0  # False at run time: one dipole_eval specialisation for all
+    dipole_eval(geo, R, t, Cp, jac, no_jac)
+    inv = 1.0 / s
     ss = 0.0
+    rr = 0.0
     for i in range(Ck.shape[0]):
         for j in range(Ck.shape[1]):
-            ss += (Cp[i, j] - Ck[i, j]) ** 2
-    cn = cn_in if cn_in >= 0.0 else spectral_norm(Ck, G)
-    return ss / cn, relative_residual(Cp, Ck)
+            d = Cp[i, j] - Ck[i, j]
+            ss += d * d
+            rr += (d * inv) ** 2
+    return ss / cn, np.sqrt(rr) / fn
 
 
 @njit(cache=True)
@@ -460,13 +456,16 @@ def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
     Cp = np.empty((3, 3))
     rv = np.empty(3)
     dummy = np.empty((3, 3, 3))
-    lo = np.full(3, -np.inf)
-    hi = np.full(3, np.inf)
+    jac = (dummy, dummy, dummy, dummy)
+    box = np.empty((2, 3))
+    box[0] = -np.inf
+    box[1] = np.inf
     one_n = nvec.shape[0] == 1
+    geo = unpack_model(mdl, 1.0)
     for k in range(N):
         iterations[k] = 0
         n = nvec[0] if one_n else nvec[k]
-        s = normalise_coupling(C[k], cnorm[k], Cn, G)[0]
+        s, cn, fn = normalise_coupling(C[k], cnorm[k], Cn, G)
         if not s > 0.0:
             _store_invalid(k, out)
             continue
@@ -479,13 +478,12 @@ def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
         else:
             rotvec_from_matrix(R, rv)
         store_pose(k, R, t, rv, poses, vecs)
-        residual[k], rho = residuals_at(mdl, R, t, C[k], cnorm[k], Cp, G, dummy)
+        residual[k], rho = residuals_at(geo, R, t, C[k], s, cn, fn, Cp, jac)
         relres[k] = rho
-        status[k] = classify(False, rho, t, n, lo, hi, opts[O_AMBIGUITY_TOL],
-                             opts[O_MAX_RELATIVE_RESIDUAL], opts[O_MAX_RANGE])
+        status[k] = classify(False, rho, t, n, box, opts)
 
 
-@njit(cache=True)
+@njit
 def _store_invalid(k, out):
     """Row ``k`` of the outputs ``(poses, vecs, status, residual, relres, iterations)``: NaN
     pose, ``INVALID_INPUT``."""

@@ -25,7 +25,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@njit
 def svd3(A, U, s, V):
     """Singular value decomposition ``A = U diag(s) V^T`` of a 3x3 matrix (one-sided Jacobi).
 
@@ -88,7 +88,7 @@ def svd3(A, U, s, V):
         U[2, 2] = U[0, 0] * U[1, 1] - U[1, 0] * U[0, 1]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def exp_so3(phi, R):
     """Rotation matrix ``R = exp([phi]x)`` (Rodrigues), written into ``R`` (3, 3)."""
     th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
@@ -111,7 +111,7 @@ def exp_so3(phi, R):
     R[2, 1] = a * x + b * y * z
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def rotvec_from_matrix(R, out):
     """Rotation vector (angle in [0, pi]) of a rotation matrix, through a unit quaternion."""
     tr = R[0, 0] + R[1, 1] + R[2, 2]
@@ -145,7 +145,7 @@ def rotvec_from_matrix(R, out):
     _rotvec_from_wxyz(w, x, y, z, out)
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def cholesky_solve(A, b, n, x, L):
     """Solve ``A x = b`` for a symmetric positive-definite ``n x n`` block of ``A``.
 
@@ -175,7 +175,7 @@ def cholesky_solve(A, b, n, x, L):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def euler_zyx_matrix(cps, sps, cth, sth, cph, sph, R):
     """``R = Rz(psi) Ry(theta) Rx(phi)`` from the cosines and sines of the three angles,
     written into ``R`` (3, 3)."""
@@ -190,7 +190,7 @@ def euler_zyx_matrix(cps, sps, cth, sth, cph, sph, R):
     R[2, 2] = cth * cph
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _sym3_trig(a00, a01, a02, a11, a12, a22):
     """``(q, p, c)`` of the trigonometric eigenvalue formula of a symmetric 3x3 matrix: the
     eigenvalues are ``q + 2 p cos(phi + 2 pi k / 3)`` with ``c = cos(phi)``, phi in [0, pi/3];
@@ -211,14 +211,14 @@ def _sym3_trig(a00, a01, a02, a11, a12, a22):
     return q, p, np.cos(np.arccos(r) / 3.0)
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def sym3_lambda_max(a00, a01, a02, a11, a12, a22):
     """Largest eigenvalue of the symmetric 3x3 matrix with these upper-triangle entries."""
     q, p, c = _sym3_trig(a00, a01, a02, a11, a12, a22)
     return q + 2.0 * p * c
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def sym3_eigvals(A, lam):
     """Eigenvalues of a symmetric 3x3 matrix, decreasing, into ``lam`` (trigonometric form)."""
     q, p, c = _sym3_trig(A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2])
@@ -229,7 +229,7 @@ def sym3_eigvals(A, lam):
     lam[1] = 3.0 * q - lam[0] - lam[2]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def dominant_eigvec(A, lam0, v):
     """Unit eigenvector of symmetric ``A`` for its (simple) eigenvalue ``lam0``: the largest
     cross product of two rows of ``A - lam0 I``. Returns False if none is usable."""
@@ -260,13 +260,20 @@ def dominant_eigvec(A, lam0, v):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
     return (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20)
             + a02 * (a10 * a21 - a11 * a20))
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
+def det33(A):
+    """Determinant of a 3x3 matrix (cofactor expansion along the first row)."""
+    return _det3(A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2], A[2, 0], A[2, 1],
+                 A[2, 2])
+
+
+@njit(inline="always")
 def wahba_quat(B, lam, q, M):
     """Unit quaternion ``q = (w, x, y, z)``, ``w >= 0``, of the rotation maximising
     ``tr(R^T B)`` (Davenport's q-method), given the largest eigenvalue ``lam`` of Davenport's
@@ -324,7 +331,7 @@ def wahba_quat(B, lam, q, M):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def quat_matrix(q, R):
     """Rotation matrix of a unit quaternion ``q = (w, x, y, z)`` into ``R`` (3, 3)."""
     w, x, y, z = q[0], q[1], q[2], q[3]
@@ -342,7 +349,7 @@ def quat_matrix(q, R):
     R[2, 1] = 2.0 * (yz + wx)
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _rotvec_from_wxyz(w, x, y, z, out):
     """Rotation vector (angle in [0, pi]) of the unit quaternion (w, x, y, z), ``w >= 0``."""
     nv = np.sqrt(x * x + y * y + z * z)
@@ -357,14 +364,14 @@ def _rotvec_from_wxyz(w, x, y, z, out):
     out[2] = f * z
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def rotvec_from_quat(q, out):
     """Rotation vector (angle in [0, pi]) of a unit quaternion with ``w >= 0``."""
     _rotvec_from_wxyz(q[0], q[1], q[2], q[3], out)
 
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def store_pose(k, R, t, rv, poses, vecs):
     """Write sample ``k`` of the batch outputs: pose ``[[R, t], [0, 1]]`` into ``poses (N, 4, 4)``
     and ``[t, rv]`` into ``vecs (N, 6)``."""
@@ -378,7 +385,7 @@ def store_pose(k, R, t, rv, poses, vecs):
     poses[k, 3, 3] = 1.0
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def store_nan_pose(k, poses, vecs):
     """Sample ``k`` of the batch outputs set to NaN (no pose, never a plausible one)."""
     for i in range(4):

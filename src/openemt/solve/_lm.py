@@ -34,12 +34,10 @@ from ._closed_form import (
 )
 from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix, store_pose
 from ._packing import (
-    O_AMBIGUITY_TOL,
     O_CF_GAIN,
     O_FIVE_DOF,
     O_MAX_ITER,
-    O_MAX_RANGE,
-    O_MAX_RELATIVE_RESIDUAL,
+    O_RANK_TOL,
     O_RETRIES,
     O_RETRY_RELATIVE,
     O_RETRY_RESNORM,
@@ -58,7 +56,7 @@ STOP_CONVERGED = 0
 STOP_ITERATION_LIMIT = 1
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _project(t, n, lo, hi):
     d = t[0] * n[0] + t[1] * n[1] + t[2] * n[2]
     if d < 0.0:
@@ -72,7 +70,7 @@ def _project(t, n, lo, hi):
             t[a] = hi[a]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _rot_basis(R, M_se, five, basis):
     """Rotation increment directions (columns of ``basis``); returns their number."""
     if not five:
@@ -105,10 +103,9 @@ def _rot_basis(R, M_se, five, basis):
     return 2
 
 
-@njit(cache=True, inline="always")
-def _eval(geo, Cm, R, t, Cp, dt, dphi, d1, d2, want):
-    L_so, M_so, L_se, M_se, gain = geo
-    dipole_eval(L_so, M_so, L_se, M_se, gain, R, t, Cp, dt, dphi, d1, d2, want)
+@njit(inline="always")
+def _eval(geo, Cm, R, t, Cp, jac, want):
+    dipole_eval(geo, R, t, Cp, jac, want)
     ss = 0.0
     for i in range(Cm.shape[0]):
         for j in range(Cm.shape[1]):
@@ -117,7 +114,7 @@ def _eval(geo, Cm, R, t, Cp, dt, dphi, d1, d2, want):
     return ss
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2):
     """The pose ``(R2, t2)`` one step ``delta`` from ``(R, t)``, projected onto the
     constraints (``phi`` receives the rotation increment)."""
@@ -135,7 +132,7 @@ def _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2):
             R2[a, b] = dR[a, 0] * R[0, b] + dR[a, 1] * R[1, b] + dR[a, 2] * R[2, b]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _copy_pose(R_from, t_from, R_to, t_to):
     for a in range(3):
         t_to[a] = t_from[a]
@@ -143,13 +140,16 @@ def _copy_pose(R_from, t_from, R_to, t_to):
             R_to[a, b] = R_from[a, b]
 
 
-@njit(cache=True)
+@njit
 def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     """Levenberg-Marquardt from ``(R, t)`` (updated in place). Returns ``(cost, iterations,
     stop)`` with ``stop`` = ``STOP_CONVERGED`` (converged, or stalled at a minimum) or
     ``STOP_ITERATION_LIMIT``."""
-    (Cp, dt, dphi, Cp2, dt2, dphi2, d1, d2, Jb, JtJ, A, Lc, g, delta, basis, R2, t2, dR,
-     phi) = lmw
+    Cp, jac, Cp2, jac2, Jb, JtJ, A, Lc, g, delta, basis, R2, t2, dR, phi = lmw
+    dt = jac[0]
+    dphi = jac[1]
+    dt2 = jac2[0]
+    dphi2 = jac2[1]
     lo = box[0]
     hi = box[1]
     M_se = geo[3]
@@ -159,7 +159,8 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     n_so = Cm.shape[0]
     n_se = Cm.shape[1]
     _project(t, n, lo, hi)
-    cost = _eval(geo, Cm, R, t, Cp, dt, dphi, d1, d2, True)
+    with_jac = n_so > 0  # True at run time: one dipole_eval specialisation for all callers
+    cost = _eval(geo, Cm, R, t, Cp, jac, with_jac)
     lam = 1e-4
     lam_small = 1e-3
     prev_rel = 0.0
@@ -232,7 +233,7 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
                           np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]))
                 final = (prev_rel > 0.0 and lam <= lam_small and rel < 0.5 * prev_rel
                          and rel * rel / prev_rel <= xtol)
-                cost2 = _eval(geo, Cm, R2, t2, Cp2, dt2, dphi2, d1, d2, not final)
+                cost2 = _eval(geo, Cm, R2, t2, Cp2, jac2, not final)
                 if cost2 <= cost:
                     if final:
                         _copy_pose(R2, t2, R, t)
@@ -271,13 +272,16 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     return cost, it, stop
 
 
-@njit(cache=True)
+@njit
 def _canonical_5dof(R, t, L_se, M_se):
     """Replace R by the zero-roll rotation with the same sensor axis (coil position kept)."""
     p = np.empty(3)
     for a in range(3):
         p[a] = R[a, 0] * L_se[0, 0] + R[a, 1] * L_se[1, 0] + R[a, 2] * L_se[2, 0] + t[a]
-    m0 = M_se[:, 0] / np.sqrt(np.sum(M_se[:, 0] ** 2))
+    nm = np.sqrt(M_se[0, 0] ** 2 + M_se[1, 0] ** 2 + M_se[2, 0] ** 2)
+    m0 = np.empty(3)
+    for i in range(3):
+        m0[i] = M_se[i, 0] / nm
     a = np.empty(3)
     for i in range(3):
         a[i] = R[i, 0] * m0[0] + R[i, 1] * m0[1] + R[i, 2] * m0[2]
@@ -287,52 +291,55 @@ def _canonical_5dof(R, t, L_se, M_se):
     w[0] = m0[1] * a[2] - m0[2] * a[1]
     w[1] = m0[2] * a[0] - m0[0] * a[2]
     w[2] = m0[0] * a[1] - m0[1] * a[0]
-    sn = np.sqrt(np.sum(w * w))
+    sn = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    f = 0.0
     if sn < 1e-12 and c < 0.0:
         # 180 degrees: about any axis perpendicular to m0
         if abs(m0[0]) < 0.9:
             w[0], w[1], w[2] = 0.0, m0[2], -m0[1]
         else:
             w[0], w[1], w[2] = -m0[2], 0.0, m0[0]
-        w /= np.sqrt(np.sum(w * w))
-        w *= np.pi
+        f = np.pi / np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     elif sn > 0.0:
-        w *= np.arctan2(sn, c) / sn
+        f = np.arctan2(sn, c) / sn
+    if f != 0.0:
+        for i in range(3):
+            w[i] *= f
     exp_so3(w, R)
     for i in range(3):
         t[i] = p[i] - (R[i, 0] * L_se[0, 0] + R[i, 1] * L_se[1, 0] + R[i, 2] * L_se[2, 0])
 
 
-@njit(cache=True, inline="always")
-def _acceptable(cost, res_fac, opts):
+@njit(inline="always")
+def _acceptable(cost, res_fac, fn, opts):
     """No retry needed: the retry test (ILEMT's resnorm test and/or the relative residual)
-    holds for the normalised cost ``cost``."""
-    return cost * res_fac < opts[O_RETRY_RESNORM] and np.sqrt(cost) <= opts[O_RETRY_RELATIVE]
+    holds for the normalised cost ``cost`` (``res_fac`` converts it to the resnorm, ``fn`` is
+    the normalised coupling's Frobenius norm)."""
+    return (cost * res_fac < opts[O_RETRY_RESNORM]
+            and np.sqrt(cost) <= opts[O_RETRY_RELATIVE] * fn)
 
 
-@njit(cache=True)
-def _solve_sample(geo, Cm, res_fac, starts, n_bases, n, box, opts, retries, sw, lmw):
-    """Solve one sample from the pose vectors ``starts[:n_bases]`` with ILEMT's retry rule; the
-    best pose goes to ``sw``'s ``Rb, tb`` (NaN if no run gave a finite cost). Returns
-    ``(cost, iterations, stop)`` of the best run."""
+@njit
+def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
+    """Solve one sample from the pose vector ``start``, with ILEMT's sign-flip retries if
+    ``opts[O_RETRIES]``; the best pose goes to ``sw``'s ``Rb, tb`` (NaN if no run gave a
+    finite cost). Returns ``(cost, iterations, stop)`` of the best run."""
     R, t, Rb, tb, v0, rv = sw
     best = np.inf
     best_stop = STOP_ITERATION_LIMIT
     total_it = 0
     tb[:] = np.nan
     Rb[:, :] = np.nan
-    n_flips = 6 if retries else 0
-    # plain solves from each start first, then ILEMT's sign-flip retries of the last start
-    for trial in range(n_bases + n_flips):
-        src = starts[min(trial, n_bases - 1)]
+    n_flips = 6 if opts[O_RETRIES] != 0.0 else 0
+    # the plain solve first, then ILEMT's sign-flip retries
+    for trial in range(1 + n_flips):
         for a in range(6):
-            v0[a] = src[a]
+            v0[a] = start[a]
         # ILEMT: an initial pose outside the hemisphere gets its translation negated
         if v0[0] * n[0] + v0[1] * n[1] + v0[2] * n[2] < 0.0:
             v0[0], v0[1], v0[2] = -v0[0], -v0[1], -v0[2]
-        if trial >= n_bases:
-            c = trial - n_bases
-            v0[c] = -v0[c]
+        if trial >= 1:
+            v0[trial - 1] = -v0[trial - 1]
         for a in range(3):
             t[a] = v0[a]
             rv[a] = v0[3 + a]
@@ -343,19 +350,22 @@ def _solve_sample(geo, Cm, res_fac, starts, n_bases, n, box, opts, retries, sw, 
             best = cost
             best_stop = stop
             _copy_pose(R, t, Rb, tb)
-        if _acceptable(best, res_fac, opts):
+        if _acceptable(best, res_fac, fn, opts):
             break
     return best, total_it, best_stop
 
 
-@njit(cache=True)
+@njit
 def _workspace(n_so, n_se):
     """Scratch of one solve: ``(lmw, sw, Cn, G)`` -- the LM run's arrays, the sample's poses
     ``(R, t, Rb, tb, v0, rv)``, the normalised coupling and spectral-norm scratch."""
     m = n_so * n_se
-    lmw = (np.empty((n_so, n_se)), np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)),
-           np.empty((n_so, n_se)), np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)),
-           np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)), np.empty((m, 6)),
+    # the model derivatives the LM does not use share one scratch pair
+    d1 = np.empty((n_so, n_se, 3))
+    d2 = np.empty((n_so, n_se, 3))
+    jac = (np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)), d1, d2)
+    jac2 = (np.empty((n_so, n_se, 3)), np.empty((n_so, n_se, 3)), d1, d2)
+    lmw = (np.empty((n_so, n_se)), jac, np.empty((n_so, n_se)), jac2, np.empty((m, 6)),
            np.empty((6, 6)), np.empty((6, 6)), np.empty((6, 6)), np.empty(6), np.empty(6),
            np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3))
     sw = (np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(6),
@@ -363,15 +373,19 @@ def _workspace(n_so, n_se):
     return lmw, sw, np.empty((n_so, n_se)), np.empty((n_se, n_se))
 
 
-@njit(cache=True)
-def _finish(k, mdl, Ck, cn_in, n, box, opts, it, stop, sw, lmw, G, out):
+@njit
+def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, sw, lmw, out):
     """Store sample ``k``'s best pose (in ``sw``) and judge it by the validity rule, with the
     residuals evaluated at the pose stored and the couplings' own scale."""
     Rb = sw[2]
     tb = sw[3]
     rv = sw[5]
     poses, vecs, status, residual, relres, iterations = out
-    finite = np.all(np.isfinite(tb)) and np.all(np.isfinite(Rb))
+    finite = True
+    for a in range(3):
+        finite = finite and np.isfinite(tb[a])
+        for b in range(3):
+            finite = finite and np.isfinite(Rb[a, b])
     if opts[O_FIVE_DOF] != 0.0 and finite:
         geo = unpack_model(mdl, 1.0)
         _canonical_5dof(Rb, tb, geo[2], geo[3])
@@ -380,12 +394,11 @@ def _finish(k, mdl, Ck, cn_in, n, box, opts, it, stop, sw, lmw, G, out):
     rho = np.nan
     residual[k] = np.nan
     if finite:
-        residual[k], rho = residuals_at(mdl, Rb, tb, Ck, cn_in, lmw[0], G, lmw[1])
+        residual[k], rho = residuals_at(unpack_model(mdl, 1.0), Rb, tb, Ck, s, cn, fn, lmw[0],
+                                        lmw[1])
     relres[k] = rho
     iterations[k] = it
-    status[k] = classify(stop == STOP_ITERATION_LIMIT, rho, tb, n, box[0], box[1],
-                         opts[O_AMBIGUITY_TOL], opts[O_MAX_RELATIVE_RESIDUAL],
-                         opts[O_MAX_RANGE])
+    status[k] = classify(stop == STOP_ITERATION_LIMIT, rho, tb, n, box, opts)
 
 
 @njit(cache=True, nogil=True)
@@ -400,18 +413,19 @@ def lm_batch(mdl, C, cnorm, init, nvec, box, opts, out):
     """
     N = C.shape[0]
     lmw, sw, Cn, G = _workspace(C.shape[1], C.shape[2])
-    starts = np.empty((1, 6))
-    retries = opts[O_RETRIES] != 0.0
     for k in range(N):
-        s, res_fac = normalise_coupling(C[k], cnorm[k], Cn, G)
-        if not s > 0.0 or not np.all(np.isfinite(init[k])):
+        s, cn, fn = normalise_coupling(C[k], cnorm[k], Cn, G)
+        finite = True
+        for a in range(6):
+            finite = finite and np.isfinite(init[k, a])
+        if not s > 0.0 or not finite:
             _store_invalid(k, out)
             continue
         geo = unpack_model(mdl, s)
-        starts[0] = init[k]
-        it, stop = _solve_sample(geo, Cn, res_fac, starts, 1, nvec[k], box, opts, retries, sw,
+        res_fac = s * (s / cn)  # normalised sum of squares -> resnorm
+        it, stop = _solve_sample(geo, Cn, res_fac, fn, init[k], nvec[k], box, opts, sw,
                                  lmw)[1:]
-        _finish(k, mdl, C[k], cnorm[k], nvec[k], box, opts, it, stop, sw, lmw, G, out)
+        _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, sw, lmw, out)
 
 
 @njit(cache=True, nogil=True)
@@ -427,44 +441,48 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
     status = out[2]
     vecs = out[1]
     cws = closed_form_scratch()
-    starts = np.empty((1, 6))
+    start = np.empty(6)
     prev = first.copy()
+    # the first try of each sample: from the previous pose, without retries
+    plain = opts.copy()
+    plain[O_RETRIES] = 0.0
+    kim18 = np.int64(CF_KIM18)
     ncf = np.zeros(3)
     Rsave = np.empty((3, 3))
     tsave = np.empty(3)
     use_cf = opts[O_USE_CLOSED_FORM] != 0.0
     retries = opts[O_RETRIES] != 0.0
     for k in range(N):
-        s, res_fac = normalise_coupling(C[k], cnorm[k], Cn, G)
+        s, cn, fn = normalise_coupling(C[k], cnorm[k], Cn, G)
         if not s > 0.0:
             _store_invalid(k, out)
             continue
         geo = unpack_model(mdl, s)
-        starts[0] = prev
-        cost, it, stop = _solve_sample(geo, Cn, res_fac, starts, 1, nvec[k], box, opts, False,
-                                       sw, lmw)
-        if not _acceptable(cost, res_fac, opts) and (use_cf or retries):
-            starts[0] = prev
+        res_fac = s * (s / cn)  # normalised sum of squares -> resnorm
+        cost, it, stop = _solve_sample(geo, Cn, res_fac, fn, prev, nvec[k], box, plain, sw,
+                                       lmw)
+        if not _acceptable(cost, res_fac, fn, opts) and (use_cf or retries):
+            start[:] = prev
             if use_cf:
                 ncf[:] = nvec[k]
                 if ncf[0] == 0.0 and ncf[1] == 0.0 and ncf[2] == 0.0:
                     ncf[0] = 1.0
-                if closed_form_one(CF_KIM18, Cn, W, opts[O_CF_GAIN] / s, ncf, 1e-6, R, t,
-                                   cws) != ST_INVALID_INPUT:
+                if closed_form_one(kim18, Cn, W, opts[O_CF_GAIN] / s, ncf, opts[O_RANK_TOL],
+                                   R, t, cws) != ST_INVALID_INPUT:
                     rotvec_from_matrix(R, rv)
                     for a in range(3):
-                        starts[0, a] = t[a]
-                        starts[0, 3 + a] = rv[a]
+                        start[a] = t[a]
+                        start[3 + a] = rv[a]
             _copy_pose(Rb, tb, Rsave, tsave)
-            cost2, it2, stop2 = _solve_sample(geo, Cn, res_fac, starts, 1, nvec[k], box, opts,
-                                              retries, sw, lmw)
+            cost2, it2, stop2 = _solve_sample(geo, Cn, res_fac, fn, start, nvec[k], box, opts,
+                                              sw, lmw)
             it += it2
             if cost2 < cost:
                 cost = cost2
                 stop = stop2
             else:
                 _copy_pose(Rsave, tsave, Rb, tb)
-        _finish(k, mdl, C[k], cnorm[k], nvec[k], box, opts, it, stop, sw, lmw, G, out)
+        _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, sw, lmw, out)
         if status[k] == ST_CONVERGED:
             for a in range(6):
                 prev[a] = vecs[k, a]

@@ -1,18 +1,16 @@
 """Packed arguments of the compiled solver kernels.
 
-The kernels take a coil model as one float64 array and their options as another, read through
-the named index constants below, instead of long runs of positional scalars (which can be
-swapped without any error). One array type per argument also means one compiled
-specialisation per kernel.
-
-Model array: ``[n_source, n_sensor, gain, L_so (3*n_so), M_so (3*n_so), L_se (3*n_se),
-M_se (3*n_se)]`` (each matrix row-major, as in :class:`openemt.field.DipoleModel`).
+The kernels take a coil model as one float64 array (``pack_model`` of the dipole kernel,
+re-exported here) and their options as another, read through the named index constants below,
+instead of long runs of positional scalars (which can be swapped without any error). One array
+type per argument also means one compiled specialisation per kernel.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..field._dipole_kernel import M_GAIN, M_N_SENSOR, M_N_SOURCE, pack_model, unpack_model
 
 __all__ = ["M_GAIN", "M_N_SENSOR", "M_N_SOURCE", "N_OPTIONS", "O_AMBIGUITY_TOL", "O_CF_GAIN", "O_FIVE_DOF", "O_MAX_ITER",
            "O_MAX_RANGE", "O_MAX_RELATIVE_RESIDUAL", "O_RANK_TOL", "O_RETRIES", "O_RETRY_RELATIVE",
@@ -34,20 +32,6 @@ O_CF_GAIN = 10                 #: gain of the closed-form (concentric) model
 O_RANK_TOL = 11                #: closed forms: s3 < rank_tol * s1 is rank deficient
 N_OPTIONS = 12
 
-# model array: header entries
-M_N_SOURCE = 0
-M_N_SENSOR = 1
-M_GAIN = 2
-_M_HEADER = 3
-
-
-def pack_model(model) -> np.ndarray:
-    """One float64 array holding a :class:`~openemt.field.DipoleModel`'s coils and gain."""
-    parts = [np.array([model.n_source, model.n_sensor, model.gain], dtype=np.float64)]
-    parts += [np.asarray(getattr(model, f), dtype=np.float64).ravel()
-              for f in ("L_so", "M_so", "L_se", "M_se")]
-    return np.concatenate(parts)
-
 
 def pack_options(**values) -> np.ndarray:
     """Options array from keywords named after the ``O_*`` constants (lower case, no ``O_``);
@@ -61,20 +45,3 @@ def pack_options(**values) -> np.ndarray:
 def pack_box(lo, hi) -> np.ndarray:
     """Position box ``[[lo_x, lo_y, lo_z], [hi_x, hi_y, hi_z]]`` (2, 3)."""
     return np.ascontiguousarray(np.stack([np.asarray(lo, float), np.asarray(hi, float)]))
-
-
-@njit(cache=True, inline="always")
-def unpack_model(mdl, scale):
-    """``(L_so, M_so, L_se, M_se, gain / scale)``: views of a packed model array, with the gain
-    divided by the scale the couplings were divided by."""
-    n_so = int(mdl[M_N_SOURCE])
-    n_se = int(mdl[M_N_SENSOR])
-    o = _M_HEADER
-    L_so = mdl[o:o + 3 * n_so].reshape((3, n_so))
-    o += 3 * n_so
-    M_so = mdl[o:o + 3 * n_so].reshape((3, n_so))
-    o += 3 * n_so
-    L_se = mdl[o:o + 3 * n_se].reshape((3, n_se))
-    o += 3 * n_se
-    M_se = mdl[o:o + 3 * n_se].reshape((3, n_se))
-    return L_so, M_so, L_se, M_se, mdl[M_GAIN] / scale

@@ -27,8 +27,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._constants import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
+from .._constants import EXPLORE_RELATIVE_RESIDUAL, MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 from .._errors import InputError
+from ._packing import O_AMBIGUITY_TOL, O_MAX_RANGE, O_MAX_RELATIVE_RESIDUAL
 from ._result import (
     ST_AMBIGUOUS,
     ST_CONVERGED,
@@ -37,7 +38,7 @@ from ._result import (
     ST_OUT_OF_VOLUME,
 )
 
-__all__ = ["MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "check_validity_options", "classify",
+__all__ = ["EXPLORE_RELATIVE_RESIDUAL", "MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "check_validity_options", "classify",
            "rejudge", "relative_residual", "relative_residuals"]
 
 def check_validity_options(max_relative_residual, max_range) -> tuple[float, float]:
@@ -55,7 +56,7 @@ def check_validity_options(max_relative_residual, max_range) -> tuple[float, flo
     return out[0], out[1]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def relative_residual(Cp, Cm):
     """``||Cp - Cm||_F / ||Cm||_F`` of one coupling matrix (NaN if ``Cm`` is zero), computed on
     the matrices divided by ``max |Cm|`` so that no scale under- or overflows."""
@@ -99,8 +100,8 @@ def relative_residuals(predicted, measured) -> np.ndarray:
         return np.where(den > 0, num / den, np.nan)
 
 
-@njit(cache=True)
-def classify(hit_limit, rho, t, n, lo, hi, ambig_tol, max_rel, max_range):
+@njit(inline="always")
+def classify(hit_limit, rho, t, n, box, opts):
     """Status of one solved sample with finite input (see the module docstring).
 
     Parameters
@@ -113,13 +114,19 @@ def classify(hit_limit, rho, t, n, lo, hi, ambig_tol, max_rel, max_range):
         Solved position (m).
     n : array (3,)
         Hemisphere direction (zeros: none).
-    lo, hi : arrays (3,)
-        Position box (``-inf``/``inf`` for none); a position on or beyond it is out of volume.
-    ambig_tol : float
-        ``t . n <= ambig_tol * |t|`` is on the hemisphere plane.
-    max_rel, max_range : float
-        Thresholds of the rule.
+    box : array (2, 3)
+        Position box ``[lo, hi]`` (``-inf``/``inf`` for none); a position on or beyond it is
+        out of volume.
+    opts : array
+        Solver options (``openemt.solve._packing``): ``t . n <= opts[O_AMBIGUITY_TOL] * |t|``
+        is on the hemisphere plane; ``opts[O_MAX_RELATIVE_RESIDUAL]``, ``opts[O_MAX_RANGE]``
+        are the thresholds of the rule.
     """
+    lo = box[0]
+    hi = box[1]
+    ambig_tol = opts[O_AMBIGUITY_TOL]
+    max_rel = opts[O_MAX_RELATIVE_RESIDUAL]
+    max_range = opts[O_MAX_RANGE]
     nt2 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2]
     if not np.isfinite(nt2):
         return ST_OUT_OF_VOLUME

@@ -1,0 +1,124 @@
+"""``openemt bench compile``: compile time of the numba kernels on first use, and cached loads.
+
+The kernels are compiled the first time a process calls them and cached on disk
+(``cache=True``); a fresh installation pays the compilation once. This benchmark starts a fresh
+Python process with an empty numba cache (``NUMBA_CACHE_DIR`` set to a new temporary folder),
+times the first call of each main kernel there (each call compiles what it needs that earlier
+calls did not), then starts a second process on the now filled cache and times the same calls
+(loading from the cache). Reported in seconds per kernel and in total (wall clock and process
+CPU time), with the import time of the package.
+
+Kernels, in call order: ``dipole_coupling`` (``DipoleModel.coupling``), ``dipole_jacobians``
+(``coupling_jacobians``), ``closed_form`` (``solve_kim18``; the three closed forms share one
+kernel), ``lm_batch`` (``solve_lm`` from given starts), ``lm_track`` (``solve_lm`` tracking),
+``lm_5dof`` (``solve_lm`` with a single-coil sensor: the same compiled kernel, so near zero).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+__all__ = ["KERNELS", "add_arguments", "run"]
+
+KERNELS = ("dipole_coupling", "dipole_jacobians", "closed_form", "lm_batch", "lm_track",
+           "lm_5dof")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--keep-cache", default=None, metavar="DIR",
+                        help="use this (new or empty) folder as the numba cache and keep it "
+                             "(default: a temporary folder, removed afterwards)")
+
+
+def _child() -> dict:
+    """The measurement inside one process: import, then the first call of every kernel."""
+    t0 = time.perf_counter()
+    import numpy as np
+
+    from openemt.field import DipoleModel, coupling_jacobians
+    from openemt.geometry import pose_from_vector
+    from openemt.solve import solve_kim18, solve_lm
+
+    import_s = time.perf_counter() - t0
+    rng = np.random.default_rng(0)
+    v = np.hstack([rng.uniform(-0.05, 0.05, (20, 3)) + [0.3, 0.0, 0.0],
+                   rng.normal(scale=0.5, size=(20, 3))])
+    P = pose_from_vector(v)
+    model = DipoleModel(np.full((3, 3), 0.01) * np.eye(3), np.eye(3), np.zeros((3, 3)),
+                        np.eye(3))
+    conc = DipoleModel.concentric()
+    five = DipoleModel(rng.normal(scale=0.02, size=(3, 6)), rng.normal(size=(3, 6)),
+                       np.zeros((3, 1)), np.array([[0.0], [0.0], [1.0]]))
+    data = {}
+    calls = {
+        "dipole_coupling": lambda: data.update(C=model.coupling(P), C5=five.coupling(P)),
+        "dipole_jacobians": lambda: coupling_jacobians(model, P),
+        "closed_form": lambda: solve_kim18(data["C"], conc),
+        "lm_batch": lambda: solve_lm(data["C"], model, initial=v),
+        "lm_track": lambda: solve_lm(data["C"], model, initial="track"),
+        "lm_5dof": lambda: solve_lm(data["C5"], five, initial=v),
+    }
+    times = {}
+    cpu = {}
+    for name in KERNELS:
+        t = time.perf_counter()
+        c = time.process_time()
+        calls[name]()
+        times[name] = time.perf_counter() - t
+        cpu[name] = time.process_time() - c
+    return {"import_s": import_s, "kernels_s": times, "total_s": sum(times.values()),
+            "kernels_cpu_s": cpu, "total_cpu_s": sum(cpu.values())}
+
+
+def _process(cache_dir: str) -> dict:
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
+    t = time.perf_counter()
+    out = subprocess.run([sys.executable, "-m", "openemt.bench._compile"], env=env,
+                         capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t
+    if out.returncode != 0:
+        tail = " ".join(out.stderr.strip().splitlines()[-1:])
+        raise RuntimeError(f"the measuring process failed (exit {out.returncode}): {tail}")
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    res["process_wall_s"] = wall
+    return res
+
+
+def run(args) -> dict:
+    """Compile (empty cache) and cached times of the main kernels, each in a fresh process."""
+    import numba
+
+    keep = args.keep_cache is not None
+    cache = args.keep_cache if keep else tempfile.mkdtemp(prefix="openemt-numba-cache-")
+    if keep:
+        os.makedirs(cache, exist_ok=True)
+        if os.listdir(cache):
+            from .._errors import InputError
+
+            raise InputError(f"expected a new or empty folder for --keep-cache, got {cache!r} "
+                             f"with files in it")
+    try:
+        first = _process(cache)
+        cached = _process(cache)
+    finally:
+        if not keep:
+            shutil.rmtree(cache, ignore_errors=True)
+    return {"numba_version": numba.__version__, "python": sys.version.split()[0],
+            "cpu_count": os.cpu_count(), "kernels": list(KERNELS),
+            "first_use": first, "cached": cached,
+            "compile_total_s": first["total_s"], "compile_total_cpu_s": first["total_cpu_s"],
+            "cached_total_s": cached["total_s"],
+            "cache_dir": cache if keep else "temporary (removed)",
+            "note": "seconds in each fresh process (*_s wall clock, *_cpu_s process CPU time, "
+                    "which other load on the machine does not inflate); first_use compiles "
+                    "into an empty NUMBA_CACHE_DIR, cached loads from it"}
+
+
+if __name__ == "__main__":
+    print(json.dumps(_child()))
