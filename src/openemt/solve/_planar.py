@@ -1,0 +1,396 @@
+"""5-DOF pose solution on a finite-coil board model (Anser-style planar field generators).
+
+Unknowns: the sensor position ``p`` (3) and its coil axis ``u`` (2 angles: the step is taken
+in the plane tangent to the current axis, ``u <- normalise(u + a e1 + b e2)``, so there is no
+pole). Residuals: the ``n_coils`` couplings divided by the measured coupling norm. The model
+and its analytic Jacobian come from the compiled segment kernel
+(:mod:`openemt.field._segments`); a sample is solved by Levenberg-Marquardt (Marquardt 1963,
+diagonal scaling) started
+
+- ``"track"``: from the previous sample's solution while that one converged (warm-started
+  tracking), else cold;
+- ``"grid"`` (cold): from the best of a grid of candidate positions above the board, each with
+  its least-squares axis (a linear 3-unknown problem per candidate); the next-best candidates
+  are tried when the first does not converge;
+- an array of poses ``(N, 4, 4)``: from those.
+
+Each sample gets the status of the one validity rule of every solver
+(:mod:`openemt.solve._validity`, docs/solve.md): ``INVALID_INPUT``, ``OUT_OF_VOLUME``,
+``AMBIGUOUS`` (on the board plane, where mirror poses give the same couplings),
+``MAX_ITERATIONS``, ``NOT_CONVERGED`` (relative residual above ``max_relative_residual``),
+``CONVERGED``. The 5-DOF pose's rotation is the smallest one taking the sensor z axis to ``u``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .._errors import InputError
+from ..field._segments import coupling_point, sensor_rule
+from ._linalg import cholesky_solve
+from ._result import SolveResult, Status
+from ._validity import (
+    MAX_RANGE_M,
+    MAX_RELATIVE_RESIDUAL,
+    check_validity_options,
+    classify,
+    relative_residual,
+)
+
+__all__ = ["planar_seed_grid", "solve_planar"]
+
+_INVALID = np.int8(Status.INVALID_INPUT)
+_CONV = np.int8(Status.CONVERGED)
+
+
+@njit(cache=True, inline="always")
+def _tangent(u, e1, e2):
+    # e1: the global axis least aligned with u, projected off u; e2 = u x e1
+    ax = np.abs(u)
+    if ax[0] <= ax[1] and ax[0] <= ax[2]:
+        e1[0], e1[1], e1[2] = 1.0, 0.0, 0.0
+    elif ax[1] <= ax[2]:
+        e1[0], e1[1], e1[2] = 0.0, 1.0, 0.0
+    else:
+        e1[0], e1[1], e1[2] = 0.0, 0.0, 1.0
+    d = e1[0] * u[0] + e1[1] * u[1] + e1[2] * u[2]
+    for a in range(3):
+        e1[a] -= d * u[a]
+    n = np.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
+    for a in range(3):
+        e1[a] /= n
+    e2[0] = u[1] * e1[2] - u[2] * e1[1]
+    e2[1] = u[2] * e1[0] - u[0] * e1[2]
+    e2[2] = u[0] * e1[1] - u[1] * e1[0]
+
+
+@njit(cache=True)
+def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol):
+    """LM from ``(p, u)`` (updated in place). Returns (iterations, hit_limit, model C)."""
+    nc = c.shape[0]
+    cn = 0.0
+    for i in range(nc):
+        cn += c[i] * c[i]
+    inv = 1.0 / np.sqrt(cn)
+    C = np.empty(nc)
+    dp = np.empty((nc, 3))
+    du = np.empty((nc, 3))
+    Cn = np.empty(nc)
+    dpn = np.empty((nc, 3))
+    dun = np.empty((nc, 3))
+    coupling_point(S, off, g, p, u, nodes, wts, C, dp, du, True)
+    cost = 0.0
+    for i in range(nc):
+        cost += ((c[i] - C[i]) * inv) ** 2
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    J = np.empty((nc, 5))
+    A = np.empty((5, 5))
+    gv = np.empty(5)
+    dx = np.empty(5)
+    pn = np.empty(3)
+    un = np.empty(3)
+    Lc = np.empty((5, 5))
+    lam = 1e-4
+    it = 0
+    while it < max_iter:
+        it += 1
+        _tangent(u, e1, e2)
+        for i in range(nc):
+            for a in range(3):
+                J[i, a] = dp[i, a] * inv
+            J[i, 3] = (du[i, 0] * e1[0] + du[i, 1] * e1[1] + du[i, 2] * e1[2]) * inv
+            J[i, 4] = (du[i, 0] * e2[0] + du[i, 1] * e2[1] + du[i, 2] * e2[2]) * inv
+        for a in range(5):
+            s = 0.0
+            for i in range(nc):
+                s += J[i, a] * (c[i] - C[i]) * inv
+            gv[a] = s
+            for b in range(a, 5):
+                s = 0.0
+                for i in range(nc):
+                    s += J[i, a] * J[i, b]
+                A[a, b] = s
+                A[b, a] = s
+        accepted = False
+        small = False
+        while lam < 1e12:
+            Al = A.copy()
+            for a in range(5):
+                Al[a, a] += lam * (A[a, a] + 1e-30)
+            if not cholesky_solve(Al, gv, 5, dx, Lc):
+                lam *= 10.0
+                continue
+            for a in range(3):
+                pn[a] = p[a] + dx[a]
+            nu = 0.0
+            for a in range(3):
+                un[a] = u[a] + dx[3] * e1[a] + dx[4] * e2[a]
+                nu += un[a] * un[a]
+            nu = np.sqrt(nu)
+            for a in range(3):
+                un[a] /= nu
+            step = np.sqrt(dx[0] ** 2 + dx[1] ** 2 + dx[2] ** 2)
+            ang = np.sqrt(dx[3] ** 2 + dx[4] ** 2)
+            small = step <= xtol and ang <= xtol
+            if small:
+                break               # the current point is within xtol of the minimum
+            coupling_point(S, off, g, pn, un, nodes, wts, Cn, dpn, dun, True)
+            cn2 = 0.0
+            for i in range(nc):
+                cn2 += ((c[i] - Cn[i]) * inv) ** 2
+            if cn2 <= cost:
+                accepted = True
+                p[:] = pn
+                u[:] = un
+                C[:] = Cn
+                dp[:, :] = dpn
+                du[:, :] = dun
+                cost = cn2
+                lam = max(lam * 0.1, 1e-9)
+                break
+            lam *= 10.0
+        if small or not accepted:
+            return it, False, C     # converged (step below xtol) or stalled at a minimum
+    return it, True, C
+
+
+@njit(cache=True)
+def _seed(F, Pg, c, order_out):
+    """Rank grid candidates: ``F (G, nc, 3)`` fields at grid points. For each, the axis ``u``
+    minimising ``||c - F u||`` is normalised; candidates sorted by that residual."""
+    G, nc = F.shape[0], F.shape[1]
+    res = np.empty(G)
+    U = np.empty((G, 3))
+    M = np.empty((3, 3))
+    v = np.empty(3)
+    for k in range(G):
+        for a in range(3):
+            s = 0.0
+            for i in range(nc):
+                s += F[k, i, a] * c[i]
+            v[a] = s
+            for b in range(3):
+                s = 0.0
+                for i in range(nc):
+                    s += F[k, i, a] * F[k, i, b]
+                M[a, b] = s
+        x = np.linalg.solve(M + 1e-30 * np.eye(3), v)
+        n = np.sqrt(x[0] ** 2 + x[1] ** 2 + x[2] ** 2)
+        if not n > 0:
+            res[k] = np.inf
+            U[k] = 0.0
+            continue
+        x /= n
+        r = 0.0
+        for i in range(nc):
+            d = c[i] - (F[k, i, 0] * x[0] + F[k, i, 1] * x[1] + F[k, i, 2] * x[2])
+            r += d * d
+        res[k] = r
+        U[k] = x
+    idx = np.argsort(res)
+    for j in range(order_out.shape[0]):
+        order_out[j] = idx[j]
+    return U
+
+
+@njit(cache=True)
+def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, n_tries, max_iter, xtol, nvec, lo,
+           hi, ambig, max_rel, max_range, pos, axes, status, rho, iters):
+    """mode 0: given starts; 1: grid (cold) each sample; 2: tracking."""
+    N, nc = Cm.shape
+    Cmat = np.empty((nc, 1))
+    Cp = np.empty((nc, 1))
+    p = np.empty(3)
+    u = np.empty(3)
+    order = np.empty(min(n_tries, F.shape[0]), dtype=np.int64)
+    prev_ok = False
+    for k in range(N):
+        c = Cm[k]
+        ok = True
+        cn = 0.0
+        for i in range(nc):
+            if not np.isfinite(c[i]):
+                ok = False
+            cn += c[i] * c[i]
+        if not ok or not cn > 0.0:
+            status[k] = _INVALID
+            pos[k, :] = np.nan
+            axes[k, :] = np.nan
+            rho[k] = np.nan
+            iters[k] = 0
+            prev_ok = False
+            continue
+        for i in range(nc):
+            Cmat[i, 0] = c[i]
+        tries = 1
+        cand = np.empty((1, 3))
+        if mode == 2 and prev_ok:
+            p[:] = pos[k - 1]
+            u[:] = axes[k - 1]
+            tries = 1 + order.shape[0]          # fall back to the grid if the warm start fails
+            cold = False
+        elif mode == 0:
+            p[:] = P0[k]
+            u[:] = U0[k]
+            cold = False
+        else:
+            cold = True
+        total = 0
+        best_rho = np.inf
+        best_st = np.int8(0)
+        jcand = 0
+        seeded = False
+        for t in range(tries if not cold else order.shape[0]):
+            if cold or (t > 0):
+                if not seeded:
+                    cand = _seed(F, Pg, c, order)
+                    seeded = True
+                j = order[jcand]
+                jcand += 1
+                p[:] = Pg[j]
+                u[:] = cand[j]
+            it, hit, C = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol)
+            total += it
+            for i in range(nc):
+                Cp[i, 0] = C[i]
+            r = relative_residual(Cp, Cmat)
+            st = classify(hit, r, p, nvec, lo, hi, ambig, max_rel, max_range)
+            if t == 0 or (st == _CONV and best_st != _CONV) or (
+                    (st == _CONV) == (best_st == _CONV) and r < best_rho):
+                best_rho = r
+                best_st = st
+                pos[k] = p
+                axes[k] = u
+            if st == _CONV:
+                break
+            if not cold and t == 0 and tries == 1:
+                break
+        status[k] = best_st
+        rho[k] = best_rho
+        iters[k] = total
+        prev_ok = best_st == _CONV
+
+
+def planar_seed_grid(model, *, spacing=0.03, height=(0.02, 0.40)) -> np.ndarray:
+    """Candidate start positions ``(G, 3)``: a grid over the board's coils (plus 0.1 m all
+    round) at heights from ``height[0]`` to ``height[1]`` on the side of the board normal."""
+    centers = np.stack([c.center for c in model.board.coils])
+    normal = model.board.coils[0].normal
+    lo, hi = centers.min(0) - 0.1, centers.max(0) + 0.1
+    # the grid spans the board plane; heights along the normal (the mean coil normal)
+    frame = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
+    xy = (centers - centers.mean(0)) @ frame
+    ext_lo, ext_hi = xy.min(0) - 0.1, xy.max(0) + 0.1
+    a = np.arange(ext_lo[0], ext_hi[0] + 1e-12, spacing)
+    b = np.arange(ext_lo[1], ext_hi[1] + 1e-12, spacing)
+    z = np.geomspace(height[0], height[1], 9)
+    A, B, Z = np.meshgrid(a, b, z, indexing="ij")
+    del lo, hi
+    return (centers.mean(0) + np.outer(A.ravel(), frame[:, 0]) + np.outer(B.ravel(), frame[:, 1])
+            + np.outer(Z.ravel(), normal))
+
+
+def _grid_fields(model, grid):
+    from ..field._segments import segment_fields
+
+    F = segment_fields(model.segments, model.segment_offsets, grid)       # (nc, G, 3)
+    return np.ascontiguousarray(np.transpose(F, (1, 0, 2)) * model.gains[None, :, None])
+
+
+def pose_from_axis(points, axes) -> np.ndarray:
+    """Poses ``(N, 4, 4)``: the smallest rotation taking z to each unit axis, and the points."""
+    u = np.asarray(axes, np.float64)
+    z = np.array([0.0, 0.0, 1.0])
+    k = np.cross(z, u)
+    s = np.linalg.norm(k, axis=1)
+    c = u[:, 2]
+    ang = np.arctan2(s, c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.where(s[:, None] > 1e-15, k / s[:, None], np.array([1.0, 0.0, 0.0]))
+    rv = k * ang[:, None]
+    from ..geometry import pose_from_vector
+
+    good = np.all(np.isfinite(rv), axis=1) & np.all(np.isfinite(points), axis=1)
+    vec = np.full((len(u), 6), np.nan)
+    vec[good] = np.column_stack([points[good], rv[good]])
+    poses = np.full((len(u), 4, 4), np.nan)
+    if good.any():
+        poses[good] = pose_from_vector(vec[good])
+    return poses, vec
+
+
+def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
+                 max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
+                 bounds=None, ambiguity_tol=1e-9, n_tries=4, seed_grid=None) -> SolveResult:
+    """Solve 5-DOF sensor poses from couplings on a finite-coil board model.
+
+    Parameters
+    ----------
+    couplings : array_like, shape (N, n_coils) or (N, n_coils, 1)
+        Measured couplings (any units consistent with the model's gains, e.g. tesla).
+    model : openemt.board.PlanarModel
+    initial : {"track", "grid"} or array (N, 4, 4)
+        Warm-started tracking (cold grid start for the first sample and after a failure),
+        a cold grid start for every sample, or given start poses (sensor z = coil axis).
+    max_iter, xtol
+        Iteration limit per start and the step (m, rad) below which LM has converged.
+    max_relative_residual, max_range, bounds, ambiguity_tol
+        The validity rule (docs/solve.md); ``bounds`` is a position box half-width (m).
+    n_tries : int
+        Grid candidates tried, best first, until one converges.
+
+    Returns
+    -------
+    SolveResult
+        Poses whose z axis is the sensor axis; ``residual`` holds the relative residual.
+    """
+    from ..board import PlanarModel
+
+    if not isinstance(model, PlanarModel):
+        raise TypeError(f"expected a PlanarModel, got {type(model).__name__}")
+    C = np.asarray(couplings, dtype=np.float64)
+    if C.ndim == 3 and C.shape[2] == 1:
+        C = C[:, :, 0]
+    if C.ndim != 2 or C.shape[1] != model.n_coils:
+        raise InputError(f"expected couplings of shape (N, {model.n_coils}) or "
+                         f"(N, {model.n_coils}, 1), got {np.shape(couplings)}")
+    max_rel, max_rng = check_validity_options(max_relative_residual, max_range)
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise InputError(f"expected a positive integer max_iter, got {max_iter!r}")
+    N = len(C)
+    P0 = np.zeros((N, 3))
+    U0 = np.zeros((N, 3))
+    if isinstance(initial, str):
+        if initial not in ("track", "grid"):
+            raise InputError(f"expected initial 'track', 'grid' or poses, got {initial!r}")
+        mode = 2 if initial == "track" else 1
+    else:
+        init = np.asarray(initial, dtype=np.float64)
+        if init.shape != (N, 4, 4):
+            raise InputError(f"expected initial poses of shape ({N}, 4, 4), got {init.shape}")
+        P0, U0 = np.ascontiguousarray(init[:, :3, 3]), np.ascontiguousarray(init[:, :3, 2])
+        mode = 0
+    grid = planar_seed_grid(model) if seed_grid is None else np.asarray(seed_grid, np.float64)
+    F = _grid_fields(model, grid)
+    nodes, wts = sensor_rule(model.sensor_length)
+    nvec = np.ascontiguousarray(model.board.coils[0].normal, dtype=np.float64)
+    if bounds is None:
+        lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+    else:
+        b = float(bounds)
+        if not b > 0:
+            raise InputError(f"expected a positive bounds half-width (m), got {bounds!r}")
+        lo, hi = np.full(3, -b), np.full(3, b)
+    pos = np.full((N, 3), np.nan)
+    axes = np.full((N, 3), np.nan)
+    status = np.zeros(N, np.int8)
+    rho = np.full(N, np.nan)
+    iters = np.zeros(N, np.int32)
+    _batch(model.segments, model.segment_offsets, np.ascontiguousarray(model.gains), nodes, wts,
+           np.ascontiguousarray(C), P0, U0, mode, F, np.ascontiguousarray(grid),
+           int(n_tries), int(max_iter), float(xtol), nvec, lo, hi, float(ambiguity_tol),
+           max_rel, max_rng, pos, axes, status, rho, iters)
+    poses, vec = pose_from_axis(pos, axes)
+    return SolveResult(poses, vec, status, rho, iters, None, "planar-lm")
