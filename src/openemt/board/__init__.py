@@ -18,3 +18,6 @@ __all__ = ["BUILTIN_BOARDS", "SENSOR_KINDS", "SHAPES", "Board", "CoilSpec", "Sen
 from ._model import PlanarModel
 
 __all__ += ["PlanarModel"]
+from ._coils import board_coils
+
+__all__ += ["board_coils"]

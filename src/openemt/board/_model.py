@@ -47,7 +47,7 @@ class PlanarModel:
         for c, d, t in zip(self.board.coils, self.offsets, self.tilts):
             s = c.segments()
             if np.any(t != 0):
-                s = (s - c.center) @ Rotation.from_rotvec(t).as_matrix().T + c.center
+                s = (s - c.center) @ Rotation.from_rotvec(np.array(t)).as_matrix().T + c.center
             segs.append(s + d)
             off.append(off[-1] + len(s))
         S = np.ascontiguousarray(np.concatenate(segs))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,8 +32,16 @@ def register(sub) -> None:
                         "octupole model on the md rows (start from an XYZ calibration); "
                         "'planar': per-coil gain and offset of an Anser-style board from a "
                         "grid CSV (x, y, z, ux, uy, uz, one column per coil)")
-    p.add_argument("--sensor-length", type=float, default=0.0, metavar="M",
-                   help="planar mode: sensor coil length (m) for the field average")
+    p.add_argument("--sensor-length", type=float, default=None, metavar="M",
+                   help="planar mode: sensor coil length (m) for the field average "
+                        "(default: the board file's sensor length)")
+    p.add_argument("--board", metavar="BOARD",
+                   help="planar mode: board geometry file (.toml/.json) or built-in name "
+                        "(default: anser); see docs/planar.md")
+    p.add_argument("--holdout", choices=("checkerboard",),
+                   help="planar mode: fit on alternate grid points and solve the others")
+    p.add_argument("--tilt", action="store_true",
+                   help="planar mode: also fit a small tilt of each coil")
     p.add_argument("-o", "--output", metavar="CAL.json", help="write the calibration here")
     p.add_argument("--all-rows", action="store_true",
                    help="fit every row instead of the rows the mode names")
@@ -66,20 +75,83 @@ def _groups(text):
 
 
 def _planar(args) -> int:
-    import json
-
-    from ..calibrate import calibrate_planar, read_grid_csv
-    from ..io import atomic_path
+    """Planar mode: fit a finite-coil board to a grid CSV (docs/planar.md#calibration)."""
+    from ..board import PlanarModel, load_board
+    from ..calibrate._planar import (
+        GridData,
+        check_grid_units,
+        checkerboard_split,
+        fit_planar,
+        planar_accuracy,
+        read_grid_csv,
+    )
+    from ..io import read_calibration
+    from ..io._board_calfile import BoardCalibration, write_board_calibration
 
     t0 = time.perf_counter()
-    cal = calibrate_planar(read_grid_csv(args.dataset), sensor_length=args.sensor_length)
-    summary = {"mode": "planar", "output": args.output, **cal.to_dict(),
-               "seconds": time.perf_counter() - t0}
+    data = read_grid_csv(args.dataset)
+    check_grid_units(data, args.sensor_length)
+    if args.start is not None:
+        start = read_calibration(args.start)
+        if getattr(start, "kind", None) != "finite":
+            raise InputError(f"expected a finite-coil (planar) calibration for --from in planar "
+                             f"mode, got a {getattr(start, 'mode', 'dipole')!r} calibration")
+        if args.board is not None:
+            raise InputError("expected either --from CAL or --board BOARD in planar mode, "
+                             "got both")
+        start_model = start.model
+    else:
+        start_model = load_board(args.board)           # least-squares gains, zero offsets
+    if args.sensor_length is not None:
+        board = start_model.board if isinstance(start_model, PlanarModel) else start_model
+        board = replace(board, sensor=replace(board.sensor, length=float(args.sensor_length)))
+        start_model = (start_model.replace(board=board)
+                       if isinstance(start_model, PlanarModel) else board)
+    fit_mask = (checkerboard_split(data.points) if args.holdout
+                else np.ones(len(data.points), bool))
+
+    def subset(mask):
+        return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
+                        data.coil_names)
+
+    fit = fit_planar(subset(fit_mask), start_model, fit_tilt=args.tilt)
+    summary = {"mode": "planar", "output": args.output, "board": fit.model.board.name,
+               "start": args.start, **fit.to_dict(),
+               "insample": planar_accuracy(fit.model, subset(fit_mask))}
+    if args.holdout:
+        summary["holdout"] = planar_accuracy(fit.model, subset(~fit_mask))
+        summary["holdout"]["scheme"] = args.holdout
+    warns = []
+    if fit.status != "converged":
+        warns.append(f"the planar fit ended with status {fit.status!r} after {fit.iterations} "
+                     f"iterations (condition {fit.condition:.3g}): its parameters are not a "
+                     f"converged least-squares solution")
+    summary["warnings"] = warns
+    summary["seconds"] = time.perf_counter() - t0
     if args.output:
-        with atomic_path(args.output) as tmp:
-            Path(tmp).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    human = [(f"planar: {len(cal.gains)} coils, rms residue {cal.rms_residue:.3g} of the rms "
-              f"coupling, max |offset| {np.abs(cal.offsets).max() * 1e3:.3f} mm")]
+        stats = {k: summary[k] for k in ("status", "iterations", "n_points", "rms_residual",
+                                         "condition", "coil_residual_percent", "insample")}
+        if "holdout" in summary:
+            stats["holdout"] = summary["holdout"]
+        cal = BoardCalibration(
+            fit.model, "planar",
+            {"gains": fit.gains_se, "offsets": fit.offsets_se, "tilts": fit.tilts_se}, stats,
+            {"grid_file": str(args.dataset), "start_file": args.start,
+             "board": args.board or (None if args.start else "anser"),
+             "fit_tilt": bool(args.tilt), "holdout": args.holdout})
+        write_board_calibration(cal, args.output)
+    ins = summary["insample"]
+    human = [(f"planar: {len(fit.model.gains)} coils, fit {fit.status} in {fit.iterations} "
+              f"iterations, max |offset| {np.abs(fit.model.offsets).max() * 1e3:.3f} mm, "
+              f"in-sample {ins['position_rms_mm']:.3f} mm RMS over {ins['n']} points")]
+    if "holdout" in summary:
+        h = summary["holdout"]
+        human.append(f"held out ({args.holdout}): {h['position_rms_mm']:.3f} mm RMS, "
+                     f"{h['position_max_mm']:.3f} mm max, {h['axis_rms_deg']:.3f} deg RMS over "
+                     f"{h['n']} points")
+    human += [f"warning: {w}" for w in warns]
+    if args.output:
+        human.append(f"wrote {args.output}")
     emit(args, summary, human)
     return 0
 

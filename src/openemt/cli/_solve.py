@@ -55,6 +55,9 @@ def run(args) -> int:
     from ._common import emit, progress
 
     cal = read_calibration(args.calibration)
+    if getattr(cal, "kind", None) == "finite":          # a board: the 5-DOF finite-coil solver
+        from ._solve_planar import solve_board
+        return solve_board(args, cal)
     options = {}
     if args.solver == "lm":
         options.update(max_iter=args.max_iter, valid_threshold=args.valid_threshold,

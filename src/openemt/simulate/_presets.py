@@ -198,7 +198,9 @@ _ANSER_FREQUENCIES = tuple(np.linspace(2500.0, 20000.0, 8))
 
 
 def _anser() -> Preset:
-    sources = _field.anser_field_generator(gain=1.0)
+    from ..board import board_coils
+
+    sources = board_coils("anser")   # the built-in board file (docs/planar.md#board-file)
     gain_se = 0.01  # couplings of order 0.1 at the test height
     # 0.5 mm x 8 mm 5-DOF sensor coil; at this size the cross-section shape is irrelevant, and a
     # square winding samples the field on the coil axis (2 points along the length), which is
@@ -218,7 +220,7 @@ def _anser() -> Preset:
         # path through the board
         source_fixtures=("YoutZup", "XoutZup"), sensor_fixtures=SENSOR_FIXTURES,
         default_pattern="grid", frequencies=np.array(_ANSER_FREQUENCIES),
-        source={"kind": "Anser-style planar board, 8 square spiral coils",
+        source={"kind": "Anser-style planar board, 8 square spiral coils (board file anser)",
                 "positions_m": np.round(dipole.L_so, 9).tolist(),
                 "moments": np.round(dipole.M_so, 9).tolist()},
         sensor={"kind": "single coil (5-DOF)", "side_m": side, "length_m": length,
