@@ -42,6 +42,7 @@ __all__ = ["planar_seed_grid", "solve_planar"]
 
 _INVALID = np.int8(Status.INVALID_INPUT)
 _CONV = np.int8(Status.CONVERGED)
+_NOT_CONV_CODE = np.int8(Status.NOT_CONVERGED)
 
 
 @njit(cache=True, inline="always")
@@ -157,9 +158,10 @@ def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol):
 
 
 @njit(cache=True)
-def _seed(F, Pg, c, order_out):
+def _seed(F, Pg, c, order_out, min_sep):
     """Rank grid candidates: ``F (G, nc, 3)`` fields at grid points. For each, the axis ``u``
-    minimising ``||c - F u||`` is normalised; candidates sorted by that residual."""
+    minimising ``||c - F u||`` is normalised; candidates ranked by that residual, and the best
+    ones at least ``min_sep`` apart written to ``order_out``."""
     G, nc = F.shape[0], F.shape[1]
     res = np.empty(G)
     U = np.empty((G, 3))
@@ -189,21 +191,39 @@ def _seed(F, Pg, c, order_out):
             r += d * d
         res[k] = r
         U[k] = x
+    # the best candidates, each at least min_sep from those already taken (distinct basins)
     idx = np.argsort(res)
-    for j in range(order_out.shape[0]):
-        order_out[j] = idx[j]
+    n_out = 0
+    for j in range(G):
+        q = idx[j]
+        far = True
+        for m in range(n_out):
+            e = Pg[q] - Pg[order_out[m]]
+            if e[0] * e[0] + e[1] * e[1] + e[2] * e[2] < min_sep * min_sep:
+                far = False
+                break
+        if far:
+            order_out[n_out] = q
+            n_out += 1
+            if n_out == order_out.shape[0]:
+                break
+    for m in range(n_out, order_out.shape[0]):
+        order_out[m] = idx[m]
     return U
 
 
 @njit(cache=True)
-def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, n_tries, max_iter, xtol, nvec, lo,
-           hi, ambig, max_rel, max_range, pos, axes, status, rho, iters):
+def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max_iter, xtol,
+           nvec, lo, hi, ambig, max_rel, max_range, pos, axes, status, rho, iters):
     """mode 0: given starts; 1: grid (cold) each sample; 2: tracking."""
     N, nc = Cm.shape
     Cmat = np.empty((nc, 1))
     Cp = np.empty((nc, 1))
     p = np.empty(3)
     u = np.empty(3)
+    bp = np.empty(3)
+    bu = np.empty(3)
+    probe_iter = min(max_iter, 12)
     order = np.empty(min(n_tries, F.shape[0]), dtype=np.int64)
     prev_ok = False
     for k in range(N):
@@ -224,49 +244,56 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, n_tries, max_iter, xt
             continue
         for i in range(nc):
             Cmat[i, 0] = c[i]
-        tries = 1
-        cand = np.empty((1, 3))
-        if mode == 2 and prev_ok:
-            p[:] = pos[k - 1]
-            u[:] = axes[k - 1]
-            tries = 1 + order.shape[0]          # fall back to the grid if the warm start fails
-            cold = False
-        elif mode == 0:
-            p[:] = P0[k]
-            u[:] = U0[k]
-            cold = False
-        else:
-            cold = True
         total = 0
         best_rho = np.inf
-        best_st = np.int8(0)
-        jcand = 0
-        seeded = False
-        for t in range(tries if not cold else order.shape[0]):
-            if cold or (t > 0):
-                if not seeded:
-                    cand = _seed(F, Pg, c, order)
-                    seeded = True
-                j = order[jcand]
-                jcand += 1
-                p[:] = Pg[j]
-                u[:] = cand[j]
+        best_st = _NOT_CONV_CODE
+        warm = mode == 0 or (mode == 2 and prev_ok)
+        if warm:
+            if mode == 0:
+                p[:] = P0[k]
+                u[:] = U0[k]
+            else:
+                p[:] = pos[k - 1]
+                u[:] = axes[k - 1]
             it, hit, C = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol)
             total += it
             for i in range(nc):
                 Cp[i, 0] = C[i]
-            r = relative_residual(Cp, Cmat)
-            st = classify(hit, r, p, nvec, lo, hi, ambig, max_rel, max_range)
-            if t == 0 or (st == _CONV and best_st != _CONV) or (
-                    (st == _CONV) == (best_st == _CONV) and r < best_rho):
-                best_rho = r
-                best_st = st
-                pos[k] = p
-                axes[k] = u
-            if st == _CONV:
-                break
-            if not cold and t == 0 and tries == 1:
-                break
+            best_rho = relative_residual(Cp, Cmat)
+            best_st = classify(hit, best_rho, p, nvec, lo, hi, ambig, max_rel, max_range)
+            pos[k] = p
+            axes[k] = u
+        if not warm or (mode == 2 and best_st != _CONV):
+            # cold: short LM runs from distinct grid candidates, then the best one to the end
+            cand = _seed(F, Pg, c, order, min_sep)
+            brho = np.inf
+            for m in range(order.shape[0]):
+                j = order[m]
+                p[:] = Pg[j]
+                u[:] = cand[j]
+                it, hit, C = _lm(S, off, g, nodes, wts, c, p, u, probe_iter, xtol)
+                total += it
+                for i in range(nc):
+                    Cp[i, 0] = C[i]
+                r = relative_residual(Cp, Cmat)
+                if r < brho:
+                    brho = r
+                    bp[:] = p
+                    bu[:] = u
+            if brho < np.inf:
+                p[:] = bp
+                u[:] = bu
+                it, hit, C = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol)
+                total += it
+                for i in range(nc):
+                    Cp[i, 0] = C[i]
+                r = relative_residual(Cp, Cmat)
+                st = classify(hit, r, p, nvec, lo, hi, ambig, max_rel, max_range)
+                if not warm or (st == _CONV or r < best_rho):
+                    best_rho = r
+                    best_st = st
+                    pos[k] = p
+                    axes[k] = u
         status[k] = best_st
         rho[k] = best_rho
         iters[k] = total
@@ -323,7 +350,8 @@ def pose_from_axis(points, axes) -> np.ndarray:
 
 def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
                  max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
-                 bounds=None, ambiguity_tol=1e-9, n_tries=4, seed_grid=None) -> SolveResult:
+                 bounds=None, ambiguity_tol=1e-9, n_tries=12, seed_grid=None,
+                 min_sep=0.04) -> SolveResult:
     """Solve 5-DOF sensor poses from couplings on a finite-coil board model.
 
     Parameters
@@ -338,8 +366,9 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
         Iteration limit per start and the step (m, rad) below which LM has converged.
     max_relative_residual, max_range, bounds, ambiguity_tol
         The validity rule (docs/solve.md); ``bounds`` is a position box half-width (m).
-    n_tries : int
-        Grid candidates tried, best first, until one converges.
+    n_tries, min_sep
+        A cold start runs a short LM (12 iterations) from each of the ``n_tries`` best grid
+        candidates at least ``min_sep`` (m) apart and continues the one of least residual.
 
     Returns
     -------
@@ -390,7 +419,7 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
     iters = np.zeros(N, np.int32)
     _batch(model.segments, model.segment_offsets, np.ascontiguousarray(model.gains), nodes, wts,
            np.ascontiguousarray(C), P0, U0, mode, F, np.ascontiguousarray(grid),
-           int(n_tries), int(max_iter), float(xtol), nvec, lo, hi, float(ambiguity_tol),
+           float(min_sep), int(n_tries), int(max_iter), float(xtol), nvec, lo, hi, float(ambiguity_tol),
            max_rel, max_rng, pos, axes, status, rho, iters)
     poses, vec = pose_from_axis(pos, axes)
     return SolveResult(poses, vec, status, rho, iters, None, "planar-lm")
