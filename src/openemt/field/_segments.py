@@ -101,6 +101,57 @@ def _fields(S, offsets, points, grad):
     return B * MU0_OVER_4PI, G * MU0_OVER_4PI
 
 
+@njit(cache=True, inline="always")
+def _accumulate_along(S, lo, hi, rx, ry, rz, ux, uy, uz, out):
+    """Add ``B`` (``out[0:3]``) and ``u . dB/dr_j`` (``out[3:6]``) of segments ``lo:hi`` at
+    ``r``: the directional gradient a single-coil coupling needs, without the full 3x3."""
+    bx = by = bz = nb = ib = 0.0
+    for s in range(lo, hi):
+        if s > lo and S[s, 0, 0] == S[s - 1, 1, 0] and S[s, 0, 1] == S[s - 1, 1, 1] \
+                and S[s, 0, 2] == S[s - 1, 1, 2]:
+            # a trace: this segment starts where the last one ended (reuse its end point)
+            ax, ay, az, na, ia = bx, by, bz, nb, ib
+        else:
+            ax = S[s, 0, 0] - rx
+            ay = S[s, 0, 1] - ry
+            az = S[s, 0, 2] - rz
+            na = np.sqrt(ax * ax + ay * ay + az * az)
+            ia = 1.0 / na
+        bx = S[s, 1, 0] - rx
+        by = S[s, 1, 1] - ry
+        bz = S[s, 1, 2] - rz
+        nb = np.sqrt(bx * bx + by * by + bz * bz)
+        ib = 1.0 / nb
+        P = na * nb
+        Q = P + ax * bx + ay * by + az * bz
+        if not (P * Q > 0.0):
+            continue
+        N = na + nb
+        iN = 1.0 / N
+        iP = ia * ib
+        iQ = 1.0 / Q
+        f = N * iP * iQ
+        cx = ay * bz - az * by
+        cy = az * bx - ax * bz
+        cz = ax * by - ay * bx
+        out[0] += f * cx
+        out[1] += f * cy
+        out[2] += f * cz
+        dx = ax - bx
+        dy = ay - by
+        dz = az - bz
+        uc = ux * cx + uy * cy + uz * cz
+        # df/dr_j = f (kA A_j + kB B_j): from d|A|/dr_j = -A_j/|A|, d|B|/dr_j = -B_j/|B|
+        kA = ia * (ia - iN + nb * iQ) + iQ
+        kB = ib * (ib - iN + na * iQ) + iQ
+        fa = uc * f * kA
+        fb = uc * f * kB
+        # u . d(A x B)/dr_j = u . (e_j x (a - b)) = ((a - b) x u)_j
+        out[3] += f * (dy * uz - dz * uy) + fa * ax + fb * bx
+        out[4] += f * (dz * ux - dx * uz) + fa * ay + fb * by
+        out[5] += f * (dx * uy - dy * ux) + fa * az + fb * bz
+
+
 @njit(cache=True)
 def coupling_point(S, offsets, gains, p, u, s_nodes, s_weights, C, dCdp, dCdu, grad):
     """Couplings ``C[i] = gains[i] sum_k w_k B_i(p + s_k u) . u`` of every coil into a
@@ -109,6 +160,7 @@ def coupling_point(S, offsets, gains, p, u, s_nodes, s_weights, C, dCdp, dCdu, g
     nc = offsets.shape[0] - 1
     b = np.empty(3)
     g = np.empty((3, 3))
+    acc = np.empty(6)
     for i in range(nc):
         C[i] = 0.0
         for a in range(3):
@@ -117,16 +169,21 @@ def coupling_point(S, offsets, gains, p, u, s_nodes, s_weights, C, dCdp, dCdu, g
         for k in range(s_nodes.shape[0]):
             s = s_nodes[k]
             w = s_weights[k] * gains[i] * MU0_OVER_4PI
-            b[:] = 0.0
-            g[:, :] = 0.0
-            _accumulate(S, offsets[i], offsets[i + 1], p[0] + s * u[0], p[1] + s * u[1],
-                        p[2] + s * u[2], b, g, grad)
-            C[i] += w * (b[0] * u[0] + b[1] * u[1] + b[2] * u[2])
+            qx = p[0] + s * u[0]
+            qy = p[1] + s * u[1]
+            qz = p[2] + s * u[2]
             if grad:
+                acc[:] = 0.0
+                _accumulate_along(S, offsets[i], offsets[i + 1], qx, qy, qz, u[0], u[1], u[2],
+                                  acc)
+                C[i] += w * (acc[0] * u[0] + acc[1] * u[1] + acc[2] * u[2])
                 for j in range(3):
-                    gu = g[0, j] * u[0] + g[1, j] * u[1] + g[2, j] * u[2]
-                    dCdp[i, j] += w * gu
-                    dCdu[i, j] += w * (b[j] + s * gu)
+                    dCdp[i, j] += w * acc[3 + j]
+                    dCdu[i, j] += w * (acc[j] + s * acc[3 + j])
+            else:
+                b[:] = 0.0
+                _accumulate(S, offsets[i], offsets[i + 1], qx, qy, qz, b, g, False)
+                C[i] += w * (b[0] * u[0] + b[1] * u[1] + b[2] * u[2])
 
 
 def _check_segments(segments, offsets):

@@ -93,7 +93,7 @@ def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol):
     pn = np.empty(3)
     un = np.empty(3)
     Lc = np.empty((5, 5))
-    lam = 1e-4
+    lam = 1e-8
     it = 0
     while it < max_iter:
         it += 1
@@ -149,7 +149,7 @@ def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol):
                 dp[:, :] = dpn
                 du[:, :] = dun
                 cost = cn2
-                lam = max(lam * 0.1, 1e-9)
+                lam = max(lam * 0.1, 1e-12)
                 break
             lam *= 10.0
         if small or not accepted:
