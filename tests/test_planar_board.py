@@ -181,3 +181,15 @@ def test_solver_statuses(anser):
     assert box.status[0] == Status.OUT_OF_VOLUME
     with pytest.raises(InputError, match="couplings of shape"):
         solve_planar(np.zeros((3, 5)), m)
+
+
+def test_planar_speed_bench_small():
+    from openemt.bench._planar_speed import planar_speed
+
+    out = planar_speed(samples=300, baseline_samples=2, repeats=1)
+    for key in ("planar_lm_tracking_poses_per_s", "planar_vs_scipy_ratio",
+                "planar_vs_scipy_compiled_model_ratio", "planar_max_position_diff_m"):
+        assert np.isfinite(out[key]) and out[key] >= 0
+    assert out["planar_lm_tracking_status_counts"]["converged"] == 300
+    assert out["planar_max_position_diff_m"] < 1e-6
+    assert out["planar_reference_model_relative_diff"] < 1e-9

@@ -19,6 +19,9 @@ after a warm-up call that excludes compilation. The ``*_poses_per_s`` keys use t
 time (the work of one core, insensitive to other processes on a shared machine); the
 ``*_wall_poses_per_s`` keys give the wall-clock rates of the same runs. The closed forms are
 also timed without the residual evaluation (``*_no_residual_poses_per_s``).
+
+The ``planar_*`` keys time the 5-DOF finite-coil solver on the Anser board
+(:mod:`openemt.bench._planar_speed`).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import time
 import numpy as np
 
 from .._errors import InputError
+from ._planar_speed import planar_speed
 
 __all__ = ["add_arguments", "run", "trajectory"]
 
@@ -160,6 +164,8 @@ def run(args) -> dict:
                                            for s in ("svd", "kuipers", "kim18")),
             "max_position_diff_m <= 1e-9": summary["max_position_diff_m"] <= 1e-9,
         }
+        summary.update(planar_speed(samples=min(n, 20000), baseline_samples=min(nb, 30),
+                                    repeats=args.repeats, snr_db=args.snr_db, seed=args.seed))
     finally:
         numba.set_num_threads(threads_before)
     return summary

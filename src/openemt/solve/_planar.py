@@ -150,10 +150,13 @@ def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol):
                 du[:, :] = dun
                 cost = cn2
                 lam = max(lam * 0.1, 1e-12)
+                # near a minimum LM converges at least linearly with a small factor (the
+                # relative residual): after an accepted step of 100 xtol the rest is < xtol
+                small = step <= 100.0 * xtol and ang <= 100.0 * xtol
                 break
             lam *= 10.0
         if small or not accepted:
-            return it, False, C     # converged (step below xtol) or stalled at a minimum
+            return it, False, C     # converged (step below the tolerance) or stalled
     return it, True, C
 
 
