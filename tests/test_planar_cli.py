@@ -182,3 +182,29 @@ def test_custom_board_and_unit_errors(tmp_path, capsys):
     bad.write_text(json.dumps(d))
     rc, out, err = _run(["calibrate", str(grid), "--mode", "planar", "--board", str(bad)], capsys)
     assert rc == 2 and "expected center in m" in err
+
+
+def test_simulate_with_board_file(tmp_path, capsys):
+    from openemt.io import read_dataset
+
+    bfile = write_board(load_board("anser"), tmp_path / "b.toml")
+    common = ["--preset", "anser", "--source-fixtures", "YoutZup", "--sensor-fixtures",
+              "YoutZup", "--stage-sigma", "0"]
+    assert main(["simulate", *common, "-o", str(tmp_path / "a.h5"), "--quiet"]) == 0
+    assert main(["simulate", *common, "--board", str(bfile), "-o", str(tmp_path / "b.h5"),
+                 "--quiet"]) == 0
+    a, b = read_dataset(tmp_path / "a.h5"), read_dataset(tmp_path / "b.h5")
+    assert a.couplings.shape == (49, 8, 1)
+    np.testing.assert_array_equal(a.couplings, b.couplings)
+    rc, _, err = _run(["simulate", "--preset", "concentric", "--board", str(bfile), "-o",
+                       str(tmp_path / "c.h5")], capsys)
+    assert rc == 2 and "--board only with --preset anser" in err
+    assert not (tmp_path / "c.h5").exists()
+
+
+def test_fit_reports_singular_normal_equations():
+    pts = np.tile([[0.0, 0.0, 0.08]], (10, 1))            # one point repeated: 8 x 4 unknowns
+    u = np.tile([0.0, 0.0, -1.0], (10, 1))
+    C = PlanarModel.from_board("anser").coupling(pts, u)
+    fit = fit_planar(GridData(pts, u, C))
+    assert fit.status == "singular"

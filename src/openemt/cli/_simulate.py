@@ -28,6 +28,9 @@ def register(subparsers) -> None:
                     "write the dataset as HDF5.")
     p.add_argument("--preset", default="concentric", choices=PRESETS,
                    help="simulated tracker (default: concentric)")
+    p.add_argument("--board", default=None, metavar="BOARD",
+                   help="--preset anser: board geometry file (.toml/.json) of the source coils "
+                        "(default: the built-in anser board; docs/planar.md)")
     p.add_argument("--pattern", default=None,
                    help=f"stage pattern(s), comma-separated, from {', '.join(PATTERNS)} "
                         "(default: md; grid for anser)")
@@ -111,12 +114,20 @@ def run(args) -> int:
         raise InputError(f"expected different paths for -o and --truth-calibration, got "
                          f"{str(args.output)!r} twice")
 
-    ds = simulate(args.preset, args.pattern, source_fixtures=_codes(args.source_fixtures),
+    preset = args.preset
+    if args.board is not None:
+        if args.preset != "anser":
+            raise InputError(f"expected --board only with --preset anser, got --preset "
+                             f"{args.preset}")
+        from ..simulate._presets import anser_preset
+
+        preset = anser_preset(args.board)
+    ds = simulate(preset, args.pattern, source_fixtures=_codes(args.source_fixtures),
                   sensor_fixtures=_codes(args.sensor_fixtures), combinations=args.combinations,
                   snr_db=args.snr_db, noise_abs=args.noise_abs, stage_sigma=args.stage_sigma,
                   drift=drift, distortion=distortion or None, clip_z=not args.no_clip_z,
                   seed=args.seed)
-    cal = truth_calibration(args.preset) if args.truth_calibration is not None else None
+    cal = truth_calibration(preset) if args.truth_calibration is not None else None
 
     existed = args.output.exists()
     write_dataset(ds, args.output)
