@@ -9,8 +9,7 @@ import pytest
 from openemt._errors import InputError
 from openemt.board import PlanarModel, board_from_dict, load_board, read_board, write_board
 from openemt.field._segments import segment_coupling, segment_fields
-from openemt.solve import Status
-from openemt.solve._planar import solve_planar
+from openemt.solve import Status, solve_planar
 
 
 @pytest.fixture(scope="module")
@@ -181,6 +180,12 @@ def test_solver_statuses(anser):
     assert box.status[0] == Status.OUT_OF_VOLUME
     with pytest.raises(InputError, match="couplings of shape"):
         solve_planar(np.zeros((3, 5)), m)
+    # the wrong side of the board is the ambiguous side
+    other = solve_planar(m.coupling(P[:1], U[:1]), m, hemisphere=[0.0, 0.0, -1.0])
+    assert other.status[0] == Status.AMBIGUOUS
+    assert solve_planar(m.coupling(P[:1], U[:1]), m, hemisphere="none").status[0] == 0
+    with pytest.raises(InputError, match="hemisphere"):
+        solve_planar(C[:1], m, hemisphere=[0.0, 0.0, 0.0])
 
 
 def test_planar_speed_bench_small():

@@ -353,8 +353,8 @@ def pose_from_axis(points, axes) -> np.ndarray:
 
 def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
                  max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
-                 bounds=None, ambiguity_tol=1e-9, n_tries=12, seed_grid=None,
-                 min_sep=0.04) -> SolveResult:
+                 bounds=None, ambiguity_tol=1e-9, hemisphere=None, n_tries=12,
+                 seed_grid=None, min_sep=0.04) -> SolveResult:
     """Solve 5-DOF sensor poses from couplings on a finite-coil board model.
 
     Parameters
@@ -369,6 +369,12 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
         Iteration limit per start and the step (m, rad) below which LM has converged.
     max_relative_residual, max_range, bounds, ambiguity_tol
         The validity rule (docs/solve.md); ``bounds`` is a position box half-width (m).
+    hemisphere : None, "none" or array (3,)
+        Side of the sources the sensor is on: a solution with ``t . n <= ambiguity_tol |t|``
+        is AMBIGUOUS. Default: the common coil normal of a planar board (no check for coils
+        of different normals).
+    seed_grid : array (G, 3), optional
+        Cold-start candidate positions (default :func:`planar_seed_grid`, for planar boards).
     n_tries, min_sep
         A cold start runs a short LM (12 iterations) from each of the ``n_tries`` best grid
         candidates at least ``min_sep`` (m) apart and continues the one of least residual.
@@ -407,7 +413,17 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
     grid = planar_seed_grid(model) if seed_grid is None else np.asarray(seed_grid, np.float64)
     F = _grid_fields(model, grid)
     nodes, wts = sensor_rule(model.sensor_length)
-    nvec = np.ascontiguousarray(model.board.coils[0].normal, dtype=np.float64)
+    normals = np.stack([c.normal for c in model.board.coils])
+    if hemisphere is None and np.allclose(normals, normals[0], atol=1e-9):
+        nvec = np.ascontiguousarray(normals[0])          # a planar board: its front side
+    elif hemisphere is None or (isinstance(hemisphere, str) and hemisphere == "none"):
+        nvec = np.zeros(3)
+    else:
+        nvec = np.asarray(hemisphere, dtype=np.float64).reshape(-1)
+        if nvec.shape != (3,) or not np.all(np.isfinite(nvec)) or not np.any(nvec):
+            raise InputError(f"expected hemisphere None, 'none' or a non-zero 3-vector, got "
+                             f"{hemisphere!r}")
+        nvec = np.ascontiguousarray(nvec / np.linalg.norm(nvec))
     if bounds is None:
         lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
     else:
