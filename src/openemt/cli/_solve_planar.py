@@ -1,6 +1,8 @@
 """``openemt solve`` with a finite-coil (board) calibration: the 5-DOF planar solver, block by
 block (warm-started tracking; the first sample of a block and any sample after a failure start
-cold from the seed grid). See docs/planar.md#solving."""
+cold from the seed grid). ``--hemisphere`` defaults to the board's front side; ``--initial``
+and ``--valid-threshold`` do not apply (the validity rule is the relative residual of
+docs/solve.md). See docs/planar.md#solving."""
 
 from __future__ import annotations
 
@@ -22,6 +24,9 @@ def solve_board(args, cal) -> int:
     if args.solver != "lm":
         raise InputError(f"expected --solver lm with a finite-coil calibration, got "
                          f"--solver {args.solver}")
+    if args.concentric_calibration is not None:
+        raise InputError("expected no --concentric-calibration with a finite-coil calibration "
+                         "(the 5-DOF solver starts from its seed grid), got one")
     if args.chunk_rows < 1:
         raise InputError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
     model = cal.model
@@ -40,7 +45,7 @@ def solve_board(args, cal) -> int:
                 for start in range(0, n, args.chunk_rows):
                     C = reader[start:start + args.chunk_rows]
                     res = solve_planar(C, model, initial="track", max_iter=args.max_iter,
-                                       bounds=args.bounds)
+                                       bounds=args.bounds, hemisphere=args.hemisphere)
                     writer.write(start, res)
                     bar.update(len(res))
             finally:

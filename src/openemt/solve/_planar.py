@@ -28,6 +28,7 @@ from numba import njit
 
 from .._errors import InputError
 from ..field._segments import coupling_point, sensor_rule
+from ._hemisphere import hemisphere_vectors
 from ._linalg import cholesky_solve
 from ._result import SolveResult, Status
 from ._validity import (
@@ -369,7 +370,7 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
         Iteration limit per start and the step (m, rad) below which LM has converged.
     max_relative_residual, max_range, bounds, ambiguity_tol
         The validity rule (docs/solve.md); ``bounds`` is a position box half-width (m).
-    hemisphere : None, "none" or array (3,)
+    hemisphere : None, "none", str such as "+z", or array (3,)
         Side of the sources the sensor is on: a solution with ``t . n <= ambiguity_tol |t|``
         is AMBIGUOUS. Default: the common coil normal of a planar board (no check for coils
         of different normals).
@@ -419,11 +420,7 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
     elif hemisphere is None or (isinstance(hemisphere, str) and hemisphere == "none"):
         nvec = np.zeros(3)
     else:
-        nvec = np.asarray(hemisphere, dtype=np.float64).reshape(-1)
-        if nvec.shape != (3,) or not np.all(np.isfinite(nvec)) or not np.any(nvec):
-            raise InputError(f"expected hemisphere None, 'none' or a non-zero 3-vector, got "
-                             f"{hemisphere!r}")
-        nvec = np.ascontiguousarray(nvec / np.linalg.norm(nvec))
+        nvec = np.ascontiguousarray(hemisphere_vectors(hemisphere, 1, allow_none=False)[0])
     if bounds is None:
         lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
     else:
