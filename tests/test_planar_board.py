@@ -5,6 +5,8 @@ import json
 import magpylib
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from openemt._errors import InputError
 from openemt.board import PlanarModel, board_from_dict, load_board, read_board, write_board
@@ -198,3 +200,17 @@ def test_planar_speed_bench_small():
     assert out["planar_lm_tracking_status_counts"]["converged"] == 300
     assert out["planar_max_position_diff_m"] < 1e-6
     assert out["planar_reference_model_relative_diff"] < 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-0.2, 0.2), min_size=9, max_size=9))
+def test_single_segment_field_matches_magpylib(v):
+    a, b, r = np.array(v[:3]), np.array(v[3:6]), np.array(v[6:])
+    length = np.linalg.norm(b - a)
+    assume(length > 1e-3)
+    # stay off the segment's line, where the field vanishes or is singular
+    t = np.clip((r - a) @ (b - a) / length**2, -5, 5)
+    assume(np.linalg.norm(r - a - t * (b - a)) > 0.01 * length)
+    B = segment_fields(np.array([[a, b]]), [0, 1], r[None])[0, 0]
+    ref = magpylib.getB(magpylib.current.Polyline(current=1.0, vertices=[a, b]), r)
+    assert np.linalg.norm(B - ref) <= 1e-9 * np.linalg.norm(ref)
