@@ -456,6 +456,7 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
         H = As.T @ As
         g = As.T @ r
         improved = False
+        step = np.zeros(n * k)
         while lam < 1e10:
             try:
                 step = np.linalg.solve(H + lam * np.diag(np.diag(H)), g) / col
