@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from openemt._errors import InputError
 from openemt.board import PlanarModel, load_board, write_board
 from openemt.calibrate import GridData, write_grid_csv
 from openemt.calibrate._planar import checkerboard_split, fit_planar
@@ -117,6 +118,15 @@ def test_calibrate_info_solve_end_to_end(truth, tmp_path, capsys):
     cal = read_calibration(cal_path)
     assert cal.kind == "finite" and cal.model.gains.tolist() == s["gains"]
     assert "holdout" in cal.stats and cal.provenance["grid_file"] == str(grid)
+    # where a dipole calibration is needed, a board calibration is bad input, not a crash
+    assert not hasattr(cal, "source_fixture") and not hasattr(cal.model, "n_source")
+    with pytest.raises(InputError, match="dipole-model calibration"):
+        _ = cal.model.M_so
+    from openemt.datasets import path as dataset_path
+
+    rc, _, err = _run(["calibrate", str(dataset_path("cal_9_15_premo_cmu")), "--from",
+                       str(cal_path), "--mode", "XYZ"], capsys)
+    assert rc == 2 and "finite-coil board calibration" in err and err.count("\n") == 1
 
     rc, out, err = _run(["info", str(cal_path), "--json"], capsys)
     assert rc == 0, err

@@ -19,7 +19,21 @@ from scipy.spatial.transform import Rotation
 from .._errors import InputError
 from ._geometry import Board, load_board
 
-__all__ = ["PlanarModel"]
+__all__ = ["DipoleOnlyError", "PlanarModel", "dipole_only"]
+
+
+class DipoleOnlyError(InputError, AttributeError):
+    """A dipole model's (or dipole calibration's) attribute asked of a finite-coil board: bad
+    input for the command that asked (an ``InputError``), a missing attribute to ``hasattr``."""
+
+
+def dipole_only(name: str) -> DipoleOnlyError:
+    """The error for a dipole-only attribute ``name`` asked of a board model or calibration."""
+    if name.startswith("__"):
+        return AttributeError(name)
+    return DipoleOnlyError(f"expected a dipole-model calibration (this use needs its {name!r}), "
+                           f"got a finite-coil board calibration: use it with `openemt solve` "
+                           f"or `openemt info` (docs/planar.md)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,6 +70,10 @@ class PlanarModel:
         o.setflags(write=False)
         object.__setattr__(self, "segments", S)
         object.__setattr__(self, "segment_offsets", o)
+
+    def __getattr__(self, name):
+        # only reached for attributes a board model lacks: those of a dipole model
+        raise dipole_only(name)
 
     @classmethod
     def from_board(cls, board=None, gains=1.0, offsets=None, tilts=None) -> PlanarModel:

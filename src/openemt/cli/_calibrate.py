@@ -190,6 +190,9 @@ def run(args) -> int:
                              "folder), got none")
         start_path = cand
     start = read_calibration(start_path)
+    if getattr(start, "kind", None) == "finite":   # a board: only the planar mode fits it
+        raise InputError(f"expected a dipole-model calibration for --from in mode "
+                         f"{args.mode}, got a finite-coil board calibration (--mode planar)")
     if args.mode == "improved":
         return _improved(args, dataset, start, start_path)
     mode = get_mode(args.mode)

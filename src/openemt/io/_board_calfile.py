@@ -38,6 +38,12 @@ class BoardCalibration:
     provenance: dict = field(default_factory=dict)
     kind: str = "finite"
 
+    def __getattr__(self, name):
+        # only reached for attributes a BoardCalibration lacks: those of a dipole calibration
+        from ..board._model import dipole_only
+
+        raise dipole_only(name)
+
     @property
     def n_source(self) -> int:
         return self.model.n_coils
