@@ -206,6 +206,14 @@ def test_simulate_with_board_file(tmp_path, capsys):
     a, b = read_dataset(tmp_path / "a.h5"), read_dataset(tmp_path / "b.h5")
     assert a.couplings.shape == (49, 8, 1)
     np.testing.assert_array_equal(a.couplings, b.couplings)
+    # the simulator's truth (magpylib traces, a finite sensor) calibrated with the compiled model
+    rc, out, err = _run(["calibrate", str(tmp_path / "b.h5"), "--mode", "planar", "--holdout",
+                         "checkerboard", "--json"], capsys)
+    assert rc == 0, err
+    s = json.loads(out)
+    assert s["status"] == "converged"
+    assert (s["insample"]["n"], s["holdout"]["n"]) == (25, 24)
+    assert s["holdout"]["position_rms_mm"] < 1e-4          # the same traces: exact
     rc, _, err = _run(["simulate", "--preset", "concentric", "--board", str(bfile), "-o",
                        str(tmp_path / "c.h5")], capsys)
     assert rc == 2 and "--board only with --preset anser" in err

@@ -39,6 +39,7 @@ __all__ = [
     "fit_planar",
     "planar_accuracy",
     "planar_coupling",
+    "read_grid",
     "read_grid_csv",
     "write_grid_csv",
 ]
@@ -115,6 +116,24 @@ def read_grid_csv(path) -> GridData:
     return GridData(points=data[:, [col["x"], col["y"], col["z"]]],
                     axes=data[:, [col["ux"], col["uy"], col["uz"]]],
                     couplings=data[:, [col[c] for c in coils]], coil_names=tuple(coils))
+
+
+def read_grid(path) -> GridData:
+    """Grid data from a grid CSV (:func:`read_grid_csv`) or from a dataset file with known
+    poses (a simulation: the sensor axis is the pose's z axis, couplings signed real)."""
+    path = Path(path)
+    if path.suffix.lower() == ".csv" or not path.exists():
+        return read_grid_csv(path)
+    from ..io import read_dataset
+
+    ds = read_dataset(path)
+    if ds.poses is None or ds.n_sensor != 1:
+        raise InputError(f"{path.name}: expected a grid CSV or a single-coil dataset with known "
+                         f"poses, got a dataset with {ds.n_sensor} sensor coils and "
+                         f"{'no' if ds.poses is None else ''} poses")
+    P = ds.poses
+    return GridData(P[:, :3, 3], P[:, :3, 2], ds.signed_real()[:, :, 0],
+                    tuple(f"coil{i + 1}" for i in range(ds.n_source)))
 
 
 def write_grid_csv(data: GridData, path) -> None:
@@ -499,18 +518,20 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
                      n_points=len(P), condition=condition)
 
 
-def checkerboard_split(points, resolution: float = 1e-4) -> np.ndarray:
+def checkerboard_split(points, tolerance: float = 1e-3) -> np.ndarray:
     """Boolean mask of the "black" squares of a grid (fit points); the rest are held out.
 
-    Grid indices come from the sorted distinct coordinates (rounded to ``resolution`` m) along
-    x, y and z; a point is black when the sum of its indices is even, so every held-out point
-    has fitted neighbours on all sides.
+    Along each of x, y and z the sorted coordinates are grouped into grid lines wherever
+    neighbours differ by more than ``tolerance`` (m), which absorbs a slightly tilted or noisy
+    grid; a point is black when the sum of its three line indices is even, so every held-out
+    point has fitted neighbours on all sides.
     """
     P = np.asarray(points, dtype=np.float64)
     idx = np.zeros(len(P), dtype=np.int64)
     for a in range(3):
-        q = np.round(P[:, a] / resolution).astype(np.int64)
-        idx += np.unique(q, return_inverse=True)[1].ravel()
+        order = np.argsort(P[:, a], kind="stable")
+        line = np.concatenate([[0], np.cumsum(np.diff(P[order, a]) > tolerance)])
+        idx[order] += line
     return idx % 2 == 0
 
 

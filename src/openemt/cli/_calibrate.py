@@ -31,7 +31,8 @@ def register(sub) -> None:
                    help="calibration mode (default XYZ); 'improved': openemt's rig and "
                         "octupole model on the md rows (start from an XYZ calibration); "
                         "'planar': per-coil gain and offset of an Anser-style board from a "
-                        "grid CSV (x, y, z, ux, uy, uz, one column per coil)")
+                        "grid CSV (x, y, z, ux, uy, uz, one column per coil) or a simulated "
+                        "dataset with known poses")
     p.add_argument("--sensor-length", type=float, default=None, metavar="M",
                    help="planar mode: sensor coil length (m) for the field average "
                         "(default: the board file's sensor length)")
@@ -83,13 +84,13 @@ def _planar(args) -> int:
         checkerboard_split,
         fit_planar,
         planar_accuracy,
-        read_grid_csv,
+        read_grid,
     )
     from ..io import read_calibration
     from ..io._board_calfile import BoardCalibration, write_board_calibration
 
     t0 = time.perf_counter()
-    data = read_grid_csv(args.dataset)
+    data = read_grid(args.dataset)
     check_grid_units(data, args.sensor_length)
     if args.start is not None:
         start = read_calibration(args.start)
