@@ -226,3 +226,15 @@ def test_fit_reports_singular_normal_equations():
     C = PlanarModel.from_board("anser").coupling(pts, u)
     fit = fit_planar(GridData(pts, u, C))
     assert fit.status == "singular"
+
+
+def test_library_fits_refuse_millimetres():
+    from openemt.calibrate import calibrate_planar
+
+    pts, u = _grid()
+    C = PlanarModel.from_board("anser").coupling(pts, u)
+    for fit in (fit_planar, calibrate_planar):
+        with pytest.raises(InputError, match="millimetres"):
+            fit(GridData(pts * 1e3, u, C))
+    with pytest.raises(InputError, match="sensor length in m"):
+        calibrate_planar(GridData(pts, u, C), sensor_length=8.0)

@@ -248,6 +248,7 @@ def calibrate_planar(data: GridData, coils=None, *, gain=ILEMT_GAIN, sensor_leng
     """
     if not isinstance(data, GridData):
         raise TypeError(f"expected GridData, got {type(data).__name__}")
+    check_grid_units(data, sensor_length)
     if coils is None:
         from ..board import board_coils
 
