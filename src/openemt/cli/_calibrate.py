@@ -110,6 +110,11 @@ def _planar(args) -> int:
                        if isinstance(start_model, PlanarModel) else board)
     fit_mask = (checkerboard_split(data.points) if args.holdout
                 else np.ones(len(data.points), bool))
+    need = 7 if args.tilt else 5                     # more points than parameters per coil
+    if fit_mask.sum() < need or (args.holdout and (~fit_mask).sum() < 1):
+        raise InputError(f"expected at least {need} grid points to fit"
+                         f"{' and one to hold out' if args.holdout else ''}, got "
+                         f"{len(data.points)} points")
 
     def subset(mask):
         return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
