@@ -68,20 +68,21 @@ def _tangent(u, e1, e2):
 
 
 @njit(cache=True)
-def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol):
-    """LM from ``(p, u)`` (updated in place). Returns (iterations, hit_limit, model C)."""
+def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol, C, dp, du, fresh):
+    """LM from ``(p, u)`` (updated in place). ``C, dp, du`` hold the model and its derivatives
+    at ``(p, u)`` on return; on entry too when ``fresh`` (a tracked sample starts where the
+    previous one ended, so its model need not be evaluated again). Returns (iterations,
+    hit_limit)."""
     nc = c.shape[0]
     cn = 0.0
     for i in range(nc):
         cn += c[i] * c[i]
     inv = 1.0 / np.sqrt(cn)
-    C = np.empty(nc)
-    dp = np.empty((nc, 3))
-    du = np.empty((nc, 3))
     Cn = np.empty(nc)
     dpn = np.empty((nc, 3))
     dun = np.empty((nc, 3))
-    coupling_point(S, off, g, p, u, nodes, wts, C, dp, du, True)
+    if not fresh:
+        coupling_point(S, off, g, p, u, nodes, wts, C, dp, du, True)
     cost = 0.0
     for i in range(nc):
         cost += ((c[i] - C[i]) * inv) ** 2
@@ -157,8 +158,8 @@ def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol):
                 break
             lam *= 10.0
         if small or not accepted:
-            return it, False, C     # converged (step below the tolerance) or stalled
-    return it, True, C
+            return it, False        # converged (step below the tolerance) or stalled
+    return it, True
 
 
 @njit(cache=True)
@@ -228,6 +229,10 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
     bp = np.empty(3)
     bu = np.empty(3)
     probe_iter = min(max_iter, 12)
+    C = np.empty(Cm.shape[1])
+    dp = np.empty((Cm.shape[1], 3))
+    du = np.empty((Cm.shape[1], 3))
+    model_ok = False
     order = np.empty(min(n_tries, F.shape[0]), dtype=np.int64)
     prev_ok = False
     for k in range(N):
@@ -252,14 +257,17 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
         best_rho = np.inf
         best_st = _NOT_CONV_CODE
         warm = mode == 0 or (mode == 2 and prev_ok)
+        kept_last = False            # pos[k] is where the last LM run ended (C, dp, du valid)
         if warm:
+            fresh = False
             if mode == 0:
                 p[:] = P0[k]
                 u[:] = U0[k]
             else:
                 p[:] = pos[k - 1]
                 u[:] = axes[k - 1]
-            it, hit, C = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol)
+                fresh = model_ok
+            it, hit = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol, C, dp, du, fresh)
             total += it
             for i in range(nc):
                 Cp[i, 0] = C[i]
@@ -267,6 +275,7 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
             best_st = classify(hit, best_rho, p, nvec, lo, hi, ambig, max_rel, max_range)
             pos[k] = p
             axes[k] = u
+            kept_last = True
         if not warm or (mode == 2 and best_st != _CONV):
             # cold: short LM runs from distinct grid candidates, then the best one to the end
             cand = _seed(F, Pg, c, order, min_sep)
@@ -275,7 +284,8 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
                 j = order[m]
                 p[:] = Pg[j]
                 u[:] = cand[j]
-                it, hit, C = _lm(S, off, g, nodes, wts, c, p, u, probe_iter, xtol)
+                it, hit = _lm(S, off, g, nodes, wts, c, p, u, probe_iter, xtol, C, dp, du,
+                              False)
                 total += it
                 for i in range(nc):
                     Cp[i, 0] = C[i]
@@ -284,10 +294,11 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
                     brho = r
                     bp[:] = p
                     bu[:] = u
+            kept_last = False
             if brho < np.inf:
                 p[:] = bp
                 u[:] = bu
-                it, hit, C = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol)
+                it, hit = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol, C, dp, du, False)
                 total += it
                 for i in range(nc):
                     Cp[i, 0] = C[i]
@@ -298,6 +309,8 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
                     best_st = st
                     pos[k] = p
                     axes[k] = u
+                    kept_last = True
+        model_ok = kept_last
         status[k] = best_st
         rho[k] = best_rho
         iters[k] = total
