@@ -1,8 +1,7 @@
 """``openemt solve`` with a finite-coil (board) calibration: the 5-DOF planar solver, block by
 block (warm-started tracking; the first sample of a block and any sample after a failure start
-cold from the seed grid). ``--hemisphere`` defaults to the board's front side; ``--initial``
-and ``--valid-threshold`` do not apply (the validity rule is the relative residual of
-docs/solve.md). See docs/planar.md#solving."""
+cold from the seed grid). The sensor is on the board's front side (its coils' normal);
+``--hemisphere`` and ``--initial`` do not apply. See docs/planar.md#solving."""
 
 from __future__ import annotations
 
@@ -30,6 +29,10 @@ def solve_board(args, cal) -> int:
     if args.chunk_rows < 1:
         raise InputError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
     model = cal.model
+    # the validity rule's thresholds where the command has them; the side of the board is
+    # its coils' normal (a --hemisphere default meant for dipole sources does not apply)
+    rule = {k: getattr(args, k) for k in ("max_relative_residual", "max_range")
+            if getattr(args, k, None) is not None}
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset, real=True) as reader:
         n = reader.shape[0]
@@ -45,7 +48,7 @@ def solve_board(args, cal) -> int:
                 for start in range(0, n, args.chunk_rows):
                     C = reader[start:start + args.chunk_rows]
                     res = solve_planar(C, model, initial="track", max_iter=args.max_iter,
-                                       bounds=args.bounds, hemisphere=args.hemisphere)
+                                       bounds=args.bounds, **rule)
                     writer.write(start, res)
                     bar.update(len(res))
             finally:

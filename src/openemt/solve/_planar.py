@@ -23,6 +23,8 @@ Each sample gets the status of the one validity rule of every solver
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numba import njit
 
@@ -396,7 +398,9 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
     Returns
     -------
     SolveResult
-        Poses whose z axis is the sensor axis; ``residual`` holds the relative residual.
+        Poses whose z axis is the sensor axis; ``residual`` is ILEMT's resnorm
+        (``rho**2 ||C||``) and ``relative_residual``, where the result type has it, the
+        relative residual ``rho`` the status is judged by.
     """
     from ..board import PlanarModel
 
@@ -451,4 +455,9 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
            float(min_sep), int(n_tries), int(max_iter), float(xtol), nvec, lo, hi, float(ambiguity_tol),
            max_rel, max_rng, pos, axes, status, rho, iters)
     poses, vec = pose_from_axis(pos, axes)
-    return SolveResult(poses, vec, status, rho, iters, None, "planar-lm")
+    # ``residual`` is ILEMT's resnorm as for every solver (squared residual norm over the
+    # measured norm, the spectral norm of a single column); the status is judged by ``rho``
+    resnorm = rho ** 2 * np.linalg.norm(C, axis=1)
+    extra = ({"relative_residual": rho}
+             if "relative_residual" in {f.name for f in dataclasses.fields(SolveResult)} else {})
+    return SolveResult(poses, vec, status, resnorm, iters, None, "planar-lm", **extra)
