@@ -238,3 +238,11 @@ def test_library_fits_refuse_millimetres():
             fit(GridData(pts * 1e3, u, C))
     with pytest.raises(InputError, match="sensor length in m"):
         calibrate_planar(GridData(pts, u, C), sensor_length=8.0)
+
+
+def test_holdout_scheme_is_checked(tmp_path, capsys):
+    pts, u = _grid()
+    grid = tmp_path / "grid.csv"
+    write_grid_csv(GridData(pts, u, PlanarModel.from_board("anser").coupling(pts, u)), grid)
+    rc, _, err = _run(["calibrate", str(grid), "--mode", "planar", "--holdout", "0.3"], capsys)
+    assert rc == 2 and "--holdout checkerboard" in err

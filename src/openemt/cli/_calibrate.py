@@ -39,8 +39,9 @@ def register(sub) -> None:
     p.add_argument("--board", metavar="BOARD",
                    help="planar mode: board geometry file (.toml/.json) or built-in name "
                         "(default: anser); see docs/planar.md")
-    p.add_argument("--holdout", choices=("checkerboard",),
-                   help="planar mode: fit on alternate grid points and solve the others")
+    p.add_argument("--holdout", default=None, metavar="SCHEME",
+                   help="planar mode: 'checkerboard' fits on alternate grid points and solves "
+                        "the others")
     p.add_argument("--tilt", action="store_true",
                    help="planar mode: also fit a small tilt of each coil")
     p.add_argument("-o", "--output", metavar="CAL.json", help="write the calibration here")
@@ -89,6 +90,9 @@ def _planar(args) -> int:
     from ..io import read_calibration
     from ..io._board_calfile import BoardCalibration, write_board_calibration
 
+    if args.holdout not in (None, "checkerboard"):
+        raise InputError(f"expected --holdout checkerboard in planar mode, got "
+                         f"{args.holdout!r}")
     t0 = time.perf_counter()
     data = read_grid(args.dataset)
     check_grid_units(data, args.sensor_length)
