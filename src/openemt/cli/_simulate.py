@@ -97,6 +97,18 @@ def _check_folder(path: Path) -> None:
                                 f"missing folder {str(folder)!r}")
 
 
+def _preset(args):
+    """The preset to simulate: its name, or with ``--board`` the anser preset of that board."""
+    if args.board is None:
+        return args.preset
+    if args.preset != "anser":
+        raise InputError(f"expected --board only with --preset anser, got --preset "
+                         f"{args.preset}")
+    from ..simulate._presets import anser_preset
+
+    return anser_preset(args.board)
+
+
 def run(args) -> int:
     from ..io import write_calibration, write_dataset
     from ..simulate import simulate, truth_calibration
@@ -114,14 +126,7 @@ def run(args) -> int:
         raise InputError(f"expected different paths for -o and --truth-calibration, got "
                          f"{str(args.output)!r} twice")
 
-    preset = args.preset
-    if args.board is not None:
-        if args.preset != "anser":
-            raise InputError(f"expected --board only with --preset anser, got --preset "
-                             f"{args.preset}")
-        from ..simulate._presets import anser_preset
-
-        preset = anser_preset(args.board)
+    preset = _preset(args)
     ds = simulate(preset, args.pattern, source_fixtures=_codes(args.source_fixtures),
                   sensor_fixtures=_codes(args.sensor_fixtures), combinations=args.combinations,
                   snr_db=args.snr_db, noise_abs=args.noise_abs, stage_sigma=args.stage_sigma,

@@ -49,15 +49,17 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import h5py
 
+    from ._solve_planar import read_board_calibration, solve_board
+    board = read_board_calibration(args.calibration)
+    if board is not None:  # a finite-coil board: the 5-DOF solver (docs/planar.md#solving)
+        return solve_board(args, board)
+
     from ..io import atomic_path, open_dataset_couplings, read_calibration
     from ..solve import solve_chunks
     from ..solve._output import PoseWriter
     from ._common import emit, progress
 
     cal = read_calibration(args.calibration)
-    if getattr(cal, "kind", None) == "finite":          # a board: the 5-DOF finite-coil solver
-        from ._solve_planar import solve_board
-        return solve_board(args, cal)
     options = {}
     if args.solver == "lm":
         options.update(max_iter=args.max_iter, valid_threshold=args.valid_threshold,

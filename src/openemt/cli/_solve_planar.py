@@ -9,7 +9,24 @@ import time
 
 from .._errors import InputError
 
-__all__ = ["solve_board"]
+__all__ = ["read_board_calibration", "solve_board"]
+
+
+def read_board_calibration(path):
+    """The finite-coil calibration in ``path``, or None for any other calibration file."""
+    from pathlib import Path
+
+    from ..io._board_calfile import board_calibration_from_dict, is_board_calibration
+    from ..io._jsontext import load_json_file
+
+    path = Path(path)
+    if path.suffix.lower() == ".mat" or not path.is_file():
+        return None
+    try:
+        doc = load_json_file(path, "an openemt calibration JSON file")
+    except ValueError:
+        return None                 # not JSON: the dipole reader reports it
+    return board_calibration_from_dict(doc, path.name) if is_board_calibration(doc) else None
 
 
 def solve_board(args, cal) -> int:
