@@ -24,6 +24,7 @@ Each sample gets the status of the one validity rule of every solver
 from __future__ import annotations
 
 import dataclasses
+import inspect
 
 import numpy as np
 from numba import njit
@@ -219,9 +220,36 @@ def _seed(F, Pg, c, order_out, min_sep):
     return U
 
 
+def _rule_adapter():
+    """The shared rule's ``classify`` called as ``_status(hit, rho, t, n, box, opts)`` with the
+    position box ``[lo, hi]`` (2, 3) and the options array of :func:`_rule_options`, whichever
+    way the rule takes its thresholds (packed in an options array, or as scalars)."""
+    if "opts" in inspect.signature(classify.py_func).parameters:
+        from ._packing import pack_options
+
+        def options(ambiguity_tol, max_rel, max_range):
+            return pack_options(ambiguity_tol=ambiguity_tol, max_relative_residual=max_rel,
+                                max_range=max_range)
+
+        @njit(inline="always")
+        def status(hit, rho, t, n, box, opts):
+            return classify(hit, rho, t, n, box, opts)
+    else:
+        def options(ambiguity_tol, max_rel, max_range):
+            return np.array([ambiguity_tol, max_rel, max_range], dtype=np.float64)
+
+        @njit(inline="always")
+        def status(hit, rho, t, n, box, opts):
+            return classify(hit, rho, t, n, box[0], box[1], opts[0], opts[1], opts[2])
+    return options, status
+
+
+_rule_options, _status = _rule_adapter()
+
+
 @njit(cache=True)
 def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max_iter, xtol,
-           nvec, lo, hi, ambig, max_rel, max_range, pos, axes, status, rho, iters):
+           nvec, box, opts, pos, axes, status, rho, iters):
     """mode 0: given starts; 1: grid (cold) each sample; 2: tracking."""
     N, nc = Cm.shape
     Cmat = np.empty((nc, 1))
@@ -274,7 +302,7 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
             for i in range(nc):
                 Cp[i, 0] = C[i]
             best_rho = relative_residual(Cp, Cmat)
-            best_st = classify(hit, best_rho, p, nvec, lo, hi, ambig, max_rel, max_range)
+            best_st = _status(hit, best_rho, p, nvec, box, opts)
             pos[k] = p
             axes[k] = u
             kept_last = True
@@ -305,7 +333,7 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
                 for i in range(nc):
                     Cp[i, 0] = C[i]
                 r = relative_residual(Cp, Cmat)
-                st = classify(hit, r, p, nvec, lo, hi, ambig, max_rel, max_range)
+                st = _status(hit, r, p, nvec, box, opts)
                 if not warm or (st == _CONV or r < best_rho):
                     best_rho = r
                     best_st = st
@@ -452,8 +480,9 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
     iters = np.zeros(N, np.int32)
     _batch(model.segments, model.segment_offsets, np.ascontiguousarray(model.gains), nodes, wts,
            np.ascontiguousarray(C), P0, U0, mode, F, np.ascontiguousarray(grid),
-           float(min_sep), int(n_tries), int(max_iter), float(xtol), nvec, lo, hi, float(ambiguity_tol),
-           max_rel, max_rng, pos, axes, status, rho, iters)
+           float(min_sep), int(n_tries), int(max_iter), float(xtol), nvec,
+           np.ascontiguousarray(np.stack([lo, hi])), _rule_options(ambiguity_tol, max_rel, max_rng),
+           pos, axes, status, rho, iters)
     poses, vec = pose_from_axis(pos, axes)
     # ``residual`` is ILEMT's resnorm as for every solver (squared residual norm over the
     # measured norm, the spectral norm of a single column); the status is judged by ``rho``
