@@ -120,15 +120,16 @@ def test_calibrate_improved_and_planar_modes(ilemt_dir, tmp_path, capsys):
     assert cal.mode == "improved" and cal.linear_correction is not None
     assert set(cal.extra["rig"]["sensor_fixture_corrections"]) == {"ZinYup", "ZinXdown"}
 
-    from openemt.calibrate import GridData, planar_coupling, write_grid_csv
-    from openemt.field import anser_field_generator
+    from openemt.board import PlanarModel
+    from openemt.calibrate import GridData, write_grid_csv
     from openemt.simulate import stage_pattern
 
     pts = stage_pattern("grid")[:, :3] + [0.0, 0.0, 0.072]
     u = np.tile([0.0, 0.0, -1.0], (len(pts), 1))
     d_true = np.zeros((8, 3))
     d_true[3] = [3e-4, -2e-4, 1e-4]
-    C = planar_coupling(anser_field_generator(gain=1.0), np.full(8, 0.01), d_true, pts, u)
+    # the built-in board file (the corrected Anser geometry) is the fit's default board
+    C = PlanarModel.from_board("anser", gains=0.01, offsets=d_true).coupling(pts, u)
     grid = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), grid)
     res = tmp_path / "planar.json"
@@ -136,4 +137,4 @@ def test_calibrate_improved_and_planar_modes(ilemt_dir, tmp_path, capsys):
                               "--json", "--quiet"]) == 0
     s = json.loads(capsys.readouterr().out)
     np.testing.assert_allclose(np.array(s["offsets_mm"]) / 1e3, d_true, atol=1e-6)
-    assert json.loads(res.read_text())["gains"] == s["gains"]
+    assert json.loads(res.read_text())["model"]["gains"] == s["gains"]

@@ -153,6 +153,10 @@ def run(args) -> dict:
                                            for s in ("svd", "kuipers", "kim18")),
             "max_position_diff_m <= 1e-9": summary["max_position_diff_m"] <= 1e-9,
         }
+        from ._planar_speed import planar_speed  # the planar_* keys (its own docstring)
+
+        summary.update(planar_speed(samples=min(n, 20000), baseline_samples=min(nb, 30),
+                                    repeats=args.repeats, snr_db=args.snr_db, seed=args.seed))
     finally:
         numba.set_num_threads(threads_before)
     return summary

@@ -27,7 +27,9 @@ from ._objective import CalibrationProblem, build_problem, fixture_twist_map
 from ._planar import (
     GridData,
     PlanarCalibration,
+    PlanarFit,
     calibrate_planar,
+    fit_planar,
     planar_coupling,
     read_grid_csv,
     write_grid_csv,
@@ -118,3 +120,4 @@ __all__ = [
     "stage_reference",
     "write_grid_csv",
 ]
+__all__ += ["PlanarFit", "fit_planar"]  # the board fit (docs/planar.md)

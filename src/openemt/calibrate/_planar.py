@@ -2,7 +2,7 @@
 
 A single-coil (5-DOF) sensor is placed at known points of a grid over the board with a known
 axis; each source coil's coupling into it is measured. The model is the finite-coil model of
-the board (:func:`openemt.field.anser_field_generator` by default): coil ``i``, shifted by an
+the board (the built-in ``anser`` board file by default, docs/planar.md): coil ``i``, shifted by an
 offset ``delta_i`` and scaled by a gain ``g_i``, couples into a sensor at ``p`` with axis ``u``
 as::
 
@@ -26,13 +26,20 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ..field import ILEMT_GAIN, anser_field_generator, coil_fields
+from ..field import ILEMT_GAIN, coil_fields
 
 __all__ = [
     "GridData",
     "PlanarCalibration",
+    "PlanarFit",
     "calibrate_planar",
+    "check_grid_units",
+    "checkerboard_split",
+    "coil_residual_percent",
+    "fit_planar",
+    "planar_accuracy",
     "planar_coupling",
+    "read_grid",
     "read_grid_csv",
     "write_grid_csv",
 ]
@@ -109,6 +116,24 @@ def read_grid_csv(path) -> GridData:
     return GridData(points=data[:, [col["x"], col["y"], col["z"]]],
                     axes=data[:, [col["ux"], col["uy"], col["uz"]]],
                     couplings=data[:, [col[c] for c in coils]], coil_names=tuple(coils))
+
+
+def read_grid(path) -> GridData:
+    """Grid data from a grid CSV (:func:`read_grid_csv`) or from a dataset file with known
+    poses (a simulation: the sensor axis is the pose's z axis, couplings signed real)."""
+    path = Path(path)
+    if path.suffix.lower() == ".csv" or not path.exists():
+        return read_grid_csv(path)
+    from ..io import read_dataset
+
+    ds = read_dataset(path)
+    if ds.poses is None or ds.n_sensor != 1:
+        raise InputError(f"{path.name}: expected a grid CSV or a single-coil dataset with known "
+                         f"poses, got a dataset with {ds.n_sensor} sensor coils and "
+                         f"{'no' if ds.poses is None else ''} poses")
+    P = ds.poses
+    return GridData(P[:, :3, 3], P[:, :3, 2], ds.signed_real()[:, :, 0],
+                    tuple(f"coil{i + 1}" for i in range(ds.n_source)))
 
 
 def write_grid_csv(data: GridData, path) -> None:
@@ -211,7 +236,7 @@ def calibrate_planar(data: GridData, coils=None, *, gain=ILEMT_GAIN, sensor_leng
     ----------
     data : GridData
     coils : sequence of Coil, optional
-        Nominal coils (default: :func:`openemt.field.anser_field_generator` with unit gains).
+        Nominal coils (default: the built-in ``anser`` board file, :func:`openemt.board.board_coils`).
     gain : float
         Coupling scale (``1/250`` as the dipole model).
     sensor_length : float
@@ -223,7 +248,12 @@ def calibrate_planar(data: GridData, coils=None, *, gain=ILEMT_GAIN, sensor_leng
     """
     if not isinstance(data, GridData):
         raise TypeError(f"expected GridData, got {type(data).__name__}")
-    coils = tuple(anser_field_generator(gain=1.0) if coils is None else coils)
+    check_grid_units(data, sensor_length)
+    if coils is None:
+        from ..board import board_coils
+
+        coils = board_coils("anser")
+    coils = tuple(coils)
     n_c = len(coils)
     if data.couplings.shape[1] != n_c:
         raise InputError(f"expected {n_c} coil columns, got {data.couplings.shape[1]}")
@@ -277,3 +307,255 @@ def calibrate_planar(data: GridData, coils=None, *, gain=ILEMT_GAIN, sensor_leng
     return PlanarCalibration(gains=g, offsets=d, gains_se=se[:, 0], offsets_se=se[:, 1:],
                              rms_residue=float(np.sqrt(cost / r.size)), coils=coils,
                              iterations=it)
+
+
+# --------------------------------------------------------------------------- board fit
+
+#: Largest plausible grid coordinate (m): beyond it the grid is taken for millimetres.
+_MAX_GRID_M = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class PlanarFit:
+    """Result of :func:`fit_planar`: the fitted board model and how the fit went.
+
+    Attributes
+    ----------
+    model : openemt.board.PlanarModel
+        Board with fitted per-coil gains, offsets (m) and tilts (rotation vectors, rad).
+    gains_se, offsets_se, tilts_se : ndarray
+        Standard errors (Gauss-Newton covariance scaled by the residual variance).
+    status : str
+        ``converged``, ``max_iterations`` or ``singular`` (rank-deficient normal equations).
+    iterations : int
+    rms_residual : float
+        RMS residual in coupling units.
+    coil_residual_percent : ndarray, shape (n_coils,)
+        RMS residual of each coil in percent of that coil's peak |coupling| on the grid.
+    n_points : int
+    condition : float
+        Condition number of the column-scaled Jacobian.
+    """
+
+    model: object
+    gains_se: np.ndarray
+    offsets_se: np.ndarray
+    tilts_se: np.ndarray
+    status: str
+    iterations: int
+    rms_residual: float
+    coil_residual_percent: np.ndarray
+    n_points: int
+    condition: float
+
+    def to_dict(self) -> dict:
+        m = self.model
+        return {"status": self.status, "iterations": self.iterations,
+                "n_points": self.n_points, "rms_residual": self.rms_residual,
+                "condition": self.condition,
+                "coil_residual_percent": self.coil_residual_percent.tolist(),
+                "gains": m.gains.tolist(), "gains_se": self.gains_se.tolist(),
+                "offsets_mm": (m.offsets * 1e3).tolist(),
+                "offsets_se_mm": (self.offsets_se * 1e3).tolist(),
+                "tilts_deg": np.degrees(m.tilts).tolist(),
+                "tilts_se_deg": np.degrees(self.tilts_se).tolist()}
+
+
+def check_grid_units(data: GridData, sensor_length: float | None = None) -> None:
+    """Refuse grids and sensor lengths that look like millimetres (one-line InputError)."""
+    big = float(np.abs(data.points).max()) if len(data.points) else 0.0
+    if big > _MAX_GRID_M:
+        raise InputError(f"expected grid positions x, y, z in m (|value| <= {_MAX_GRID_M:g} m), "
+                         f"got up to {big:g}: millimetres given where metres are expected?")
+    if sensor_length is not None and not 0 <= sensor_length <= 0.1:
+        raise InputError(f"expected a sensor length in m between 0 and 0.1, got "
+                         f"{sensor_length:g}: millimetres given where metres are expected?")
+
+
+def coil_residual_percent(residual, couplings) -> np.ndarray:
+    """RMS residual of each coil (column) in percent of its peak |coupling|."""
+    peak = np.abs(couplings).max(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 100.0 * np.sqrt(np.mean(np.asarray(residual) ** 2, axis=0)) / peak
+
+
+def _cross_cols(v):
+    """``e_k x v`` for k = 0, 1, 2: (N, 3 [k], 3)."""
+    z = np.zeros(len(v))
+    return np.stack([np.column_stack([z, -v[:, 2], v[:, 1]]),
+                     np.column_stack([v[:, 2], z, -v[:, 0]]),
+                     np.column_stack([-v[:, 1], v[:, 0], z])], axis=1)
+
+
+def _board_jacobian(model, P, U, fit_tilt):
+    """Model couplings (N, n) and the Jacobian (N, n, k) by each coil's own parameters:
+    gain, offset (3) and, with ``fit_tilt``, the tilt about the coil's local x and y."""
+    C, dp, du = model.coupling(P, U, gradient=True)
+    n = model.n_coils
+    k = 6 if fit_tilt else 4
+    J = np.zeros((len(P), n, k))
+    J[:, :, 0] = C / model.gains
+    J[:, :, 1:4] = -dp                               # moving the coil by d = moving p by -d
+    if fit_tilt:
+        for i, c in enumerate(model.board.coils):
+            centre = c.center + model.offsets[i]
+            # turning the coil by w about its centre = turning the sensor by -w
+            dpw = -np.einsum("nkj,nj->nk", _cross_cols(P - centre), dp[:, i])
+            duw = -np.einsum("nkj,nj->nk", _cross_cols(U), du[:, i])
+            dw = dpw + duw                                   # (N, 3): by board-frame w
+            R = c.rotation
+            J[:, i, 4] = dw @ R[:, 0]
+            J[:, i, 5] = dw @ R[:, 1]
+    return C, J
+
+
+def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1e-10
+               ) -> PlanarFit:
+    """Fit per-coil gain, position offset (and with ``fit_tilt`` a small tilt) of a board to
+    grid data with the compiled finite-coil model (analytic Jacobian, Levenberg-Marquardt).
+
+    Parameters
+    ----------
+    data : GridData
+        Known sensor positions (m) and axes and the measured couplings (any units: tesla for
+        the Anser board; the gains carry the scale).
+    model : openemt.board.PlanarModel, Board, str or path, optional
+        Starting model (a previous fit, ``--from``) or a board (default: built-in ``anser``);
+        a board starts with zero offsets and tilts and per-coil least-squares gains.
+    fit_tilt : bool
+        Also fit a tilt of each coil about its local x and y axes.
+    max_iter, tol
+        Iteration limit and relative step size below which the fit has converged.
+    """
+    from ..board import PlanarModel
+
+    if not isinstance(data, GridData):
+        raise TypeError(f"expected GridData, got {type(data).__name__}")
+    if not isinstance(model, PlanarModel):
+        model = PlanarModel.from_board(model)
+        f0 = model.coupling(data.points, data.axes)
+        if data.couplings.shape[1] == model.n_coils:
+            g0 = np.sum(f0 * data.couplings, 0) / np.sum(f0 * f0, 0)
+            model = model.replace(gains=np.where(g0 != 0, g0, 1.0))
+    n = model.n_coils
+    if data.couplings.shape[1] != n:
+        raise InputError(f"expected {n} coil columns for this board, got "
+                         f"{data.couplings.shape[1]}")
+    check_grid_units(data, model.sensor_length)
+    P, U, Cm = data.points, data.axes, data.couplings
+    k = 6 if fit_tilt else 4
+    scale = np.sqrt(np.mean(Cm ** 2))
+
+    def unpack(m, x):
+        x = x.reshape(n, k)
+        tilts = m.tilts.copy()
+        if fit_tilt:
+            # tilt rotation vectors stay in the coil plane (no turn about the normal); the
+            # Jacobian is exact at zero tilt and first-order accurate for small ones
+            for i, c in enumerate(m.board.coils):
+                tilts[i] = tilts[i] + x[i, 4] * c.rotation[:, 0] + x[i, 5] * c.rotation[:, 1]
+        return m.replace(gains=m.gains + x[:, 0], offsets=m.offsets + x[:, 1:4], tilts=tilts)
+
+    def full_jacobian(J):
+        A = np.zeros((len(P), n, n, k))
+        A[:, np.arange(n), np.arange(n)] = J
+        return A.reshape(len(P) * n, n * k) / scale
+
+    C, J = _board_jacobian(model, P, U, fit_tilt)
+    r = ((Cm - C) / scale).ravel()
+    cost = r @ r
+    lam = 1e-6
+    status, it = "max_iterations", 0
+    A = full_jacobian(J)
+    for it in range(1, max_iter + 1):
+        col = np.linalg.norm(A, axis=0)
+        if np.any(col == 0):
+            status = "singular"
+            break
+        As = A / col
+        H = As.T @ As
+        g = As.T @ r
+        improved = False
+        step = np.zeros(n * k)
+        while lam < 1e10:
+            try:
+                step = np.linalg.solve(H + lam * np.diag(np.diag(H)), g) / col
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            trial = unpack(model, step)
+            C_t, J_t = _board_jacobian(trial, P, U, fit_tilt)
+            r_t = ((Cm - C_t) / scale).ravel()
+            cost_t = r_t @ r_t
+            if cost_t <= cost:
+                improved = True
+                model, C, J, r, cost = trial, C_t, J_t, r_t, cost_t
+                A = full_jacobian(J)
+                lam = max(lam / 10, 1e-12)
+                break
+            lam *= 10
+        xs = np.abs(step.reshape(n, k))
+        rel = np.max(xs[:, 0] / np.abs(model.gains))
+        small = rel < tol and xs[:, 1:].max() < tol * 1.0
+        if not improved or small:
+            status = "converged"
+            break
+    col = np.linalg.norm(A, axis=0)
+    sv = np.linalg.svd(A / np.where(col > 0, col, 1), compute_uv=False)
+    condition = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    if not np.isfinite(condition) or condition > 1e12:
+        status = "singular"
+    dof = max(A.shape[0] - A.shape[1], 1)
+    cov = np.linalg.pinv(A.T @ A) * cost / dof
+    se = np.sqrt(np.clip(np.diag(cov), 0, None)).reshape(n, k)
+    resid = Cm - C
+    tilts_se = np.zeros((n, 3))
+    if fit_tilt:
+        tilts_se[:, :2] = se[:, 4:6]         # about the coil's local x and y
+    return PlanarFit(model=model, gains_se=se[:, 0], offsets_se=se[:, 1:4], tilts_se=tilts_se,
+                     status=status, iterations=it,
+                     rms_residual=float(np.sqrt(np.mean(resid ** 2))),
+                     coil_residual_percent=coil_residual_percent(resid, Cm),
+                     n_points=len(P), condition=condition)
+
+
+def checkerboard_split(points, tolerance: float = 1e-3) -> np.ndarray:
+    """Boolean mask of the "black" squares of a grid (fit points); the rest are held out.
+
+    Along each of x, y and z the sorted coordinates are grouped into grid lines wherever
+    neighbours differ by more than ``tolerance`` (m), which absorbs a slightly tilted or noisy
+    grid; a point is black when the sum of its three line indices is even, so every held-out
+    point has fitted neighbours on all sides.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    idx = np.zeros(len(P), dtype=np.int64)
+    for a in range(3):
+        order = np.argsort(P[:, a], kind="stable")
+        line = np.concatenate([[0], np.cumsum(np.diff(P[order, a]) > tolerance)])
+        idx[order] += line
+    return idx % 2 == 0
+
+
+def planar_accuracy(model, data: GridData, **solve_options) -> dict:
+    """Solve every grid point from its couplings alone (cold start from the seed grid) with the
+    5-DOF solver and compare with the known positions and axes.
+
+    Returns a dict: ``n`` (converged samples scored), ``n_failed``, ``position_rms_mm``,
+    ``position_max_mm``, ``axis_rms_deg`` and ``coil_residual_percent`` (per coil: RMS of
+    measured minus model coupling at the known poses, percent of the coil's peak).
+    """
+    from ..solve import Status
+    from ..solve._planar import solve_planar
+
+    res = solve_planar(data.couplings, model, initial="grid", **solve_options)
+    ok = res.status == Status.CONVERGED
+    dp = np.linalg.norm(res.poses[ok, :3, 3] - data.points[ok], axis=1)
+    cosang = np.clip(np.einsum("ij,ij->i", res.poses[ok, :3, 2], data.axes[ok]), -1.0, 1.0)
+    ang = np.degrees(np.arccos(cosang))
+    resid = data.couplings - model.coupling(data.points, data.axes)
+    nan = float("nan")
+    return {"n": int(ok.sum()), "n_failed": int((~ok).sum()),
+            "position_rms_mm": float(np.sqrt(np.mean(dp ** 2)) * 1e3) if ok.any() else nan,
+            "position_max_mm": float(dp.max() * 1e3) if ok.any() else nan,
+            "axis_rms_deg": float(np.sqrt(np.mean(ang ** 2))) if ok.any() else nan,
+            "coil_residual_percent": coil_residual_percent(resid, data.couplings).tolist()}

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,19 +33,28 @@ def register(sub) -> None:
                    help="calibration mode (default XYZ); 'improved': openemt's rig and "
                         "octupole model on the md rows (start from an XYZ calibration); "
                         "'planar': per-coil gain and offset of an Anser-style board from a "
-                        "grid CSV (x, y, z, ux, uy, uz, one column per coil); 'reference': "
-                        "coil model and the X, Y of A X = Y B against the reference poses of "
-                        "a robot arm or optical tracker (docs/reference-calibration.md)")
-    p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
+                        "grid CSV (x, y, z, ux, uy, uz, one column per coil) or a simulated "
+                        "dataset with known poses; 'reference': coil model and the X, Y of "
+                        "A X = Y B against the reference poses of a robot arm or optical tracker "
+                        "(docs/reference-calibration.md)")
+    p.add_argument("--holdout", default=None, metavar="FRACTION|checkerboard",
                    help="reference mode: hold out this fraction of the poses at random and "
-                        "report their error with the calibration fitted on the others")
+                        "report their error with the calibration fitted on the others; "
+                        "planar mode: 'checkerboard' fits on alternate grid points and solves "
+                        "the others")
     p.add_argument("--seed", type=int, default=0,
                    help="reference mode: seed of the held-out choice (default 0)")
     p.add_argument("--hemisphere", default=None,
                    help="reference mode: hemisphere of the sensor for the start solve (+x, "
                         "-x, ...; default: the dataset's, else +x)")
-    p.add_argument("--sensor-length", type=float, default=0.0, metavar="M",
-                   help="planar mode: sensor coil length (m) for the field average")
+    p.add_argument("--sensor-length", type=float, default=None, metavar="M",
+                   help="planar mode: sensor coil length (m) for the field average "
+                        "(default: the board file's sensor length)")
+    p.add_argument("--board", metavar="BOARD",
+                   help="planar mode: board geometry file (.toml/.json) or built-in name "
+                        "(default: anser); see docs/planar.md")
+    p.add_argument("--tilt", action="store_true",
+                   help="planar mode: also fit a small tilt of each coil")
     p.add_argument("-o", "--output", metavar="CAL.json", help="write the calibration here")
     p.add_argument("--all-rows", action="store_true",
                    help="fit every row instead of the rows the mode names")
@@ -77,20 +88,91 @@ def _groups(text):
 
 
 def _planar(args) -> int:
-    import json
+    """Planar mode: fit a finite-coil board to a grid CSV (docs/planar.md#calibration)."""
+    from ..board import PlanarModel, load_board
+    from ..calibrate._planar import (
+        GridData,
+        check_grid_units,
+        checkerboard_split,
+        fit_planar,
+        planar_accuracy,
+        read_grid,
+    )
+    from ..io import read_calibration
+    from ..io._board_calfile import BoardCalibration, write_board_calibration
 
-    from ..calibrate import calibrate_planar, read_grid_csv
-    from ..io import atomic_path
-
+    if args.holdout not in (None, "checkerboard"):
+        raise InputError(f"expected --holdout checkerboard in planar mode, got "
+                         f"{args.holdout!r}")
     t0 = time.perf_counter()
-    cal = calibrate_planar(read_grid_csv(args.dataset), sensor_length=args.sensor_length)
-    summary = {"mode": "planar", "output": args.output, **cal.to_dict(),
-               "seconds": time.perf_counter() - t0}
+    data = read_grid(args.dataset)
+    check_grid_units(data, args.sensor_length)
+    if args.start is not None:
+        start = read_calibration(args.start)
+        if getattr(start, "kind", None) != "finite":
+            raise InputError(f"expected a finite-coil (planar) calibration for --from in planar "
+                             f"mode, got a {getattr(start, 'mode', 'dipole')!r} calibration")
+        if args.board is not None:
+            raise InputError("expected either --from CAL or --board BOARD in planar mode, "
+                             "got both")
+        start_model = start.model
+    else:
+        start_model = load_board(args.board)           # least-squares gains, zero offsets
+    if args.sensor_length is not None:
+        board = start_model.board if isinstance(start_model, PlanarModel) else start_model
+        board = replace(board, sensor=replace(board.sensor, length=float(args.sensor_length)))
+        start_model = (start_model.replace(board=board)
+                       if isinstance(start_model, PlanarModel) else board)
+    fit_mask = (checkerboard_split(data.points) if args.holdout
+                else np.ones(len(data.points), bool))
+    need = 7 if args.tilt else 5                     # more points than parameters per coil
+    if fit_mask.sum() < need or (args.holdout and (~fit_mask).sum() < 1):
+        raise InputError(f"expected at least {need} grid points to fit"
+                         f"{' and one to hold out' if args.holdout else ''}, got "
+                         f"{len(data.points)} points")
+
+    def subset(mask):
+        return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
+                        data.coil_names)
+
+    fit = fit_planar(subset(fit_mask), start_model, fit_tilt=args.tilt)
+    summary = {"mode": "planar", "output": args.output, "board": fit.model.board.name,
+               "start": args.start, **fit.to_dict(),
+               "insample": planar_accuracy(fit.model, subset(fit_mask))}
+    if args.holdout:
+        summary["holdout"] = planar_accuracy(fit.model, subset(~fit_mask))
+        summary["holdout"]["scheme"] = args.holdout
+    warns = []
+    if fit.status != "converged":
+        warns.append(f"the planar fit ended with status {fit.status!r} after {fit.iterations} "
+                     f"iterations (condition {fit.condition:.3g}): its parameters are not a "
+                     f"converged least-squares solution")
+    summary["warnings"] = warns
+    summary["seconds"] = time.perf_counter() - t0
     if args.output:
-        with atomic_path(args.output) as tmp:
-            Path(tmp).write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    human = [(f"planar: {len(cal.gains)} coils, rms residue {cal.rms_residue:.3g} of the rms "
-              f"coupling, max |offset| {np.abs(cal.offsets).max() * 1e3:.3f} mm")]
+        stats = {k: summary[k] for k in ("status", "iterations", "n_points", "rms_residual",
+                                         "condition", "coil_residual_percent", "insample")}
+        if "holdout" in summary:
+            stats["holdout"] = summary["holdout"]
+        cal = BoardCalibration(
+            fit.model, "planar",
+            {"gains": fit.gains_se, "offsets": fit.offsets_se, "tilts": fit.tilts_se}, stats,
+            {"grid_file": str(args.dataset), "start_file": args.start,
+             "board": args.board or (None if args.start else "anser"),
+             "fit_tilt": bool(args.tilt), "holdout": args.holdout})
+        write_board_calibration(cal, args.output)
+    ins = summary["insample"]
+    human = [(f"planar: {len(fit.model.gains)} coils, fit {fit.status} in {fit.iterations} "
+              f"iterations, max |offset| {np.abs(fit.model.offsets).max() * 1e3:.3f} mm, "
+              f"in-sample {ins['position_rms_mm']:.3f} mm RMS over {ins['n']} points")]
+    if "holdout" in summary:
+        h = summary["holdout"]
+        human.append(f"held out ({args.holdout}): {h['position_rms_mm']:.3f} mm RMS, "
+                     f"{h['position_max_mm']:.3f} mm max, {h['axis_rms_deg']:.3f} deg RMS over "
+                     f"{h['n']} points")
+    human += [f"warning: {w}" for w in warns]
+    if args.output:
+        human.append(f"wrote {args.output}")
     emit(args, summary, human)
     return 0
 
@@ -145,7 +227,7 @@ def _reference(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = fit_reference(dataset, start, hemisphere=args.hemisphere,
-                          freeze=_groups(args.freeze) or (), holdout=args.holdout,
+                          freeze=_groups(args.freeze) or (), holdout=_fraction(args.holdout),
                           seed=args.seed)
     cal = f.calibration
     stats = {**cal.stats, "seconds": time.perf_counter() - t0}
@@ -210,6 +292,9 @@ def run(args) -> int:
                              "folder), got none")
         start_path = cand
     start = read_calibration(start_path)
+    if getattr(start, "kind", None) == "finite":   # a board: only the planar mode fits it
+        raise InputError(f"expected a dipole-model calibration for --from in mode "
+                         f"{args.mode}, got a finite-coil board calibration (--mode planar)")
     if args.mode == "improved":
         return _improved(args, dataset, start, start_path)
     mode = get_mode(args.mode)
@@ -268,3 +353,17 @@ def run(args) -> int:
         human.append(f"wrote {args.output}")
     emit(args, summary, human)
     return 0
+
+
+def _fraction(value) -> float:
+    """``--holdout`` of the reference mode: a fraction in [0, 1)."""
+    if value is None:
+        return 0.0
+    try:
+        f = float(value)
+    except ValueError:
+        f = math.nan
+    if not 0.0 <= f < 1.0:
+        raise InputError(f"expected --holdout FRACTION in [0, 1) in reference mode, got "
+                         f"{value!r}")
+    return f

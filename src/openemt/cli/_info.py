@@ -55,6 +55,8 @@ def dataset_info(ds) -> dict:
 
 def calibration_info(cal) -> dict:
     """JSON-able summary of a Calibration."""
+    if getattr(cal, "kind", None) == "finite":          # a board calibration
+        return cal.info()
     m = cal.model
     return {
         "kind": "calibration",

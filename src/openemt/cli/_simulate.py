@@ -28,6 +28,9 @@ def register(subparsers) -> None:
                     "write the dataset as HDF5.")
     p.add_argument("--preset", default="concentric", choices=PRESETS,
                    help="simulated tracker (default: concentric)")
+    p.add_argument("--board", default=None, metavar="BOARD",
+                   help="--preset anser: board geometry file (.toml/.json) of the source coils "
+                        "(default: the built-in anser board; docs/planar.md)")
     p.add_argument("--pattern", default=None,
                    help=f"stage pattern(s), comma-separated, from {', '.join(PATTERNS)} "
                         "(default: md; grid for anser)")
@@ -106,6 +109,18 @@ def _check_folder(path: Path) -> None:
                                 f"missing folder {str(folder)!r}")
 
 
+def _preset(args):
+    """The preset to simulate: its name, or with ``--board`` the anser preset of that board."""
+    if args.board is None:
+        return args.preset
+    if args.preset != "anser":
+        raise InputError(f"expected --board only with --preset anser, got --preset "
+                         f"{args.preset}")
+    from ..simulate._presets import anser_preset
+
+    return anser_preset(args.board)
+
+
 def run(args) -> int:
     from ..io import write_calibration, write_dataset
     from ..simulate import simulate, truth_calibration
@@ -139,13 +154,14 @@ def run(args) -> int:
             cal = reference_truth_calibration(args.preset, ds.meta["truth"]["X"],
                                               ds.meta["truth"]["Y"])
     else:
-        ds = _simulate_rig(args, simulate, drift, distortion)
-        cal = truth_calibration(args.preset) if args.truth_calibration is not None else None
+        preset = _preset(args)
+        ds = _simulate_rig(args, preset, simulate, drift, distortion)
+        cal = truth_calibration(preset) if args.truth_calibration is not None else None
     return _write(args, ds, cal, write_dataset, write_calibration)
 
 
-def _simulate_rig(args, simulate, drift, distortion):
-    return simulate(args.preset, args.pattern, source_fixtures=_codes(args.source_fixtures),
+def _simulate_rig(args, preset, simulate, drift, distortion):
+    return simulate(preset, args.pattern, source_fixtures=_codes(args.source_fixtures),
                     sensor_fixtures=_codes(args.sensor_fixtures), combinations=args.combinations,
                     snr_db=args.snr_db, noise_abs=args.noise_abs, stage_sigma=args.stage_sigma,
                     drift=drift, distortion=distortion or None, clip_z=not args.no_clip_z,

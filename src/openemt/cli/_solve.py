@@ -54,6 +54,11 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import h5py
 
+    from ._solve_planar import read_board_calibration, solve_board
+    board = read_board_calibration(args.calibration)
+    if board is not None:  # a finite-coil board: the 5-DOF solver (docs/planar.md#solving)
+        return solve_board(args, board)
+
     from ..io import atomic_path, open_dataset_couplings, read_calibration
     from ..solve import solve_chunks
     from ..solve._output import PoseWriter

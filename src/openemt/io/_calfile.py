@@ -281,4 +281,7 @@ def read_calibration(path) -> Calibration:
         raise FileNotFoundError(f"expected a calibration file (.json or ILEMT .mat), "
                                 f"got missing file {str(path)!r}")
     doc = load_json_file(path, "an openemt calibration JSON file")
+    from ._board_calfile import board_calibration_from_dict, is_board_calibration
+    if is_board_calibration(doc):  # finite-coil board model (docs/calibration-format.md)
+        return board_calibration_from_dict(doc, path.name)
     return calibration_from_dict(doc, path.name)

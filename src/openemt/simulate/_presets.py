@@ -25,7 +25,7 @@ from ..field import ILEMT_GAIN, DipoleModel
 from ..geometry import SENSOR_FIXTURES, SOURCE_FIXTURES
 from ..signal import ILEMT_FREQUENCIES  # ILEMT high-rate carriers (MacLachlan et al. 2025, §VIII-E)
 
-__all__ = ["PRESETS", "Preset", "get_preset"]
+__all__ = ["PRESETS", "Preset", "anser_preset", "get_preset"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,8 +197,15 @@ _ANSER_HEIGHT = 0.072
 _ANSER_FREQUENCIES = tuple(np.linspace(2500.0, 20000.0, 8))
 
 
-def _anser() -> Preset:
-    sources = _field.anser_field_generator(gain=1.0)
+def anser_preset(board=None) -> Preset:
+    """The ``anser`` preset with the source coils of ``board`` (a board file or built-in name,
+    default the built-in ``anser``; docs/planar.md#board-file)."""
+    from ..board import board_coils, load_board
+
+    sources = board_coils(load_board(board))
+    if len(sources) != 8:
+        raise InputError(f"expected a board of 8 source coils for the anser preset, got "
+                         f"{len(sources)}")
     gain_se = 0.01  # couplings of order 0.1 at the test height
     # 0.5 mm x 8 mm 5-DOF sensor coil; at this size the cross-section shape is irrelevant, and a
     # square winding samples the field on the coil axis (2 points along the length), which is
@@ -218,14 +225,14 @@ def _anser() -> Preset:
         # path through the board
         source_fixtures=("YoutZup", "XoutZup"), sensor_fixtures=SENSOR_FIXTURES,
         default_pattern="grid", frequencies=np.array(_ANSER_FREQUENCIES),
-        source={"kind": "Anser-style planar board, 8 square spiral coils",
+        source={"kind": "Anser-style planar board, 8 square spiral coils (board file anser)",
                 "positions_m": np.round(dipole.L_so, 9).tolist(),
                 "moments": np.round(dipole.M_so, 9).tolist()},
         sensor={"kind": "single coil (5-DOF)", "side_m": side, "length_m": length,
                 "gain": gain_se})
 
 
-_BUILDERS = {"concentric": _concentric, "dipole-approx": _dipole_approx, "anser": _anser}
+_BUILDERS = {"concentric": _concentric, "dipole-approx": _dipole_approx, "anser": anser_preset}
 #: Names accepted by :func:`get_preset`.
 PRESETS = tuple(_BUILDERS)
 

@@ -9,6 +9,7 @@ from ._crb import cramer_rao, solver_covariance
 from ._hemisphere import hemisphere_from_positions, hemisphere_vectors
 from ._lm_solver import solve_lm
 from ._output import POSES_SCHEMA, PoseWriter, read_poses
+from ._planar import solve_planar
 from ._refine import refine_poses
 from ._result import SolveResult, Status
 from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
@@ -30,6 +31,7 @@ __all__ = [
     "solve_kim18",
     "solve_kuipers",
     "solve_lm",
+    "solve_planar",
     "solve_svd",
     "solver_covariance",
     "spectral_norms",

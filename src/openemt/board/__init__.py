@@ -1,0 +1,23 @@
+"""Board geometry files: finite source coils and the sensor of a tracker (docs/planar.md)."""
+
+from ._geometry import (
+    BUILTIN_BOARDS,
+    SENSOR_KINDS,
+    SHAPES,
+    Board,
+    CoilSpec,
+    SensorSpec,
+    board_from_dict,
+    load_board,
+    read_board,
+    write_board,
+)
+
+__all__ = ["BUILTIN_BOARDS", "SENSOR_KINDS", "SHAPES", "Board", "CoilSpec", "SensorSpec",
+           "board_from_dict", "load_board", "read_board", "write_board"]
+from ._model import PlanarModel
+
+__all__ += ["PlanarModel"]
+from ._coils import board_coils
+
+__all__ += ["board_coils"]

@@ -1,0 +1,252 @@
+"""Compiled Biot-Savart field of straight current segments, with its analytic gradient.
+
+A segment from ``a`` to ``b`` carrying current ``I`` makes at ``r`` the flux density
+(Hanson & Hirshman 2002, eq. 8, written with ``A = a - r``, ``B = b - r``)::
+
+    B(r) = (mu0 I / 4 pi) (A x B) (|A| + |B|) / (|A| |B| (|A| |B| + A . B))
+
+Its gradient follows in closed form: ``d(A x B)/dr_j = e_j x (a - b)`` is constant, and the
+scalar factor ``f = N / (P Q)`` (``N = |A| + |B|``, ``P = |A| |B|``, ``Q = P + A . B``) has
+``df = f (dN/N - dP/P - dQ/Q)``. A coil is a run of segments (a board's spiral trace, see
+:mod:`openemt.board`); fields are in tesla for 1 A.
+
+The kernels are the inner loop of the 5-DOF finite-coil solver (:mod:`openemt.solve._planar`)
+and of the planar calibration (:mod:`openemt.calibrate._planar`); magpylib remains the
+reference they are tested against.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from scipy.constants import mu_0
+
+from .._errors import InputError
+
+__all__ = ["MU0_OVER_4PI", "segment_coupling", "segment_fields"]
+
+#: mu0 / (4 pi) in T m / A.
+MU0_OVER_4PI = mu_0 / (4.0 * np.pi)
+
+
+@njit(cache=True, inline="always")
+def _accumulate(S, lo, hi, rx, ry, rz, out_b, out_g, grad):
+    """Add the field (and with ``grad`` its gradient ``out_g[a, j] = dB_a/dr_j``) of segments
+    ``lo:hi`` of ``S`` (S, 2, 3) at ``r`` to ``out_b`` (3,), ``out_g`` (3, 3); unit prefactor."""
+    for s in range(lo, hi):
+        ax = S[s, 0, 0] - rx
+        ay = S[s, 0, 1] - ry
+        az = S[s, 0, 2] - rz
+        bx = S[s, 1, 0] - rx
+        by = S[s, 1, 1] - ry
+        bz = S[s, 1, 2] - rz
+        na = np.sqrt(ax * ax + ay * ay + az * az)
+        nb = np.sqrt(bx * bx + by * by + bz * bz)
+        P = na * nb
+        Q = P + ax * bx + ay * by + az * bz
+        if not (P * Q > 0.0):
+            continue                     # on the segment itself: no finite field
+        N = na + nb
+        f = N / (P * Q)
+        cx = ay * bz - az * by
+        cy = az * bx - ax * bz
+        cz = ax * by - ay * bx
+        out_b[0] += f * cx
+        out_b[1] += f * cy
+        out_b[2] += f * cz
+        if grad:
+            dx = S[s, 0, 0] - S[s, 1, 0]
+            dy = S[s, 0, 1] - S[s, 1, 1]
+            dz = S[s, 0, 2] - S[s, 1, 2]
+            ia = 1.0 / na
+            ib = 1.0 / nb
+            iN = 1.0 / N
+            iP = 1.0 / P
+            iQ = 1.0 / Q
+            # d/dr_j of |A|, |B|: -A_j/|A|, -B_j/|B|; df = f (dN/N - dP/P - dQ/Q)
+            dna = -ax * ia
+            dnb = -bx * ib
+            dP = dna * nb + na * dnb
+            df0 = f * ((dna + dnb) * iN - dP * iP - (dP - ax - bx) * iQ)
+            dna = -ay * ia
+            dnb = -by * ib
+            dP = dna * nb + na * dnb
+            df1 = f * ((dna + dnb) * iN - dP * iP - (dP - ay - by) * iQ)
+            dna = -az * ia
+            dnb = -bz * ib
+            dP = dna * nb + na * dnb
+            df2 = f * ((dna + dnb) * iN - dP * iP - (dP - az - bz) * iQ)
+            # d(A x B)/dr_j = e_j x (a - b)
+            out_g[0, 0] += cx * df0
+            out_g[0, 1] += dz * f + cx * df1
+            out_g[0, 2] += -dy * f + cx * df2
+            out_g[1, 0] += -dz * f + cy * df0
+            out_g[1, 1] += cy * df1
+            out_g[1, 2] += dx * f + cy * df2
+            out_g[2, 0] += dy * f + cz * df0
+            out_g[2, 1] += -dx * f + cz * df1
+            out_g[2, 2] += cz * df2
+
+
+@njit(cache=True)
+def _fields(S, offsets, points, grad):
+    nc = offsets.shape[0] - 1
+    n = points.shape[0]
+    B = np.zeros((nc, n, 3))
+    G = np.zeros((nc, n, 3, 3))
+    for i in range(nc):
+        for k in range(n):
+            _accumulate(S, offsets[i], offsets[i + 1], points[k, 0], points[k, 1],
+                        points[k, 2], B[i, k], G[i, k], grad)
+    return B * MU0_OVER_4PI, G * MU0_OVER_4PI
+
+
+@njit(cache=True, inline="always")
+def _accumulate_along(S, lo, hi, rx, ry, rz, ux, uy, uz, out):
+    """Add ``B`` (``out[0:3]``) and ``u . dB/dr_j`` (``out[3:6]``) of segments ``lo:hi`` at
+    ``r``: the directional gradient a single-coil coupling needs, without the full 3x3."""
+    bx = by = bz = nb = ib = 0.0
+    for s in range(lo, hi):
+        if s > lo and S[s, 0, 0] == S[s - 1, 1, 0] and S[s, 0, 1] == S[s - 1, 1, 1] \
+                and S[s, 0, 2] == S[s - 1, 1, 2]:
+            # a trace: this segment starts where the last one ended (reuse its end point)
+            ax, ay, az, na, ia = bx, by, bz, nb, ib
+        else:
+            ax = S[s, 0, 0] - rx
+            ay = S[s, 0, 1] - ry
+            az = S[s, 0, 2] - rz
+            na = np.sqrt(ax * ax + ay * ay + az * az)
+            ia = 1.0 / na
+        bx = S[s, 1, 0] - rx
+        by = S[s, 1, 1] - ry
+        bz = S[s, 1, 2] - rz
+        nb = np.sqrt(bx * bx + by * by + bz * bz)
+        ib = 1.0 / nb
+        P = na * nb
+        Q = P + ax * bx + ay * by + az * bz
+        if not (P * Q > 0.0):
+            continue
+        N = na + nb
+        iN = 1.0 / N
+        iP = ia * ib
+        iQ = 1.0 / Q
+        f = N * iP * iQ
+        cx = ay * bz - az * by
+        cy = az * bx - ax * bz
+        cz = ax * by - ay * bx
+        out[0] += f * cx
+        out[1] += f * cy
+        out[2] += f * cz
+        dx = ax - bx
+        dy = ay - by
+        dz = az - bz
+        uc = ux * cx + uy * cy + uz * cz
+        # df/dr_j = f (kA A_j + kB B_j): from d|A|/dr_j = -A_j/|A|, d|B|/dr_j = -B_j/|B|
+        kA = ia * (ia - iN + nb * iQ) + iQ
+        kB = ib * (ib - iN + na * iQ) + iQ
+        fa = uc * f * kA
+        fb = uc * f * kB
+        # u . d(A x B)/dr_j = u . (e_j x (a - b)) = ((a - b) x u)_j
+        out[3] += f * (dy * uz - dz * uy) + fa * ax + fb * bx
+        out[4] += f * (dz * ux - dx * uz) + fa * ay + fb * by
+        out[5] += f * (dx * uy - dy * ux) + fa * az + fb * bz
+
+
+@njit(cache=True)
+def coupling_point(S, offsets, gains, p, u, s_nodes, s_weights, C, dCdp, dCdu, grad):
+    """Couplings ``C[i] = gains[i] sum_k w_k B_i(p + s_k u) . u`` of every coil into a
+    single-coil sensor at ``p`` with unit axis ``u`` (the field averaged along the coil by the
+    rule ``s_nodes, s_weights``), and with ``grad`` their derivatives by ``p`` and ``u``."""
+    nc = offsets.shape[0] - 1
+    b = np.empty(3)
+    g = np.empty((3, 3))
+    acc = np.empty(6)
+    for i in range(nc):
+        C[i] = 0.0
+        for a in range(3):
+            dCdp[i, a] = 0.0
+            dCdu[i, a] = 0.0
+        for k in range(s_nodes.shape[0]):
+            s = s_nodes[k]
+            w = s_weights[k] * gains[i] * MU0_OVER_4PI
+            qx = p[0] + s * u[0]
+            qy = p[1] + s * u[1]
+            qz = p[2] + s * u[2]
+            if grad:
+                acc[:] = 0.0
+                _accumulate_along(S, offsets[i], offsets[i + 1], qx, qy, qz, u[0], u[1], u[2],
+                                  acc)
+                C[i] += w * (acc[0] * u[0] + acc[1] * u[1] + acc[2] * u[2])
+                for j in range(3):
+                    dCdp[i, j] += w * acc[3 + j]
+                    dCdu[i, j] += w * (acc[j] + s * acc[3 + j])
+            else:
+                b[:] = 0.0
+                _accumulate(S, offsets[i], offsets[i + 1], qx, qy, qz, b, g, False)
+                C[i] += w * (b[0] * u[0] + b[1] * u[1] + b[2] * u[2])
+
+
+def _check_segments(segments, offsets):
+    S = np.ascontiguousarray(segments, dtype=np.float64)
+    if S.ndim != 3 or S.shape[1:] != (2, 3) or not np.all(np.isfinite(S)):
+        raise InputError(f"expected finite segments of shape (S, 2, 3), got {S.shape}")
+    off = np.ascontiguousarray(offsets, dtype=np.int64)
+    if off.ndim != 1 or len(off) < 2 or off[0] != 0 or off[-1] != len(S) \
+            or np.any(np.diff(off) < 0):
+        raise InputError(f"expected coil offsets from 0 to {len(S)} (non-decreasing), got "
+                         f"{off.tolist()[:10]}")
+    return S, off
+
+
+def segment_fields(segments, offsets, points, *, gradient=False):
+    """Fields ``(n_coils, N, 3)`` (T for 1 A) of coils made of straight segments at points
+    ``(N, 3)``; with ``gradient=True`` also ``(n_coils, N, 3, 3)``, ``[..., a, j] = dB_a/dx_j``.
+
+    ``segments`` is ``(S, 2, 3)`` (start, end), coil ``i`` owning ``offsets[i]:offsets[i+1]``
+    (as :meth:`openemt.board.Board.segments` returns them).
+    """
+    S, off = _check_segments(segments, offsets)
+    P = np.ascontiguousarray(points, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or not np.all(np.isfinite(P)):
+        raise InputError(f"expected finite points of shape (N, 3), got {P.shape}")
+    B, G = _fields(S, off, P, gradient)
+    return (B, G) if gradient else B
+
+
+def sensor_rule(length: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes (m along the axis) and weights of the field average over a sensor coil of
+    ``length``: the 2-point Gauss rule, or the centre for a point sensor (``length = 0``)."""
+    if length <= 0:
+        return np.array([0.0]), np.array([1.0])
+    s = length / (2 * np.sqrt(3.0))
+    return np.array([-s, s]), np.array([0.5, 0.5])
+
+
+def segment_coupling(segments, offsets, gains, points, axes, *, sensor_length=0.0,
+                     gradient=False):
+    """Couplings ``(N, n_coils)`` into single-coil sensors at ``points`` with ``axes`` (unit),
+    ``C_i = gains_i * mean over the coil length of B_i . u`` (T for 1 A times gain); with
+    ``gradient=True`` also the derivatives by position and by axis, each ``(N, n_coils, 3)``."""
+    S, off = _check_segments(segments, offsets)
+    P = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    U = np.asarray(axes, dtype=np.float64).reshape(-1, 3)
+    U = np.ascontiguousarray(U / np.linalg.norm(U, axis=1, keepdims=True))
+    g = np.ascontiguousarray(np.broadcast_to(np.asarray(gains, np.float64), (len(off) - 1,)))
+    nodes, weights = sensor_rule(float(sensor_length))
+    return _coupling_batch(S, off, g, P, U, nodes, weights, gradient, gradient)
+
+
+@njit(cache=True)
+def _coupling_batch_impl(S, off, g, P, U, nodes, weights, grad):
+    n, nc = P.shape[0], off.shape[0] - 1
+    C = np.empty((n, nc))
+    dp = np.zeros((n, nc, 3))
+    du = np.zeros((n, nc, 3))
+    for k in range(n):
+        coupling_point(S, off, g, P[k], U[k], nodes, weights, C[k], dp[k], du[k], grad)
+    return C, dp, du
+
+
+def _coupling_batch(S, off, g, P, U, nodes, weights, grad, ret_grad):
+    C, dp, du = _coupling_batch_impl(S, off, g, P, U, nodes, weights, grad)
+    return (C, dp, du) if ret_grad else C
