@@ -9,6 +9,7 @@ from .._errors import InputError
 from ..field import DipoleModel
 from ..geometry import check_pose_vectors, pose_from_vector, vector_from_pose
 from ._closed_form import (
+    RANK_TOL,
     check_couplings,
     new_outputs,
     result_from_outputs,
@@ -327,7 +328,7 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
                         retry_relative=retry_rel, ambiguity_tol=ambiguity_tol,
                         max_relative_residual=max_rel, max_range=max_range, retries=retries,
                         five_dof=model.n_sensor == 1, use_closed_form=conc is not None,
-                        cf_gain=(conc or model).gain)
+                        cf_gain=(conc or model).gain, rank_tol=RANK_TOL)
 
     if isinstance(initial, str) and initial == "track":
         first = _first_start(C, cnorm, model, conc, mdl, nvec, box, opts, hemisphere)
