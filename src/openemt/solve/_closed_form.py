@@ -77,6 +77,11 @@ CF_SVD = 0
 CF_KUIPERS = 1
 CF_KIM18 = 2
 _METHODS = {"svd": CF_SVD, "kuipers": CF_KUIPERS, "kim18": CF_KIM18}
+
+#: Whitened couplings with ``s3 < RANK_TOL * s1`` are rank deficient (INVALID_INPUT).
+RANK_TOL = 1e-6
+#: A closed-form direction with ``|u . n| <= AMBIGUITY_TOL`` lies on the hemisphere plane.
+AMBIGUITY_TOL = 1e-6
 # outcomes of the fast concentric path
 _FAST_USE_SVD = 0
 _FAST_DONE = 1
@@ -580,8 +585,8 @@ _COMMON_DOC = """
 """
 
 
-def solve_svd(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=1e-6,
-              ambiguity_tol=1e-6, max_relative_residual=MAX_RELATIVE_RESIDUAL,
+def solve_svd(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=RANK_TOL,
+              ambiguity_tol=AMBIGUITY_TOL, max_relative_residual=MAX_RELATIVE_RESIDUAL,
               max_range=MAX_RANGE_M) -> SolveResult:
     """Closed-form SVD pose solution of Teixeira Silva et al. (Teixeira Silva et al. 2017).
 
@@ -592,8 +597,8 @@ def solve_svd(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=
                               max_relative_residual, max_range)
 
 
-def solve_kuipers(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=1e-6,
-                  ambiguity_tol=1e-6, max_relative_residual=MAX_RELATIVE_RESIDUAL,
+def solve_kuipers(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=RANK_TOL,
+                  ambiguity_tol=AMBIGUITY_TOL, max_relative_residual=MAX_RELATIVE_RESIDUAL,
                   max_range=MAX_RANGE_M) -> SolveResult:
     """Kuipers' closed-form pose solution (the benchmark of Teixeira Silva et al. 2017).
 
@@ -604,8 +609,8 @@ def solve_kuipers(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_
                               max_relative_residual, max_range)
 
 
-def solve_kim18(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=1e-6,
-                ambiguity_tol=1e-6, max_relative_residual=MAX_RELATIVE_RESIDUAL,
+def solve_kim18(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_tol=RANK_TOL,
+                ambiguity_tol=AMBIGUITY_TOL, max_relative_residual=MAX_RELATIVE_RESIDUAL,
                 max_range=MAX_RANGE_M) -> SolveResult:
     """Kim-Song-Park 2018 closed form for calibrated concentric models (docs/paper-procedure.md#kim18).
 

@@ -8,8 +8,8 @@ needed). The model and its analytic derivatives come from the one compiled dipol
 
 Single-coil sensors (``n_sensor == 1``) are 5-DOF: the roll about the sensor axis is not
 observable. The increment ``dphi`` is then restricted to the plane perpendicular to the sensor
-axis, and the reported rotation is the shortest-arc rotation taking the sensor coil's moment
-direction to the solved axis (zero roll, with the coil position kept).
+axis; ``solve_lm`` reports the shortest-arc rotation taking the sensor coil's moment direction
+to the solved axis (zero roll, with the coil position kept; ``canonical_5dof``).
 
 Constraints: a hemisphere half-space ``t . n >= 0`` (per sample; ``n = 0`` means none) and an
 optional position box, enforced by projecting every trial point (projected LM). ILEMT's retries
@@ -272,44 +272,6 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     return cost, it, stop
 
 
-@njit
-def _canonical_5dof(R, t, L_se, M_se):
-    """Replace R by the zero-roll rotation with the same sensor axis (coil position kept)."""
-    p = np.empty(3)
-    for a in range(3):
-        p[a] = R[a, 0] * L_se[0, 0] + R[a, 1] * L_se[1, 0] + R[a, 2] * L_se[2, 0] + t[a]
-    nm = np.sqrt(M_se[0, 0] ** 2 + M_se[1, 0] ** 2 + M_se[2, 0] ** 2)
-    m0 = np.empty(3)
-    for i in range(3):
-        m0[i] = M_se[i, 0] / nm
-    a = np.empty(3)
-    for i in range(3):
-        a[i] = R[i, 0] * m0[0] + R[i, 1] * m0[1] + R[i, 2] * m0[2]
-    # shortest arc m0 -> a
-    c = m0[0] * a[0] + m0[1] * a[1] + m0[2] * a[2]
-    w = np.empty(3)
-    w[0] = m0[1] * a[2] - m0[2] * a[1]
-    w[1] = m0[2] * a[0] - m0[0] * a[2]
-    w[2] = m0[0] * a[1] - m0[1] * a[0]
-    sn = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    f = 0.0
-    if sn < 1e-12 and c < 0.0:
-        # 180 degrees: about any axis perpendicular to m0
-        if abs(m0[0]) < 0.9:
-            w[0], w[1], w[2] = 0.0, m0[2], -m0[1]
-        else:
-            w[0], w[1], w[2] = -m0[2], 0.0, m0[0]
-        f = np.pi / np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    elif sn > 0.0:
-        f = np.arctan2(sn, c) / sn
-    if f != 0.0:
-        for i in range(3):
-            w[i] *= f
-    exp_so3(w, R)
-    for i in range(3):
-        t[i] = p[i] - (R[i, 0] * L_se[0, 0] + R[i, 1] * L_se[1, 0] + R[i, 2] * L_se[2, 0])
-
-
 @njit(inline="always")
 def _acceptable(cost, res_fac, fn, opts):
     """No retry needed: the retry test (ILEMT's resnorm test and/or the relative residual)
@@ -386,9 +348,6 @@ def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, sw, lmw, out):
         finite = finite and np.isfinite(tb[a])
         for b in range(3):
             finite = finite and np.isfinite(Rb[a, b])
-    if opts[O_FIVE_DOF] != 0.0 and finite:
-        geo = unpack_model(mdl, 1.0)
-        _canonical_5dof(Rb, tb, geo[2], geo[3])
     rotvec_from_matrix(Rb, rv)
     store_pose(k, Rb, tb, rv, poses, vecs)
     rho = np.nan

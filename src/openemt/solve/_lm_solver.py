@@ -7,8 +7,9 @@ import numpy as np
 
 from .._errors import InputError
 from ..field import DipoleModel
-from ..geometry import check_pose_vectors
+from ..geometry import check_pose_vectors, pose_from_vector, vector_from_pose
 from ._closed_form import (
+    RANK_TOL,
     check_couplings,
     new_outputs,
     result_from_outputs,
@@ -165,6 +166,34 @@ def _run_batch(C, cnorm, init, mdl, nvec, box, opts):
     return result_from_outputs(out, "lm")
 
 
+def canonical_5dof(result, model):
+    """A 5-DOF result (single-coil sensor) with every finite rotation replaced by the zero-roll
+    one with the same sensor axis: the shortest-arc rotation taking the coil's moment direction
+    ``m0`` to the solved axis ``R m0``, with the coil position ``R L_se + t`` kept. The roll
+    about the axis is not observable, so the couplings (and residuals) do not change."""
+    m0 = model.M_se[:, 0] / np.linalg.norm(model.M_se[:, 0])
+    l0 = model.L_se[:, 0]
+    ok = np.all(np.isfinite(result.pose_vectors), axis=1)
+    R = result.poses[ok, :3, :3]
+    p = R @ l0 + result.poses[ok, :3, 3]
+    a = R @ m0
+    w = np.cross(m0, a)
+    sn = np.linalg.norm(w, axis=1)
+    c = a @ m0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rv = w * np.where(sn > 0, np.arctan2(sn, c) / sn, 0.0)[:, None]
+    # 180 degrees: about an axis perpendicular to m0
+    perp = np.array([0.0, m0[2], -m0[1]]) if abs(m0[0]) < 0.9 else np.array([-m0[2], 0.0, m0[0]])
+    rv[(sn < 1e-12) & (c < 0)] = np.pi * perp / np.linalg.norm(perp)
+    P = pose_from_vector(np.hstack([np.zeros_like(p), rv]))
+    P[:, :3, 3] = p - P[:, :3, :3] @ l0
+    poses = result.poses.copy()
+    vecs = result.pose_vectors.copy()
+    poses[ok] = P
+    vecs[ok] = vector_from_pose(P)
+    return result.replace(poses=poses, pose_vectors=vecs)
+
+
 def _keep_better(result, rows, again):
     """``result`` with rows ``rows`` replaced by those of ``again`` (solved for them) that have
     a lower relative residual."""
@@ -299,7 +328,7 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
                         retry_relative=retry_rel, ambiguity_tol=ambiguity_tol,
                         max_relative_residual=max_rel, max_range=max_range, retries=retries,
                         five_dof=model.n_sensor == 1, use_closed_form=conc is not None,
-                        cf_gain=(conc or model).gain)
+                        cf_gain=(conc or model).gain, rank_tol=RANK_TOL)
 
     if isinstance(initial, str) and initial == "track":
         first = _first_start(C, cnorm, model, conc, mdl, nvec, box, opts, hemisphere)
@@ -358,6 +387,8 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
             init2 = _multistart_init(C[redo], cnorm[redo], mdl, model, nvec[redo], box, opts)
             again = _run_batch(C[redo], cnorm[redo], init2, mdl, nvec[redo], box, opts)
             result = _keep_better(result, redo, again)
+    if model.n_sensor == 1:
+        result = canonical_5dof(result, model)
     if covariance:
         from ._crb import solver_covariance
 
