@@ -31,8 +31,8 @@ def test_stored_calibration_residue_is_reproduced(ilemt, ilemt_dir):
     cal = read_ilemt_calibration(ilemt_dir / "output" / "XYZ_hr_cal.mat")
     st = residue_stats(ilemt, cal, "XYZ")
     # docs/paper-procedure.md#reproduction: sum of squares 0.01000859278 for the committed XYZ_hr_cal
-    assert st["num_points"] == 426
-    assert st["sum_squared_residue"] == pytest.approx(0.01000859278, rel=1e-9)
+    assert st.num_points == 426
+    assert st.sum_squared_residue == pytest.approx(0.01000859278, rel=1e-9)
 
 
 def test_paper_sequence_residues(ilemt, ilemt_dir):
