@@ -1,4 +1,4 @@
-"""``openemt bench noise``: the Teixeira Silva et al. 2017 noise protocol for every solver, against the CRB.
+"""``openemt bench noise``: the noise protocol of Teixeira Silva et al. 2017 for every solver, against the CRB.
 
 Random poses uniform over Teixeira Silva et al. 2017, Table 2 (distance 0.03-1 m, azimuth alpha in [-90, 90] deg,
 elevation beta in [0, 90] deg, Euler angles psi in [-180, 180], theta in [-90, 90],
@@ -55,7 +55,7 @@ def add_arguments(parser) -> None:
 
 
 def random_table2_poses(rng, n):
-    """Poses uniform over the Teixeira Silva et al. 2017, Table 2 intervals; returns (poses, variables (n, 6))."""
+    """Poses uniform over the intervals of Teixeira Silva et al. 2017, Table 2; returns (poses, variables (n, 6))."""
     from ..geometry import pose_from_rt, rotation_x, rotation_y, rotation_z
 
     rho = rng.uniform(0.03, 1.0, n)

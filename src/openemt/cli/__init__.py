@@ -33,7 +33,7 @@ COMMANDS = {
     "calibrate": ("calibrate", "fit a dipole-model and fixture calibration to a dataset"),
     "align": ("align", "solve AX = YB between two pose recordings and write pose pairs"),
     "correct": ("correct", "fit or apply an output correction of poses"),
-    "reproduce": ("reproduce", "reproduce a table of the MacLachlan et al. 2025s from raw data"),
+    "reproduce": ("reproduce", "reproduce a table of MacLachlan et al. 2025 from raw data"),
     "report": ("report", "write a self-contained HTML calibration and characterization report"),
     "track": ("track",
               "live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)"),

@@ -24,7 +24,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "report", help=command_help("report"),
         description="Write one self-contained HTML report (tables and figures embedded). With an "
-                    "ILEMT folder: the paper's calibration sequence and the MacLachlan et al. 2025, Table II, "
+                    "ILEMT folder: the paper's calibration sequence and Table II of MacLachlan et al. 2025, "
                     "III and IV reproductions. With a dataset and --calibration: accuracy, "
                     "per-fixture errors, error-vector and sweep plots and the parameters with "
                     "standard errors of that calibration.")

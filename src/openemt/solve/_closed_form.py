@@ -202,7 +202,7 @@ def _fast_concentric(C0, rank_tol, s, U, R, G, X, q, M):
     Eigenvalues of ``C0 C0^T`` (trigonometric closed form) give the singular values; the
     eigenvector of the largest gives ``u = U[:, 0]``; the rotation is the Wahba solution for
     ``H^-1 C0 = U diag(s0/2, -s1, -s2) V^T``: ``U diag(1, -1, -1) V^T`` (the Kim18 rotation and
-    the Teixeira Silva et al. 2017 solution), with Markley's determinant correction when ``det C0 < 0``, found as
+    the solution of Teixeira Silva et al. 2017), with Markley's determinant correction when ``det C0 < 0``, found as
     a unit quaternion ``q`` by Davenport's q-method (``wahba_quat``) from the known singular
     values. Returns ``_FAST_DONE`` (``s``, ``U[:, 0]``, ``q``, ``R`` set), ``_FAST_RANK_DEFICIENT``
     or ``_FAST_USE_SVD`` (fall back to the SVD path: a nearly double top singular value, or no
