@@ -24,8 +24,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "report", help=command_help("report"),
         description="Write one self-contained HTML report (tables and figures embedded). With an "
-                    "ILEMT folder: the paper's calibration sequence and Table II of MacLachlan et al. 2025, "
-                    "III and IV reproductions. With a dataset and --calibration: accuracy, "
+                    "ILEMT folder: the paper's calibration sequence and the reproductions of "
+                    "Tables II, III and IV of MacLachlan et al. 2025. With a dataset and --calibration: accuracy, "
                     "per-fixture errors, error-vector and sweep plots and the parameters with "
                     "standard errors of that calibration.")
     p.add_argument("source", nargs="?", metavar="ILEMT_DIR_OR_DATASET",
