@@ -142,3 +142,33 @@ def test_sealed_files_skip_the_probe_and_edited_files_are_probed(dataset_file, m
     monkeypatch.setattr(_h5safe, "_checked", set())
     reason = _h5safe.check_readable(dataset_file, timeout=1.0)
     assert reason == "reading its structure did not finish within 1 s"
+
+
+def test_mat_file_that_crashes_scipy_is_refused(fuzz, tmp_path):
+    """A mutation of base_calibration.mat on which scipy's MATLAB reader segfaults (found by
+    ``openemt bench fuzz``): read in a child process, refused in one line."""
+    from openemt.io import read_ilemt_calibration
+
+    targets, _ = fuzz
+    p = tmp_path / "base_calibration.mat"
+    p.write_bytes(case_bytes(targets["ilemt_mat"], [("replace_number", 67936859, 391781420)]))
+    with pytest.raises(InputError, match="base_calibration.mat that cannot be read"):
+        read_ilemt_calibration(p)
+
+
+@pytest.mark.parametrize("jops", [
+    [("set", 876459399, 576002250), ("delete", 702019669, 190583558)],
+    [("set", 655812843, 507664122), ("delete", 176772873, 340678404)],
+    [("delete", 312776518, 23556280), ("set", 735772479, 672393533),
+     ("set", 220097158, 953567227)],
+    [("set", 678289926, 954243000), ("delete", 2587732, 432249899)],
+    [("set", 962363379, 559980367)],
+])
+def test_malformed_correction_values_are_refused(fuzz, tmp_path, jops):
+    from openemt.correct import read_correction
+
+    targets, _ = fuzz
+    p = tmp_path / "corr.json"
+    p.write_bytes(case_bytes(targets["correction_json"], [], jops))
+    with pytest.raises(InputError, match="correction file corr.json: expected"):
+        read_correction(p)

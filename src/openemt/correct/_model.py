@@ -303,7 +303,7 @@ class Correction:
                 1 <= version <= _VERSION):
             raise InputError(f"{where}expected version 1..{_VERSION}, got {version!r}")
         method = d.get("method")
-        if method not in CORRECTION_METHODS:
+        if not isinstance(method, str) or method not in CORRECTION_METHODS:
             raise InputError(f"{where}expected `method` in {sorted(CORRECTION_METHODS)}, got "
                              f"{method!r}")
         params = d.get("params")
@@ -314,12 +314,19 @@ class Correction:
             if d.get(name) is not None and not isinstance(d[name], dict):
                 raise InputError(f"{where}expected `{name}` to be an object, got "
                                  f"{type(d[name]).__name__}")
-        _check_params(method, params, where)
-        obj = cls(method=method, params=dict(params),
-                  stats=dict(d.get("stats") or {}), meta=dict(d.get("meta") or {}))
-        # normalise params through the model so arrays have their numpy types again
-        return cls(method=obj.method, params=obj.model.to_params(), stats=obj.stats,
-                   meta=obj.meta)
+        try:
+            _check_params(method, params, where)
+            obj = cls(method=method, params=dict(params),
+                      stats=dict(d.get("stats") or {}), meta=dict(d.get("meta") or {}))
+            # normalise params through the model so arrays have their numpy types again
+            return cls(method=obj.method, params=obj.model.to_params(), stats=obj.stats,
+                       meta=obj.meta)
+        except (TypeError, KeyError) as exc:
+            # a parameter of the wrong JSON type (a string, object or null where numbers
+            # belong) reached the model's constructor: the file is malformed, not openemt
+            raise InputError(f"{where}expected the `params` of a {method!r} correction as "
+                             f"openemt writes them, got a malformed value "
+                             f"({type(exc).__name__}: {exc})") from None
 
 
 def _fit_model(method, m, Rm, d, Rd, options):

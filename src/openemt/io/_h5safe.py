@@ -90,16 +90,6 @@ def _walk(path: str) -> None:  # runs in the child process
         f.visititems(visit)
 
 
-def _child(path: str, conn) -> None:  # pragma: no cover - runs in the child process
-    try:
-        _walk(path)
-        conn.send("")
-    except BaseException as exc:  # noqa: BLE001 - reported to the parent as the reason
-        conn.send(" ".join(f"{type(exc).__name__}: {exc}".split())[:120] or "failed")
-    finally:
-        conn.close()
-
-
 def check_readable(path, *, timeout: float = PROBE_TIMEOUT_S) -> str:
     """``""`` if the HDF5 file can be opened safely, else the reason it cannot.
 
@@ -126,26 +116,13 @@ _checked: set = set()
 
 
 def _probe(path: Path, timeout: float) -> str:
-    import multiprocessing as mp
+    from ._isolated import run_isolated
 
-    method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-    ctx = mp.get_context(method)
-    parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(str(path), child), daemon=True)
-    proc.start()
-    child.close()
-    try:
-        if parent.poll(timeout):
-            try:
-                return parent.recv()
-            except EOFError:
-                pass
-        else:
-            return f"reading its structure did not finish within {timeout:g} s"
-        proc.join(5)
-        return f"reading its structure stopped the reader (exit {proc.exitcode})"
-    finally:
-        parent.close()
-        if proc.is_alive():
-            proc.kill()
-        proc.join(5)
+    out = run_isolated(_walk, (str(path),), timeout=timeout)
+    if out.kind == "ok":
+        return ""
+    if out.kind == "timeout":
+        return f"reading its structure did not finish within {timeout:g} s"
+    if out.kind == "died":
+        return f"reading its structure stopped the reader (exit {out.value})"
+    return " ".join(f"{type(out.value).__name__}: {out.value}".split())[:120] or "failed"

@@ -14,6 +14,7 @@ from .._errors import InputError
 from ..field import ILEMT_GAIN, DipoleModel
 from ._calibration import Calibration, check_correction_matrix, check_model_moments
 from ._ilemt import file_sha256
+from ._isolated import run_isolated
 
 __all__ = ["read_ilemt_calibration"]
 
@@ -78,6 +79,16 @@ def _matrix(d: dict, key: str, shape, path: Path) -> np.ndarray:
     return a
 
 
+#: seconds the MATLAB reader may take for a calibration file (a few kB) before it is refused
+MAT_READ_TIMEOUT_S = 20.0
+
+
+def _loadmat(path: str) -> dict:
+    import scipy.io
+
+    return scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
+
+
 def read_ilemt_calibration(path) -> Calibration:
     """Load an ILEMT calibration ``.mat`` file (MATLAB v5, one variable per field).
 
@@ -97,20 +108,27 @@ def read_ilemt_calibration(path) -> Calibration:
         ``extra["quadrupole"]`` (a warning is issued if any quadrupole moment is non-zero,
         since the dipole model ignores them).
     """
-    import scipy.io
     from scipy.io.matlab import MatReadError
 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"expected an ILEMT calibration .mat file, got missing file "
                                 f"{str(path)!r}")
-    try:
-        d = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
-    except (ValueError, TypeError, OSError, KeyError, IndexError, EOFError, NotImplementedError,
-            MatReadError, zlib.error, struct.error) as exc:
-        msg = " ".join(str(exc).split())[:120]
+    # scipy's MATLAB reader is compiled code that can crash the interpreter on a damaged file
+    # (seen: a segmentation fault), so it runs in a child process (io/_isolated.py)
+    out = run_isolated(_loadmat, (str(path),), timeout=MAT_READ_TIMEOUT_S)
+    if out.kind != "ok":
+        exc = out.value
+        if out.kind == "raised" and not isinstance(
+                exc, (ValueError, TypeError, OSError, KeyError, IndexError, EOFError,
+                      NotImplementedError, MatReadError, zlib.error, struct.error)):
+            raise exc
+        why = {"timeout": f"no answer within {MAT_READ_TIMEOUT_S:g} s",
+               "died": f"the MATLAB reader crashed (exit {exc})"}.get(
+            out.kind, f"{type(exc).__name__}: {' '.join(str(exc).split())[:120]}")
         raise InputError(f"expected an ILEMT calibration .mat file (MATLAB v5), got "
-                         f"{path.name} that cannot be read ({type(exc).__name__}: {msg})") from None
+                         f"{path.name} that cannot be read ({why})")
+    d = out.value
     model = DipoleModel(
         L_so=_matrix(d, "d_source_pos", (3, 3), path),
         M_so=_matrix(d, "d_source_moment", (3, 3), path),
