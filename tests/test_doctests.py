@@ -13,7 +13,7 @@ import openemt
 #: Packages whose every module's examples run here, and single modules besides them.
 PACKAGES = ("calibrate", "evaluate", "paper", "report", "signal", "simulate")
 MODULES = ("openemt", "openemt.io._calfile", "openemt.io._hdf5", "openemt.io._ilemt",
-           "openemt.correct._model")
+           "openemt.correct._model", "openemt.solve._closed_form", "openemt.solve._lm_solver")
 
 
 def _modules():
@@ -43,5 +43,6 @@ def test_the_main_functions_have_examples():
     for func in (openemt.read_dataset, openemt.import_ilemt_folder, openemt.read_calibration,
                  openemt.fit_calibration, openemt.pose_errors, openemt.error_summary,
                  simulate.simulate, simulate.truth_calibration, signal.demodulate,
-                 calibrate.solve_held_out, openemt.fit_correction):
+                 calibrate.solve_held_out, openemt.fit_correction, openemt.solve_lm,
+                 openemt.solve_svd, openemt.solve_kuipers, openemt.solve_kim18):
         assert "Examples\n" in (func.__doc__ or ""), func.__qualname__

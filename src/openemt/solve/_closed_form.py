@@ -621,5 +621,22 @@ def solve_kim18(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, rank_to
                               max_relative_residual, max_range)
 
 
+_EXAMPLE = """
+Examples
+--------
+Couplings of the ideal concentric model at a known pose, solved back (``status`` 0 is
+``Status.CONVERGED``):
+
+>>> import numpy as np
+>>> from openemt import {name}
+>>> from openemt.field import DipoleModel
+>>> from openemt.geometry import pose_from_vector
+>>> model = DipoleModel.concentric()
+>>> truth = pose_from_vector(np.array([[0.3, 0.1, -0.05, 0.2, -0.4, 1.0]]))  # m, rad
+>>> result = {name}(model.coupling(truth), model)
+>>> result.status, np.round(result.pose_vectors, 6)
+(array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
+"""
+
 for _f in (solve_svd, solve_kuipers, solve_kim18):
-    _f.__doc__ += _COMMON_DOC
+    _f.__doc__ += _COMMON_DOC + _EXAMPLE.format(name=_f.__name__)
