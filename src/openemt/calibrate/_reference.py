@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 from .. import __version__
 from .._errors import InputError
 from ..io import Calibration, Dataset
+from ..solve import spectral_norms
 from ._identifiability import IdentifiabilityWarning, analyse_identifiability
 from ._layout import ParameterLayout
 from ._lsq import fit_free_parameters
@@ -493,7 +494,7 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     layout = ParameterLayout.for_model(start.model)
     n = len(train)
     so_J = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
-    norms = np.linalg.norm(C, ord=2, axis=(1, 2))
+    norms = spectral_norms(C)
     if np.any(norms <= 0):
         raise InputError("expected non-zero coupling matrices, got zero rows")
     prob = CalibrationProblem(layout=layout, C_meas=C, weight=1.0 / norms, so_J=so_J,
