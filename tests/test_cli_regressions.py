@@ -29,3 +29,19 @@ def test_nan_smoothing_is_refused(tmp_path, capsys):
     assert main(["correct", "fit", pairs, "--method", "rbf", "--smoothing", "nan", "-o", out]) == 2
     assert "finite --smoothing >= 0" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_huge_lookup_grid_is_refused(tmp_path, capsys):
+    import numpy as np
+
+    from openemt.bench._correct import distorted_poses
+    from openemt.io import write_poses_csv
+
+    meas, ref = distorted_poses(60, np.random.default_rng(0))
+    pairs = write_poses_csv(tmp_path / "pairs.csv", meas, reference=ref)
+    out = tmp_path / "corr.json"
+    argv = ["correct", "fit", pairs, "--method", "grid", "--grid-shape", "1000,1000,1000",
+            "-o", out]
+    assert main(argv) == 2
+    assert "at most MAX_GRID_NODES" in capsys.readouterr().err
+    assert not out.exists()

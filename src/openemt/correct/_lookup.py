@@ -37,7 +37,12 @@ from ._crossval import (
     rotation_offsets,
 )
 
+#: largest lookup grid (nodes) a fit may ask for: 46 x 46 x 46; a larger grid has more unknowns
+#: than any realistic set of pose pairs can determine, and memory grows with it
+MAX_GRID_NODES = 100_000
+
 __all__ = [
+    "MAX_GRID_NODES",
     "SMOOTHING_GRID",
     "SMOOTHING_RBF",
     "GridCorrection",
@@ -234,6 +239,9 @@ def fit_grid(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *, 
     shape = _default_shape(len(m)) if shape is None else tuple(int(s) for s in shape)
     if len(shape) != 3 or min(shape) < 2:
         raise InputError(f"expected a grid shape of 3 ints >= 2, got {shape}")
+    if int(np.prod(shape, dtype=np.float64)) > MAX_GRID_NODES:
+        raise InputError(f"expected a grid of at most MAX_GRID_NODES = {MAX_GRID_NODES} nodes, "
+                         f"got {shape} = {int(np.prod(shape, dtype=np.float64))} nodes")
     lo, hi = m.min(axis=0), m.max(axis=0)
     ext = np.maximum(hi - lo, 1e-9)
     lower, upper = lo - padding * ext, hi + padding * ext
