@@ -52,17 +52,15 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    import h5py
 
     from ._solve_planar import read_board_calibration, solve_board
     board = read_board_calibration(args.calibration)
     if board is not None:  # a finite-coil board: the 5-DOF solver (docs/planar.md#solving)
         return solve_board(args, board)
 
-    from ..io import atomic_path, open_dataset_couplings, read_calibration
+    from ..io import open_dataset_couplings, read_calibration
     from ..solve import solve_chunks
-    from ..solve._output import PoseWriter
-    from ._common import emit, progress
+    from ._common import emit
 
     cal = read_calibration(args.calibration)
     options = {"max_relative_residual": args.max_relative_residual,
@@ -90,19 +88,11 @@ def run(args) -> int:
                 "hemisphere": args.hemisphere,
                 "correction_applied": bool(cal.linear_correction is not None
                                            and not args.no_correction)}
-        with atomic_path(args.output, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-            writer = PoseWriter(f, n, args.solver, meta)
-            bar = progress(total=n, desc="solve", args=args, unit="pose")
-            try:
-                for start, res in solve_chunks(reader, cal, chunk_rows=args.chunk_rows,
-                                               scheduler=args.scheduler, solver=args.solver,
-                                               hemisphere=hemisphere,
-                                               apply_correction=not args.no_correction,
-                                               **options):
-                    writer.write(start, res)
-                    bar.update(len(res))
-            finally:
-                bar.close()
+        chunks = solve_chunks(reader, cal, chunk_rows=args.chunk_rows,
+                              scheduler=args.scheduler, solver=args.solver,
+                              hemisphere=hemisphere, apply_correction=not args.no_correction,
+                              **options)
+        writer = write_solved(args, n, args.solver, meta, chunks)
     elapsed = time.perf_counter() - t0
     counts = writer.status_counts()
     summary = {"dataset": str(args.dataset), "calibration": str(args.calibration),
@@ -113,3 +103,22 @@ def run(args) -> int:
              "status: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v)]
     emit(args, summary, human)
     return 0
+
+
+def write_solved(args, n: int, solver: str, meta: dict, chunks):
+    """Write the ``(start, SolveResult)`` blocks of ``chunks`` to the poses file ``args.output``
+    (atomically, with a progress bar); returns the :class:`~openemt.solve._output.PoseWriter`,
+    whose status counts outlive the file."""
+    import h5py
+
+    from ..io import atomic_path
+    from ..solve._output import PoseWriter
+    from ._common import progress
+
+    with atomic_path(args.output, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+        writer = PoseWriter(f, n, solver, meta)
+        with progress(total=n, desc="solve", args=args, unit="pose") as bar:
+            for start, res in chunks:
+                writer.write(start, res)
+                bar.update(len(res))
+    return writer

@@ -30,12 +30,11 @@ def read_board_calibration(path):
 
 
 def solve_board(args, cal) -> int:
-    import h5py
 
-    from ..io import atomic_path, open_dataset_couplings
-    from ..solve._output import PoseWriter
+    from ..io import open_dataset_couplings
     from ..solve._planar import solve_planar
-    from ._common import emit, progress
+    from ._common import emit
+    from ._solve import write_solved
 
     if args.solver != "lm":
         raise InputError(f"expected --solver lm with a finite-coil calibration, got "
@@ -58,18 +57,11 @@ def solve_board(args, cal) -> int:
                              f"board calibration, got {reader.shape}")
         meta = {"dataset": str(args.dataset), "calibration": str(args.calibration),
                 "model": "finite", "board": model.board.name, "correction_applied": False}
-        with atomic_path(args.output, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-            writer = PoseWriter(f, n, "planar-lm", meta)
-            bar = progress(total=n, desc="solve", args=args, unit="pose")
-            try:
-                for start in range(0, n, args.chunk_rows):
-                    C = reader[start:start + args.chunk_rows]
-                    res = solve_planar(C, model, initial="track", max_iter=args.max_iter,
-                                       bounds=args.bounds, **rule)
-                    writer.write(start, res)
-                    bar.update(len(res))
-            finally:
-                bar.close()
+        chunks = ((start, solve_planar(reader[start:start + args.chunk_rows], model,
+                                       initial="track", max_iter=args.max_iter,
+                                       bounds=args.bounds, **rule))
+                  for start in range(0, n, args.chunk_rows))
+        writer = write_solved(args, n, "planar-lm", meta, chunks)
     elapsed = time.perf_counter() - t0
     counts = writer.status_counts()
     summary = {"dataset": str(args.dataset), "calibration": str(args.calibration),
