@@ -26,6 +26,10 @@ class Isolated:
 
 
 def _child(fn, args, conn) -> None:  # pragma: no cover - runs in the child process
+    import faulthandler
+
+    # a crash here is an expected outcome that the parent reports; no traceback dump for it
+    faulthandler.disable()
     try:
         out = ("ok", fn(*args))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which decides
