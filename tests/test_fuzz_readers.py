@@ -163,6 +163,7 @@ def test_mat_file_that_crashes_scipy_is_refused(fuzz, tmp_path):
      ("set", 220097158, 953567227)],
     [("set", 678289926, 954243000), ("delete", 2587732, 432249899)],
     [("set", 962363379, 559980367)],
+    [("set", 544212377, 634274665)],
 ])
 def test_malformed_correction_values_are_refused(fuzz, tmp_path, jops):
     from openemt.correct import read_correction

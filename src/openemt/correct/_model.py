@@ -321,9 +321,11 @@ class Correction:
             # normalise params through the model so arrays have their numpy types again
             return cls(method=obj.method, params=obj.model.to_params(), stats=obj.stats,
                        meta=obj.meta)
-        except (TypeError, KeyError) as exc:
-            # a parameter of the wrong JSON type (a string, object or null where numbers
-            # belong) reached the model's constructor: the file is malformed, not openemt
+        except InputError:
+            raise
+        except (TypeError, KeyError, ValueError) as exc:
+            # a parameter of the wrong JSON type or form (a string, object or null where
+            # numbers belong) reached the model's constructor: the file is malformed
             raise InputError(f"{where}expected the `params` of a {method!r} correction as "
                              f"openemt writes them, got a malformed value "
                              f"({type(exc).__name__}: {exc})") from None
