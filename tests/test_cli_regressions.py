@@ -45,3 +45,16 @@ def test_huge_lookup_grid_is_refused(tmp_path, capsys):
     assert main(argv) == 2
     assert "at most MAX_GRID_NODES" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("fit", ["fit_grid", "fit_rbf"])
+def test_library_refuses_nan_smoothing(fit):
+    import numpy as np
+
+    from openemt import correct
+    from openemt._errors import InputError
+
+    rng = np.random.default_rng(0)
+    p = rng.uniform(-0.1, 0.1, (40, 3))
+    with pytest.raises(InputError, match="finite `smoothing` >= 0"):
+        getattr(correct, fit)(p, p + 1e-3, smoothing=float("nan"))

@@ -10,12 +10,11 @@ reports the errors before and after.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
-from .._errors import InputError
+from .._errors import InputError, check_nonnegative
 from . import command_help
 from ._common import add_common, emit
 
@@ -127,9 +126,7 @@ def _method_options(args, method) -> dict:
         if args.rot_order is not None:
             opts["rot_order"] = args.rot_order
     if method in ("grid", "rbf") and args.smoothing is not None:
-        if not 0 <= args.smoothing < math.inf:
-            raise InputError(f"expected a finite --smoothing >= 0, got {args.smoothing}")
-        opts["smoothing"] = args.smoothing
+        opts["smoothing"] = check_nonnegative(args.smoothing, "--smoothing")
     if method == "grid" and args.grid_shape:
         try:
             opts["shape"] = tuple(int(v) for v in args.grid_shape.split(","))

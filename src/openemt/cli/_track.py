@@ -8,7 +8,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from .._errors import InputError
+from .._errors import InputError, check_nonnegative
 
 __all__ = ["register", "run"]
 
@@ -144,9 +144,8 @@ def run(args) -> int:
     if args.duration is not None and not 0 < args.duration < math.inf:
         raise InputError(f"expected a positive, finite --duration in seconds (leave it out to run "
                          f"until Ctrl-C), got {args.duration}")
-    if args.distortion_threshold is not None and not 0 <= args.distortion_threshold < math.inf:
-        raise InputError(f"expected a finite --distortion-threshold >= 0, got "
-                         f"{args.distortion_threshold}")
+    if args.distortion_threshold is not None:
+        check_nonnegative(args.distortion_threshold, "--distortion-threshold")
     if args.tracker is not None:
         for opt, v in (("--preset", args.preset), ("--calibration", args.calibration),
                        ("--device-name", args.device_name)):

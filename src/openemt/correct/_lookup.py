@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from scipy.interpolate import RBFInterpolator
 from scipy.sparse.linalg import spsolve
 
-from .._errors import InputError
+from .._errors import InputError, check_nonnegative
 from ._crossval import (
     ROTATION_MOMENT_M,
     apply_rotation_offsets,
@@ -236,6 +236,8 @@ def fit_grid(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *, 
     d = np.asarray(reference_xyz, dtype=np.float64)
     Rm = None if measured_R is None or reference_R is None else np.asarray(measured_R, float)
     Rd = None if Rm is None else np.asarray(reference_R, float)
+    if smoothing is not None:
+        smoothing = check_nonnegative(smoothing, "`smoothing`")
     shape = _default_shape(len(m)) if shape is None else tuple(int(s) for s in shape)
     if len(shape) != 3 or min(shape) < 2:
         raise InputError(f"expected a grid shape of 3 ints >= 2, got {shape}")
@@ -331,6 +333,8 @@ def fit_rbf(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
     center, scale = normalizer(m)
     pts = (m - center) / scale
     y = _targets(m, d, Rm, Rd)
+    if smoothing is not None:
+        smoothing = check_nonnegative(smoothing, "`smoothing`")
     if len(m) < _RBF_MIN_PAIRS:
         raise InputError(f"expected at least {_RBF_MIN_PAIRS} pairs for an RBF correction, "
                          f"got {len(m)}")

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._constants import OUTPUT_RATE_HZ
-from .._errors import InputError
+from .._errors import InputError, check_nonnegative
 from ..signal import Demodulated, Demodulator
 from ..solve import Status, solve_lm
 from ._filter import filter_restarts
@@ -403,7 +403,8 @@ class TrackingPipeline:
         self.correction = self.sensors[0].correction
         self.demod = Demodulator(backend.layout, output_rate=output_rate, window=window,
                                  phase=phase)
-        self.distortion_threshold = float(distortion_threshold)
+        self.distortion_threshold = check_nonnegative(distortion_threshold,
+                                                      "`distortion_threshold`")
         self.igtl = igtl
         self.log = log
         if log is not None:

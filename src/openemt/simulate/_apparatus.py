@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import __version__
-from .._errors import InputError
+from .._errors import InputError, check_nonnegative
 from ..geometry import ground_truth_poses, pose_from_vector, source_fixture_rotation
 from ..io import Calibration, Dataset
 from ._errors import (
@@ -89,12 +89,6 @@ def _distortions(distortion) -> list[Distortion]:
     return [Distortion.from_any(d) for d in distortion]
 
 
-def _nonneg(value, name):
-    v = float(value)
-    if not np.isfinite(v) or v < 0:
-        raise InputError(f"expected a finite {name} >= 0, got {value!r}")
-    return v
-
 
 def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="all",
              combinations: str = "paper", snr_db=None, noise_abs=None,
@@ -164,12 +158,12 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     names = _patterns(pattern, p)
     stages = {n: stage_pattern(n, clip_z=clip_z) for n in names}
     combos = fixture_combinations(p, source_fixtures, sensor_fixtures, combinations=combinations)
-    stage_sigma = _nonneg(stage_sigma, "stage_sigma")
+    stage_sigma = check_nonnegative(stage_sigma, "stage_sigma")
     if snr_db is not None and noise_abs is not None:
         raise InputError(f"expected at most one of snr_db and noise_abs, got snr_db={snr_db!r} "
                          f"and noise_abs={noise_abs!r}")
     if noise_abs is not None:
-        _nonneg(noise_abs, "noise_abs")
+        check_nonnegative(noise_abs, "noise_abs")
     objects = _distortions(distortion)
 
     blocks, files, so_codes, se_codes, pats, file_index = [], [], [], [], [], []

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import __version__
-from .._errors import InputError
+from .._errors import InputError, check_nonnegative
 from ..calibrate._reference import reference_block
 from ..field import DipoleModel
 from ..geometry import ground_truth_poses, invert, pose_from_rt, pose_from_vector, vector_from_pose
@@ -85,12 +85,6 @@ def _kind(reference) -> ReferenceKind:
                          f"{reference!r}")
     return REFERENCE_KINDS[reference]
 
-
-def _nonneg(value, name) -> float:
-    v = float(value)
-    if not np.isfinite(v) or v < 0:
-        raise InputError(f"expected a finite {name} >= 0, got {value!r}")
-    return v
 
 
 def _pose(v, name) -> np.ndarray:
@@ -214,9 +208,9 @@ def simulate_reference(preset="concentric", reference="robot", n_poses: int = 30
         raise InputError(f"expected n_poses >= 3, got {n_poses!r}")
     X = _pose(k.X if X is None else X, "X")
     Y = _pose(k.Y if Y is None else Y, "Y")
-    st = _nonneg(k.noise_trans if noise_trans is None else noise_trans, "noise_trans")
-    sr = _nonneg(k.noise_rot if noise_rot is None else noise_rot, "noise_rot")
-    rr = _nonneg(k.rotation_range if rotation_range is None else rotation_range,
+    st = check_nonnegative(k.noise_trans if noise_trans is None else noise_trans, "noise_trans")
+    sr = check_nonnegative(k.noise_rot if noise_rot is None else noise_rot, "noise_rot")
+    rr = check_nonnegative(k.rotation_range if rotation_range is None else rotation_range,
                  "rotation_range")
     if snr_db is not None and noise_abs is not None:
         raise InputError(f"expected at most one of snr_db and noise_abs, got snr_db={snr_db!r} "
