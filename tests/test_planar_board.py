@@ -5,7 +5,7 @@ import json
 import magpylib
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from openemt._errors import InputError
@@ -208,12 +208,15 @@ def test_planar_speed_bench_small():
 
 @settings(max_examples=40, deadline=None)
 @given(st.lists(st.floats(-0.2, 0.2), min_size=9, max_size=9))
+@example([0.0, 0.0, 0.0, 0.03125, 0.0, 1.52587890625e-05, 0.1875, 0.0, 0.0])
 def test_single_segment_field_matches_magpylib(v):
     a, b, r = np.array(v[:3]), np.array(v[3:6]), np.array(v[6:])
     length = np.linalg.norm(b - a)
     assume(length > 1e-3)
-    # stay off the segment's line, where the field vanishes or is singular
-    t = np.clip((r - a) @ (b - a) / length**2, -5, 5)
+    # stay off the segment's (infinite) line, where the field vanishes or is singular and the
+    # reference loses digits: at 9e-5 m from the line, 0.19 m away, magpylib is off by 2e-9
+    # relative while this kernel agrees with a 50-digit quadrature to 1.3e-10
+    t = (r - a) @ (b - a) / length**2
     assume(np.linalg.norm(r - a - t * (b - a)) > 0.01 * length)
     B = segment_fields(np.array([[a, b]]), [0, 1], r[None])[0, 0]
     ref = magpylib.getB(magpylib.current.Polyline(current=1.0, vertices=[a, b]), r)
