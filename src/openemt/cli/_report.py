@@ -31,7 +31,9 @@ def register(sub) -> None:
                     "ILEMT folder: the paper's calibration sequence and the reproductions of "
                     "Tables II, III and IV of MacLachlan et al. 2025. With a dataset and --calibration: accuracy, "
                     "per-fixture errors, error-vector and sweep plots and the parameters with "
-                    "standard errors of that calibration.")
+                    "standard errors of that calibration. With grid data and a finite-coil "
+                    "board calibration: 5-DOF accuracy on the grid's known poses, per-coil "
+                    "residuals, an error map and the fitted coil parameters.")
     p.add_argument("source", nargs="?", metavar="ILEMT_DIR_OR_DATASET",
                    help="an ILEMT data folder, or a dataset file (.h5/.csv; needs --calibration)")
     p.add_argument("--dataset", help="test dataset file (alternative to the positional "

@@ -43,7 +43,8 @@ def register(subparsers) -> None:
     p.add_argument("--calibration", type=Path, default=None,
                    help="(without --tracker) calibration file (JSON or ILEMT .mat) for the "
                         "solver's model and linear correction (default: the preset's true "
-                        "model)")
+                        "model); a finite-coil board calibration tracks its 5-DOF sensor on the "
+                        "board's carriers (docs/planar.md)")
     p.add_argument("--filter", choices=("none", "kalman"), default=None,
                    help="tracking filter per sensor: constant-velocity Kalman filter, reset "
                         "on loss (default: the tracker file's [filter], else none)")

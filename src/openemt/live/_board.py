@@ -24,16 +24,28 @@ __all__ = [
     "BoardCoupling",
     "board_calibration",
     "board_default_spec",
+    "board_frequencies",
     "board_solver",
     "board_trajectory",
     "board_truth",
     "fit_sensor_gain",
 ]
 
-#: Default carriers of the 8 board coils (Hz): 7.5 kHz to 28.5 kHz in 3 kHz steps, the ILEMT
-#: plan (7.5, 10.5, 13.5 kHz) continued. At 96 kS/s and 1500 outputs/s they fall on bins
-#: 10, 14, ..., 38 of the 128-sample Hann frame, 4 bins apart (docs/planar.md#tracking-live).
-BOARD_FREQUENCIES = tuple(7500.0 + 3000.0 * k for k in range(8))
+
+
+def board_frequencies(n: int) -> tuple:
+    """Default carriers of an ``n``-coil board (Hz): from 7.5 kHz in 3 kHz steps, the ILEMT plan
+    (7.5, 10.5, 13.5 kHz) continued; 1.5 kHz steps beyond 8 coils (below the 48 kHz Nyquist
+    limit up to 27 coils). At 96 kS/s and 1500 outputs/s they fall on bins 10, 14, ... (10, 12,
+    ...) of the 128-sample Hann frame, where the window keeps them exactly apart
+    (docs/live.md, "Demodulator")."""
+    step = 3000.0 if n <= 8 else 1500.0
+    return tuple(7500.0 + step * k for k in range(int(n)))
+
+
+#: Default carriers of the 8 board coils (Hz): 7.5 kHz to 28.5 kHz, 3 kHz apart
+#: (docs/planar.md#tracking-live).
+BOARD_FREQUENCIES = board_frequencies(8)
 #: Peak sensor voltage (V) the simulated board tracker's sensor gain is set for.
 BOARD_PEAK_VOLTS = 0.3
 
@@ -159,13 +171,11 @@ def board_default_spec(calibration, device_name: str = "openemt", *, preset=None
         raise InputError(f"expected no --preset with a finite-coil board calibration (the "
                          f"simulation's truth is the calibration's board), got {preset!r}")
     n = cal.model.n_coils
-    if n > 16:
-        raise InputError(f"expected a board of at most 16 coils for the simulated tracker, got "
-                         f"{n}")
+    if n > 27:
+        raise InputError(f"expected a board of at most 27 coils for the default tracker (one "
+                         f"carrier each below 48 kHz), got {n}: describe it in a tracker file")
     spec = read_tracker(example_tracker("anser"))
-    freqs = tuple(7500.0 + 3000.0 * k for k in range(n))      # BOARD_FREQUENCIES continued
-    if n > 8:      # 3 kHz steps reach the 48 kHz Nyquist limit: 1.5 kHz (2 bins) apart
-        freqs = tuple(7500.0 + 1500.0 * k for k in range(n))
+    freqs = board_frequencies(n)
     sensor = SensorSpec(name=device_name, channels=(0,), calibration=Path(calibration),
                         device_name=device_name)
     return replace(spec, n_channels=n + 1, frequencies=freqs,
