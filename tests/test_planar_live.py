@@ -165,3 +165,12 @@ def test_board_sensor_streams_to_a_pyigtl_client(board_cal):
     truth = board_trajectory(t)
     np.testing.assert_allclose(M[:, :3, 3], 1000.0 * truth[:, :3, 3], atol=0.05)   # mm
     np.testing.assert_allclose(M[:, :3, 2], truth[:, :3, 2], atol=1e-3)        # sensor axis
+
+
+def test_planar_live_bench_small():
+    from openemt.bench._planar_speed import planar_live_speed
+
+    out = planar_live_speed(seconds=0.2)
+    assert out["planar_live_status_counts"] == {"CONVERGED": 299}
+    assert out["planar_live_realtime_factor"] > 0 and out["planar_live_latency_ms_p50"] > 0
+    assert out["planar_live_position_error_mm_rms"] < 0.1
