@@ -154,8 +154,13 @@ def error_map_figure(points, errors, *, failed=None, tolerance: float = 1e-3,
         sc = ax.scatter(px[good], py[good], c=mag[good], cmap="viridis", vmin=0,
                         vmax=vmax or 1.0, s=60)
         if np.any(good):
+            # the longest in-plane arrow is 0.8 of the median grid pitch of the panel
+            ux = np.unique(np.round(np.concatenate([px[m], py[m]]), 3))
+            pitch = float(np.median(np.diff(ux))) if len(ux) > 1 else 1.0
+            inplane = np.hypot(e[good, 0], e[good, 1]).max() * 1e3
+            scale = inplane / (0.8 * pitch) if inplane > 0 else 1.0
             ax.quiver(px[good], py[good], e[good, 0] * 1e3, e[good, 1] * 1e3, angles="xy",
-                      color="k", width=0.004)
+                      scale_units="xy", scale=scale, color="k", width=0.004)
         if np.any(m & bad):
             ax.scatter(px[m & bad], py[m & bad], marker="x", c="r", s=50, label="no solution")
             ax.legend(fontsize=8)
@@ -169,5 +174,6 @@ def error_map_figure(points, errors, *, failed=None, tolerance: float = 1e-3,
         axes[k // cols][k % cols].axis("off")
     if sc is not None:
         fig.colorbar(sc, ax=axes.ravel().tolist(), label="position error (mm)", shrink=0.85)
-    fig.suptitle(f"{title} (arrows: in-plane error, autoscaled; max {vmax:.3f} mm)")
+    fig.suptitle(f"{title} (arrows: in-plane error, scaled to the grid pitch; max "
+                 f"{vmax:.3f} mm)")
     return fig

@@ -20,8 +20,16 @@ __all__ = ["planar_document", "planar_report"]
 _KEYS = ("n", "n_failed", "position_rms_mm", "position_max_mm", "axis_rms_deg")
 
 
+def _pm(value: float, se: float, digits: int) -> str:
+    """``value ± se`` (the standard error left out when unknown; "fixed" when it is 0, a
+    parameter the fit kept, e.g. tilts without ``--tilt``)."""
+    if not np.isfinite(se):
+        return f"{value:.{digits}f}"
+    return f"{value:.{digits}f} (fixed)" if se == 0 else f"{value:.{digits}f} ± {se:.2g}"
+
+
 def _parameter_rows(cal) -> list:
-    """Rows of (coil, gain, offsets, tilts) with standard errors (mm, deg)."""
+    """Rows of (coil, gain, offsets in mm, tilts in deg), each value ± its standard error."""
     m, se = cal.model, cal.standard_errors or {}
     nan = np.full((m.n_coils, 3), np.nan)
     g_se = np.asarray(se.get("gains", np.full(m.n_coils, np.nan)), dtype=float)
@@ -29,13 +37,12 @@ def _parameter_rows(cal) -> list:
     t_se = np.degrees(np.asarray(se.get("tilts", nan), dtype=float))
     rows = []
     for i, c in enumerate(m.board.coils):
-        row = {"coil": c.name, "gain": float(m.gains[i]), "gain_se": float(g_se[i])}
+        row = {"coil": c.name, "gain": _pm(float(m.gains[i]), float(g_se[i]), 5)}
         for a, ax in enumerate("xyz"):
-            row[f"offset_{ax}_mm"] = float(m.offsets[i, a] * 1e3)
-            row[f"offset_{ax}_se_mm"] = float(o_se[i, a])
+            row[f"offset {ax} (mm)"] = _pm(float(m.offsets[i, a] * 1e3), float(o_se[i, a]), 4)
         for a, ax in enumerate("xyz"):
-            row[f"tilt_{ax}_deg"] = float(np.degrees(m.tilts[i, a]))
-            row[f"tilt_{ax}_se_deg"] = float(t_se[i, a])
+            row[f"tilt {ax} (deg)"] = _pm(float(np.degrees(m.tilts[i, a])), float(t_se[i, a]),
+                                          4)
         rows.append(row)
     return rows
 
@@ -81,8 +88,8 @@ def planar_document(summary: dict, errors, points, cal, title: str | None = None
                "without a converged solution.")
     rep.heading("Calibration parameters and standard errors")
     rep.table(_parameter_rows(cal), digits=5,
-              caption="Per-coil gain, position offset (mm) and tilt (rotation vector, deg) with "
-                      "standard errors (Gauss-Newton covariance of the fit)")
+              caption="Per-coil gain, position offset (mm) and tilt (rotation vector, deg), each "
+                      "± its standard error (Gauss-Newton covariance of the fit)")
     st = cal.stats or {}
     if st:
         rep.paragraph(f"Fit: status {st.get('status', '?')}, {st.get('iterations', '?')} "
