@@ -32,8 +32,8 @@ def dipole_only(name: str) -> DipoleOnlyError:
     if name.startswith("__"):
         return AttributeError(name)
     return DipoleOnlyError(f"expected a dipole-model calibration (this use needs its {name!r}), "
-                           f"got a finite-coil board calibration: use it with `openemt solve` "
-                           f"or `openemt info` (docs/planar.md)")
+                           f"got a finite-coil board calibration: use it with `openemt info`, "
+                           f"`solve`, `report` or `track` (docs/planar.md)")
 
 
 @dataclass(frozen=True, eq=False)

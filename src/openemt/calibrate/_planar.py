@@ -31,6 +31,7 @@ from ..field import ILEMT_GAIN, coil_fields
 __all__ = [
     "GridData",
     "PlanarCalibration",
+    "PlanarErrors",
     "PlanarFit",
     "calibrate_planar",
     "check_grid_units",
@@ -39,6 +40,7 @@ __all__ = [
     "fit_planar",
     "planar_accuracy",
     "planar_coupling",
+    "planar_errors",
     "read_grid",
     "read_grid_csv",
     "write_grid_csv",
@@ -536,26 +538,105 @@ def checkerboard_split(points, tolerance: float = 1e-3) -> np.ndarray:
     return idx % 2 == 0
 
 
-def planar_accuracy(model, data: GridData, **solve_options) -> dict:
-    """Solve every grid point from its couplings alone (cold start from the seed grid) with the
-    5-DOF solver and compare with the known positions and axes.
+@dataclass(frozen=True, eq=False)
+class PlanarErrors:
+    """Per-point errors of a board model on grid data (:func:`planar_errors`).
 
-    Returns a dict: ``n`` (converged samples scored), ``n_failed``, ``position_rms_mm``,
-    ``position_max_mm``, ``axis_rms_deg`` and ``coil_residual_percent`` (per coil: RMS of
-    measured minus model coupling at the known poses, percent of the coil's peak).
+    Attributes
+    ----------
+    result : openemt.solve.SolveResult
+        The 5-DOF solution of every grid point (cold start from the seed grid).
+    converged : ndarray, shape (N,), bool
+        Points solved with status ``converged`` (the ones scored).
+    error_vectors : ndarray, shape (N, 3)
+        Solved minus known position (m); NaN where not converged.
+    position_error : ndarray, shape (N,)
+        ``|error_vectors|`` (m); NaN where not converged.
+    axis_error_deg : ndarray, shape (N,)
+        Angle between the solved and the known sensor axis (deg); NaN where not converged.
+    coil_residual : ndarray, shape (N, n_coils)
+        Measured minus model coupling at the known poses.
+    couplings : ndarray, shape (N, n_coils)
+        The measured couplings.
+    """
+
+    result: object
+    converged: np.ndarray
+    error_vectors: np.ndarray
+    position_error: np.ndarray
+    axis_error_deg: np.ndarray
+    coil_residual: np.ndarray
+    couplings: np.ndarray
+
+    def subset(self, mask) -> PlanarErrors:
+        """The errors of the points ``mask`` (boolean or indices)."""
+        return PlanarErrors(self.result.select(mask), self.converged[mask],
+                            self.error_vectors[mask], self.position_error[mask],
+                            self.axis_error_deg[mask], self.coil_residual[mask],
+                            self.couplings[mask])
+
+    @staticmethod
+    def concatenate(parts) -> PlanarErrors:
+        """Join the errors of consecutive blocks of points."""
+        from ..solve import SolveResult
+
+        parts = list(parts)
+        if not parts:
+            raise InputError("expected at least one block of errors to join, got none")
+        return PlanarErrors(SolveResult.concatenate([p.result for p in parts]),
+                            *(np.concatenate([getattr(p, f) for p in parts])
+                              for f in ("converged", "error_vectors", "position_error",
+                                        "axis_error_deg", "coil_residual", "couplings")))
+
+    def summary(self) -> dict:
+        """``n`` (converged points scored), ``n_failed``, ``position_rms_mm``,
+        ``position_max_mm``, ``axis_rms_deg`` and ``coil_residual_percent`` (per coil: RMS of
+        measured minus model coupling at the known poses, percent of the coil's peak)."""
+        ok = self.converged
+        dp, ang = self.position_error[ok], self.axis_error_deg[ok]
+        nan = float("nan")
+        return {"n": int(ok.sum()), "n_failed": int((~ok).sum()),
+                "position_rms_mm": float(np.sqrt(np.mean(dp ** 2)) * 1e3) if ok.any() else nan,
+                "position_max_mm": float(dp.max() * 1e3) if ok.any() else nan,
+                "axis_rms_deg": float(np.sqrt(np.mean(ang ** 2))) if ok.any() else nan,
+                "coil_residual_percent": coil_residual_percent(self.coil_residual,
+                                                               self.couplings).tolist()}
+
+
+def planar_errors(model, data: GridData, *, result=None, **solve_options) -> PlanarErrors:
+    """Solve every grid point from its couplings alone (cold start from the seed grid) with the
+    5-DOF solver and compare with the known positions and axes, point by point.
+
+    ``result`` (a :class:`~openemt.solve.SolveResult` of the grid's couplings, e.g. a tracked
+    solution) is scored instead of solving again.
     """
     from ..solve import Status
     from ..solve._planar import solve_planar
 
-    res = solve_planar(data.couplings, model, initial="grid", **solve_options)
+    if data.couplings.shape[1] != model.n_coils:
+        raise InputError(f"expected {model.n_coils} coil columns for this board, got "
+                         f"{data.couplings.shape[1]}")
+    res = (solve_planar(data.couplings, model, initial="grid", **solve_options)
+           if result is None else result)
+    if len(res) != len(data.points):
+        raise InputError(f"expected a solution of {len(data.points)} points, got {len(res)}")
     ok = res.status == Status.CONVERGED
-    dp = np.linalg.norm(res.poses[ok, :3, 3] - data.points[ok], axis=1)
+    ev = np.full((len(ok), 3), np.nan)
+    ev[ok] = res.poses[ok, :3, 3] - data.points[ok]
+    ang = np.full(len(ok), np.nan)
     cosang = np.clip(np.einsum("ij,ij->i", res.poses[ok, :3, 2], data.axes[ok]), -1.0, 1.0)
-    ang = np.degrees(np.arccos(cosang))
+    ang[ok] = np.degrees(np.arccos(cosang))
     resid = data.couplings - model.coupling(data.points, data.axes)
-    nan = float("nan")
-    return {"n": int(ok.sum()), "n_failed": int((~ok).sum()),
-            "position_rms_mm": float(np.sqrt(np.mean(dp ** 2)) * 1e3) if ok.any() else nan,
-            "position_max_mm": float(dp.max() * 1e3) if ok.any() else nan,
-            "axis_rms_deg": float(np.sqrt(np.mean(ang ** 2))) if ok.any() else nan,
-            "coil_residual_percent": coil_residual_percent(resid, data.couplings).tolist()}
+    return PlanarErrors(res, ok, ev, np.linalg.norm(ev, axis=1), ang, resid, data.couplings)
+
+
+def planar_accuracy(model, data: GridData, **solve_options) -> dict:
+    """Solve every grid point from its couplings alone (cold start from the seed grid) with the
+    5-DOF solver and compare with the known positions and axes.
+
+    Returns :meth:`PlanarErrors.summary` of :func:`planar_errors`: ``n`` (converged samples
+    scored), ``n_failed``, ``position_rms_mm``, ``position_max_mm``, ``axis_rms_deg`` and
+    ``coil_residual_percent`` (per coil: RMS of measured minus model coupling at the known
+    poses, percent of the coil's peak).
+    """
+    return planar_errors(model, data, **solve_options).summary()

@@ -6,7 +6,11 @@
 * ``openemt report --calibration CAL.json --dataset TEST.h5 -o report.html`` (or
   ``openemt report TEST.h5 --calibration CAL.json ...``): characterise a calibration on a test
   dataset against the rig kinematics (``--reference kinematics``, the default) or the dataset's
-  reference poses (``--reference poses``).
+  reference poses (``--reference poses``);
+* ``openemt report GRID --calibration BOARD_CAL.json [--holdout checkerboard] -o report.html``
+  with a finite-coil (board) calibration: grid data with known positions and axes (a grid CSV
+  or a simulated single-coil dataset) solved with the 5-DOF solver, scored as the planar
+  calibration scores it (docs/planar.md#reports).
 """
 
 from __future__ import annotations
@@ -27,7 +31,9 @@ def register(sub) -> None:
                     "ILEMT folder: the paper's calibration sequence and the reproductions of "
                     "Tables II, III and IV of MacLachlan et al. 2025. With a dataset and --calibration: accuracy, "
                     "per-fixture errors, error-vector and sweep plots and the parameters with "
-                    "standard errors of that calibration.")
+                    "standard errors of that calibration. With grid data and a finite-coil "
+                    "board calibration: 5-DOF accuracy on the grid's known poses, per-coil "
+                    "residuals, an error map and the fitted coil parameters.")
     p.add_argument("source", nargs="?", metavar="ILEMT_DIR_OR_DATASET",
                    help="an ILEMT data folder, or a dataset file (.h5/.csv; needs --calibration)")
     p.add_argument("--dataset", help="test dataset file (alternative to the positional "
@@ -39,6 +45,10 @@ def register(sub) -> None:
     p.add_argument("--reference", choices=("kinematics", "poses"), default="kinematics",
                    help="ground truth of a dataset: rig kinematics with the calibration's "
                         "fixtures (default) or the dataset's reference poses")
+    p.add_argument("--holdout", choices=("checkerboard",), default=None,
+                   help="board calibrations: also score the grid's checkerboard halves as "
+                        "`calibrate --mode planar --holdout checkerboard` splits them "
+                        "(insample: fit points, holdout: the others)")
     p.add_argument("--title", help="report title")
     p.add_argument("-o", "--output", required=True, metavar="REPORT.html",
                    help="output HTML file")
@@ -67,9 +77,9 @@ def run(args) -> int:
     src = Path(src)
     out_path = Path(args.output)
     if src.is_dir():
-        if args.dataset or args.calibration or args.concentric:
-            raise InputError("expected no --dataset/--calibration/--concentric with an ILEMT "
-                             f"folder, got them with {str(src)!r}")
+        if args.dataset or args.calibration or args.concentric or args.holdout:
+            raise InputError("expected no --dataset/--calibration/--concentric/--holdout with an "
+                             f"ILEMT folder, got them with {str(src)!r}")
         built = paper_report(src, title=args.title)
     else:
         if not src.is_file():
@@ -78,8 +88,13 @@ def run(args) -> int:
         if not args.calibration:
             raise InputError(f"expected --calibration CAL.json to characterise on "
                              f"{src.name}, got none")
-        ds = _read_dataset(src)
         cal = read_calibration(args.calibration)
+        if getattr(cal, "kind", None) == "finite":     # a board: docs/planar.md#reports
+            return _board_report(args, src, cal, out_path)
+        if args.holdout is not None:
+            raise InputError(f"expected --holdout only with a finite-coil (board) calibration, "
+                             f"got it with the dipole calibration {args.calibration!r}")
+        ds = _read_dataset(src)
         conc = read_calibration(args.concentric) if args.concentric else None
         built = characterization_report(ds, cal, concentric=conc, reference=args.reference,
                                         title=args.title)
@@ -95,6 +110,35 @@ def run(args) -> int:
         for name, r in summary["accuracy"].items():
             human.append(f"  {name:26s} {r['trans_rms_mm']:.4f} mm RMS (u(P) "
                          f"{r['trans_uncert_mm']:.4f} mm), {r['rot_rms_deg']:.4f} deg RMS")
+    human.append(f"  total {summary['seconds']['total']:.2f} s")
+    emit(args, summary, human)
+    return 0
+
+
+def _board_report(args, src: Path, cal, out_path: Path) -> int:
+    """The report of a finite-coil calibration on grid data (docs/planar.md#reports)."""
+    from ..calibrate._planar import read_grid
+    from ..report import planar_report
+
+    if args.concentric:
+        raise InputError(f"expected no --concentric with a finite-coil calibration (the 5-DOF "
+                         f"solver starts from its seed grid), got {args.concentric!r}")
+    data = read_grid(src)
+    n = cal.model.n_coils
+    if data.couplings.shape[1] != n:
+        raise InputError(f"expected grid data with {n} coil columns for the board calibration "
+                         f"{str(args.calibration)!r}, got {data.couplings.shape[1]} in "
+                         f"{src.name}")
+    built = planar_report(data, cal, holdout=args.holdout, dataset=str(src), title=args.title)
+    summary = built.write(out_path)
+    human = [f"report: {out_path} ({summary['n_figures']} figures)"]
+    blocks = [("all points", summary["accuracy"])]
+    if "holdout" in summary:
+        blocks += [("in-sample", summary["insample"]), ("held out", summary["holdout"])]
+    for name, b in blocks:
+        human.append(f"  {name:11s} {b['position_rms_mm']:.4f} mm RMS, "
+                     f"{b['position_max_mm']:.4f} mm max, {b['axis_rms_deg']:.4f} deg axis RMS "
+                     f"over {b['n']} points ({b['n_failed']} failed)")
     human.append(f"  total {summary['seconds']['total']:.2f} s")
     emit(args, summary, human)
     return 0

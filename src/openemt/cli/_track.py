@@ -43,7 +43,8 @@ def register(subparsers) -> None:
     p.add_argument("--calibration", type=Path, default=None,
                    help="(without --tracker) calibration file (JSON or ILEMT .mat) for the "
                         "solver's model and linear correction (default: the preset's true "
-                        "model)")
+                        "model); a finite-coil board calibration tracks its 5-DOF sensor on the "
+                        "board's carriers (docs/planar.md)")
     p.add_argument("--filter", choices=("none", "kalman"), default=None,
                    help="tracking filter per sensor: constant-velocity Kalman filter, reset "
                         "on loss (default: the tracker file's [filter], else none)")
@@ -116,15 +117,20 @@ def _default_spec(args):
     """The tracker without a tracker file: the shipped simulated one-sensor tracker with the
     preset's carriers, model (or --calibration) and --device-name."""
     from ..live import SensorSpec, example_tracker, read_tracker
+    from ..live._board import board_default_spec
     from ..simulate import get_preset
 
+    device = args.device_name or "openemt"
+    if args.calibration is not None:          # a board calibration: docs/planar.md
+        board = board_default_spec(args.calibration, device, preset=args.preset)
+        if board is not None:
+            return board
     spec = read_tracker(example_tracker("simulated"))
     name = args.preset or "concentric"
     preset = get_preset(name)
     if (preset.n_source, preset.n_sensor) != (3, 3):
         raise InputError(f"expected a tri-axial source and sensor preset for track, got "
                          f"{name!r} with {preset.n_source}x{preset.n_sensor} coils")
-    device = args.device_name or "openemt"
     sensor = SensorSpec(name=device, channels=(0, 1, 2), calibration=args.calibration,
                         device_name=device)
     sim = dict(spec.simulation, preset=name)

@@ -28,7 +28,16 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
             cals[i] = first.setdefault(key, cals[i])
     preset_model = None
     out = []
+    boards: dict = {}
     for s, cols, cal in zip(spec.sensors, spec.sensor_columns(), cals):
+        if getattr(cal, "kind", None) == "finite":    # a board: the 5-DOF solver
+            from ._board import board_solver
+
+            solver = boards.setdefault(id(cal), board_solver(cal.model))
+            out.append(SensorSetup(name=s.name, columns=cols, solver=solver,
+                                   device_name=s.device_name,
+                                   filter=s.filter_or(spec.filter) if filter is None else filter))
+            continue
         if cal is None:
             if preset_model is None:
                 from ..simulate import get_preset
@@ -82,15 +91,19 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
         raise InputError(f"expected a source in ('sim', 'replay', 'sound'), got {source!r}")
     from ..signal import RawSignalConfig
     from ..simulate import get_preset
+    from ._board import board_trajectory, board_truth
 
     sim = spec.simulation
-    preset = get_preset(sim.get("preset", "concentric"))
-    n_coils = {len(s.channels) for s in spec.sensors}
-    if n_coils != {preset.n_sensor} or preset.n_source != len(spec.frequencies):
-        raise InputError(f"{spec._where()}: expected sensors of {preset.n_sensor} coils and "
-                         f"{preset.n_source} carriers for the simulated preset "
-                         f"{preset.name!r}, got {sorted(n_coils)} coils and "
-                         f"{len(spec.frequencies)} carriers")
+    model, trajectory = board_truth(spec), board_trajectory   # a board calibration's truth
+    if model is None:
+        preset = get_preset(sim.get("preset", "concentric"))
+        n_coils = {len(s.channels) for s in spec.sensors}
+        if n_coils != {preset.n_sensor} or preset.n_source != len(spec.frequencies):
+            raise InputError(f"{spec._where()}: expected sensors of {preset.n_sensor} coils "
+                             f"and {preset.n_source} carriers for the simulated preset "
+                             f"{preset.name!r}, got {sorted(n_coils)} coils and "
+                             f"{len(spec.frequencies)} carriers")
+        model, trajectory = preset.dipole, None
     kw = {"mains_amplitudes": sim.get("mains_amplitudes", SIMULATED_MAINS_AMPLITUDES_V)}
     for key, over in (("noise_rms", noise_rms), ("eddy_strength", eddy_strength)):
         v = sim.get(key) if over is None else over
@@ -98,6 +111,6 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
             kw[key] = v
     cfg = RawSignalConfig(layout=layout, **kw)
     offsets = np.array([s.simulation_offset for s in spec.sensors], dtype=np.float64)
-    return SimulatedBackend(preset.dipole, config=cfg, seed=sim.get("seed", 0)
+    return SimulatedBackend(model, trajectory, config=cfg, seed=sim.get("seed", 0)
                             if seed is None else seed, realtime=realtime, duration=duration,
                             offsets=offsets, chunk=chunk)

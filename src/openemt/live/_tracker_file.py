@@ -161,14 +161,17 @@ class TrackerSpec:
             except (ValueError, OSError) as exc:
                 raise InputError(f"{self._where()}: expected a readable calibration for sensor "
                                  f"{s.name!r}, got {' '.join(str(exc).split())}") from None
-            if cal.model.n_sensor != len(s.channels):
+            # a finite-coil board calibration has the counts itself (docs/planar.md)
+            n_se, n_so = ((cal.n_sensor, cal.n_source) if getattr(cal, "kind", "") == "finite"
+                          else (cal.model.n_sensor, cal.model.n_source))
+            if n_se != len(s.channels):
                 raise InputError(
                     f"{self._where()}: expected sensor {s.name!r} to list one channel per coil "
-                    f"of its calibration ({cal.model.n_sensor}), got {len(s.channels)}")
-            if cal.model.n_source != len(self.frequencies):
+                    f"of its calibration ({n_se}), got {len(s.channels)}")
+            if n_so != len(self.frequencies):
                 raise InputError(
                     f"{self._where()}: expected the calibration of sensor {s.name!r} to have "
-                    f"{len(self.frequencies)} source coils, got {cal.model.n_source}")
+                    f"{len(self.frequencies)} source coils, got {n_so}")
             cals.append(cal)
         return cals
 

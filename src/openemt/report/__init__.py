@@ -1,8 +1,9 @@
 """Figures (matplotlib), the self-contained HTML report and its sections. Nothing numeric
 imports this package; its functions lay out results computed elsewhere."""
 
-from ._figures import error_histogram_figure, error_vector_figure, sweep_figure
+from ._figures import error_histogram_figure, error_map_figure, error_vector_figure, sweep_figure
 from ._html import Report, figure_png
+from ._planar import planar_document, planar_report
 from ._sections import (
     accuracy_section,
     by_fixture_table,
@@ -22,9 +23,12 @@ __all__ = [
     "characterization_document",
     "error_figures",
     "error_histogram_figure",
+    "error_map_figure",
     "error_vector_figure",
     "figure_png",
     "paper_document",
+    "planar_document",
+    "planar_report",
     "simulation_section",
     "sweep_figure",
     "sweep_section",

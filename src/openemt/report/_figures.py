@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["error_histogram_figure", "error_vector_figure", "sweep_figure"]
+__all__ = ["error_histogram_figure", "error_map_figure", "error_vector_figure", "sweep_figure"]
 
 
 def _plt():
@@ -110,4 +110,70 @@ def sweep_figure(curves, *, title: str = "Axis sweeps: absolute error and nonlin
         axes[idx // cols][idx % cols].axis("off")
     fig.suptitle(title)
     fig.tight_layout()
+    return fig
+
+
+def error_map_figure(points, errors, *, failed=None, tolerance: float = 1e-3,
+                     title: str = "Position error per grid point"):
+    """Top view of grid points coloured by position-error magnitude, with the in-plane error
+    vectors; one panel per grid height (heights within ``tolerance`` m share a panel, at most
+    six panels, the rest joined to the last).
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        Known positions (m).
+    errors : ndarray, shape (N, 3)
+        Solved minus known position (m); NaN rows are points without a solution.
+    failed : ndarray of bool, shape (N,), optional
+        Points drawn as crosses (no converged solution); default: the NaN rows of ``errors``.
+    """
+    plt = _plt()
+    p = np.asarray(points, dtype=float)
+    e = np.asarray(errors, dtype=float)
+    bad = ~np.all(np.isfinite(e), axis=1) if failed is None else np.asarray(failed, bool)
+    mag = np.where(bad, np.nan, np.linalg.norm(np.where(np.isfinite(e), e, 0.0), axis=1)) * 1e3
+    z = p[:, 2]
+    order = np.argsort(z, kind="stable")
+    layer = np.zeros(len(p), dtype=int)
+    layer[order] = np.concatenate([[0], np.cumsum(np.diff(z[order]) > tolerance)]) if len(p) \
+        else np.zeros(0, int)
+    layer = np.minimum(layer, 5)
+    n = int(layer.max()) + 1 if len(p) else 1
+    cols = min(n, 3)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols + 1.0, 4.2 * rows), squeeze=False,
+                             layout="constrained")
+    vmax = np.nanmax(mag) if np.any(np.isfinite(mag)) else 1.0
+    sc = None
+    for k in range(n):
+        ax = axes[k // cols][k % cols]
+        m = layer == k
+        good = m & ~bad
+        px, py = p[:, 0] * 1e3, p[:, 1] * 1e3
+        sc = ax.scatter(px[good], py[good], c=mag[good], cmap="viridis", vmin=0,
+                        vmax=vmax or 1.0, s=60)
+        if np.any(good):
+            # the longest in-plane arrow is 0.8 of the median grid pitch of the panel
+            ux = np.unique(np.round(np.concatenate([px[m], py[m]]), 3))
+            pitch = float(np.median(np.diff(ux))) if len(ux) > 1 else 1.0
+            inplane = np.hypot(e[good, 0], e[good, 1]).max() * 1e3
+            scale = inplane / (0.8 * pitch) if inplane > 0 else 1.0
+            ax.quiver(px[good], py[good], e[good, 0] * 1e3, e[good, 1] * 1e3, angles="xy",
+                      scale_units="xy", scale=scale, color="k", width=0.004)
+        if np.any(m & bad):
+            ax.scatter(px[m & bad], py[m & bad], marker="x", c="r", s=50, label="no solution")
+            ax.legend(fontsize=8)
+        zs = z[m] * 1e3
+        ax.set_title(f"z = {zs.min():.1f} mm" if np.ptp(zs) < 1 else
+                     f"z = {zs.min():.1f} to {zs.max():.1f} mm", fontsize=10)
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_aspect("equal", adjustable="datalim")
+    for k in range(n, rows * cols):
+        axes[k // cols][k % cols].axis("off")
+    if sc is not None:
+        fig.colorbar(sc, ax=axes.ravel().tolist(), label="position error (mm)", shrink=0.85)
+    fig.suptitle(f"{title} (arrows: in-plane error, scaled to the grid pitch; max "
+                 f"{vmax:.3f} mm)")
     return fig
