@@ -19,8 +19,8 @@ import numpy as np
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
-from ..signal import Demodulated, Demodulator
-from ..solve import Status, solve_lm
+from ..signal import Demodulator
+from ..solve import Status
 from ._filter import filter_restarts
 
 __all__ = ["SensorSetup", "TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline",
@@ -30,24 +30,16 @@ _CONVERGED = int(Status.CONVERGED)
 
 
 def lm_solver(model, *, hemisphere="+x", **kwargs):
-    """The default solver callable: :func:`openemt.solve.solve_lm` on ``model``.
+    """The default solver callable: :func:`openemt.solve.solve_lm` on ``model``, prepared once
+    (:class:`openemt.solve._prepared.PreparedLM`: the model, options, concentric start model
+    and hemisphere are checked and packed here, not on every chunk; same results).
 
     ``hemisphere`` only matters while (re)acquiring with the closed-form start; afterwards
     each sample starts from the previous valid pose.
     """
-    # warm starts never use the closed form; handing solve_lm a ready concentric model skips
-    # re-deriving it on every call (a fixed cost that dominates one-sample solves)
-    conc = None
-    if model.n_source == 3 and model.n_sensor == 3 and "concentric_model" not in kwargs:
-        conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
+    from ..solve._prepared import PreparedLM
 
-    def solve(C, initial):
-        if conc is not None and not isinstance(initial, str):
-            return solve_lm(C, model, initial=initial, hemisphere=hemisphere,
-                            concentric_model=conc, **kwargs)
-        return solve_lm(C, model, initial=initial, hemisphere=hemisphere, **kwargs)
-
-    return solve
+    return PreparedLM(model, hemisphere=hemisphere, **kwargs)
 
 
 @contextlib.contextmanager
@@ -411,7 +403,9 @@ class TrackingPipeline:
             log.set_sensors(names)
         self.igtl_every = max(1, int(igtl_every))
         self.status_every = max(1, int(status_every))
-        self.serial_small_batches = bool(serial_small_batches)
+        # confining numba's threads only matters for solvers that may start parallel regions
+        self.serial_small_batches = bool(serial_small_batches) and not all(
+            getattr(st.solver, "serial", False) for st in self.sensors)
         self._n_out = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
         self._truth_known = backend.truth_poses(np.zeros(1)) is not None
@@ -435,7 +429,7 @@ class TrackingPipeline:
     def _unpack(res):
         return (np.asarray(res.poses, dtype=np.float64),
                 np.asarray(res.pose_vectors, dtype=np.float64),
-                np.asarray(res.status).astype(np.int8),
+                np.asarray(res.status, dtype=np.int8),
                 np.asarray(res.residual, dtype=np.float64))
 
     def _solve(self, st: _SensorState, C):
@@ -517,10 +511,9 @@ class TrackingPipeline:
             return steps[0] if len(steps) == 1 else tuple(steps)
         send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
         epoch = self.backend.t0_epoch
-        parts = [d if st.columns is None else
-                 Demodulated(d.couplings[:, :, st.index_of_columns], d.times, d.reference)
+        parts = [d.couplings if st.columns is None else d.couplings[:, :, st.index_of_columns]
                  for st in self.sensors]
-        Cs = [dk.in_phase for dk in parts]
+        Cs = [c.real for c in parts]
         if self.serial_small_batches and n * len(self.sensors) < 256:
             with _serial_threads():
                 solved = self._solve_all(Cs)
@@ -541,8 +534,8 @@ class TrackingPipeline:
                 num = np.sqrt(im2[:, cols].sum(axis=1))
                 den = np.sqrt(ab2[:, cols].sum(axis=1))
                 ratios.append(num / np.where(den > 0, den, np.inf))
-        for st, dk, (poses, vecs, status, resid), ratio in zip(self.sensors, parts, solved,
-                                                                 ratios):
+        for st, couplings, (poses, vecs, status, resid), ratio in zip(self.sensors, parts,
+                                                                        solved, ratios):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
             flag = ratio > self.distortion_threshold
@@ -556,10 +549,10 @@ class TrackingPipeline:
                 if send_status:
                     self._send_status(device, int(status[-1]), bool(flag[-1]),
                                       float(ratio[-1]), epoch + d.times[-1])
-            step = TrackStep(d.times, dk.couplings, poses, vecs, status, resid, ratio, flag,
-                             t_ready)
+            steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
+                                   t_ready))
+        for st, step in zip(self.sensors, steps):      # after every sensor's poses are sent
             self._account(st, step)
-            steps.append(step)
         self._latency.extend([time.perf_counter() - t_ready] * n)
         self._n_out += n
         return steps[0] if len(steps) == 1 else tuple(steps)
