@@ -420,7 +420,7 @@ class TrackingPipeline:
             st.last = vecs[-1].copy()
             return
         ok = status == _CONVERGED
-        if np.any(ok):
+        if ok.any():
             st.last = vecs[np.flatnonzero(ok)[-1]].copy()
         elif len(status):
             st.last = None            # lost: re-acquire with the closed form
@@ -449,10 +449,16 @@ class TrackingPipeline:
                 C = np.concatenate([Cs[st.index] for st in group])
                 initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
                 P, V, S, R = self._unpack(group[0].solver(C, initial))
+                # the usual case: every sensor's last sample converged (one test for all)
+                tracked = n > 0 and not (S[n - 1::n] != _CONVERGED).any()
+                lasts = V[n - 1::n].copy() if tracked else None
                 for j, st in enumerate(group):
                     sl = slice(j * n, (j + 1) * n)
                     out[st.index] = (P[sl], V[sl], S[sl], R[sl])
-                    self._remember(st, V[sl], S[sl])
+                    if tracked:
+                        st.last = lasts[j]
+                    else:
+                        self._remember(st, V[sl], S[sl])
             else:
                 for st in group:
                     out[st.index] = self._solve(st, Cs[st.index])
@@ -520,8 +526,8 @@ class TrackingPipeline:
         else:
             solved = self._solve_all(Cs)
         # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
-        im2 = np.sum(d.couplings.imag ** 2, axis=1)
-        ab2 = np.sum(d.couplings.real ** 2, axis=1) + im2
+        im2 = (d.couplings.imag ** 2).sum(axis=1)
+        ab2 = (d.couplings.real ** 2).sum(axis=1) + im2
         if self._blocks:                        # equal consecutive blocks: one pass
             k = len(self.sensors)
             num = np.sqrt(im2.reshape(n, k, -1).sum(axis=2))

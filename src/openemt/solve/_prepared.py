@@ -228,7 +228,7 @@ class PreparedLM:
         level, the optional multi-start fallback, the 5-DOF canonical rotation."""
         model, mdl, box, opts = self.model, self.mdl, self.box, self.opts
         level = self.explore
-        if level is not None and np.any(result.relative_residual > level):
+        if level is not None and (result.relative_residual > level).any():
             redo = np.flatnonzero((result.relative_residual > level)
                                   & (result.status != Status.INVALID_INPUT))
             if redo.size:
