@@ -434,7 +434,7 @@ class TrackingPipeline:
 
     def _solve(self, st: _SensorState, C):
         n = C.shape[0]
-        initial = "kim18" if st.last is None else np.tile(st.last, (n, 1))
+        initial = "kim18" if st.last is None else np.repeat(st.last[None], n, axis=0)
         out = self._unpack(st.solver(C, initial))
         self._remember(st, out[1], out[2])
         return out
@@ -540,25 +540,33 @@ class TrackingPipeline:
                 num = np.sqrt(im2[:, cols].sum(axis=1))
                 den = np.sqrt(ab2[:, cols].sum(axis=1))
                 ratios.append(num / np.where(den > 0, den, np.inf))
+        if self.igtl is not None:               # the same for every sensor
+            every = (None if self.igtl_every == 1
+                     else (self._n_out + np.arange(n)) % self.igtl_every == 0)
+            stamps = epoch + d.times
+        oks = []
         for st, couplings, (poses, vecs, status, resid), ratio in zip(self.sensors, parts,
                                                                         solved, ratios):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
             flag = ratio > self.distortion_threshold
+            ok = status == _CONVERGED
+            oks.append(ok)
             if self.igtl is not None:
-                pick = (status == _CONVERGED) & ((self._n_out + np.arange(n))
-                                                 % self.igtl_every == 0)
+                pick = ok if every is None else ok & every
                 device = st.setup.device_name or self.igtl.device_name
-                if np.any(pick):
-                    self.igtl.send_poses(poses[pick], epoch + d.times[pick], t_ready=t_ready,
+                if pick.all():                  # the usual case, without a copy
+                    self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device)
+                elif pick.any():
+                    self.igtl.send_poses(poses[pick], stamps[pick], t_ready=t_ready,
                                          device_name=device)
                 if send_status:
                     self._send_status(device, int(status[-1]), bool(flag[-1]),
-                                      float(ratio[-1]), epoch + d.times[-1])
+                                      float(ratio[-1]), stamps[-1])
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
                                    t_ready))
-        for st, step in zip(self.sensors, steps):      # after every sensor's poses are sent
-            self._account(st, step)
+        for st, step, ok in zip(self.sensors, steps, oks):   # after every sensor's poses are sent
+            self._account(st, step, ok)
         self._latency.extend([time.perf_counter() - t_ready] * n)
         self._n_out += n
         return steps[0] if len(steps) == 1 else tuple(steps)
@@ -574,8 +582,7 @@ class TrackingPipeline:
             f"{name} distorted={int(distorted)} quadrature={ratio:.2e}", timestamp=timestamp,
             device_name=(device + "Status")[:20]))
 
-    def _account(self, st: _SensorState, step: TrackStep):
-        ok = step.status == _CONVERGED
+    def _account(self, st: _SensorState, step: TrackStep, ok):
         n_ok = int(np.count_nonzero(ok))
         if n_ok == len(step):                  # the usual case, without np.unique
             st.status_counts[_CONVERGED] = st.status_counts.get(_CONVERGED, 0) + n_ok
@@ -586,9 +593,12 @@ class TrackingPipeline:
         st.n_distorted += int(np.count_nonzero(step.distorted))
         if self.log is not None:
             self.log.append(step, st.index)
-        if self._truth_known and np.any(ok):
-            st.pending.append((step.times[ok], step.poses[ok, :3, 3]))
-            st.n_pending += int(ok.sum())
+        if self._truth_known and n_ok:
+            if n_ok == len(step):
+                st.pending.append((step.times, step.poses[:, :3, 3]))
+            else:
+                st.pending.append((step.times[ok], step.poses[ok, :3, 3]))
+            st.n_pending += n_ok
             if st.n_pending >= 1500:       # compare with the truth in batches (cheaper)
                 self._flush_truth(st)
 
