@@ -13,7 +13,8 @@ import openemt
 #: Packages whose every module's examples run here, and single modules besides them.
 PACKAGES = ("calibrate", "evaluate", "paper", "report", "signal", "simulate")
 MODULES = ("openemt", "openemt.io._calfile", "openemt.io._hdf5", "openemt.io._ilemt",
-           "openemt.correct._model", "openemt.solve._closed_form", "openemt.solve._lm_solver")
+           "openemt.correct._model", "openemt.solve._closed_form", "openemt.solve._lm_solver",
+           "openemt.solve._prepared")
 
 
 def _modules():

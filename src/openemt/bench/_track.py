@@ -50,7 +50,9 @@ filter
 baseline
     ``one_frame_reads`` with numba's default thread pool for the one-sample solves (what the
     pipeline avoids by solving small chunks on its own thread); ``one_frame_reads`` reports
-    ``p99_speedup_vs_baseline``.
+    ``p99_speedup_vs_baseline``. The default solver (``openemt.live.lm_solver``, a prepared
+    ``solve_lm``) starts no parallel region, so for it the two configurations run the same
+    code and differ only by the machine's noise.
 """
 
 from __future__ import annotations

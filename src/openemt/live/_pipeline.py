@@ -19,8 +19,8 @@ import numpy as np
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
-from ..signal import Demodulated, Demodulator
-from ..solve import Status, solve_lm
+from ..signal import Demodulator
+from ..solve import Status
 from ._filter import filter_restarts
 
 __all__ = ["SensorSetup", "TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline",
@@ -30,24 +30,16 @@ _CONVERGED = int(Status.CONVERGED)
 
 
 def lm_solver(model, *, hemisphere="+x", **kwargs):
-    """The default solver callable: :func:`openemt.solve.solve_lm` on ``model``.
+    """The default solver callable: :func:`openemt.solve.solve_lm` on ``model``, prepared once
+    (:class:`openemt.solve._prepared.PreparedLM`: the model, options, concentric start model
+    and hemisphere are checked and packed here, not on every chunk; same results).
 
     ``hemisphere`` only matters while (re)acquiring with the closed-form start; afterwards
     each sample starts from the previous valid pose.
     """
-    # warm starts never use the closed form; handing solve_lm a ready concentric model skips
-    # re-deriving it on every call (a fixed cost that dominates one-sample solves)
-    conc = None
-    if model.n_source == 3 and model.n_sensor == 3 and "concentric_model" not in kwargs:
-        conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
+    from ..solve._prepared import PreparedLM
 
-    def solve(C, initial):
-        if conc is not None and not isinstance(initial, str):
-            return solve_lm(C, model, initial=initial, hemisphere=hemisphere,
-                            concentric_model=conc, **kwargs)
-        return solve_lm(C, model, initial=initial, hemisphere=hemisphere, **kwargs)
-
-    return solve
+    return PreparedLM(model, hemisphere=hemisphere, **kwargs)
 
 
 @contextlib.contextmanager
@@ -411,7 +403,9 @@ class TrackingPipeline:
             log.set_sensors(names)
         self.igtl_every = max(1, int(igtl_every))
         self.status_every = max(1, int(status_every))
-        self.serial_small_batches = bool(serial_small_batches)
+        # confining numba's threads only matters for solvers that may start parallel regions
+        self.serial_small_batches = bool(serial_small_batches) and not all(
+            getattr(st.solver, "serial", False) for st in self.sensors)
         self._n_out = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
         self._truth_known = backend.truth_poses(np.zeros(1)) is not None
@@ -426,7 +420,7 @@ class TrackingPipeline:
             st.last = vecs[-1].copy()
             return
         ok = status == _CONVERGED
-        if np.any(ok):
+        if ok.any():
             st.last = vecs[np.flatnonzero(ok)[-1]].copy()
         elif len(status):
             st.last = None            # lost: re-acquire with the closed form
@@ -435,12 +429,12 @@ class TrackingPipeline:
     def _unpack(res):
         return (np.asarray(res.poses, dtype=np.float64),
                 np.asarray(res.pose_vectors, dtype=np.float64),
-                np.asarray(res.status).astype(np.int8),
+                np.asarray(res.status, dtype=np.int8),
                 np.asarray(res.residual, dtype=np.float64))
 
     def _solve(self, st: _SensorState, C):
         n = C.shape[0]
-        initial = "kim18" if st.last is None else np.tile(st.last, (n, 1))
+        initial = "kim18" if st.last is None else np.repeat(st.last[None], n, axis=0)
         out = self._unpack(st.solver(C, initial))
         self._remember(st, out[1], out[2])
         return out
@@ -455,10 +449,16 @@ class TrackingPipeline:
                 C = np.concatenate([Cs[st.index] for st in group])
                 initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
                 P, V, S, R = self._unpack(group[0].solver(C, initial))
+                # the usual case: every sensor's last sample converged (one test for all)
+                tracked = n > 0 and not (S[n - 1::n] != _CONVERGED).any()
+                lasts = V[n - 1::n].copy() if tracked else None
                 for j, st in enumerate(group):
                     sl = slice(j * n, (j + 1) * n)
                     out[st.index] = (P[sl], V[sl], S[sl], R[sl])
-                    self._remember(st, V[sl], S[sl])
+                    if tracked:
+                        st.last = lasts[j]
+                    else:
+                        self._remember(st, V[sl], S[sl])
             else:
                 for st in group:
                     out[st.index] = self._solve(st, Cs[st.index])
@@ -517,18 +517,17 @@ class TrackingPipeline:
             return steps[0] if len(steps) == 1 else tuple(steps)
         send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
         epoch = self.backend.t0_epoch
-        parts = [d if st.columns is None else
-                 Demodulated(d.couplings[:, :, st.index_of_columns], d.times, d.reference)
+        parts = [d.couplings if st.columns is None else d.couplings[:, :, st.index_of_columns]
                  for st in self.sensors]
-        Cs = [dk.in_phase for dk in parts]
+        Cs = [c.real for c in parts]
         if self.serial_small_batches and n * len(self.sensors) < 256:
             with _serial_threads():
                 solved = self._solve_all(Cs)
         else:
             solved = self._solve_all(Cs)
         # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
-        im2 = np.sum(d.couplings.imag ** 2, axis=1)
-        ab2 = np.sum(d.couplings.real ** 2, axis=1) + im2
+        im2 = (d.couplings.imag ** 2).sum(axis=1)
+        ab2 = (d.couplings.real ** 2).sum(axis=1) + im2
         if self._blocks:                        # equal consecutive blocks: one pass
             k = len(self.sensors)
             num = np.sqrt(im2.reshape(n, k, -1).sum(axis=2))
@@ -541,25 +540,33 @@ class TrackingPipeline:
                 num = np.sqrt(im2[:, cols].sum(axis=1))
                 den = np.sqrt(ab2[:, cols].sum(axis=1))
                 ratios.append(num / np.where(den > 0, den, np.inf))
-        for st, dk, (poses, vecs, status, resid), ratio in zip(self.sensors, parts, solved,
-                                                                 ratios):
+        if self.igtl is not None:               # the same for every sensor
+            every = (None if self.igtl_every == 1
+                     else (self._n_out + np.arange(n)) % self.igtl_every == 0)
+            stamps = epoch + d.times
+        oks = []
+        for st, couplings, (poses, vecs, status, resid), ratio in zip(self.sensors, parts,
+                                                                        solved, ratios):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
             flag = ratio > self.distortion_threshold
+            ok = status == _CONVERGED
+            oks.append(ok)
             if self.igtl is not None:
-                pick = (status == _CONVERGED) & ((self._n_out + np.arange(n))
-                                                 % self.igtl_every == 0)
+                pick = ok if every is None else ok & every
                 device = st.setup.device_name or self.igtl.device_name
-                if np.any(pick):
-                    self.igtl.send_poses(poses[pick], epoch + d.times[pick], t_ready=t_ready,
+                if pick.all():                  # the usual case, without a copy
+                    self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device)
+                elif pick.any():
+                    self.igtl.send_poses(poses[pick], stamps[pick], t_ready=t_ready,
                                          device_name=device)
                 if send_status:
                     self._send_status(device, int(status[-1]), bool(flag[-1]),
-                                      float(ratio[-1]), epoch + d.times[-1])
-            step = TrackStep(d.times, dk.couplings, poses, vecs, status, resid, ratio, flag,
-                             t_ready)
-            self._account(st, step)
-            steps.append(step)
+                                      float(ratio[-1]), stamps[-1])
+            steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
+                                   t_ready))
+        for st, step, ok in zip(self.sensors, steps, oks):   # after every sensor's poses are sent
+            self._account(st, step, ok)
         self._latency.extend([time.perf_counter() - t_ready] * n)
         self._n_out += n
         return steps[0] if len(steps) == 1 else tuple(steps)
@@ -575,8 +582,7 @@ class TrackingPipeline:
             f"{name} distorted={int(distorted)} quadrature={ratio:.2e}", timestamp=timestamp,
             device_name=(device + "Status")[:20]))
 
-    def _account(self, st: _SensorState, step: TrackStep):
-        ok = step.status == _CONVERGED
+    def _account(self, st: _SensorState, step: TrackStep, ok):
         n_ok = int(np.count_nonzero(ok))
         if n_ok == len(step):                  # the usual case, without np.unique
             st.status_counts[_CONVERGED] = st.status_counts.get(_CONVERGED, 0) + n_ok
@@ -587,9 +593,12 @@ class TrackingPipeline:
         st.n_distorted += int(np.count_nonzero(step.distorted))
         if self.log is not None:
             self.log.append(step, st.index)
-        if self._truth_known and np.any(ok):
-            st.pending.append((step.times[ok], step.poses[ok, :3, 3]))
-            st.n_pending += int(ok.sum())
+        if self._truth_known and n_ok:
+            if n_ok == len(step):
+                st.pending.append((step.times, step.poses[:, :3, 3]))
+            else:
+                st.pending.append((step.times[ok], step.poses[ok, :3, 3]))
+            st.n_pending += n_ok
             if st.n_pending >= 1500:       # compare with the truth in batches (cheaper)
                 self._flush_truth(st)
 

@@ -174,6 +174,9 @@ class Demodulator:
         self._B = [np.ascontiguousarray(B[q * self.hop:(q + 1) * self.hop])
                    for q in range(self._m)]
         self._cols = list(layout.sensor_channels) + list(layout.reference_channels)
+        c0 = self._cols[0]
+        self._span = (slice(c0, c0 + len(self._cols))
+                      if self._cols == list(range(c0, c0 + len(self._cols))) else None)
         nso, nse = layout.n_source, layout.n_sensor
         if phase is None:
             self._rot = None
@@ -209,8 +212,11 @@ class Demodulator:
         tail = self._buf.shape[1]
         buf = np.empty((len(self._cols), tail + x.shape[0]))
         buf[:, :tail] = self._buf
-        for c, col in enumerate(self._cols):   # channel-major copy, one strided pass each
-            buf[c, tail:] = x[:, col]
+        if self._span is not None:                 # consecutive channels: one copy
+            buf[:, tail:] = x[:, self._span].T
+        else:
+            for c, col in enumerate(self._cols):   # channel-major copy, one strided pass each
+                buf[c, tail:] = x[:, col]
         H, L, m = self.hop, self.frame, self._m
         n_out = (buf.shape[1] - L) // H + 1 if buf.shape[1] >= L else 0
         nso, nse = self.layout.n_source, self.layout.n_sensor

@@ -7,35 +7,20 @@ import numpy as np
 
 from .._errors import InputError
 from ..field import DipoleModel
-from ..geometry import check_pose_vectors, pose_from_vector, vector_from_pose
+from ..geometry import pose_from_vector, vector_from_pose
 from ._closed_form import (
-    RANK_TOL,
     check_couplings,
     new_outputs,
     result_from_outputs,
     solve_kim18,
     solve_kuipers,
     solve_svd,
-    whitening,
 )
-from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
-from ._lm import lm_batch, lm_track
-from ._packing import (
-    O_MAX_ITER,
-    O_RETRIES,
-    O_RETRY_RELATIVE,
-    O_RETRY_RESNORM,
-    pack_box,
-    pack_model,
-    pack_options,
-)
-from ._result import SolveResult, Status
-from ._validity import (
-    EXPLORE_RELATIVE_RESIDUAL,
-    MAX_RANGE_M,
-    MAX_RELATIVE_RESIDUAL,
-    check_validity_options,
-)
+from ._hemisphere import DEFAULT_HEMISPHERE
+from ._lm import lm_batch
+from ._packing import O_MAX_ITER, O_RETRIES
+from ._result import SolveResult
+from ._validity import EXPLORE_RELATIVE_RESIDUAL, MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 
 __all__ = ["solve_lm"]
 
@@ -317,95 +302,12 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
     >>> result.status, np.round(result.pose_vectors, 6)
     (array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
     """
-    model = _check_model(DipoleModel.concentric() if model is None else model)
-    max_rel, max_range = check_validity_options(max_relative_residual, max_range)
-    C, cnorm = check_couplings(couplings, model.n_source, model.n_sensor)
-    n = C.shape[0]
-    nvec = hemisphere_vectors(hemisphere, n)
-    box = pack_box(*_bounds(bounds))
-    if int(max_iter) < 1:
-        raise InputError(f"expected `max_iter` >= 1, got {max_iter!r}")
-    if retry_resnorm is None:
-        retry_res, retry_rel = np.inf, max_rel
-    else:
-        try:
-            retry_res = float(retry_resnorm)
-        except (TypeError, ValueError):
-            retry_res = np.nan
-        if not retry_res > 0:
-            raise InputError(f"expected a positive `retry_resnorm`, got {retry_resnorm!r}")
-        retry_rel = np.inf
-    retries = bool(retries) and (np.isfinite(retry_res) or np.isfinite(retry_rel))
-    conc = _concentric_for(model, concentric_model)
-    cf_hemi = hemisphere if hemisphere is not None else DEFAULT_HEMISPHERE
-    mdl = pack_model(model)
-    opts = pack_options(max_iter=int(max_iter), xtol=xtol, retry_resnorm=retry_res,
-                        retry_relative=retry_rel, ambiguity_tol=ambiguity_tol,
-                        max_relative_residual=max_rel, max_range=max_range, retries=retries,
-                        five_dof=model.n_sensor == 1, use_closed_form=conc is not None,
-                        cf_gain=(conc or model).gain, rank_tol=RANK_TOL)
+    from ._prepared import PreparedLM
 
-    if isinstance(initial, str) and initial == "track":
-        first = _first_start(C, cnorm, model, conc, mdl, nvec, box, opts, hemisphere)
-        W = whitening(conc) if conc is not None else np.zeros((2, 3, 3))
-        out = new_outputs(n)
-        lm_track(mdl, C, cnorm, np.ascontiguousarray(first, dtype=np.float64), W, nvec, box,
-                 opts, out)
-        result = result_from_outputs(out, "lm")
-    else:
-        if isinstance(initial, str):
-            if initial in _CLOSED:
-                if conc is None:
-                    raise InputError(f"expected a 3x3 model or `concentric_model` for the "
-                                     f"{initial!r} start, got a {model.n_source}x"
-                                     f"{model.n_sensor} model; use initial='multistart'")
-                init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
-                                          concentric_model is not None)
-            elif initial == "multistart":
-                init = _multistart_init(C, cnorm, mdl, model, nvec, box, opts)
-            else:
-                raise InputError(f"expected `initial` in 'kim18', 'svd', 'kuipers', 'track', "
-                                 f"'multistart' or pose vectors (N, 6), got {initial!r}")
-        else:
-            init = check_pose_vectors(initial, "initial")
-            if init.shape == (6,):
-                init = np.tile(init, (n, 1))
-            if init.shape != (n, 6):
-                raise InputError(f"expected `initial` pose vectors of shape ({n}, 6) or (6,), "
-                                 f"got {init.shape}")
-        result = _run_batch(C, cnorm, init, mdl, nvec, box, opts)
-    if explore_above is not None and retry_resnorm is None:
-        level = check_validity_options(explore_above, None)[0]
-        redo = np.flatnonzero((result.relative_residual > level)
-                              & (result.status != Status.INVALID_INPUT))
-        if redo.size:
-            # the sign-flip retries from the solution found, then the multi-start grid
-            flips = opts.copy()
-            flips[O_RETRIES] = 1.0
-            flips[O_RETRY_RELATIVE] = level
-            flips[O_RETRY_RESNORM] = np.inf
-            sub = (C[redo], cnorm[redo])
-            again = _run_batch(*sub, result.pose_vectors[redo], mdl, nvec[redo], box, flips)
-            result = _keep_better(result, redo, again)
-            redo = redo[result.relative_residual[redo] > level]
-            if redo.size:
-                init2 = _multistart_init(C[redo], cnorm[redo], mdl, model, nvec[redo], box,
-                                         opts)
-                result = _keep_better(result, redo, _run_batch(
-                    C[redo], cnorm[redo], init2, mdl, nvec[redo], box, opts))
-    if fallback is not None:
-        if fallback != "multistart":
-            raise InputError(f"expected fallback None or 'multistart', got {fallback!r}")
-        redo = np.flatnonzero(np.isin(result.status, (Status.MAX_ITERATIONS,
-                                                      Status.NOT_CONVERGED)))
-        if redo.size:
-            init2 = _multistart_init(C[redo], cnorm[redo], mdl, model, nvec[redo], box, opts)
-            again = _run_batch(C[redo], cnorm[redo], init2, mdl, nvec[redo], box, opts)
-            result = _keep_better(result, redo, again)
-    if model.n_sensor == 1:
-        result = canonical_5dof(result, model)
-    if covariance:
-        from ._crb import solver_covariance
-
-        result = result.replace(covariance=solver_covariance(model, result, C, cnorm))
-    return result
+    return PreparedLM(model, hemisphere=hemisphere, max_iter=max_iter,
+                      max_relative_residual=max_relative_residual, max_range=max_range,
+                      retries=retries, retry_resnorm=retry_resnorm, explore_above=explore_above,
+                      concentric_model=concentric_model, bounds=bounds, xtol=xtol,
+                      ambiguity_tol=ambiguity_tol).solve(couplings, initial,
+                                                         covariance=covariance,
+                                                         fallback=fallback)
