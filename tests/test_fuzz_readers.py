@@ -173,3 +173,17 @@ def test_malformed_correction_values_are_refused(fuzz, tmp_path, jops):
     p.write_bytes(case_bytes(targets["correction_json"], [], jops))
     with pytest.raises(InputError, match="correction file corr.json: expected"):
         read_correction(p)
+
+
+@pytest.mark.parametrize("ops", [[("replace_number", 0, 19)]])
+def test_sign_cell_spanning_lines_is_refused_in_one_line(fuzz, tmp_path, ops):
+    """A mutated number that turns ``[-1 -1 1]`` into a bracket spanning two lines: the message
+    quotes the bracket on one line (found with more hypothesis examples than the suite runs)."""
+    from openemt.io._ilemt import parse_sign_options
+
+    targets, _ = fuzz
+    p = tmp_path / "local_cal_options.m"
+    p.write_bytes(case_bytes(targets["ilemt_options"], ops))
+    with pytest.raises(InputError, match="expected numeric signs") as info:
+        parse_sign_options(p)
+    assert "\n" not in str(info.value)
