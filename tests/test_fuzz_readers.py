@@ -156,6 +156,19 @@ def test_mat_file_that_crashes_scipy_is_refused(fuzz, tmp_path):
         read_ilemt_calibration(p)
 
 
+def test_mat_file_declaring_a_huge_array_is_refused(fuzz, tmp_path):
+    """A mutation of base_calibration.mat whose header asks the MATLAB reader for an impossible
+    allocation (MemoryError in the reader; found with more hypothesis examples than the suite
+    runs): refused in one line, not raised."""
+    from openemt.io import read_ilemt_calibration
+
+    targets, _ = fuzz
+    p = tmp_path / "base_calibration.mat"
+    p.write_bytes(case_bytes(targets["ilemt_mat"], [("swap_lines", 0, 67693), ("delete", 0, 45)]))
+    with pytest.raises(InputError, match=r"cannot be read \(MemoryError"):
+        read_ilemt_calibration(p)
+
+
 @pytest.mark.parametrize("jops", [
     [("set", 876459399, 576002250), ("delete", 702019669, 190583558)],
     [("set", 655812843, 507664122), ("delete", 176772873, 340678404)],
