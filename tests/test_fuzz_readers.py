@@ -156,6 +156,34 @@ def test_mat_file_that_crashes_scipy_is_refused(fuzz, tmp_path):
         read_ilemt_calibration(p)
 
 
+def test_mat_file_declaring_a_huge_array_is_refused(fuzz, tmp_path):
+    """A mutation of base_calibration.mat whose header asks the MATLAB reader for an impossible
+    allocation (MemoryError in the reader; found with more hypothesis examples than the suite
+    runs): refused in one line, not raised."""
+    from openemt.io import read_ilemt_calibration
+
+    targets, _ = fuzz
+    p = tmp_path / "base_calibration.mat"
+    p.write_bytes(case_bytes(targets["ilemt_mat"], [("swap_lines", 0, 67693), ("delete", 0, 45)]))
+    with pytest.raises(InputError, match=r"cannot be read \(MemoryError"):
+        read_ilemt_calibration(p)
+
+
+def test_mat_reader_dividing_by_a_damaged_size_is_refused(ilemt_dir, monkeypatch):
+    """scipy's MATLAB reader raised ZeroDivisionError on a mutation of base_calibration.mat
+    (insert(26409, 3263) twice, found with more hypothesis examples than the suite runs; the
+    same bytes also crash the reader in other runs, so the exception is replayed here)."""
+    from openemt.io import _ilemt_mat
+    from openemt.io._isolated import Isolated
+
+    def replay(fn, args, timeout):
+        return Isolated("raised", ZeroDivisionError("integer division or modulo by zero"))
+
+    monkeypatch.setattr(_ilemt_mat, "run_isolated", replay)
+    with pytest.raises(InputError, match=r"cannot be read \(ZeroDivisionError"):
+        _ilemt_mat.read_ilemt_calibration(ilemt_dir / "base_calibration.mat")
+
+
 @pytest.mark.parametrize("jops", [
     [("set", 876459399, 576002250), ("delete", 702019669, 190583558)],
     [("set", 655812843, 507664122), ("delete", 176772873, 340678404)],
@@ -173,3 +201,17 @@ def test_malformed_correction_values_are_refused(fuzz, tmp_path, jops):
     p.write_bytes(case_bytes(targets["correction_json"], [], jops))
     with pytest.raises(InputError, match="correction file corr.json: expected"):
         read_correction(p)
+
+
+@pytest.mark.parametrize("ops", [[("replace_number", 0, 19)]])
+def test_sign_cell_spanning_lines_is_refused_in_one_line(fuzz, tmp_path, ops):
+    """A mutated number that turns ``[-1 -1 1]`` into a bracket spanning two lines: the message
+    quotes the bracket on one line (found with more hypothesis examples than the suite runs)."""
+    from openemt.io._ilemt import parse_sign_options
+
+    targets, _ = fuzz
+    p = tmp_path / "local_cal_options.m"
+    p.write_bytes(case_bytes(targets["ilemt_options"], ops))
+    with pytest.raises(InputError, match="expected numeric signs") as info:
+        parse_sign_options(p)
+    assert "\n" not in str(info.value)

@@ -143,6 +143,8 @@ def run(args) -> dict:
                                      "2-point finite differences, xtol=ftol=gtol=1e-12")
         summary["lm_vs_scipy_ratio"] = summary["lm_tracking_poses_per_s"] / (nb / dt_b)
         summary["lm_cold_vs_scipy_ratio"] = summary["lm_cold_poses_per_s"] / (nb / dt_b)
+        for name in ("svd", "kuipers", "kim18"):
+            summary[f"{name}_vs_scipy_ratio"] = summary[f"{name}_poses_per_s"] / (nb / dt_b)
         diffs = [np.abs(results[name].pose_vectors[:nb, :3] - base[:, :3]).max()
                  for name in ("lm_tracking", "lm_cold")]
         summary["max_position_diff_m"] = float(max(diffs))

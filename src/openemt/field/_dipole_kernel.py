@@ -16,6 +16,10 @@ indices ``M_*``, rather than as separate arrays that could be passed in the wron
 
 A coil pair at zero distance (d = 0) has no defined coupling: its entries and derivatives are
 NaN.
+
+:func:`concentric_eval` is the same formula for the case of all coil positions zero (the
+closed-form solvers' models), reorganised so that what the pairs share is computed once; it
+returns :func:`dipole_eval`'s couplings bit for bit.
 """
 
 from __future__ import annotations
@@ -23,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["M_GAIN", "M_N_SENSOR", "M_N_SOURCE", "dipole_batch", "dipole_batch_jac",
-           "dipole_eval", "pack_model", "unpack_model"]
+__all__ = ["M_GAIN", "M_N_SENSOR", "M_N_SOURCE", "concentric_eval", "dipole_batch",
+           "dipole_batch_jac", "dipole_eval", "pack_model", "unpack_model"]
 
 # packed model array: header entries, then the four coil matrices
 M_N_SOURCE = 0
@@ -58,6 +62,25 @@ def unpack_model(mdl, scale):
     return L_so, M_so, L_se, M_se, mdl[M_GAIN] / scale
 
 
+@njit(inline="always")
+def _rotated_column(R, A, j):
+    """``R @ A[:, j]`` as three scalars (a sensor coil's offset or moment in source axes)."""
+    return (R[0, 0] * A[0, j] + R[0, 1] * A[1, j] + R[0, 2] * A[2, j],
+            R[1, 0] * A[0, j] + R[1, 1] * A[1, j] + R[1, 2] * A[2, j],
+            R[2, 0] * A[0, j] + R[2, 1] * A[1, j] + R[2, 2] * A[2, j])
+
+
+@njit(inline="always")
+def _inverse_powers(d2):
+    """``(1/d^2, 1/d^3, 1/d^5)`` of a squared distance; NaN for coils at the same point, where
+    the dipole field is undefined (NaN couplings and derivatives, never an exception)."""
+    if d2 > 0.0:
+        inv_d2 = 1.0 / d2
+        inv_d3 = inv_d2 / np.sqrt(d2)
+        return inv_d2, inv_d3, inv_d3 * inv_d2
+    return np.nan, np.nan, np.nan
+
+
 @njit(fastmath=False)
 def dipole_eval(geo, R, t, C, jac, want_jac):
     """Coupling of one pose and, if ``want_jac``, its derivatives
@@ -84,29 +107,17 @@ def dipole_eval(geo, R, t, C, jac, want_jac):
     inv_d2 = inv_d3 = inv_d5 = 0.0
     for j in range(n_se):
         # sensor coil j in the source frame (scalars: no per-call allocation)
-        lx = R[0, 0] * L_se[0, j] + R[0, 1] * L_se[1, j] + R[0, 2] * L_se[2, j]
-        ly = R[1, 0] * L_se[0, j] + R[1, 1] * L_se[1, j] + R[1, 2] * L_se[2, j]
-        lz = R[2, 0] * L_se[0, j] + R[2, 1] * L_se[1, j] + R[2, 2] * L_se[2, j]
+        lx, ly, lz = _rotated_column(R, L_se, j)
         px = lx + t[0]
         py = ly + t[1]
         pz = lz + t[2]
-        mx = R[0, 0] * M_se[0, j] + R[0, 1] * M_se[1, j] + R[0, 2] * M_se[2, j]
-        my = R[1, 0] * M_se[0, j] + R[1, 1] * M_se[1, j] + R[1, 2] * M_se[2, j]
-        mz = R[2, 0] * M_se[0, j] + R[2, 1] * M_se[1, j] + R[2, 2] * M_se[2, j]
+        mx, my, mz = _rotated_column(R, M_se, j)
         for i in range(n_so):
             rx = px - L_so[0, i]
             ry = py - L_so[1, i]
             rz = pz - L_so[2, i]
             if rx != qx or ry != qy or rz != qz:
-                d2 = rx * rx + ry * ry + rz * rz
-                if d2 > 0.0:
-                    inv_d2 = 1.0 / d2
-                    inv_d3 = inv_d2 / np.sqrt(d2)
-                    inv_d5 = inv_d3 * inv_d2
-                else:
-                    # coils at the same point: the dipole field is undefined there (NaN
-                    # couplings and derivatives, never an exception)
-                    inv_d2 = inv_d3 = inv_d5 = np.nan
+                inv_d2, inv_d3, inv_d5 = _inverse_powers(rx * rx + ry * ry + rz * rz)
                 qx = rx
                 qy = ry
                 qz = rz
@@ -143,6 +154,37 @@ def dipole_eval(geo, R, t, C, jac, want_jac):
                 dC_dphi[i, j, 0] = (ly * gpz - lz * gpy) + (my * gmz - mz * gmy)
                 dC_dphi[i, j, 1] = (lz * gpx - lx * gpz) + (mz * gmx - mx * gmz)
                 dC_dphi[i, j, 2] = (lx * gpy - ly * gpx) + (mx * gmy - my * gmx)
+
+
+@njit(inline="always")
+def concentric_eval(M_so, M_se, gain, R, t, C, m):
+    """Couplings ``C (n_so, n_se)`` of one pose for coils all at the origin of their frames:
+    the values of :func:`dipole_eval` with zero ``L_so`` and ``L_se`` for a finite ``R``, bit
+    for bit (the same operations in the same order; the distance terms, the rotated sensor
+    moments and their projections on ``t`` computed once instead of once per coil pair). No
+    derivatives.
+    ``m`` (4, n_se) is scratch; ``d = 0`` gives NaN couplings as in :func:`dipole_eval`."""
+    n_so = M_so.shape[1]
+    n_se = M_se.shape[1]
+    # with zero coil offsets, dipole_eval's separation vector is t itself (0 + t, t - 0)
+    rx = t[0]
+    ry = t[1]
+    rz = t[2]
+    _, inv_d3, inv_d5 = _inverse_powers(rx * rx + ry * ry + rz * rz)
+    for j in range(n_se):
+        mx, my, mz = _rotated_column(R, M_se, j)
+        m[0, j] = mx
+        m[1, j] = my
+        m[2, j] = mz
+        m[3, j] = mx * rx + my * ry + mz * rz
+    for i in range(n_so):
+        Mx = M_so[0, i]
+        My = M_so[1, i]
+        Mz = M_so[2, i]
+        Mr = Mx * rx + My * ry + Mz * rz
+        for j in range(n_se):
+            Mm = Mx * m[0, j] + My * m[1, j] + Mz * m[2, j]
+            C[i, j] = gain * (3.0 * Mr * m[3, j] * inv_d5 - Mm * inv_d3)
 
 
 @njit(cache=True)

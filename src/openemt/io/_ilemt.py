@@ -172,6 +172,12 @@ def _strip_matlab_comments(text: str) -> str:
 _ENTRY_RE = re.compile(r"'((?:[^']|'')*)'\s*,?\s*\[([^\]]*)\]")
 
 
+def _one_line(text: str, limit: int = 40) -> str:
+    """A cell's text for an error message: its whitespace (line breaks included: a bracket may
+    span lines) collapsed to single spaces, at most ``limit`` characters."""
+    return " ".join(text.split())[:limit]
+
+
 def _parse_sign_cell(body: str, what: str, path) -> list[tuple[str, tuple[float, ...]]]:
     entries = []
     pos = 0
@@ -190,10 +196,10 @@ def _parse_sign_cell(body: str, what: str, path) -> list[tuple[str, tuple[float,
             signs = tuple(float(v) for v in m.group(2).replace(",", " ").split())
         except ValueError:
             raise InputError(f"{path}: expected numeric signs in `options.{what}`, "
-                             f"got [{m.group(2)}]") from None
+                             f"got [{_one_line(m.group(2))}]") from None
         if not signs or any(s not in (-1.0, 1.0) for s in signs):
             raise InputError(f"{path}: expected signs of +1/-1 in `options.{what}`, "
-                             f"got [{m.group(2)}]")
+                             f"got [{_one_line(m.group(2))}]")
         entries.append((regex, signs))
     tail = body[pos:]
     if tail.replace("...", "").strip(" \t\r\n,;"):

@@ -119,9 +119,13 @@ def read_ilemt_calibration(path) -> Calibration:
     out = run_isolated(_loadmat, (str(path),), timeout=MAT_READ_TIMEOUT_S)
     if out.kind != "ok":
         exc = out.value
+        # MemoryError: a damaged header declaring an array far larger than the file (a
+        # calibration file is a few kB), which the reader tries to allocate; ArithmeticError:
+        # damaged sizes the reader divides by (ZeroDivisionError seen)
         if out.kind == "raised" and not isinstance(
                 exc, (ValueError, TypeError, OSError, KeyError, IndexError, EOFError,
-                      NotImplementedError, MatReadError, zlib.error, struct.error)):
+                      NotImplementedError, MatReadError, zlib.error, struct.error,
+                      MemoryError, ArithmeticError)):
             raise exc
         why = {"timeout": f"no answer within {MAT_READ_TIMEOUT_S:g} s",
                "died": f"the MATLAB reader crashed (exit {exc})"}.get(

@@ -37,7 +37,7 @@ from numba import njit
 
 from .._errors import InputError
 from ..field import DipoleModel
-from ..field._dipole_kernel import dipole_eval
+from ..field._dipole_kernel import concentric_eval, dipole_eval
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._linalg import (
     det33,
@@ -54,7 +54,6 @@ from ._linalg import (
     wahba_quat,
 )
 from ._packing import (
-    M_GAIN,
     O_RANK_TOL,
     pack_model,
     pack_options,
@@ -69,7 +68,7 @@ from ._validity import (
 )
 
 __all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "new_outputs",
-           "normalise_coupling", "result_from_outputs", "solve_kim18", "solve_kuipers",
+           "normalise_coupling", "residual_norms", "residuals_at", "result_from_outputs", "solve_kim18", "solve_kuipers",
            "solve_svd", "spectral_norms", "whitening"]
 
 #: closed-form method codes of the compiled kernel
@@ -268,6 +267,13 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
     is the rotation's quaternion when the fast path produced it (``q[0] = -1`` otherwise).
     Returns ``ST_CONVERGED`` (a pose was found; the caller judges it) or ``ST_INVALID_INPUT``.
     """
+    return _closed_form(method, C, W, gain, n, rank_tol, R, t, cws)
+
+
+@njit(inline="always")
+def _closed_form(method, C, W, gain, n, rank_tol, R, t, cws):
+    """The body of :func:`closed_form_one` (same arguments), inlined into the batch kernel:
+    no function call per sample."""
     C0, U, s, V, B, q, M = cws
     Wso = W[0]
     Wse = W[1]
@@ -422,21 +428,22 @@ def normalise_coupling(Cm, cn_in, Cn, G):
             c = Cm[i, j] * inv
             Cn[i, j] = c
             ss += c * c
-    cn = cn_in if cn_in >= 0.0 else spectral_norm(Cn, G) * s
+    if cn_in >= 0.0:
+        cn = cn_in
+    elif Cn.shape[0] == 3 and Cn.shape[1] == 3:
+        cn = _spectral_norm33(Cn) * s  # inline: no call per sample for 3x3 trackers
+    else:
+        cn = spectral_norm(Cn, G) * s
     if not (cn > 0.0 and np.isfinite(cn)):
         return 0.0, 0.0, 0.0
     return s, cn, np.sqrt(ss)
 
 
 @njit(inline="always")
-def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac):
-    """``(resnorm, relative residual)`` of the pose ``(R, t)`` for the measured coupling ``Ck``
-    (scale ``s``, spectral norm ``cn``, normalised Frobenius norm ``fn``, from
-    :func:`normalise_coupling`) under the packed model ``mdl``, evaluated at the couplings'
-    own scale. ``Cp`` receives the predicted coupling; ``jac`` (the derivative arrays of
-    ``dipole_eval``, unused) is scratch."""
-    no_jac = Ck.shape[0] < 0  # False at run time: one dipole_eval specialisation for all
-    dipole_eval(geo, R, t, Cp, jac, no_jac)
+def residual_norms(Cp, Ck, s, cn, fn):
+    """``(resnorm, relative residual)`` of the predicted coupling ``Cp`` against the measured
+    ``Ck`` (scale ``s``, spectral norm ``cn``, normalised Frobenius norm ``fn``, from
+    :func:`normalise_coupling`), both at the couplings' own scale."""
     inv = 1.0 / s
     ss = 0.0
     rr = 0.0
@@ -448,44 +455,75 @@ def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac):
     return ss / cn, np.sqrt(rr) / fn
 
 
+@njit(inline="always")
+def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac):
+    """``(resnorm, relative residual)`` of the pose ``(R, t)`` for the measured coupling ``Ck``
+    (scale ``s``, spectral norm ``cn``, normalised Frobenius norm ``fn``, from
+    :func:`normalise_coupling`) under the unpacked model ``geo``, evaluated at the couplings'
+    own scale. ``Cp`` receives the predicted coupling; ``jac`` (the derivative arrays of
+    ``dipole_eval``, unused) is scratch."""
+    no_jac = Ck.shape[0] < 0  # False at run time: one dipole_eval specialisation for all
+    dipole_eval(geo, R, t, Cp, jac, no_jac)
+    return residual_norms(Cp, Ck, s, cn, fn)
+
+
+#: Samples per block of the closed-form batch kernel. Each block first normalises its
+#: couplings (scale, spectral norm: a long chain of dependent operations ending in arccos and
+#: cos), then solves them; the normalisations of a block are independent of each other, so the
+#: processor overlaps their latencies instead of waiting on each inside the solve.
+_BLOCK = 32
+
+
 @njit(cache=True)
 def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
+    """The closed form ``method`` of every sample, judged by the validity rule with the
+    residual of the concentric model ``mdl`` at the solved pose (:func:`concentric_eval`, in
+    the same pass: no second sweep over the outputs)."""
     poses, vecs, status, residual, relres, iterations = out
     N = C.shape[0]
     R = np.empty((3, 3))
     t = np.empty(3)
     cws = closed_form_scratch()
     q = cws[5]
-    Cn = np.empty((3, 3))
     G = np.empty((3, 3))
     Cp = np.empty((3, 3))
+    mw = np.empty((4, 3))
     rv = np.empty(3)
-    dummy = np.empty((3, 3, 3))
-    jac = (dummy, dummy, dummy, dummy)
+    Cn = np.empty((_BLOCK, 3, 3))
+    sb = np.empty(_BLOCK)
+    cnb = np.empty(_BLOCK)
+    fnb = np.empty(_BLOCK)
     box = np.empty((2, 3))
     box[0] = -np.inf
     box[1] = np.inf
     one_n = nvec.shape[0] == 1
-    geo = unpack_model(mdl, 1.0)
-    for k in range(N):
-        iterations[k] = 0
-        n = nvec[0] if one_n else nvec[k]
-        s, cn, fn = normalise_coupling(C[k], cnorm[k], Cn, G)
-        if not s > 0.0:
-            _store_invalid(k, out)
-            continue
-        if closed_form_one(method, Cn, W, mdl[M_GAIN] / s, n, opts[O_RANK_TOL], R, t,
-                           cws) == ST_INVALID_INPUT:
-            _store_invalid(k, out)
-            continue
-        if q[0] >= 0.0:
-            rotvec_from_quat(q, rv)
-        else:
-            rotvec_from_matrix(R, rv)
-        store_pose(k, R, t, rv, poses, vecs)
-        residual[k], rho = residuals_at(geo, R, t, C[k], s, cn, fn, Cp, jac)
-        relres[k] = rho
-        status[k] = classify(False, rho, t, n, box, opts)
+    n = np.empty(3)  # this sample's hemisphere (a copy: no array view per sample)
+    n[:] = nvec[0]
+    _, M_so, _, M_se, gain = unpack_model(mdl, 1.0)
+    rank_tol = opts[O_RANK_TOL]
+    for k0 in range(0, N, _BLOCK):
+        nb = min(N - k0, _BLOCK)
+        for b in range(nb):
+            sb[b], cnb[b], fnb[b] = normalise_coupling(C[k0 + b], cnorm[k0 + b], Cn[b], G)
+        for b in range(nb):
+            k = k0 + b
+            iterations[k] = 0
+            if not one_n:
+                n[0], n[1], n[2] = nvec[k, 0], nvec[k, 1], nvec[k, 2]
+            s = sb[b]
+            if not s > 0.0 or _closed_form(method, Cn[b], W, gain / s, n, rank_tol, R, t,
+                                           cws) == ST_INVALID_INPUT:
+                _store_invalid(k, out)
+                continue
+            if q[0] >= 0.0:
+                rotvec_from_quat(q, rv)
+            else:
+                rotvec_from_matrix(R, rv)
+            store_pose(k, R, t, rv, poses, vecs)
+            concentric_eval(M_so, M_se, gain, R, t, Cp, mw)
+            residual[k], rho = residual_norms(Cp, C[k], s, cnb[b], fnb[b])
+            relres[k] = rho
+            status[k] = classify(False, rho, t, n, box, opts)
 
 
 @njit
