@@ -449,16 +449,18 @@ class TrackingPipeline:
                 C = np.concatenate([Cs[st.index] for st in group])
                 initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
                 P, V, S, R = self._unpack(group[0].solver(C, initial))
+                k = len(group)                  # one view per sensor: (k, n, ...) blocks
+                P, V = P.reshape(k, n, 4, 4), V.reshape(k, n, 6)
+                S, R = S.reshape(k, n), R.reshape(k, n)
                 # the usual case: every sensor's last sample converged (one test for all)
-                tracked = n > 0 and not (S[n - 1::n] != _CONVERGED).any()
-                lasts = V[n - 1::n].copy() if tracked else None
+                tracked = n > 0 and not (S[:, -1] != _CONVERGED).any()
+                lasts = V[:, -1].copy() if tracked else None
                 for j, st in enumerate(group):
-                    sl = slice(j * n, (j + 1) * n)
-                    out[st.index] = (P[sl], V[sl], S[sl], R[sl])
+                    out[st.index] = (P[j], V[j], S[j], R[j])
                     if tracked:
                         st.last = lasts[j]
                     else:
-                        self._remember(st, V[sl], S[sl])
+                        self._remember(st, V[j], S[j])
             else:
                 for st in group:
                     out[st.index] = self._solve(st, Cs[st.index])

@@ -287,6 +287,12 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
     -------
     SolveResult
 
+    Notes
+    -----
+    ``solve_lm`` is ``PreparedLM(model, **options).solve(couplings, initial)``
+    (:class:`openemt.solve._prepared.PreparedLM`); for many calls with one model and one set of
+    options, prepare once and call the prepared solver (same results, bit for bit).
+
     Examples
     --------
     A source whose coils sit 45 mm apart (the simulator's ``dipole-approx`` preset), couplings

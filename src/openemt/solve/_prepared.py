@@ -3,7 +3,7 @@
 :func:`openemt.solve.solve_lm` checks the model and options, packs them for the compiled
 kernels (``_packing``), derives the concentric start model and the hemisphere vectors, and then
 solves. :class:`PreparedLM` does the first part once, at construction; each call then only
-checks the couplings' shape and runs the kernels. ``solve_lm`` is ``PreparedLM(...).solve``, so
+checks the couplings (a warm start: only their shape and type) and runs the kernels. ``solve_lm`` is ``PreparedLM(...).solve``, so
 both give the same result bit for bit. A live tracker solving a few samples per chunk calls the
 prepared solver (``openemt.live``), where the per-call checks and packing would otherwise
 cost more than the solve itself.
