@@ -4,7 +4,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -105,10 +104,23 @@ def test_sigterm_ends_a_live_session_like_ctrl_c(tmp_path):
     out = tmp_path / "poses.h5"
     argv = ["track", "--source", "sim", "--duration", "60", "--no-igtl", "--log", str(out),
             "--quiet"]
-    proc = subprocess.Popen([sys.executable, "-c",
-                             f"from openemt.cli import main; raise SystemExit(main({argv!r}))"],
+    # the child says when its session has processed a first chunk (rather than the test
+    # waiting a fixed time, which a loaded machine or a first numba compilation can exceed:
+    # SIGTERM before the session would end the command before it has anything to log)
+    code = ("from openemt.live import TrackingPipeline\n"
+            "step = TrackingPipeline.step\n"
+            "def announced(self):\n"
+            "    out = step(self)\n"
+            "    if not getattr(self, '_announced', False):\n"
+            "        self._announced = True\n"
+            "        print('running', flush=True)\n"
+            "    return out\n"
+            "TrackingPipeline.step = announced\n"
+            "from openemt.cli import main\n"
+            f"raise SystemExit(main({argv!r}))\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    time.sleep(4)
+    assert proc.stdout.readline().strip() == "running"
     proc.send_signal(signal.SIGTERM)
     rc = proc.wait(timeout=30)
     err = proc.stderr.read()

@@ -68,8 +68,8 @@ from ._validity import (
 )
 
 __all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "new_outputs",
-           "normalise_coupling", "residual_norms", "residuals_at", "result_from_outputs", "solve_kim18", "solve_kuipers",
-           "solve_svd", "spectral_norms", "whitening"]
+           "normalise_coupling", "residual_norms", "residuals_at", "result_from_outputs",
+           "solve_kim18", "solve_kuipers", "solve_svd", "spectral_norms", "whitening"]
 
 #: closed-form method codes of the compiled kernel
 CF_SVD = 0
@@ -497,7 +497,7 @@ def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
     box[0] = -np.inf
     box[1] = np.inf
     one_n = nvec.shape[0] == 1
-    n = np.empty(3)  # this sample's hemisphere (a copy: no array view per sample)
+    n = np.empty(3)  # this sample's hemisphere
     n[:] = nvec[0]
     _, M_so, _, M_se, gain = unpack_model(mdl, 1.0)
     rank_tol = opts[O_RANK_TOL]
