@@ -147,7 +147,7 @@ def test_pipeline_filter_reduces_static_noise_and_restarts_after_dropout():
         a = log.arrays()
         ok = a["status"] == 0
         sds.append(np.std(a["pose_vectors"][ok][-300:, :3], axis=0))
-    assert s.status_counts["INVALID_INPUT"] > 10
+    assert s.status_counts["invalid_input"] > 10
     assert s.extra["filter"]["restarts_after_loss"] == 1       # one drop-out
     assert np.all(sds[1] < 0.8 * sds[0])
 

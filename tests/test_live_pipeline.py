@@ -10,6 +10,7 @@ import h5py
 import numpy as np
 import pyigtl
 import pytest
+from _counts import converged_only
 
 from openemt.geometry import vector_from_pose
 from openemt.live import (
@@ -37,7 +38,7 @@ def test_simulated_run_tracks_truth():
     p.log = log
     s = p.run()
     assert s.n_samples == len(log.arrays()["times"]) > 400
-    assert s.status_counts == {"CONVERGED": s.n_samples}
+    assert s.status_counts == converged_only(s.n_samples)
     assert s.distorted_fraction == 0.0
     a = log.arrays()
     truth = default_trajectory(a["times"])
@@ -95,7 +96,7 @@ def test_replay_of_recording(tmp_path):
     write_raw(raw, path)
     b = ReplayBackend(path)
     s = TrackingPipeline(b, MODEL).run()
-    assert s.n_samples == 299 and s.status_counts == {"CONVERGED": 299}
+    assert s.n_samples == 299 and s.status_counts == converged_only(299)
     assert s.truth["position_error_mm_rms"] < 0.05
 
 
@@ -116,7 +117,9 @@ def test_log_files(tmp_path):
 
 
 def test_igtl_client_receives_the_trajectory():
-    b = SimulatedBackend(MODEL, duration=0.4, realtime=True)
+    # the client keeps only the latest message per device and is polled every 50 ms: a second
+    # of signal gives it 20 chances even when a loaded machine delays the polling thread
+    b = SimulatedBackend(MODEL, duration=1.0, realtime=True)
     with IgtlServer(port=0, device_name="Sensor") as srv:
         cl = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=srv.port)
         received = []
@@ -167,7 +170,7 @@ def test_cli_track_sim_json(cli, capsys, tmp_path):
     out = capsys.readouterr().out
     assert code == 0
     d = json.loads(out)
-    assert d["n_samples"] == 149 and d["status_counts"] == {"CONVERGED": 149}
+    assert d["n_samples"] == 149 and d["status_counts"] == converged_only(149)
     assert d["truth"]["position_error_mm_rms"] < 0.05
     code = cli(["track", "--source", "replay", str(tmp_path / "raw.h5"), "--fast",
                 "--igtl-port", "0", "--json", "--quiet"])
@@ -195,7 +198,7 @@ def test_cli_track_with_a_calibration_file(cli, capsys, tmp_path):
     code = cli(["track", "--calibration", str(path), "--duration", "0.05", "--fast",
                 "--no-igtl", "--json", "--quiet"])
     d = json.loads(capsys.readouterr().out)
-    assert code == 0 and d["status_counts"] == {"CONVERGED": d["n_samples"]}
+    assert code == 0 and d["status_counts"] == converged_only(d["n_samples"])
     assert d["truth"]["position_error_mm_rms"] < 0.05
 
 
@@ -212,6 +215,6 @@ def test_drive_dropout_is_flagged_and_tracking_recovers():
     log = TrackLog()
     s = TrackingPipeline(b, MODEL, log=log).run()
     a = log.arrays()
-    assert s.status_counts["INVALID_INPUT"] >= 60
+    assert s.status_counts["invalid_input"] >= 60
     assert np.all(a["status"][-50:] == 0)                    # re-acquired after the drop-out
     assert s.truth["position_error_mm_rms"] < 0.05

@@ -21,6 +21,7 @@ from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
 from ..signal import Demodulator
 from ..solve import Status
+from ..solve._result import status_count_names
 from ._filter import filter_restarts
 
 __all__ = ["SensorSetup", "TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline",
@@ -645,8 +646,7 @@ class TrackingPipeline:
         return self.summary(time.perf_counter() - t_wall)
 
     def _sensor_summary(self, st: _SensorState) -> dict:
-        names = {int(s): s.name for s in Status}
-        counts = {names.get(c, str(c)): k for c, k in sorted(st.status_counts.items())}
+        counts = status_count_names(st.status_counts)
         self._flush_truth(st)
         n = self._n_out
         out = {"status_counts": counts,

@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from ._result import SolveResult, Status
+from ._result import SolveResult, Status, status_count_names
 
 __all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseWriter", "read_poses"]
 
@@ -67,7 +67,7 @@ class PoseWriter:
         self.counts += np.bincount(result.status.astype(np.int64), minlength=len(Status))
 
     def status_counts(self) -> dict[str, int]:
-        return {s.name.lower(): int(self.counts[s.value]) for s in Status}
+        return status_count_names(self.counts)
 
 
 def read_poses(path) -> SolveResult:

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["SolveResult", "Status"]
+__all__ = ["SolveResult", "Status", "status_count_names"]
 
 
 class Status(IntEnum):
@@ -40,6 +40,15 @@ class Status(IntEnum):
     AMBIGUOUS = 3
     OUT_OF_VOLUME = 4
     NOT_CONVERGED = 5
+
+
+def status_count_names(counts) -> dict[str, int]:
+    """Counts per status code (an array indexed by ``Status`` value, or a mapping code ->
+    count) as ``{status name in lower case: count}``, every status listed, zeros included: the
+    one form every summary uses."""
+    if isinstance(counts, dict):
+        counts = [counts.get(int(s), 0) for s in Status]
+    return {s.name.lower(): int(counts[s.value]) for s in Status}
 
 
 # the codes as int8 module constants, usable inside compiled kernels
@@ -96,8 +105,8 @@ class SolveResult:
 
     def status_counts(self) -> dict[str, int]:
         """Number of samples per status name (every status listed, zeros included)."""
-        counts = np.bincount(self.status.astype(np.int64), minlength=len(Status))
-        return {s.name.lower(): int(counts[s.value]) for s in Status}
+        return status_count_names(np.bincount(self.status.astype(np.int64),
+                                              minlength=len(Status)))
 
     def select(self, rows) -> SolveResult:
         """A result with the rows picked by a boolean mask or index array."""
