@@ -267,13 +267,6 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
     is the rotation's quaternion when the fast path produced it (``q[0] = -1`` otherwise).
     Returns ``ST_CONVERGED`` (a pose was found; the caller judges it) or ``ST_INVALID_INPUT``.
     """
-    return _closed_form(method, C, W, gain, n, rank_tol, R, t, cws)
-
-
-@njit(inline="always")
-def _closed_form(method, C, W, gain, n, rank_tol, R, t, cws):
-    """The body of :func:`closed_form_one` (same arguments), inlined into the batch kernel:
-    no function call per sample."""
     C0, U, s, V, B, q, M = cws
     Wso = W[0]
     Wse = W[1]
@@ -511,8 +504,8 @@ def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
             if not one_n:
                 n[0], n[1], n[2] = nvec[k, 0], nvec[k, 1], nvec[k, 2]
             s = sb[b]
-            if not s > 0.0 or _closed_form(method, Cn[b], W, gain / s, n, rank_tol, R, t,
-                                           cws) == ST_INVALID_INPUT:
+            if not s > 0.0 or closed_form_one(method, Cn[b], W, gain / s, n, rank_tol, R, t,
+                                              cws) == ST_INVALID_INPUT:
                 _store_invalid(k, out)
                 continue
             if q[0] >= 0.0:
