@@ -4,41 +4,15 @@ client that never reads (skipped, then dropped) next to clients that do."""
 from __future__ import annotations
 
 import socket
-import threading
 import time
 
 import numpy as np
-import pyigtl
 import pytest
 from _counts import converged_only
+from _igtl_listener import Listener
 
 from openemt.live import IgtlServer, TrackingPipeline, example_tracker, read_tracker
 from openemt.live._session import tracker_backend, tracker_sensors
-
-
-class _Listener:
-    """A pyigtl client polling for some devices on its own thread (as a viewer would)."""
-
-    def __init__(self, port, devices):
-        self.client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port)
-        self.devices = devices
-        self.got = {d: [] for d in devices}
-        self._done = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self):
-        while not self._done.is_set():
-            for d in self.devices:
-                m = self.client.wait_for_message(d, timeout=0.01)
-                if m is not None and (not self.got[d] or m.timestamp != self.got[d][-1][0]):
-                    self.got[d].append((m.timestamp, np.array(getattr(m, "matrix", None))
-                                        if hasattr(m, "matrix") else m.string))
-
-    def stop(self):
-        self._done.set()
-        self._thread.join(timeout=3.0)
-        self.client.stop()
 
 
 def test_two_sensors_streamed_to_two_clients():
@@ -46,7 +20,7 @@ def test_two_sensors_streamed_to_two_clients():
     devices = [s.device_name for s in spec.sensors]
     backend = tracker_backend(spec, "sim", realtime=True, duration=0.5)
     with IgtlServer(port=0, device_name=devices[0], send_timeout=2.0) as srv:
-        listeners = [_Listener(srv.port, devices + ["ProbeToTrackerStatus"]) for _ in range(2)]
+        listeners = [Listener(srv.port, devices + ["ProbeToTrackerStatus"]) for _ in range(2)]
         try:
             assert srv.wait_for_client(5.0, count=2)
             backend.restart_clock()
@@ -98,7 +72,7 @@ def _slow_skipped(srv):
 
 def test_slow_client_is_skipped_without_holding_up_the_others():
     with IgtlServer(port=0, device_name="Sensor", max_queue=4, send_timeout=30.0) as srv:
-        good = [_Listener(srv.port, ["Sensor"]) for _ in range(2)]
+        good = [Listener(srv.port, ["Sensor"]) for _ in range(2)]
         slow = _slow_socket(srv.port)
         try:
             assert srv.wait_for_client(5.0, count=3)
@@ -132,7 +106,7 @@ def test_slow_client_is_skipped_without_holding_up_the_others():
 
 def test_stalled_client_is_dropped_and_the_others_keep_their_stream():
     with IgtlServer(port=0, device_name="Sensor", max_queue=4, send_timeout=0.2) as srv:
-        good = _Listener(srv.port, ["Sensor"])
+        good = Listener(srv.port, ["Sensor"])
         slow = _slow_socket(srv.port)
         try:
             assert srv.wait_for_client(5.0, count=2)
@@ -158,7 +132,7 @@ def test_stalled_client_is_dropped_and_the_others_keep_their_stream():
 @pytest.mark.parametrize("n_clients", [3])
 def test_clients_come_and_go(n_clients):
     with IgtlServer(port=0, device_name="Sensor") as srv:
-        ls = [_Listener(srv.port, ["Sensor"]) for _ in range(n_clients)]
+        ls = [Listener(srv.port, ["Sensor"]) for _ in range(n_clients)]
         assert srv.wait_for_client(5.0, count=n_clients)
         ls[0].stop()
         end = time.monotonic() + 3.0

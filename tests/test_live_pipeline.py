@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import json
-import threading
 import time
 
 import h5py
 import numpy as np
-import pyigtl
 import pytest
 from _counts import converged_only
+from _igtl_listener import Listener
 
 from openemt.geometry import vector_from_pose
 from openemt.live import (
@@ -117,34 +116,23 @@ def test_log_files(tmp_path):
 
 
 def test_igtl_client_receives_the_trajectory():
-    # the client keeps only the latest message per device and is polled every 50 ms: a second
-    # of signal gives it 20 chances even when a loaded machine delays the polling thread
+    # the client keeps only the latest message per device and the viewer polls each device
+    # every 10 ms: a second of signal gives it many chances even when a loaded machine delays
+    # the polling thread
     b = SimulatedBackend(MODEL, duration=1.0, realtime=True)
     with IgtlServer(port=0, device_name="Sensor") as srv:
-        cl = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=srv.port)
-        received = []
-        done = threading.Event()
-
-        def listen():
-            while not done.is_set():
-                m = cl.wait_for_message("Sensor", timeout=0.05)
-                if m is not None:
-                    received.append((m.timestamp, np.array(m.matrix)))
-
-        th = threading.Thread(target=listen, daemon=True)
-        th.start()
+        viewer = Listener(srv.port, ["Sensor", "SensorStatus"])
         try:
             assert srv.wait_for_client(3.0)
             b.t0_epoch = time.time()
             s = TrackingPipeline(b, MODEL, igtl=srv).run()
             time.sleep(0.1)
         finally:
-            done.set()
-            th.join(timeout=2.0)
-            cl.stop()
-        status = cl.wait_for_message("SensorStatus", timeout=0.5)   # latest one kept
+            viewer.stop()
+        received = viewer.got["Sensor"]
+        status = viewer.got["SensorStatus"]
         assert s.igtl["sent"] > 0
-        assert status is not None and status.string.startswith("CONVERGED distorted=0")
+        assert status and status[-1][1].startswith("CONVERGED distorted=0")
     assert len(received) >= 10
     t = np.array([r[0] for r in received]) - b.t0_epoch
     M = np.stack([r[1] for r in received])

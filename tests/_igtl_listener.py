@@ -1,0 +1,33 @@
+"""A pyigtl client polling some devices on its own thread, as a viewer such as 3D Slicer would,
+keeping every new message: ``got[device]`` lists ``(timestamp, matrix)`` for TRANSFORMs and
+``(timestamp, text)`` for STRING messages."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pyigtl
+
+
+class Listener:
+    def __init__(self, port, devices):
+        self.client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port)
+        self.devices = devices
+        self.got = {d: [] for d in devices}
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        while not self._done.is_set():
+            for d in self.devices:
+                m = self.client.wait_for_message(d, timeout=0.01)
+                if m is not None and (not self.got[d] or m.timestamp != self.got[d][-1][0]):
+                    self.got[d].append((m.timestamp, np.array(getattr(m, "matrix", None))
+                                        if hasattr(m, "matrix") else m.string))
+
+    def stop(self):
+        self._done.set()
+        self._thread.join(timeout=3.0)
+        self.client.stop()
