@@ -297,7 +297,7 @@ class _SensorState:
         self.filter = f if f is not None and getattr(f, "enabled", False) else None
         self.filter_state = None
         self.last = None             # last valid pose vector
-        self.status_counts: dict = {}
+        self.status_counts = np.zeros(len(Status), dtype=np.int64)   # per Status code
         self.n_distorted = 0
         self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
         self.pending: list = []
@@ -587,12 +587,11 @@ class TrackingPipeline:
 
     def _account(self, st: _SensorState, step: TrackStep, ok):
         n_ok = int(np.count_nonzero(ok))
-        if n_ok == len(step):                  # the usual case, without np.unique
-            st.status_counts[_CONVERGED] = st.status_counts.get(_CONVERGED, 0) + n_ok
+        if n_ok == len(step):                  # the usual case, without a bincount
+            st.status_counts[_CONVERGED] += n_ok
         else:
-            codes, counts = np.unique(step.status, return_counts=True)
-            for c, k in zip(codes.tolist(), counts.tolist()):
-                st.status_counts[c] = st.status_counts.get(c, 0) + k
+            st.status_counts += np.bincount(step.status.astype(np.int64),
+                                            minlength=len(Status))
         st.n_distorted += int(np.count_nonzero(step.distorted))
         if self.log is not None:
             self.log.append(step, st.index)

@@ -43,11 +43,8 @@ class Status(IntEnum):
 
 
 def status_count_names(counts) -> dict[str, int]:
-    """Counts per status code (an array indexed by ``Status`` value, or a mapping code ->
-    count) as ``{status name in lower case: count}``, every status listed, zeros included: the
-    one form every summary uses."""
-    if isinstance(counts, dict):
-        counts = [counts.get(int(s), 0) for s in Status]
+    """Counts per status code (an array indexed by ``Status`` value) as ``{status name in lower
+    case: count}``, every status listed, zeros included: the one form every summary uses."""
     return {s.name.lower(): int(counts[s.value]) for s in Status}
 
 
