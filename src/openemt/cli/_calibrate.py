@@ -109,7 +109,7 @@ def _planar(args) -> int:
     check_grid_units(data, args.sensor_length)
     if args.start is not None:
         start = read_calibration(args.start)
-        if getattr(start, "kind", None) != "finite":
+        if start.kind != "finite":
             raise InputError(f"expected a finite-coil (planar) calibration for --from in planar "
                              f"mode, got a {getattr(start, 'mode', 'dipole')!r} calibration")
         if args.board is not None:
@@ -292,7 +292,7 @@ def run(args) -> int:
                              "folder), got none")
         start_path = cand
     start = read_calibration(start_path)
-    if getattr(start, "kind", None) == "finite":   # a board: only the planar mode fits it
+    if start.kind == "finite":   # a board: only the planar mode fits it
         raise InputError(f"expected a dipole-model calibration for --from in mode "
                          f"{args.mode}, got a finite-coil board calibration (--mode planar)")
     if args.mode == "improved":

@@ -55,7 +55,7 @@ def dataset_info(ds) -> dict:
 
 def calibration_info(cal) -> dict:
     """JSON-able summary of a Calibration."""
-    if getattr(cal, "kind", None) == "finite":          # a board calibration
+    if cal.kind == "finite":          # a board calibration
         return cal.info()
     m = cal.model
     return {

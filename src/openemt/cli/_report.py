@@ -89,7 +89,7 @@ def run(args) -> int:
             raise InputError(f"expected --calibration CAL.json to characterise on "
                              f"{src.name}, got none")
         cal = read_calibration(args.calibration)
-        if getattr(cal, "kind", None) == "finite":     # a board: docs/planar.md#reports
+        if cal.kind == "finite":     # a board: docs/planar.md#reports
             return _board_report(args, src, cal, out_path)
         if args.holdout is not None:
             raise InputError(f"expected --holdout only with a finite-coil (board) calibration, "

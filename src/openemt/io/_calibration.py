@@ -101,6 +101,11 @@ class Calibration:
     provenance: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
+    #: the model family, as in the file; ``"finite"`` for a board calibration
+    #: (:class:`openemt.io._board_calfile.BoardCalibration`, which has the same ``kind``,
+    #: ``n_source`` and ``n_sensor``)
+    kind = "dipole"
+
     def __post_init__(self):
         if not isinstance(self.model, DipoleModel):
             raise TypeError(f"expected `model` to be a DipoleModel, got {type(self.model).__name__}")
@@ -111,6 +116,14 @@ class Calibration:
                                check_correction_matrix(self.linear_correction))
         object.__setattr__(self, "free", tuple(self.free))
         object.__setattr__(self, "frozen", tuple(self.frozen))
+
+    @property
+    def n_source(self) -> int:
+        return self.model.n_source
+
+    @property
+    def n_sensor(self) -> int:
+        return self.model.n_sensor
 
     @property
     def fixture_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

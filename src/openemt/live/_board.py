@@ -22,7 +22,6 @@ __all__ = [
     "BOARD_FREQUENCIES",
     "BOARD_PEAK_VOLTS",
     "BoardCoupling",
-    "board_calibration",
     "board_default_spec",
     "board_frequencies",
     "board_solver",
@@ -48,11 +47,6 @@ def board_frequencies(n: int) -> tuple:
 BOARD_FREQUENCIES = board_frequencies(8)
 #: Peak sensor voltage (V) the simulated board tracker's sensor gain is set for.
 BOARD_PEAK_VOLTS = 0.3
-
-
-def board_calibration(cal) -> bool:
-    """True for a finite-coil (board) calibration (``openemt.io`` ``kind == "finite"``)."""
-    return getattr(cal, "kind", None) == "finite"
 
 
 class BoardCoupling:
@@ -165,7 +159,7 @@ def board_default_spec(calibration, device_name: str = "openemt", *, preset=None
         cal = read_calibration(calibration)
     except (ValueError, OSError):
         return None                       # the dipole path reports an unreadable file
-    if not board_calibration(cal):
+    if cal.kind != "finite":
         return None
     if preset is not None:
         raise InputError(f"expected no --preset with a finite-coil board calibration (the "
@@ -188,7 +182,7 @@ def board_truth(spec):
     calibration (None for a dipole tracker). Every sensor must name a board calibration of the
     same coil count, with one channel, and the tracker one carrier per coil."""
     cals = spec.calibrations()
-    boards = [c for c in cals if c is not None and board_calibration(c)]
+    boards = [c for c in cals if c is not None and c.kind == "finite"]
     if not boards:
         return None
     if len(boards) != len(cals):

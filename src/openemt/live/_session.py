@@ -30,7 +30,7 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
     out = []
     boards: dict = {}
     for s, cols, cal in zip(spec.sensors, spec.sensor_columns(), cals):
-        if getattr(cal, "kind", None) == "finite":    # a board: the 5-DOF solver
+        if cal is not None and cal.kind == "finite":    # a board: the 5-DOF solver
             from ._board import board_solver
 
             solver = boards.setdefault(id(cal), board_solver(cal.model))

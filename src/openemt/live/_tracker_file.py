@@ -161,9 +161,7 @@ class TrackerSpec:
             except (ValueError, OSError) as exc:
                 raise InputError(f"{self._where()}: expected a readable calibration for sensor "
                                  f"{s.name!r}, got {' '.join(str(exc).split())}") from None
-            # a finite-coil board calibration has the counts itself (docs/planar.md)
-            n_se, n_so = ((cal.n_sensor, cal.n_source) if getattr(cal, "kind", "") == "finite"
-                          else (cal.model.n_sensor, cal.model.n_source))
+            n_se, n_so = cal.n_sensor, cal.n_source       # dipole or board calibration
             if n_se != len(s.channels):
                 raise InputError(
                     f"{self._where()}: expected sensor {s.name!r} to list one channel per coil "
