@@ -150,3 +150,28 @@ def test_solve_adds_the_accuracy_of_known_poses(calibrated, capsys):
     # tracked from point to point instead of cold starts: the same minima to the solver's
     # step tolerance (1e-9 m against errors of tens of micrometres)
     _close(s["accuracy"], fit["insample"], 1e-4)
+
+
+@pytest.mark.parametrize("poses", ["short", "flat", "group"])
+def test_solve_refuses_malformed_true_poses(calibrated, capsys, tmp_path, poses):
+    import shutil
+
+    import h5py
+
+    _tmp, grid, cal = calibrated
+    bad = tmp_path / "bad.h5"
+    shutil.copy(grid, bad)
+    with h5py.File(bad, "r+") as f:
+        P = f["poses"][()]
+        del f["poses"]
+        if poses == "short":
+            f["poses"] = P[:10]
+        elif poses == "flat":
+            f["poses"] = np.zeros(5)
+        else:
+            f.create_group("poses")
+    out = tmp_path / "p.h5"
+    rc, _out, err = _run(["solve", str(bad), "-c", str(cal), "-o", str(out), "--json"], capsys)
+    assert rc == 2 and err.strip().count("\n") == 0
+    assert "expected `poses` to have shape (49, 4, 4)" in err
+    assert not out.exists()

@@ -30,6 +30,7 @@ def read_board_calibration(path):
 
 
 def solve_board(args, cal) -> int:
+    import h5py
 
     from ..io import open_dataset_couplings
     from ..solve._planar import solve_planar
@@ -50,14 +51,15 @@ def solve_board(args, cal) -> int:
     rule = {k: getattr(args, k) for k in ("max_relative_residual", "max_range")
             if getattr(args, k, None) is not None}
     t0 = time.perf_counter()
-    with open_dataset_couplings(args.dataset, real=True) as reader:
+    with open_dataset_couplings(args.dataset, real=True) as reader, \
+            h5py.File(args.dataset, "r") as side:
         n = reader.shape[0]
         if reader.shape[1:] != (model.n_coils, 1):
             raise InputError(f"expected couplings of shape (N, {model.n_coils}, 1) for this "
                              f"board calibration, got {reader.shape}")
         meta = {"dataset": str(args.dataset), "calibration": str(args.calibration),
                 "model": "finite", "board": model.board.name, "correction_applied": False}
-        truth = _TruthScore(args.dataset, model)
+        truth = _TruthScore(side.get("poses"), model, n, args.dataset)
 
         def chunks():
             for start in range(0, n, args.chunk_rows):
@@ -90,39 +92,37 @@ def solve_board(args, cal) -> int:
 class _TruthScore:
     """The accuracy block of a dataset that carries the true sensor poses (a simulated or
     measured grid): the keys of the planar calibration's accuracy blocks
-    (docs/planar.md#accuracy), from the tracked solution instead of cold starts."""
+    (docs/planar.md#accuracy), from the tracked solution instead of cold starts. ``poses`` is
+    the dataset's ``poses`` (an h5py dataset read block by block) or None."""
 
-    def __init__(self, path, model):
+    def __init__(self, poses, model, n, path):
         import h5py
 
+        if poses is not None and (not isinstance(poses, h5py.Dataset)
+                                  or poses.shape != (n, 4, 4)):
+            got = poses.shape if isinstance(poses, h5py.Dataset) else "a group"
+            raise InputError(f"{path}: expected `poses` to have shape ({n}, 4, 4) beside the "
+                             f"couplings, got {got}")
+        self.poses = poses
         self.model = model
         self.parts = []
-        with h5py.File(path, "r") as f:
-            self.path = path if "poses" in f else None
-        self._file = None
 
     def add(self, start, C, res) -> None:
-        if self.path is None:
+        if self.poses is None:
             return
-        import h5py
         import numpy as np
 
         from ..calibrate._planar import GridData, planar_errors
 
-        if self._file is None:
-            self._file = h5py.File(self.path, "r")
-        P = np.asarray(self._file["poses"][start:start + len(res)], dtype=np.float64)
+        P = np.asarray(self.poses[start:start + len(res)], dtype=np.float64)
         C = np.asarray(C, dtype=np.float64).reshape(len(res), -1)
         if not (np.all(np.isfinite(P)) and np.all(np.isfinite(C))):
-            self.path, self.parts = None, []      # rows without a truth: no accuracy block
+            self.poses, self.parts = None, []     # rows without a truth: no accuracy block
             return
         self.parts.append(planar_errors(self.model, GridData(P[:, :3, 3], P[:, :3, 2], C),
                                         result=res))
 
     def summary(self) -> dict | None:
-        if self._file is not None:
-            self._file.close()
-            self._file = None
         if not self.parts:
             return None
         from ..calibrate._planar import PlanarErrors
