@@ -421,12 +421,7 @@ def normalise_coupling(Cm, cn_in, Cn, G):
             c = Cm[i, j] * inv
             Cn[i, j] = c
             ss += c * c
-    if cn_in >= 0.0:
-        cn = cn_in
-    elif Cn.shape[0] == 3 and Cn.shape[1] == 3:
-        cn = _spectral_norm33(Cn) * s  # inline: no call per sample for 3x3 trackers
-    else:
-        cn = spectral_norm(Cn, G) * s
+    cn = cn_in if cn_in >= 0.0 else spectral_norm(Cn, G) * s
     if not (cn > 0.0 and np.isfinite(cn)):
         return 0.0, 0.0, 0.0
     return s, cn, np.sqrt(ss)
