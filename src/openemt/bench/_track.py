@@ -48,11 +48,13 @@ filter
     ``step_settle_ms`` is the time after a 1 mm position step until the output stays within
     1 % of it (``step_overshoot``: largest excess, as a fraction of the step).
 baseline
-    ``one_frame_reads`` with numba's default thread pool for the one-sample solves (what the
-    pipeline avoids by solving small chunks on its own thread); ``one_frame_reads`` reports
-    ``p99_speedup_vs_baseline``. The default solver (``openemt.live.lm_solver``, a prepared
-    ``solve_lm``) starts no parallel region, so for it the two configurations run the same
-    code and differ only by the machine's noise.
+    ``one_frame_reads`` with the solver unprepared: :func:`openemt.solve.solve_lm` called on
+    every read, checking and packing the model and options each time, as the pipeline did
+    before it prepared its solver once (``openemt.live.lm_solver``, a
+    :class:`~openemt.solve._prepared.PreparedLM`; same poses), and with several sensors one
+    call per sensor (no batching of sensors that share a calibration). With one frame per
+    read these per-call costs matter most; ``one_frame_reads`` reports
+    ``p99_speedup_vs_baseline``.
 """
 
 from __future__ import annotations
@@ -121,7 +123,19 @@ def _spec(preset, k: int):
     return tracker_from_dict(doc)
 
 
-def _latency_run(spec, seconds, chunk, seed, serial=True):
+def _unprepared(setup):
+    """``setup`` with the default solver unprepared: ``solve_lm`` on every call."""
+    from dataclasses import replace
+
+    from ..solve import solve_lm
+
+    def solve(C, initial, model=setup.model, hemisphere=setup.hemisphere):
+        return solve_lm(C, model, initial=initial, hemisphere=hemisphere)
+
+    return replace(setup, solver=solve)
+
+
+def _latency_run(spec, seconds, chunk, seed, prepared=True):
     import subprocess
     import sys
 
@@ -138,8 +152,10 @@ def _latency_run(spec, seconds, chunk, seed, serial=True):
     try:
         if not srv.wait_for_client(30.0):
             raise OSError("expected a loopback OpenIGTLink client to connect, got none in 30 s")
-        pipe = TrackingPipeline(backend, sensors=tracker_sensors(spec), igtl=srv,
-                                serial_small_batches=serial)
+        sensors = tracker_sensors(spec)
+        if not prepared:
+            sensors = [_unprepared(st) for st in sensors]
+        pipe = TrackingPipeline(backend, sensors=sensors, igtl=srv)
         backend.restart_clock()
         t0 = time.perf_counter()
         s = pipe.run()
@@ -175,7 +191,7 @@ def run(args) -> dict:
     _latency_run(spec, 0.05, args.chunk, args.seed)
     s, send, wall, stats = _latency_run(spec, seconds, args.chunk, args.seed)
     s1, send1, wall1, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed)
-    _, sendb, _, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed, serial=False)
+    _, sendb, _, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed, prepared=False)
 
     def pct(a, q):
         return float(np.percentile(a, q)) if len(a) else None
@@ -191,8 +207,8 @@ def run(args) -> dict:
         "kept_up_with_real_time": bool(wall <= 1.05 * s.signal_seconds + 0.05),
         "igtl": stats, "status_counts": s.status_counts,
         "tracking_error_mm_rms": (s.truth or {}).get("position_error_mm_rms"),
-        "baseline": {"what": "one frame per read, numba's default thread pool for the "
-                             "one-sample solves",
+        "baseline": {"what": "one frame per read, the solver unprepared (solve_lm with its "
+                             "checks and packing on every call, one call per sensor)",
                      "latency_ms_p50": pct(sendb, 50), "latency_ms_p99": pct(sendb, 99)},
         "one_frame_reads": {
             "chunk_samples": 64, "latency_ms_p50": pct(send1, 50),
