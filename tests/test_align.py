@@ -86,11 +86,43 @@ def test_bad_inputs():
         fit_axyb(A, B, folds=100000)
     with pytest.raises(ValueError, match="same shape"):
         fit_axyb(A, B[:5])
-    # rotations about one axis only leave X, Y undetermined
-    Rz = Rotation.from_rotvec(np.outer(np.linspace(0, 2, 6), [0, 0, 1])).as_matrix()
+
+
+ONE_AXIS = "rotations about at least two non-parallel axes .* got rotations within"
+
+
+@pytest.mark.parametrize("noise_deg", [0.0, 0.05, 0.5])
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+def test_one_axis_motion_is_named_before_any_fit(noise_deg, scale):
+    """Rotations about one axis leave X and Y undetermined: the error names the cause, whatever
+    the noise (which decides what a fit would do) and the unit of the translations."""
+    X, Y = _truth(4)
+    rng = np.random.default_rng(4)
+    axis = Rotation.random(random_state=5).apply([0.0, 0.0, 1.0])
+    Rz = Rotation.from_rotvec(np.outer(np.linspace(0, 2, 6), axis)).as_matrix()
     A1 = pose_from_rt(Rz, rng.normal(size=(6, 3)))
-    with pytest.raises(ValueError, match="degenerate|determine"):
-        fit_axyb(A1, invert(Y) @ A1 @ X)
+    B1 = invert(Y) @ A1 @ X
+    noise = Rotation.from_rotvec(np.deg2rad(noise_deg) * rng.standard_normal((6, 3)))
+    A1[:, :3, :3] = noise.as_matrix() @ A1[:, :3, :3]
+    A1[:, :3, 3] *= scale
+    B1[:, :3, 3] *= scale
+    with pytest.raises(ValueError, match=ONE_AXIS):
+        fit_axyb(A1, B1)
+
+
+def test_no_rotation_and_two_axes():
+    X, Y = _truth(6)
+    rng = np.random.default_rng(6)
+    A0 = pose_from_rt(np.repeat(np.eye(3)[None], 8, 0), rng.normal(size=(8, 3)))
+    with pytest.raises(ValueError, match="got no rotation"):
+        fit_axyb(A0, invert(Y) @ A0 @ X)
+    # rotations of 10 deg about x and about y: enough (the check passes, the fit recovers X)
+    rv = np.zeros((8, 3))
+    rv[:4, 0] = np.deg2rad(np.linspace(-10, 10, 4))
+    rv[4:, 1] = np.deg2rad(np.linspace(-10, 10, 4))
+    A2 = pose_from_rt(Rotation.from_rotvec(rv).as_matrix(), rng.normal(size=(8, 3)))
+    r = fit_axyb(A2, invert(Y) @ A2 @ X, folds=0)
+    np.testing.assert_allclose(r.X, X, atol=1e-9)
 
 
 def test_pair_rows_by_order_and_frame():

@@ -38,7 +38,7 @@ from scipy.stats import chi2
 
 from .._errors import InputError
 from ..evaluate import pose_error_magnitudes
-from ..geometry import check_poses, invert, pose_from_rt
+from ..geometry import check_poses, invert, pose_from_rt, require_rotation_diversity
 
 __all__ = [
     "MIN_PAIRS",
@@ -266,6 +266,8 @@ def fit_axyb(A, B, *, robust: bool = True, folds: int = HELD_OUT_FOLDS,
     folds = int(folds)
     if folds and not 2 <= folds <= MAX_FOLDS:
         raise InputError(f"expected 2 <= folds <= {MAX_FOLDS} (or 0), got {folds}")
+    # a property of the motion, tested before any fit (scale-free; openemt.geometry._motion)
+    require_rotation_diversity(A, "X and Y of A X = Y B")
     inlier = np.ones(n, dtype=bool)
     X, Y, st, sr = _fit(A, B, robust=robust)
     if robust:

@@ -250,6 +250,7 @@ def _hemisphere(info, hemisphere):
 def _hand_eye_start(C, B, model, hemisphere) -> tuple[np.ndarray, np.ndarray, dict]:
     from ..align import fit_axyb, reference_in_measured_frame
     from ..evaluate import pose_error_magnitudes
+    from ..geometry import rotation_diversity
     from ..solve import solve_lm
 
     res = solve_lm(C, model, initial="kim18", hemisphere=hemisphere)
@@ -258,9 +259,7 @@ def _hand_eye_start(C, B, model, hemisphere) -> tuple[np.ndarray, np.ndarray, di
         raise InputError(f"expected at least {MIN_REFERENCE_POSES} poses solvable with the "
                          f"start model for the hand-eye start, got {int(ok.sum())}")
     A, Bk = res.poses[ok], B[ok]
-    try:
-        he = fit_axyb(A, Bk, folds=0)
-    except InputError:
+    if not rotation_diversity(Bk).ok:
         # rotations about one axis only (a stage with one rotary axis, a turntable): the
         # rotation-only closed form is degenerate; take R_Y from the translations instead
         X, Y = _translation_start(A, Bk)
@@ -268,8 +267,8 @@ def _hand_eye_start(C, B, model, hemisphere) -> tuple[np.ndarray, np.ndarray, di
         return X, Y, {"method": "translations", "n_pairs": int(ok.sum()), "n_outliers": 0,
                       "residual_trans_rms_mm": float(1e3 * np.sqrt(np.mean(t ** 2))),
                       "residual_rot_rms_deg": float(np.rad2deg(np.sqrt(np.mean(r ** 2))))}
-    s = he.summary()
-    return he.X, he.Y, {"method": "hand-eye", "n_pairs": int(ok.sum()),
+    s = fit_axyb(A, Bk, folds=0).summary()
+    return s["X"], s["Y"], {"method": "hand-eye", "n_pairs": int(ok.sum()),
                         "n_outliers": s["n_outliers"],
                         "residual_trans_rms_mm": s["residual_trans_rms_mm"],
                         "residual_rot_rms_deg": s["residual_rot_rms_deg"]}

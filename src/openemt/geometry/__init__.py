@@ -11,6 +11,12 @@ from ._fixtures import (
     stage_joint,
     stage_transform,
 )
+from ._motion import (
+    MIN_SECOND_AXIS_DEG,
+    RotationDiversity,
+    require_rotation_diversity,
+    rotation_diversity,
+)
 from ._pose import (
     adjoint,
     check_points,
@@ -32,8 +38,10 @@ from ._pose import (
 
 __all__ = [
     "FIXTURE_CODE_RE",
+    "MIN_SECOND_AXIS_DEG",
     "SENSOR_FIXTURES",
     "SOURCE_FIXTURES",
+    "RotationDiversity",
     "adjoint",
     "check_points",
     "check_pose_vectors",
@@ -47,8 +55,10 @@ __all__ = [
     "pose_error",
     "pose_from_rt",
     "pose_from_vector",
+    "require_rotation_diversity",
     "rotation_x",
     "rotation_y",
+    "rotation_diversity",
     "rotation_z",
     "sensor_fixture_rotation",
     "skew",
