@@ -68,7 +68,9 @@ def perturbed(cal, rng, scale=1.0):
                       M_so=m.M_so * (1 + scale * rng.normal(0, 0.01, m.M_so.shape)),
                       L_se=m.L_se + scale * rng.normal(0, 2e-4, m.L_se.shape),
                       M_se=m.M_se * (1 + scale * rng.normal(0, 0.01, m.M_se.shape)))
-    d = lambda v: v + scale * np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, 0.01, 3)]
+    def d(v):
+        return v + scale * np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, 0.01, 3)]
+
     return cal.replace(model=model, source_fixture=d(cal.source_fixture),
                        stage_fixture=d(cal.stage_fixture), sensor_fixture=d(cal.sensor_fixture))
 

@@ -16,9 +16,9 @@ def _cfmt(z: complex) -> str:
 
 def _write_dat(path, stage_mm_deg, hr, lr, sep="\t", fmt=_cfmt):
     lines = []
-    for s, h, l in zip(stage_mm_deg, hr, lr):
+    for s, h, lo in zip(stage_mm_deg, hr, lr):
         # file value k = source k % 3 into sensor k // 3, i.e. C.T flattened
-        vals = [f"{v:.5f}" for v in s] + [fmt(z) for z in h.T.ravel()] + [fmt(z) for z in l.T.ravel()]
+        vals = [f"{v:.5f}" for v in s] + [fmt(z) for z in h.T.ravel()] + [fmt(z) for z in lo.T.ravel()]
         lines.append(sep.join(vals))
     path.write_text("\n".join(lines) + "\n")
 

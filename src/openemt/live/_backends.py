@@ -158,7 +158,9 @@ class SimulatedBackend(Backend):
                 raise InputError(f"expected `offsets` of shape (K, 3), got {off.shape}")
             if not callable(traj):
                 fixed = np.asarray(traj, dtype=np.float64)
-                traj = lambda t: np.broadcast_to(fixed, (len(t), 4, 4))
+
+                def traj(t, fixed=fixed):
+                    return np.broadcast_to(fixed, (len(t), 4, 4))
             traj = _offset_trajectory(traj, off)
             sim_model = _StackedModel(self.model, len(off))
         self._sim = RawSimulator(sim_model, traj, config, seed=seed)
