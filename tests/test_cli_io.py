@@ -12,10 +12,7 @@ from openemt.io import import_ilemt_folder, read_calibration, read_dataset, writ
 
 
 @pytest.fixture
-def cli(monkeypatch, capsys):
-    # only the io commands, so these tests do not depend on other command modules
-    monkeypatch.setattr(openemt.cli, "COMMAND_MODULES", ("import_", "info"))
-
+def cli(capsys):
     def run(*argv):
         code = openemt.cli.main([str(a) for a in argv])
         out, err = capsys.readouterr()

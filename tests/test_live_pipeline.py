@@ -144,10 +144,9 @@ def test_igtl_client_receives_the_trajectory():
 # ---------------------------------------------------------------------------- CLI
 
 @pytest.fixture
-def cli(monkeypatch):
+def cli():
     import openemt.cli as cli_mod
 
-    monkeypatch.setattr(cli_mod, "COMMAND_MODULES", ("track",))
     return cli_mod.main
 
 

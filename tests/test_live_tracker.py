@@ -227,10 +227,9 @@ def test_sound_backend_tracks_two_sensors_from_the_tracker_file(monkeypatch):
 
 
 @pytest.fixture
-def cli(monkeypatch):
+def cli():
     import openemt.cli as cli_mod
 
-    monkeypatch.setattr(cli_mod, "COMMAND_MODULES", ("track", "devices"))
     return cli_mod.main
 
 

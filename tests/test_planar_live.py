@@ -36,10 +36,9 @@ def board_cal(tmp_path_factory):
 
 
 @pytest.fixture
-def cli(monkeypatch):
+def cli():
     import openemt.cli as cli_mod
 
-    monkeypatch.setattr(cli_mod, "COMMAND_MODULES", ("track",))
     return cli_mod.main
 
 

@@ -13,9 +13,8 @@ from openemt.simulate import simulate, truth_calibration
 
 
 @pytest.fixture
-def main(monkeypatch):
-    """``openemt.cli.main`` with only this command registered (the others are not under test)."""
-    monkeypatch.setattr(cli, "COMMAND_MODULES", ("simulate",))
+def main():
+    """``openemt.cli.main``."""
     return cli.main
 
 

@@ -83,8 +83,7 @@ def test_nominal_calibration_follows_the_gauge():
 
 
 @pytest.fixture
-def main(monkeypatch):
-    monkeypatch.setattr(cli, "COMMAND_MODULES", ("simulate",))
+def main():
     return cli.main
 
 

@@ -60,12 +60,19 @@ def test_warm_starts_chunk_by_chunk_equal_solve_lm(preset):
 
 
 @pytest.mark.parametrize("initial", ["kim18", "track", "multistart"])
-def test_named_starts_equal_solve_lm(initial):
+def test_named_starts_of_a_reused_solver(initial):
+    """A solver that has served other calls (its cached constants and whitening filled for
+    another size) answers a named start as a fresh one does, and finds the simulated poses."""
     model = truth_calibration("dipole-approx").model
-    C = np.concatenate(_chunks(model, n_chunks=3, n=8)[0])
-    got = PreparedLM(model, hemisphere="+x")(C, initial)
-    _same(got, solve_lm(C, model, hemisphere="+x", initial=initial))
-    assert np.count_nonzero(got.status == Status.INVALID_INPUT) == 3
+    chunks, v = _chunks(model, n_chunks=3, n=8)
+    C = np.concatenate(chunks)
+    solver = PreparedLM(model, hemisphere="+x")
+    solver(np.ascontiguousarray(C[::-1][:5]), initial)
+    got = solver(C, initial)
+    _same(got, PreparedLM(model, hemisphere="+x")(C, initial))
+    ok = got.status == Status.CONVERGED
+    assert np.count_nonzero(got.status == Status.INVALID_INPUT) == 3 and ok.sum() == len(C) - 3
+    np.testing.assert_allclose(got.pose_vectors[ok, :3], v[ok, :3], atol=1e-5)
 
 
 def test_one_prepared_solver_reused_for_many_sizes_and_hemispheres():

@@ -42,10 +42,6 @@ COMMANDS = {
     "datasets": ("datasets", "list (and verify) the bundled data sets"),
 }
 
-#: Command modules, in the order they appear in ``openemt --help``.
-COMMAND_MODULES = tuple(module for module, _ in COMMANDS.values())
-
-
 def command_help(name: str) -> str:
     """The one-line help of command ``name`` (see :data:`COMMANDS`)."""
     return COMMANDS[name][1]
