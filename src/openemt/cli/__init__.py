@@ -10,6 +10,7 @@ ever overwritten).
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import os
 import signal
@@ -47,11 +48,66 @@ def command_help(name: str) -> str:
     return COMMANDS[name][1]
 
 
+class _UsageError(Exception):
+    """An argparse error, reported by :func:`main` (one line with the right usage, exit 2)."""
+
+    def __init__(self, parser, message):
+        super().__init__(message)
+        self.parser = parser
+
+
 class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit 2 (argparse's own convention)
-        self.print_usage(sys.stderr)
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(2)
+    def error(self, message):
+        raise _UsageError(self, message)
+
+
+def _command_parsers(parser, argv):
+    """The parsers a command line walks through: ``openemt``, the command, a sub-command."""
+    chain = [parser]
+    for word in argv:
+        subs = [a for a in chain[-1]._actions if isinstance(a, argparse._SubParsersAction)]
+        if subs and word in subs[0].choices:
+            chain.append(subs[0].choices[word])
+    return chain
+
+
+def _is_known(word, parser) -> bool:
+    """Whether option ``word`` is one ``parser`` takes (exactly, or as argparse's unique prefix
+    of a long option); a negative number counts as a value."""
+    name = word.split("=", 1)[0]
+    if name in parser._option_string_actions or parser._negative_number_matcher.match(word):
+        return True
+    if not name.startswith("--"):
+        return len(name) > 2 and name[:2] in parser._option_string_actions  # -ofile
+    return sum(o.startswith(name) for o in parser._option_string_actions) == 1
+
+
+def _friendly(exc: _UsageError, parser, argv) -> tuple[argparse.ArgumentParser, str]:
+    """The parser whose usage to show and the message: a misspelt option or command is named
+    first, with the closest match, whatever else argparse noticed."""
+    chain = _command_parsers(parser, argv)
+    last = chain[-1]
+    if len(chain) > 1:
+        for word in argv:
+            if word == "--":
+                break
+            if word.startswith("-") and len(word) > 1 and not _is_known(word, last) \
+                    and not (last is not parser and _is_known(word, parser)):
+                name = word.split("=", 1)[0]
+                close = difflib.get_close_matches(name, list(last._option_string_actions), 1,
+                                                  0.6)
+                hint = f" (did you mean {close[0]}?)" if close else ""
+                return last, f"unrecognized option {name}{hint}"
+    subs = [a for a in last._actions if isinstance(a, argparse._SubParsersAction)]
+    message = str(exc)
+    if subs and "invalid choice" in message:
+        words = [w for w in argv if not w.startswith("-")]
+        depth = len(chain) - 1
+        if len(words) > depth:
+            close = difflib.get_close_matches(words[depth], list(subs[0].choices), 1, 0.6)
+            if close:
+                message += f" (did you mean {close[0]}?)"
+    return (exc.parser if len(chain) == 1 else last), message
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -131,11 +187,19 @@ def main(argv=None) -> int:
     they print their traceback and an invitation to report them.
     """
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
-    parser = build_parser(_command_of(argv))
+    command = _command_of(argv)
+    if not command and argv and not argv[0].startswith("-"):
+        command = None  # an unknown command: configure all, to suggest the closest one
+    parser = build_parser(command)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
+    except _UsageError as exc:
+        shown, message = _friendly(exc, parser, argv)
+        shown.print_usage(sys.stderr)
+        print(f"error: {message}", file=sys.stderr)
+        return 2
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _on_sigterm)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 import warnings
 from dataclasses import replace
@@ -278,6 +279,9 @@ def run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, select_rows
     from ..io import atomic_path, read_calibration, write_calibration
 
+    if not args.output and not args.quiet:
+        print("note: no -o given: the fit is summarised but the calibration is not written "
+              "(add -o CAL.json to keep it)", file=sys.stderr)
     if args.mode == "planar":
         return _planar(args)
     if args.mode == "reference":
