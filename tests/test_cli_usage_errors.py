@@ -38,7 +38,16 @@ def test_valid_prefix_and_negative_values_are_not_typos(capsys, tmp_path):
     assert "missing file" in capsys.readouterr().err
 
 
-def test_calibrate_without_output_says_nothing_is_written(capsys, ilemt_dir, tmp_path):
-    code = main(["calibrate", str(ilemt_dir / "nothing-here")])
-    err = capsys.readouterr().err
-    assert code == 2 and err.startswith("note: no -o given") and "add -o CAL.json" in err
+def test_calibrate_without_output_says_nothing_is_written(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "--preset", "concentric", "--reference", "robot", "--n-poses", "40",
+                 "--seed", "1", "-o", "robot.h5", "--quiet"]) == 0
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["calibrate", "robot.h5", "--mode", "reference"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("note: the calibration was not written: no -o given (add -o CAL.json to "
+                       "keep it)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    # bad input stays one error line, without the note
+    assert main(["calibrate", "missing.h5", "--mode", "reference"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1

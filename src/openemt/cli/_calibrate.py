@@ -276,12 +276,17 @@ def _reference(args) -> int:
 
 
 def run(args) -> int:
+    code = _run(args)
+    if code == 0 and not args.output and not args.quiet:
+        print("note: the calibration was not written: no -o given (add -o CAL.json to keep it)",
+              file=sys.stderr)
+    return code
+
+
+def _run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, select_rows
     from ..io import atomic_path, read_calibration, write_calibration
 
-    if not args.output and not args.quiet:
-        print("note: no -o given: the fit is summarised but the calibration is not written "
-              "(add -o CAL.json to keep it)", file=sys.stderr)
     if args.mode == "planar":
         return _planar(args)
     if args.mode == "reference":
