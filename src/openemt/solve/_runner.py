@@ -85,6 +85,8 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm",
 def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_correction,
                  options):
     C = reader[start:stop]
+    if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1:
+        hemisphere = np.asarray(hemisphere[start:stop], dtype=np.float64)
     return solve(C, calibration, solver=solver, hemisphere=hemisphere,
                  apply_correction=apply_correction, **options)
 
@@ -110,8 +112,12 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         scheduler; the compiled solver itself uses all cores). A ``dask.distributed`` scheduler
         address (``'tcp://host:8786'``) or a ``Client``: blocks are submitted to that cluster,
         ``max_in_flight`` at a time.
-    solver, hemisphere, apply_correction, **options
-        As in :func:`solve`; ``hemisphere`` must be one spec for all rows (not per row).
+    solver, apply_correction, **options
+        As in :func:`solve`.
+    hemisphere : None, str, array_like (3,) or row-sliceable (N, 3)
+        One spec for all rows, or one direction per row: an ``(N, 3)`` array or any object
+        with that ``shape`` whose ``[start:stop]`` gives the rows' directions (read block by
+        block, like the couplings).
     """
     import dask
 
@@ -121,8 +127,10 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         raise InputError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
     if max_in_flight < 1:
         raise InputError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
-    if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1:
-        raise InputError("expected one hemisphere for all rows when streaming, got an array")
+    if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1 \
+            and tuple(np.shape(hemisphere)) != (n, 3):
+        raise InputError(f"expected one hemisphere for all rows or one per row, shape ({n}, 3), "
+                         f"got {tuple(np.shape(hemisphere))}")
     if solver not in SOLVERS:
         raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
     starts = list(range(0, n, rows))
