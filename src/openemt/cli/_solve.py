@@ -246,6 +246,11 @@ def _generic_reason(status, args) -> str:
             f"hemisphere)")
 
 
+def _span(values) -> str:
+    lo, hi = f"{np.min(values):.0f}", f"{np.max(values):.0f}"
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
 def _residual_note(fixtures, status, mask) -> str:
     """'; mean relative residual 1.2 % on these rows, 0.1 % on the converged rows' and the
     source fixtures of these rows, from the per-pair sums of ``fixtures.tally``."""
@@ -300,7 +305,7 @@ def failure_reasons(counts, args, fixtures=None, hemisphere=None) -> list[dict]:
                 codes = sorted({fixtures.pairs[k][0] for k in np.flatnonzero(outside)})
                 reason = (f"source fixture{'s' if len(codes) > 1 else ''} {', '.join(codes)} "
                           f"put{'' if len(codes) > 1 else 's'} the sensor "
-                          f"{angles.min():.0f}-{angles.max():.0f} deg from the "
+                          f"{_span(angles)} deg from the "
                           f"{hemisphere} hemisphere's axis (the calibration's fixture "
                           f"transforms), so these rows straddle or cross its boundary; "
                           f"--hemisphere auto picks the hemisphere per source fixture")
