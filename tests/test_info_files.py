@@ -121,3 +121,30 @@ def test_info_refuses_other_files_in_one_line(tmp_path, capsys):
     assert err.startswith("error: expected an openemt HDF5 file") and "other.h5" in err
     assert main(["info", str(tmp_path / "missing.h5")]) == 2
     assert "missing file" in capsys.readouterr().err
+
+
+def test_info_refuses_damaged_logs_and_poses_files_in_one_line(made, tmp_path, capsys):
+    import shutil
+
+    cases = []
+    for name, edit in (("log_h5", lambda f: f.__delitem__("status")),
+                       ("poses", lambda f: f.attrs.__delitem__("solver"))):
+        path = tmp_path / made[name].name
+        shutil.copy(made[name], path)
+        with h5py.File(path, "a") as f:
+            edit(f)
+        cases.append(path)
+    path = tmp_path / "log.csv"
+    text = made["log_csv"].read_text().splitlines()
+    path.write_text("\n".join([text[0].replace("distorted", "flag")] + text[1:]) + "\n")
+    cases.append(path)
+    path = tmp_path / "log2.csv"
+    row = text[3].split(",")
+    row[2] = "abc"                       # x_m of a row: not a number
+    path.write_text("\n".join(text[:3] + [",".join(row)]) + "\n")
+    cases.append(path)
+    for path in cases:
+        assert main(["info", str(path), "--json"]) == 2, path
+        cap = capsys.readouterr()
+        assert cap.out == "" and len(cap.err.strip().splitlines()) == 1, cap.err
+        assert cap.err.startswith("error: expected") and path.name in cap.err

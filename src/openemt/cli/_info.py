@@ -170,9 +170,15 @@ def poses_info(path: Path) -> dict:
     from ..solve import read_poses
     from ..solve._result import status_count_names
 
-    res = read_poses(path)
-    with h5py.File(path, "r") as f:
-        meta = json.loads(_attr(f, "meta") or "{}")
+    try:
+        res = read_poses(path)
+        with h5py.File(path, "r") as f:
+            meta = json.loads(_attr(f, "meta") or "{}")
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"expected a complete openemt poses file, got {path.name} without "
+                         f"{' '.join(str(exc).split())[:80]}") from None
+    if not isinstance(meta, dict):
+        meta = {}
     counts = np.bincount(res.status.astype(np.int64), minlength=6)
     rr = res.relative_residual
     return {"kind": "poses", "n_samples": len(res), "solver": res.solver,
@@ -227,30 +233,54 @@ def track_log_info(path: Path) -> dict:
         version = int(f.attrs.get("version", 1))
         if "sensors" in f.attrs:
             names = [n.decode() if isinstance(n, bytes) else str(n) for n in f.attrs["sensors"]]
+            missing = [n for n in names if not isinstance(f.get(f"sensors/{n}"), h5py.Group)]
+            if missing:
+                raise InputError(f"expected a group /sensors/<name> per sensor in the track "
+                                 f"log {path.name}, got none for {missing}")
             groups = {n: f[f"sensors/{n}"] for n in names}
         else:
             groups = {"": f}
-        sensors = {name: _log_sensor({k: g[k][()] for k in g if k != "sensors"})
+        for name, g in groups.items():
+            lacking = [k for k in ("times", "status") if not isinstance(g.get(k), h5py.Dataset)]
+            if lacking:
+                raise InputError(f"expected datasets 'times' and 'status' per sensor in the "
+                                 f"track log {path.name}, got none named {lacking}"
+                                 + (f" for sensor {name!r}" if name else ""))
+        sensors = {name: _log_sensor({k: g[k][()] for k in g
+                                      if isinstance(g[k], h5py.Dataset)})
                    for name, g in groups.items()}
     return {"kind": "track-log", "version": version, "format": "hdf5",
             "sensors": sensors if "" not in sensors else {"sensor": sensors[""]}}
 
 
+_LOG_COLUMNS = ("time_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad", "status",
+                "residual", "distortion", "distorted")
+
+
 def _track_log_csv(path: Path) -> dict:
-    with open(path, encoding="utf-8") as fh:
+    with open(path, encoding="utf-8", errors="replace") as fh:
         header = fh.readline().strip().split(",")
-    if header[:1] != ["time_s"] or "status" not in header:
-        raise InputError(f"expected a track log CSV (header time_s, ..., status, ...), got "
-                         f"{path.name} with header {','.join(header)[:80]!r}")
     multi = header[1:2] == ["sensor"]
-    raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=str, ndmin=2)
+    if [h for h in header if h != "sensor"] != list(_LOG_COLUMNS):
+        raise InputError(f"expected a track log CSV with the columns "
+                         f"{','.join(_LOG_COLUMNS)} (and 'sensor' after time_s), got "
+                         f"{path.name} with header {','.join(header)[:120]!r}")
+    try:
+        raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=str, ndmin=2)
+    except ValueError as exc:
+        raise InputError(f"expected rows of {len(header)} fields in the track log {path.name}, "
+                         f"got {' '.join(str(exc).split())[:100]}") from None
     raw = raw.reshape(-1, len(header)) if raw.size else np.zeros((0, len(header)), dtype=str)
     col = {name: k for k, name in enumerate(header)}
     names = raw[:, 1] if multi else np.full(len(raw), "sensor")
     sensors = {}
     for name in dict.fromkeys(names.tolist()):
         rows = raw[names == name]
-        num = {k: rows[:, col[k]].astype(float) for k in col if k != "sensor"}
+        try:
+            num = {k: rows[:, col[k]].astype(float) for k in col if k != "sensor"}
+        except ValueError:
+            raise InputError(f"expected numbers in the track log {path.name}, got a row "
+                             f"that is not") from None
         sensors[name] = _log_sensor({"times": num["time_s"], "status": num["status"],
                                      "distorted": num["distorted"],
                                      "pose_vectors": np.column_stack(
