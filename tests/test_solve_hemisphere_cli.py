@@ -113,3 +113,40 @@ def test_rows_without_fixture_codes_get_the_generic_reasons(tmp_path):
     assert entry == {"status": "out_of_volume", "rows": 3,
                      "reason": "the solution is farther than --max-range 1.5 m from the source "
                                "or not finite"}
+
+
+def test_solve_chunks_takes_one_hemisphere_per_row_lazily(rig):
+    from openemt.solve import solve, solve_chunks
+
+    _, ds, cal = rig
+    C = ds.signed_real()
+    home = rig_hemispheres(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
+                           ds.source_fixture, ds.sensor_fixture)
+
+    class Lazy:  # row-sliceable, never iterated or converted as a whole
+        shape = home.shape
+
+        def __init__(self):
+            self.sliced = []
+
+        def __getitem__(self, key):
+            assert isinstance(key, slice)
+            self.sliced.append(key)
+            return home[key]
+
+        def __iter__(self):
+            raise AssertionError("iterated")
+
+        def __array__(self, *a, **k):
+            raise AssertionError("converted")
+
+    whole = solve(C, cal, hemisphere=home)
+    lazy = Lazy()
+    parts = list(solve_chunks(C, cal, chunk_rows=100, hemisphere=lazy))
+    assert [s for s, _ in parts] == list(range(0, len(C), 100)) == [k.start for k in lazy.sliced]
+    np.testing.assert_array_equal(np.concatenate([r.status for _, r in parts]), whole.status)
+    np.testing.assert_allclose(np.concatenate([r.poses for _, r in parts]), whole.poses,
+                               atol=1e-12)
+    assert np.all(whole.status == Status.CONVERGED)
+    with pytest.raises(ValueError, match=r"one per row, shape \(568, 3\)"):
+        list(solve_chunks(C, cal, hemisphere=home[:10]))

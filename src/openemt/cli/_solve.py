@@ -159,6 +159,7 @@ class RowFixtures:
         self.pairs = pairs                  # [(source code, sensor code)]
         self.home = home                    # (K, 3) home positions (m) or None
         self.shape = (len(index), 3)
+        self.ndim = 2
         self.counts = np.zeros((len(pairs), len(Status)), dtype=np.int64)
         self.residual_sum = np.zeros((len(pairs), len(Status)))   # relative residuals
         self.residual_n = np.zeros((len(pairs), len(Status)), dtype=np.int64)

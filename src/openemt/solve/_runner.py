@@ -85,10 +85,25 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm",
 def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_correction,
                  options):
     C = reader[start:stop]
-    if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1:
-        hemisphere = np.asarray(hemisphere[start:stop], dtype=np.float64)
     return solve(C, calibration, solver=solver, hemisphere=hemisphere,
                  apply_correction=apply_correction, **options)
+
+
+def _per_row(hemisphere, n: int):
+    """The row-sliceable ``(n, 3)`` hemisphere directions, or None for one spec for all rows
+    (the shape is read from ``.shape``, so a lazy object is never iterated)."""
+    if hemisphere is None or isinstance(hemisphere, str):
+        return None
+    shape = getattr(hemisphere, "shape", None)
+    if shape is None:
+        hemisphere = np.asarray(hemisphere)
+        shape = hemisphere.shape
+    if len(shape) < 2:
+        return None
+    if tuple(shape) != (n, 3):
+        raise InputError(f"expected one hemisphere for all rows or one per row, shape ({n}, 3), "
+                         f"got {tuple(shape)}")
+    return hemisphere
 
 
 def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 262144,
@@ -127,17 +142,19 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         raise InputError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
     if max_in_flight < 1:
         raise InputError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
-    if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1 \
-            and tuple(np.shape(hemisphere)) != (n, 3):
-        raise InputError(f"expected one hemisphere for all rows or one per row, shape ({n}, 3), "
-                         f"got {tuple(np.shape(hemisphere))}")
+    per_row = _per_row(hemisphere, n)
     if solver not in SOLVERS:
         raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
     starts = list(range(0, n, rows))
-    args = (calibration, solver, hemisphere, apply_correction, options)
+
+    def args(s):  # each block gets only its rows' hemispheres
+        hemi = hemisphere if per_row is None else \
+            np.asarray(per_row[s:min(n, s + rows)], dtype=np.float64)
+        return (calibration, solver, hemi, apply_correction, options)
+
     if scheduler is None:
         for s in starts:
-            task = dask.delayed(_solve_block)(couplings, s, min(n, s + rows), *args)
+            task = dask.delayed(_solve_block)(couplings, s, min(n, s + rows), *args(s))
             (res,) = dask.compute(task, scheduler="synchronous")
             yield s, res
         return
@@ -149,8 +166,8 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         pending = []
         it = iter(starts)
         for s in it:
-            pending.append((s, client.submit(_solve_block, couplings, s, min(n, s + rows), *args,
-                                             pure=False)))
+            pending.append((s, client.submit(_solve_block, couplings, s, min(n, s + rows),
+                                             *args(s), pure=False)))
             if len(pending) >= max_in_flight:
                 s0, fut = pending.pop(0)
                 yield s0, fut.result()
