@@ -170,7 +170,6 @@ def run(args) -> int:
 
 def _write_ndi(args) -> int:
     """``--format ndi``: one simulated NDI Toolbox session export (openemt.simulate_ndi_session)."""
-    from ..geometry import invert
     from ..io import write_ndi_tsv
     from ..simulate import simulate_ndi_session
 
@@ -192,10 +191,9 @@ def _write_ndi(args) -> int:
     labels = list(tools)
     summary = {"path": str(args.output), "format": "ndi", "n_samples": int(args.n_poses),
                "tools": labels, "seed": args.seed,
-               "truth": {"X": truth["X"], "Y": truth["Y"]},
-               "field_generator_in_camera": invert(truth["Y"])}
-    human = [f"simulated an NDI session of {args.n_poses} rows (EM sensor on port 10, optical "
-             f"marker on port 1) -> {args.output}"]
+               "truth": {"X": truth["X"], "Y": truth["Y"]}}
+    human = [(f"simulated an NDI session of {args.n_poses} rows (EM sensor on port 10, optical "
+              f"marker on port 1) -> {args.output}")]
     emit(args, summary, human)
     return 0
 
