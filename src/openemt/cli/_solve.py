@@ -178,7 +178,8 @@ class RowFixtures:
         from ..solve import rig_hemispheres
 
         ds = [side.get(name) for name in ("source_fixture", "sensor_fixture")]
-        if not all(isinstance(d, h5py.Dataset) and d.shape == (n,) for d in ds) or n == 0:
+        if n == 0 or not all(isinstance(d, h5py.Dataset) and d.shape == (n,)
+                             and h5py.check_string_dtype(d.dtype) is not None for d in ds):
             return None
         ids: dict = {}
         index = np.empty(n, dtype=np.int32)
