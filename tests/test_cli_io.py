@@ -101,7 +101,7 @@ def test_info_bad_input(cli, tmp_path):
     assert code == 2 and "missing file" in err
     (tmp_path / "x.h5").write_text("nope")
     code, _, err = cli("info", tmp_path / "x.h5")
-    assert code == 2 and "expected an openemt dataset HDF5 file" in err
+    assert code == 2 and "expected a readable openemt HDF5 file, got x.h5" in err
     (tmp_path / "x.txt").write_text("nope")
     code, _, err = cli("info", tmp_path / "x.txt")
-    assert code == 2 and "expected a dataset .h5 or a calibration .json/.mat file" in err
+    assert code == 2 and "expected a file openemt writes (dataset or poses .h5" in err

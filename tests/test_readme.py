@@ -1,15 +1,11 @@
 """The README's Python blocks run as written (from a scratch folder) and print what it says."""
 
-import re
-from pathlib import Path
-
 import pytest
-
-README = Path(__file__).resolve().parents[1] / "README.md"
+from _readme_blocks import README, readme_blocks
 
 
 def _python_blocks():
-    return re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.DOTALL)
+    return [code for _, code in readme_blocks("python")]
 
 
 def test_readme_has_a_python_quick_start():

@@ -32,14 +32,10 @@ def add_arguments(parser) -> None:
 def distortion(p, scale: float = 1.0):
     """The smooth distortion at true positions ``p`` (N, 3): position offsets (m) and rotation
     offsets (rotation vectors, rad), about 1 mm and 0.25 deg RMS at ``scale`` 1 over the
-    volume described above."""
-    q = (np.asarray(p) - [0.2, 0.0, 0.0]) / 0.15
-    dp = 1e-3 * np.stack([1.5 * q[:, 0] ** 2 - 0.8 * q[:, 1] * q[:, 2] + 0.5 * q[:, 0] ** 3,
-                          0.7 * q[:, 0] * q[:, 1] + 0.4 * np.sin(2 * q[:, 2]),
-                          -0.9 * q[:, 2] * q[:, 0] + 0.6 * q[:, 1] ** 2], axis=1)
-    rho = np.deg2rad(0.5) * np.stack([q[:, 1] * q[:, 0], 0.6 * q[:, 2] ** 2 - 0.3,
-                                      0.8 * q[:, 0] * q[:, 2] + 0.2 * q[:, 1]], axis=1)
-    return scale * dp, scale * rho
+    volume described above (:func:`openemt.simulate.field_distortion`)."""
+    from ..simulate._hybrid import field_distortion
+
+    return field_distortion(p, scale)
 
 
 def distorted_poses(n: int, rng):

@@ -36,14 +36,18 @@ import time
 import numpy as np
 
 from .._errors import InputError
+from ..simulate._hybrid import (
+    DISTORTION_SCALE,
+    EM_NOISE,
+    OPTICAL_NOISE,
+    draw_xy,
+    field_distortion,
+    simulate_hybrid,
+)
 
 __all__ = ["PAIR_COUNTS", "add_arguments", "run", "simulate_hybrid"]
 
 PAIR_COUNTS = (10, 30, 100, 300)
-#: Distortion scale relative to ``openemt bench correct`` (about 3 mm, 0.75 deg RMS).
-DISTORTION_SCALE = 3.0
-EM_NOISE = (1e-4, np.deg2rad(0.03))
-OPTICAL_NOISE = (1.5e-4, np.deg2rad(0.05))
 N_TEST = 2000
 
 
@@ -52,35 +56,6 @@ def add_arguments(parser) -> None:
                         help="comma-separated numbers of pose pairs (10,30,100,300)")
     parser.add_argument("--folds", type=int, default=5, help="cross-validation folds (5)")
     parser.add_argument("--seed", type=int, default=0)
-
-
-def _noisy(P, sigma_t, sigma_r, rng):
-    from scipy.spatial.transform import Rotation
-
-    from ..geometry import pose_from_rt
-
-    n = len(P)
-    R = Rotation.from_rotvec(sigma_r * rng.standard_normal((n, 3))).as_matrix()
-    return pose_from_rt(R @ P[:, :3, :3], P[:, :3, 3] + sigma_t * rng.standard_normal((n, 3)))
-
-
-def simulate_hybrid(n: int, X, Y, rng) -> dict:
-    """Truth, EM (distorted + noise), EM noise only, and optical poses of ``n`` samples."""
-    from scipy.spatial.transform import Rotation
-
-    from ..geometry import invert, pose_from_rt
-    from ._correct import distortion
-
-    p = rng.uniform([0.05, -0.15, -0.15], [0.35, 0.15, 0.15], (n, 3))
-    truth = pose_from_rt(Rotation.random(n, random_state=rng).as_matrix(), p)
-    dp, rho = distortion(p, DISTORTION_SCALE)
-    distorted = pose_from_rt(Rotation.from_rotvec(rho).as_matrix() @ truth[:, :3, :3], p + dp)
-    e_t = EM_NOISE[0] * rng.standard_normal((n, 3))
-    e_r = Rotation.from_rotvec(EM_NOISE[1] * rng.standard_normal((n, 3))).as_matrix()
-    em = pose_from_rt(e_r @ distorted[:, :3, :3], distorted[:, :3, 3] + e_t)
-    em_undistorted = pose_from_rt(e_r @ truth[:, :3, :3], truth[:, :3, 3] + e_t)
-    optical = _noisy(invert(Y) @ truth @ X, *OPTICAL_NOISE, rng)
-    return {"truth": truth, "em": em, "em_undistorted": em_undistorted, "optical": optical}
 
 
 def _pose_diff(P, T):
@@ -156,22 +131,17 @@ def _limit(X, Y, rng):
 
     from ..align import fit_axyb
     from ..geometry import invert, pose_from_rt
-    from ._correct import distortion
 
     n = 3000
     p = rng.uniform([0.05, -0.15, -0.15], [0.35, 0.15, 0.15], (n, 3))
     truth = pose_from_rt(Rotation.random(n, random_state=rng).as_matrix(), p)
-    dp, rho = distortion(p, DISTORTION_SCALE)
+    dp, rho = field_distortion(p, DISTORTION_SCALE)
     em = pose_from_rt(Rotation.from_rotvec(rho).as_matrix() @ truth[:, :3, :3], p + dp)
     he = fit_axyb(em, invert(Y) @ truth @ X, robust=False, folds=0)
     return he.X, he.Y
 
 
 def run(args) -> dict:
-    from scipy.spatial.transform import Rotation
-
-    from ..geometry import pose_from_rt
-
     try:
         counts = [int(v) for v in str(args.pairs).split(",") if v.strip()]
     except ValueError:
@@ -179,10 +149,7 @@ def run(args) -> dict:
     if not counts or min(counts) < 8:
         raise InputError(f"expected pair counts >= 8, got {args.pairs!r}")
     rng = np.random.default_rng(args.seed)
-    X = pose_from_rt(Rotation.random(random_state=rng).as_matrix(),
-                     rng.uniform(-0.04, 0.04, 3))
-    Y = pose_from_rt(Rotation.random(random_state=rng).as_matrix(),
-                     [0.2, -0.6, 0.9] + rng.uniform(-0.1, 0.1, 3))
+    X, Y = draw_xy(rng)
     limit = _limit(X, Y, np.random.default_rng(args.seed + 1))
     lt, lr = _pose_diff(limit[1], Y)
     rows, seconds = [], {}

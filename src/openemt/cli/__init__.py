@@ -29,7 +29,7 @@ COMMANDS = {
     "demo": ("demo", "simulate, calibrate, solve, correct and report (no hardware)"),
     "simulate": ("simulate", "simulate a calibration/test data collection with known truth"),
     "import": ("import_", "import acquisition files into an openemt dataset (.h5)"),
-    "info": ("info", "summarise a dataset or calibration file"),
+    "info": ("info", "summarise any file openemt writes (dataset, poses, calibration, ...)"),
     "solve": ("solve", "solve sensor poses from a dataset's couplings"),
     "calibrate": ("calibrate", "fit a dipole-model and fixture calibration to a dataset"),
     "align": ("align", "solve AX = YB between two pose recordings and write pose pairs"),

@@ -66,8 +66,14 @@ def register(subparsers) -> None:
     p.add_argument("--reference-noise-deg", type=float, default=None, metavar="DEG",
                    help="reference collection: rotation noise of the reference, RMS angle in "
                         "degrees (default robot 0.02, optical 0.1)")
+    p.add_argument("--format", default="h5", choices=("h5", "ndi"),
+                   help="h5: an openemt dataset (default); ndi (with --reference optical): the "
+                        "NDI Toolbox TSV export of one session, an EM sensor's poses (port 10, "
+                        "a smooth field distortion of about 3 mm) beside the optical marker "
+                        "fixed to it (port 1), --n-poses rows (docs/alignment.md)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("-o", "--output", required=True, type=Path, help="output dataset (.h5)")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output dataset (.h5), or export (.tsv) with --format ndi")
     p.add_argument("--truth-calibration", type=Path, default=None, metavar="CAL.json",
                    help="also write the preset's true dipole-equivalent calibration (JSON)")
     add_common(p)
@@ -138,6 +144,8 @@ def run(args) -> int:
         raise InputError(f"expected different paths for -o and --truth-calibration, got "
                          f"{str(args.output)!r} twice")
 
+    if args.format == "ndi":
+        return _write_ndi(args)
     if args.reference is not None:
         from ..simulate import reference_truth_calibration, simulate_reference
 
@@ -158,6 +166,36 @@ def run(args) -> int:
         ds = _simulate_rig(args, preset, simulate, drift, distortion)
         cal = truth_calibration(preset) if args.truth_calibration is not None else None
     return _write(args, ds, cal, write_dataset, write_calibration)
+
+
+def _write_ndi(args) -> int:
+    """``--format ndi``: one simulated NDI Toolbox session export (openemt.simulate_ndi_session)."""
+    from ..io import write_ndi_tsv
+    from ..simulate import simulate_ndi_session
+
+    given = [opt for opt, value in (("--truth-calibration", args.truth_calibration),
+                                    ("--pattern", args.pattern), ("--drift", args.drift),
+                                    ("--distortion", args.distortion),
+                                    ("--snr-db", args.snr_db), ("--noise-abs", args.noise_abs),
+                                    ("--reference-noise-mm", args.reference_noise_mm),
+                                    ("--reference-noise-deg", args.reference_noise_deg))
+             if value is not None]
+    if args.reference != "optical" or given:
+        got = (", ".join(given) if args.reference == "optical" else
+               "no --reference" if args.reference is None else f"--reference {args.reference}")
+        raise InputError(f"expected --format ndi with --reference optical, --n-poses and "
+                         f"--seed only (a pose export of an EM sensor and an optical marker), "
+                         f"got {got}")
+    tools, truth = simulate_ndi_session(args.n_poses, seed=args.seed)
+    write_ndi_tsv(args.output, tools)
+    labels = list(tools)
+    summary = {"path": str(args.output), "format": "ndi", "n_samples": int(args.n_poses),
+               "tools": labels, "seed": args.seed,
+               "truth": {"X": truth["X"], "Y": truth["Y"]}}
+    human = [(f"simulated an NDI session of {args.n_poses} rows (EM sensor on port 10, optical "
+              f"marker on port 1) -> {args.output}")]
+    emit(args, summary, human)
+    return 0
 
 
 def _simulate_rig(args, preset, simulate, drift, distortion):

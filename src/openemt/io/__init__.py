@@ -14,7 +14,7 @@ from ._ilemt import (
                      read_ilemt_dat,
 )
 from ._ilemt_mat import read_ilemt_calibration
-from ._ndi import NdiRecording, NdiTool, import_ndi, read_ndi_tsv
+from ._ndi import NdiRecording, NdiTool, import_ndi, read_ndi_tsv, write_ndi_tsv
 from ._pose_dataset import pose_dataset, read_pose_dataset
 from ._poses_csv import (
     PoseTable,
@@ -34,4 +34,4 @@ __all__ += ["CouplingReader", "export_csv", "import_csv", "open_dataset_coupling
             "write_dataset"]
 __all__ += ["NdiRecording", "NdiTool", "PoseTable", "StaticAverage", "average_static",
             "import_ndi", "import_poses_csv", "pose_dataset", "read_ndi_tsv", "read_pose_dataset",
-            "read_poses_csv", "write_poses_csv"]
+            "read_poses_csv", "write_ndi_tsv", "write_poses_csv"]

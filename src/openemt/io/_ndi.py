@@ -37,7 +37,7 @@ from ..geometry import pose_from_rt
 from ._poses_csv import StaticAverage, average_static
 
 __all__ = ["SENTINEL_ABS", "NdiRecording", "NdiTool", "ToolNotFoundError", "import_ndi",
-           "read_ndi_tsv"]
+           "read_ndi_tsv", "write_ndi_tsv"]
 
 _FIELDS = ("frame", "face", "state", "q0", "qx", "qy", "qz", "tx", "ty", "tz", "error",
            "markers")
@@ -293,6 +293,74 @@ def read_ndi_tsv(path) -> NdiRecording:
                              n_rows=int(blk["n"]), skipped=dict(blk["skipped"]),
                              label=blk["label"] or port))
     return NdiRecording(tools=tuple(tools), source=str(path), bad_rows=tuple(bad))
+
+
+_SENTINEL_TEXT = "-3.697314E28"
+
+
+def write_ndi_tsv(path, tools, *, errors=None, first_frame: int = 1) -> Path:
+    """Write poses as an NDI Toolbox TSV export in the layout :func:`read_ndi_tsv` reads.
+
+    Parameters
+    ----------
+    path : path-like
+        File to write (atomically: a temporary file renamed on success).
+    tools : dict of str -> ndarray, shape (N, 4, 4)
+        Port label (``"Port 10: ..."``, ``"Port 1"``) -> tool poses in the tracker's frame (m),
+        the same N rows for every tool. A row with a non-finite pose is written as
+        ``Missing`` (NDI's sentinel in the pose fields).
+    errors : dict of str -> ndarray, shape (N,), optional
+        RMS fit error of each tool and row (m; written in mm). Default 0.
+    first_frame : int
+        Frame number of the first row (frames count up by one).
+
+    Returns
+    -------
+    Path
+    """
+    from ._atomic import atomic_path
+
+    labels = list(tools)
+    if not labels:
+        raise InputError("expected at least one tool to write, got none")
+    P = {lab: np.asarray(tools[lab], dtype=np.float64) for lab in labels}
+    n = len(P[labels[0]])
+    for lab in labels:
+        if P[lab].shape != (n, 4, 4):
+            raise InputError(f"expected poses of shape ({n}, 4, 4) for tool {lab!r}, got "
+                             f"{P[lab].shape}")
+        if not _PORT_RE.match(lab.strip()):
+            raise InputError(f"expected a port label like 'Port 10' or 'Port 10: ...', got "
+                             f"{lab!r}")
+    head = ["Tools"]
+    for lab in labels:
+        head += [lab, "Frame", "Face", "State", "Q0", "Qx", "Qy", "Qz", "Tx", "Ty", "Tz",
+                 "Error", "Markers"]
+    cols = {}
+    for lab in labels:
+        ok = np.all(np.isfinite(P[lab].reshape(n, 16)), axis=1)
+        q = np.full((n, 4), np.nan)
+        if ok.any():
+            q[ok] = Rotation.from_matrix(P[lab][ok, :3, :3]).as_quat(scalar_first=True)
+        err = np.zeros(n) if errors is None or lab not in errors else \
+            np.asarray(errors[lab], dtype=np.float64).reshape(n)
+        cols[lab] = (ok, q, P[lab][:, :3, 3] * 1e3, err * 1e3)
+    lines = ["\t".join(head)]
+    for k in range(n):
+        cells = [str(len(labels))]
+        for lab in labels:
+            ok, q, t, err = cols[lab]
+            cells += [lab, str(first_frame + k), "0"]
+            if ok[k]:
+                cells += (["OK"] + [f"{v:.6f}" for v in q[k]] + [f"{v:.4f}" for v in t[k]]
+                          + [f"{err[k]:.4f}", "0"])
+            else:
+                cells += ["Missing"] + [_SENTINEL_TEXT] * 8 + ["0"]
+        lines.append("\t".join(cells))
+    path = Path(path)
+    with atomic_path(path, suffix=".tsv") as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
 
 
 def import_ndi(paths, *, tool=None, average: bool = False):

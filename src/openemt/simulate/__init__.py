@@ -13,6 +13,7 @@ from ._errors import (
     noise_sigma,
     polarizability,
 )
+from ._hybrid import field_distortion, simulate_hybrid, simulate_ndi_session
 from ._patterns import GRID_PITCH, PATTERNS, STAGE_Z_LIMIT, stage_pattern
 from ._presets import PRESETS, Preset, get_preset
 from ._reference import (
@@ -36,6 +37,7 @@ __all__ = [
     "add_noise",
     "distortion_coupling",
     "drift_factors",
+    "field_distortion",
     "fixture_combinations",
     "get_preset",
     "noise_sigma",
@@ -43,6 +45,8 @@ __all__ = [
     "polarizability",
     "reference_truth_calibration",
     "simulate",
+    "simulate_hybrid",
+    "simulate_ndi_session",
     "simulate_reference",
     "stage_pattern",
     "truth_calibration",

@@ -6,7 +6,7 @@ See docs/solve.md for the algorithms, status codes, SNR definition and benchmark
 
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd, spectral_norms
 from ._crb import cramer_rao, solver_covariance
-from ._hemisphere import hemisphere_from_positions, hemisphere_vectors
+from ._hemisphere import hemisphere_from_positions, hemisphere_vectors, rig_hemispheres
 from ._lm_solver import solve_lm
 from ._output import POSES_SCHEMA, PoseWriter, read_poses
 from ._planar import solve_planar
@@ -26,6 +26,7 @@ __all__ = [
     "hemisphere_vectors",
     "read_poses",
     "refine_poses",
+    "rig_hemispheres",
     "solve",
     "solve_chunks",
     "solve_kim18",

@@ -13,7 +13,8 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["DEFAULT_HEMISPHERE", "hemisphere_from_positions", "hemisphere_vectors"]
+__all__ = ["DEFAULT_HEMISPHERE", "hemisphere_from_positions", "hemisphere_vectors",
+           "rig_hemispheres"]
 
 #: Hemisphere every solver uses when none is given: the sensor in front of the source's x axis.
 DEFAULT_HEMISPHERE = "+x"
@@ -84,3 +85,47 @@ def hemisphere_from_positions(positions) -> np.ndarray:
     axis = np.argmax(np.abs(p), axis=1)
     sign = np.where(p[np.arange(p.shape[0]), axis] < 0, "-", "+")
     return np.char.add(sign, np.array(list("xyz"))[axis])
+
+
+def rig_hemispheres(source_fixture, stage_fixture, sensor_fixture, source_codes,
+                    sensor_codes) -> np.ndarray:
+    """Hemisphere of the sensor on the test rig for each pair of manual fixture codes.
+
+    The direction is the sensor's position in the source frame with the stage at its home
+    (stage vector zero): ``P = F_so . so_J . F_st . F_se`` (MacLachlan et al. 2025, eq. 6).
+    A rotated source fixture turns the source, so the sensor lies in a different hemisphere of
+    it: ILEMT's ``YoutZup`` home puts it on +x, ``XinYup`` on +y.
+
+    Parameters
+    ----------
+    source_fixture, stage_fixture, sensor_fixture : ndarray, shape (6,) or (4, 4)
+        The calibration's fixture transforms F_so, F_st, F_se.
+    source_codes, sensor_codes : sequence of str, length K
+        Manual fixture codes of each pair.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Home position of the sensor in the source frame (m); its direction is the hemisphere
+        (pass it to the solvers as ``hemisphere``, one row per sample).
+
+    Examples
+    --------
+    >>> import openemt
+    >>> folder = openemt.datasets.path("cal_9_15_premo_cmu")
+    >>> cal = openemt.read_ilemt_calibration(folder / "base_calibration.mat")
+    >>> codes = ["YoutZup", "XinYup", "XoutZup", "ZoutYup"]
+    >>> p = rig_hemispheres(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture, codes,
+    ...                     ["YoutZup"] * 4)
+    >>> hemisphere_from_positions(p).tolist()
+    ['+x', '+y', '-y', '+z']
+    """
+    from ..geometry import ground_truth_poses
+
+    so, se = list(source_codes), list(sensor_codes)
+    if len(so) != len(se):
+        raise InputError(f"expected as many sensor- as source-fixture codes, got {len(se)} and "
+                         f"{len(so)}")
+    P = ground_truth_poses(source_fixture, stage_fixture, sensor_fixture, so,
+                           np.zeros((len(so), 6)), se)
+    return P[:, :3, 3].copy()

@@ -89,6 +89,23 @@ def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_cor
                  apply_correction=apply_correction, **options)
 
 
+def _per_row(hemisphere, n: int):
+    """The row-sliceable ``(n, 3)`` hemisphere directions, or None for one spec for all rows
+    (the shape is read from ``.shape``, so a lazy object is never iterated)."""
+    if hemisphere is None or isinstance(hemisphere, str):
+        return None
+    shape = getattr(hemisphere, "shape", None)
+    if shape is None:
+        hemisphere = np.asarray(hemisphere)
+        shape = hemisphere.shape
+    if len(shape) < 2:
+        return None
+    if tuple(shape) != (n, 3):
+        raise InputError(f"expected one hemisphere for all rows or one per row, shape ({n}, 3), "
+                         f"got {tuple(shape)}")
+    return hemisphere
+
+
 def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 262144,
                  scheduler=None, max_in_flight: int = 2, solver: str = "lm",
                  hemisphere=DEFAULT_HEMISPHERE,
@@ -110,8 +127,12 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         scheduler; the compiled solver itself uses all cores). A ``dask.distributed`` scheduler
         address (``'tcp://host:8786'``) or a ``Client``: blocks are submitted to that cluster,
         ``max_in_flight`` at a time.
-    solver, hemisphere, apply_correction, **options
-        As in :func:`solve`; ``hemisphere`` must be one spec for all rows (not per row).
+    solver, apply_correction, **options
+        As in :func:`solve`.
+    hemisphere : None, str, array_like (3,) or row-sliceable (N, 3)
+        One spec for all rows, or one direction per row: an ``(N, 3)`` array or any object
+        with that ``shape`` whose ``[start:stop]`` gives the rows' directions (read block by
+        block, like the couplings).
     """
     import dask
 
@@ -121,15 +142,19 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         raise InputError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
     if max_in_flight < 1:
         raise InputError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
-    if hemisphere is not None and not isinstance(hemisphere, str) and np.ndim(hemisphere) > 1:
-        raise InputError("expected one hemisphere for all rows when streaming, got an array")
+    per_row = _per_row(hemisphere, n)
     if solver not in SOLVERS:
         raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
     starts = list(range(0, n, rows))
-    args = (calibration, solver, hemisphere, apply_correction, options)
+
+    def args(s):  # each block gets only its rows' hemispheres
+        hemi = hemisphere if per_row is None else \
+            np.asarray(per_row[s:min(n, s + rows)], dtype=np.float64)
+        return (calibration, solver, hemi, apply_correction, options)
+
     if scheduler is None:
         for s in starts:
-            task = dask.delayed(_solve_block)(couplings, s, min(n, s + rows), *args)
+            task = dask.delayed(_solve_block)(couplings, s, min(n, s + rows), *args(s))
             (res,) = dask.compute(task, scheduler="synchronous")
             yield s, res
         return
@@ -141,8 +166,8 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         pending = []
         it = iter(starts)
         for s in it:
-            pending.append((s, client.submit(_solve_block, couplings, s, min(n, s + rows), *args,
-                                             pure=False)))
+            pending.append((s, client.submit(_solve_block, couplings, s, min(n, s + rows),
+                                             *args(s), pure=False)))
             if len(pending) >= max_in_flight:
                 s0, fut = pending.pop(0)
                 yield s0, fut.result()
