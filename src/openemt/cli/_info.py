@@ -101,7 +101,15 @@ def run(args) -> int:
     if not path.exists():
         raise FileNotFoundError(f"expected a dataset or calibration file, got missing file "
                                 f"{str(path)!r}")
-    if _kind(path) == "dataset":
+    from ..live._record import live_file_info
+
+    live = live_file_info(path) if path.suffix.lower() in (".h5", ".hdf5", ".csv") else None
+    if live is not None:               # a track log or raw recording (docs/live.md)
+        info = live
+        state = {True: "complete", False: "incomplete: the session was killed or failed",
+                 None: "CSV: cannot tell whether complete"}[live["complete"]]
+        human = [f"{path}: {live['kind']}, {live['rows']} rows ({state})"]
+    elif _kind(path) == "dataset":
         info = dataset_info(read_dataset(path))
         human = [(f"{path}: dataset, {info['n_samples']} rows, "
                   f"{info['n_source']} x {info['n_sensor']} couplings"
