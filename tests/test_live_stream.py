@@ -178,7 +178,8 @@ def test_csv_reader_drops_a_torn_last_line(tmp_path):
 
 # ------------------------------------------------------------------ signals, in a child
 
-_CHILD = ("import sys; from openemt.cli import main; sys.exit(main(sys.argv[1:]))")
+_CHILD = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+          "from openemt.cli import main; sys.exit(main(sys.argv[1:]))")
 
 
 def _start(tmp_path, *extra):
