@@ -396,7 +396,7 @@ class StallWatch(Backend):
         self.n_stalls = 0            # silences that reached warn_after
         self.longest_silence = 0.0   # seconds, over the session
         self._started = False
-        self._last = time.monotonic()
+        self._last = None            # the silence counts from the first read
         self._warned = False
 
     @property
@@ -411,6 +411,8 @@ class StallWatch(Backend):
         return self.backend.truth_poses(times)
 
     def read(self):
+        if self._last is None:
+            self._last = time.monotonic()
         x = self.backend.read()
         now = time.monotonic()
         if x is None:
@@ -430,9 +432,10 @@ class StallWatch(Backend):
                          f"warning: {what} for {silent:.1f} s (still waiting)")
         if self.timeout is not None and silent >= self.timeout:
             self.longest_silence = max(self.longest_silence, silent)
+            why = "it stopped delivering" if self._started else "it never started"
             raise SourceStalled(f"expected samples from the live source, got none for "
-                                f"{silent:.1f} s ({'it never started' if not self._started else 'it stopped delivering'}; "
-                                f"limit --stall-timeout {self.timeout:g} s)")
+                                f"{silent:.1f} s ({why}; limit --stall-timeout "
+                                f"{self.timeout:g} s)")
         return x
 
     def close(self) -> None:
