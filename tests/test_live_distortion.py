@@ -5,6 +5,7 @@ distorted session keeps its cost); and the status line of ``openemt track``."""
 from __future__ import annotations
 
 import io
+import sys
 import types
 
 import numpy as np
@@ -107,3 +108,28 @@ def test_status_line_on_a_terminal_and_not(monkeypatch):
         assert "samples/s" in text and "converged 74" in text and "latency" in text
         assert text.startswith("\rtracking 0.0 s") if tty else text.startswith("tracking ")
         assert text.endswith("\n")
+
+
+def test_track_announces_the_compile_before_tracking(monkeypatch, capsys):
+    """``track`` calls the shared compile notice (openemt._compile_notice) with the solver and
+    live kernels before its first chunk; a stand-in module records the call."""
+    import openemt.cli as cli_mod
+
+    calls = []
+
+    def announce_compile(out=None, what="solver kernels", *, kernels=(), seconds=30):
+        calls.append((what, tuple(kernels)))
+        print(f"compiling {what} (first run only, about {seconds:g} s)", file=sys.stderr)
+        return True
+
+    fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k",), LIVE_KERNELS=("l:k",),
+                                 PLANAR_KERNELS=("p:k",), announce_compile=announce_compile)
+    monkeypatch.setitem(sys.modules, "openemt._compile_notice", fake)
+    monkeypatch.setattr(cli_mod, "COMMAND_MODULES", ("track",))
+    assert cli_mod.main(["track", "--source", "sim", "--no-igtl", "--duration", "0.05",
+                         "--fast"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert calls == [("solver kernels", ("s:k", "l:k"))]
+    i = err.index("compiling solver kernels (first run only, about 30 s)")
+    assert err[i + 1].startswith("tracking 1 sensor(s)")
+    assert err[i + 2].startswith("tracked 74 samples")

@@ -227,6 +227,11 @@ def _announce_compile(args, sensors) -> None:
 def run(args) -> int:
     import signal
 
+    # on a terminal, a first line before the heavy imports (a second or two; elsewhere bad
+    # input stays one `error:` line)
+    if not args.quiet and sys.stderr.isatty():
+        print(f"openemt track: starting (--source {args.source}; loading the solver and the "
+              f"source)", file=sys.stderr, flush=True)
     from ..io._stream import check_stream_outputs
     from ..live import IgtlServer, StallWatch, TrackingPipeline, read_tracker
     from ..live._record import RawRecorder, TrackLogWriter
