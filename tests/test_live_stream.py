@@ -295,6 +295,7 @@ def _slow_sounddevice(first_delay, n_blocks, streams):
     """A stand-in ``sounddevice`` whose stream delivers its first block after
     ``first_delay`` s (None: never), then ``n_blocks`` blocks of a simulated tracker."""
     sim = SimulatedBackend(chunk=960, duration=None)
+    blocks = [sim.read() for _ in range(n_blocks)]        # simulated up front
 
     class InputStream:
         def __init__(self, samplerate, channels, dtype, blocksize, device, callback):
@@ -306,10 +307,9 @@ def _slow_sounddevice(first_delay, n_blocks, streams):
         def _run(self):
             if first_delay is None or self._stop.wait(first_delay):
                 return
-            for _ in range(n_blocks):
+            for x in blocks:
                 if self._stop.is_set():
                     return
-                x = sim.read()
                 block = np.zeros((len(x), self.channels), np.float32)
                 block[:, :x.shape[1]] = x
                 self.callback(block, len(x), None, None)

@@ -56,12 +56,12 @@ class InputStream:
         self.callback, self.channels = callback, channels
         self.stop_event = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
+        sim = SimulatedBackend(chunk=960)     # simulated up front: delivered without delay
+        self.blocks = [sim.read() for _ in range(BLOCKS)]
     def run(self):
-        sim = SimulatedBackend(chunk=960)
-        for _ in range(BLOCKS):
+        for x in self.blocks:
             if self.stop_event.is_set():
                 return
-            x = sim.read()
             block = np.zeros((len(x), self.channels), np.float32)
             block[:, :x.shape[1]] = x
             self.callback(block, len(x), None, None)

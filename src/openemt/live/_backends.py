@@ -318,7 +318,7 @@ class SoundDeviceBackend(Backend):
     """
 
     def __init__(self, layout: ChannelLayout, *, device=None, chunk: int = 64 * 16,
-                 timeout: float = 1.0, max_blocks: int = 64, channels: int | None = None):
+                 timeout: float = 0.25, max_blocks: int = 64, channels: int | None = None):
         sounddevice = import_sounddevice()
         n_ch = layout.n_channels if channels is None else int(channels)
         if n_ch < layout.n_channels:
