@@ -325,7 +325,9 @@ def run(args) -> int:
         session.end_line()
         stopped = session.signal
         if stopped is None and pipe.interrupted is not None:   # during start-up
-            stopped = (signal.SIGTERM if type(pipe.interrupted).__name__ == "Terminated"
+            from . import Terminated
+
+            stopped = (signal.SIGTERM if isinstance(pipe.interrupted, Terminated)
                        else signal.SIGINT)
         # a session stopped before its first sample never replaces an existing file
         for w in (log, raw and raw.stream):
@@ -357,10 +359,10 @@ def run(args) -> int:
     if getattr(backend, "n_overflow", None) is not None:
         out["audio_blocks_dropped"] = backend.n_overflow
     if log is not None:
-        out["log"] = str(args.log) if log._stream.published else None
+        out["log"] = str(args.log) if log.published else None
         out["log_rows"] = log.rows
     if raw is not None:
-        out["raw"] = str(args.save_raw) if raw.stream.published else None
+        out["raw"] = str(args.save_raw) if raw.published else None
         out["raw_rows"] = raw.rows
     human = [(f"tracked {summary.n_samples} samples ({summary.signal_seconds:.2f} s of signal) "
               f"of {len(spec.sensors)} sensor(s) in {summary.wall_seconds:.2f} s; status "

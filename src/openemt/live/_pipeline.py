@@ -184,7 +184,8 @@ class TrackLog:
         :mod:`openemt.live._record`), atomically."""
         from ._record import TrackLogWriter
 
-        w = TrackLogWriter(path, self.sensor_names, flush_seconds=float("inf"))
+        w = TrackLogWriter(path, self.sensor_names, flush_seconds=float("inf"),
+                           max_buffered_bytes=1 << 62)       # one flush at the end: atomic
         try:
             for i in range(len(self.sensor_names)):
                 w.append_arrays(self.arrays(i), i)

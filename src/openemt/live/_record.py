@@ -53,15 +53,22 @@ class TrackLogWriter:
     :mod:`openemt.io._stream`). Call :meth:`close` at the end (or :meth:`abort`).
     """
 
-    def __init__(self, path, sensor_names=None, *, flush_seconds: float = 1.0):
+    def __init__(self, path, sensor_names=None, *, flush_seconds: float = 1.0,
+                 max_buffered_bytes: int = 64 << 20):
         self.path = Path(path)
         self.kind = _log_kind(self.path)
         self.flush_seconds = float(flush_seconds)
+        self.max_buffered_bytes = int(max_buffered_bytes)
         self.sensor_names: tuple = ()
         self._stream = None
         self._appended = False
         self._pending: list = []
         self.set_sensors(sensor_names if sensor_names is not None else ("openemt",))
+
+    @property
+    def published(self) -> bool:
+        """True once the file is at ``path`` (it held a row, or the session ended cleanly)."""
+        return self._stream is not None and self._stream.published
 
     @property
     def rows(self) -> int:
@@ -89,10 +96,12 @@ class TrackLogWriter:
             attrs = {"format": TRACK_FORMAT, "version": 2 if multi else 1}
             if multi:
                 attrs["sensors"] = list(names)
-            self._stream = _H5Log(self.path, attrs, flush_seconds=self.flush_seconds)
+            self._stream = _H5Log(self.path, attrs, flush_seconds=self.flush_seconds,
+                                  max_buffered_bytes=self.max_buffered_bytes)
         else:
             head = f"time_s,sensor,{_CSV_COLS}" if multi else f"time_s,{_CSV_COLS}"
-            self._stream = CsvStream(self.path, head, flush_seconds=self.flush_seconds)
+            self._stream = CsvStream(self.path, head, flush_seconds=self.flush_seconds,
+                                     max_buffered_bytes=self.max_buffered_bytes)
 
     def append(self, step, sensor: int = 0) -> None:
         """Add one chunk of one sensor (a :class:`~openemt.live.TrackStep`)."""
@@ -330,7 +339,12 @@ class RawRecorder:
 
     @property
     def rows(self) -> int:
+        """Raw samples flushed to the file so far."""
         return self.stream.group_rows("/")
+
+    @property
+    def published(self) -> bool:
+        return self.stream.published
 
     def truth_poses(self, times):
         return self.backend.truth_poses(times)
