@@ -208,8 +208,11 @@ class _Stream:
         except OSError:
             return
         if st.f_bavail * st.f_frsize < 2 * nbytes + _HEADROOM:
-            raise DiskFullError(f"disk full writing {str(self.path)!r} ({self.rows} rows "
-                                f"written, readable)")
+            raise DiskFullError(f"disk full writing {str(self.path)!r} ({self._kept()})")
+
+    def _kept(self) -> str:
+        return (f"{self.rows} rows written, readable" if self.rows and self.published
+                else "nothing written")
 
     def _disk_error(self, exc) -> DiskFullError:
         err = getattr(self, "_guard", None)
@@ -218,8 +221,7 @@ class _Stream:
             what = "disk full" if err.errno != errno.EIO else "I/O error"
         else:
             what = "cannot write"
-        return DiskFullError(f"{what} writing {str(self.path)!r} ({self.rows} rows written, "
-                             f"readable)")
+        return DiskFullError(f"{what} writing {str(self.path)!r} ({self._kept()})")
 
     def maybe_flush(self) -> None:
         """Flush when ``flush_seconds`` have passed since the last flush or the buffer is
