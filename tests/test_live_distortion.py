@@ -125,7 +125,6 @@ def test_track_announces_the_compile_before_tracking(monkeypatch, capsys):
     fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k",), LIVE_KERNELS=("l:k",),
                                  PLANAR_KERNELS=("p:k",), announce_compile=announce_compile)
     monkeypatch.setitem(sys.modules, "openemt._compile_notice", fake)
-    monkeypatch.setattr(cli_mod, "COMMAND_MODULES", ("track",))
     assert cli_mod.main(["track", "--source", "sim", "--no-igtl", "--duration", "0.05",
                          "--fast"]) == 0
     err = capsys.readouterr().err.splitlines()

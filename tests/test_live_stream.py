@@ -32,8 +32,7 @@ from openemt.signal import read_raw
 
 
 @pytest.fixture
-def cli(monkeypatch):
-    monkeypatch.setattr(cli_mod, "COMMAND_MODULES", ("track", "info"))
+def cli():
     return cli_mod.main
 
 

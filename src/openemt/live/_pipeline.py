@@ -308,8 +308,8 @@ class TrackingPipeline:
     send_distorted : bool
         Send converged distorted samples too (they stay flagged).
     igtl : IgtlServer, optional
-        Receives every ``igtl_every``-th valid, undistorted pose of each sensor (device name: the sensor's
-        ``device_name``, else the server's), and every ``status_every`` samples a STRING
+        Receives every ``igtl_every``-th valid, undistorted pose of each sensor (device name:
+        the sensor's ``device_name``, else the server's), and every ``status_every`` samples a STRING
         message per sensor on device ``<device name>Status`` (cut to 20 characters) such as
         ``"CONVERGED distorted=0 quadrature=1.2e-05"`` (the latest sample), which Slicer shows
         as a text node.
