@@ -116,8 +116,10 @@ def test_connect_flood_keeps_serving_a_real_client():
         real.close()
         for s in flood:
             s.close()
-    assert len(times) == 200                  # every connect completed ...
-    assert max(times) < 1.0                   # ... without a SYN retry (1 s) on a full backlog
+    assert len(times) == 200                  # every connect completed, hardly any after a
+    # SYN retry (1 s, a full backlog): with listen(8) 41-47 of 200 did, with 128 none on an
+    # idle machine (an I/O thread starved by a loaded one may let one or two through)
+    assert sum(t >= 0.9 for t in times) <= 4
     assert stats["clients_max"] <= 32 and stats["clients_refused"] >= 200 - 31
     assert real.messages() == sent            # the real client got every pose
 
