@@ -74,9 +74,11 @@ def test_sounddevice_backend_with_a_stand_in_module(monkeypatch):
     assert b.n_overflow == 2
     np.testing.assert_array_equal(b.read(), blocks[0])
     np.testing.assert_array_equal(b.read(), blocks[1])
-    assert b.read() is None                 # nothing within the timeout
+    # nothing within the timeout: an empty block, not the end of the stream
+    assert b.read().shape == (0, 6)
     b.close()
     assert s.closed
+    assert b.read() is None                 # closed: the end
 
 
 def test_sounddevice_missing_is_a_clear_error(monkeypatch):

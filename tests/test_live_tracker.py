@@ -212,8 +212,9 @@ def test_sound_backend_tracks_two_sensors_from_the_tracker_file(monkeypatch):
     assert streams[0].device == 1
     log = TrackLog()
     try:
+        # the sound card's read timeout is not the end of the data: stop at 0.19 s
         s = TrackingPipeline(backend, sensors=tracker_sensors(spec), log=log).run(
-            max_steps=60)
+            0.19, max_steps=60)
     finally:
         backend.close()
     assert streams[0].closed
@@ -235,11 +236,11 @@ def cli():
 
 def test_cli_track_sound_with_stand_in_device(cli, capsys, monkeypatch, tmp_path):
     spec = read_tracker(example_tracker("simulated"))
-    sim = SimulatedBackend(duration=0.15, chunk=960, config=None)
+    sim = SimulatedBackend(duration=0.3, chunk=960, config=None)
     streams = []
     monkeypatch.setitem(sys.modules, "sounddevice", _fake_sounddevice(sim, streams))
     code = cli(["track", "--tracker", str(example_tracker("simulated")), "--source", "sound",
-                "--device", "1", "--no-igtl", "--json", "--quiet",
+                "--device", "1", "--no-igtl", "--json", "--quiet", "--duration", "0.2",
                 "--log", str(tmp_path / "log.h5")])
     d = json.loads(capsys.readouterr().out)
     assert code == 0 and streams[0].device == 1 and streams[0].channels == spec.n_channels

@@ -28,6 +28,9 @@ def add_arguments(parser) -> None:
                         help="mutated files given to the CLI commands (2000)")
     parser.add_argument("--solver-samples", type=int, default=100000,
                         help="generated coupling matrices per solver (100000)")
+    parser.add_argument("--live-cases", type=int, default=15,
+                        help="hostile live-session cases: signals during a logged track "
+                             "session, stalled sources (15)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -67,7 +70,7 @@ def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None
 
 
 def run(args) -> dict:
-    for name in ("reader_cases", "cli_cases", "solver_samples"):
+    for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases"):
         if getattr(args, name) < 0:
             raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
                              f"got {getattr(args, name)}")
@@ -86,13 +89,18 @@ def run(args) -> dict:
         _files(args, "cli", args.cli_cases, cli, examples, bar.update)
     t_files = time.perf_counter() - t0
     solvers = fuzz_solvers(args.solver_samples, args.seed) if args.solver_samples else {}
+    from ._fuzzhostile_live import fuzz_live
+
+    with progress(total=args.live_cases, desc="hostile live", args=args, unit="case") as bar:
+        hostile_live = fuzz_live(args.live_cases, args.seed, time_limit=max(args.time_limit, 30),
+                                 progress=bar.update)
 
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
-        + solvers.get("crashes", 0)
+        + solvers.get("crashes", 0) + hostile_live["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -106,6 +114,7 @@ def run(args) -> dict:
         "readers": readers,
         "cli": cli,
         "solvers": solvers.get("by_solver", {}),
+        "hostile_live": hostile_live,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

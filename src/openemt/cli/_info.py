@@ -200,7 +200,7 @@ def raw_info(path: Path) -> dict:
             "sample_rate": lay.sample_rate, "duration_s": n / lay.sample_rate,
             "frequencies": list(lay.frequencies), "sensor_channels": list(lay.sensor_channels),
             "reference_channels": list(lay.reference_channels),
-            "has_truth": raw.truth_times is not None}
+            "has_truth": raw.truth_times is not None, "complete": raw.complete}
 
 
 def _log_sensor(arrays: dict) -> dict:
@@ -224,70 +224,19 @@ def _log_sensor(arrays: dict) -> dict:
 
 
 def track_log_info(path: Path) -> dict:
-    """JSON-able summary of a live log (``openemt track --log``), HDF5 or CSV."""
-    if path.suffix.lower() == ".csv":
-        return _track_log_csv(path)
-    import h5py
+    """JSON-able summary of a live log (``openemt track --log``), HDF5 or CSV, also one whose
+    session was killed (read by :func:`openemt.live.read_track_log`: the rows it committed)."""
+    from ..live._record import read_track_log
 
-    with h5py.File(path, "r") as f:
-        version = int(f.attrs.get("version", 1))
-        if "sensors" in f.attrs:
-            names = [n.decode() if isinstance(n, bytes) else str(n) for n in f.attrs["sensors"]]
-            missing = [n for n in names if not isinstance(f.get(f"sensors/{n}"), h5py.Group)]
-            if missing:
-                raise InputError(f"expected a group /sensors/<name> per sensor in the track "
-                                 f"log {path.name}, got none for {missing}")
-            groups = {n: f[f"sensors/{n}"] for n in names}
-        else:
-            groups = {"": f}
-        for name, g in groups.items():
-            lacking = [k for k in ("times", "status") if not isinstance(g.get(k), h5py.Dataset)]
-            if lacking:
-                raise InputError(f"expected datasets 'times' and 'status' per sensor in the "
-                                 f"track log {path.name}, got none named {lacking}"
-                                 + (f" for sensor {name!r}" if name else ""))
-        sensors = {name: _log_sensor({k: g[k][()] for k in g
-                                      if isinstance(g[k], h5py.Dataset)})
-                   for name, g in groups.items()}
-    return {"kind": "track-log", "version": version, "format": "hdf5",
-            "sensors": sensors if "" not in sensors else {"sensor": sensors[""]}}
-
-
-_LOG_COLUMNS = ("time_s", "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad", "status",
-                "residual", "distortion", "distorted")
-
-
-def _track_log_csv(path: Path) -> dict:
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        header = fh.readline().strip().split(",")
-    multi = header[1:2] == ["sensor"]
-    if [h for h in header if h != "sensor"] != list(_LOG_COLUMNS):
-        raise InputError(f"expected a track log CSV with the columns "
-                         f"{','.join(_LOG_COLUMNS)} (and 'sensor' after time_s), got "
-                         f"{path.name} with header {','.join(header)[:120]!r}")
-    try:
-        raw = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=str, ndmin=2)
-    except ValueError as exc:
-        raise InputError(f"expected rows of {len(header)} fields in the track log {path.name}, "
-                         f"got {' '.join(str(exc).split())[:100]}") from None
-    raw = raw.reshape(-1, len(header)) if raw.size else np.zeros((0, len(header)), dtype=str)
-    col = {name: k for k, name in enumerate(header)}
-    names = raw[:, 1] if multi else np.full(len(raw), "sensor")
+    log = read_track_log(path)
     sensors = {}
-    for name in dict.fromkeys(names.tolist()):
-        rows = raw[names == name]
-        try:
-            num = {k: rows[:, col[k]].astype(float) for k in col if k != "sensor"}
-        except ValueError:
-            raise InputError(f"expected numbers in the track log {path.name}, got a row "
-                             f"that is not") from None
-        sensors[name] = _log_sensor({"times": num["time_s"], "status": num["status"],
-                                     "distorted": num["distorted"],
-                                     "pose_vectors": np.column_stack(
-                                         [num[k] for k in ("x_m", "y_m", "z_m", "rx_rad",
-                                                           "ry_rad", "rz_rad")])})
-    return {"kind": "track-log", "version": 2 if multi else 1, "format": "csv",
-            "sensors": sensors}
+    for name in log.sensors:
+        arrays = dict(log.arrays[name])
+        if np.size(arrays.get("poses", ())) == 0:
+            arrays.pop("poses", None)
+        sensors[name] = _log_sensor(arrays)
+    return {"kind": "track-log", "format": "csv" if path.suffix.lower() == ".csv" else "hdf5",
+            "rows": log.rows, "complete": log.complete, "sensors": sensors}
 
 
 def correction_info(path: Path) -> dict:
@@ -366,12 +315,16 @@ def _human(path: Path, info: dict) -> list[str]:
                          if info["meta"].get(k) is not None)
         return [f"{path}: poses from {info['solver']}, {info['n_samples']} rows",
                 f"  status: {counts}"] + ([f"  {meta}"] if meta else [])
+    state = {False: "; incomplete: the session was killed or failed, its committed rows are "
+                    "read", None: "; cannot tell whether complete (CSV)"}.get(info.get("complete"),
+                                                                               "")
     if kind == "raw":
         return [f"{path}: raw recording, {info['n_samples']} samples x {info['n_channels']} "
                 f"channels at {info['sample_rate']:g} Hz ({info['duration_s']:.2f} s), carriers "
-                + ", ".join(f"{v:g}" for v in info["frequencies"]) + " Hz"]
+                + ", ".join(f"{v:g}" for v in info["frequencies"]) + f" Hz{state}"]
     if kind == "track-log":
-        lines = [f"{path}: track log ({info['format']}), {len(info['sensors'])} sensor(s)"]
+        lines = [f"{path}: track log ({info['format']}), {len(info['sensors'])} sensor(s), "
+                 f"{info['rows']} rows{state}"]
         for name, s in info["sensors"].items():
             counts = ", ".join(f"{k} {v}" for k, v in s["status_counts"].items() if v)
             lines.append(f"  {name}: {s['n_samples']} samples over {s['duration_s']:.2f} s; "

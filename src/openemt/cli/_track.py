@@ -70,10 +70,20 @@ def register(subparsers) -> None:
     p.add_argument("--fast", action="store_true",
                    help="process as fast as possible instead of at the sample rate")
     p.add_argument("--log", type=Path, default=None,
-                   help="write per-sample poses, status and distortion to .h5 or .csv")
+                   help="write per-sample poses, status and distortion to .h5 or .csv, "
+                        "appended every second while the session runs")
     p.add_argument("--save-raw", type=Path, default=None,
-                   help="(sim) also write the raw samples to an HDF5 file for replay; needs "
-                        "--duration")
+                   help="(sim) also write the raw samples to an HDF5 file for replay, "
+                        "appended every second while the session runs")
+    p.add_argument("--stall-warn", type=float, default=2.0,
+                   help="warn after this many seconds without samples from the source "
+                        "(default 2)")
+    p.add_argument("--stall-timeout", type=float, default=10.0,
+                   help="stop with an error (exit 2) after this many seconds without samples "
+                        "from the source, also before the first one (default 10)")
+    p.add_argument("--send-distorted", action="store_true",
+                   help="also send converged poses flagged as distorted (default: distorted "
+                        "samples are logged and flagged, not sent)")
     p.add_argument("--seed", type=int, default=None,
                    help="simulation seed (default: the tracker file's [simulation], else 0)")
     p.add_argument("--noise", type=float, default=None,
@@ -85,32 +95,10 @@ def register(subparsers) -> None:
     p.add_argument("--window", choices=("hann", "rect"), default=None,
                    help="demodulation window (default: the tracker file's, else hann)")
     p.add_argument("--distortion-threshold", type=float, default=None,
-                   help="quadrature ratio above which a sample is flagged distorted (default: "
-                        "the tracker file's, else 1e-3)")
+                   help="quadrature ratio above which a sample is flagged distorted and not "
+                        "sent (default: the tracker file's, else 1e-3)")
     add_common(p)
     p.set_defaults(func=run)
-
-
-class _Recorder:
-    """Backend wrapper that keeps every chunk read (for --save-raw)."""
-
-    def __init__(self, backend):
-        self.backend = backend
-        self.layout = backend.layout
-        self.t0_epoch = backend.t0_epoch
-        self.chunks = []
-
-    def read(self):
-        x = self.backend.read()
-        if x is not None:
-            self.chunks.append(x)
-        return x
-
-    def truth_poses(self, times):
-        return self.backend.truth_poses(times)
-
-    def close(self):
-        self.backend.close()
 
 
 def _default_spec(args):
@@ -139,17 +127,123 @@ def _default_spec(args):
                    simulation=sim, path=None)
 
 
-def run(args) -> int:
-    import numpy as np
+class _Session:
+    """The command's side of a running session: SIGTERM/Ctrl-C become a stop request once
+    tracking runs (the chunk in hand is finished and the outputs are closed), and a status
+    line on stderr (carriage-return updated every second on a terminal; a plain line every
+    5 s otherwise; none with --quiet)."""
 
-    from ..live import IgtlServer, TrackingPipeline, TrackLog, read_tracker
+    def __init__(self, args):
+        self.quiet = bool(args.quiet)
+        self.tty = sys.stderr.isatty()
+        self.period = 1.0 if self.tty else 5.0
+        self.signal = None               # the signal number that asked to stop
+        self._previous: dict = {}
+        self._t0 = self._last = None
+        self._n0 = 0
+        self._width = 0
+
+    # -- signals: a flag instead of an exception in the middle of a chunk or a flush
+    def _on_signal(self, signum, frame):
+        self.signal = signum
+
+    def arm(self) -> None:
+        import signal
+        import threading
+
+        if self._previous or threading.current_thread() is not threading.main_thread():
+            return
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._on_signal)
+
+    def disarm(self) -> None:
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous = {}
+
+    def stop(self) -> bool:
+        return self.signal is not None
+
+    def say(self, text: str) -> None:
+        if self.quiet:
+            return
+        self.end_line()
+        print(text, file=sys.stderr, flush=True)
+
+    # -- the status line
+    def __call__(self, pipe) -> None:
+        import time
+
+        if not self._previous:
+            self.arm()                   # the first chunk is done: start-up is over
+        if self.quiet:
+            return
+        now = time.monotonic()
+        if self._t0 is None:
+            self._t0 = self._last = now
+            return
+        if now - self._last < self.period:
+            return
+        p = pipe.progress()
+        rate = (p["n_samples"] - self._n0) / (now - self._last)
+        self._last, self._n0 = now, p["n_samples"]
+        counts = ", ".join(f"{k} {v}" for k, v in p["status_counts"].items() if v) or "none"
+        lat = "" if p["latency_ms_p50"] is None else f", latency {p['latency_ms_p50']:.2f} ms"
+        line = (f"tracking {p['signal_seconds']:.1f} s: {rate:.0f} samples/s, {counts}, "
+                f"distorted {p['distorted']} (not sent {p['not_sent_distorted']}){lat}")
+        if pipe.igtl is not None:
+            line += f", {pipe.igtl.n_clients} client(s)"
+        if self.tty:
+            pad = max(0, self._width - len(line))
+            self._width = len(line)
+            sys.stderr.write("\r" + line + " " * pad)
+            sys.stderr.flush()
+        else:
+            print(line, file=sys.stderr, flush=True)
+
+    def end_line(self) -> None:
+        if self.tty and self._width:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+            self._width = 0
+
+
+def _announce_compile(args, sensors) -> None:
+    """Say so before the solver kernels compile (first run after installation)."""
+    try:
+        from .._compile_notice import LIVE_KERNELS, SOLVER_KERNELS, announce_compile
+    except ImportError:      # pragma: no cover - the notice helper is not installed
+        return
+    kernels = SOLVER_KERNELS + LIVE_KERNELS
+    if any(s.solver is not None for s in sensors):       # a board sensor
+        from .._compile_notice import PLANAR_KERNELS
+
+        kernels += PLANAR_KERNELS
+    announce_compile(args, "solver kernels", kernels=kernels)
+
+
+def run(args) -> int:
+    import signal
+
+    # on a terminal, a first line before the heavy imports (a second or two; elsewhere bad
+    # input stays one `error:` line)
+    if not args.quiet and sys.stderr.isatty():
+        print(f"openemt track: starting (--source {args.source}; loading the solver and the "
+              f"source)", file=sys.stderr, flush=True)
+    from ..io._stream import check_stream_outputs
+    from ..live import IgtlServer, StallWatch, TrackingPipeline, read_tracker
+    from ..live._record import RawRecorder, TrackLogWriter
     from ..live._session import tracker_backend, tracker_sensors
-    from ..signal import RawSignal, write_raw
     from ._common import emit
 
     if args.duration is not None and not 0 < args.duration < math.inf:
         raise InputError(f"expected a positive, finite --duration in seconds (leave it out to run "
                          f"until Ctrl-C), got {args.duration}")
+    for opt, v in (("--stall-warn", args.stall_warn), ("--stall-timeout", args.stall_timeout)):
+        if not 0 < v < math.inf:
+            raise InputError(f"expected a positive, finite {opt} in seconds, got {v}")
     if args.distortion_threshold is not None:
         check_nonnegative(args.distortion_threshold, "--distortion-threshold")
     if args.tracker is not None:
@@ -173,38 +267,44 @@ def run(args) -> int:
             raise InputError("expected a raw HDF5 FILE with --source replay, got none")
     elif args.file is not None:
         raise InputError(f"expected FILE only with --source replay, got {str(args.file)!r}")
-    if args.save_raw is not None:
-        if args.source != "sim":
-            raise InputError(f"expected --save-raw only with --source sim, got --source "
-                             f"{args.source}")
-        if args.duration is None:
-            raise InputError("expected --duration with --save-raw, got none")
+    if args.save_raw is not None and args.source != "sim":
+        raise InputError(f"expected --save-raw only with --source sim, got --source "
+                         f"{args.source}")
+    if args.save_raw is not None and args.save_raw.suffix.lower() not in (".h5", ".hdf5"):
+        raise InputError(f"expected --save-raw ending in .h5 or .hdf5, got "
+                         f"{str(args.save_raw)!r}")
     if args.device is not None and args.source != "sound":
         raise InputError(f"expected --device only with --source sound, got --source "
                          f"{args.source}")
     if args.log is not None and args.log.suffix.lower() not in (".h5", ".hdf5", ".csv"):
         raise InputError(f"expected --log ending in .h5, .hdf5 or .csv, got {str(args.log)!r}")
+    # every output checked before anything starts: folders, file kinds, one file per option
+    check_stream_outputs({"--log": args.log, "--save-raw": args.save_raw})
     device = args.device
     if isinstance(device, str) and device.isdigit():
         device = int(device)
     sensors = tracker_sensors(spec)
+    session = _Session(args)
+    log = raw = backend = server = None
     try:
-        backend = tracker_backend(spec, args.source, file=args.file, device=device,
-                                  realtime=not args.fast, duration=args.duration,
-                                  seed=args.seed, noise_rms=args.noise,
-                                  eddy_strength=args.eddy,
-                                  match_layout=args.tracker is not None)
-    except ImportError as exc:                  # the optional sound-card package
-        raise InputError(str(exc)) from None
-    source = backend
-    if args.save_raw is not None:
-        source = _Recorder(backend)
-    log = TrackLog() if args.log is not None else None
-    server = None
-    window = args.window or spec.window
-    threshold = (spec.distortion_threshold if args.distortion_threshold is None
-                 else args.distortion_threshold)
-    try:
+        log = (TrackLogWriter(args.log, [s.name for s in sensors]) if args.log is not None
+               else None)
+        try:
+            backend = tracker_backend(spec, args.source, file=args.file, device=device,
+                                      realtime=not args.fast, duration=args.duration,
+                                      seed=args.seed, noise_rms=args.noise,
+                                      eddy_strength=args.eddy,
+                                      match_layout=args.tracker is not None)
+        except ImportError as exc:                  # the optional sound-card package
+            raise InputError(str(exc)) from None
+        source = backend
+        if args.save_raw is not None:
+            raw = source = RawRecorder(backend, args.save_raw, truth_rate=spec.output_rate)
+        source = StallWatch(source, warn_after=args.stall_warn, timeout=args.stall_timeout,
+                            on_warn=session.say)
+        window = args.window or spec.window
+        threshold = (spec.distortion_threshold if args.distortion_threshold is None
+                     else args.distortion_threshold)
         if not args.no_igtl:
             server = IgtlServer(args.igtl_port, host=args.host,
                                 device_name=spec.sensors[0].device_name)
@@ -214,36 +314,60 @@ def run(args) -> int:
                       f"{args.host}:{server.port}; Ctrl-C to stop", file=sys.stderr)
         pipe = TrackingPipeline(source, sensors=sensors, window=window,
                                 output_rate=spec.output_rate,
-                                distortion_threshold=threshold, igtl=server, log=log)
-        summary = pipe.run(args.duration)
+                                distortion_threshold=threshold, igtl=server, log=log,
+                                send_distorted=args.send_distorted)
+        _announce_compile(args, sensors)
+        if not args.quiet:
+            print(f"tracking {len(spec.sensors)} sensor(s) from --source {args.source}"
+                  f"{'' if args.duration is None else f' for {args.duration:g} s'}; "
+                  f"Ctrl-C to stop", file=sys.stderr, flush=True)
+        summary = pipe.run(args.duration, stop=session.stop, monitor=session)
+        session.end_line()
+        stopped = session.signal
+        if stopped is None and pipe.interrupted is not None:   # during start-up
+            from . import Terminated
+
+            stopped = (signal.SIGTERM if isinstance(pipe.interrupted, Terminated)
+                       else signal.SIGINT)
+        # a session stopped before its first sample never replaces an existing file
+        for w in (log, raw and raw.stream):
+            if w is not None:
+                w.close(keep_empty=stopped is None)
+    except BaseException:
+        session.end_line()
+        session.disarm()
+        for w in (log, raw and raw.stream):
+            if w is not None:
+                w.abort()
+        raise
     finally:
         if server is not None:
             server.close()
-        backend.close()
+        if backend is not None:
+            backend.close()
+    session.disarm()
     out = summary.to_dict()
     out["source"] = args.source
     out["tracker"] = None if args.tracker is None else str(args.tracker)
     out["sensors_tracked"] = [s.name for s in spec.sensors]
     out["device_name"] = None if server is None else spec.sensors[0].device_name
     out["device_names"] = None if server is None else [s.device_name for s in spec.sensors]
+    out["stalls"] = source.n_stalls
+    out["longest_silence_s"] = source.longest_silence
+    out["stopped_by"] = (None if stopped is None
+                         else "SIGTERM" if stopped == signal.SIGTERM else "SIGINT")
     if getattr(backend, "n_overflow", None) is not None:
         out["audio_blocks_dropped"] = backend.n_overflow
     if log is not None:
-        log.write(args.log)
-        out["log"] = str(args.log)
-    if args.save_raw is not None:
-        lay = backend.layout
-        fs = lay.sample_rate
-        samples = (np.concatenate(source.chunks) if source.chunks
-                   else np.empty((0, lay.n_channels)))
-        tt = np.arange(0.0, samples.shape[0] / fs, 1.0 / spec.output_rate)
-        write_raw(RawSignal(samples=samples, layout=lay, truth_times=tt,
-                            truth_couplings=backend.true_couplings(tt),
-                            truth_poses=backend.truth_poses(tt)), args.save_raw)
-        out["raw"] = str(args.save_raw)
+        out["log"] = str(args.log) if log.published else None
+        out["log_rows"] = log.rows
+    if raw is not None:
+        out["raw"] = str(args.save_raw) if raw.published else None
+        out["raw_rows"] = raw.rows
     human = [(f"tracked {summary.n_samples} samples ({summary.signal_seconds:.2f} s of signal) "
               f"of {len(spec.sensors)} sensor(s) in {summary.wall_seconds:.2f} s; status "
-              f"{summary.status_counts}; distorted {100 * summary.distorted_fraction:.1f} %")]
+              f"{summary.status_counts}; distorted {100 * summary.distorted_fraction:.1f} %"
+              f" ({out['not_sent_distorted']} converged but not sent)")]
     if summary.truth:
         human.append(f"position error vs truth: rms {summary.truth['position_error_mm_rms']:.4f}"
                      f" mm, max {summary.truth['position_error_mm_max']:.4f} mm")
@@ -255,5 +379,11 @@ def run(args) -> int:
         human.append(f"OpenIGTLink: {g['sent']} sent, {g['clients_max']} client(s) at most, "
                      f"{g['messages_skipped']} skipped for slow clients, "
                      f"{g['clients_dropped']} client(s) dropped")
+    if stopped is not None:
+        human.append(f"stopped by {out['stopped_by']} after {summary.n_samples} samples"
+                     + ("; outputs written" if summary.n_samples else
+                        "; no sample yet, existing outputs left unchanged"))
     emit(args, out, human)
+    if stopped is not None:
+        return 128 + int(stopped)
     return 0

@@ -6,6 +6,8 @@ from ._backends import (
     ReplayBackend,
     SimulatedBackend,
     SoundDeviceBackend,
+    SourceStalled,
+    StallWatch,
     default_model,
     default_trajectory,
 )
@@ -19,6 +21,7 @@ from ._pipeline import (
     TrackSummary,
     lm_solver,
 )
+from ._record import RawRecorder, TrackLogData, TrackLogWriter, read_track_log
 from ._tracker_file import (
     FilterSpec,
     SensorSpec,
@@ -33,12 +36,17 @@ __all__ = [
     "Backend",
     "FilterSpec",
     "IgtlServer",
+    "RawRecorder",
     "ReplayBackend",
     "SensorSetup",
     "SensorSpec",
     "SimulatedBackend",
     "SoundDeviceBackend",
+    "SourceStalled",
+    "StallWatch",
     "TrackLog",
+    "TrackLogData",
+    "TrackLogWriter",
     "TrackStep",
     "TrackSummary",
     "TrackerSpec",
@@ -50,6 +58,7 @@ __all__ = [
     "kalman_filter_poses",
     "lm_solver",
     "new_filter_state",
+    "read_track_log",
     "read_tracker",
     "tracker_from_dict",
 ]

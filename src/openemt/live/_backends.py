@@ -29,6 +29,8 @@ __all__ = [
     "ReplayBackend",
     "SimulatedBackend",
     "SoundDeviceBackend",
+    "SourceStalled",
+    "StallWatch",
     "default_model",
     "default_trajectory",
     "import_sounddevice",
@@ -309,14 +311,16 @@ class SoundDeviceBackend(Backend):
     chunk : int
         Block size (samples).
     timeout : float
-        Seconds ``read`` waits for a block before giving up (returns None).
+        Seconds ``read`` waits for a block; when none arrives it returns an empty block
+        (shape (0, channels)), never None: an audio stream has no end, and a slow first
+        block is not the end of the session (see :class:`StallWatch` for a silent device).
     channels : int, optional
         Input channels to open (default: enough for the layout); a tracker file's
         ``adc.channels``.
     """
 
     def __init__(self, layout: ChannelLayout, *, device=None, chunk: int = 64 * 16,
-                 timeout: float = 1.0, max_blocks: int = 64, channels: int | None = None):
+                 timeout: float = 0.25, max_blocks: int = 64, channels: int | None = None):
         sounddevice = import_sounddevice()
         n_ch = layout.n_channels if channels is None else int(channels)
         if n_ch < layout.n_channels:
@@ -325,6 +329,8 @@ class SoundDeviceBackend(Backend):
         self.layout = layout
         self.timeout = float(timeout)
         self.n_overflow = 0
+        self._n_ch = n_ch
+        self._closed = False
         self._q: queue.Queue = queue.Queue(maxsize=int(max_blocks))
 
         def callback(indata, frames, time_info, status):
@@ -343,11 +349,96 @@ class SoundDeviceBackend(Backend):
         self._stream.start()
 
     def read(self):
+        if self._closed:
+            return None
         try:
             return self._q.get(timeout=self.timeout)
         except queue.Empty:
-            return None
+            return np.empty((0, self._n_ch))
 
     def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
         self._stream.stop()
         self._stream.close()
+
+
+class SourceStalled(OSError):
+    """A live source delivered no samples for longer than the allowed time."""
+
+
+class StallWatch(Backend):
+    """Watch a backend for silence: an empty read (a sound card's read timeout) is not the
+    end of the data; after ``warn_after`` seconds without a sample ``on_warn(message)`` is
+    called once per silence, and after ``timeout`` seconds :class:`SourceStalled` is raised
+    (the source never started, or stopped delivering).
+
+    Parameters
+    ----------
+    backend : Backend
+    warn_after : float or None
+        Seconds of silence before the warning (None: no warning).
+    timeout : float or None
+        Seconds of silence before the error (None: wait forever).
+    on_warn : callable, optional
+        Gets the warning text (default: the module logger).
+    """
+
+    def __init__(self, backend, *, warn_after: float | None = 2.0,
+                 timeout: float | None = 10.0, on_warn=None):
+        for name, v in (("warn_after", warn_after), ("timeout", timeout)):
+            if v is not None and not 0 < float(v) < np.inf:
+                raise InputError(f"expected a positive, finite `{name}` in seconds (or None), "
+                                 f"got {v!r}")
+        self.backend = backend
+        self.warn_after = None if warn_after is None else float(warn_after)
+        self.timeout = None if timeout is None else float(timeout)
+        self.on_warn = on_warn or logger.warning
+        self.n_stalls = 0            # silences that reached warn_after
+        self.longest_silence = 0.0   # seconds, over the session
+        self._started = False
+        self._last = None            # the silence counts from the first read
+        self._warned = False
+
+    @property
+    def layout(self):
+        return self.backend.layout
+
+    @property
+    def t0_epoch(self):
+        return self.backend.t0_epoch
+
+    def truth_poses(self, times):
+        return self.backend.truth_poses(times)
+
+    def read(self):
+        if self._last is None:
+            self._last = time.monotonic()
+        x = self.backend.read()
+        now = time.monotonic()
+        if x is None:
+            return None
+        silent = now - self._last
+        if len(x):
+            self.longest_silence = max(self.longest_silence, silent)
+            self._started, self._last, self._warned = True, now, False
+            return x
+        what = ("no samples from the source since it started" if not self._started
+                else "no samples from the source")
+        if self.warn_after is not None and not self._warned and silent >= self.warn_after:
+            self._warned = True
+            self.n_stalls += 1
+            self.on_warn(f"warning: {what} for {silent:.1f} s (still waiting; an error after "
+                         f"{self.timeout:g} s)" if self.timeout is not None else
+                         f"warning: {what} for {silent:.1f} s (still waiting)")
+        if self.timeout is not None and silent >= self.timeout:
+            self.longest_silence = max(self.longest_silence, silent)
+            why = "it stopped delivering" if self._started else "it never started"
+            raise SourceStalled(f"expected samples from the live source, got none for "
+                                f"{silent:.1f} s ({why}; limit --stall-timeout "
+                                f"{self.timeout:g} s)")
+        return x
+
+    def close(self) -> None:
+        self.backend.close()

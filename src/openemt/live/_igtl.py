@@ -11,8 +11,13 @@ The server serves any number of clients at once (several Slicer instances, a rec
   can hold up the tracker or the other clients; what a client's socket does not take at once
   waits in that client's bounded queue (``max_queue`` items; when it is full the oldest whole
   item is skipped and counted in ``messages_skipped``, a tracker wants the newest pose);
-- flushes the queues from one I/O thread that waits on all sockets with ``select`` (which also
-  accepts new clients and notices clients that leave, e.g. Slicer reconnecting);
+- flushes the queues from one I/O thread that waits on all sockets with
+  ``selectors.DefaultSelector`` (epoll on Linux: no limit at file descriptor 1023, cost per
+  ready socket rather than per connected one), which also accepts new clients (listen backlog
+  128) and notices clients that leave, e.g. Slicer reconnecting;
+- serves at most ``max_clients`` clients at once: a connection beyond that is closed at once
+  and logged (one warning per burst, ``clients_refused``), so a connect flood cannot take the
+  descriptors or the time of the clients being served;
 - drops a client whose socket has taken no byte for ``send_timeout`` seconds while data was
   waiting (``clients_dropped``); the others are not delayed by it at all;
 - queues nothing while no client is connected, and shuts down within about ``poll`` seconds,
@@ -23,7 +28,7 @@ from __future__ import annotations
 
 import collections
 import logging
-import select
+import selectors
 import socket
 import threading
 import time
@@ -179,6 +184,11 @@ class IgtlServer:
         A client whose socket takes no data for this long (s) while data waits is dropped.
     poll : float
         Wake-up period of the I/O thread (s); bounds the shutdown time.
+    max_clients : int
+        Clients served at once; further connections are closed at once and counted
+        (``clients_refused``).
+    backlog : int
+        Listen backlog (connections the kernel holds until accepted).
 
     Examples
     --------
@@ -188,7 +198,7 @@ class IgtlServer:
 
     def __init__(self, port: int = DEFAULT_IGTL_PORT, *, host: str = "127.0.0.1",
                  device_name: str = "openemt", max_queue: int = 16, send_timeout: float = 1.0,
-                 poll: float = 0.02):
+                 poll: float = 0.02, max_clients: int = 64, backlog: int = 128):
         self.device_name = _check_device_name(device_name)
         if int(max_queue) < 1:
             raise InputError(f"expected `max_queue` >= 1, got {max_queue!r}")
@@ -197,8 +207,13 @@ class IgtlServer:
             raise InputError(f"expected a TCP `port` in 0..65535, got {port}")
         if not float(send_timeout) > 0:
             raise InputError(f"expected a positive `send_timeout`, got {send_timeout!r}")
+        if int(max_clients) < 1:
+            raise InputError(f"expected `max_clients` >= 1, got {max_clients!r}")
         self.send_timeout = float(send_timeout)
         self.poll = float(poll)
+        self.max_clients = int(max_clients)
+        self.n_refused = 0
+        self._refusing = False
         self._max_queue = int(max_queue)
         self._lock = threading.Lock()
         self._clients: list[_Client] = []
@@ -216,7 +231,7 @@ class IgtlServer:
         listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             listener.bind((host, port))
-            listener.listen(8)
+            listener.listen(max(1, int(backlog)))
         except OSError as exc:
             listener.close()
             raise OSError(f"expected a free TCP port for OpenIGTLink on {host}:{port}, got "
@@ -227,6 +242,9 @@ class IgtlServer:
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
+        self._sel = selectors.DefaultSelector()
+        self._sel.register(listener, selectors.EVENT_READ, None)
+        self._sel.register(self._wake_r, selectors.EVENT_READ, None)
         self._thread = threading.Thread(target=self._io_loop, name="openemt-igtl", daemon=True)
         self._thread.start()
 
@@ -267,13 +285,15 @@ class IgtlServer:
         (written to a client's socket), ``messages_skipped`` (= ``dropped``: shed from a slow
         client's full queue), ``no_client`` (nobody listening); and ``connections`` (accepted
         so far), ``clients`` (now), ``clients_max`` (most at once), ``clients_dropped`` (cut off
-        after ``send_timeout`` without progress)."""
+        after ``send_timeout`` without progress), ``clients_refused`` (connections closed at
+        once because ``max_clients`` were connected)."""
         with self._lock:
             return {"queued": self.n_queued, "sent": self.n_sent, "dropped": self.n_skipped,
                     "messages_skipped": self.n_skipped, "no_client": self.n_no_client,
                     "connections": self.n_connections, "clients": len(self._clients),
                     "clients_max": self.clients_max,
-                    "clients_dropped": self.n_clients_dropped}
+                    "clients_dropped": self.n_clients_dropped,
+                    "clients_refused": self.n_refused}
 
     def clients(self) -> list:
         """The connected clients now: ``address`` (host, port), ``sent`` and ``skipped``
@@ -445,6 +465,10 @@ class IgtlServer:
                 self.n_skipped += lost
                 c.queue.clear()
         try:
+            self._sel.unregister(c.sock)
+        except (KeyError, ValueError, OSError):
+            pass
+        try:
             c.sock.close()
         except OSError:  # pragma: no cover
             pass
@@ -458,34 +482,61 @@ class IgtlServer:
                 return
             except OSError:  # pragma: no cover - listener closed
                 return
+            if len(self._clients) >= self.max_clients:
+                sock.close()
+                with self._lock:
+                    self.n_refused += 1
+                if not self._refusing:                 # one line per burst, not per connect
+                    self._refusing = True
+                    logger.warning("OpenIGTLink: %d clients connected (the most served at "
+                                   "once); refusing further connections", self.max_clients)
+                continue
+            self._refusing = False
             sock.setblocking(False)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            c = _Client(sock, addr)
             with self._lock:
-                self._clients.append(_Client(sock, addr))
+                self._clients.append(c)
                 self.n_connections += 1
                 self.clients_max = max(self.clients_max, len(self._clients))
+            self._sel.register(sock, selectors.EVENT_READ, c)
             logger.info("OpenIGTLink client %s connected", addr)
 
     def _io_loop(self) -> None:
+        read, write = selectors.EVENT_READ, selectors.EVENT_READ | selectors.EVENT_WRITE
+        watching_write: set = set()
         while not self._stop:
             with self._lock:
                 clients = list(self._clients)
-                writers = [c.sock for c in clients if c.queue]
-            readers = [self._listener, self._wake_r] + [c.sock for c in clients]
+                want = {c for c in clients if c.queue}
+            # sockets with data waiting are also watched for writability (changes only)
+            for c in want ^ watching_write:
+                try:
+                    self._sel.modify(c.sock, write if c in want else read, c)
+                except (KeyError, ValueError, OSError):
+                    pass
+            watching_write = want
             try:
-                r, w, _ = select.select(readers, writers, [], self.poll)
+                events = self._sel.select(self.poll)
             except (OSError, ValueError):          # a socket closed under us: look again
                 continue
             if self._stop:
                 break
-            if self._wake_r in r:
-                try:
-                    while self._wake_r.recv(4096):
+            r, w = set(), set()
+            for key, mask in events:
+                if key.fileobj is self._wake_r:
+                    try:
+                        while self._wake_r.recv(4096):
+                            pass
+                    except OSError:
                         pass
-                except OSError:
-                    pass
-            if self._listener in r:
-                self._accept()
+                elif key.fileobj is self._listener:
+                    self._accept()
+                else:
+                    if mask & selectors.EVENT_READ:
+                        r.add(key.fileobj)
+                    if mask & selectors.EVENT_WRITE:
+                        w.add(key.fileobj)
             now = time.monotonic()
             for c in clients:
                 if c.sock in r:                    # a client message (ignored) or leaving
@@ -526,6 +577,7 @@ class IgtlServer:
         self._thread.join(timeout=5 * self.poll + 1.0)
         for c in list(self._clients):
             self._remove(c, "disconnected (server closing)")
+        self._sel.close()
         for s in (self._listener, self._wake_r, self._wake_w):
             s.close()
 

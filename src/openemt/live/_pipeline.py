@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import itertools
 import time
 from dataclasses import dataclass, field
 
@@ -179,52 +180,19 @@ class TrackLog:
                 for k, v in self._parts[sensor].items()}
 
     def write(self, path) -> None:
-        from pathlib import Path
+        """Write the log to ``path`` (``.h5``/``.hdf5`` or ``.csv``; layout in
+        :mod:`openemt.live._record`), atomically."""
+        from ._record import TrackLogWriter
 
-        from ..io import atomic_path
-
-        path = Path(path)
-        suffix = path.suffix.lower()
-        multi = len(self.sensor_names) > 1
-        if suffix in (".h5", ".hdf5"):
-            import h5py
-
-            with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-                f.attrs["format"] = "openemt-track"
-                f.attrs["version"] = 2 if multi else 1
-                if multi:
-                    f.attrs["sensors"] = list(self.sensor_names)
-                for i, name in enumerate(self.sensor_names):
-                    g = f.create_group(f"sensors/{name}") if multi else f
-                    for k, v in self.arrays(i).items():
-                        g.create_dataset(k, data=v)
-        elif suffix == ".csv":
-            tables = []
+        w = TrackLogWriter(path, self.sensor_names, flush_seconds=float("inf"),
+                           max_buffered_bytes=1 << 62)       # one flush at the end: atomic
+        try:
             for i in range(len(self.sensor_names)):
-                a = self.arrays(i)
-                n = len(a["times"])
-                pv = a["pose_vectors"].reshape(n, 6)
-                tables.append(np.column_stack([a["times"], pv, a["status"], a["residual"],
-                                               a["distortion"], a["distorted"].astype(int)]))
-            cols = "x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted"
-            fmt = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d"]
-            with atomic_path(path, suffix=".csv") as tmp:
-                if not multi:
-                    np.savetxt(tmp, tables[0], delimiter=",", header=f"time_s,{cols}",
-                               comments="", fmt=fmt)
-                    return
-                line = ",".join(fmt)
-                with open(tmp, "w", encoding="utf-8") as fh:
-                    fh.write(f"time_s,sensor,{cols}\n")
-                    n = min(len(t) for t in tables)
-                    for r in range(n):
-                        for name, t in zip(self.sensor_names, tables):
-                            row = line % tuple(t[r])
-                            head, rest = row.split(",", 1)
-                            fh.write(f"{head},{name},{rest}\n")
-        else:
-            raise InputError(f"expected a log file ending in .h5, .hdf5 or .csv, got "
-                             f"{str(path)!r}")
+                w.append_arrays(self.arrays(i), i)
+            w.close()
+        except BaseException:
+            w.abort()
+            raise
 
 
 @dataclass(frozen=True)
@@ -299,6 +267,7 @@ class _SensorState:
         self.last = None             # last valid pose vector
         self.status_counts = np.zeros(len(Status), dtype=np.int64)   # per Status code
         self.n_distorted = 0
+        self.n_not_sent = 0          # converged but distorted, not sent
         self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
         self.pending: list = []
         self.n_pending = 0
@@ -332,15 +301,21 @@ class TrackingPipeline:
     output_rate, window, phase
         Demodulator settings (:class:`openemt.signal.Demodulator`).
     distortion_threshold : float
-        Quadrature ratio above which a sample is flagged as distorted.
+        Quadrature ratio above which a sample is flagged as distorted. A distorted sample is
+        not sent (unless ``send_distorted``) and is solved from its warm start alone, without
+        the extra starts a high residual otherwise triggers (its cost stays that of a clean
+        sample); it is logged with its flag and counted in ``not_sent_distorted``.
+    send_distorted : bool
+        Send converged distorted samples too (they stay flagged).
     igtl : IgtlServer, optional
-        Receives every ``igtl_every``-th valid pose of each sensor (device name: the sensor's
-        ``device_name``, else the server's), and every ``status_every`` samples a STRING
+        Receives every ``igtl_every``-th valid, undistorted pose of each sensor (device name:
+        the sensor's ``device_name``, else the server's), and every ``status_every`` samples a STRING
         message per sensor on device ``<device name>Status`` (cut to 20 characters) such as
         ``"CONVERGED distorted=0 quadrature=1.2e-05"`` (the latest sample), which Slicer shows
         as a text node.
-    log : TrackLog, optional
-        Gets the sensor names of the pipeline.
+    log : TrackLog or TrackLogWriter, optional
+        Gets the sensor names of the pipeline and every chunk of every sensor
+        (:class:`~openemt.live.TrackLogWriter` streams them to a file).
     serial_small_batches : bool
         Solve chunks of fewer than 256 samples with numba's parallel regions limited to this
         thread (see ``openemt bench track``'s baseline for why).
@@ -350,7 +325,8 @@ class TrackingPipeline:
                  sensors=None, filter=None, output_rate: float = OUTPUT_RATE_HZ,
                  window: str = "hann", phase=None, distortion_threshold: float = 1e-3,
                  igtl=None, log: TrackLog | None = None, igtl_every: int = 1,
-                 status_every: int = 150, serial_small_batches: bool = True):
+                 status_every: int = 150, serial_small_batches: bool = True,
+                 send_distorted: bool = False):
         if sensors is None:
             if solver is None and model is None:
                 raise InputError("expected a `model` or a `solver`, got neither")
@@ -399,6 +375,8 @@ class TrackingPipeline:
         self.distortion_threshold = check_nonnegative(distortion_threshold,
                                                       "`distortion_threshold`")
         self.igtl = igtl
+        self.send_distorted = bool(send_distorted)
+        self.interrupted = None
         self.log = log
         if log is not None:
             log.set_sensors(names)
@@ -433,23 +411,43 @@ class TrackingPipeline:
                 np.asarray(res.status, dtype=np.int8),
                 np.asarray(res.residual, dtype=np.float64))
 
-    def _solve(self, st: _SensorState, C):
+    def _call(self, solver, C, initial, quick):
+        """``solver(C, initial)``; samples marked in ``quick`` (distorted, not sent) are solved
+        without the solver's extra starts when it offers that (``explore_optional``)."""
+        if quick is None or not getattr(solver, "explore_optional", False) or not quick.any():
+            return self._unpack(solver(C, initial))
+        if quick.all():
+            return self._unpack(solver(C, initial, explore=False))
+        keep = ~quick
+        pick = (lambda m: initial) if isinstance(initial, str) else (lambda m: initial[m])
+        a = self._unpack(solver(C[keep], pick(keep)))
+        b = self._unpack(solver(C[quick], pick(quick), explore=False))
+        out = []
+        for x, y in zip(a, b):
+            z = np.empty((C.shape[0],) + x.shape[1:], x.dtype)
+            z[keep], z[quick] = x, y
+            out.append(z)
+        return tuple(out)
+
+    def _solve(self, st: _SensorState, C, quick=None):
         n = C.shape[0]
         initial = "kim18" if st.last is None else np.repeat(st.last[None], n, axis=0)
-        out = self._unpack(st.solver(C, initial))
+        out = self._call(st.solver, C, initial, quick)
         self._remember(st, out[1], out[2])
         return out
 
-    def _solve_all(self, Cs) -> list:
+    def _solve_all(self, Cs, quick=None) -> list:
         """Solve every sensor's couplings ``Cs[k]`` (N, n_so, n_se_k); sensors of a group that
-        are all tracking go through their shared solver in one call."""
+        are all tracking go through their shared solver in one call. ``quick[k]`` marks the
+        samples to solve without extra starts (see :meth:`_call`)."""
         out = [None] * len(self.sensors)
         for group in self._groups:
             if len(group) > 1 and all(st.last is not None for st in group):
                 n = Cs[group[0].index].shape[0]
                 C = np.concatenate([Cs[st.index] for st in group])
                 initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
-                P, V, S, R = self._unpack(group[0].solver(C, initial))
+                q = None if quick is None else np.concatenate([quick[st.index] for st in group])
+                P, V, S, R = self._call(group[0].solver, C, initial, q)
                 k = len(group)                  # one view per sensor: (k, n, ...) blocks
                 P, V = P.reshape(k, n, 4, 4), V.reshape(k, n, 6)
                 S, R = S.reshape(k, n), R.reshape(k, n)
@@ -464,7 +462,8 @@ class TrackingPipeline:
                         self._remember(st, V[j], S[j])
             else:
                 for st in group:
-                    out[st.index] = self._solve(st, Cs[st.index])
+                    out[st.index] = self._solve(st, Cs[st.index],
+                                                None if quick is None else quick[st.index])
         return out
 
     @staticmethod
@@ -523,11 +522,6 @@ class TrackingPipeline:
         parts = [d.couplings if st.columns is None else d.couplings[:, :, st.index_of_columns]
                  for st in self.sensors]
         Cs = [c.real for c in parts]
-        if self.serial_small_batches and n * len(self.sensors) < 256:
-            with _serial_threads():
-                solved = self._solve_all(Cs)
-        else:
-            solved = self._solve_all(Cs)
         # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
         im2 = (d.couplings.imag ** 2).sum(axis=1)
         ab2 = (d.couplings.real ** 2).sum(axis=1) + im2
@@ -543,20 +537,29 @@ class TrackingPipeline:
                 num = np.sqrt(im2[:, cols].sum(axis=1))
                 den = np.sqrt(ab2[:, cols].sum(axis=1))
                 ratios.append(num / np.where(den > 0, den, np.inf))
+        flags = [r > self.distortion_threshold for r in ratios]
+        # distorted samples are not sent: their solve skips the extra starts (bounded cost)
+        quick = None if self.send_distorted else flags
+        if self.serial_small_batches and n * len(self.sensors) < 256:
+            with _serial_threads():
+                solved = self._solve_all(Cs, quick)
+        else:
+            solved = self._solve_all(Cs, quick)
         if self.igtl is not None:               # the same for every sensor
             every = (None if self.igtl_every == 1
                      else (self._n_out + np.arange(n)) % self.igtl_every == 0)
             stamps = epoch + d.times
         oks = []
-        for st, couplings, (poses, vecs, status, resid), ratio in zip(self.sensors, parts,
-                                                                        solved, ratios):
+        for st, couplings, (poses, vecs, status, resid), ratio, flag in zip(
+                self.sensors, parts, solved, ratios, flags):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
-            flag = ratio > self.distortion_threshold
             ok = status == _CONVERGED
             oks.append(ok)
             if self.igtl is not None:
                 pick = ok if every is None else ok & every
+                if not self.send_distorted and flag.any():
+                    pick = pick & ~flag
                 device = st.setup.device_name or self.igtl.device_name
                 if pick.all():                  # the usual case, without a copy
                     self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device)
@@ -592,7 +595,10 @@ class TrackingPipeline:
         else:
             st.status_counts += np.bincount(step.status.astype(np.int64),
                                             minlength=len(Status))
-        st.n_distorted += int(np.count_nonzero(step.distorted))
+        n_dist = int(np.count_nonzero(step.distorted))
+        st.n_distorted += n_dist
+        if n_dist and not self.send_distorted:
+            st.n_not_sent += int(np.count_nonzero(ok & step.distorted))
         if self.log is not None:
             self.log.append(step, st.index)
         if self._truth_known and n_ok:
@@ -623,12 +629,15 @@ class TrackingPipeline:
         st.err_max = max(st.err_max, float(err.max()))
 
     def run(self, duration: float | None = None, *, max_steps: int | None = None,
-            stop=None) -> TrackSummary:
+            stop=None, monitor=None) -> TrackSummary:
         """Process chunks until the data end, ``duration`` seconds of signal, ``max_steps``
-        chunks, ``stop()`` returning True, or Ctrl-C (a clean stop, not an error)."""
+        chunks, ``stop()`` returning True, or Ctrl-C (a clean stop, not an error; the
+        exception is kept in :attr:`interrupted`). ``monitor(pipeline)`` is called after
+        every chunk (e.g. a status line, see :meth:`progress`)."""
         t_wall = time.perf_counter()
         steps = 0
         fs_out = self.demod.output_rate
+        self.interrupted = None
         try:
             while True:
                 if duration is not None and self._n_out >= duration * fs_out:
@@ -640,9 +649,26 @@ class TrackingPipeline:
                 if self.step() is None:
                     break
                 steps += 1
-        except KeyboardInterrupt:
-            pass
+                if monitor is not None:
+                    monitor(self)
+        except KeyboardInterrupt as exc:
+            self.interrupted = exc
         return self.summary(time.perf_counter() - t_wall)
+
+    def progress(self, recent: int = 1500) -> dict:
+        """A cheap snapshot for a status line: samples so far, status counts (all sensors, by
+        lower-case name), distorted and not-sent samples, and the median latency (ms) of the
+        last ``recent`` samples."""
+        counts = sum(st.status_counts for st in self.sensors)
+        lat = self._latency
+        k = min(len(lat), int(recent))
+        p50 = (1e3 * float(np.median(np.fromiter(itertools.islice(reversed(lat), k), float)))
+               if k else None)
+        return {"n_samples": self._n_out, "signal_seconds": self._n_out / self.demod.output_rate,
+                "status_counts": status_count_names(counts),
+                "distorted": sum(st.n_distorted for st in self.sensors),
+                "not_sent_distorted": sum(st.n_not_sent for st in self.sensors),
+                "latency_ms_p50": p50}
 
     def _sensor_summary(self, st: _SensorState) -> dict:
         counts = status_count_names(st.status_counts)
@@ -650,6 +676,7 @@ class TrackingPipeline:
         n = self._n_out
         out = {"status_counts": counts,
                "distorted_fraction": (st.n_distorted / n) if n else 0.0,
+               "not_sent_distorted": st.n_not_sent,
                "device_name": (st.setup.device_name or self.igtl.device_name)
                if self.igtl is not None else None,
                "truth": None, "filter": None}
@@ -689,7 +716,8 @@ class TrackingPipeline:
                 igtl["send_latency_ms_p99"] = float(np.percentile(sl, 99))
         n = self._n_out
         k = len(self.sensors)
-        extra = {}
+        extra = {"not_sent_distorted": sum(st.n_not_sent for st in self.sensors),
+                 "send_distorted": self.send_distorted}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:

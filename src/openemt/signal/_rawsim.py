@@ -206,6 +206,9 @@ class RawSignal:
         imaginary part = quadrature).
     truth_poses : ndarray, shape (n_truth, 4, 4) or None
         Sensor poses (m) at ``truth_times``.
+    complete : bool
+        False for the file of a live session (``track --save-raw``) that was killed before
+        it closed the file (its samples end at the last flush).
     """
 
     samples: np.ndarray
@@ -214,6 +217,7 @@ class RawSignal:
     truth_times: np.ndarray | None = None
     truth_couplings: np.ndarray | None = None
     truth_poses: np.ndarray | None = None
+    complete: bool = True
 
     @property
     def n_samples(self) -> int:
@@ -351,6 +355,16 @@ def simulate_raw(model, trajectory, duration: float, config: RawSignalConfig | N
 
 # --------------------------------------------------------------------------- HDF5 raw file
 
+def raw_attrs(layout: ChannelLayout, t0: float = 0.0) -> dict:
+    """The root attributes of a raw HDF5 file (see :func:`write_raw`)."""
+    return {"format": RAW_FORMAT, "version": _RAW_VERSION, "sample_rate": layout.sample_rate,
+            "frequencies": np.asarray(layout.frequencies),
+            "sensor_channels": np.asarray(layout.sensor_channels, dtype=np.int64),
+            "reference_channels": np.asarray(layout.reference_channels, dtype=np.int64),
+            "sensor_gain": layout.sensor_gain, "reference_gain": layout.reference_gain,
+            "t0": float(t0)}
+
+
 def write_raw(raw: RawSignal, path) -> None:
     """Write a raw recording to HDF5 (schema below), atomically.
 
@@ -368,17 +382,9 @@ def write_raw(raw: RawSignal, path) -> None:
 
     from ..io import atomic_path
 
-    lay = raw.layout
     with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["format"] = RAW_FORMAT
-        f.attrs["version"] = _RAW_VERSION
-        f.attrs["sample_rate"] = lay.sample_rate
-        f.attrs["frequencies"] = np.asarray(lay.frequencies)
-        f.attrs["sensor_channels"] = np.asarray(lay.sensor_channels, dtype=np.int64)
-        f.attrs["reference_channels"] = np.asarray(lay.reference_channels, dtype=np.int64)
-        f.attrs["sensor_gain"] = lay.sensor_gain
-        f.attrs["reference_gain"] = lay.reference_gain
-        f.attrs["t0"] = float(raw.t0)
+        for k, v in raw_attrs(raw.layout, raw.t0).items():
+            f.attrs[k] = v
         f.create_dataset("samples", data=np.asarray(raw.samples), chunks=True)
         if raw.truth_times is not None:
             g = f.create_group("truth")
@@ -420,13 +426,18 @@ def read_raw(path) -> RawSignal:
                                    reference_channels=tuple(f.attrs["reference_channels"]),
                                    sensor_gain=float(f.attrs["sensor_gain"]),
                                    reference_gain=float(f.attrs["reference_gain"]))
-            samples = np.asarray(f["samples"][()])
+            # a file streamed by a live session holds `rows` (committed rows) per group and
+            # `complete` (False when the session was killed): read no more than committed
+            samples = np.asarray(f["samples"][:_committed(f, ("samples",))])
             truth = {}
             if "truth" in f:
-                for key in ("times", "couplings", "poses"):
-                    if key in f["truth"]:
-                        truth[key] = np.asarray(f["truth"][key][()])
+                g = f["truth"]
+                keys = [k for k in ("times", "couplings", "poses") if k in g]
+                n = _committed(g, keys)
+                for key in keys:
+                    truth[key] = np.asarray(g[key][:n])
             t0 = float(f.attrs.get("t0", 0.0))
+            complete = bool(f.attrs.get("complete", True))
     except ValueError:
         raise
     except (OSError, KeyError, TypeError) as exc:
@@ -440,5 +451,16 @@ def read_raw(path) -> RawSignal:
         raise InputError(f"expected finite float samples, got dtype {samples.dtype} or NaN/inf "
                          f"in {str(path)!r}")
     return RawSignal(samples=samples, layout=layout, t0=t0, truth_times=truth.get("times"),
-                     truth_couplings=truth.get("couplings"), truth_poses=truth.get("poses"))
+                     truth_couplings=truth.get("couplings"), truth_poses=truth.get("poses"),
+                     complete=complete)
+
+
+def _committed(group, keys) -> int:
+    """Rows of ``group`` to read: its ``rows`` attribute (a streamed file) capped by the
+    datasets' lengths."""
+    lengths = [group[k].shape[0] for k in keys if group[k].ndim >= 1]
+    rows = group.attrs.get("rows")
+    if rows is not None:
+        lengths.append(int(rows))
+    return min(lengths, default=0)
 

@@ -98,6 +98,9 @@ class PreparedLM:
 
     #: the kernels called here start no parallel region (the pipeline need not confine them)
     serial = True
+    #: the calls take ``explore=False`` (skip the extra starts above ``explore_above``; the
+    #: live pipeline does so for distorted samples, which it does not send)
+    explore_optional = True
 
     def __init__(self, model=None, *, hemisphere=DEFAULT_HEMISPHERE, max_iter=100,
                  max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
@@ -155,16 +158,17 @@ class PreparedLM:
             return hemisphere_vectors(self.hemisphere, n)
         return self._constants(n)[1]
 
-    def __call__(self, couplings, initial) -> SolveResult:
+    def __call__(self, couplings, initial, *, explore: bool = True) -> SolveResult:
         C = couplings
         if (isinstance(initial, np.ndarray) and isinstance(C, np.ndarray)
                 and C.dtype == np.float64 and C.ndim == 3 and C.shape[1:] == self._shape
                 and initial.shape == (C.shape[0], 6) and initial.dtype == np.float64
                 and self._hrow is not None and C.shape[0] < _SMALL):
-            return self.warm(np.ascontiguousarray(C), np.ascontiguousarray(initial))
-        return self.solve(C, initial)
+            return self.warm(np.ascontiguousarray(C), np.ascontiguousarray(initial),
+                             explore=explore)
+        return self.solve(C, initial, explore=explore)
 
-    def warm(self, C, init) -> SolveResult:
+    def warm(self, C, init, *, explore: bool = True) -> SolveResult:
         """``solve(C, initial=init)`` for C-contiguous real float64 couplings ``C`` (N, n_so,
         n_se) of the model's shape and start pose vectors ``init`` (N, 6), fewer than 512
         samples, one hemisphere for all: the compiled kernel is called directly."""
@@ -172,12 +176,14 @@ class PreparedLM:
         cnorm, nvec = self._constants(n)
         out = new_outputs(n)
         lm_batch(self.mdl, C, cnorm, init, nvec, self.box, self.opts, out)
-        return self._after(result_from_outputs(out, "lm"), C, cnorm, nvec, None)
+        return self._after(result_from_outputs(out, "lm"), C, cnorm, nvec, None,
+                           explore=explore)
 
     def solve(self, couplings, initial="kim18", *, covariance=False,
-              fallback=None) -> SolveResult:
+              fallback=None, explore: bool = True) -> SolveResult:
         """:func:`openemt.solve.solve_lm` of ``couplings`` (see there for ``initial``,
-        ``covariance`` and ``fallback``)."""
+        ``covariance`` and ``fallback``); ``explore=False`` skips the extra starts of samples
+        above ``explore_above`` (then no longer :func:`~openemt.solve.solve_lm`'s result)."""
         model, conc = self.model, self.conc
         C, cnorm = check_couplings(couplings, model.n_source, model.n_sensor)
         n = C.shape[0]
@@ -216,18 +222,19 @@ class PreparedLM:
                     raise InputError(f"expected `initial` pose vectors of shape ({n}, 6) or "
                                      f"(6,), got {init.shape}")
             result = _run_batch(C, cnorm, init, mdl, nvec, box, opts)
-        result = self._after(result, C, cnorm, nvec, fallback)
+        result = self._after(result, C, cnorm, nvec, fallback, explore=explore)
         if covariance:
             from ._crb import solver_covariance
 
             result = result.replace(covariance=solver_covariance(model, result, C, cnorm))
         return result
 
-    def _after(self, result, C, cnorm, nvec, fallback) -> SolveResult:
+    def _after(self, result, C, cnorm, nvec, fallback, *, explore=True) -> SolveResult:
         """The steps after the first solve: more starts for samples above the exploration
-        level, the optional multi-start fallback, the 5-DOF canonical rotation."""
+        level (unless not ``explore``), the optional multi-start fallback, the 5-DOF
+        canonical rotation."""
         model, mdl, box, opts = self.model, self.mdl, self.box, self.opts
-        level = self.explore
+        level = self.explore if explore else None
         if level is not None and (result.relative_residual > level).any():
             redo = np.flatnonzero((result.relative_residual > level)
                                   & (result.status != Status.INVALID_INPUT))

@@ -1,0 +1,457 @@
+"""Outputs that grow while a live session runs (``track --log``, ``--save-raw``).
+
+A one-shot output is written whole under a temporary name and renamed at the end
+(:func:`openemt.io.atomic_path`). A live session may run for hours and may be killed at any
+moment, so its outputs are appended in chunks instead, with bounded memory:
+
+- the file is created under a temporary name beside the target (``.<name>.openemt-<pid>.
+  <random>.<suffix>``, the naming of :mod:`openemt.io._atomic`, so that the next run removes
+  it when the session was killed before it held anything) and renamed to the target **when it
+  first holds a row** (or at a clean end): a session stopped during start-up never replaces
+  an existing file, with an empty one or otherwise;
+- rows are buffered for about ``flush_seconds`` (1 s) and then appended and flushed to the
+  operating system; a session killed outright (SIGKILL, out of memory) loses at most that
+  last second, and the file it leaves is readable;
+- HDF5 outputs hold resizable chunked datasets and, per group of equally long datasets, the
+  attribute ``rows`` (the rows committed by the last flush; a reader reads no more) and, on the
+  root, ``complete`` (False until the session ends cleanly);
+- before each append the free space of the file system is compared with the bytes to write;
+  a full disk (or an I/O error) ends the session as :class:`DiskFullError` ("disk full writing
+  X", exit 2 in the CLI) with the rows flushed so far readable. libhdf5 writes through a
+  Python file object here, and once a write has failed it takes no further byte, so closing
+  the file cannot crash inside the library.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import io
+import os
+import stat
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .._errors import InputError
+from ._atomic import _TMP_TAG, _UMASK, remove_stale_temporaries
+
+__all__ = ["CsvStream", "DiskFullError", "H5Stream", "check_stream_outputs"]
+
+#: errors of a write that mean "the disk cannot take it" (reported as disk full / I/O error)
+_DISK_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO}
+
+#: free space kept beyond the bytes of a flush (HDF5 metadata, chunk rounding)
+_HEADROOM = 256 * 1024
+
+
+class DiskFullError(OSError):
+    """A streaming output could not be written (no space left, quota, I/O error); the rows
+    flushed before stay readable."""
+
+
+def _folder(path: Path) -> Path:
+    return path.parent if str(path.parent) else Path(".")
+
+
+def check_stream_outputs(outputs: dict) -> None:
+    """Check the outputs of a live session before it starts acquiring.
+
+    Parameters
+    ----------
+    outputs : dict
+        Option name (e.g. ``"--log"``) -> path; None values are skipped.
+
+    Raises
+    ------
+    InputError
+        A missing or read-only folder, a folder or a non-regular file (device, FIFO) at the
+        path, or the same file named by two options.
+    """
+    seen: dict = {}
+    for opt, given in outputs.items():
+        if given is None:
+            continue
+        path = Path(given)
+        folder = _folder(path)
+        if not folder.is_dir():
+            raise InputError(f"expected an existing folder for {opt} {str(path)!r}, got "
+                             f"missing folder {str(folder)!r}")
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise InputError(f"expected a writable folder for {opt} {str(path)!r}, got "
+                             f"read-only folder {str(folder)!r}")
+        try:
+            st = path.stat()
+        except FileNotFoundError:
+            st = None
+        except OSError as exc:
+            raise InputError(f"expected a file path for {opt}, got {str(path)!r} "
+                             f"({exc.strerror or exc})") from None
+        if st is not None and not stat.S_ISREG(st.st_mode):
+            what = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+            raise InputError(f"expected a regular file (or a new name) for {opt}, got "
+                             f"{str(path)!r} ({what})")
+        key = (folder.resolve() / path.name)
+        for other, (okey, ost) in seen.items():
+            same = okey == key or (st is not None and ost is not None
+                                   and (st.st_dev, st.st_ino) == (ost.st_dev, ost.st_ino))
+            if same:
+                raise InputError(f"expected different files for {other} and {opt}, got "
+                                 f"{str(path)!r} for both")
+        seen[opt] = (key, st)
+
+
+class _GuardedFile(io.RawIOBase):
+    """An unbuffered file for libhdf5's file-object driver: the first failed write is kept in
+    :attr:`error` and every later write is dropped (so that closing the HDF5 file after a full
+    disk does not write, fail and crash again)."""
+
+    def __init__(self, path):
+        super().__init__()
+        self._f = open(path, "r+b", buffering=0)  # noqa: SIM115 - closed in close()
+        self.error: OSError | None = None
+
+    def readable(self):
+        return True
+
+    def writable(self):
+        return True
+
+    def seekable(self):
+        return True
+
+    def readinto(self, b):
+        return self._f.readinto(b)
+
+    def write(self, b):
+        if self.error is not None:
+            return len(memoryview(b))
+        try:
+            return self._f.write(b)
+        except OSError as exc:
+            self.error = exc
+            raise
+
+    def seek(self, pos, whence=0):
+        return self._f.seek(pos, whence)
+
+    def tell(self):
+        return self._f.tell()
+
+    def truncate(self, size=None):
+        if self.error is not None:
+            return self._f.tell() if size is None else size
+        try:
+            return self._f.truncate(size)
+        except OSError as exc:
+            self.error = exc
+            raise
+
+    def flush(self):
+        pass
+
+    def fileno(self):
+        return self._f.fileno()
+
+    def sync(self) -> None:
+        if self.error is None:
+            with contextlib.suppress(OSError):
+                os.fsync(self._f.fileno())
+
+    def close(self):
+        if not self.closed:
+            self._f.close()
+        super().close()
+
+
+class _Stream:
+    """The temporary name, the rename when rows first arrive, the flush cadence and the
+    disk-space check shared by the HDF5 and CSV streams."""
+
+    def __init__(self, path, suffix: str, *, flush_seconds: float = 1.0,
+                 max_buffered_bytes: int = 64 << 20):
+        self.path = Path(path)
+        folder = _folder(self.path)
+        if not folder.is_dir():
+            raise InputError(f"expected an existing folder for output {str(self.path)!r}, got "
+                             f"missing folder {str(folder)!r}")
+        remove_stale_temporaries(self.path)
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{_TMP_TAG}-{os.getpid()}.",
+                                       suffix=suffix, dir=folder)
+        except OSError as exc:
+            raise OSError(f"cannot write {str(self.path)!r}: {exc.strerror or exc}") from None
+        os.close(fd)
+        os.chmod(tmp, 0o666 & ~_UMASK)
+        self.tmp = Path(tmp)
+        self.folder = folder
+        self.flush_seconds = float(flush_seconds)
+        self.max_buffered_bytes = int(max_buffered_bytes)
+        self.published = False
+        self.closed = False
+        self.rows = 0                     # rows committed (flushed) so far
+        self.n_flushes = 0
+        self._buffered_bytes = 0
+        self._last_flush = time.monotonic()
+
+    # -- to be provided by subclasses: _write_buffered() -> rows added, _sync(), _close_file()
+    def _publish(self) -> None:
+        if not self.published:
+            os.replace(self.tmp, self.path)
+            self.published = True
+
+    def _check_space(self, nbytes: int) -> None:
+        try:
+            st = os.statvfs(self.folder)
+        except OSError:
+            return
+        if st.f_bavail * st.f_frsize < 2 * nbytes + _HEADROOM:
+            raise DiskFullError(f"disk full writing {str(self.path)!r} ({self._kept()})")
+
+    def _kept(self) -> str:
+        return (f"{self.rows} rows written, readable" if self.rows and self.published
+                else "nothing written")
+
+    def _disk_error(self, exc) -> DiskFullError:
+        err = getattr(self, "_guard", None)
+        err = err.error if err is not None and err.error is not None else exc
+        if isinstance(err, OSError) and err.errno in _DISK_ERRNOS:
+            what = "disk full" if err.errno != errno.EIO else "I/O error"
+        else:
+            what = "cannot write"
+        return DiskFullError(f"{what} writing {str(self.path)!r} ({self._kept()})")
+
+    def maybe_flush(self) -> None:
+        """Flush when ``flush_seconds`` have passed since the last flush or the buffer is
+        large."""
+        if (self._buffered_bytes >= self.max_buffered_bytes
+                or time.monotonic() - self._last_flush >= self.flush_seconds):
+            self.flush()
+
+    def flush(self) -> None:
+        """Append the buffered rows to the file and hand them to the operating system."""
+        self._last_flush = time.monotonic()
+        if not self._buffered_bytes:
+            return
+        self._check_space(self._buffered_bytes)
+        try:
+            added = self._write_buffered()
+        except DiskFullError:
+            raise
+        except (OSError, RuntimeError, ValueError) as exc:
+            self._fail()
+            raise self._disk_error(exc) from None
+        self._buffered_bytes = 0
+        self.rows += added
+        self.n_flushes += 1
+        if self.rows:
+            self._publish()
+
+    def close(self, *, keep_empty: bool = True) -> None:
+        """Flush, mark the file complete and close it. The target is replaced by the file
+        when it holds rows, or when ``keep_empty`` (a clean end); otherwise the temporary
+        file is removed and an existing target kept."""
+        if self.closed:
+            return
+        try:
+            self.flush()
+            self._finish()
+        except DiskFullError:
+            self._fail()
+            raise
+        except (OSError, RuntimeError, ValueError) as exc:
+            self._fail()
+            raise self._disk_error(exc) from None
+        self.closed = True
+        if self.rows or keep_empty:
+            self._publish()
+        else:
+            self.discard()
+
+    def abort(self) -> None:
+        """Stop after an error: what is buffered is flushed when the file still takes it, the
+        file is closed without being marked complete; a file that never held a row is
+        removed (an existing target is left as it was)."""
+        if self.closed:
+            return
+        with contextlib.suppress(Exception):
+            if self._buffered_bytes:
+                self.flush()
+        self._fail()
+        if not self.published:
+            self.discard()
+
+    def discard(self) -> None:
+        with contextlib.suppress(OSError):
+            if not self.published:
+                os.unlink(self.tmp)
+
+    def _fail(self) -> None:
+        self.closed = True
+        with contextlib.suppress(Exception):
+            self._close_file()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, typ, exc, tb):
+        if typ is None:
+            self.close()
+        else:
+            self.abort()
+
+
+class H5Stream(_Stream):
+    """An HDF5 file of resizable datasets appended in chunks (see the module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        Target file.
+    attrs : dict
+        Root attributes (``complete`` and ``rows`` are added).
+    chunk_rows : int or dict
+        Rows per HDF5 chunk (per group name when a dict; default 1500).
+    flush_seconds : float
+        Seconds between flushes.
+
+    Datasets are created at the first :meth:`append` to their group, with the trailing shape
+    and dtype of the arrays given; every dataset of a group must grow by the same rows.
+    """
+
+    def __init__(self, path, attrs: dict | None = None, *, chunk_rows=1500,
+                 flush_seconds: float = 1.0, max_buffered_bytes: int = 64 << 20):
+        import h5py
+
+        super().__init__(path, ".h5", flush_seconds=flush_seconds,
+                         max_buffered_bytes=max_buffered_bytes)
+        self.chunk_rows = chunk_rows
+        self._guard = _GuardedFile(self.tmp)
+        try:
+            self._f = h5py.File(self._guard, "w")
+            for k, v in (attrs or {}).items():
+                self._f.attrs[k] = v
+            self._f.attrs["complete"] = False
+            self._f.flush()
+        except BaseException:
+            self._fail()
+            self.discard()
+            raise
+        self._groups: dict = {}       # group name -> {dataset name: list of arrays}
+        self._group_rows: dict = {}
+
+    def group_attrs(self, group: str, attrs: dict) -> None:
+        """Set attributes of a group (created if needed)."""
+        g = self._f.require_group(group) if group not in ("", "/") else self._f
+        for k, v in attrs.items():
+            g.attrs[k] = v
+
+    def append(self, group: str, arrays: dict) -> None:
+        """Buffer rows of every dataset of ``group`` ("/" for the root)."""
+        buf = self._groups.get(group)
+        if buf is None:
+            buf = self._groups[group] = {k: [] for k in arrays}
+            self._group_rows[group] = 0
+        n = None
+        for k, v in arrays.items():
+            v = np.asarray(v)
+            if n is None:
+                n = v.shape[0]
+            elif v.shape[0] != n:
+                raise InputError(f"expected {n} rows for every dataset of {group!r}, got "
+                                 f"{v.shape[0]} for {k!r}")
+            buf[k].append(v)
+            self._buffered_bytes += v.nbytes
+
+    def _chunk(self, group) -> int:
+        c = self.chunk_rows
+        return int(c.get(group, 1500) if isinstance(c, dict) else c)
+
+    def _write_buffered(self) -> int:
+        f = self._f
+        added = {}
+        for group, buf in self._groups.items():
+            g = f.require_group(group) if group not in ("", "/") else f
+            n_new = None
+            for k, parts in buf.items():
+                if not parts:
+                    continue
+                data = np.concatenate(parts) if len(parts) > 1 else parts[0]
+                if k not in g:
+                    g.create_dataset(k, shape=(0,) + data.shape[1:],
+                                     maxshape=(None,) + data.shape[1:], dtype=data.dtype,
+                                     chunks=(self._chunk(group),) + data.shape[1:])
+                ds = g[k]
+                n0 = self._group_rows[group]
+                ds.resize(n0 + data.shape[0], axis=0)
+                ds[n0:] = data
+                n_new = data.shape[0]
+                parts.clear()
+            if n_new:
+                added[group] = n_new
+        f.flush()                                    # the data, then the committed counts
+        for group, n_new in added.items():
+            self._group_rows[group] += n_new
+            g = f[group] if group not in ("", "/") else f
+            g.attrs["rows"] = self._group_rows[group]
+        f.flush()
+        return max(added.values(), default=0)
+
+    def group_rows(self, group: str) -> int:
+        """Rows of ``group`` committed so far."""
+        return self._group_rows.get(group, 0)
+
+    def _finish(self) -> None:
+        for group in self._groups:
+            g = self._f[group] if group not in ("", "/") else self._f
+            g.attrs["rows"] = self._group_rows[group]
+        self._f.attrs["complete"] = True
+        self._f.close()
+        self._guard.sync()
+        if self._guard.error is not None:
+            raise self._guard.error
+        self._guard.close()
+
+    def _close_file(self) -> None:
+        with contextlib.suppress(Exception):
+            self._f.close()
+        self._guard.close()
+
+
+class CsvStream(_Stream):
+    """A text file appended line by line (a header first). A CSV file cannot say whether its
+    session ended cleanly; a line torn by a kill is dropped by the readers."""
+
+    def __init__(self, path, header: str, *, flush_seconds: float = 1.0,
+                 max_buffered_bytes: int = 64 << 20):
+        super().__init__(path, ".csv", flush_seconds=flush_seconds,
+                         max_buffered_bytes=max_buffered_bytes)
+        self._fh = open(self.tmp, "w", encoding="utf-8")  # noqa: SIM115 - closed in close()
+        self._parts: list = [header.rstrip("\n") + "\n"]
+        self._n_rows = 0
+        self._buffered_bytes = len(self._parts[0])
+
+    def append(self, text: str, rows: int) -> None:
+        """Buffer ``rows`` lines of text (each ending with a newline)."""
+        self._parts.append(text)
+        self._n_rows += int(rows)
+        self._buffered_bytes += len(text)
+
+    def _write_buffered(self) -> int:
+        self._fh.write("".join(self._parts))
+        self._fh.flush()
+        self._parts = []
+        n, self._n_rows = self._n_rows, 0
+        return n
+
+    def _finish(self) -> None:
+        self._fh.flush()
+        with contextlib.suppress(OSError):
+            os.fsync(self._fh.fileno())
+        self._fh.close()
+
+    def _close_file(self) -> None:
+        with contextlib.suppress(Exception):
+            self._fh.close()
