@@ -98,9 +98,11 @@ def test_info_numbers_agree_with_the_files(made, capsys):
     assert poses["meta"]["hemisphere"] == "per source fixture"
     raw = info("raw")
     assert raw["duration_s"] == pytest.approx(0.2, abs=0.01) and raw["has_truth"]
-    log = info("log_h5")["sensors"]["sensor"]
+    whole = info("log_h5")
+    (log,) = whole["sensors"].values()          # one sensor, named as the session named it
     with h5py.File(made["log_h5"]) as f:
-        assert log["n_samples"] == len(f["status"]) > 0
+        assert log["n_samples"] == whole["rows"] == len(f["status"]) > 0
+    assert whole["complete"] is True
     two = info("log_csv")["sensors"]
     assert sorted(two) == ["Probe", "Reference"]
     pairs, ndi = info("pairs"), info("ndi")

@@ -198,7 +198,16 @@ def _h5_rows(group) -> int | None:
     return None if r is None else int(r)
 
 
+#: Datasets every sensor of a log has; a log without them is refused, not read as empty.
+REQUIRED_LOG_KEYS = ("times", "status")
+
+
 def _read_group(g, keys) -> dict:
+    lacking = [k for k in REQUIRED_LOG_KEYS if k not in g]
+    if lacking:
+        raise InputError(f"expected datasets {' and '.join(REQUIRED_LOG_KEYS)} per sensor in "
+                         f"a track log, got none named {', '.join(lacking)} in "
+                         f"{g.file.filename!r}{'' if g.name == '/' else ' ' + g.name}")
     n = _h5_rows(g)
     lengths = [g[k].shape[0] for k in keys if k in g and g[k].ndim >= 1]
     if lengths:
@@ -235,6 +244,10 @@ def read_track_log(path) -> TrackLogData:
             if int(f.attrs.get("version", 1)) >= 2:
                 names = tuple(str(s.decode() if isinstance(s, bytes) else s)
                               for s in f.attrs["sensors"])
+                missing = [n for n in names if f"sensors/{n}" not in f]
+                if missing and complete:   # a killed session may not have made them yet
+                    raise InputError(f"expected a group /sensors/<name> per sensor in the "
+                                     f"track log {str(path)!r}, got none for {missing}")
                 arrays = {n: (_read_group(f[f"sensors/{n}"], LOG_KEYS)
                               if f"sensors/{n}" in f else
                               {k: np.empty(0) for k in LOG_KEYS}) for n in names}
