@@ -10,9 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._compile_notice import PLANAR_KERNELS, announce_compile
 from .._errors import InputError
 from . import command_help
-from ._common import add_common, emit
+from ._common import add_common, emit, stage
 
 __all__ = ["load_dataset", "register", "run"]
 
@@ -105,6 +106,7 @@ def _planar(args) -> int:
         raise InputError(f"expected --holdout checkerboard in planar mode, got "
                          f"{args.holdout!r}")
     t0 = time.perf_counter()
+    stage(args, f"reading grid {args.dataset} ...")
     data = read_grid(args.dataset)
     check_grid_units(data, args.sensor_length)
     if args.start is not None:
@@ -135,7 +137,11 @@ def _planar(args) -> int:
         return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
                         data.coil_names)
 
+    announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
+    stage(args, f"fitting the gains and offsets of {data.couplings.shape[1]} coils on "
+                f"{int(fit_mask.sum())} grid points ...")
     fit = fit_planar(subset(fit_mask), start_model, fit_tilt=args.tilt)
+    stage(args, "solving the grid points with the fitted board (5-DOF) to score it ...")
     summary = {"mode": "planar", "output": args.output, "board": fit.model.board.name,
                "start": args.start, **fit.to_dict(),
                "insample": planar_accuracy(fit.model, subset(fit_mask))}
@@ -182,6 +188,9 @@ def _improved(args, dataset, start, start_path) -> int:
     from ..io import atomic_path, write_calibration
 
     t0 = time.perf_counter()
+    announce_compile(args, "solver kernels")
+    stage(args, f"fitting the improved rig and octupole model on the md rows of {args.dataset} "
+                "...")
     imp = improved_calibration(dataset, start, None)
     cal = imp.to_calibration(start)
     if args.output:
@@ -217,6 +226,7 @@ def _reference(args) -> int:
     from ..io import atomic_path, write_calibration
 
     t0 = time.perf_counter()
+    stage(args, f"reading {args.dataset} ...")
     dataset = load_dataset(args.dataset)
     note = None
     if "reference_poses" not in dataset.extra:
@@ -224,6 +234,8 @@ def _reference(args) -> int:
         note = ("no reference poses in the dataset: the stage motion of the home fixture "
                 "combination's md rows is the reference")
     start, start_path = _reference_start(args, dataset)
+    announce_compile(args, "solver kernels")
+    stage(args, f"fitting the coil model and X, Y of A X = Y B on {len(dataset)} poses ...")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = fit_reference(dataset, start, hemisphere=args.hemisphere,
@@ -283,6 +295,7 @@ def run(args) -> int:
     if args.mode == "reference":
         return _reference(args)
     t0 = time.perf_counter()
+    stage(args, f"reading {args.dataset} ...")
     dataset = load_dataset(args.dataset)
     start_path = args.start
     if start_path is None:
@@ -298,6 +311,8 @@ def run(args) -> int:
     if args.mode == "improved":
         return _improved(args, dataset, start, start_path)
     mode = get_mode(args.mode)
+    announce_compile(args, "solver kernels")
+    stage(args, f"fitting mode {mode.name} from {start_path} ...")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = fit(dataset, start, mode, select=not args.all_rows, optimize=_groups(args.optimize),
@@ -310,6 +325,7 @@ def run(args) -> int:
     corr = None
     if solver != "none":
         rows = dataset if args.all_rows else dataset.select(select_rows(dataset, mode))
+        stage(args, f"fitting the output correction on {len(rows)} rows ({solver} poses) ...")
         corr = fit_output_correction(rows, cal, solver=solver)
         stats.update(num_invalid=corr.n_invalid, uncorrected=corr.rms_uncorrected,
                      corrected=corr.rms_corrected, correction_method=corr.method)

@@ -5,7 +5,8 @@
 
 from __future__ import annotations
 
-from ._common import add_common, emit
+from .._compile_notice import announce_compile
+from ._common import add_common, emit, stage
 
 __all__ = ["add_table_commands", "run_table3", "run_table4"]
 
@@ -45,6 +46,9 @@ def _cell(c) -> str:
 def run_table3(args) -> int:
     from ..paper import TABLE3_COLUMNS, TABLE3_ROWS, reproduce_table3
 
+    announce_compile(args, "solver kernels")
+    stage(args, f"reproducing Table III on {args.folder}: import, three calibrations and their "
+                "tests ...")
     out = reproduce_table3(args.folder).to_dict()
     human = [(f"Table III on {args.folder}: per test set trans rms/max (mm), rot rms/max (deg); "
               "paper below")]
@@ -63,6 +67,9 @@ def run_table3(args) -> int:
 def run_table4(args) -> int:
     from ..paper import reproduce_table4
 
+    announce_compile(args, "solver kernels")
+    stage(args, f"reproducing Table IV on {args.folder}: import, calibration, sweep solves and "
+                "fixture re-optimisation ...")
     out = reproduce_table4(args.folder, correction=not args.uncorrected).to_dict()
     human = [(f"Table IV on {args.folder} ({out['condition']}; {out['n_curves']['xyz']} "
               f"translation and {out['n_curves']['rot']} rotation sweeps): ours (paper)")]

@@ -32,6 +32,7 @@ def read_board_calibration(path):
 def solve_board(args, cal) -> int:
     import h5py
 
+    from .._compile_notice import PLANAR_KERNELS, announce_compile
     from ..io import open_dataset_couplings
     from ..solve._planar import solve_planar
     from ._common import emit
@@ -50,6 +51,7 @@ def solve_board(args, cal) -> int:
     # its coils' normal (a --hemisphere default meant for dipole sources does not apply)
     rule = {k: getattr(args, k) for k in ("max_relative_residual", "max_range")
             if getattr(args, k, None) is not None}
+    announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset, real=True) as reader, \
             h5py.File(args.dataset, "r") as side:
