@@ -1,0 +1,73 @@
+"""Long commands say what they do before they do it: stage lines on stderr (plain lines, also
+when stderr is not a terminal and no bar is drawn), the compile notice exactly when the kernels'
+cache is cold, nothing with --quiet."""
+
+import json
+
+import pytest
+
+from openemt._compile_notice import cold_kernels
+from openemt.cli import main
+
+
+def _lines(err):
+    return [s for s in err.splitlines() if s.strip()]
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    d = tmp_path_factory.mktemp("progress")
+    assert main(["simulate", "--preset", "concentric", "--pattern", "md", "--snr-db", "80",
+                 "--seed", "2", "-o", str(d / "sim.h5"), "--truth-calibration",
+                 str(d / "truth.json"), "--quiet"]) == 0
+    return d
+
+
+def test_simulate_says_what_it_does(tmp_path, capsys):
+    out = tmp_path / "s.h5"
+    assert main(["simulate", "--preset", "concentric", "--pattern", "md", "-o", str(out)]) == 0
+    lines = _lines(capsys.readouterr().err)
+    assert lines[0] == f"simulating preset concentric -> {out} ..."
+    assert lines[-1].startswith("simulated ")         # the summary comes after the stage line
+
+
+def test_calibrate_stage_lines_and_compile_notice(sim, tmp_path, capsys):
+    cold = bool(cold_kernels())
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", str(sim / "sim.h5"), "--from", str(sim / "truth.json"),
+                 "--mode", "XYZ", "-o", str(out), "--json"]) == 0
+    cap = capsys.readouterr()
+    summary = json.loads(cap.out)
+    assert summary["mode"] == "XYZ"
+    lines = _lines(cap.err)
+    notice = [s for s in lines if s.startswith("compiling ")]
+    assert notice == (["compiling solver kernels (first run only, about 30 s)"] if cold else [])
+    stages = [s for s in lines if s.endswith(" ...")]
+    assert stages == [f"reading {sim / 'sim.h5'} ...",
+                      f"fitting mode XYZ from {sim / 'truth.json'} ...",
+                      (f"fitting the output correction on {summary['num_points']} rows "
+                       "(lm poses) ...")]
+    # each stage line comes before the results it announces
+    assert lines.index(stages[-1]) < lines.index(next(s for s in lines if s.startswith("XYZ:")))
+
+
+def test_report_stage_lines(sim, tmp_path, capsys):
+    out = tmp_path / "r.html"
+    assert main(["report", str(sim / "sim.h5"), "--calibration", str(sim / "truth.json"),
+                 "-o", str(out)]) == 0
+    lines = _lines(capsys.readouterr().err)
+    assert f"solving and scoring the 852 rows of sim.h5 with {sim / 'truth.json'}, drawing the " \
+           "figures ..." in lines
+    assert lines.index(f"writing {out} ...") < lines.index(
+        next(s for s in lines if s.startswith("report: ")))
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "--preset", "concentric", "--pattern", "md", "-o", "{tmp}/q.h5"],
+    ["calibrate", "{sim}/sim.h5", "--from", "{sim}/truth.json", "--mode", "XYZ", "-o",
+     "{tmp}/q.json"],
+])
+def test_quiet_says_nothing(argv, sim, tmp_path, capsys):
+    argv = [a.format(tmp=tmp_path, sim=sim) for a in argv]
+    assert main([*argv, "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
