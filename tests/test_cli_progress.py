@@ -42,6 +42,8 @@ def test_calibrate_stage_lines_and_compile_notice(sim, tmp_path, capsys):
     lines = _lines(cap.err)
     notice = [s for s in lines if s.startswith("compiling ")]
     assert notice == (["compiling solver kernels (first run only, about 30 s)"] if cold else [])
+    # the kernels it announces are the ones it compiles: the next run is silent about them
+    assert cold_kernels() == []
     stages = [s for s in lines if s.endswith(" ...")]
     assert stages == [f"reading {sim / 'sim.h5'} ...",
                       f"fitting mode XYZ from {sim / 'truth.json'} ...",

@@ -2,6 +2,7 @@
 
 import json
 
+from openemt._compile_notice import SOLVER_KERNELS, cold_kernels
 from openemt.cli import main
 
 
@@ -16,6 +17,8 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert err[0] == f"openemt demo: simulated 'dipole-approx' tracker -> {out}/"
     stages = [s.split(" ")[0] for s in err if s.endswith(" ...")]
     assert stages == ["simulating", "calibrating", "fitting", "solving", "writing"]
+    # what the compile notice checks is what the demo compiled: a second run says nothing
+    assert cold_kernels(SOLVER_KERNELS) == []
     # every failed or surprising row says why, in the summary and on stderr
     assert rows["concentric + Kim18"]["n_invalid"] == summary["n_test"]
     assert rows["concentric + Kim18"]["reason"].startswith(

@@ -21,14 +21,14 @@ import sys
 __all__ = ["LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS", "announce_compile",
            "cold_kernels"]
 
-#: The dipole model, closed forms and LM solver (``solve``, ``calibrate``, ``demo``, ...).
+#: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
+#: ``reproduce``, ``demo``).
 SOLVER_KERNELS = (
     "openemt.field._dipole_kernel:dipole_batch",
     "openemt.field._dipole_kernel:dipole_batch_jac",
     "openemt.solve._closed_form:_spectral_norms",
     "openemt.solve._closed_form:_closed_form_batch",
     "openemt.solve._lm:lm_batch",
-    "openemt.solve._lm:lm_track",
 )
 
 #: The finite-coil (board) model and its 5-DOF solver (``calibrate --mode planar``, board
@@ -38,8 +38,10 @@ PLANAR_KERNELS = (
     "openemt.solve._planar:_batch",
 )
 
-#: The live path beside the solver: tracking filter and OpenIGTLink packing.
+#: The live path beside the solver kernels: sample-by-sample LM tracking, tracking filter and
+#: OpenIGTLink packing (``track`` calls ``SOLVER_KERNELS + LIVE_KERNELS``).
 LIVE_KERNELS = (
+    "openemt.solve._lm:lm_track",
     "openemt.live._filter:_kalman_kernel",
     "openemt.live._igtl:_pack_kernel",
 )

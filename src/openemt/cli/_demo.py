@@ -26,9 +26,6 @@ from ._common import add_common, emit, progress, stage
 
 PRESETS = ("dipole-approx", "concentric")
 
-#: The compiled kernels the demo calls (it never tracks sample by sample).
-DEMO_KERNELS = tuple(k for k in SOLVER_KERNELS if not k.endswith(":lm_track"))
-
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help=command_help("demo"),
@@ -55,7 +52,7 @@ def run(args) -> int:
     out = Path(args.output_dir)
     # the first line comes before any heavy import, the compile notice before any compiling
     stage(args, f"openemt demo: simulated '{args.preset}' tracker -> {out}/")
-    announce_compile(args, "solver kernels", kernels=DEMO_KERNELS)
+    announce_compile(args, "solver kernels", kernels=SOLVER_KERNELS)
 
     from ..calibrate import (
         fit,

@@ -44,11 +44,12 @@ GLOSSARY = {
     "F_st": f"stage {_FIX}: stage base -> source-fixture base",
     "F_se": f"sensor {_FIX}: sensor coils -> sensor mover",
     "fixture chain": _CHAIN,
-    "status": "fitted: estimated by this calibration; fixed: held at its start value in this "
-              "calibration's mode; fixed (gauge): held by the gauge that makes the model unique "
-              "(reference coil at the origin with its moment along +z, the X coil's moment "
-              "without a y component; MacLachlan et al. 2025, eq. 7). Fixed parameters have no "
-              "standard error",
+    "status": "fitted: estimated by this calibration; fixed (gauge): held by the gauge that "
+              "makes the model unique (the reference coil at the origin with its moment along "
+              "+z; MacLachlan et al. 2025, eq. 7); fixed: held at its start value in this "
+              "calibration's mode (e.g. the y component of the X coil's moment, which fixes the "
+              "frame's rotation about z, and the source reference gain). Fixed parameters have "
+              "no standard error",
     "std_error": "standard error of a fitted parameter, from the Jacobian of the calibration "
                  "fit at the solution scaled by the residual variance",
     "truth": "the simulated tracker's true value: the dipole equivalent of its finite coils and "

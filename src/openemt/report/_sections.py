@@ -244,8 +244,8 @@ def paper_document(c, parameters, title: str | None = None) -> Report:
     rep.table(parameters, digits=6, caption=_PARAMETER_CAPTION)
     rep.paragraph("Standard errors from the Jacobian of the calibration fit at the solution "
                   "(scaled by the residual variance). Fixed parameters (the gauge: Z-coil "
-                  "positions, Z-coil transverse moments, Y component of the X moments; and what "
-                  "the mode holds, e.g. the source Z gain) have none.", note=True)
+                  "positions and transverse moments; and what the mode holds: the Y component "
+                  "of the X moments, the source Z gain, ...) have none.", note=True)
     glossary_section(rep)
     return rep
 
