@@ -63,8 +63,8 @@ def invalid_reason(n_invalid: int, n: int, limit: float = ILEMT_VALID_RESNORM) -
 
 def concentric_reason(model, concentric_model, poses, n_invalid: int,
                       limit: float = ILEMT_VALID_RESNORM) -> str | None:
-    """Why a concentric model's Kim18 rows are invalid, if the concentric approximation of the
-    non-concentric ``model`` explains it; else None.
+    """Why a concentric model's Kim18 rows are invalid, as far as the concentric approximation
+    of the non-concentric ``model`` explains it; else None.
 
     Parameters
     ----------
@@ -80,21 +80,27 @@ def concentric_reason(model, concentric_model, poses, n_invalid: int,
     Returns
     -------
     str or None
-        None when nothing failed, when ``concentric_model`` is not concentric or ``model`` is,
-        or when noise-free couplings of ``model`` leave fewer invalid rows than half the
-        failures (then the approximation is not the cause).
+        The expected failure when noise-free couplings of ``model`` at ``poses`` leave at least
+        half as many invalid rows as failed; the :func:`invalid_reason` with the share the
+        approximation accounts for when they leave fewer; None when nothing failed, when
+        ``concentric_model`` is not concentric or ``model`` is, or when noise-free couplings
+        leave no invalid row (the approximation is not the cause).
     """
     if n_invalid <= 0 or not _is_concentric(concentric_model) or _is_concentric(model):
         return None
     misfit = concentric_misfit(model, concentric_model, poses)
-    k = int((~(misfit < limit)).sum())
-    if k < max(1, n_invalid // 2):
-        return None
+    k, n = int((~(misfit < limit)).sum()), len(misfit)
     so, se = coil_spread(model.L_so) * 1e3, coil_spread(model.L_se) * 1e3
-    return (f"expected: Kim18 assumes concentric coils, but the dipole calibration places the "
-            f"source coils up to {so:.1f} mm apart (sensor coils {se:.1f} mm); on noise-free "
-            f"couplings of that model at the test poses the concentric model already leaves a "
-            f"residue >= {limit:g} (the validity rule) in {k} of {len(misfit)} rows")
+    if k >= max(1, n_invalid // 2):
+        return (f"expected: Kim18 assumes concentric coils, but the dipole calibration places "
+                f"the source coils up to {so:.1f} mm apart (sensor coils {se:.1f} mm); on "
+                f"noise-free couplings of that model at the test poses the concentric model "
+                f"already leaves a residue >= {limit:g} (the validity rule) in {k} of {n} rows")
+    if k > 0:
+        return (f"{invalid_reason(n_invalid, n, limit)}; the concentric approximation of source "
+                f"coils {so:.1f} mm apart (sensor coils {se:.1f} mm) alone leaves {k} such rows "
+                "on noise-free couplings")
+    return None
 
 
 def correction_reason(uncorrected: dict, corrected: dict) -> str | None:
