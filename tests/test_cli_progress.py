@@ -23,14 +23,6 @@ def sim(tmp_path_factory):
     return d
 
 
-def test_simulate_says_what_it_does(tmp_path, capsys):
-    out = tmp_path / "s.h5"
-    assert main(["simulate", "--preset", "concentric", "--pattern", "md", "-o", str(out)]) == 0
-    lines = _lines(capsys.readouterr().err)
-    assert lines[0] == f"simulating preset concentric -> {out} ..."
-    assert lines[-1].startswith("simulated ")         # the summary comes after the stage line
-
-
 def test_calibrate_stage_lines_and_compile_notice(sim, tmp_path, capsys):
     cold = bool(cold_kernels())
     out = tmp_path / "cal.json"
@@ -45,12 +37,21 @@ def test_calibrate_stage_lines_and_compile_notice(sim, tmp_path, capsys):
     # the kernels it announces are the ones it compiles: the next run is silent about them
     assert cold_kernels() == []
     stages = [s for s in lines if s.endswith(" ...")]
-    assert stages == [f"reading {sim / 'sim.h5'} ...",
-                      f"fitting mode XYZ from {sim / 'truth.json'} ...",
+    assert stages == [f"fitting mode XYZ from {sim / 'truth.json'} ...",
                       (f"fitting the output correction on {summary['num_points']} rows "
                        "(lm poses) ...")]
     # each stage line comes before the results it announces
     assert lines.index(stages[-1]) < lines.index(next(s for s in lines if s.startswith("XYZ:")))
+
+
+def test_bad_input_is_still_one_line(sim, tmp_path, capsys):
+    # stage lines come after the inputs are read: a refused input is the error line alone
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    assert main(["calibrate", str(sim / "sim.h5"), "--from", str(bad), "-o",
+                 str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1
 
 
 def test_report_stage_lines(sim, tmp_path, capsys):
@@ -65,9 +66,9 @@ def test_report_stage_lines(sim, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv", [
-    ["simulate", "--preset", "concentric", "--pattern", "md", "-o", "{tmp}/q.h5"],
     ["calibrate", "{sim}/sim.h5", "--from", "{sim}/truth.json", "--mode", "XYZ", "-o",
      "{tmp}/q.json"],
+    ["report", "{sim}/sim.h5", "--calibration", "{sim}/truth.json", "-o", "{tmp}/q.html"],
 ])
 def test_quiet_says_nothing(argv, sim, tmp_path, capsys):
     argv = [a.format(tmp=tmp_path, sim=sim) for a in argv]

@@ -106,7 +106,6 @@ def _planar(args) -> int:
         raise InputError(f"expected --holdout checkerboard in planar mode, got "
                          f"{args.holdout!r}")
     t0 = time.perf_counter()
-    stage(args, f"reading grid {args.dataset} ...")
     data = read_grid(args.dataset)
     check_grid_units(data, args.sensor_length)
     if args.start is not None:
@@ -226,7 +225,6 @@ def _reference(args) -> int:
     from ..io import atomic_path, write_calibration
 
     t0 = time.perf_counter()
-    stage(args, f"reading {args.dataset} ...")
     dataset = load_dataset(args.dataset)
     note = None
     if "reference_poses" not in dataset.extra:
@@ -295,7 +293,6 @@ def run(args) -> int:
     if args.mode == "reference":
         return _reference(args)
     t0 = time.perf_counter()
-    stage(args, f"reading {args.dataset} ...")
     dataset = load_dataset(args.dataset)
     start_path = args.start
     if start_path is None:

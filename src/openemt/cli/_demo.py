@@ -50,6 +50,7 @@ def run(args) -> int:
     if not np.isfinite(args.stage_error_um) or args.stage_error_um < 0:
         raise InputError(f"expected --stage-error-um >= 0, got {args.stage_error_um}")
     out = Path(args.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
     # the first line comes before any heavy import, the compile notice before any compiling
     stage(args, f"openemt demo: simulated '{args.preset}' tracker -> {out}/")
     announce_compile(args, "solver kernels", kernels=SOLVER_KERNELS)
@@ -66,7 +67,6 @@ def run(args) -> int:
     from ..report import characterization_document, glossary_section, simulation_section
     from ..simulate import get_preset, simulate, truth_calibration
 
-    out.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
     bar = progress(total=5, desc="openemt demo", args=args, unit="step")
 

@@ -66,8 +66,10 @@ def _read_dataset(path: Path):
 
 
 def run(args) -> int:
-    from ..io import read_calibration
+    from ..io import import_ilemt_folder, read_calibration
     from ..paper import characterization_report, load_paper_run, paper_report
+    from ..paper._characterization import check_inputs
+    from ..paper._run import check_paper_folder
 
     if args.source and args.dataset:
         raise InputError(f"expected one input (positional or --dataset), got {args.source!r} "
@@ -81,9 +83,11 @@ def run(args) -> int:
         if args.dataset or args.calibration or args.concentric or args.holdout:
             raise InputError("expected no --dataset/--calibration/--concentric/--holdout with an "
                              f"ILEMT folder, got them with {str(src)!r}")
+        check_paper_folder(src)              # bad input refused before any stage line
+        dataset = import_ilemt_folder(src)
         announce_compile(args, "solver kernels")
-        stage(args, f"importing {src} and running the paper's calibration sequence ...")
-        run = load_paper_run(src)
+        stage(args, f"running the paper's calibration sequence on {src} ...")
+        run = load_paper_run(src, dataset=dataset)
         stage(args, "solving and scoring Tables II, III and IV, drawing the figures ...")
         built = paper_report(run, title=args.title)
     else:
@@ -101,6 +105,7 @@ def run(args) -> int:
                              f"got it with the dipole calibration {args.calibration!r}")
         ds = _read_dataset(src)
         conc = read_calibration(args.concentric) if args.concentric else None
+        check_inputs(ds, cal, conc, args.reference)   # refused before any stage line
         announce_compile(args, "solver kernels")
         stage(args, f"solving and scoring the {len(ds)} rows of {src.name} with "
                     f"{args.calibration}, drawing the figures ...")
@@ -141,7 +146,6 @@ def _board_report(args, src: Path, cal, out_path: Path) -> int:
     if args.concentric:
         raise InputError(f"expected no --concentric with a finite-coil calibration (the 5-DOF "
                          f"solver starts from its seed grid), got {args.concentric!r}")
-    stage(args, f"reading grid {src} ...")
     data = read_grid(src)
     n = cal.model.n_coils
     if data.couplings.shape[1] != n:

@@ -74,13 +74,17 @@ def _simulated(args) -> int:
 
 
 def run_table2(args) -> int:
+    from ..io import import_ilemt_folder
     from ..paper import reproduce_table2
+    from ..paper._run import check_paper_folder, load_paper_run
 
+    check_paper_folder(args.folder)      # bad input refused before any stage line
+    dataset = import_ilemt_folder(args.folder)
     announce_compile(args, "solver kernels")
-    stage(args, f"reproducing Table II on {args.folder}: import, the paper's calibration "
-                "sequence, output correction and test solves"
+    stage(args, f"reproducing Table II on {args.folder}: the paper's calibration sequence, "
+                "output correction and test solves"
                 + (", then the improved calibration" if args.improved else "") + " ...")
-    out = reproduce_table2(args.folder, improved=args.improved,
+    out = reproduce_table2(load_paper_run(args.folder, dataset=dataset), improved=args.improved,
                            cross_validation=args.cv).to_dict()
     human = [(f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
               "rot rms/max")]

@@ -8,7 +8,7 @@ import numpy as np
 
 from .._errors import InputError
 from . import command_help
-from ._common import add_common, emit, stage
+from ._common import add_common, emit
 
 __all__ = ["parse_distortion", "register", "run"]
 
@@ -138,9 +138,6 @@ def run(args) -> int:
         raise InputError(f"expected different paths for -o and --truth-calibration, got "
                          f"{str(args.output)!r} twice")
 
-    stage(args, f"simulating preset {args.preset}"
-                + (f" with a {args.reference} reference" if args.reference else "")
-                + f" -> {args.output} ...")
     if args.reference is not None:
         from ..simulate import reference_truth_calibration, simulate_reference
 

@@ -125,7 +125,8 @@ class CalibrationCharacterization(Result):
                 "table4": table4, "seconds": self.seconds}
 
 
-def _check(dataset, calibration, concentric, reference):
+def check_inputs(dataset, calibration, concentric, reference) -> None:
+    """Refuse inputs :func:`characterize_calibration` cannot use (one ``InputError`` line)."""
     from ..io import Calibration, Dataset
 
     if not isinstance(dataset, Dataset):
@@ -243,7 +244,7 @@ def characterize_calibration(dataset, calibration, *, concentric=None,
     from ..evaluate import characterize, fixture_labels
     from ..geometry import ground_truth_poses
 
-    _check(dataset, calibration, concentric, reference)
+    check_inputs(dataset, calibration, concentric, reference)
     t0 = time.perf_counter()
     cal = calibration
     groups = fixture_labels(dataset)

@@ -12,7 +12,7 @@ from ..calibrate._check import ILEMT_VALID_RESNORM
 from ..evaluate import STAGE_UNCERTAINTY_DEG, STAGE_UNCERTAINTY_MM
 from ._html import Report
 
-__all__ = ["GLOSSARY", "PLAIN_WORDS", "TERMS", "glossary_section"]
+__all__ = ["GLOSSARY", "PLAIN_WORDS", "PLANAR_GLOSSARY", "TERMS", "glossary_section"]
 
 _CHAIN = ("the ground-truth pose of a row on the test rig, P = F_so · so_J · F_st · st_J · F_se "
           "(MacLachlan et al. 2025, eq. 6): so_J and st_J are the known source-fixture rotation "
@@ -125,19 +125,48 @@ GLOSSARY = {
 #: Terms the report text uses: always defined.
 TERMS = ("u(P)", "residue", "LM", "Kim18", "DLT", "md, ld, sweep")
 
+#: The board (planar) report's symbols (docs/planar.md#reports).
+PLANAR_GLOSSARY = {
+    "points": "the grid points scored: all of them, or with a hold-out scheme the points the "
+              "calibration was fitted on (in-sample) and the others (held out)",
+    "n": "number of grid points scored",
+    "n_failed": "grid points without a converged 5-DOF solution (left out of the error "
+                "statistics, drawn as crosses in the error map)",
+    "position_rms_mm": "RMS of the position error magnitude over the converged points (mm): "
+                       "distance between the solved and the known sensor position",
+    "position_max_mm": "largest position error magnitude over the converged points (mm)",
+    "axis_rms_deg": "RMS angle between the solved and the known sensor coil axis (deg); a "
+                    "5-DOF sensor has no roll",
+    "status": "solver status of a grid point (docs/solve.md): converged, max_iterations, "
+              "invalid_input, ambiguous, out_of_volume or not_converged",
+    "samples": "grid points with that solver status",
+    "coil": "a source coil of the board, by its name in the board file",
+    **{f"residual, {k} (%)": f"RMS of measured minus model coupling of the coil at the known "
+                             f"poses of the {k} points, in percent of the coil's peak coupling "
+                             "on these points" for k in ("all points", "in-sample", "held out")},
+    "gain": "the coil's fitted gain (coupling per unit of the finite-coil model field)",
+    **{f"offset {a} (mm)": f"the coil's fitted position offset along {a} from the board file's "
+                           "geometry (mm)" for a in "xyz"},
+    **{f"tilt {a} (deg)": f"{a} component of the coil's fitted tilt, a rotation vector (axis "
+                          "times angle, deg); 'fixed' when the fit kept it (no --tilt)"
+       for a in "xyz"},
+}
+
 #: Column names that are plain words, not symbols.
 PLAIN_WORDS = frozenset({"parameter", "unit", "value"})
 
 
-def glossary_section(rep: Report, terms=TERMS) -> None:
+def glossary_section(rep: Report, terms=TERMS, glossary=None) -> None:
     """Define every symbol the report's tables showed, and ``terms``, at the end of ``rep``
-    (with a fixture, the fixture chain they belong to)."""
+    (with a fixture, the fixture chain they belong to); ``glossary`` defaults to
+    :data:`GLOSSARY`."""
+    glossary = GLOSSARY if glossary is None else glossary
     shown = set(rep.symbols) | set(terms)
     if shown & {"F_so", "F_st", "F_se"}:
         shown.add("fixture chain")
-    used = [k for k in GLOSSARY if k in shown]
+    used = [k for k in glossary if k in shown]
     rep.heading("Symbols and terms")
-    rep.definitions([(k, GLOSSARY[k]) for k in used],
+    rep.definitions([(k, glossary[k]) for k in used],
                     caption="Every symbol the tables above show, in words. Units: positions "
                             "and translations in mm, rotations in degrees, moments in gain "
                             "units.")
