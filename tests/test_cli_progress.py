@@ -48,10 +48,14 @@ def test_bad_input_is_still_one_line(sim, tmp_path, capsys):
     # stage lines come after the inputs are read: a refused input is the error line alone
     bad = tmp_path / "bad.json"
     bad.write_text("{")
-    assert main(["calibrate", str(sim / "sim.h5"), "--from", str(bad), "-o",
-                 str(tmp_path / "c.json")]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1
+    for argv in (["--from", str(bad)],                                  # unreadable start
+                 ["--from", str(sim / "truth.json"), "--mode", "trans_only"],  # no rows
+                 ["--from", str(sim / "truth.json"), "--optimize", "se_fix",
+                  "--freeze", "se_fix"]):                               # nothing left free
+        assert main(["calibrate", str(sim / "sim.h5"), *argv, "-o",
+                     str(tmp_path / "c.json")]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1, err
 
 
 def test_report_stage_lines(sim, tmp_path, capsys):

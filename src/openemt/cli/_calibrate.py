@@ -286,6 +286,7 @@ def _reference(args) -> int:
 
 def run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, select_rows
+    from ..calibrate._fit import check_fit_inputs
     from ..io import atomic_path, read_calibration, write_calibration
 
     if args.mode == "planar":
@@ -308,6 +309,8 @@ def run(args) -> int:
     if args.mode == "improved":
         return _improved(args, dataset, start, start_path)
     mode = get_mode(args.mode)
+    check_fit_inputs(dataset, start, mode, select=not args.all_rows,
+                     optimize=_groups(args.optimize), freeze=_groups(args.freeze))
     announce_compile(args, "solver kernels")
     stage(args, f"fitting mode {mode.name} from {start_path} ...")
     with warnings.catch_warnings(record=True) as caught:
