@@ -232,8 +232,6 @@ def _reference(args) -> int:
         note = ("no reference poses in the dataset: the stage motion of the home fixture "
                 "combination's md rows is the reference")
     start, start_path = _reference_start(args, dataset)
-    announce_compile(args, "solver kernels")
-    stage(args, f"fitting the coil model and X, Y of A X = Y B on {len(dataset)} poses ...")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = fit_reference(dataset, start, hemisphere=args.hemisphere,

@@ -140,7 +140,7 @@ def _why(row: dict) -> list:
 
 def _board_report(args, src: Path, cal, out_path: Path) -> int:
     """The report of a finite-coil calibration on grid data (docs/planar.md#reports)."""
-    from ..calibrate._planar import read_grid
+    from ..calibrate._planar import check_grid_units, read_grid
     from ..report import planar_report
 
     if args.concentric:
@@ -152,6 +152,7 @@ def _board_report(args, src: Path, cal, out_path: Path) -> int:
         raise InputError(f"expected grid data with {n} coil columns for the board calibration "
                          f"{str(args.calibration)!r}, got {data.couplings.shape[1]} in "
                          f"{src.name}")
+    check_grid_units(data)                 # refused before any stage line
     announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
     stage(args, f"solving the {len(data.points)} grid points with the board calibration "
                 "(5-DOF), drawing the error map ...")

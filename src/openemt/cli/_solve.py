@@ -78,8 +78,6 @@ def run(args) -> int:
                          f"got --solver {args.solver}")
     if args.chunk_rows < 1:
         raise InputError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
-    from .._compile_notice import announce_compile
-    announce_compile(args, "solver kernels")
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset) as reader:
         n = reader.shape[0]

@@ -51,7 +51,6 @@ def solve_board(args, cal) -> int:
     # its coils' normal (a --hemisphere default meant for dipole sources does not apply)
     rule = {k: getattr(args, k) for k in ("max_relative_residual", "max_range")
             if getattr(args, k, None) is not None}
-    announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset, real=True) as reader, \
             h5py.File(args.dataset, "r") as side:
@@ -62,6 +61,7 @@ def solve_board(args, cal) -> int:
         meta = {"dataset": str(args.dataset), "calibration": str(args.calibration),
                 "model": "finite", "board": model.board.name, "correction_applied": False}
         truth = _TruthScore(side.get("poses"), model, n, args.dataset)
+        announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
 
         def chunks():
             for start in range(0, n, args.chunk_rows):
