@@ -10,7 +10,12 @@ it asks each kernel's own numba cache (the dispatcher's cache index, where numba
 compiled to find out.
 
 Kernels are named ``"module:function"`` (the compiled dispatchers, ``cache=True``); the tuples
-below are the groups the commands use.
+below are the groups the commands use. A command calls :func:`announce_compile` after it has
+checked its inputs and before the first compiled call, e.g. live tracking::
+
+    announce_compile(args, "tracking kernels", kernels=SOLVER_KERNELS + LIVE_KERNELS)
+
+so that bad input stays one ``error:`` line and the notice comes before the silence.
 """
 
 from __future__ import annotations
