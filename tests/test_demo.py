@@ -2,14 +2,32 @@
 
 import json
 
+from openemt._compile_notice import SOLVER_KERNELS, cold_kernels
 from openemt.cli import main
 
 
 def test_demo_end_to_end(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "-o", str(out), "--json", "--quiet"]) == 0
-    summary = json.loads(capsys.readouterr().out)
+    assert main(["demo", "-o", str(out), "--json"]) == 0
+    cap = capsys.readouterr()
+    summary = json.loads(cap.out)
     rows = summary["rows"]
+    # it says what it does before doing it (plain lines: stderr is not a terminal here)
+    err = cap.err.splitlines()
+    assert err[0] == f"openemt demo: simulated 'dipole-approx' tracker -> {out}/"
+    stages = [s.split(" ")[0] for s in err if s.endswith(" ...")]
+    assert stages == ["simulating", "calibrating", "fitting", "solving", "writing"]
+    # what the compile notice checks is what the demo compiled: a second run says nothing
+    assert cold_kernels(SOLVER_KERNELS) == []
+    # every failed or surprising row says why, in the summary and on stderr
+    assert rows["concentric + Kim18"]["n_invalid"] == summary["n_test"]
+    assert rows["concentric + Kim18"]["reason"].startswith(
+        "expected: Kim18 assumes concentric coils")
+    assert rows["start (perturbed)"]["reason"].startswith("not fitted")
+    assert rows["calibrated"]["reason"] is None
+    why = [s.strip() for s in err if s.strip().startswith("why: ")]
+    assert why == [f"why: {rows[k]['reason']}" for k in ("start (perturbed)",
+                                                         "concentric + Kim18")]
     # calibration from a perturbed start recovers the accuracy of the true dipole equivalent
     cal, truth, start = rows["calibrated"], rows["truth (dipole equivalent of the finite coils)"], \
         rows["start (perturbed)"]
@@ -25,6 +43,7 @@ def test_demo_end_to_end(tmp_path, capsys):
         assert (out / name).is_file(), name
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") == summary["n_figures"] >= 2
+    assert "Symbols and terms" in html and "expected: Kim18 assumes concentric coils" in html
 
 
 def test_demo_bad_option_exit_2(tmp_path, capsys):

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+from _report_checks import defined_symbols, shown_symbols
 
 from openemt.board import PlanarModel
 from openemt.cli import main
@@ -73,6 +74,8 @@ def test_report_gives_the_calibration_figures(calibrated, capsys):
         _close(rep[key], fit[key], 1e-6)
     assert rep["holdout"]["scheme"] == "checkerboard"
     assert rep["accuracy"]["n"] == 49
+    text = html.read_text()          # every symbol of its tables defined in words
+    assert "Symbols and terms" in text and shown_symbols(text) <= defined_symbols(text)
     assert rep["status_counts"]["converged"] == 49
     assert rep["gains"] == fit["gains"]
     np.testing.assert_allclose(rep["offsets_se_mm"], fit["offsets_se_mm"], rtol=1e-12)

@@ -8,6 +8,7 @@ import re
 
 import numpy as np
 import pytest
+from _report_checks import defined_symbols, shown_symbols
 from chromium_render import render
 
 from openemt.cli._report import register
@@ -73,6 +74,7 @@ def test_report_of_a_calibration_on_a_dataset_renders(sim_files, tmp_path, capsy
     _self_contained(text)
     assert text.count("data:image/png;base64,") == 3
     assert "Calibration parameters and standard errors" in text and "u(P)" in text
+    assert shown_symbols(text) <= defined_symbols(text)       # sweep columns included
     n, ok, dom = render(out, tmp_path)
     assert (n, ok) == (3, 3), f"images total/decoded = {n}/{ok}"
     assert "Axis sweeps" in dom
@@ -128,6 +130,13 @@ def test_report_of_an_ilemt_folder_renders(ilemt_dir, tmp_path, capsys):
     _self_contained(text)
     for heading in ("Table II", "Table III", "Table IV", "parameters and standard errors"):
         assert heading in text
+    # every symbol defined; the concentric row's invalid solutions explained from the models
+    assert shown_symbols(text) <= defined_symbols(text)
+    assert t2["default"]["reason"] is None
+    assert t2["concentric"]["n_invalid"] > 0
+    assert t2["concentric"]["reason"].startswith(f"{t2['concentric']['n_invalid']} of 1896 rows")
+    assert "the concentric approximation of source coils" in t2["concentric"]["reason"]
+    assert ">fixed (gauge)<" in text
     n, ok, dom = render(out, tmp_path)
     assert (n, ok) == (3, 3), f"images total/decoded = {n}/{ok}"
     assert "cal_9_15_premo_cmu" in dom

@@ -100,6 +100,34 @@ def _rows(dataset, mode, select):
     return dataset.select(mask)
 
 
+def _setup(dataset, start, mode, select, optimize, freeze):
+    """The checked inputs of :func:`fit`: mode, groups, rows, layout, start vector, free
+    indices (raises on inputs it cannot fit)."""
+    _check_inputs(dataset, start)
+    mode = get_mode(mode)
+    opt = tuple(mode.optimize if optimize is None else optimize)
+    frz = tuple(mode.freeze if freeze is None else freeze)
+    data = _rows(dataset, mode, select)
+    layout = ParameterLayout.for_model(start.model)
+    x0 = layout.pack_calibration(start)
+    if mode.concentric:
+        x0[layout.slices["L_so"]] = 0.0
+        x0[layout.slices["L_se"]] = 0.0
+        opt = tuple(g for g in opt if g not in ("d_so_pos", "d_se_pos"))
+    free = layout.free_indices(opt, frz)
+    if free.size == 0:
+        raise InputError(f"expected at least one free parameter, got none (optimize {opt}, "
+                         f"freeze {frz})")
+    return mode, opt, frz, data, layout, x0, free
+
+
+def check_fit_inputs(dataset, start, mode="XYZ", *, select: bool = True, optimize=None,
+                     freeze=None) -> None:
+    """Raise what :func:`fit` raises on inputs it cannot fit (same arguments), without
+    fitting: a command checks its inputs before it says it is fitting."""
+    _setup(dataset, start, mode, select, optimize, freeze)
+
+
 def _stats(r: np.ndarray, n_rows: int) -> dict:
     ss = float(r @ r)
     return {"rms_residue": float(np.sqrt(ss / n_rows)), "sum_squared_residue": ss,
@@ -175,21 +203,8 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
     ----------
     MacLachlan et al. 2025 §VI; docs/ilemt-data.md#dipole-model, docs/paper-procedure.md#calibration-objective.
     """
-    _check_inputs(dataset, start)
-    mode = get_mode(mode)
-    opt = tuple(mode.optimize if optimize is None else optimize)
-    frz = tuple(mode.freeze if freeze is None else freeze)
-    data = _rows(dataset, mode, select)
-    layout = ParameterLayout.for_model(start.model)
-    x0 = layout.pack_calibration(start)
-    if mode.concentric:
-        x0[layout.slices["L_so"]] = 0.0
-        x0[layout.slices["L_se"]] = 0.0
-        opt = tuple(g for g in opt if g not in ("d_so_pos", "d_se_pos"))
-    free = layout.free_indices(opt, frz)
-    if free.size == 0:
-        raise InputError(f"expected at least one free parameter, got none (optimize {opt}, "
-                         f"freeze {frz})")
+    mode, opt, frz, data, layout, x0, free = _setup(dataset, start, mode, select, optimize,
+                                                    freeze)
     prob = build_problem(data, layout, start.model.gain)
 
     def full(xf):

@@ -11,9 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._compile_notice import PLANAR_KERNELS, announce_compile
 from .._errors import InputError
 from . import command_help
-from ._common import add_common, emit
+from ._common import add_common, emit, stage
 
 __all__ = ["load_dataset", "register", "run"]
 
@@ -136,7 +137,11 @@ def _planar(args) -> int:
         return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
                         data.coil_names)
 
+    announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
+    stage(args, f"fitting the gains and offsets of {data.couplings.shape[1]} coils on "
+                f"{int(fit_mask.sum())} grid points ...")
     fit = fit_planar(subset(fit_mask), start_model, fit_tilt=args.tilt)
+    stage(args, "solving the grid points with the fitted board (5-DOF) to score it ...")
     summary = {"mode": "planar", "output": args.output, "board": fit.model.board.name,
                "start": args.start, **fit.to_dict(),
                "insample": planar_accuracy(fit.model, subset(fit_mask))}
@@ -183,6 +188,9 @@ def _improved(args, dataset, start, start_path) -> int:
     from ..io import atomic_path, write_calibration
 
     t0 = time.perf_counter()
+    announce_compile(args, "solver kernels")
+    stage(args, f"fitting the improved rig and octupole model on the md rows of {args.dataset} "
+                "...")
     imp = improved_calibration(dataset, start, None)
     cal = imp.to_calibration(start)
     if args.output:
@@ -285,6 +293,7 @@ def run(args) -> int:
 
 def _run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, select_rows
+    from ..calibrate._fit import check_fit_inputs
     from ..io import atomic_path, read_calibration, write_calibration
 
     if args.mode == "planar":
@@ -307,6 +316,10 @@ def _run(args) -> int:
     if args.mode == "improved":
         return _improved(args, dataset, start, start_path)
     mode = get_mode(args.mode)
+    check_fit_inputs(dataset, start, mode, select=not args.all_rows,
+                     optimize=_groups(args.optimize), freeze=_groups(args.freeze))
+    announce_compile(args, "solver kernels")
+    stage(args, f"fitting mode {mode.name} from {start_path} ...")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = fit(dataset, start, mode, select=not args.all_rows, optimize=_groups(args.optimize),
@@ -319,6 +332,7 @@ def _run(args) -> int:
     corr = None
     if solver != "none":
         rows = dataset if args.all_rows else dataset.select(select_rows(dataset, mode))
+        stage(args, f"fitting the output correction on {len(rows)} rows ({solver} poses) ...")
         corr = fit_output_correction(rows, cal, solver=solver)
         stats.update(num_invalid=corr.n_invalid, uncorrected=corr.rms_uncorrected,
                      corrected=corr.rms_corrected, correction_method=corr.method)

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["add_common", "emit", "progress", "to_jsonable"]
+__all__ = ["add_common", "emit", "progress", "stage", "to_jsonable"]
 
 
 def add_common(parser) -> None:
@@ -45,6 +45,20 @@ def emit(args, summary: dict, human: Iterable[str] = ()) -> None:
     if not getattr(args, "quiet", False):
         for line in human:
             print(line, file=sys.stderr)
+
+
+def stage(args, text: str) -> None:
+    """Say on stderr what the command does next, before it does it (not with ``--quiet``).
+
+    A plain line, so it also shows when stderr is not a terminal (where :func:`progress`
+    draws no bar); written through tqdm so an open bar is redrawn below it.
+    """
+    if getattr(args, "quiet", False):
+        return
+    from tqdm.auto import tqdm
+
+    tqdm.write(text, file=sys.stderr)
+    sys.stderr.flush()
 
 
 def progress(iterable=None, *, total=None, desc: str = "", args=None, unit: str = "it"):

@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._compile_notice import SOLVER_KERNELS, announce_compile
 from .._errors import InputError
 from . import command_help
-from ._common import add_common, emit, progress
+from ._common import add_common, emit, progress, stage
 
 PRESETS = ("dipole-approx", "concentric")
 
@@ -44,6 +45,16 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    if not np.isfinite(args.snr_db) or args.snr_db <= 0:
+        raise InputError(f"expected --snr-db > 0, got {args.snr_db}")
+    if not np.isfinite(args.stage_error_um) or args.stage_error_um < 0:
+        raise InputError(f"expected --stage-error-um >= 0, got {args.stage_error_um}")
+    out = Path(args.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    # the first line comes before any heavy import, the compile notice before any compiling
+    stage(args, f"openemt demo: simulated '{args.preset}' tracker -> {out}/")
+    announce_compile(args, "solver kernels", kernels=SOLVER_KERNELS)
+
     from ..calibrate import (
         fit,
         fit_output_correction,
@@ -52,21 +63,10 @@ def run(args) -> int:
         perturb_calibration,
     )
     from ..io import write_calibration, write_dataset
-    from ..paper import (
-        characterize_calibration,
-        parameter_rows,
-        parameters_against_truth,
-        truth_comparison_rows,
-    )
-    from ..report import characterization_document, simulation_section
+    from ..paper import characterize_calibration, parameter_rows, truth_comparison_rows
+    from ..report import characterization_document, glossary_section, simulation_section
     from ..simulate import get_preset, simulate, truth_calibration
 
-    if not np.isfinite(args.snr_db) or args.snr_db <= 0:
-        raise InputError(f"expected --snr-db > 0, got {args.snr_db}")
-    if not np.isfinite(args.stage_error_um) or args.stage_error_um < 0:
-        raise InputError(f"expected --stage-error-um >= 0, got {args.stage_error_um}")
-    out = Path(args.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
     bar = progress(total=5, desc="openemt demo", args=args, unit="step")
 
@@ -79,6 +79,8 @@ def run(args) -> int:
     preset = get_preset(args.preset)
     sigma = args.stage_error_um * 1e-6 / np.sqrt(3.0)
     t0 = time.perf_counter()
+    stage(args, "simulating calibration data (md, six fixture combinations) and test data "
+                "(ld, home source fixture) ...")
     cal_data = simulate(preset, "md", source_fixtures="all", sensor_fixtures="all",
                         snr_db=args.snr_db, stage_sigma=sigma, seed=args.seed)
     test_data = simulate(preset, "ld", source_fixtures=preset.source_fixtures[0],
@@ -90,6 +92,8 @@ def run(args) -> int:
     step("simulate", t0)
 
     t0 = time.perf_counter()
+    stage(args, f"calibrating the dipole model and the rig fixtures on {cal_data.n_samples} "
+                "rows (mode XYZ), then a concentric model ...")
     truth = truth_calibration(preset)
     write_calibration(truth, out / "truth_calibration.json")
     mode = get_mode("XYZ")
@@ -103,6 +107,7 @@ def run(args) -> int:
     step("calibrate", t0)
 
     t0 = time.perf_counter()
+    stage(args, "fitting the DLT output correction on the home-fixture calibration rows ...")
     corr = fit_output_correction(cal_data.select(cal_data.mask(
         pattern="md", source_fixture=preset.source_fixtures[0])), cal)
     if corr.matrix is not None:
@@ -111,13 +116,17 @@ def run(args) -> int:
     step("output correction", t0)
 
     t0 = time.perf_counter()
+    stage(args, f"solving and scoring the {test_data.n_samples} test rows with every "
+                "calibration ...")
     result = characterize_calibration(test_data, cal, concentric=concentric)
     rows = truth_comparison_rows(test_data, truth, start, concentric, result)
     step("solve, score and figures", t0)
 
     t0 = time.perf_counter()
-    rep = characterization_document(result, parameter_rows(cal),
-                                    title=f"openemt demo — simulated '{preset.name}' tracker")
+    stage(args, f"writing report {out / 'report.html'} ...")
+    rep = characterization_document(result, parameter_rows(cal, truth=truth),
+                                    title=f"openemt demo — simulated '{preset.name}' tracker",
+                                    glossary=False)
     simulation_section(
         rep, description=preset.description,
         setup=(f"Calibration data: {cal_data.n_samples} rows (md pattern, "
@@ -126,9 +135,11 @@ def run(args) -> int:
                f"fixtures). Measurement SNR {args.snr_db:g} dB, stage error "
                f"{args.stage_error_um:g} um 3-D RMS, seed {args.seed}. Ground truth couplings "
                "come from finite-size coil models; the calibration fits the dipole model, "
-               "starting from the truth moved by 1 mm / 1 % / 0.5 deg in every fitted "
-               "parameter."),
-        rows=rows, parameters=parameters_against_truth(cal, truth))
+               "starting from the truth moved by random normal amounts (standard deviations "
+               "1 mm / 1 % / 0.5 deg) in every fitted parameter. The parameter table above "
+               "has the truth beside every fitted value."),
+        rows=rows)
+    glossary_section(rep)
     rep.write(out / "report.html")
     step("write report", t0)
     bar.close()
@@ -144,7 +155,10 @@ def run(args) -> int:
     }
     human = [f"openemt demo: simulated '{preset.name}' tracker -> {out}/"]
     for k, v in rows.items():
-        human.append(f"  {k:48s} {v['trans_rms_mm']:.3f} mm RMS  {v['rot_rms_deg']:.3f} deg RMS")
+        human.append(f"  {k:48s} {v['trans_rms_mm']:.3f} mm RMS  {v['rot_rms_deg']:.3f} deg RMS"
+                     + (f"  ({v['n_invalid']} invalid)" if v["n_invalid"] else ""))
+        if v.get("reason"):
+            human.append(f"      why: {v['reason']}")
     human.append("  seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()))
     human.append(f"  report: {out / 'report.html'}")
     emit(args, summary, human)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from .._compile_notice import announce_compile
 from . import command_help
-from ._common import add_common, emit
+from ._common import add_common, emit, stage
 from ._reproduce_tables import add_table_commands
 
 __all__ = ["register", "run_table2"]
@@ -56,6 +57,8 @@ def _fmt(name, row):
 def _simulated(args) -> int:
     from ..calibrate import dipole_cost, parameter_recovery
 
+    announce_compile(args, "solver kernels")
+    stage(args, f"simulating preset {args.preset} and calibrating it ({args.table}) ...")
     if args.table == "dipole-cost":
         out = dipole_cost(args.preset, seed=args.seed).to_dict()
         human = [f"{args.preset}: r/d {out['r_over_d'][0]:.1f}-{out['r_over_d'][1]:.1f}"]
@@ -71,9 +74,17 @@ def _simulated(args) -> int:
 
 
 def run_table2(args) -> int:
+    from ..io import import_ilemt_folder
     from ..paper import reproduce_table2
+    from ..paper._run import check_paper_folder, load_paper_run
 
-    out = reproduce_table2(args.folder, improved=args.improved,
+    check_paper_folder(args.folder)      # bad input refused before any stage line
+    dataset = import_ilemt_folder(args.folder)
+    announce_compile(args, "solver kernels")
+    stage(args, f"reproducing Table II on {args.folder}: the paper's calibration sequence, "
+                "output correction and test solves"
+                + (", then the improved calibration" if args.improved else "") + " ...")
+    out = reproduce_table2(load_paper_run(args.folder, dataset=dataset), improved=args.improved,
                            cross_validation=args.cv).to_dict()
     human = [(f"Table II on {args.folder} ({out['n_test']} test rows): trans rms/max, "
               "rot rms/max")]

@@ -32,6 +32,7 @@ def read_board_calibration(path):
 def solve_board(args, cal) -> int:
     import h5py
 
+    from .._compile_notice import PLANAR_KERNELS, announce_compile
     from ..io import open_dataset_couplings
     from ..solve._planar import solve_planar
     from ._common import emit
@@ -60,6 +61,7 @@ def solve_board(args, cal) -> int:
         meta = {"dataset": str(args.dataset), "calibration": str(args.calibration),
                 "model": "finite", "board": model.board.name, "correction_applied": False}
         truth = _TruthScore(side.get("poses"), model, n, args.dataset)
+        announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
 
         def chunks():
             for start in range(0, n, args.chunk_rows):

@@ -12,6 +12,7 @@ from ._characterization import (
     characterize_calibration,
     characterize_paper_run,
 )
+from ._reasons import explain_rows
 from ._report import BuiltReport, characterization_report, paper_report, parameter_rows
 from ._run import PaperRun, load_paper_run, sequence_steps
 from ._simulated import parameters_against_truth, truth_comparison_rows
@@ -66,6 +67,7 @@ __all__ = [
     "characterization_report",
     "characterize_calibration",
     "characterize_paper_run",
+    "explain_rows",
     "identify_table2_column",
     "load_paper_run",
     "paper_report",

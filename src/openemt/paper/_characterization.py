@@ -26,6 +26,7 @@ from ..evaluate import (
     STAGE_UNCERTAINTY_MM,
     combined_uncertainty,
 )
+from ._reasons import explain_rows
 
 __all__ = [
     "CalibrationCharacterization",
@@ -74,7 +75,8 @@ class CalibrationCharacterization(Result):
         Test rows and the files/blocks they come from.
     accuracy : dict of str -> dict
         Condition (``calibration``, ``calibration + correction``, ``concentric + Kim18``) ->
-        :func:`accuracy_row`.
+        :func:`accuracy_row`, with a ``reason``: one line for a failed or surprising row
+        (:func:`openemt.paper.explain_rows`), else None.
     main : str
         The condition characterized in detail (with the correction when there is one).
     characterization : Characterization
@@ -123,7 +125,8 @@ class CalibrationCharacterization(Result):
                 "table4": table4, "seconds": self.seconds}
 
 
-def _check(dataset, calibration, concentric, reference):
+def check_inputs(dataset, calibration, concentric, reference) -> None:
+    """Refuse inputs :func:`characterize_calibration` cannot use (one ``InputError`` line)."""
     from ..io import Calibration, Dataset
 
     if not isinstance(dataset, Dataset):
@@ -241,7 +244,7 @@ def characterize_calibration(dataset, calibration, *, concentric=None,
     from ..evaluate import characterize, fixture_labels
     from ..geometry import ground_truth_poses
 
-    _check(dataset, calibration, concentric, reference)
+    check_inputs(dataset, calibration, concentric, reference)
     t0 = time.perf_counter()
     cal = calibration
     groups = fixture_labels(dataset)
@@ -257,6 +260,10 @@ def characterize_calibration(dataset, calibration, *, concentric=None,
         F_se = None
         conds = _pose_conditions(dataset, cal, concentric, D)
     accuracy = {name: accuracy_row(name, test) for name, (test, _) in conds.items()}
+    explain_rows(accuracy, model=cal.model, poses=D,
+                 concentric=None if concentric is None else concentric.model,
+                 concentric_key="concentric + Kim18",
+                 corrections=[("calibration", "calibration + correction")])
     main = "calibration + correction" if "calibration + correction" in conds else "calibration"
     test, M = conds[main]
     char = characterize(M, D, groups=groups, sensor_fixture=F_se)
@@ -282,7 +289,7 @@ class PaperCharacterization(Result):
         Table II test rows.
     table2 : dict of str -> dict
         Rows ``default``, ``corrected``, ``concentric`` (:func:`accuracy_row`, with the
-        paper's values).
+        paper's values and a ``reason`` as in :class:`CalibrationCharacterization`).
     table2_column : Table2Column
         The paper's column the folder compares with.
     table3 : Table3Reproduction or None
@@ -390,6 +397,9 @@ def characterize_paper_run(source) -> PaperCharacterization:
     default = results["default"]
     D = ground_truth_poses(xyz.source_fixture, xyz.stage_fixture, xyz.sensor_fixture,
                            test.source_fixture, test.stage, test.sensor_fixture)
+    explain_rows(t2, model=xyz.model, poses=D,
+                 concentric=run.calibration("XYZ_concentric").model, concentric_key="concentric",
+                 corrections=[("default", "corrected")])
     char = characterize(default.poses, D, groups=fixture_labels(test),
                         sensor_fixture=xyz.sensor_fixture)
     return PaperCharacterization(

@@ -82,6 +82,19 @@ class PaperRun:
         return all(n in self.fits for n in names)
 
 
+def check_paper_folder(folder) -> Path:
+    """Refuse a path that is not an ILEMT data folder with ``base_calibration.mat``; returns the
+    path of that file."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"expected an ILEMT data folder, got {str(folder)!r}")
+    base_path = folder / "base_calibration.mat"
+    if not base_path.is_file():
+        raise FileNotFoundError(f"expected {base_path.name} in the ILEMT folder, got none in "
+                                f"{str(folder)!r}")
+    return base_path
+
+
 def load_paper_run(folder, *, steps=None, correction: bool = True, dataset=None) -> PaperRun:
     """Import an ILEMT folder and run (part of) the paper's calibration sequence once.
 
@@ -104,12 +117,7 @@ def load_paper_run(folder, *, steps=None, correction: bool = True, dataset=None)
     from ..io import import_ilemt_folder, read_calibration
 
     folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"expected an ILEMT data folder, got {str(folder)!r}")
-    base_path = folder / "base_calibration.mat"
-    if not base_path.is_file():
-        raise FileNotFoundError(f"expected {base_path.name} in the ILEMT folder, got none in "
-                                f"{str(folder)!r}")
+    base_path = check_paper_folder(folder)
     seconds = {}
     t0 = time.perf_counter()
     ds = import_ilemt_folder(folder) if dataset is None else dataset
@@ -128,13 +136,14 @@ def load_paper_run(folder, *, steps=None, correction: bool = True, dataset=None)
                     seconds=seconds, skipped=skipped)
 
 
-def as_run(source, steps, *, correction: bool = True) -> PaperRun:
-    """``source`` if it is a PaperRun with the wanted steps, else a fresh run of the folder.
+def as_run(source, steps, *, correction: bool = True, dataset=None) -> PaperRun:
+    """``source`` if it is a PaperRun with the wanted steps, else a fresh run of the folder
+    (``dataset``: the folder already imported).
 
     Raises ValueError if a wanted calibration is missing (e.g. the folder has no rows for it).
     """
     run = source if isinstance(source, PaperRun) else \
-        load_paper_run(source, steps=steps, correction=correction)
+        load_paper_run(source, steps=steps, correction=correction, dataset=dataset)
     missing = [s.name for s in sequence_steps(steps) if s.name not in run.fits]
     if missing:
         raise InputError(f"expected the calibrations {missing} of the paper sequence, got only "

@@ -8,8 +8,6 @@ beside the perturbed start it was fitted from.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..evaluate import ACCURACY_KEYS
 
 __all__ = ["parameters_against_truth", "truth_comparison_rows"]
@@ -38,37 +36,34 @@ def truth_comparison_rows(test_data, truth, start, concentric, characterization)
     -------
     dict of str -> dict
         Row name -> ``trans_rms_mm``, ``trans_max_mm``, ``rot_rms_deg``, ``rot_max_deg``,
-        ``n_invalid`` and ``trans_uncert_mm`` (combined with the stage uncertainty).
+        ``n_invalid``, ``trans_uncert_mm`` (combined with the stage uncertainty) and
+        ``reason``: one line for a failed or surprising row (the unfitted start; invalid
+        solutions; see :func:`openemt.paper.explain_rows`), else None.
     """
     from ..calibrate import solve_held_out
+    from ._reasons import invalid_reason, start_reason
     from ._table2 import table2_row
 
+    keys = (*ACCURACY_KEYS, "n_invalid", "trans_uncert_mm")
     rows = {}
     for label, cal in (("truth (dipole equivalent of the finite coils)", truth),
                        ("start (perturbed)", start)):
         row = table2_row(solve_held_out(test_data, cal, concentric_model=concentric.model))
-        rows[label] = {k: row[k] for k in (*ACCURACY_KEYS, "n_invalid", "trans_uncert_mm")}
+        rows[label] = {k: row[k] for k in keys}
+        rows[label]["reason"] = (start_reason(start, truth) if cal is start
+                                 else invalid_reason(row["n_invalid"], len(test_data)))
     accuracy = characterization.accuracy
     for cond, label in _CONDITIONS:
         if cond in accuracy:
             r = accuracy[cond]
-            rows[label] = {k: r[k] for k in (*ACCURACY_KEYS, "n_invalid", "trans_uncert_mm")}
+            rows[label] = {**{k: r[k] for k in keys}, "reason": r.get("reason")}
     return rows
 
 
 def parameters_against_truth(calibration, truth) -> list:
-    """Rows (parameter, fitted value, standard error, truth) of the coil positions (m) and
-    moments (gain units) of a fitted calibration and the truth."""
-    rows = []
-    se = calibration.standard_errors or {}
-    for name in ("L_so", "M_so", "L_se", "M_se"):
-        val = np.asarray(getattr(calibration.model, name))
-        err, tv = se.get(name), np.asarray(getattr(truth.model, name))
-        for c in range(val.shape[1]):
-            for a in range(3):
-                rows.append({
-                    "parameter": f"{name}[{'xyz'[a]}, coil {c}]", "fitted": float(val[a, c]),
-                    "std_error": float(np.asarray(err)[a, c]) if err is not None
-                    else float("nan"),
-                    "truth (dipole equiv.)": float(tv[a, c])})
-    return rows
+    """:func:`openemt.paper.parameter_rows` of a fitted calibration with a ``truth`` column:
+    coil positions and fixture translations in mm, rotations in degrees, moments in gain
+    units, fixed parameters marked ``fixed``."""
+    from ._report import parameter_rows
+
+    return parameter_rows(calibration, truth=truth)

@@ -141,7 +141,7 @@ def _cell(trans, rot, n_invalid):
     return out
 
 
-def reproduce_table3(source) -> Table3Reproduction:
+def reproduce_table3(source, *, dataset=None) -> Table3Reproduction:
     """MacLachlan et al. 2025, Table III from an ILEMT folder (or a :class:`PaperRun` of it).
 
     Parameters
@@ -149,6 +149,8 @@ def reproduce_table3(source) -> Table3Reproduction:
     source : path-like or PaperRun
         The ILEMT folder (imported and calibrated here) or an existing run containing the
         ``trans_only``, ``XYZ``, ``XYZ_all`` and ``XYZ_concentric`` calibrations.
+    dataset : Dataset, optional
+        The folder already imported (skips the import).
 
     Returns
     -------
@@ -157,7 +159,8 @@ def reproduce_table3(source) -> Table3Reproduction:
     from ..calibrate import solve_held_out
 
     t_all = time.perf_counter()
-    run = as_run(source, [*TABLE3_ROWS.values(), "XYZ_concentric"], correction=False)
+    run = as_run(source, [*TABLE3_ROWS.values(), "XYZ_concentric"], correction=False,
+                 dataset=dataset)
     ds = run.dataset
     masks = table3_test_masks(ds)
     empty = [k for k, m in masks.items() if not m.any()]

@@ -269,7 +269,7 @@ class Table4Reproduction(DictResult):
                 "calibration": self.calibration, "notes": self.notes, "seconds": self.seconds}
 
 
-def sweep_test(source, *, correction: bool = True) -> Table4Result:
+def sweep_test(source, *, correction: bool = True, dataset=None) -> Table4Result:
     """Solve the sweep files, re-optimise the fixtures and analyse the sweeps (Table IV).
 
     Parameters
@@ -280,6 +280,8 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     correction : bool
         Apply the output correction of ``XYZ_hr_cal`` (the paper's condition). The summary
         also reports the other condition under ``uncorrected`` / ``corrected``.
+    dataset : Dataset, optional
+        The folder already imported (skips the import).
 
     Returns
     -------
@@ -289,7 +291,7 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     from ..correct import apply_linear_correction
 
     t_all = time.perf_counter()
-    run = as_run(source, ["XYZ", "XYZ_concentric"], correction=True)
+    run = as_run(source, ["XYZ", "XYZ_concentric"], correction=True, dataset=dataset)
     ds = run.dataset
     mask = ds.mask(pattern="sweep", source_fixture="YoutZup")
     if not mask.any():
@@ -338,12 +340,13 @@ def sweep_test(source, *, correction: bool = True) -> Table4Result:
     return Table4Result(summary=summary, analysis=a, refit=refit, poses=M, reference=D)
 
 
-def reproduce_table4(source, *, correction: bool = True) -> Table4Reproduction:
+def reproduce_table4(source, *, correction: bool = True, dataset=None) -> Table4Reproduction:
     """MacLachlan et al. 2025, Table IV on the sweep files of an ILEMT folder (or a
-    :class:`PaperRun`); :func:`sweep_test` with its summary only.
+    :class:`PaperRun`; ``dataset``: the folder already imported); :func:`sweep_test` with its
+    summary only.
 
     Returns
     -------
     Table4Reproduction
     """
-    return sweep_test(source, correction=correction).summary
+    return sweep_test(source, correction=correction, dataset=dataset).summary

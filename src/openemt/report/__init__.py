@@ -2,6 +2,7 @@
 imports this package; its functions lay out results computed elsewhere."""
 
 from ._figures import error_histogram_figure, error_map_figure, error_vector_figure, sweep_figure
+from ._glossary import GLOSSARY, glossary_section
 from ._html import Report, figure_png
 from ._planar import planar_document, planar_report
 from ._sections import (
@@ -10,6 +11,7 @@ from ._sections import (
     characterization_document,
     error_figures,
     paper_document,
+    reason_notes,
     simulation_section,
     sweep_section,
     table3_section,
@@ -17,6 +19,7 @@ from ._sections import (
 )
 
 __all__ = [
+    "GLOSSARY",
     "Report",
     "accuracy_section",
     "by_fixture_table",
@@ -26,9 +29,11 @@ __all__ = [
     "error_map_figure",
     "error_vector_figure",
     "figure_png",
+    "glossary_section",
     "paper_document",
     "planar_document",
     "planar_report",
+    "reason_notes",
     "simulation_section",
     "sweep_figure",
     "sweep_section",

@@ -22,7 +22,8 @@ def _plt():
 
 def error_vector_figure(positions, errors, *, exaggeration: float | None = None,
                         title: str = "Translation error across the workspace"):
-    """3-D error vectors at the reference positions (MacLachlan et al. 2025, Fig. 8 style).
+    """3-D error vectors at the reference positions (MacLachlan et al. 2025, Fig. 8 style),
+    coloured by their magnitude, with the colour bar of that scale.
 
     Parameters
     ----------
@@ -47,10 +48,14 @@ def error_vector_figure(positions, errors, *, exaggeration: float | None = None,
     ax = fig.add_subplot(projection="3d")
     mag = np.linalg.norm(e, axis=1)
     ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=4, c="k")
+    norm = plt.Normalize(0.0, emax or 1.0)
+    cmap = plt.get_cmap("viridis")
     if len(p):
-        colors = plt.get_cmap("viridis")(mag / (emax or 1.0))
         ax.quiver(p[:, 0], p[:, 1], p[:, 2], e[:, 0] * exaggeration, e[:, 1] * exaggeration,
-                  e[:, 2] * exaggeration, colors=colors, linewidth=0.8, arrow_length_ratio=0.15)
+                  e[:, 2] * exaggeration, colors=cmap(norm(mag)), linewidth=0.8,
+                  arrow_length_ratio=0.15)
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.6, pad=0.1,
+                 label="error magnitude (mm)")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_zlabel("z (mm)")

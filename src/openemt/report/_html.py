@@ -11,6 +11,7 @@ import datetime as _dt
 import html
 import io
 import math
+import re
 from dataclasses import dataclass, field
 
 from .. import __version__
@@ -31,6 +32,9 @@ figure { margin: 1em 0; }
 figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.9em; color: #555; }
 p.note { font-size: 0.9em; color: #555; }
+dl.glossary { display: grid; grid-template-columns: max-content auto; gap: .2em 1em; }
+dl.glossary dt { font-family: ui-monospace, monospace; font-weight: 600; }
+dl.glossary dd { margin: 0; }
 footer { margin-top: 3em; font-size: 0.8em; color: #777; }
 """
 
@@ -55,11 +59,17 @@ def _fmt(v, digits: int) -> str:
 
 @dataclass
 class Report:
-    """An HTML document assembled block by block."""
+    """An HTML document assembled block by block.
+
+    ``symbols`` collects what the tables showed (column names, and the symbol of each
+    ``parameter`` cell, e.g. ``L_so`` of ``L_so[x, coil X]``) for the glossary
+    (:func:`openemt.report.glossary_section`).
+    """
 
     title: str
     blocks: list[str] = field(default_factory=list)
     n_figures: int = 0
+    symbols: set = field(default_factory=set)
 
     def heading(self, text: str, level: int = 2) -> Report:
         self.blocks.append(f"<h{level}>{html.escape(text)}</h{level}>")
@@ -76,6 +86,10 @@ class Report:
         if not rows:
             return self
         columns = columns or list(rows[0])
+        self.symbols.update(columns)
+        if "parameter" in columns:
+            self.symbols.update(m.group(0) for r in rows
+                                if (m := re.match(r"[A-Za-z]+_[A-Za-z]+", str(r["parameter"]))))
         head = "".join(f'<th class="{"label" if i == 0 else ""}">{html.escape(c)}</th>'
                        for i, c in enumerate(columns))
         body = []
@@ -87,6 +101,14 @@ class Report:
         cap = f"<caption>{html.escape(caption)}</caption>" if caption else ""
         self.blocks.append(f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(body)}"
                            "</tbody></table>")
+        return self
+
+    def definitions(self, items, caption: str = "") -> Report:
+        """A list of (term, definition) pairs."""
+        body = "".join(f"<dt>{html.escape(str(t))}</dt><dd>{html.escape(str(d))}</dd>"
+                       for t, d in items)
+        cap = f'<p class="note">{html.escape(caption)}</p>' if caption else ""
+        self.blocks.append(f'{cap}<dl class="glossary">{body}</dl>')
         return self
 
     def figure(self, fig, caption: str = "") -> Report:

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from ._glossary import PLANAR_GLOSSARY, glossary_section
 from ._html import Report
 
 __all__ = ["planar_document", "planar_report"]
@@ -64,10 +65,12 @@ def planar_document(summary: dict, errors, points, cal, title: str | None = None
                   "calibration do (docs/planar.md#accuracy).")
     rep.heading("Accuracy")
     blocks = [("all points", summary["accuracy"])]
+    short = ["all points"]
     if "holdout" in summary:
         blocks += [(f"in-sample ({summary['holdout']['scheme']} fit points)",
                     summary["insample"]),
                    (f"held out ({summary['holdout']['scheme']})", summary["holdout"])]
+        short += ["in-sample", "held out"]
     rep.table([{"points": name, **{k: b[k] for k in _KEYS}} for name, b in blocks],
               ["points", *_KEYS], digits=4,
               caption="Position error (mm) and sensor-axis error (deg) of the converged points")
@@ -75,8 +78,8 @@ def planar_document(summary: dict, errors, points, cal, title: str | None = None
     rep.table([{"status": k, "samples": v} for k, v in counts.items() if v],
               caption="Solver status of the grid points")
     rep.heading("Coil residuals")
-    rep.table([{"coil": c.name, **{f"{name} (%)": b["coil_residual_percent"][i]
-                                   for name, b in blocks}}
+    rep.table([{"coil": c.name, **{f"residual, {k} (%)": b["coil_residual_percent"][i]
+                                   for k, (_, b) in zip(short, blocks)}}
                for i, c in enumerate(m.board.coils)], digits=4,
               caption="RMS of measured minus model coupling at the known poses, percent of the "
                       "coil's peak coupling on these points")
@@ -97,6 +100,7 @@ def planar_document(summary: dict, errors, points, cal, title: str | None = None
                       f"{st.get('condition', float('nan')):.3g}.", note=True)
     if not cal.standard_errors:
         rep.paragraph("This calibration carries no standard errors.", note=True)
+    glossary_section(rep, terms=(), glossary=PLANAR_GLOSSARY)
     return rep
 
 

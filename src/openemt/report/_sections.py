@@ -12,7 +12,12 @@ import re
 
 from ..calibrate._check import ILEMT_VALID_RESNORM
 from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_DEG, STAGE_UNCERTAINTY_MM
+from ._glossary import glossary_section
 from ._html import Report
+
+_PARAMETER_CAPTION = ("Coil positions and fixture translations in mm, fixture rotations in "
+                      "degrees, moments in gain units; status says which parameters the fit "
+                      "estimated and which it held fixed (no standard error).")
 
 __all__ = [
     "accuracy_section",
@@ -20,6 +25,7 @@ __all__ = [
     "characterization_document",
     "error_figures",
     "paper_document",
+    "reason_notes",
     "simulation_section",
     "sweep_section",
     "table3_section",
@@ -39,6 +45,7 @@ def accuracy_section(rep: Report, rows, *, with_paper: bool) -> None:
             table.append({"condition": "  paper", **r["paper"]})
     rep.table(table, cols, digits=5,
               caption="Translation (mm) and rotation (deg) error magnitudes, RMS and max")
+    reason_notes(rep, rows, "condition")
     u_mm, u_deg = STAGE_UNCERTAINTY_MM, STAGE_UNCERTAINTY_DEG
     rep.paragraph(f"trans_uncert_mm = sqrt(RMS^2 + {u_mm:.3f}^2) and rot_uncert_deg = "
                   f"sqrt(RMS^2 + {u_deg:.2f}^2) combine the calibration error u(cal) with the "
@@ -46,6 +53,14 @@ def accuracy_section(rep: Report, rows, *, with_paper: bool) -> None:
                   f"(residue >= {ILEMT_VALID_RESNORM:g}) are kept in the statistics and counted "
                   "in n_invalid.",
                   note=True)
+
+
+def reason_notes(rep: Report, rows, label: str) -> None:
+    """One note per row with a ``reason`` (a failed or surprising row,
+    :func:`openemt.paper.explain_rows`): ``<row>: <reason>``."""
+    for r in rows:
+        if r.get("reason"):
+            rep.paragraph(f"{r[label]}: {r['reason']}.", note=True)
 
 
 def uncertainty_paragraph(rep: Report, row: dict) -> None:
@@ -142,17 +157,21 @@ def table3_section(rep: Report, t3, rows, columns) -> None:
                   f"{100 * t3.max_deviation:.2f} %.", note=True)
 
 
-def characterization_document(c, parameters, title: str | None = None) -> Report:
+def characterization_document(c, parameters, title: str | None = None, *,
+                              glossary: bool = True) -> Report:
     """The report of a :class:`~openemt.paper.CalibrationCharacterization`.
 
     ``parameters`` are the calibration's parameter rows
-    (:func:`openemt.paper.parameter_rows`).
+    (:func:`openemt.paper.parameter_rows`). With ``glossary`` the report ends with the
+    definitions of its symbols (:func:`glossary_section`); a caller that adds sections
+    passes False and adds the glossary last.
     """
     rep = Report(title or "openemt calibration and characterization report")
     rep.paragraph(f"Test data: {c.n_test} rows from {c.n_files} files/blocks; "
                   f"calibration mode {c.calibration.mode or '?'}; reference: "
                   + ("rig kinematics with the calibration's fixtures (stage-coordinates error)."
-                     if c.reference == "kinematics" else "the dataset's reference poses."))
+                     if c.reference == "kinematics" else "the dataset's reference poses.")
+                  + " Every symbol is defined at the end (Symbols and terms).")
     rep.heading("Accuracy (MacLachlan et al. 2025, Table II style)")
     accuracy_section(rep, list(c.accuracy.values()), with_paper=False)
     uncertainty_paragraph(rep, c.accuracy[c.main])
@@ -165,9 +184,11 @@ def characterization_document(c, parameters, title: str | None = None) -> Report
         rep.heading("Axis sweeps (MacLachlan et al. 2025, Table IV style)")
         sweep_section(rep, c.sweeps, note=c.sweep_note)
     rep.heading("Calibration parameters and standard errors")
-    rep.table(parameters, digits=6)
+    rep.table(parameters, digits=6, caption=_PARAMETER_CAPTION)
     if not c.calibration.standard_errors:
         rep.paragraph("This calibration carries no standard errors.", note=True)
+    if glossary:
+        glossary_section(rep)
     return rep
 
 
@@ -187,7 +208,7 @@ def paper_document(c, parameters, title: str | None = None) -> Report:
         f"fixtures, md data). Test data: {len(test)} rows (soYoutZup, three sensor fixtures, "
         "ld). Poses are solved with the iterative solver started from the Kim18 closed form of "
         "the concentric calibration and compared with the rig kinematics (stage-coordinates "
-        "error).")
+        "error). Every symbol is defined at the end (Symbols and terms).")
     rep.heading("Calibration sequence")
     rep.table(c.calibration_stats, digits=6, caption="Calibration residues (rms of the "
               "normalised coupling residual) and output-correction fits on the calibration rows")
@@ -220,23 +241,30 @@ def paper_document(c, parameters, title: str | None = None) -> Report:
         rep.paragraph("No sweep files in this folder: Table IV is not reproduced.", note=True)
 
     rep.heading("Main calibration XYZ_hr_cal: parameters and standard errors")
-    rep.table(parameters, digits=6)
+    rep.table(parameters, digits=6, caption=_PARAMETER_CAPTION)
     rep.paragraph("Standard errors from the Jacobian of the calibration fit at the solution "
-                  "(scaled by the residual variance). Gauge-fixed parameters (Z-coil positions, "
-                  "source Z gain, Y component of the X moments) have none.", note=True)
+                  "(scaled by the residual variance). Fixed parameters (the gauge: Z-coil "
+                  "positions and transverse moments; and what the mode holds: the Y component "
+                  "of the X moments, the source Z gain, ...) have none.", note=True)
+    glossary_section(rep)
     return rep
 
 
 def simulation_section(rep: Report, *, description: str, setup: str, rows: dict,
-                       parameters: list) -> None:
+                       parameters: list | None = None) -> None:
     """The simulated tracker: its description, the set-up, test errors of every calibration
-    (``rows``: name -> accuracy row) and fitted parameters against the truth."""
+    (``rows``: name -> accuracy row, with the ``reason`` of a failed or surprising one) and,
+    if given, fitted parameters against the truth
+    (:func:`openemt.paper.parameters_against_truth`)."""
     rep.heading("The simulation: truth, starting point, calibration")
     rep.paragraph(description)
     rep.paragraph(setup)
-    rep.table([{"calibration": k, **v} for k, v in rows.items()],
-              ["calibration", *ACCURACY_KEYS, "trans_uncert_mm", "n_invalid"], digits=4,
+    table = [{"calibration": k, **v} for k, v in rows.items()]
+    rep.table(table, ["calibration", *ACCURACY_KEYS, "trans_uncert_mm", "n_invalid"], digits=4,
               caption="Test errors of every calibration (rig kinematics with its own fixtures)")
-    rep.table(parameters, digits=6,
-              caption="Fitted coil parameters (m, gain units) against the dipole equivalent of "
-                      "the simulated finite coils")
+    reason_notes(rep, table, "calibration")
+    if parameters:
+        rep.table(parameters, digits=6,
+                  caption="Fitted parameters against the truth (the dipole equivalent of the "
+                          "simulated finite coils and the simulator's fixtures). "
+                          + _PARAMETER_CAPTION)

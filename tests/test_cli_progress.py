@@ -1,0 +1,80 @@
+"""Long commands say what they do before they do it: stage lines on stderr (plain lines, also
+when stderr is not a terminal and no bar is drawn), the compile notice exactly when the kernels'
+cache is cold, nothing with --quiet."""
+
+import json
+
+import pytest
+
+from openemt._compile_notice import cold_kernels
+from openemt.cli import main
+
+
+def _lines(err):
+    return [s for s in err.splitlines() if s.strip()]
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    d = tmp_path_factory.mktemp("progress")
+    assert main(["simulate", "--preset", "concentric", "--pattern", "md", "--snr-db", "80",
+                 "--seed", "2", "-o", str(d / "sim.h5"), "--truth-calibration",
+                 str(d / "truth.json"), "--quiet"]) == 0
+    return d
+
+
+def test_calibrate_stage_lines_and_compile_notice(sim, tmp_path, capsys):
+    cold = bool(cold_kernels())
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", str(sim / "sim.h5"), "--from", str(sim / "truth.json"),
+                 "--mode", "XYZ", "-o", str(out), "--json"]) == 0
+    cap = capsys.readouterr()
+    summary = json.loads(cap.out)
+    assert summary["mode"] == "XYZ"
+    lines = _lines(cap.err)
+    notice = [s for s in lines if s.startswith("compiling ")]
+    assert notice == (["compiling solver kernels (first run only, about 30 s)"] if cold else [])
+    # the kernels it announces are the ones it compiles: the next run is silent about them
+    assert cold_kernels() == []
+    stages = [s for s in lines if s.endswith(" ...")]
+    assert stages == [f"fitting mode XYZ from {sim / 'truth.json'} ...",
+                      (f"fitting the output correction on {summary['num_points']} rows "
+                       "(lm poses) ...")]
+    # each stage line comes before the results it announces
+    assert lines.index(stages[-1]) < lines.index(next(s for s in lines if s.startswith("XYZ:")))
+
+
+def test_bad_input_is_still_one_line(sim, tmp_path, capsys):
+    # stage lines come after the inputs are read: a refused input is the error line alone
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    for argv in (["--from", str(bad)],                                  # unreadable start
+                 ["--from", str(sim / "truth.json"), "--mode", "trans_only"],  # no rows
+                 ["--from", str(sim / "truth.json"), "--optimize", "se_fix",
+                  "--freeze", "se_fix"]):                               # nothing left free
+        assert main(["calibrate", str(sim / "sim.h5"), *argv, "-o",
+                     str(tmp_path / "c.json")]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1, err
+
+
+def test_report_stage_lines(sim, tmp_path, capsys):
+    out = tmp_path / "r.html"
+    assert main(["report", str(sim / "sim.h5"), "--calibration", str(sim / "truth.json"),
+                 "-o", str(out)]) == 0
+    lines = _lines(capsys.readouterr().err)
+    assert f"solving and scoring the 852 rows of sim.h5 with {sim / 'truth.json'}, drawing the " \
+           "figures ..." in lines
+    assert lines.index(f"writing {out} ...") < lines.index(
+        next(s for s in lines if s.startswith("report: ")))
+
+
+@pytest.mark.parametrize("argv", [
+    ["calibrate", "{sim}/sim.h5", "--from", "{sim}/truth.json", "--mode", "XYZ", "-o",
+     "{tmp}/q.json"],
+    ["report", "{sim}/sim.h5", "--calibration", "{sim}/truth.json", "-o", "{tmp}/q.html"],
+])
+def test_quiet_says_nothing(argv, sim, tmp_path, capsys):
+    argv = [a.format(tmp=tmp_path, sim=sim) for a in argv]
+    assert main([*argv, "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
