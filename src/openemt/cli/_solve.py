@@ -64,6 +64,7 @@ def run(args) -> int:
 
     import h5py
 
+    from .._compile_notice import announce_compile
     from ..io import open_dataset_couplings, read_calibration
     from ..solve import solve_chunks
     from ..solve._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
@@ -104,6 +105,7 @@ def run(args) -> int:
                                else args.hemisphere if spec != "auto" else DEFAULT_HEMISPHERE),
                 "correction_applied": bool(cal.linear_correction is not None
                                            and not args.no_correction)}
+        announce_compile(args, "solver kernels")       # inputs checked: before the first
         chunks = solve_chunks(reader, cal, chunk_rows=args.chunk_rows,
                               scheduler=args.scheduler, solver=args.solver,
                               hemisphere=hemisphere, apply_correction=not args.no_correction,

@@ -212,14 +212,10 @@ class _Session:
 
 def _announce_compile(args, sensors) -> None:
     """Say so before the solver kernels compile (first run after installation)."""
-    try:
-        from .._compile_notice import LIVE_KERNELS, SOLVER_KERNELS, announce_compile
-    except ImportError:      # pragma: no cover - the notice helper is not installed
-        return
+    from .._compile_notice import LIVE_KERNELS, PLANAR_KERNELS, SOLVER_KERNELS, announce_compile
+
     kernels = SOLVER_KERNELS + LIVE_KERNELS
     if any(s.solver is not None for s in sensors):       # a board sensor
-        from .._compile_notice import PLANAR_KERNELS
-
         kernels += PLANAR_KERNELS
     announce_compile(args, "solver kernels", kernels=kernels)
 
