@@ -25,7 +25,7 @@ from ._closed_form import (
 )
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch, lm_track
-from ._lm_solver import (
+from ._lm_starts import (
     _CLOSED,
     _bounds,
     _check_model,
