@@ -13,7 +13,7 @@ from chromium_render import render
 
 from openemt.cli._report import register
 from openemt.io import read_calibration, read_dataset, write_calibration, write_dataset
-from openemt.paper import characterization_report
+from openemt.report import characterization_report
 from openemt.simulate import get_preset, simulate, truth_calibration
 
 

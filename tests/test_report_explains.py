@@ -12,7 +12,6 @@ from chromium_render import render
 from openemt.calibrate import fit
 from openemt.geometry import ground_truth_poses
 from openemt.paper import (
-    characterization_report,
     explain_rows,
     parameter_rows,
     parameters_against_truth,
@@ -23,7 +22,7 @@ from openemt.paper._reasons import (
     concentric_reason,
     correction_reason,
 )
-from openemt.report import GLOSSARY, Report, error_map_figure
+from openemt.report import GLOSSARY, Report, characterization_report, error_map_figure
 from openemt.simulate import get_preset, simulate, truth_calibration
 
 

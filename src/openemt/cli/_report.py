@@ -67,9 +67,10 @@ def _read_dataset(path: Path):
 
 def run(args) -> int:
     from ..io import import_ilemt_folder, read_calibration
-    from ..paper import characterization_report, load_paper_run, paper_report
+    from ..paper import load_paper_run
     from ..paper._characterization import check_inputs
     from ..paper._run import check_paper_folder
+    from ..report import characterization_report, paper_report
 
     if args.source and args.dataset:
         raise InputError(f"expected one input (positional or --dataset), got {args.source!r} "

@@ -1,4 +1,5 @@
-"""Reproductions of the published tables on ILEMT folders and the characterization report.
+"""Reproductions of the published tables on ILEMT folders and the characterizations behind the
+report (the HTML document itself is built by :mod:`openemt.report`).
 
 These orchestrate :mod:`openemt.calibrate`, :mod:`openemt.solve` and :mod:`openemt.evaluate`;
 see docs/paper-reproductions.md. Each reproduction returns a result dataclass whose
@@ -12,8 +13,8 @@ from ._characterization import (
     characterize_calibration,
     characterize_paper_run,
 )
+from ._parameters import coil_name, parameter_rows
 from ._reasons import explain_rows
-from ._report import BuiltReport, characterization_report, paper_report, parameter_rows
 from ._run import PaperRun, load_paper_run, sequence_steps
 from ._simulated import parameters_against_truth, truth_comparison_rows
 from ._table2 import (
@@ -53,7 +54,6 @@ __all__ = [
     "TABLE3_PAPER",
     "TABLE3_ROWS",
     "TABLE4_PAPER",
-    "BuiltReport",
     "CalibrationCharacterization",
     "FixtureRefit",
     "PaperCharacterization",
@@ -64,13 +64,12 @@ __all__ = [
     "Table4Reproduction",
     "Table4Result",
     "accuracy_row",
-    "characterization_report",
     "characterize_calibration",
     "characterize_paper_run",
     "explain_rows",
     "identify_table2_column",
     "load_paper_run",
-    "paper_report",
+    "coil_name",
     "parameter_rows",
     "parameters_against_truth",
     "refit_fixtures",

@@ -64,6 +64,6 @@ def parameters_against_truth(calibration, truth) -> list:
     """:func:`openemt.paper.parameter_rows` of a fitted calibration with a ``truth`` column:
     coil positions and fixture translations in mm, rotations in degrees, moments in gain
     units, fixed parameters marked ``fixed``."""
-    from ._report import parameter_rows
+    from ._parameters import parameter_rows
 
     return parameter_rows(calibration, truth=truth)

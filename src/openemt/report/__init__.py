@@ -1,6 +1,7 @@
 """Figures (matplotlib), the self-contained HTML report and its sections. Nothing numeric
 imports this package; its functions lay out results computed elsewhere."""
 
+from ._built import BuiltReport, characterization_report, paper_report
 from ._figures import error_histogram_figure, error_map_figure, error_vector_figure, sweep_figure
 from ._glossary import GLOSSARY, glossary_section
 from ._html import Report, figure_png
@@ -20,9 +21,11 @@ from ._sections import (
 
 __all__ = [
     "GLOSSARY",
+    "BuiltReport",
     "Report",
     "accuracy_section",
     "by_fixture_table",
+    "characterization_report",
     "characterization_document",
     "error_figures",
     "error_histogram_figure",
@@ -31,6 +34,7 @@ __all__ = [
     "figure_png",
     "glossary_section",
     "paper_document",
+    "paper_report",
     "planar_document",
     "planar_report",
     "reason_notes",

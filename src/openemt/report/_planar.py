@@ -116,7 +116,7 @@ def planar_report(data, cal, *, holdout: str | None = None, dataset: str = "",
 
     Returns
     -------
-    openemt.paper.BuiltReport
+    openemt.report.BuiltReport
         ``summary``: ``mode = "planar"``, ``board``, ``dataset``, ``n_points``, ``accuracy``
         (all points), ``insample`` / ``holdout`` (with ``holdout``), ``status_counts``,
         ``gains``, ``gains_se``, ``offsets_mm``, ``offsets_se_mm``, ``tilts_deg``,
@@ -124,7 +124,7 @@ def planar_report(data, cal, *, holdout: str | None = None, dataset: str = "",
     """
     from .._errors import InputError
     from ..calibrate._planar import check_grid_units, checkerboard_split, planar_errors
-    from ..paper import BuiltReport
+    from ._built import BuiltReport
 
     t0 = time.perf_counter()
     if holdout not in (None, "checkerboard"):

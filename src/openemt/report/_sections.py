@@ -2,7 +2,7 @@
 
 Each function adds headings, tables, paragraphs and figures to a :class:`~openemt.report.Report`;
 none of them computes an error or solves a pose. The numbers come from
-:func:`openemt.paper.characterize_calibration`, :func:`openemt.paper.paper_report` and
+:func:`openemt.paper.characterize_calibration`, :func:`openemt.report.paper_report` and
 :func:`openemt.evaluate.sweep_linearity`.
 """
 
