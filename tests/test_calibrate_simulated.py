@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from openemt.calibrate import dipole_cost, parameter_recovery
+from openemt.paper import dipole_cost, parameter_recovery
 
 
 def test_exact_model_recovers_truth_within_standard_errors():

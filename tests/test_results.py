@@ -14,7 +14,7 @@ from openemt import calibrate, evaluate, paper
 
 RESULT_CLASSES = [
     calibrate.ResidueStats, calibrate.HeldOutTest, calibrate.CrossValidation,
-    calibrate.ImprovedTest, calibrate.ParameterRecovery, calibrate.DipoleCost,
+    calibrate.ImprovedTest, paper.ParameterRecovery, paper.DipoleCost,
     evaluate.ErrorSummary, evaluate.UncertaintySummary, evaluate.Characterization,
     evaluate.SweepTable, evaluate.SweepAnalysis, paper.Table2Reproduction,
     paper.Table3Reproduction, paper.Table4Reproduction, paper.CalibrationCharacterization,

@@ -24,6 +24,7 @@ from ._improved import STAGE_LINEAR_BASIS, ImprovedProblem, RigModel, RigOptions
 from ._layout import FIELD_NAMES, ParameterLayout
 from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, get_mode, select_rows
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
+from ._perturb import perturb_calibration
 from ._planar import (
     GridData,
     PlanarCalibration,
@@ -51,13 +52,6 @@ from ._sequence import (
     fit_output_correction,
     run_sequence,
 )
-from ._simstudy import (
-    DipoleCost,
-    ParameterRecovery,
-    dipole_cost,
-    parameter_recovery,
-    perturb_calibration,
-)
 
 __all__ = [
     "CANDIDATES",
@@ -76,7 +70,6 @@ __all__ = [
     "CalibrationProblem",
     "CrossValidation",
     "Dataset",
-    "DipoleCost",
     "GridData",
     "HeldOutTest",
     "Identifiability",
@@ -86,7 +79,6 @@ __all__ = [
     "ImprovedTest",
     "OutputCorrection",
     "ParameterLayout",
-    "ParameterRecovery",
     "PlanarCalibration",
     "ReferenceFit",
     "ResidueStats",
@@ -97,7 +89,6 @@ __all__ = [
     "build_problem",
     "calibrate_planar",
     "cross_validate",
-    "dipole_cost",
     "fit",
     "fit_improved",
     "fit_output_correction",
@@ -106,7 +97,6 @@ __all__ = [
     "get_mode",
     "held_out_rows",
     "improved_calibration",
-    "parameter_recovery",
     "perturb_calibration",
     "planar_coupling",
     "read_grid_csv",

@@ -55,7 +55,7 @@ def _fmt(name, row):
 
 
 def _simulated(args) -> int:
-    from ..calibrate import dipole_cost, parameter_recovery
+    from ..paper import dipole_cost, parameter_recovery
 
     announce_compile(args, "solver kernels")
     stage(args, f"simulating preset {args.preset} and calibrating it ({args.table}) ...")

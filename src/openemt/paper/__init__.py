@@ -16,6 +16,7 @@ from ._characterization import (
 from ._parameters import coil_name, parameter_rows
 from ._reasons import explain_rows
 from ._run import PaperRun, load_paper_run, sequence_steps
+from ._simstudies import DipoleCost, ParameterRecovery, dipole_cost, parameter_recovery
 from ._simulated import parameters_against_truth, truth_comparison_rows
 from ._table2 import (
     TABLE2_PAPER,
@@ -47,6 +48,10 @@ from ._table4 import (
 )
 
 __all__ = [
+    "DipoleCost",
+    "ParameterRecovery",
+    "dipole_cost",
+    "parameter_recovery",
     "FIXTURE_MOMENT_M",
     "TABLE2_PAPER",
     "TABLE2_PAPER_COLUMNS",

@@ -17,16 +17,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .._result import Result
+from ..calibrate import (
+    MODES,
+    RigOptions,
+    fit,
+    fit_improved,
+    perturb_calibration,
+)
 from ..evaluate import ACCURACY_KEYS, error_summary, pose_error_magnitudes
 from ..geometry import SOURCE_FIXTURES
 from ..io import Calibration
-from ._fit import fit
-from ._improved import RigOptions, fit_improved
-from ._layout import ParameterLayout
-from ._modes import MODES, get_mode
+from ..simulate import STAGE_SIGMA, get_preset, simulate, truth_calibration
 
-__all__ = ["DipoleCost", "ParameterRecovery", "dipole_cost", "parameter_recovery",
-           "perturb_calibration"]
+__all__ = ["DipoleCost", "ParameterRecovery", "dipole_cost", "parameter_recovery"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,38 +98,8 @@ class DipoleCost(Result):
 
 
 def _truth(preset) -> Calibration:
-    from ..simulate import truth_calibration
 
     return truth_calibration(preset)
-
-
-def perturb_calibration(cal: Calibration, rng, *, mode="XYZ_all", pos=5e-4, rel=0.01,
-                        fix_t=1e-3, fix_r=0.01) -> Calibration:
-    """A start for a fit: every parameter ``mode`` fits moved by a random normal amount.
-
-    Standard deviations: ``pos`` (m) for coil positions, ``rel`` times the largest moment
-    component of the side for coil moments, ``fix_t`` (m) and ``fix_r`` (rad) for fixture
-    translations and rotations. Parameters the mode holds keep their values; the result's
-    ``mode`` is ``"start"``.
-    """
-    lay = ParameterLayout.for_model(cal.model)
-    m = get_mode(mode)
-    x = lay.pack_calibration(cal)
-    free = lay.free_indices(m.optimize, m.freeze)
-    scale = np.zeros(lay.size)
-    for name in ("L_so", "L_se"):
-        scale[lay.slices[name]] = pos
-    for name in ("M_so", "M_se"):
-        s = lay.slices[name]
-        scale[s] = rel * np.abs(x[s]).max()
-    for name in ("F_so", "F_st", "F_se"):
-        s = lay.slices[name]
-        scale[s.start:s.start + 3] = fix_t
-        scale[s.start + 3:s.stop] = fix_r
-    x[free] += rng.normal(size=free.size) * scale[free]
-    F = lay.fixtures(x)
-    return cal.replace(model=lay.model(x, cal.model.gain), source_fixture=F[0],
-                       stage_fixture=F[1], sensor_fixture=F[2], mode="start")
 
 
 def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed=0
@@ -140,7 +113,6 @@ def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed
     -------
     ParameterRecovery
     """
-    from ..simulate import get_preset, simulate
 
     p = get_preset(preset)
     exact = replace(p, model=p.dipole)
@@ -187,7 +159,6 @@ def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -
     source fixture. Also reports the error of the exact dipole-equivalent model (no fit), and
     the range of source-sensor distance over coil size ``r/d``.
     """
-    from ..simulate import STAGE_SIGMA, get_preset, simulate
 
     t0 = time.perf_counter()
     p = get_preset(preset)
