@@ -24,8 +24,8 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0+unknown"
 
 #: Subpackages, in pipeline order.
-SUBPACKAGES = ("geometry", "field", "simulate", "io", "signal", "solve", "calibrate", "correct",
-               "evaluate", "paper", "report", "live", "bench", "datasets")
+SUBPACKAGES = ("geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate",
+               "correct", "align", "evaluate", "paper", "report", "live", "bench", "datasets")
 
 #: Top-level name -> (subpackage, name there).
 _ATTRIBUTES = {
@@ -60,8 +60,8 @@ _ATTRIBUTES = {
 
 __all__ = [  # noqa: RUF022 - version, then the subpackages in pipeline order, then the names
     "__version__",
-    "geometry", "field", "simulate", "io", "signal", "solve", "calibrate", "correct", "evaluate",
-    "paper", "report", "live", "bench", "datasets",
+    "geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate", "correct",
+    "align", "evaluate", "paper", "report", "live", "bench", "datasets",
     "Calibration", "CalibrationFit", "Dataset", "DipoleModel", "ErrorSummary", "SolveResult",
     "Status", "error_summary",
     "fit_calibration", "fit_correction", "import_ilemt_folder", "pose_errors",

@@ -23,9 +23,6 @@ Each sample gets the status of the one validity rule of every solver
 
 from __future__ import annotations
 
-import dataclasses
-import inspect
-
 import numpy as np
 from numba import njit
 
@@ -33,6 +30,7 @@ from .._errors import InputError
 from ..field._segments import coupling_point, sensor_rule
 from ._hemisphere import hemisphere_vectors
 from ._linalg import cholesky_solve
+from ._packing import pack_options
 from ._result import SolveResult, Status
 from ._validity import (
     MAX_RANGE_M,
@@ -220,31 +218,15 @@ def _seed(F, Pg, c, order_out, min_sep):
     return U
 
 
-def _rule_adapter():
-    """The shared rule's ``classify`` called as ``_status(hit, rho, t, n, box, opts)`` with the
-    position box ``[lo, hi]`` (2, 3) and the options array of :func:`_rule_options`, whichever
-    way the rule takes its thresholds (packed in an options array, or as scalars)."""
-    if "opts" in inspect.signature(classify.py_func).parameters:
-        from ._packing import pack_options
-
-        def options(ambiguity_tol, max_rel, max_range):
-            return pack_options(ambiguity_tol=ambiguity_tol, max_relative_residual=max_rel,
-                                max_range=max_range)
-
-        @njit(inline="always")
-        def status(hit, rho, t, n, box, opts):
-            return classify(hit, rho, t, n, box, opts)
-    else:
-        def options(ambiguity_tol, max_rel, max_range):
-            return np.array([ambiguity_tol, max_rel, max_range], dtype=np.float64)
-
-        @njit(inline="always")
-        def status(hit, rho, t, n, box, opts):
-            return classify(hit, rho, t, n, box[0], box[1], opts[0], opts[1], opts[2])
-    return options, status
+def _rule_options(ambiguity_tol, max_rel, max_range):
+    """The options array of the shared validity rule (:func:`openemt.solve._validity.classify`)."""
+    return pack_options(ambiguity_tol=ambiguity_tol, max_relative_residual=max_rel,
+                        max_range=max_range)
 
 
-_rule_options, _status = _rule_adapter()
+@njit(inline="always")
+def _status(hit, rho, t, n, box, opts):
+    return classify(hit, rho, t, n, box, opts)
 
 
 @njit(cache=True)
@@ -487,6 +469,5 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
     # ``residual`` is ILEMT's resnorm as for every solver (squared residual norm over the
     # measured norm, the spectral norm of a single column); the status is judged by ``rho``
     resnorm = rho ** 2 * np.linalg.norm(C, axis=1)
-    extra = ({"relative_residual": rho}
-             if "relative_residual" in {f.name for f in dataclasses.fields(SolveResult)} else {})
-    return SolveResult(poses, vec, status, resnorm, iters, None, "planar-lm", **extra)
+    return SolveResult(poses, vec, status, resnorm, iters, None, "planar-lm",
+                       relative_residual=rho)
