@@ -187,9 +187,9 @@ class TrackLog:
         suffix = path.suffix.lower()
         multi = len(self.sensor_names) > 1
         if suffix in (".h5", ".hdf5"):
-            import h5py
+            from ..io import atomic_h5
 
-            with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+            with atomic_h5(path) as f:
                 f.attrs["format"] = "openemt-track"
                 f.attrs["version"] = 2 if multi else 1
                 if multi:

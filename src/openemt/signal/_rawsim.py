@@ -364,12 +364,10 @@ def write_raw(raw: RawSignal, path) -> None:
         /truth/couplings          complex (n_truth, n_source, n_sensor)
         /truth/poses              (n_truth, 4, 4) m
     """
-    import h5py
-
-    from ..io import atomic_path
+    from ..io import atomic_h5
 
     lay = raw.layout
-    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+    with atomic_h5(path) as f:
         f.attrs["format"] = RAW_FORMAT
         f.attrs["version"] = _RAW_VERSION
         f.attrs["sample_rate"] = lay.sample_rate
