@@ -70,13 +70,13 @@ _HOST = _host_tag()
 _TMP_RE = re.compile(rf"\.{_TMP_TAG}-([0-9a-f]{{8}})-(\d+)-[A-Za-z0-9_]+(?:\.[A-Za-z0-9]+)?\Z")
 _OLD_TMP_RE = re.compile(rf"\..+\.{_TMP_TAG}-(\d+)\.[A-Za-z0-9_]+\.[A-Za-z0-9]+\Z")
 
-# errno -> the start of the one-line message
+# errno -> the start of the one-line message "<what> writing 'X' (<detail>; nothing was written)"
 _WRITE_ERRORS = {
-    errno.ENOSPC: "disk full writing",
-    errno.EDQUOT: "disk quota exceeded writing",
-    errno.EFBIG: "file too large for the file system writing",
-    errno.EIO: "input/output error (failing disk or network file system) writing",
-    errno.EROFS: "read-only file system: cannot write",
+    errno.ENOSPC: ("disk full", "no space left on device"),
+    errno.EDQUOT: ("disk quota exceeded", "no space left in your quota"),
+    errno.EFBIG: ("file too large", "larger than the file system allows"),
+    errno.EIO: ("input/output error", "a failing disk or network file system"),
+    errno.EROFS: ("read-only file system", "the folder cannot be written"),
 }
 
 
@@ -227,8 +227,8 @@ def _described(exc: OSError, tmp: str, path: Path) -> OSError:
     """The error as one line naming the user's output path instead of the temporary file."""
     code = getattr(exc, "errno", None)
     if code in _WRITE_ERRORS:
-        reason = os.strerror(code).lower()
-        out = OSError(f"{_WRITE_ERRORS[code]} {str(path)!r} ({reason}; nothing was written)")
+        what, detail = _WRITE_ERRORS[code]
+        out = OSError(f"{what} writing {str(path)!r} ({detail}; nothing was written)")
         out.errno = code
         return out
     if tmp not in str(exc) and getattr(exc, "filename", None) != tmp:
