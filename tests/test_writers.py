@@ -329,3 +329,19 @@ def test_temporary_names_are_short_and_recognised():
     assert len(tmp_name) < 40
     assert _atomic._stale_owner(tmp_name) == 4194304
     assert _atomic._stale_owner(Path("x.h5").name) is None
+
+
+# --------------------------------------------------------------------------- the bench section
+
+def test_bench_hostile_writers_section_holds():
+    """A bounded run of ``openemt bench fuzz``'s hostile_writers section: one fast writer, every
+    kind but ``killed`` (a fresh interpreter per case; pinned above by
+    test_killed_run_temporary_is_removed_by_the_next_run_writing_another_name); the long run
+    covers every writer and kind."""
+    from openemt.bench._fuzzhostile_writers import KINDS, hostile_writers
+
+    kinds = [k for k in KINDS if k != "killed"]
+    out = hostile_writers(1, writers=["track_save_raw"], kinds=kinds, time_limit=60)
+    assert out["broken"] == 0, out["examples"]
+    assert out["cases"] == len(kinds) == out["held"] + out["skipped"]
+    assert set(out["by_kind"]) == set(kinds)

@@ -28,6 +28,9 @@ def add_arguments(parser) -> None:
                         help="mutated files given to the CLI commands (2000)")
     parser.add_argument("--solver-samples", type=int, default=100000,
                         help="generated coupling matrices per solver (100000)")
+    parser.add_argument("--writer-rounds", type=int, default=1,
+                        help="rounds of hostile output paths for every writing command "
+                             "(openemt.bench._fuzzhostile_writers; 0 skips them) (1)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -67,7 +70,7 @@ def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None
 
 
 def run(args) -> dict:
-    for name in ("reader_cases", "cli_cases", "solver_samples"):
+    for name in ("reader_cases", "cli_cases", "solver_samples", "writer_rounds"):
         if getattr(args, name) < 0:
             raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
                              f"got {getattr(args, name)}")
@@ -86,13 +89,17 @@ def run(args) -> dict:
         _files(args, "cli", args.cli_cases, cli, examples, bar.update)
     t_files = time.perf_counter() - t0
     solvers = fuzz_solvers(args.solver_samples, args.seed) if args.solver_samples else {}
+    writers = {}
+    if args.writer_rounds:
+        from ._fuzzhostile_writers import hostile_writers
+        writers = hostile_writers(args.writer_rounds, time_limit=max(args.time_limit, 60.0))
 
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
-        + solvers.get("crashes", 0)
+        + solvers.get("crashes", 0) + writers.get("broken", 0)
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -106,6 +113,7 @@ def run(args) -> dict:
         "readers": readers,
         "cli": cli,
         "solvers": solvers.get("by_solver", {}),
+        "hostile_writers": writers,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

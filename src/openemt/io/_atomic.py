@@ -154,6 +154,9 @@ def resolve_output(output, *, folder: bool = False, check_datasets: bool = True)
         if exc.errno == errno.ELOOP:
             raise InputError(f"expected {want} for output, got {str(given)!r}, a symbolic link "
                              "loop") from None
+        if exc.errno == errno.ENAMETOOLONG:
+            raise InputError(f"expected an output name within the file system's limit, got "
+                             f"{str(given)!r} ({len(given.name.encode())} bytes)") from None
         if exc.errno == errno.ENOTDIR:
             raise InputError(f"expected {want} for output, got {str(given)!r}, whose folder "
                              "part is a file") from None
