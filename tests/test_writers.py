@@ -93,6 +93,15 @@ def test_output_folder_of_demo_must_be_a_folder(tmp_path, capsys):
     assert plain.read_text() == "keep"
 
 
+def test_missing_output_folder_is_refused_before_any_work(ilemt_dir, tmp_path, capsys,
+                                                         monkeypatch):
+    import openemt.cli._import_ as cmd
+
+    monkeypatch.setattr(cmd, "run", lambda args: pytest.fail("the command ran"))
+    _refused(capsys, _import_argv(ilemt_dir, tmp_path / "missing" / "out.h5"),
+             "expected an existing folder for output", "missing folder")
+
+
 def test_symlink_loop_output_is_one_error(tmp_path, capsys, ilemt_dir):
     a, b = tmp_path / "a.h5", tmp_path / "b.h5"
     a.symlink_to(b)
@@ -146,8 +155,8 @@ def test_names_up_to_name_max_work(tmp_path):
     with atomic_path(tmp_path / ("t" * limit)) as tmp:
         tmp.write_text("x")
     assert (tmp_path / ("t" * limit)).read_text() == "x"
-    with pytest.raises(OSError) as exc:  # past the limit: one error naming the output
-        write_dataset(_dataset(), tmp_path / ("m" * (limit + 1)))
+    with pytest.raises(InputError, match="within the file system's limit") as exc:
+        write_dataset(_dataset(), tmp_path / ("m" * (limit + 1)))  # one error naming it
     assert "m" * 20 in str(exc.value) and "\n" not in str(exc.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, "t" * limit])
 

@@ -212,6 +212,8 @@ def check_output_path(output, inputs, *, folder: bool = False) -> None:
     """
     out = Path(output)
     out_resolved = resolve_output(out, folder=folder, check_datasets=False)
+    if not folder and not out_resolved.parent.is_dir():
+        raise _missing_folder(out, out_resolved.parent)
     for given in inputs:
         inp = Path(given)
         if not inp.exists():
@@ -224,6 +226,11 @@ def check_output_path(output, inputs, *, folder: bool = False) -> None:
             raise InputError(f"expected an output path outside the input folder {str(inp)!r}, "
                              f"got {str(out)!r} inside it")
     _refuse_datasets(out, out_resolved)
+
+
+def _missing_folder(output: Path, folder: Path) -> FileNotFoundError:
+    return FileNotFoundError(f"expected an existing folder for output {str(output)!r}, got "
+                             f"missing folder {str(folder)!r}")
 
 
 def _described(exc: OSError, tmp: str, path: Path) -> OSError:
@@ -275,8 +282,7 @@ def atomic_path(path, suffix: str | None = None):
     target = resolve_output(given)
     folder = target.parent
     if not folder.is_dir():
-        raise FileNotFoundError(f"expected an existing folder for output {str(given)!r}, "
-                                f"got missing folder {str(folder)!r}")
+        raise _missing_folder(given, folder)
     remove_stale_temporaries(target)
     try:
         mode = stat.S_IMODE(os.stat(target).st_mode)  # a replaced file keeps its permissions
