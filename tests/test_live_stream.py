@@ -86,21 +86,17 @@ def test_stream_full_disk_by_free_space(tmp_path, monkeypatch):
 
 
 def test_stream_full_disk_inside_hdf5_does_not_crash(tmp_path, monkeypatch):
-    from openemt.io import _stream
+    from openemt.io import _atomic
 
     path = tmp_path / "s.h5"
     s = H5Stream(path, {}, flush_seconds=0.0)
     s.append("/", {"a": np.arange(5000.0)})
     s.flush()
-    orig = _stream._GuardedFile.write
 
-    def write(self, b):                            # the disk fills up now
-        if self.error is None:
-            self.error = OSError(errno.ENOSPC, "No space left on device")
-            raise self.error
-        return orig(self, b)
+    def pwrite(fd, data, offset):                  # the disk fills up now
+        raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(_stream._GuardedFile, "write", write)
+    monkeypatch.setattr(_atomic.os, "pwrite", pwrite)
     s.append("/", {"a": np.arange(5000.0)})
     with pytest.raises(DiskFullError, match="disk full writing"):
         s.flush()
@@ -114,7 +110,7 @@ def test_stream_full_disk_inside_hdf5_does_not_crash(tmp_path, monkeypatch):
 def test_check_stream_outputs(tmp_path):
     check_stream_outputs({"--log": tmp_path / "a.h5", "--save-raw": tmp_path / "b.h5",
                           "--x": None})
-    with pytest.raises(ValueError, match="missing folder"):
+    with pytest.raises(OSError, match="missing folder"):
         check_stream_outputs({"--log": tmp_path / "no" / "a.h5"})
     with pytest.raises(ValueError, match="--log and --save-raw"):
         check_stream_outputs({"--log": tmp_path / "a.h5", "--save-raw": tmp_path / "a.h5"})
@@ -125,7 +121,7 @@ def test_check_stream_outputs(tmp_path):
                               "--save-raw": tmp_path / "link.h5"})
     with pytest.raises(ValueError, match="folder"):
         check_stream_outputs({"--log": tmp_path})
-    with pytest.raises(ValueError, match="not a regular file"):
+    with pytest.raises(ValueError, match="which is a character device"):
         check_stream_outputs({"--log": "/dev/null"})
     if os.geteuid() != 0:                          # root writes anywhere
         ro = tmp_path / "ro"
@@ -262,7 +258,7 @@ def test_bad_outputs_refused_before_anything_runs(cli, capsys, tmp_path):
     assert "a folder" in _one_error(capsys)
     os.symlink(os.devnull, tmp_path / "n.h5")      # a device behind an .h5 name
     assert cli(base + ["--log", str(tmp_path / "n.h5")]) == 2
-    assert "not a regular file" in _one_error(capsys)
+    assert "which is a character device" in _one_error(capsys)
     assert sorted(os.listdir(tmp_path)) == ["d.h5", "n.h5"]
 
 

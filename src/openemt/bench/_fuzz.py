@@ -31,6 +31,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--live-cases", type=int, default=15,
                         help="hostile live-session cases: signals during a logged track "
                              "session, stalled sources (15)")
+    parser.add_argument("--writer-rounds", type=int, default=1,
+                        help="rounds of hostile output paths for every writing command "
+                             "(openemt.bench._fuzzhostile_writers; 0 skips them) (1)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -70,7 +73,7 @@ def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None
 
 
 def run(args) -> dict:
-    for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases"):
+    for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases", "writer_rounds"):
         if getattr(args, name) < 0:
             raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
                              f"got {getattr(args, name)}")
@@ -94,13 +97,17 @@ def run(args) -> dict:
     with progress(total=args.live_cases, desc="hostile live", args=args, unit="case") as bar:
         hostile_live = fuzz_live(args.live_cases, args.seed, time_limit=max(args.time_limit, 30),
                                  progress=bar.update)
+    writers = {}
+    if args.writer_rounds:
+        from ._fuzzhostile_writers import hostile_writers
+        writers = hostile_writers(args.writer_rounds, time_limit=max(args.time_limit, 60.0))
 
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
-        + solvers.get("crashes", 0) + hostile_live["findings"]
+        + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0)
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -115,6 +122,7 @@ def run(args) -> dict:
         "cli": cli,
         "solvers": solvers.get("by_solver", {}),
         "hostile_live": hostile_live,
+        "hostile_writers": writers,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

@@ -193,7 +193,11 @@ def run(args) -> dict:
 
 
 def _figure(summary, path):
+    from pathlib import Path
+
     import matplotlib
+
+    from ..io import atomic_path
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -211,5 +215,6 @@ def _figure(summary, path):
     axes[0, 0].legend()
     fig.suptitle("Normalised RMS error vs SNR (the noise protocol of Teixeira Silva et al. 2017)")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with atomic_path(path, suffix=Path(path).suffix) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)

@@ -144,7 +144,7 @@ def _command_of(argv) -> str:
 
 
 #: Argument destinations that name files or folders a command writes.
-OUTPUT_DESTS = ("output", "output_dir", "log", "save_raw", "truth_calibration")
+OUTPUT_DESTS = ("output", "output_dir", "log", "save_raw", "truth_calibration", "figure")
 
 
 class Terminated(KeyboardInterrupt):
@@ -165,19 +165,19 @@ def _paths(value):
 
 
 def check_outputs(args) -> None:
-    """Refuse outputs that would overwrite an input: every other existing path named on the
-    command line counts as an input (see :func:`openemt.io.check_output_path`)."""
+    """Refuse outputs that would overwrite an input (every other existing path named on the
+    command line counts as an input) or that are not a regular file or a new name (a device,
+    FIFO, socket, folder, symbolic-link loop; see :func:`openemt.io.check_output_path`)."""
+    from ..io._atomic import check_output_path
+
     outputs = [v for d in OUTPUT_DESTS for v in _paths(getattr(args, d, None))]
     if not outputs:
         return
     inputs = [v for d, val in vars(args).items() if d not in OUTPUT_DESTS
               for v in _paths(val) if os.path.exists(v)]
-    if not inputs:      # nothing to protect: skip importing openemt.io (about 1 s)
-        return
-    from ..io._atomic import check_output_path
-
-    for out in outputs:
-        check_output_path(out, inputs)
+    for d in OUTPUT_DESTS:
+        for out in _paths(getattr(args, d, None)):
+            check_output_path(out, inputs, folder=d == "output_dir")
 
 
 def main(argv=None) -> int:

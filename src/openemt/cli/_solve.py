@@ -335,13 +335,11 @@ def write_solved(args, n: int, solver: str, meta: dict, chunks):
     """Write the ``(start, SolveResult)`` blocks of ``chunks`` to the poses file ``args.output``
     (atomically, with a progress bar); returns the :class:`~openemt.solve._output.PoseWriter`,
     whose status counts outlive the file."""
-    import h5py
-
-    from ..io import atomic_path
+    from ..io import atomic_h5
     from ..solve._output import PoseWriter
     from ._common import progress
 
-    with atomic_path(args.output, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+    with atomic_h5(args.output) as f:
         writer = PoseWriter(f, n, solver, meta)
         with progress(total=n, desc="solve", args=args, unit="pose") as bar:
             for start, res in chunks:

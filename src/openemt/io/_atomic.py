@@ -1,34 +1,83 @@
 """Safe file output: write to a temporary file beside the target, then rename; never over an
-input.
+input, never onto something that is not a regular file.
 
-A temporary file is named ``.<target name>.openemt-<pid>.<random>.tmp``. A run that is killed
-outright (SIGKILL, power loss) cannot remove it; the next run writing the same target
-recognises such a file by its name and removes it when the process that made it is gone.
-Termination by SIGTERM or Ctrl-C cleans up like any other failure (the CLI turns SIGTERM into
-an exception).
+The guarantees (docs/robustness.md#writers lists the test of each):
+
+* **Only regular files are replaced.** An output that exists and is not a regular file (a
+  character or block device, a FIFO, a socket, a folder) is refused with one
+  :class:`~openemt._errors.InputError`, and so is a symbolic-link loop and any path inside the
+  installed bundled-dataset folder (``openemt.datasets``).
+* **Symbolic links are written through.** An output that is a symbolic link keeps the link: the
+  file it points to is replaced (as ``>`` in a shell does); the temporary file is created beside
+  the link's target, so the final rename stays within one file system.
+* **Short temporary names.** A temporary file is named ``.openemt-<host>-<pid>-<random><suffix>``
+  (about 35 characters, whatever the target's name), so an output name may use the file
+  system's whole limit (NAME_MAX, 255 bytes on Linux).
+* **Durable.** The data is fsync'ed before the rename and the folder after it (where the file
+  system supports it), so after a crash the target is the old file or the complete new one.
+* **A full disk is one error.** ``ENOSPC``, ``EDQUOT``, ``EFBIG``, ``EIO`` and ``EROFS`` become
+  one ``OSError`` such as ``disk full writing 'X'`` (the CLI prints it as one ``error:`` line,
+  exit 2) and the temporary file is removed. HDF5 files are written through :func:`atomic_h5`,
+  whose file object never lets the HDF5 library see a failed write (libhdf5 2.0 crashes with a
+  segmentation fault when it closes a file after one).
+* **Stale temporaries are cleaned.** A run killed outright (SIGKILL, power loss) cannot remove
+  its temporary file; the next openemt run that writes into the same folder removes every
+  openemt temporary file whose process is gone (``<host>`` is a tag of the machine and process
+  namespace, so temporaries of runs on other machines sharing the folder are left alone).
+  Termination by SIGTERM or Ctrl-C cleans up like any other failure (the CLI turns SIGTERM into
+  an exception).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
+import socket
+import stat
 import tempfile
+import zlib
 from pathlib import Path
 
 from .._errors import InputError
 
-__all__ = ["atomic_path", "check_output_path", "remove_stale_temporaries"]
+__all__ = ["GuardedFile", "atomic_h5", "atomic_path", "check_output_path", "raise_if_write_failed",
+           "remove_stale_temporaries", "resolve_output"]
 
 # the process umask, read once at import (setting it to read it is not thread-safe later)
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
 _TMP_TAG = "openemt"
+#: the installed bundled-dataset folder (openemt.datasets), never written into
+_DATASETS_DIR = Path(__file__).resolve().parent.parent / "datasets"
 
 
-def _tmp_pattern(name: str) -> re.Pattern:
-    return re.compile(re.escape(f".{name}.{_TMP_TAG}-") + r"(\d+)\.[A-Za-z0-9_]+\.[A-Za-z0-9]+\Z")
+def _host_tag() -> str:
+    """8 hex digits naming this machine and process namespace (pids are only comparable within
+    one); temporaries of other machines sharing a network folder are never removed."""
+    try:
+        ns = os.stat("/proc/self/ns/pid").st_ino
+    except OSError:
+        ns = 0
+    return f"{zlib.crc32(f'{socket.gethostname()}|{ns}'.encode()):08x}"
+
+
+_HOST = _host_tag()
+# .openemt-<host>-<pid>-<random>[.suffix]; and the longer name of earlier versions,
+# .<target name>.openemt-<pid>.<random>.<suffix> (no host tag: taken as this machine's)
+_TMP_RE = re.compile(rf"\.{_TMP_TAG}-([0-9a-f]{{8}})-(\d+)-[A-Za-z0-9_]+(?:\.[A-Za-z0-9]+)?\Z")
+_OLD_TMP_RE = re.compile(rf"\..+\.{_TMP_TAG}-(\d+)\.[A-Za-z0-9_]+\.[A-Za-z0-9]+\Z")
+
+# errno -> the start of the one-line message "<what> writing 'X' (<detail>; nothing was written)"
+_WRITE_ERRORS = {
+    errno.ENOSPC: ("disk full", "no space left on device"),
+    errno.EDQUOT: ("disk quota exceeded", "no space left in your quota"),
+    errno.EFBIG: ("file too large", "larger than the file system allows"),
+    errno.EIO: ("input/output error", "a failing disk or network file system"),
+    errno.EROFS: ("read-only file system", "the folder cannot be written"),
+}
 
 
 def _pid_alive(pid: int) -> bool:
@@ -40,23 +89,95 @@ def _pid_alive(pid: int) -> bool:
         return False
     except PermissionError:  # exists, owned by someone else
         return True
+    except OverflowError:  # not a pid this system can have
+        return False
     return True
 
 
+def _stale_owner(name: str) -> int | None:
+    """The pid of the openemt run that made the temporary file ``name`` on this machine, or
+    None if ``name`` is not such a file."""
+    m = _TMP_RE.match(name)
+    if m:
+        return int(m.group(2)) if m.group(1) == _HOST else None
+    m = _OLD_TMP_RE.match(name)
+    return int(m.group(1)) if m else None
+
+
 def remove_stale_temporaries(path) -> list[Path]:
-    """Remove temporary files of earlier, killed runs that wrote ``path``; returns them."""
+    """Remove the temporary files of earlier, killed openemt runs in the folder of ``path``
+    (whatever output they were writing); returns them.
+
+    Only files named like openemt's temporaries, made on this machine by a process that no
+    longer exists, are removed.
+    """
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
-    pattern = _tmp_pattern(path.name)
     removed = []
     with contextlib.suppress(OSError):
         for entry in os.scandir(folder):
-            m = pattern.match(entry.name)
-            if m and not _pid_alive(int(m.group(1))):
-                with contextlib.suppress(OSError):
+            if not entry.name.startswith("."):
+                continue
+            pid = _stale_owner(entry.name)
+            if pid is None or _pid_alive(pid):
+                continue
+            with contextlib.suppress(OSError):
+                if entry.is_file(follow_symlinks=False):
                     os.unlink(entry.path)
                     removed.append(Path(entry.path))
     return removed
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def resolve_output(output, *, folder: bool = False, check_datasets: bool = True) -> Path:
+    """The path an output is really written to, after refusing what must not be replaced.
+
+    A symbolic link resolves to its target (written through, the link is kept). Refused with an
+    :class:`~openemt._errors.InputError`: a symbolic-link loop, an existing path that is not a
+    regular file (a folder if ``folder``), and a path inside the bundled-dataset folder.
+    """
+    given = Path(output)
+    want = "a folder" if folder else "a regular file or a new file name"
+    try:
+        st = os.stat(given)
+    except FileNotFoundError:
+        st = None  # missing, or a link to a missing file (created through the link)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InputError(f"expected {want} for output, got {str(given)!r}, a symbolic link "
+                             "loop") from None
+        if exc.errno == errno.ENAMETOOLONG:
+            raise InputError(f"expected an output name within the file system's limit, got "
+                             f"{str(given)!r} ({len(given.name.encode())} bytes)") from None
+        if exc.errno == errno.ENOTDIR:
+            raise InputError(f"expected {want} for output, got {str(given)!r}, whose folder "
+                             "part is a file") from None
+        raise
+    if st is not None:
+        ok = stat.S_ISDIR(st.st_mode) if folder else stat.S_ISREG(st.st_mode)
+        if not ok:
+            raise InputError(f"expected {want} for output, got {str(given)!r}, which is "
+                             f"{_kind(st.st_mode)} (not replaced)")
+    real = Path(os.path.realpath(given))
+    if check_datasets:
+        _refuse_datasets(given, real)
+    return real
+
+
+def _refuse_datasets(given: Path, real: Path) -> None:
+    with contextlib.suppress(OSError):
+        datasets = _DATASETS_DIR.resolve()
+        if real == datasets or datasets in real.parents:
+            raise InputError(f"expected an output outside the installed bundled-dataset folder "
+                             f"{str(datasets)!r}, got {str(given)!r}")
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -67,26 +188,32 @@ def _same_file(a: Path, b: Path) -> bool:
     return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
 
 
-def check_output_path(output, inputs) -> None:
-    """Refuse an output path that is one of the inputs or lies inside an input folder.
+def check_output_path(output, inputs, *, folder: bool = False) -> None:
+    """Refuse an output path that cannot be written safely: one of the inputs, inside an input
+    folder, or one that :func:`resolve_output` refuses (a device, FIFO, socket or folder in
+    place of a file, a symbolic-link loop, the bundled-dataset folder).
 
-    The comparison resolves symbolic links and ``..`` and compares device and inode, so a hard
-    link to an input is refused too.
+    The comparison with the inputs resolves symbolic links and ``..`` and compares device and
+    inode, so a hard link to an input is refused too.
 
     Parameters
     ----------
     output : path-like
-        The file (or folder) about to be written.
+        The file (or, with ``folder``, the folder) about to be written.
     inputs : iterable of path-like
         Files and folders being read.
+    folder : bool
+        The output is a folder (``demo --output-dir``), not a file.
 
     Raises
     ------
     InputError
-        Naming the output and the input it would destroy.
+        Naming the output and what is wrong with it.
     """
     out = Path(output)
-    out_resolved = out.resolve()
+    out_resolved = resolve_output(out, folder=folder, check_datasets=False)
+    if not folder and not out_resolved.parent.is_dir():
+        raise _missing_folder(out, out_resolved.parent)
     for given in inputs:
         inp = Path(given)
         if not inp.exists():
@@ -98,14 +225,73 @@ def check_output_path(output, inputs) -> None:
         if inp.is_dir() and inp_resolved in out_resolved.parents:
             raise InputError(f"expected an output path outside the input folder {str(inp)!r}, "
                              f"got {str(out)!r} inside it")
+    _refuse_datasets(out, out_resolved)
 
 
-def _renamed(exc: OSError, tmp: str, path: Path) -> OSError:
-    """The error, naming the user's output path instead of the temporary file."""
+def _missing_folder(output: Path, folder: Path) -> FileNotFoundError:
+    return FileNotFoundError(f"expected an existing folder for output {str(output)!r}, got "
+                             f"missing folder {str(folder)!r}")
+
+
+def _described(exc: OSError, tmp: str, path: Path) -> OSError:
+    """The error as one line naming the user's output path instead of the temporary file."""
+    code = getattr(exc, "errno", None)
+    if code in _WRITE_ERRORS:
+        what, detail = _WRITE_ERRORS[code]
+        out = OSError(f"{what} writing {str(path)!r} ({detail}; nothing was written)")
+        out.errno = code
+        return out
     if tmp not in str(exc) and getattr(exc, "filename", None) != tmp:
         return exc
     reason = (exc.strerror or str(exc)).replace(tmp, str(path))
     return OSError(f"cannot write {str(path)!r}: {reason}")
+
+
+def _fsync_file(path: str) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make a rename durable; not every file system (or platform) can sync a folder."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _temp_suffix(suffix: str | None) -> str:
+    return suffix if suffix and re.fullmatch(r"\.[A-Za-z0-9]{1,8}", suffix) else ".tmp"
+
+
+def new_temporary(path, suffix: str | None = None) -> tuple[Path, str, int]:
+    """``(target, tmp, mode)`` for writing ``path``: the file to replace (a symbolic link
+    resolved, see the module docstring), a new empty temporary file beside it (stale
+    temporaries of killed runs removed first) and the permissions the result should get (a
+    replaced file keeps its own). Used by :func:`atomic_path` and the live streams
+    (:mod:`openemt.io._stream`); the caller renames or removes ``tmp``."""
+    given = Path(path)
+    target = resolve_output(given)
+    folder = target.parent
+    if not folder.is_dir():
+        raise _missing_folder(given, folder)
+    remove_stale_temporaries(target)
+    try:
+        mode = stat.S_IMODE(os.stat(target).st_mode)  # a replaced file keeps its permissions
+    except OSError:
+        mode = 0o666 & ~_UMASK  # the permissions a plain open() would give
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{_TMP_TAG}-{_HOST}-{os.getpid()}-",
+                                   suffix=_temp_suffix(suffix), dir=folder)
+    except OSError as exc:
+        raise _described(exc, "", given) from None
+    os.close(fd)
+    return target, tmp, mode
 
 
 @contextlib.contextmanager
@@ -113,36 +299,177 @@ def atomic_path(path, suffix: str | None = None):
     """Yield a temporary path in the target's folder; rename it to ``path`` on success.
 
     On any exception (including Ctrl-C, and SIGTERM under the CLI) the temporary file is removed
-    and ``path`` is left untouched, so a failed command never leaves a partial output file.
-    Temporary files left by killed earlier runs for the same target are removed first.
+    and ``path`` is left untouched, so a failed command never leaves a partial output file. See
+    the module docstring for symbolic links, refused targets, durability and full disks.
+    Temporary files left in the folder by killed earlier openemt runs are removed first.
     """
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileNotFoundError(f"expected an existing folder for output {str(path)!r}, "
-                                f"got missing folder {str(folder)!r}")
-    if path.is_dir():
-        raise IsADirectoryError(f"expected a file path for output, got the folder {str(path)!r}")
-    remove_stale_temporaries(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{_TMP_TAG}-{os.getpid()}.",
-                                   suffix=suffix or ".tmp", dir=folder)
-    except OSError as exc:
-        raise OSError(f"cannot write {str(path)!r}: {exc.strerror or exc}") from None
-    os.close(fd)
+    given = Path(path)
+    target, tmp, mode = new_temporary(given, suffix)
+    folder = target.parent
     try:
         yield Path(tmp)
-        # mkstemp creates the file 0600; give the result the permissions a plain open() would
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
+        os.chmod(tmp, mode)
+        _fsync_file(tmp)
+        os.replace(tmp, target)
     except OSError as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        renamed = _renamed(exc, tmp, path)
-        if renamed is exc:
+        described = _described(exc, tmp, given)
+        if described is exc:
             raise
-        raise renamed from None
+        raise described from None
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+    _fsync_folder(folder)
+
+
+class GuardedFile:
+    """A binary file object for the HDF5 library (h5py's ``fileobj`` driver) that never lets a
+    failed write reach it.
+
+    libhdf5 (2.0) crashes with a segmentation fault when it closes a file after a failed write
+    (a full disk), so this object absorbs the failure: the first ``OSError`` of a write is kept
+    in :attr:`error`, and from then on written bytes are kept in memory (so that what the
+    library reads back is what it wrote) instead of going to the disk. The owner calls
+    :meth:`check` after closing the HDF5 file (and, when streaming, after each block, so that a
+    full disk stops a long write early) and discards the file when it raises.
+
+    In the normal case every write goes straight to the disk (``os.pwrite``): memory does not
+    grow with the file. Usable for any HDF5 output, atomic (:func:`atomic_h5`) or appended to
+    in place.
+    """
+
+    def __init__(self, fd: int, name: str = ""):
+        self._fd = fd
+        self.name = name
+        self._pos = 0
+        self._size = os.fstat(fd).st_size
+        self.error: OSError | None = None
+        self._kept: list[tuple[int, bytes]] = []  # (offset, bytes) written after a failure
+
+    # the subset of the io API that h5py's fileobj driver uses
+    def readable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def tell(self) -> int:
+        return self._pos
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._pos, os.SEEK_END: self._size}[whence]
+        self._pos = base + offset
+        return self._pos
+
+    def readinto(self, buf) -> int:
+        view = memoryview(buf).cast("B")
+        n = max(0, min(len(view), self._size - self._pos))
+        data = b""
+        if n:
+            try:
+                data = os.pread(self._fd, n, self._pos)
+            except OSError as exc:
+                self._fail(exc)
+        view[:len(data)] = data
+        view[len(data):n] = bytes(n - len(data))
+        for off, kept in self._kept:  # bytes that could not be written, in write order
+            lo, hi = max(off, self._pos), min(off + len(kept), self._pos + n)
+            if lo < hi:
+                view[lo - self._pos:hi - self._pos] = kept[lo - off:hi - off]
+        self._pos += n
+        return n
+
+    def read(self, n: int = -1) -> bytes:
+        n = self._size - self._pos if n is None or n < 0 else n
+        buf = bytearray(n)
+        got = self.readinto(buf)
+        return bytes(buf[:got])
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        n = len(view)
+        if self.error is None:
+            try:
+                done = 0
+                while done < n:
+                    done += os.pwrite(self._fd, view[done:], self._pos + done)
+            except OSError as exc:
+                self._fail(exc)
+        if self.error is not None:
+            self._kept.append((self._pos, bytes(view)))
+        self._pos += n
+        self._size = max(self._size, self._pos)
+        return n
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self._pos if size is None else int(size)
+        if self.error is None:
+            try:
+                os.ftruncate(self._fd, size)
+            except OSError as exc:
+                self._fail(exc)
+        self._size = size
+        return size
+
+    def flush(self) -> None:
+        pass
+
+    def _fail(self, exc: OSError) -> None:
+        if self.error is None:
+            self.error = exc
+
+    def check(self) -> None:
+        """Raise the first write error, if any (as an ``OSError`` with its errno)."""
+        if self.error is not None:
+            code = self.error.errno
+            raise OSError(code, os.strerror(code) if code else str(self.error), self.name)
+
+
+#: id(h5py.File) -> its GuardedFile, while the file is open in :func:`atomic_h5`
+_GUARDS: dict[int, GuardedFile] = {}
+
+
+def raise_if_write_failed(h5file) -> None:
+    """For streaming writers: raise now if a write into ``h5file`` (opened by
+    :func:`atomic_h5`) has failed, so that a full disk ends a long write at once instead of
+    at its end. A file not opened by :func:`atomic_h5` passes."""
+    guard = _GUARDS.get(id(h5file))
+    if guard is not None:
+        guard.check()
+
+
+@contextlib.contextmanager
+def atomic_h5(path, *, seal: bool = False, **h5_options):
+    """Yield a new ``h5py.File`` that becomes ``path`` on success (see :func:`atomic_path`).
+
+    The HDF5 library writes through a :class:`GuardedFile`, so a full disk or an I/O error is
+    one ``OSError`` (``disk full writing 'X'``) with the temporary file removed, never a crash
+    inside the library. ``seal``: write openemt's CRC seal after closing (needs
+    ``userblock_size=SEAL_SIZE``, see :mod:`openemt.io._h5safe`). ``h5_options`` go to
+    ``h5py.File`` (``libver``, ``userblock_size``, ...).
+    """
+    import h5py
+
+    with atomic_path(path, suffix=".h5") as tmp:
+        fd = os.open(tmp, os.O_RDWR)
+        try:
+            guard = GuardedFile(fd, str(path))
+            f = h5py.File(guard, "w", **h5_options)
+            _GUARDS[id(f)] = guard
+            try:
+                yield f
+            finally:
+                _GUARDS.pop(id(f), None)
+                f.close()  # cannot fail on I/O: the guard keeps the error
+            guard.check()
+        finally:
+            os.close(fd)
+        if seal:
+            from ._h5safe import seal as write_seal
+            write_seal(tmp)

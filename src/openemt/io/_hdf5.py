@@ -16,9 +16,9 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from ._atomic import atomic_path
+from ._atomic import atomic_h5
 from ._dataset import Dataset, signed_real
-from ._h5safe import SEAL_SIZE, check_readable, seal
+from ._h5safe import SEAL_SIZE, check_readable
 from ._jsontext import loads_json
 
 __all__ = ["DATASET_SCHEMA", "DATASET_SCHEMA_VERSION", "CouplingReader", "open_dataset_couplings",
@@ -95,8 +95,6 @@ def write_dataset(ds: Dataset, path) -> Path:
     ``pattern``, ``file_index``, ``files`` and the optional ``stage_logged``, ``poses``,
     ``source_signs``, ``sensor_signs``; group ``extra``. See docs/data-format.md.
     """
-    import h5py
-
     if not isinstance(ds, Dataset):
         raise TypeError(f"expected a Dataset, got {type(ds).__name__}")
     try:
@@ -106,10 +104,8 @@ def write_dataset(ds: Dataset, path) -> Path:
     path = Path(path)
     # libver="latest": the newest object-header format, whose metadata carry checksums, so a
     # damaged header is refused on open instead of being parsed (HDF5 >= 1.10 reads it)
-    with atomic_path(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w", libver="latest", userblock_size=SEAL_SIZE) as f:
-            _write_contents(f, ds, meta_json)
-        seal(tmp)
+    with atomic_h5(path, seal=True, libver="latest", userblock_size=SEAL_SIZE) as f:
+        _write_contents(f, ds, meta_json)
     return path
 
 

@@ -4,9 +4,9 @@ A one-shot output is written whole under a temporary name and renamed at the end
 (:func:`openemt.io.atomic_path`). A live session may run for hours and may be killed at any
 moment, so its outputs are appended in chunks instead, with bounded memory:
 
-- the file is created under a temporary name beside the target (``.<name>.openemt-<pid>.
-  <random>.<suffix>``, the naming of :mod:`openemt.io._atomic`, so that the next run removes
-  it when the session was killed before it held anything) and renamed to the target **when it
+- the file is created under a temporary name beside the target (the naming of
+  :mod:`openemt.io._atomic`, so that the next run removes it when the session was killed
+  before it held anything; a symbolic-link target is written through) and renamed to the target **when it
   first holds a row** (or at a clean end): a session stopped during start-up never replaces
   an existing file, with an empty one or otherwise;
 - rows are buffered for about ``flush_seconds`` (1 s) and then appended and flushed to the
@@ -17,26 +17,30 @@ moment, so its outputs are appended in chunks instead, with bounded memory:
   root, ``complete`` (False until the session ends cleanly);
 - before each append the free space of the file system is compared with the bytes to write;
   a full disk (or an I/O error) ends the session as :class:`DiskFullError` ("disk full writing
-  X", exit 2 in the CLI) with the rows flushed so far readable. libhdf5 writes through a
-  Python file object here, and once a write has failed it takes no further byte, so closing
-  the file cannot crash inside the library.
+  X", exit 2 in the CLI) with the rows flushed so far readable. libhdf5 writes through the
+  guarded file object of the one-shot writers (:class:`openemt.io._atomic.GuardedFile`): a
+  failed write never reaches the library, so closing the file cannot crash inside it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import os
-import stat
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
-from ._atomic import _TMP_TAG, _UMASK, remove_stale_temporaries
+from ._atomic import (
+    GuardedFile,
+    _fsync_file,
+    _fsync_folder,
+    _missing_folder,
+    new_temporary,
+    resolve_output,
+)
 
 __all__ = ["CsvStream", "DiskFullError", "H5Stream", "check_stream_outputs"]
 
@@ -67,103 +71,27 @@ def check_stream_outputs(outputs: dict) -> None:
     Raises
     ------
     InputError
-        A missing or read-only folder, a folder or a non-regular file (device, FIFO) at the
-        path, or the same file named by two options.
+        What :func:`openemt.io._atomic.resolve_output` refuses (a folder, device, FIFO,
+        socket or link loop at the path, the bundled-dataset folder), a missing or read-only
+        folder, or the same file named by two options.
     """
     seen: dict = {}
     for opt, given in outputs.items():
         if given is None:
             continue
-        path = Path(given)
-        folder = _folder(path)
+        target = resolve_output(given)          # the one-shot writers' checks (device, ...)
+        folder = target.parent
         if not folder.is_dir():
-            raise InputError(f"expected an existing folder for {opt} {str(path)!r}, got "
-                             f"missing folder {str(folder)!r}")
+            raise _missing_folder(Path(given), folder)
         if not os.access(folder, os.W_OK | os.X_OK):
-            raise InputError(f"expected a writable folder for {opt} {str(path)!r}, got "
+            raise InputError(f"expected a writable folder for {opt} {str(given)!r}, got "
                              f"read-only folder {str(folder)!r}")
-        try:
-            st = path.stat()
-        except FileNotFoundError:
-            st = None
-        except OSError as exc:
-            raise InputError(f"expected a file path for {opt}, got {str(path)!r} "
-                             f"({exc.strerror or exc})") from None
-        if st is not None and not stat.S_ISREG(st.st_mode):
-            what = "a folder" if stat.S_ISDIR(st.st_mode) else "not a regular file"
-            raise InputError(f"expected a regular file (or a new name) for {opt}, got "
-                             f"{str(path)!r} ({what})")
-        key = (folder.resolve() / path.name)
-        for other, (okey, ost) in seen.items():
-            same = okey == key or (st is not None and ost is not None
-                                   and (st.st_dev, st.st_ino) == (ost.st_dev, ost.st_ino))
-            if same:
+        key = folder.resolve() / target.name
+        for other, okey in seen.items():
+            if okey == key or (key.exists() and okey.exists() and os.path.samefile(key, okey)):
                 raise InputError(f"expected different files for {other} and {opt}, got "
-                                 f"{str(path)!r} for both")
-        seen[opt] = (key, st)
-
-
-class _GuardedFile(io.RawIOBase):
-    """An unbuffered file for libhdf5's file-object driver: the first failed write is kept in
-    :attr:`error` and every later write is dropped (so that closing the HDF5 file after a full
-    disk does not write, fail and crash again)."""
-
-    def __init__(self, path):
-        super().__init__()
-        self._f = open(path, "r+b", buffering=0)  # noqa: SIM115 - closed in close()
-        self.error: OSError | None = None
-
-    def readable(self):
-        return True
-
-    def writable(self):
-        return True
-
-    def seekable(self):
-        return True
-
-    def readinto(self, b):
-        return self._f.readinto(b)
-
-    def write(self, b):
-        if self.error is not None:
-            return len(memoryview(b))
-        try:
-            return self._f.write(b)
-        except OSError as exc:
-            self.error = exc
-            raise
-
-    def seek(self, pos, whence=0):
-        return self._f.seek(pos, whence)
-
-    def tell(self):
-        return self._f.tell()
-
-    def truncate(self, size=None):
-        if self.error is not None:
-            return self._f.tell() if size is None else size
-        try:
-            return self._f.truncate(size)
-        except OSError as exc:
-            self.error = exc
-            raise
-
-    def flush(self):
-        pass
-
-    def fileno(self):
-        return self._f.fileno()
-
-    def sync(self) -> None:
-        if self.error is None:
-            with contextlib.suppress(OSError):
-                os.fsync(self._f.fileno())
-
-    def close(self):
-        if not self.closed:
-            self._f.close()
-        super().close()
+                                 f"{str(given)!r} for both")
+        seen[opt] = key
 
 
 class _Stream:
@@ -173,20 +101,12 @@ class _Stream:
     def __init__(self, path, suffix: str, *, flush_seconds: float = 1.0,
                  max_buffered_bytes: int = 64 << 20):
         self.path = Path(path)
-        folder = _folder(self.path)
-        if not folder.is_dir():
-            raise InputError(f"expected an existing folder for output {str(self.path)!r}, got "
-                             f"missing folder {str(folder)!r}")
-        remove_stale_temporaries(self.path)
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{_TMP_TAG}-{os.getpid()}.",
-                                       suffix=suffix, dir=folder)
-        except OSError as exc:
-            raise OSError(f"cannot write {str(self.path)!r}: {exc.strerror or exc}") from None
-        os.close(fd)
-        os.chmod(tmp, 0o666 & ~_UMASK)
+        # the target (a symbolic link written through), a temporary file beside it named as
+        # every openemt temporary (cleaned by the next run when this one is killed early)
+        self.target, tmp, mode = new_temporary(self.path, suffix)
+        os.chmod(tmp, mode)
         self.tmp = Path(tmp)
-        self.folder = folder
+        self.folder = self.target.parent
         self.flush_seconds = float(flush_seconds)
         self.max_buffered_bytes = int(max_buffered_bytes)
         self.published = False
@@ -199,7 +119,9 @@ class _Stream:
     # -- to be provided by subclasses: _write_buffered() -> rows added, _sync(), _close_file()
     def _publish(self) -> None:
         if not self.published:
-            os.replace(self.tmp, self.path)
+            _fsync_file(self.tmp)
+            os.replace(self.tmp, self.target)
+            _fsync_folder(self.folder)
             self.published = True
 
     def _check_space(self, nbytes: int) -> None:
@@ -260,9 +182,11 @@ class _Stream:
             self._finish()
         except DiskFullError:
             self._fail()
+            self.discard()                # nothing published: no temporary file left either
             raise
         except (OSError, RuntimeError, ValueError) as exc:
             self._fail()
+            self.discard()
             raise self._disk_error(exc) from None
         self.closed = True
         if self.rows or keep_empty:
@@ -328,13 +252,21 @@ class H5Stream(_Stream):
         super().__init__(path, ".h5", flush_seconds=flush_seconds,
                          max_buffered_bytes=max_buffered_bytes)
         self.chunk_rows = chunk_rows
-        self._guard = _GuardedFile(self.tmp)
+        # libhdf5 writes through the guard of the one-shot writers (openemt.io._atomic): a
+        # failed write is kept there, never seen by the library, and raised by check()
+        self._fd = os.open(self.tmp, os.O_RDWR)
+        self._guard = GuardedFile(self._fd, str(self.path))
         try:
             self._f = h5py.File(self._guard, "w")
             for k, v in (attrs or {}).items():
                 self._f.attrs[k] = v
             self._f.attrs["complete"] = False
             self._f.flush()
+            self._guard.check()
+        except OSError as exc:
+            self._fail()
+            self.discard()
+            raise self._disk_error(exc) from None
         except BaseException:
             self._fail()
             self.discard()
@@ -392,11 +324,13 @@ class H5Stream(_Stream):
             if n_new:
                 added[group] = n_new
         f.flush()                                    # the data, then the committed counts
+        self._guard.check()                          # a failed write: the counts stay
         for group, n_new in added.items():
             self._group_rows[group] += n_new
             g = f[group] if group not in ("", "/") else f
             g.attrs["rows"] = self._group_rows[group]
         f.flush()
+        self._guard.check()
         return max(added.values(), default=0)
 
     def group_rows(self, group: str) -> int:
@@ -409,15 +343,19 @@ class H5Stream(_Stream):
             g.attrs["rows"] = self._group_rows[group]
         self._f.attrs["complete"] = True
         self._f.close()
-        self._guard.sync()
-        if self._guard.error is not None:
-            raise self._guard.error
-        self._guard.close()
+        self._guard.check()
+        with contextlib.suppress(OSError):
+            os.fsync(self._fd)
+        os.close(self._fd)
+        self._fd = None
 
     def _close_file(self) -> None:
         with contextlib.suppress(Exception):
             self._f.close()
-        self._guard.close()
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = None
 
 
 class CsvStream(_Stream):

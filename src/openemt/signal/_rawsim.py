@@ -378,11 +378,9 @@ def write_raw(raw: RawSignal, path) -> None:
         /truth/couplings          complex (n_truth, n_source, n_sensor)
         /truth/poses              (n_truth, 4, 4) m
     """
-    import h5py
+    from ..io import atomic_h5
 
-    from ..io import atomic_path
-
-    with atomic_path(path, suffix=".h5") as tmp, h5py.File(tmp, "w") as f:
+    with atomic_h5(path) as f:
         for k, v in raw_attrs(raw.layout, raw.t0).items():
             f.attrs[k] = v
         f.create_dataset("samples", data=np.asarray(raw.samples), chunks=True)

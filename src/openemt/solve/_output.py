@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
+from ..io._atomic import raise_if_write_failed
 from ._result import SolveResult, Status, status_count_names
 
 __all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseWriter", "read_poses"]
@@ -36,13 +37,13 @@ _UNITS = {"poses": "homogeneous 4x4, translation in m (sensor frame -> source fr
 class PoseWriter:
     """Incremental writer: ``w = PoseWriter(h5file, n, solver)``; ``w.write(start, result)``.
 
-    ``h5file`` is an open, writable ``h5py.File`` (the caller owns it, typically a temporary
-    path from :func:`openemt.io.atomic_path`).
+    ``h5file`` is an open, writable ``h5py.File`` (the caller owns it, typically from
+    :func:`openemt.io.atomic_h5`, in which case a full disk ends the write at the next block).
     """
 
     def __init__(self, h5file, n_samples: int, solver: str, meta: dict | None = None,
                  chunk_rows: int = 65536):
-        f = h5file
+        f = self._file = h5file
         f.attrs["schema"] = POSES_SCHEMA
         f.attrs["schema_version"] = POSES_SCHEMA_VERSION
         f.attrs["openemt_version"] = __version__
@@ -65,6 +66,7 @@ class PoseWriter:
             v = getattr(result, name)
             d[start:stop] = np.nan if v is None else v
         self.counts += np.bincount(result.status.astype(np.int64), minlength=len(Status))
+        raise_if_write_failed(self._file)
 
     def status_counts(self) -> dict[str, int]:
         return status_count_names(self.counts)
