@@ -399,13 +399,12 @@ def read_raw(path) -> RawSignal:
     FileNotFoundError
         When ``path`` does not exist.
     """
-    import h5py
+    from ..io._h5safe import check_rows, open_h5
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected an existing raw file, got missing {str(path)!r}")
+    f = open_h5(path, f"an openemt raw HDF5 file (format {RAW_FORMAT!r})")
     try:
-        with h5py.File(path, "r") as f:
+        with f:
             fmt = f.attrs.get("format")
             fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
             if fmt != RAW_FORMAT:
@@ -420,8 +419,16 @@ def read_raw(path) -> RawSignal:
                                    reference_channels=tuple(f.attrs["reference_channels"]),
                                    sensor_gain=float(f.attrs["sensor_gain"]),
                                    reference_gain=float(f.attrs["reference_gain"]))
-            samples = np.asarray(f["samples"][()])
+            samples = f["samples"]
+            if getattr(samples, "ndim", None) != 2:
+                raise InputError(f"expected `samples` of shape (n, >= {layout.n_channels}), "
+                                 f"got {getattr(samples, 'shape', 'a group')} in {str(path)!r}")
+            samples = np.asarray(samples[()])
             truth = {}
+            times = getattr(f.get("truth/times"), "shape", None)
+            if times:
+                check_rows(f, path.name, times[0],
+                           ("truth/couplings", "truth/poses"), reference="truth/times")
             if "truth" in f:
                 for key in ("times", "couplings", "poses"):
                     if key in f["truth"]:
