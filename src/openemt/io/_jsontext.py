@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 from .._errors import InputError
+from ._safefile import MAX_JSON_BYTES, read_limited
 
 __all__ = ["MAX_JSON_DEPTH", "json_depth", "load_json_file", "loads_json"]
 
@@ -54,12 +55,12 @@ def loads_json(text: str, what: str, where: str):
                          f"{exc.msg})") from None
 
 
-def load_json_file(path, what: str):
-    """Read and parse a JSON file; the errors name the file and say what was expected."""
+def load_json_file(path, what: str, max_bytes: int = MAX_JSON_BYTES):
+    """Read and parse a JSON file (a regular file of at most ``max_bytes``,
+    :func:`~openemt.io._safefile.read_limited`); the errors name the file and say what was
+    expected."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected {what}, got missing file {str(path)!r}")
-    data = path.read_bytes()
+    data = read_limited(path, what, max_bytes)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

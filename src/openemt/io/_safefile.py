@@ -29,8 +29,8 @@ __all__ = ["MAX_CONFIG_BYTES", "MAX_JSON_BYTES", "MAX_TEXT_BYTES", "MAX_TOML_DEP
 #: largest tracker description or board file (TOML/JSON) read (a shipped one is ~2 KB)
 MAX_CONFIG_BYTES = 1 << 20
 #: largest calibration or correction JSON file read (a thin-plate-spline correction of 100,000
-#: pairs is ~20 MB)
-MAX_JSON_BYTES = 256 << 20
+#: pairs is ~15 MB)
+MAX_JSON_BYTES = 64 << 20
 #: largest text data file read whole (ILEMT ``.dat``, couplings CSV, pose CSV, NDI export)
 MAX_TEXT_BYTES = 4 << 30
 #: deepest nesting of inline arrays/tables accepted in a TOML file (openemt's need 2)
