@@ -213,6 +213,7 @@ def test_tracker_sensor_count_limit(tmp_path, seeds):
 @pytest.mark.parametrize("kind,match", [
     ("deep_nesting", r"nested at most 64 levels deep"),
     ("sensor_coils_20000", r"`model.L_se` with at most 64 columns \(coils\), got 20000"),
+    ("list_20M", r"at most 2000000 values, got up to 20000\d{3} in cal.json"),
 ])
 def test_hostile_calibration_files(kind, match, tmp_path, seeds):
     path = _build(f"calibration:{kind}", tmp_path, seeds)
