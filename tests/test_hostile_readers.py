@@ -3,7 +3,9 @@ holds, never blocks on a FIFO or a device, refuses declared-shape bombs before a
 bounds the work a tracker, board or calibration file sets; each refusal is one line, and the
 CLI exits 2 with one ``error:`` line and no output. The long run is ``openemt bench fuzz``."""
 
+import contextlib
 import os
+import signal
 
 import h5py
 import numpy as np
@@ -138,20 +140,37 @@ def test_fifo_and_device_paths_refused_without_blocking(reader, filename, kind, 
                                                         tmp_path, seeds):
     path = _build(f"{reader}:{kind}:{filename}", tmp_path, seeds)
     read = H._readers()[reader]
-    import signal
+    with _no_blocking(), pytest.raises(InputError,
+                                       match=f"regular file.* which is a {what}") as exc:
+        read(path)
+    _one_line(exc)
 
+
+@contextlib.contextmanager
+def _no_blocking(seconds=10):
+    """Fail (instead of hanging the test run) if the body blocks longer than ``seconds``."""
     def hang(*_):
         raise TimeoutError("the reader blocked")
 
     old = signal.signal(signal.SIGALRM, hang)
-    signal.alarm(10)
+    signal.alarm(seconds)
     try:
-        with pytest.raises(InputError, match=f"regular file.* which is a {what}") as exc:
-            read(path)
+        yield
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
-    _one_line(exc)
+
+
+@pytest.mark.parametrize("name", ["local_cal_options.m", "soYoutZup_seYoutZup_md.dat"])
+def test_fifo_in_an_ilemt_folder_is_refused_not_skipped(name, tmp_path):
+    from openemt.datasets import path as dataset_path
+    from openemt.io import import_ilemt_folder
+
+    src = dataset_path("cal_9_15_premo_cmu") / "soYoutZup_seYoutZup_mdtrans.dat"
+    (tmp_path / src.name).write_bytes(src.read_bytes())
+    os.mkfifo(tmp_path / name)
+    with _no_blocking(), pytest.raises(InputError, match=f"{name}' which is a FIFO"):
+        import_ilemt_folder(tmp_path)
 
 
 def test_read_limited_checks_the_opened_file_and_its_size(tmp_path):

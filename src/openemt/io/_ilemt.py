@@ -280,7 +280,7 @@ def resolve_signs(name: str, signs) -> np.ndarray:
 
 def _folder_signs(folder: Path):
     opt = folder / "local_cal_options.m"
-    if opt.is_file():
+    if opt.exists():                    # a FIFO or device there is refused, not skipped
         return parse_sign_options(opt)
     return [], []
 
@@ -395,7 +395,7 @@ def _assemble(parts: list[dict], meta: dict) -> Dataset:
 def _names_from_options(folder: Path) -> dict:
     opt = folder / "local_cal_options.m"
     out = {}
-    if opt.is_file():
+    if opt.exists():
         text = _strip_matlab_comments(read_limited(opt, "an ILEMT options file",
                                                    MAX_CONFIG_BYTES).decode("utf-8", "replace"))
         for what in ("source", "sensor"):
@@ -519,7 +519,7 @@ def import_ilemt_folder(folder, *, source_signs=None, sensor_signs=None, compens
     files = []
     for p in sorted(folder.glob("*.dat"), key=lambda p: p.name):
         parsed = parse_ilemt_name(p.name)
-        if parsed is None or not p.is_file():
+        if parsed is None or not p.exists():      # a FIFO or device is refused by the reader
             continue
         if wanted is not None and parsed[2] not in wanted:
             continue
