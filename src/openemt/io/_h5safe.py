@@ -51,7 +51,7 @@ MAX_H5_EXPANSION = 64
 H5_FLOOR_BYTES = 64 << 20
 #: bytes no HDF5 file may declare, whatever its size (1 TiB)
 MAX_H5_DECLARED_BYTES = 1 << 40
-#: links (names of objects) walked in one file
+#: links (names of objects) walked in one file, and attributes of all its objects
 MAX_H5_LINKS = 100_000
 
 _MAGIC = b"openemt-seal v1\n"
@@ -236,13 +236,17 @@ def check_structure(f, where: str) -> None:
                              f"as a soft link to {_show(target)}, which names no object of "
                              f"the file")
     budget = min(max(H5_FLOOR_BYTES, MAX_H5_EXPANSION * _file_size(f)), MAX_H5_DECLARED_BYTES)
-    total, largest = 0, (0, b"")
+    total, largest, n_attrs = 0, (0, b""), 0
     for name in sorted(hard):
         rel = b"." if name == b"/" else name[1:]
         obj = h5o.open(f.id, rel)
-        n_attrs = h5a.get_num_attrs(obj)
+        count = h5a.get_num_attrs(obj)
+        n_attrs += count
+        if n_attrs > MAX_H5_LINKS:
+            raise InputError(f"expected an HDF5 file with at most {MAX_H5_LINKS} attributes, "
+                             f"got {where} with more")
         sizes = []
-        for i in range(min(n_attrs, MAX_H5_LINKS)):
+        for i in range(count):
             a = h5a.open(obj, index=i)
             sizes.append((_declared(a.get_space(), a.get_type()), rel))
         if isinstance(obj, h5d.DatasetID):
