@@ -315,3 +315,22 @@ def test_open_h5_is_the_one_door(tmp_path, seeds):
     with open_h5(seeds / "seed.h5", "a dataset") as f:
         assert "couplings_real" in f
     assert os.path.exists(seeds / "seed.h5")
+
+
+def test_link_and_attribute_counts_bounded(monkeypatch, tmp_path):
+    import openemt.io._h5safe as h5safe
+
+    with h5py.File(tmp_path / "many.h5", "w") as f:
+        for i in range(8):
+            f[f"a{i}"] = np.zeros(3)
+        for i in range(20):
+            f.attrs[f"k{i}"] = i
+    monkeypatch.setattr(h5safe, "MAX_H5_LINKS", 30)
+    with h5py.File(tmp_path / "many.h5", "r") as f:
+        check_structure(f, "many.h5")
+        monkeypatch.setattr(h5safe, "MAX_H5_LINKS", 7)
+        with pytest.raises(InputError, match="at most 7 objects, got many.h5 with more"):
+            check_structure(f, "many.h5")
+        monkeypatch.setattr(h5safe, "MAX_H5_LINKS", 10)
+        with pytest.raises(InputError, match="at most 10 attributes, got many.h5 with more"):
+            check_structure(f, "many.h5")
