@@ -59,9 +59,9 @@ HDF5_CASES = [
     ("soft_link_climbing", r"'stage' as a soft link to '../../x'"),
     ("plugin_filter", r"built-in filters .* with filter 32000 \('lzf'\)"),
     ("declared_rows_1e8", r"declare at most 64 MiB .* got 6.71 GiB"),
-    ("stage_rows_differ", (r"expected 'stage' in data.h5 to have 12 rows like "
-                           r"'couplings_real', got shape \(17, 6\)")),
-    ("pattern_rows_differ", r"expected 'pattern' .* 12 rows .* got shape \(17,\)"),
+    ("stage_rows_differ", (r"data.h5: expected `stage` to have shape \(12, 6\) like "
+                           r"`couplings_real`, got shape \(17, 6\)")),
+    ("pattern_rows_differ", r"expected `pattern` to have shape \(12,\) .* got shape \(17,\)"),
 ]
 
 
@@ -95,7 +95,7 @@ def test_raw_and_poses_readers_refuse_hostile_structure(reader, read, name, kind
 
 def test_poses_rows_checked(tmp_path, seeds):
     path = _build("poses:status_rows_differ", tmp_path, seeds)
-    with pytest.raises(InputError, match=r"'status' .* 12 rows like 'poses'"):
+    with pytest.raises(InputError, match=r"`status` to have shape \(12,\) like `poses`"):
         read_poses(path)
 
 

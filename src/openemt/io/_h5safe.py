@@ -290,20 +290,26 @@ def _check_storage(dset, name: bytes, where: str) -> None:
                 f"with filter {code} ({_show(fname)})")
 
 
-def check_rows(f, where: str, n: int, names, *, reference: str) -> None:
-    """Refuse (one line) a file in which one of the arrays ``names`` that exists does not have
-    ``n`` rows like ``reference``: checked on the declared shapes, before anything is read."""
-    for name in names:
+def check_rows(f, where: str, n: int, shapes, *, reference: str) -> None:
+    """Refuse (one line) a file in which an array of ``shapes`` that exists does not have the
+    ``n`` rows of ``reference``: checked on the declared shapes, before anything is read.
+
+    ``shapes`` maps each name to the shape of one row (``(4, 4)`` for poses; then the whole
+    shape is checked) or to None (only the row count is); a sequence of names means None."""
+    if not isinstance(shapes, dict):
+        shapes = dict.fromkeys(shapes)
+    for name, tail in shapes.items():
         d = f.get(name)
         if d is None:
             continue
         shape = getattr(d, "shape", None)
+        want = f"shape {(n, *tail)}" if tail is not None else f"{n} rows"
         if shape is None:
-            raise InputError(f"expected {name!r} in {where} to be an array of {n} rows, got a "
-                             "group")
-        if not shape or shape[0] != n:
-            raise InputError(f"expected {name!r} in {where} to have {n} rows like "
-                             f"{reference!r}, got shape {shape}")
+            raise InputError(f"{where}: expected `{name}` to have {want} like `{reference}`, "
+                             "got a group")
+        if not shape or shape[0] != n or (tail is not None and tuple(shape[1:]) != tuple(tail)):
+            raise InputError(f"{where}: expected `{name}` to have {want} like `{reference}`, "
+                             f"got shape {shape}")
 
 
 def open_h5(path, what: str):

@@ -191,9 +191,8 @@ def _check_header(f, path: Path) -> None:
     _check_rows(f, path)
 
 
-#: per-row arrays of a dataset file: (N, ...) like couplings_real; the fixture and pattern
-#: columns may also be one scalar string for all rows
-_ROWS = ("stage", "file_index", "stage_logged", "poses", "source_signs", "sensor_signs")
+#: the fixture and pattern columns of a dataset file: (N,) like couplings_real, or one scalar
+#: string for all rows
 _ROWS_OR_SCALAR = ("source_fixture", "sensor_fixture", "pattern")
 
 
@@ -202,10 +201,12 @@ def _check_rows(f, path: Path) -> None:
     shapes, before anything is read or allocated)."""
     import h5py
 
-    n = f["couplings_real"].shape[0]
-    check_rows(f, path.name, n, _ROWS, reference="couplings_real")
-    check_rows(f, path.name, n, [k for k in _ROWS_OR_SCALAR
-                                 if getattr(f[k], "shape", None) != ()],
+    n, n_source, n_sensor = f["couplings_real"].shape
+    check_rows(f, path.name, n, {"stage": (6,), "file_index": (), "stage_logged": (6,),
+                                 "poses": (4, 4), "source_signs": (n_source,),
+                                 "sensor_signs": (n_sensor,)}, reference="couplings_real")
+    check_rows(f, path.name, n, {k: () for k in _ROWS_OR_SCALAR
+                                 if getattr(f[k], "shape", None) != ()},
                reference="couplings_real")
     g = f.get("extra")
     if isinstance(g, h5py.Group):

@@ -427,8 +427,9 @@ def read_raw(path) -> RawSignal:
             truth = {}
             times = getattr(f.get("truth/times"), "shape", None)
             if times:
-                check_rows(f, path.name, times[0],
-                           ("truth/couplings", "truth/poses"), reference="truth/times")
+                check_rows(f, path.name, times[0], {"truth/couplings": None,
+                                                    "truth/poses": (4, 4)},
+                           reference="truth/times")
             if "truth" in f:
                 for key in ("times", "couplings", "poses"):
                     if key in f["truth"]:

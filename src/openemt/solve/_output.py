@@ -86,7 +86,8 @@ def read_poses(path) -> SolveResult:
         if not shape:
             raise InputError(f"expected an openemt poses file with a `poses` array, got "
                              f"{'none' if shape is None else 'a scalar'} in {path.name}")
-        check_rows(f, path.name, shape[0], _FIELDS, reference="poses")
+        check_rows(f, path.name, shape[0], {k: v[0] for k, v in _FIELDS.items()},
+                   reference="poses")
         fields = {name: f[name][()] for name in _FIELDS if name in f}
         fields.setdefault("relative_residual", None)
         return SolveResult(**fields, solver=str(f.attrs["solver"]))
