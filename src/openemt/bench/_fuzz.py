@@ -37,6 +37,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
+    parser.add_argument("--hostile-cases", type=int, default=None,
+                        help="runs of hostile reader inputs (links, external storage, "
+                             "declared-shape bombs, FIFO/device paths, hostile tracker files), "
+                             "spread over the list (default: all)")
 
 
 def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None:
@@ -73,8 +77,9 @@ def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None
 
 
 def run(args) -> dict:
-    for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases", "writer_rounds"):
-        if getattr(args, name) < 0:
+    for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases", "writer_rounds",
+                 "hostile_cases"):
+        if (getattr(args, name) or 0) < 0:
             raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
                              f"got {getattr(args, name)}")
     if not args.time_limit > 0:
@@ -101,13 +106,20 @@ def run(args) -> dict:
     if args.writer_rounds:
         from ._fuzzhostile_writers import hostile_writers
         writers = hostile_writers(args.writer_rounds, time_limit=max(args.time_limit, 60.0))
+    from ._fuzzhostile_readers import n_runs, run_hostile_readers
+
+    limit = args.hostile_cases
+    with progress(total=n_runs(limit), desc="hostile readers", args=args, unit="run") as bar:
+        hostile = run_hostile_readers(limit=limit, time_limit=args.time_limit,
+                                      progress=bar.update)
 
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
-        + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0)
+        + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
+        + hostile.get("findings", 0)
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -123,6 +135,7 @@ def run(args) -> dict:
         "solvers": solvers.get("by_solver", {}),
         "hostile_live": hostile_live,
         "hostile_writers": writers,
+        "hostile_readers": hostile,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

@@ -51,6 +51,10 @@ BUILTIN_BOARDS = ("anser",)
 MAX_POSITION_M = 2.0
 MAX_COIL_SIZE_M = 1.0
 MAX_SENSOR_LENGTH_M = 0.1
+#: Most source coils of a board file, and most straight segments of all its coils together
+#: (docs/robustness.md, "Bounded work"; the Anser board has 8 coils and ~2,000 segments).
+MAX_BOARD_COILS = 64
+MAX_BOARD_SEGMENTS = 2_000_000
 #: Segments per turn of a circular coil (a 64-gon: its area is within 0.2 % of the circle's).
 CIRCLE_SEGMENTS = 64
 
@@ -291,7 +295,15 @@ def board_from_dict(doc: dict, src: str = "") -> Board:
     defaults = doc.get("defaults", {})
     if not isinstance(defaults, dict):
         raise InputError(f"{_where(src)}expected 'defaults' to be a table, got {defaults!r}")
+    if len(coils) > MAX_BOARD_COILS:
+        raise InputError(f"{_where(src)}expected at most {MAX_BOARD_COILS} entries in 'coils', "
+                         f"got {len(coils)}")
     specs = tuple(_coil(c, defaults, k, src) for k, c in enumerate(coils))
+    n_segments = sum(c.layers * math.ceil(c.turns_per_layer * (
+        CIRCLE_SEGMENTS if c.shape == "circular" else 4)) for c in specs)
+    if n_segments > MAX_BOARD_SEGMENTS:
+        raise InputError(f"{_where(src)}expected coils of at most {MAX_BOARD_SEGMENTS} straight "
+                         f"segments together (turns_per_layer x layers), got {n_segments}")
     s = doc.get("sensor", {})
     if not isinstance(s, dict):
         raise InputError(f"{_where(src)}expected 'sensor' to be a table, got {s!r}")
@@ -307,16 +319,19 @@ def board_from_dict(doc: dict, src: str = "") -> Board:
 
 def read_board(path) -> Board:
     """Read a board file (``.toml`` or ``.json``)."""
+    from ..io._jsontext import loads_json
+    from ..io._safefile import MAX_CONFIG_BYTES, check_text_nesting, read_limited
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected a board file (.toml or .json), got missing file "
-                                f"{str(path)!r}")
+    data = read_limited(path, "a board file (.toml or .json)", MAX_CONFIG_BYTES)
     try:
+        text = data.decode("utf-8")
         if path.suffix.lower() == ".json":
-            doc = json.loads(path.read_text(encoding="utf-8"))
+            doc = loads_json(text, "a JSON board file", path.name)
         else:
-            doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            check_text_nesting(text, "a TOML board file", path.name)
+            doc = tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         msg = str(exc).splitlines()[0]
         raise InputError(f"{path.name}: expected a TOML or JSON board file, got {msg}") from None
     return board_from_dict(doc, path.name)

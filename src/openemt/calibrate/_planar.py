@@ -20,6 +20,7 @@ axis) and one column per source coil (any names, in coil order).
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -94,11 +95,17 @@ class GridData:
 
 def read_grid_csv(path) -> GridData:
     """Read grid data: columns ``x, y, z, ux, uy, uz`` and one column per source coil."""
+    from ..io._safefile import MAX_TEXT_BYTES, read_limited
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected a grid CSV file, got missing file {str(path)!r}")
-    with open(path, newline="", encoding="utf-8") as fh:
-        rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    data = read_limited(path, "a grid CSV file", MAX_TEXT_BYTES)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path.name}: expected a grid CSV file (UTF-8 text), got a byte that "
+                         f"is not UTF-8 at offset {exc.start}") from None
+    rows = [r for r in csv.reader(io.StringIO(text, newline=""))
+            if r and not r[0].lstrip().startswith("#")]
     if not rows:
         raise InputError(f"{path.name}: expected a header line, got an empty file")
     header = [h.strip() for h in rows[0]]

@@ -126,20 +126,10 @@ def _attr(f, name):
 def _hdf5_kind(path: Path) -> str:
     """Which openemt HDF5 file: 'dataset', 'poses', 'raw' or 'track-log' (from its attributes,
     after the damaged-file probe of openemt.io)."""
-    import h5py
+    from ..io._h5safe import open_h5
 
-    from ..io._h5safe import check_readable
-
-    reason = check_readable(path)
-    if reason:
-        raise InputError(f"expected a readable openemt HDF5 file, got {path.name}, which is "
-                         f"damaged or not a readable HDF5 file ({reason})")
-    try:
-        with h5py.File(path, "r") as f:
-            schema, fmt = _attr(f, "schema"), _attr(f, "format")
-    except OSError as exc:
-        raise InputError(f"expected a readable openemt HDF5 file, got {path.name} "
-                         f"({' '.join(str(exc).split())[:80]})") from None
+    with open_h5(path, "a readable openemt HDF5 file") as f:   # probed, structure checked
+        schema, fmt = _attr(f, "schema"), _attr(f, "format")
     from ..signal._rawsim import RAW_FORMAT
     from ..solve._output import POSES_SCHEMA
 
@@ -165,14 +155,13 @@ def poses_info(path: Path) -> dict:
     """JSON-able summary of a poses file (``openemt solve -o``)."""
     import json
 
-    import h5py
-
+    from ..io._h5safe import open_h5
     from ..solve import read_poses
     from ..solve._result import status_count_names
 
     try:
         res = read_poses(path)
-        with h5py.File(path, "r") as f:
+        with open_h5(path, "an openemt poses file") as f:
             meta = json.loads(_attr(f, "meta") or "{}")
     except (KeyError, TypeError) as exc:
         raise InputError(f"expected a complete openemt poses file, got {path.name} without "

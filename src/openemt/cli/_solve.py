@@ -62,10 +62,10 @@ def run(args) -> int:
     if board is not None:  # a finite-coil board: the 5-DOF solver (docs/planar.md#solving)
         return solve_board(args, board)
 
-    import h5py
 
     from .._compile_notice import announce_compile
     from ..io import open_dataset_couplings, read_calibration
+    from ..io._h5safe import open_h5
     from ..solve import solve_chunks
     from ..solve._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
     from ._common import emit
@@ -92,7 +92,7 @@ def run(args) -> int:
         raise InputError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset) as reader, \
-            h5py.File(args.dataset, "r") as side:
+            open_h5(args.dataset, "an openemt dataset HDF5 file") as side:
         n = reader.shape[0]
         if (reader.shape[1], reader.shape[2]) != (cal.model.n_source, cal.model.n_sensor):
             raise InputError(f"expected couplings of shape (N, {cal.model.n_source}, "

@@ -30,10 +30,9 @@ def read_board_calibration(path):
 
 
 def solve_board(args, cal) -> int:
-    import h5py
-
     from .._compile_notice import PLANAR_KERNELS, announce_compile
     from ..io import open_dataset_couplings
+    from ..io._h5safe import open_h5
     from ..solve._planar import solve_planar
     from ._common import emit
     from ._solve import write_solved
@@ -53,7 +52,7 @@ def solve_board(args, cal) -> int:
             if getattr(args, k, None) is not None}
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset, real=True) as reader, \
-            h5py.File(args.dataset, "r") as side:
+            open_h5(args.dataset, "an openemt dataset HDF5 file") as side:
         n = reader.shape[0]
         if reader.shape[1:] != (model.n_coils, 1):
             raise InputError(f"expected couplings of shape (N, {model.n_coils}, 1) for this "

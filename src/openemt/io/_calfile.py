@@ -30,6 +30,8 @@ __all__ = [
 
 CALIBRATION_SCHEMA = "openemt.calibration"
 CALIBRATION_SCHEMA_VERSION = 1
+#: most source or sensor coils of a dipole calibration (docs/robustness.md, "Bounded work")
+MAX_CALIBRATION_COILS = 64
 
 _UNITS = {
     "model.L_so": "m", "model.L_se": "m",
@@ -176,6 +178,10 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
     for key, rows in (("L_so", 3), ("M_so", 3), ("L_se", 3), ("M_se", 3)):
         arrays[key] = _array(_get(model, key, src, list, f"model.{key}"), f"model.{key}",
                              (rows, None), src)
+        if arrays[key].shape[1] > MAX_CALIBRATION_COILS:
+            raise InputError(f"{_where(src)}expected `model.{key}` with at most "
+                             f"{MAX_CALIBRATION_COILS} columns (coils), got "
+                             f"{arrays[key].shape[1]}")
     for key, n_key, coil_key in (("n_source", "n_source", "L_so"), ("n_sensor", "n_sensor", "L_se")):
         if n_key in model and model[n_key] != arrays[coil_key].shape[1]:
             raise InputError(f"{_where(src)}expected `model.{n_key}` = {arrays[coil_key].shape[1]} "
@@ -277,7 +283,7 @@ def read_calibration(path) -> Calibration:
     if path.suffix.lower() == ".mat":
         from ._ilemt_mat import read_ilemt_calibration
         return read_ilemt_calibration(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"expected a calibration file (.json or ILEMT .mat), "
                                 f"got missing file {str(path)!r}")
     doc = load_json_file(path, "an openemt calibration JSON file")

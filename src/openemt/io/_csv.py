@@ -22,6 +22,7 @@ from .._errors import InputError
 from ..geometry import pose_from_vector, stage_transform, vector_from_pose
 from ._atomic import atomic_path
 from ._dataset import Dataset
+from ._safefile import MAX_TEXT_BYTES, read_limited
 
 __all__ = ["export_csv", "import_csv"]
 
@@ -80,10 +81,9 @@ def import_csv(path) -> Dataset:
     string columns become empty strings.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected a couplings CSV file, got missing file {str(path)!r}")
+    data = read_limited(path, "a couplings CSV file", MAX_TEXT_BYTES)
     try:
-        lines = path.read_bytes().decode("utf-8-sig").splitlines()
+        lines = data.decode("utf-8-sig").splitlines()
     except UnicodeDecodeError as exc:
         raise InputError(f"expected a couplings CSV file (UTF-8 text), got a byte that is not "
                          f"UTF-8 at offset {exc.start} in {path.name}") from None

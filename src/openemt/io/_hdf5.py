@@ -18,7 +18,7 @@ from .. import __version__
 from .._errors import InputError
 from ._atomic import atomic_h5
 from ._dataset import Dataset, signed_real
-from ._h5safe import SEAL_SIZE, check_readable
+from ._h5safe import SEAL_SIZE, check_rows, open_h5
 from ._jsontext import loads_json
 
 __all__ = ["DATASET_SCHEMA", "DATASET_SCHEMA_VERSION", "CouplingReader", "open_dataset_couplings",
@@ -140,21 +140,11 @@ def _write_contents(f, ds: Dataset, meta_json: str) -> None:
 
 
 def _open(path):
-    """Open and check the header; returns the h5py.File (caller closes)."""
-    import h5py
-
+    """Open (through :func:`~openemt.io._h5safe.open_h5`: a regular file that holds what it
+    declares) and check the header; returns the h5py.File (caller closes)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected an openemt dataset HDF5 file, got missing file "
-                                f"{str(path)!r}")
-    reason = check_readable(path)
-    if reason:
-        raise _expected(f"{path.name}, which is damaged or not a readable HDF5 file ({reason})")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise _expected(f"{path.name}, which is not a readable HDF5 file "
-                        f"({' '.join(str(exc).split())[:80]})") from None
+    f = open_h5(path, f"an openemt dataset HDF5 file with schema_version "
+                      f"{DATASET_SCHEMA_VERSION} (schema {DATASET_SCHEMA!r})")
     try:
         with _damaged(path):
             _check_header(f, path)
@@ -194,6 +184,30 @@ def _check_header(f, path: Path) -> None:
         raise _expected(f"{path.name} whose 'couplings_imag' shape "
                         f"{f['couplings_imag'].shape} differs from 'couplings_real' "
                         f"{f['couplings_real'].shape}")
+    _check_rows(f, path)
+
+
+#: the fixture and pattern columns of a dataset file: (N,) like couplings_real, or one scalar
+#: string for all rows
+_ROWS_OR_SCALAR = ("source_fixture", "sensor_fixture", "pattern")
+
+
+def _check_rows(f, path: Path) -> None:
+    """Every per-row array declares the row count of the couplings (checked on the declared
+    shapes, before anything is read or allocated)."""
+    import h5py
+
+    n, n_source, n_sensor = f["couplings_real"].shape
+    check_rows(f, path.name, n, {"stage": (6,), "file_index": (), "stage_logged": (6,),
+                                 "poses": (4, 4), "source_signs": (n_source,),
+                                 "sensor_signs": (n_sensor,)}, reference="couplings_real")
+    check_rows(f, path.name, n, {k: () for k in _ROWS_OR_SCALAR
+                                 if getattr(f[k], "shape", None) != ()},
+               reference="couplings_real")
+    g = f.get("extra")
+    if isinstance(g, h5py.Group):
+        check_rows(f, path.name, n, [f"extra/{k}" for k in g],
+                   reference="couplings_real")
 
 
 def _read_array(group, name: str):

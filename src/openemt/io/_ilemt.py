@@ -18,6 +18,7 @@ from .._errors import InputError
 from ..geometry import fixture_axes
 from ._dataset import Dataset
 from ._namepattern import compile_name_pattern
+from ._safefile import MAX_CONFIG_BYTES, MAX_TEXT_BYTES, check_regular, read_limited
 
 __all__ = [
     "ILEMT_NAME_RE",
@@ -223,7 +224,8 @@ def parse_sign_options(path) -> tuple[list[tuple[str, tuple[float, ...]]],
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = read_limited(path, "an ILEMT options file", MAX_CONFIG_BYTES).decode(
+            "utf-8", errors="replace")
     except OSError as exc:
         raise OSError(f"expected a readable ILEMT options file, got {path}: {exc.strerror}") from None
     text = _strip_matlab_comments(text)
@@ -278,7 +280,7 @@ def resolve_signs(name: str, signs) -> np.ndarray:
 
 def _folder_signs(folder: Path):
     opt = folder / "local_cal_options.m"
-    if opt.is_file():
+    if opt.exists():                    # a FIFO or device there is refused, not skipped
         return parse_sign_options(opt)
     return [], []
 
@@ -301,7 +303,7 @@ def _line_error(path: Path, lineno: int, line: str) -> InputError:
 def _parse_dat(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """-> stage (N, 6) mm/deg as logged, hr (N, 3, 3) complex, lr (N, 3, 3) complex."""
     try:
-        text = path.read_text(encoding="ascii")
+        text = read_limited(path, "an ILEMT .dat file", MAX_TEXT_BYTES).decode("ascii")
     except UnicodeDecodeError as exc:
         raise InputError(f"{path.name}: expected an ASCII ILEMT .dat file, got a non-ASCII byte "
                          f"at offset {exc.start}") from None
@@ -393,8 +395,9 @@ def _assemble(parts: list[dict], meta: dict) -> Dataset:
 def _names_from_options(folder: Path) -> dict:
     opt = folder / "local_cal_options.m"
     out = {}
-    if opt.is_file():
-        text = _strip_matlab_comments(opt.read_text(encoding="utf-8", errors="replace"))
+    if opt.exists():
+        text = _strip_matlab_comments(read_limited(opt, "an ILEMT options file",
+                                                   MAX_CONFIG_BYTES).decode("utf-8", "replace"))
         for what in ("source", "sensor"):
             m = list(re.finditer(r"options\s*\.\s*" + what + r"\s*=\s*'((?:[^']|'')*)'", text))
             if m:
@@ -460,8 +463,7 @@ def read_ilemt_dat(path, *, source_signs=None, sensor_signs=None, compensate_sta
         ``stage`` compensated (m, rad), ``stage_logged`` (m, rad), ``extra["couplings_lr"]``.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected an ILEMT .dat file, got missing file {str(path)!r}")
+    check_regular(path, "an ILEMT .dat file")
     so, se, origin = _signs_for(path.parent, source_signs, sensor_signs)
     codes = None
     if source_fixture is not None or sensor_fixture is not None or pattern is not None:
@@ -517,7 +519,7 @@ def import_ilemt_folder(folder, *, source_signs=None, sensor_signs=None, compens
     files = []
     for p in sorted(folder.glob("*.dat"), key=lambda p: p.name):
         parsed = parse_ilemt_name(p.name)
-        if parsed is None or not p.is_file():
+        if parsed is None or not p.exists():      # a FIFO or device is refused by the reader
             continue
         if wanted is not None and parsed[2] not in wanted:
             continue

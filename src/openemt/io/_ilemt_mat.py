@@ -15,6 +15,7 @@ from ..field import ILEMT_GAIN, DipoleModel
 from ._calibration import Calibration, check_correction_matrix, check_model_moments
 from ._ilemt import file_sha256
 from ._isolated import run_isolated
+from ._safefile import MAX_JSON_BYTES, check_regular
 
 __all__ = ["read_ilemt_calibration"]
 
@@ -111,9 +112,10 @@ def read_ilemt_calibration(path) -> Calibration:
     from scipy.io.matlab import MatReadError
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected an ILEMT calibration .mat file, got missing file "
-                                f"{str(path)!r}")
+    st = check_regular(path, "an ILEMT calibration .mat file")
+    if st.st_size > MAX_JSON_BYTES:
+        raise InputError(f"expected an ILEMT calibration .mat file of at most "
+                         f"{MAX_JSON_BYTES >> 20} MiB, got {path.name} of {st.st_size} bytes")
     # scipy's MATLAB reader is compiled code that can crash the interpreter on a damaged file
     # (seen: a segmentation fault), so it runs in a child process (io/_isolated.py)
     out = run_isolated(_loadmat, (str(path),), timeout=MAT_READ_TIMEOUT_S)

@@ -11,11 +11,15 @@ import json
 from pathlib import Path
 
 from .._errors import InputError
+from ._safefile import MAX_JSON_BYTES, read_limited
 
-__all__ = ["MAX_JSON_DEPTH", "json_depth", "load_json_file", "loads_json"]
+__all__ = ["MAX_JSON_DEPTH", "MAX_JSON_ITEMS", "json_depth", "load_json_file", "loads_json"]
 
 #: deepest nesting of arrays/objects accepted in a JSON document (openemt writes at most ~5)
 MAX_JSON_DEPTH = 64
+#: most values in a JSON document, counted by its separators before parsing (a thin-plate-spline
+#: correction of 100,000 pairs holds ~600,000 numbers)
+MAX_JSON_ITEMS = 2_000_000
 
 
 def json_depth(text: str) -> int:
@@ -41,7 +45,15 @@ def json_depth(text: str) -> int:
 
 
 def loads_json(text: str, what: str, where: str):
-    """Parse JSON ``text`` (a ``what`` from ``where``); one-line :class:`InputError` otherwise."""
+    """Parse JSON ``text`` (a ``what`` from ``where``); one-line :class:`InputError` otherwise.
+
+    Nesting deeper than :data:`MAX_JSON_DEPTH` and more than :data:`MAX_JSON_ITEMS` values
+    (counted by the ``,`` separators, strings included, so the count is an upper bound) are
+    refused before parsing."""
+    n_items = text.count(",") + 1
+    if n_items > MAX_JSON_ITEMS:
+        raise InputError(f"expected {what} of at most {MAX_JSON_ITEMS} values, got up to "
+                         f"{n_items} in {where}")
     if text.count("[") + text.count("{") > MAX_JSON_DEPTH:
         depth = json_depth(text)
         if depth > MAX_JSON_DEPTH:
@@ -54,12 +66,12 @@ def loads_json(text: str, what: str, where: str):
                          f"{exc.msg})") from None
 
 
-def load_json_file(path, what: str):
-    """Read and parse a JSON file; the errors name the file and say what was expected."""
+def load_json_file(path, what: str, max_bytes: int = MAX_JSON_BYTES):
+    """Read and parse a JSON file (a regular file of at most ``max_bytes``,
+    :func:`~openemt.io._safefile.read_limited`); the errors name the file and say what was
+    expected."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected {what}, got missing file {str(path)!r}")
-    data = path.read_bytes()
+    data = read_limited(path, what, max_bytes)
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

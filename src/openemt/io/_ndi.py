@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 from .._errors import InputError
 from ..geometry import pose_from_rt
 from ._poses_csv import StaticAverage, average_static
+from ._safefile import MAX_TEXT_BYTES, read_limited
 
 __all__ = ["SENTINEL_ABS", "NdiRecording", "NdiTool", "ToolNotFoundError", "import_ndi",
            "read_ndi_tsv", "write_ndi_tsv"]
@@ -209,8 +210,8 @@ def read_ndi_tsv(path) -> NdiRecording:
         quaternion in an ``OK`` row.
     """
     path = Path(path)
-    with open(path, encoding="utf-8-sig", errors="replace", newline="") as fh:
-        lines = fh.read().splitlines()
+    data = read_limited(path, "an NDI Toolbox export (TSV)", MAX_TEXT_BYTES)
+    lines = data.decode("utf-8-sig", errors="replace").splitlines()
     hdr_i, delim, cells = _header(lines, path)
     blocks = _blocks(cells, path)
     width = len(cells)

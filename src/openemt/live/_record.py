@@ -26,8 +26,7 @@ import numpy as np
 from .._errors import InputError
 from ..io._stream import CsvStream, H5Stream
 
-__all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "live_file_info",
-           "read_track_log"]
+__all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log"]
 
 TRACK_FORMAT = "openemt-track"
 LOG_KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
@@ -231,10 +230,10 @@ def read_track_log(path) -> TrackLogData:
         raise InputError(f"expected an existing track log file, got {str(path)!r}")
     if kind == "csv":
         return _read_csv_log(path)
-    import h5py
+    from ..io._h5safe import open_h5
 
     try:
-        with h5py.File(path, "r") as f:
+        with open_h5(path, "an openemt track log") as f:
             fmt = f.attrs.get("format")
             fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
             if fmt != TRACK_FORMAT:
@@ -364,41 +363,3 @@ class RawRecorder:
 
     def close(self) -> None:
         self.backend.close()
-
-
-def live_file_info(path) -> dict | None:
-    """Summary of a track log or raw recording for ``openemt info`` (None when ``path`` is
-    neither): kind, rows, whether the session ended cleanly, sensors or channels."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".csv":
-        try:
-            d = read_track_log(path)
-        except InputError:
-            return None
-        return {"kind": "track-log", "format": "csv", "rows": d.rows,
-                "complete": d.complete, "sensors": list(d.sensors)}
-    import h5py
-
-    from ..signal._rawsim import RAW_FORMAT
-
-    try:
-        with h5py.File(path, "r") as f:
-            fmt = f.attrs.get("format")
-    except OSError:
-        return None
-    fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-    if fmt == TRACK_FORMAT:
-        d = read_track_log(path)
-        return {"kind": "track-log", "format": "hdf5", "rows": d.rows,
-                "complete": d.complete, "sensors": list(d.sensors)}
-    if fmt == RAW_FORMAT:
-        from ..signal import read_raw
-
-        raw = read_raw(path)
-        return {"kind": "raw-recording", "rows": raw.n_samples,
-                "seconds": raw.duration, "complete": raw.complete,
-                "channels": int(raw.samples.shape[1]),
-                "sample_rate": raw.layout.sample_rate,
-                "truth_rows": None if raw.truth_times is None else len(raw.truth_times)}
-    return None

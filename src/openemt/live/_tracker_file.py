@@ -22,6 +22,13 @@ from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 
 __all__ = [
+    "MAX_ADC_CHANNELS",
+    "MAX_CARRIERS",
+    "MAX_FRAME_VALUES",
+    "MAX_LIST_ITEMS",
+    "MAX_SAMPLE_RATE_HZ",
+    "MAX_SAMPLE_VALUES_PER_S",
+    "MAX_SENSORS",
     "TRACKER_FORMAT",
     "FilterSpec",
     "SensorSpec",
@@ -36,6 +43,23 @@ TRACKER_FORMAT = "openemt-tracker"
 _VERSION = 1
 _MISSING = object()
 _FILTER_KINDS = ("none", "kalman")
+
+# Limits of a tracker file (docs/robustness.md, "Bounded work"): far above any real tracker,
+# low enough that a careless or hostile value is an error instead of an exhausted memory.
+#: highest ADC sample rate (Hz)
+MAX_SAMPLE_RATE_HZ = 10e6
+#: most ADC input channels
+MAX_ADC_CHANNELS = 256
+#: most samples per second over all channels (adc.sample_rate x adc.channels)
+MAX_SAMPLE_VALUES_PER_S = 1e8
+#: most values in one demodulation frame (frame length x adc.channels)
+MAX_FRAME_VALUES = 1 << 25
+#: most source carriers
+MAX_CARRIERS = 64
+#: most sensors
+MAX_SENSORS = 64
+#: most items in any list of the file
+MAX_LIST_ITEMS = 256
 
 
 @dataclass(frozen=True)
@@ -227,6 +251,9 @@ class _Reader:
             item = kind[len("list of "):]
             if not isinstance(v, list) or not v:
                 raise self.fail(full, f"a non-empty list of {item}", _show(v))
+            if len(v) > MAX_LIST_ITEMS:
+                raise self.fail(full, f"a list of at most {MAX_LIST_ITEMS} {item}",
+                                f"{len(v)} items")
             return [self._item(full, x, item) for x in v]
         raise AssertionError(kind)  # pragma: no cover
 
@@ -291,9 +318,16 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     fs = r.get(adc, "adc", "sample_rate", "number")
     if not (fs > 0 and fs < float("inf")):
         raise r.fail("adc.sample_rate", "a positive number (Hz)", fs)
+    if fs > MAX_SAMPLE_RATE_HZ:
+        raise r.fail("adc.sample_rate", f"at most {MAX_SAMPLE_RATE_HZ:g} Hz", fs)
     n_ch = r.get(adc, "adc", "channels", "integer")
     if n_ch < 1:
         raise r.fail("adc.channels", "a positive integer", n_ch)
+    if n_ch > MAX_ADC_CHANNELS:
+        raise r.fail("adc.channels", f"at most {MAX_ADC_CHANNELS}", n_ch)
+    if fs * n_ch > MAX_SAMPLE_VALUES_PER_S:
+        raise r.fail("adc.sample_rate", f"at most {MAX_SAMPLE_VALUES_PER_S:g} samples per "
+                     f"second over all channels (adc.channels = {n_ch})", fs)
     gains = {}
     for g in ("sensor_gain", "reference_gain"):
         v = r.get(adc, "adc", g, "number", 1.0)
@@ -304,6 +338,9 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     src = r.get(doc, "", "source", "table")
     _unknown_keys(r, src, "source", ("frequencies", "reference_channels"))
     freqs = r.get(src, "source", "frequencies", "list of numbers")
+    if len(freqs) > MAX_CARRIERS:
+        raise r.fail("source.frequencies", f"at most {MAX_CARRIERS} carriers",
+                     f"{len(freqs)} carriers")
     for f in freqs:
         if not 0 < f < fs / 2:
             raise r.fail("source.frequencies", f"carriers in (0, {fs / 2:g}) Hz (below the "
@@ -341,7 +378,10 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         raise r.fail("demodulation.distortion_threshold", "a positive number", thr)
 
     sensors = []
-    for i, t in enumerate(r.get(doc, "", "sensors", "list of tables")):
+    tables = r.get(doc, "", "sensors", "list of tables")
+    if len(tables) > MAX_SENSORS:
+        raise r.fail("sensors", f"at most {MAX_SENSORS} sensors", f"{len(tables)} sensors")
+    for i, t in enumerate(tables):
         pre = f"sensors[{i}]"
         _unknown_keys(r, t, pre, ("name", "channels", "calibration", "device_name",
                                   "hemisphere", "simulation_offset"))
@@ -417,6 +457,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
                 raise r.fail(f"simulation.{k}", "a non-negative number", v)
             simd[k] = v
     simd["seed"] = r.get(sim, "simulation", "seed", "integer", 0)
+    if not 0 <= simd["seed"] < 2**63:
+        raise r.fail("simulation.seed", "an integer in 0..2**63-1", simd["seed"])
     if "mains_amplitudes" in sim:
         simd["mains_amplitudes"] = tuple(r.get(sim, "simulation", "mains_amplitudes",
                                                "list of numbers"))
@@ -429,10 +471,14 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     try:                                       # the carrier plan must suit the demodulator
         from ..signal import frame_length
 
-        frame_length(spec.layout(), rate, window)
+        _hop, frame = frame_length(spec.layout(), rate, window)
     except InputError as exc:
         raise InputError(f"{where}: expected carriers and demodulation.output_rate the "
                          f"demodulator accepts, got {' '.join(str(exc).split())}") from None
+    if frame * n_ch > MAX_FRAME_VALUES:
+        raise r.fail("demodulation.output_rate", f"a rate whose frames hold at most "
+                     f"{MAX_FRAME_VALUES} values (frame length x adc.channels)",
+                     f"{rate:g} Hz: frames of {frame} samples x {n_ch} channels")
     return spec
 
 
@@ -446,12 +492,15 @@ def read_tracker(path) -> TrackerSpec:
     InputError
         One line naming the file, the key, what was expected and what arrived.
     """
+    from ..io._safefile import MAX_CONFIG_BYTES, check_text_nesting, read_limited
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected a tracker description file (TOML), got missing "
-                                f"{str(path)!r}")
+    what = "a tracker description file (TOML)"
+    data = read_limited(path, what, MAX_CONFIG_BYTES)
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = data.decode("utf-8")
+        check_text_nesting(text, "a tracker description", str(path))
+        doc = tomllib.loads(text)
     except UnicodeDecodeError:
         raise InputError(f"{path}: expected a TOML text file, got binary data") from None
     except tomllib.TOMLDecodeError as exc:

@@ -376,7 +376,7 @@ def write_raw(raw: RawSignal, path) -> None:
                sensor_gain (V per coupling*A), reference_gain (V/A), t0 (s)
         /truth/times              (n_truth,) s            -- optional (simulations)
         /truth/couplings          complex (n_truth, n_source, n_sensor)
-        /truth/poses              (n_truth, 4, 4) m
+        /truth/poses              (n_truth, 4, 4) m, or (n_truth, K, 4, 4) for K sensors
     """
     from ..io import atomic_h5
 
@@ -403,13 +403,12 @@ def read_raw(path) -> RawSignal:
     FileNotFoundError
         When ``path`` does not exist.
     """
-    import h5py
+    from ..io._h5safe import check_rows, open_h5
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected an existing raw file, got missing {str(path)!r}")
+    f = open_h5(path, f"an openemt raw HDF5 file (format {RAW_FORMAT!r})")
     try:
-        with h5py.File(path, "r") as f:
+        with f:
             fmt = f.attrs.get("format")
             fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
             if fmt != RAW_FORMAT:
@@ -424,10 +423,22 @@ def read_raw(path) -> RawSignal:
                                    reference_channels=tuple(f.attrs["reference_channels"]),
                                    sensor_gain=float(f.attrs["sensor_gain"]),
                                    reference_gain=float(f.attrs["reference_gain"]))
+            samples = f["samples"]
+            if getattr(samples, "ndim", None) != 2:
+                raise InputError(f"expected `samples` of shape (n, >= {layout.n_channels}), "
+                                 f"got {getattr(samples, 'shape', 'a group')} in {str(path)!r}")
             # a file streamed by a live session holds `rows` (committed rows) per group and
             # `complete` (False when the session was killed): read no more than committed
-            samples = np.asarray(f["samples"][:_committed(f, ("samples",))])
+            samples = np.asarray(samples[:_committed(f, ("samples",))])
             truth = {}
+            times = getattr(f.get("truth/times"), "shape", None)
+            if times:
+                check_rows(f, path.name, times[0], ("truth/couplings", "truth/poses"),
+                           reference="truth/times")
+                tail = getattr(f.get("truth/poses"), "shape", (0, 4, 4))[1:]
+                if tail[-2:] != (4, 4) or len(tail) > 3:   # one sensor, or K: (n, K, 4, 4)
+                    raise InputError(f"{path.name}: expected `truth/poses` of shape (n, 4, 4) or "
+                                     f"(n, K, 4, 4), got rows of shape {tail}")
             if "truth" in f:
                 g = f["truth"]
                 keys = [k for k in ("times", "couplings", "poses") if k in g]

@@ -74,19 +74,22 @@ class PoseWriter:
 
 def read_poses(path) -> SolveResult:
     """Read a poses file written by ``openemt solve``."""
-    import h5py
+    from ..io._h5safe import check_rows, open_h5
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"expected an openemt poses HDF5 file, got missing file "
-                                f"{str(path)!r}")
-    with h5py.File(path, "r") as f:
+    with open_h5(path, f"an openemt poses HDF5 file (schema {POSES_SCHEMA!r})") as f:
         schema = f.attrs.get("schema")
         if isinstance(schema, bytes):
             schema = schema.decode()
         if schema != POSES_SCHEMA:
             raise InputError(f"expected an openemt poses file (schema {POSES_SCHEMA!r}), got "
                              f"schema {schema!r} in {path.name}")
+        shape = getattr(f.get("poses"), "shape", None)
+        if not shape:
+            raise InputError(f"expected an openemt poses file with a `poses` array, got "
+                             f"{'none' if shape is None else 'a scalar'} in {path.name}")
+        check_rows(f, path.name, shape[0], {k: v[0] for k, v in _FIELDS.items()},
+                   reference="poses")
         fields = {name: f[name][()] for name in _FIELDS if name in f}
         fields.setdefault("relative_residual", None)
         return SolveResult(**fields, solver=str(f.attrs["solver"]))
