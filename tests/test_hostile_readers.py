@@ -13,8 +13,7 @@ import pytest
 
 from openemt._errors import InputError
 from openemt.bench import _fuzzhostile_readers as H
-from openemt.board import read_board
-from openemt.io import read_calibration, read_dataset, write_dataset
+from openemt.io import read_board, read_calibration, read_dataset, write_dataset
 from openemt.io._h5safe import H5_FLOOR_BYTES, check_structure, open_h5
 from openemt.io._safefile import check_text_nesting, read_limited
 from openemt.live import read_tracker

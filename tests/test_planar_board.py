@@ -9,8 +9,9 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from openemt._errors import InputError
-from openemt.board import PlanarModel, board_from_dict, load_board, read_board, write_board
+from openemt.board import PlanarModel, board_from_dict
 from openemt.field._segments import segment_coupling, segment_fields
+from openemt.io import load_board, read_board, write_board
 from openemt.solve import Status, solve_planar
 
 

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from openemt._errors import InputError
-from openemt.board import PlanarModel, load_board, write_board
+from openemt.board import PlanarModel
 from openemt.calibrate import GridData, write_grid_csv
 from openemt.calibrate._planar import checkerboard_split, fit_planar
 from openemt.cli import main
-from openemt.io import read_calibration
+from openemt.io import load_board, read_calibration, write_board
 from openemt.simulate import stage_pattern
 from openemt.solve import Status
 from openemt.solve._planar import solve_planar
@@ -171,7 +171,7 @@ def test_custom_board_and_unit_errors(tmp_path, capsys):
     board = load_board("anser")
     bfile = write_board(board, tmp_path / "my.toml")
     pts, u = _grid()
-    C = PlanarModel.from_board(bfile).coupling(pts, u)
+    C = PlanarModel.from_board(load_board(bfile)).coupling(pts, u)
     grid = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), grid)
     rc, out, err = _run(["calibrate", str(grid), "--mode", "planar", "--board", str(bfile),

@@ -54,9 +54,15 @@ def _read_dataset(path):
 
 
 def _readers() -> dict:
-    from ..board import read_board
     from ..correct import read_correction
-    from ..io import import_csv, read_calibration, read_ilemt_dat, read_ndi_tsv, read_poses_csv
+    from ..io import (
+        import_csv,
+        read_board,
+        read_calibration,
+        read_ilemt_dat,
+        read_ndi_tsv,
+        read_poses_csv,
+    )
     from ..live import read_tracker
     from ..signal import read_raw
     from ..solve import read_poses

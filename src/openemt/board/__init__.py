@@ -8,13 +8,11 @@ from ._geometry import (
     Board,
     CoilSpec,
     SensorSpec,
+    as_board,
     board_from_dict,
-    load_board,
-    read_board,
-    write_board,
+    builtin_board,
 )
 from ._model import PlanarModel
 
 __all__ = ["BUILTIN_BOARDS", "SENSOR_KINDS", "SHAPES", "Board", "CoilSpec", "PlanarModel",
-           "SensorSpec", "board_coils", "board_from_dict", "load_board", "read_board",
-           "write_board"]
+           "SensorSpec", "as_board", "board_coils", "board_from_dict", "builtin_board"]

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..field import Coil
-from ._geometry import Board, load_board
+from ._geometry import as_board
 
 __all__ = ["board_coils"]
 
@@ -27,7 +27,7 @@ def board_coils(board=None, gains=1.0) -> tuple:
     """The board's source coils (default: the built-in ``anser``) as ``Coil`` objects with the
     board's traces (magpylib polylines); ``gains`` scalar or one per coil (dipole gain units,
     docs/field-models.md)."""
-    b = board if isinstance(board, Board) else load_board(board)
+    b = as_board(board)
     g = np.broadcast_to(np.asarray(gains, dtype=np.float64), (b.n_coils,))
     out = []
     for c, gi in zip(b.coils, g):

@@ -16,12 +16,10 @@ circulate the same way about the normal (as the Anser coils, Jaeger et al. 2017)
 
 from __future__ import annotations
 
-import json
 import math
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
-from pathlib import Path
 
 import numpy as np
 
@@ -34,17 +32,16 @@ __all__ = [
     "Board",
     "CoilSpec",
     "SensorSpec",
+    "as_board",
     "board_from_dict",
-    "load_board",
-    "read_board",
-    "write_board",
+    "builtin_board",
 ]
 
 #: Coil shapes a board file may name.
 SHAPES = ("square_spiral", "rectangular", "circular")
 #: Sensor kinds: one coil along the sensor z axis (5-DOF) or three along x, y, z (6-DOF).
 SENSOR_KINDS = ("single", "triad")
-#: Board files shipped with the package (``load_board(name)``).
+#: Board files shipped with the package (``builtin_board(name)``).
 BUILTIN_BOARDS = ("anser",)
 
 #: Plausibility limits (m) used to catch millimetres given where metres are expected.
@@ -317,68 +314,17 @@ def board_from_dict(doc: dict, src: str = "") -> Board:
     return Board(str(doc.get("name", "board")), specs, sensor, str(doc.get("description", "")))
 
 
-def read_board(path) -> Board:
-    """Read a board file (``.toml`` or ``.json``)."""
-    from ..io._jsontext import loads_json
-    from ..io._safefile import MAX_CONFIG_BYTES, check_text_nesting, read_limited
-
-    path = Path(path)
-    data = read_limited(path, "a board file (.toml or .json)", MAX_CONFIG_BYTES)
-    try:
-        text = data.decode("utf-8")
-        if path.suffix.lower() == ".json":
-            doc = loads_json(text, "a JSON board file", path.name)
-        else:
-            check_text_nesting(text, "a TOML board file", path.name)
-            doc = tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        msg = str(exc).splitlines()[0]
-        raise InputError(f"{path.name}: expected a TOML or JSON board file, got {msg}") from None
-    return board_from_dict(doc, path.name)
+def builtin_board(name: str | None = None) -> Board:
+    """A board shipped with openemt (:data:`BUILTIN_BOARDS`; default ``anser``). Board files
+    of your own are read by :func:`openemt.io.load_board` / :func:`openemt.io.read_board`."""
+    name = "anser" if name is None else str(name)
+    if name not in BUILTIN_BOARDS:
+        raise InputError(f"expected a Board or a built-in board name {list(BUILTIN_BOARDS)}, got "
+                         f"{name!r} (read a board file with openemt.io.load_board)")
+    text = resources.files("openemt.board").joinpath(f"{name}.toml").read_text("utf-8")
+    return board_from_dict(tomllib.loads(text), f"{name}.toml")
 
 
-def load_board(board=None) -> Board:
-    """A board: a :class:`Board` as is, a built-in name (default ``anser``) or a file path."""
-    if isinstance(board, Board):
-        return board
-    if board is None:
-        board = "anser"
-    if str(board) in BUILTIN_BOARDS:
-        text = resources.files("openemt.board").joinpath(f"{board}.toml").read_text("utf-8")
-        return board_from_dict(tomllib.loads(text), f"{board}.toml")
-    return read_board(board)
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    return repr(float(v))
-
-
-def write_board(board: Board, path) -> Path:
-    """Write a board file atomically: TOML, or JSON if ``path`` ends in ``.json``."""
-    from ..io import atomic_path
-
-    path = Path(path)
-    d = board.to_dict()
-    if path.suffix.lower() == ".json":
-        text = json.dumps(d, indent=2) + "\n"
-    else:
-        lines = [f"name = {_toml_value(d['name'])}",
-                 f"description = {_toml_value(d['description'])}", ""]
-        for c in d["coils"]:
-            lines.append("[[coils]]")
-            lines += [f"{k} = {_toml_value(v)}" for k, v in c.items()]
-            lines.append("")
-        lines.append("[sensor]")
-        lines += [f"{k} = {_toml_value(v)}" for k, v in d["sensor"].items()]
-        text = "\n".join(lines) + "\n"
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
-    return path
+def as_board(board=None) -> Board:
+    """``board`` if it is a :class:`Board`, else the built-in board of that name."""
+    return board if isinstance(board, Board) else builtin_board(board)

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._errors import InputError
-from ._geometry import Board, load_board
+from ._geometry import Board, as_board
 
 __all__ = ["DipoleOnlyError", "PlanarModel", "dipole_only"]
 
@@ -77,8 +77,9 @@ class PlanarModel:
 
     @classmethod
     def from_board(cls, board=None, gains=1.0, offsets=None, tilts=None) -> PlanarModel:
-        """A model of ``board`` (a :class:`Board`, built-in name or file; default ``anser``)."""
-        b = load_board(board)
+        """A model of ``board`` (a :class:`Board` or built-in name; default ``anser``; a file:
+        :func:`openemt.io.load_board`)."""
+        b = as_board(board)
         n = b.n_coils
         return cls(b, np.broadcast_to(np.asarray(gains, np.float64), (n,)),
                    np.zeros((n, 3)) if offsets is None else offsets,

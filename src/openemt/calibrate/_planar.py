@@ -437,11 +437,12 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
         Iteration limit and relative step size below which the fit has converged.
     """
     from ..board import PlanarModel
+    from ..io import load_board
 
     if not isinstance(data, GridData):
         raise TypeError(f"expected GridData, got {type(data).__name__}")
     if not isinstance(model, PlanarModel):
-        model = PlanarModel.from_board(model)
+        model = PlanarModel.from_board(load_board(model))   # a Board, built-in name or file
         f0 = model.coupling(data.points, data.axes)
         if data.couplings.shape[1] == model.n_coils:
             g0 = np.sum(f0 * data.couplings, 0) / np.sum(f0 * f0, 0)

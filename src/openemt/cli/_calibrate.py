@@ -91,7 +91,7 @@ def _groups(text):
 
 def _planar(args) -> int:
     """Planar mode: fit a finite-coil board to a grid CSV (docs/planar.md#calibration)."""
-    from ..board import PlanarModel, load_board
+    from ..board import PlanarModel
     from ..calibrate._planar import (
         GridData,
         check_grid_units,
@@ -100,7 +100,7 @@ def _planar(args) -> int:
         planar_accuracy,
         read_grid,
     )
-    from ..io import read_calibration
+    from ..io import load_board, read_calibration
     from ..io._board_calfile import BoardCalibration, write_board_calibration
 
     if args.holdout not in (None, "checkerboard"):

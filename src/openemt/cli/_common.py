@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["add_common", "emit", "progress", "stage", "to_jsonable"]
+__all__ = ["add_common", "emit", "progress", "stage", "to_jsonable", "write_solved"]
 
 
 def add_common(parser) -> None:
@@ -68,3 +68,19 @@ def progress(iterable=None, *, total=None, desc: str = "", args=None, unit: str 
     disable = bool(getattr(args, "quiet", False)) or not sys.stderr.isatty()
     return tqdm(iterable, total=total, desc=desc, file=sys.stderr, disable=disable, unit=unit,
                 leave=False)
+
+
+def write_solved(args, n: int, solver: str, meta: dict, chunks):
+    """Write the ``(start, SolveResult)`` blocks of ``chunks`` to the poses file ``args.output``
+    (atomically, with a progress bar); returns the :class:`~openemt.solve._output.PoseWriter`,
+    whose status counts outlive the file. Used by ``solve`` for every kind of calibration."""
+    from ..io import atomic_h5
+    from ..solve._output import PoseWriter
+
+    with atomic_h5(args.output) as f:
+        writer = PoseWriter(f, n, solver, meta)
+        with progress(total=n, desc="solve", args=args, unit="pose") as bar:
+            for start, res in chunks:
+                writer.write(start, res)
+                bar.update(len(res))
+    return writer

@@ -68,7 +68,7 @@ def run(args) -> int:
     from ..io._h5safe import open_h5
     from ..solve import solve_chunks
     from ..solve._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
-    from ._common import emit
+    from ._common import emit, write_solved
 
     cal = read_calibration(args.calibration)
     options = {"max_relative_residual": args.max_relative_residual,
@@ -329,20 +329,3 @@ def failure_reasons(counts, args, fixtures=None, hemisphere=None) -> list[dict]:
                 entry["source_fixtures"] = by_code
             out.append(entry)
     return out
-
-
-def write_solved(args, n: int, solver: str, meta: dict, chunks):
-    """Write the ``(start, SolveResult)`` blocks of ``chunks`` to the poses file ``args.output``
-    (atomically, with a progress bar); returns the :class:`~openemt.solve._output.PoseWriter`,
-    whose status counts outlive the file."""
-    from ..io import atomic_h5
-    from ..solve._output import PoseWriter
-    from ._common import progress
-
-    with atomic_h5(args.output) as f:
-        writer = PoseWriter(f, n, solver, meta)
-        with progress(total=n, desc="solve", args=args, unit="pose") as bar:
-            for start, res in chunks:
-                writer.write(start, res)
-                bar.update(len(res))
-    return writer

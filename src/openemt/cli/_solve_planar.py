@@ -34,8 +34,7 @@ def solve_board(args, cal) -> int:
     from ..io import open_dataset_couplings
     from ..io._h5safe import open_h5
     from ..solve._planar import solve_planar
-    from ._common import emit
-    from ._solve import write_solved
+    from ._common import emit, write_solved
 
     if args.solver != "lm":
         raise InputError(f"expected --solver lm with a finite-coil calibration, got "

@@ -1,6 +1,7 @@
 """Reading and writing every box of the pipeline: datasets, calibrations, importers."""
 
 from ._atomic import atomic_h5, atomic_path
+from ._board_file import load_board, read_board, write_board
 from ._calfile import read_calibration, write_calibration
 from ._calibration import Calibration
 from ._csv import export_csv, import_csv
@@ -26,6 +27,7 @@ from ._poses_csv import (
 )
 
 __all__ = ["Calibration", "Dataset", "atomic_h5", "atomic_path", "signed_real"]
+__all__ += ["load_board", "read_board", "write_board"]
 
 __all__ += ["compensate_stage", "file_sha256", "import_ilemt_folder", "parse_sign_options",
             "read_ilemt_dat"]

@@ -18,6 +18,8 @@ import numpy as np
 from .. import __version__
 from .._errors import InputError
 from ._atomic import atomic_path
+from ._calibration import CALIBRATION_SCHEMA
+from ._jsontext import free_to_json
 
 __all__ = ["BoardCalibration", "board_calibration_from_dict", "board_calibration_to_dict",
            "is_board_calibration", "write_board_calibration"]
@@ -71,13 +73,11 @@ def is_board_calibration(doc) -> bool:
 
 
 def _free(v):
-    from ._calfile import _free_to_json
 
-    return _free_to_json(v)
+    return free_to_json(v)
 
 
 def board_calibration_to_dict(cal: BoardCalibration) -> dict:
-    from ._calfile import CALIBRATION_SCHEMA
 
     m = cal.model
     return {
@@ -98,7 +98,6 @@ def board_calibration_to_dict(cal: BoardCalibration) -> dict:
 def board_calibration_from_dict(doc: dict, source: str = "") -> BoardCalibration:
     """Validate and read the document of a finite-coil calibration."""
     from ..board import PlanarModel, board_from_dict
-    from ._calfile import CALIBRATION_SCHEMA
 
     w = f"{source}: " if source else ""
     if doc.get("schema") != CALIBRATION_SCHEMA:

@@ -7,7 +7,6 @@ bit-for-bit. ``read_calibration`` also accepts ILEMT ``.mat`` calibrations.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +15,13 @@ from .. import __version__
 from .._errors import InputError
 from ..field import DipoleModel
 from ._atomic import atomic_path
-from ._calibration import Calibration, check_correction_matrix, check_model_moments
+from ._calibration import (
+    CALIBRATION_SCHEMA,
+    Calibration,
+    check_correction_matrix,
+    check_model_moments,
+)
+from ._jsontext import free_to_json as _free_to_json
 from ._jsontext import load_json_file
 
 __all__ = [
@@ -28,7 +33,6 @@ __all__ = [
     "write_calibration",
 ]
 
-CALIBRATION_SCHEMA = "openemt.calibration"
 CALIBRATION_SCHEMA_VERSION = 1
 #: most source or sensor coils of a dipole calibration (docs/robustness.md, "Bounded work")
 MAX_CALIBRATION_COILS = 64
@@ -50,25 +54,6 @@ def _arr_to_json(a) -> list | float | None:
     return _free_to_json(a.tolist())
 
 
-def _free_to_json(v):
-    """Free-form values (stats, provenance, extra) -> JSON types; non-finite floats -> null."""
-    if isinstance(v, dict):
-        return {str(k): _free_to_json(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_free_to_json(x) for x in v]
-    if isinstance(v, np.ndarray):
-        if v.dtype.kind == "c":
-            return {"real": _free_to_json(v.real.tolist()), "imag": _free_to_json(v.imag.tolist())}
-        return _free_to_json(v.tolist())
-    if isinstance(v, np.generic):
-        return _free_to_json(v.item())
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, (bool, int, str)) or v is None:
-        return v
-    if hasattr(v, "__fspath__"):
-        return str(v)
-    raise TypeError(f"expected JSON-serialisable calibration metadata, got {type(v).__name__}")
 
 
 def calibration_to_dict(cal: Calibration) -> dict:

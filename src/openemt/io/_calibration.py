@@ -18,6 +18,9 @@ from ..geometry import pose_from_vector
 __all__ = ["MAX_CORRECTION_CONDITION", "Calibration", "check_correction_matrix",
            "check_model_moments"]
 
+#: The ``schema`` of every openemt calibration file (docs/calibration-format.md).
+CALIBRATION_SCHEMA = "openemt.calibration"
+
 #: Largest condition number of a homogeneous 4x4 output correction. A fitted correction is
 #: close to the identity (condition ~1); a matrix beyond this is singular in practice (an
 #: all-zero matrix, a zero row) and would turn every corrected position into NaN or garbage.

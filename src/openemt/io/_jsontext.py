@@ -8,12 +8,16 @@ in ``RecursionError``; openemt's documents are a few levels deep, and anything d
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
+
+import numpy as np
 
 from .._errors import InputError
 from ._safefile import MAX_JSON_BYTES, read_limited
 
-__all__ = ["MAX_JSON_DEPTH", "MAX_JSON_ITEMS", "json_depth", "load_json_file", "loads_json"]
+__all__ = ["MAX_JSON_DEPTH", "MAX_JSON_ITEMS", "free_to_json", "json_depth", "load_json_file",
+           "loads_json"]
 
 #: deepest nesting of arrays/objects accepted in a JSON document (openemt writes at most ~5)
 MAX_JSON_DEPTH = 64
@@ -78,3 +82,24 @@ def load_json_file(path, what: str, max_bytes: int = MAX_JSON_BYTES):
         raise InputError(f"expected {what} (UTF-8 JSON text), got a byte that is not UTF-8 at "
                          f"offset {exc.start} in {path.name}") from None
     return loads_json(text, what, path.name)
+
+
+def free_to_json(v):
+    """Free-form values (stats, provenance, extra) -> JSON types; non-finite floats -> null."""
+    if isinstance(v, dict):
+        return {str(k): free_to_json(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [free_to_json(x) for x in v]
+    if isinstance(v, np.ndarray):
+        if v.dtype.kind == "c":
+            return {"real": free_to_json(v.real.tolist()), "imag": free_to_json(v.imag.tolist())}
+        return free_to_json(v.tolist())
+    if isinstance(v, np.generic):
+        return free_to_json(v.item())
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, (bool, int, str)) or v is None:
+        return v
+    if hasattr(v, "__fspath__"):
+        return str(v)
+    raise TypeError(f"expected JSON-serialisable calibration metadata, got {type(v).__name__}")

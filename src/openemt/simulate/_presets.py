@@ -200,7 +200,8 @@ _ANSER_FREQUENCIES = tuple(np.linspace(2500.0, 20000.0, 8))
 def anser_preset(board=None) -> Preset:
     """The ``anser`` preset with the source coils of ``board`` (a board file or built-in name,
     default the built-in ``anser``; docs/planar.md#board-file)."""
-    from ..board import board_coils, load_board
+    from ..board import board_coils
+    from ..io import load_board
 
     sources = board_coils(load_board(board))
     if len(sources) != 8:
