@@ -248,6 +248,8 @@ def assess_grid(measured, nominal, *, match: str = "order", groups=None,
         avg = average_static(P, g[ok])
         if np.any(avg.counts > 1):
             jitter = avg.summary()
+            if not rot:
+                jitter = {k: v for k, v in jitter.items() if "_rot_" not in k}
         P = avg.poses
     if len(P) < 3:
         raise InputError(f"expected at least 3 finite measured points, got {len(P)} (of "

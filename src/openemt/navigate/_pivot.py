@@ -252,7 +252,7 @@ def pivot_calibration(poses, method: str = "algebraic", *, max_rms_mm=MAX_PIVOT_
     rms = float(np.sqrt(np.mean(dist_in ** 2)))
     _check_rms(1e3 * rms, max_rms_mm, "mm", "pivot",
                "the tip slipped in the divot, the tool bends or the tracker is distorted here; "
-               "re-record, try method='ransac', or raise the limit")
+               "re-record, use the ransac method, or raise the limit")
     residuals = np.full((len(P), 3), np.nan)
     residuals[ok] = _residuals(R, p, t, q)
     inlier = np.zeros(len(P), bool)
@@ -430,7 +430,7 @@ def spin_calibration(poses, method: str = "algebraic", *, tip=None,
     rms_deg = float(np.rad2deg(np.sqrt(np.mean(ang ** 2))))
     _check_rms(rms_deg, max_rms_deg, "deg", "spin-axis",
                "the tool wobbled instead of turning about one axis; hold it in a guide, "
-               "re-record, try method='ransac', or raise the limit")
+               "re-record, use the ransac method, or raise the limit")
     # axis direction covariance: residuals B_b^T R_i a, unknowns (2 of a, 2 of b)
     Ba, Bb = _perp_basis(a), _perp_basis(b)
     J = np.concatenate([np.einsum("ji,njk,kl->nil", Bb, Ri, Ba),

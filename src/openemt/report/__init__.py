@@ -3,6 +3,7 @@ imports this package; its functions lay out results computed elsewhere."""
 
 from ._figures import error_histogram_figure, error_map_figure, error_vector_figure, sweep_figure
 from ._html import Report, figure_png
+from ._navigation import assessment_document, distance_error_figure
 from ._planar import planar_document, planar_report
 from ._sections import (
     accuracy_section,
@@ -19,8 +20,10 @@ from ._sections import (
 __all__ = [
     "Report",
     "accuracy_section",
+    "assessment_document",
     "by_fixture_table",
     "characterization_document",
+    "distance_error_figure",
     "error_figures",
     "error_histogram_figure",
     "error_map_figure",
