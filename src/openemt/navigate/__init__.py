@@ -25,6 +25,7 @@ from ._register import (
     register_points_batch,
     rigid_fit,
 )
+from ._simulate import simulate_grid_points, simulate_pivot_poses, simulate_spin_poses
 
 __all__ = [
     "DISTANCE_CLASSES_MM",
@@ -51,5 +52,8 @@ __all__ = [
     "register_points_batch",
     "regular_grid",
     "rigid_fit",
+    "simulate_grid_points",
+    "simulate_pivot_poses",
+    "simulate_spin_poses",
     "spin_calibration",
 ]
