@@ -5,7 +5,13 @@ Independent of any magnetic model: the corrections work on the pose output of an
 (ILEMT, NDI Aurora, Polhemus, ...) given reference poses. See docs/correction.md.
 """
 
-from ._bernstein import BERNSTEIN_DEGREES, BernsteinCorrection, data_box, fit_bernstein
+from ._bernstein import (
+    BERNSTEIN_DEGREES,
+    BernsteinCorrection,
+    bernstein_basis,
+    data_box,
+    fit_bernstein,
+)
 from ._crossval import MAX_FOLDS, check_folds, kfold_splits, location_groups, location_kfold
 from ._dlt import DltFit, apply_linear_correction, fit_dlt, linear_correction_rms
 from ._dof import MIN_PAIRS_FACTOR, pair_requirements
@@ -45,6 +51,7 @@ __all__ = [
     "RbfCorrection",
     "apply_linear_correction",
     "axis_levels",
+    "bernstein_basis",
     "check_folds",
     "data_box",
     "evaluate_correction",
