@@ -15,10 +15,7 @@ from . import command_help
 from ._common import add_common, emit
 from ._navcommon import add_units, write_json
 
-__all__ = ["TOOL_FORMAT", "register", "run"]
-
-#: ``format`` of the files ``openemt pivot`` and ``openemt spin`` write.
-TOOL_FORMAT = "openemt.tool-calibration"
+__all__ = ["register", "run"]
 
 
 def register(sub) -> None:
@@ -42,7 +39,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from .._errors import check_nonnegative
-    from ..navigate import pivot_calibration, read_tool_poses
+    from ..navigate import TOOL_FORMAT, pivot_calibration, read_tool_poses
 
     t = read_tool_poses(args.poses, length_unit=args.length_unit, angle_unit=args.angle_unit)
     if not t.has_orientation:

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from . import command_help
 from ._common import add_common, emit
 from ._navcommon import add_units, write_json
@@ -40,27 +38,11 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _read_tip(path) -> np.ndarray:
-    from .._errors import InputError
-    from ..io._jsontext import load_json_file
-    from ._pivot import TOOL_FORMAT
-
-    d = load_json_file(Path(path), "a tool-calibration file from 'openemt pivot'")
-    if not isinstance(d, dict) or d.get("format") != TOOL_FORMAT or d.get("kind") != "pivot":
-        raise InputError(f"expected a pivot calibration from 'openemt pivot' in {path}, got "
-                         f"another document")
-    tip = np.asarray(d.get("tip_mm"), dtype=np.float64)
-    if tip.shape != (3,) or not np.all(np.isfinite(tip)):
-        raise InputError(f"expected 3 finite numbers as tip_mm in {path}, got {d.get('tip_mm')!r}")
-    return 1e-3 * tip
-
-
 def run(args) -> int:
     from .._errors import InputError, check_nonnegative
-    from ..navigate import read_tool_poses, spin_calibration
-    from ._pivot import TOOL_FORMAT
+    from ..navigate import TOOL_FORMAT, read_tip_transform, read_tool_poses, spin_calibration
 
-    tip = None if args.tip is None else _read_tip(args.tip)
+    tip = None if args.tip is None else read_tip_transform(args.tip)[:3, 3]
     t = read_tool_poses(args.poses, length_unit=args.length_unit, angle_unit=args.angle_unit)
     if not t.has_orientation:
         raise InputError(f"expected tool poses with orientations in {args.poses}, got "

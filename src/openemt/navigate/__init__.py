@@ -12,9 +12,11 @@ from ._pivot import (
     MIN_POSES,
     MIN_SPIN_DEG,
     PIVOT_METHODS,
+    TOOL_FORMAT,
     PivotResult,
     SpinResult,
     pivot_calibration,
+    read_tip_transform,
     spin_calibration,
 )
 from ._register import (
@@ -34,6 +36,7 @@ __all__ = [
     "MIN_POSES",
     "MIN_SPIN_DEG",
     "PIVOT_METHODS",
+    "TOOL_FORMAT",
     "BatchRegistration",
     "GridAssessment",
     "MarkupPoints",
@@ -47,6 +50,7 @@ __all__ = [
     "predicted_tre",
     "read_markups",
     "read_points_csv",
+    "read_tip_transform",
     "read_tool_poses",
     "register_points",
     "register_points_batch",

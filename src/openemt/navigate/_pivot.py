@@ -41,8 +41,8 @@ from ..geometry import check_poses, require_rotation_diversity, rotation_diversi
 from ._robust import linear_covariance, ransac
 
 __all__ = ["MAX_PIVOT_RMS_MM", "MAX_SPIN_RMS_DEG", "MIN_POSES", "MIN_SPIN_DEG",
-           "PIVOT_METHODS", "PivotResult", "SpinResult", "pivot_calibration",
-           "spin_calibration"]
+           "PIVOT_METHODS", "TOOL_FORMAT", "PivotResult", "SpinResult", "pivot_calibration",
+           "read_tip_transform", "spin_calibration"]
 
 PIVOT_METHODS = ("algebraic", "sphere", "ransac")
 #: Fewest usable poses of a pivot or spin calibration.
@@ -459,3 +459,31 @@ def spin_calibration(poses, method: str = "algebraic", *, tip=None,
                       point_tracker=e, point_se=point_se, angle_residuals=angles,
                       point_residuals=pres, inlier=inlier, rms_deg=rms_deg, rms=rms,
                       spin_deg=float(rotation_diversity(Ri).primary_deg))
+
+
+#: ``format`` of the tool-calibration files ``openemt pivot`` and ``openemt spin`` write.
+TOOL_FORMAT = "openemt.tool-calibration"
+
+
+def read_tip_transform(path) -> np.ndarray:
+    """The tip transform (4x4, m) of a pivot calibration written by ``openemt pivot``:
+    ``pose @ T`` is the pose of the tool tip (translation ``tip``, no rotation)."""
+    from pathlib import Path
+
+    from ..io._jsontext import load_json_file
+
+    path = Path(path)
+    d = load_json_file(path, "a tool-calibration file from 'openemt pivot'")
+    if not isinstance(d, dict) or d.get("format") != TOOL_FORMAT or d.get("kind") != "pivot":
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        raise InputError(f"expected a pivot calibration (format {TOOL_FORMAT!r}, kind 'pivot') "
+                         f"from 'openemt pivot' in {path}, got {got!r}")
+    try:
+        T = np.asarray(d.get("tip_transform"), dtype=np.float64)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(
+            T[3], [0, 0, 0, 1]) or not np.allclose(T[:3, :3], np.eye(3)):
+        raise InputError(f"expected `tip_transform` a finite 4x4 translation in {path}, got "
+                         f"{d.get('tip_transform')!r}")
+    return T
