@@ -123,3 +123,32 @@ def test_bad_mrk_json(tmp_path):
     path.write_text("[1, 2]")
     with pytest.raises(InputError, match="'markups' list"):
         read_markups(path)
+
+
+@pytest.mark.parametrize("name", ["grid.fcsv", "grid.mrk.json"])
+def test_mutated_markups_give_points_or_one_input_error(tmp_path, name):
+    """Byte mutations of a valid file (the fuzz suite's mutator): every outcome is either
+    finite points with one label each, or an InputError (a ValueError), never another
+    exception."""
+    import random
+
+    from openemt.bench._fuzzcases import BYTE_OPS, mutate_bytes, random_ops
+
+    path = tmp_path / name
+    if name.endswith(".fcsv"):
+        seed = SLICER411_LPS.format(rows=_rows_markups(LPS)).encode()
+    else:
+        seed = json.dumps(_mrk(RAS, "RAS")).encode()
+    rng = random.Random(0)
+    outcomes = {"ok": 0, "error": 0}
+    for _ in range(300):
+        path.write_bytes(mutate_bytes(seed, random_ops(rng, BYTE_OPS)))
+        try:
+            m = read_markups(path)
+        except ValueError:
+            outcomes["error"] += 1
+            continue
+        assert m.points.ndim == 2 and m.points.shape[1] == 3 and len(m.points) >= 1
+        assert np.all(np.isfinite(m.points)) and len(m.labels) == len(m.points)
+        outcomes["ok"] += 1
+    assert outcomes["ok"] and outcomes["error"]
