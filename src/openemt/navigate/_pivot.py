@@ -207,7 +207,7 @@ def pivot_calibration(poses, method: str = "algebraic", *, max_rms_mm=MAX_PIVOT_
     >>> P[:, :3, :3] = R
     >>> P[:, :3, 3] = pivot - R @ tip
     >>> res = pivot_calibration(P)
-    >>> np.round(res.to_dict()["tip_mm"], 6).tolist(), res.n_inliers
+    >>> (np.round(res.to_dict()["tip_mm"], 6) + 0.0).tolist(), res.n_inliers
     ([0.0, 0.0, 150.0], 30)
     """
     if method not in PIVOT_METHODS:
