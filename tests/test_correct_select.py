@@ -103,7 +103,7 @@ def test_cli_auto_reports_none_rows_and_warnings(tmp_path, capsys):
     assert r["bad_lines"] == [6, 61] and r["nonfinite_lines"] == [10]
     assert "rows not used" in cap.err and "lines 6, 61" in cap.err
     assert s["held_out"]["uncorrected"]["trans_rms_mm"] > s["held_out"]["corrected"]["trans_rms_mm"]
-    assert set(s["auto"]["candidates"]) == {"none", "dlt", "poly", "grid", "rbf"}
+    assert set(s["auto"]["candidates"]) == {"none", "dlt", "poly", "bernstein", "grid", "rbf"}
     assert s["worse_than_none"] is False
     assert read_correction(out).method == s["method"]
 

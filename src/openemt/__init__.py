@@ -25,7 +25,8 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 
 #: Subpackages, in pipeline order.
 SUBPACKAGES = ("geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate",
-               "correct", "align", "evaluate", "paper", "report", "live", "bench", "datasets")
+               "correct", "align", "evaluate", "navigate", "paper", "report", "live", "bench",
+               "datasets")
 
 #: Top-level name -> (subpackage, name there).
 _ATTRIBUTES = {
@@ -56,17 +57,26 @@ _ATTRIBUTES = {
     "pose_errors": ("evaluate", "pose_errors"),
     "error_summary": ("evaluate", "error_summary"),
     "ErrorSummary": ("evaluate", "ErrorSummary"),
+    # navigation: tool calibration, registration, assessment
+    "pivot_calibration": ("navigate", "pivot_calibration"),
+    "spin_calibration": ("navigate", "spin_calibration"),
+    "register_points": ("navigate", "register_points"),
+    "register_points_batch": ("navigate", "register_points_batch"),
+    "assess_grid": ("navigate", "assess_grid"),
+    "read_markups": ("navigate", "read_markups"),
 }
 
 __all__ = [  # noqa: RUF022 - version, then the subpackages in pipeline order, then the names
     "__version__",
     "geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate", "correct",
-    "align", "evaluate", "paper", "report", "live", "bench", "datasets",
+    "align", "evaluate", "navigate", "paper", "report", "live", "bench", "datasets",
     "Calibration", "CalibrationFit", "Dataset", "DipoleModel", "ErrorSummary", "SolveResult",
-    "Status", "error_summary",
+    "Status", "assess_grid", "error_summary",
     "fit_calibration", "fit_correction", "import_ilemt_folder", "pose_errors",
-    "pose_from_vector", "read_calibration", "read_dataset", "read_ilemt_calibration",
-    "solve_kim18", "solve_kuipers", "solve_lm", "solve_svd", "vector_from_pose",
+    "pivot_calibration", "pose_from_vector", "read_calibration", "read_dataset",
+    "read_ilemt_calibration", "read_markups", "register_points", "register_points_batch",
+    "solve_kim18", "solve_kuipers", "solve_lm", "solve_svd", "spin_calibration",
+    "vector_from_pose",
     "write_calibration", "write_dataset",
 ]
 

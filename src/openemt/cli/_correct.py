@@ -2,7 +2,8 @@
 
 ``fit`` reads pose-pair CSV files (measured ``x, y, z, ...`` and reference ``ref_x, ...``
 columns, see ``openemt.io.read_poses_csv``; ``openemt align`` writes them), fits a DLT,
-polynomial, grid or RBF correction (or chooses one, "none" included, with ``--method auto``)
+polynomial, tensor-product Bernstein, grid or RBF correction (or chooses one, "none" included,
+with ``--method auto``)
 and prints its in-sample and held-out errors beside those of no correction. ``apply``
 corrects the poses of a CSV file or pose dataset and, if the file has reference columns,
 reports the errors before and after.
@@ -32,7 +33,8 @@ def register(sub) -> None:
                    help="pose-pair CSV file(s) with ref_ columns (or pose datasets with "
                         "reference poses)")
     f.add_argument("-o", "--output", required=True, help="correction JSON to write")
-    f.add_argument("--method", choices=("auto", "none", "dlt", "poly", "grid", "rbf"),
+    f.add_argument("--method", choices=("auto", "none", "dlt", "poly", "bernstein", "grid",
+                                        "rbf"),
                    default="poly",
                    help="correction method; auto: the lowest held-out error, none included")
     f.add_argument("--folds", type=int, default=5,
@@ -42,6 +44,9 @@ def register(sub) -> None:
                    help="hold out one input file at a time instead of k random folds")
     f.add_argument("--order", type=int, help="poly: position order (default: by CV, 1-5)")
     f.add_argument("--rot-order", type=int, help="poly: orientation order (default: by CV)")
+    f.add_argument("--degree", type=int,
+                   help="bernstein: position degree per axis (default: by CV, 1-6)")
+    f.add_argument("--rot-degree", type=int, help="bernstein: orientation degree (default: by CV)")
     f.add_argument("--grid-shape", help="grid: nodes per axis, e.g. 5,5,5")
     f.add_argument("--smoothing", type=float, help="grid/rbf smoothing (default: by CV)")
     f.add_argument("--positions-only", action="store_true",
@@ -125,6 +130,11 @@ def _method_options(args, method) -> dict:
             opts["order"] = args.order
         if args.rot_order is not None:
             opts["rot_order"] = args.rot_order
+    if method == "bernstein":
+        if args.degree is not None:
+            opts["degree"] = args.degree
+        if args.rot_degree is not None:
+            opts["rot_degree"] = args.rot_degree
     if method in ("grid", "rbf") and args.smoothing is not None:
         opts["smoothing"] = check_nonnegative(args.smoothing, "--smoothing")
     if method == "grid" and args.grid_shape:
@@ -167,7 +177,8 @@ def run_fit(args) -> int:
     if args.method == "auto":
         corr = fit_auto_correction(
             measured, reference, k=args.folds, seed=args.seed, groups=groups, meta=meta,
-            method_options={m: _method_options(args, m) for m in ("poly", "grid", "rbf")})
+            method_options={m: _method_options(args, m)
+                            for m in ("poly", "bernstein", "grid", "rbf")})
     else:
         corr = fit_correction(measured, reference, args.method, k=args.folds, seed=args.seed,
                               groups=groups, meta=meta, **_method_options(args, args.method))
@@ -196,6 +207,7 @@ def run_fit(args) -> int:
 def _selected(corr) -> dict:
     p = corr.params
     keys = {"none": (), "dlt": ("method", "refined"), "poly": ("pos_order", "rot_order"),
+            "bernstein": ("pos_degree", "rot_degree", "lower", "upper"),
             "grid": ("shape", "smoothing"), "rbf": ("smoothing", "kernel")}[corr.method]
     return {k: p.get(k) for k in keys}
 

@@ -1,9 +1,17 @@
-"""Output correction on pose pairs (measured, reference): DLT, polynomials, lookup tables.
+"""Output correction on pose pairs (measured, reference): DLT, polynomials (total-degree and
+tensor-product Bernstein), lookup tables.
 
 Independent of any magnetic model: the corrections work on the pose output of any tracker
 (ILEMT, NDI Aurora, Polhemus, ...) given reference poses. See docs/correction.md.
 """
 
+from ._bernstein import (
+    BERNSTEIN_DEGREES,
+    BernsteinCorrection,
+    bernstein_basis,
+    data_box,
+    fit_bernstein,
+)
 from ._crossval import MAX_FOLDS, check_folds, kfold_splits, location_groups, location_kfold
 from ._dlt import DltFit, apply_linear_correction, fit_dlt, linear_correction_rms
 from ._dof import MIN_PAIRS_FACTOR, pair_requirements
@@ -29,10 +37,12 @@ from ._select import AUTO_METHODS, fit_auto_correction
 
 __all__ = [
     "AUTO_METHODS",
+    "BERNSTEIN_DEGREES",
     "CORRECTION_METHODS",
     "MAX_FOLDS",
     "MIN_PAIRS_FACTOR",
     "POLY_ORDERS",
+    "BernsteinCorrection",
     "Correction",
     "DltFit",
     "GridCorrection",
@@ -41,9 +51,12 @@ __all__ = [
     "RbfCorrection",
     "apply_linear_correction",
     "axis_levels",
+    "bernstein_basis",
     "check_folds",
+    "data_box",
     "evaluate_correction",
     "fit_auto_correction",
+    "fit_bernstein",
     "fit_correction",
     "fit_dlt",
     "fit_grid",

@@ -18,6 +18,9 @@ method      parameters per coordinate ``p``                  recommended minimum
 ``rbf``     4 (the linear part; the spline part is set by    12
             the smoothing chosen held out)
 ==========  ==============================================  ===================
+
+``bernstein`` has ``(D + 1)^3`` parameters per coordinate at degree D per axis (8, 27, 64, 125,
+216, 343 for D = 1-6) and the same recommended minimum of 3 x terms.
 """
 
 from __future__ import annotations
@@ -52,6 +55,9 @@ def pair_requirements(method: str, params: dict) -> dict:
         p = int(np.prod(params["shape"]))
     elif method == "rbf":
         p = 4
+    elif method == "bernstein":
+        p = max((int(d) + 1) ** 3 for d in (params.get("pos_degree"), params.get("rot_degree"))
+                if d is not None)
     else:  # pragma: no cover - methods are validated before
         raise KeyError(method)
     return {"parameters_per_coordinate": int(p), "min_pairs": int(MIN_PAIRS_FACTOR * p)}

@@ -1,6 +1,7 @@
 """The serialisable ``Correction`` object, its fit with held-out errors, and JSON read/write.
 
-``fit_correction`` fits one method (``dlt``, ``poly``, ``grid``, ``rbf``) to pose pairs and
+``fit_correction`` fits one method (``dlt``, ``poly``, ``grid``, ``rbf``, ``bernstein``) to pose
+pairs and
 always reports the error on data not used in the fit (k-fold or leave-one-group-out, with the
 whole fit, including any order/smoothing selection, repeated inside each fold) next to the
 in-sample error, so overfitting is visible.
@@ -18,6 +19,13 @@ from .._errors import InputError
 from ..evaluate import error_summary
 from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
+from ._bernstein import (
+    BOX_MARGIN,
+    MAX_BERNSTEIN_DEGREE,
+    BernsteinCorrection,
+    data_box,
+    fit_bernstein,
+)
 from ._crossval import (
     ROTATION_MOMENT_M,
     check_folds,
@@ -49,6 +57,7 @@ CORRECTION_METHODS = {
     "poly": (fit_polynomial, PolynomialCorrection),
     "grid": (fit_grid, GridCorrection),
     "rbf": (fit_rbf, RbfCorrection),
+    "bernstein": (fit_bernstein, BernsteinCorrection),
 }
 
 _FORMAT = "openemt.correction"
@@ -129,6 +138,25 @@ def _check_params(method: str, p: dict, where: str) -> None:
                 continue
             n_terms = len(monomial_exponents(order, mp))
             _numbers(p, coef_key, where, (n_terms, 3))
+    elif method == "bernstein":
+        lo = _numbers(p, "lower", where, (3,))
+        hi = _numbers(p, "upper", where, (3,))
+        if not np.all(lo < hi):
+            raise InputError(f"{where}expected `params.lower` < `params.upper` on every axis, "
+                             f"got {lo.tolist()} and {hi.tolist()}")
+        for deg_key, coef_key, optional in (("pos_degree", "pos_coef", False),
+                                            ("rot_degree", "rot_coef", True)):
+            deg = p.get(deg_key)
+            if deg is None and optional:
+                if p.get(coef_key) is not None:
+                    raise InputError(f"{where}expected `params.{coef_key}` null without "
+                                     f"`params.{deg_key}`, got coefficients")
+                continue
+            if not isinstance(deg, int) or isinstance(deg, bool) or not (
+                    0 <= deg <= MAX_BERNSTEIN_DEGREE):
+                raise InputError(f"{where}expected `params.{deg_key}` an integer "
+                                 f"0..{MAX_BERNSTEIN_DEGREE}, got {deg!r}")
+            _numbers(p, coef_key, where, ((deg + 1) ** 3, 3))
     elif method == "grid":
         lo = _numbers(p, "lower", where, (3,))
         hi = _numbers(p, "upper", where, (3,))
@@ -264,7 +292,7 @@ class Correction:
         p = self.params
         if self.method in ("none", "dlt"):
             return False
-        if self.method == "poly":
+        if self.method in ("poly", "bernstein"):
             return p.get("rot_coef") is not None
         return np.shape(p["values"])[-1] == 6
 
@@ -345,7 +373,7 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
     ----------
     measured, reference : array_like, shape (N, 4, 4) or (N, 3)
         Measured and reference poses (or positions only), SI units.
-    method : {"none", "dlt", "poly", "grid", "rbf"}
+    method : {"none", "dlt", "poly", "grid", "rbf", "bernstein"}
     k : int
         Folds of the held-out evaluation (k-fold keeping the rows of one location together,
         see :func:`location_kfold`; shuffled with ``seed``); 2 to ``MAX_FOLDS``.
@@ -358,7 +386,8 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
         Provenance stored in the result.
     **options
         Passed to the method's fit (e.g. ``order``, ``rot_order`` for poly; ``shape``,
-        ``smoothing`` for grid; ``smoothing`` for rbf; ``refine`` for dlt).
+        ``smoothing`` for grid; ``smoothing`` for rbf; ``refine`` for dlt; ``degree``,
+        ``rot_degree``, ``margin`` for bernstein).
 
     Returns
     -------
@@ -402,6 +431,9 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
         groups = None if groups is None else np.asarray(groups)[ok]
     if method != "dlt":  # inner selection (order / smoothing) uses the same folds setting
         options = {"k": k, "seed": seed, **options}
+    if method == "bernstein" and options.get("box") is None:
+        # one box for the fit and all its folds: a held-out point is never outside it
+        options["box"] = data_box(m, options.pop("margin", BOX_MARGIN))
     model = _fit_model(method, m, Rm, d, Rd, options)
     params = model.to_params()
     xyz_fit, R_fit = model.predict(m, Rm)

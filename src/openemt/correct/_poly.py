@@ -167,15 +167,18 @@ class PolynomialCorrection:
                    selection=dict(p.get("selection") or {}))
 
 
-def _select_order(u, target, orders, splits, score, max_power) -> tuple[int, dict]:
-    """Order with the lowest held-out RMS of ``score(prediction, rows)`` (lowest on ties)."""
+def _select_order(u, target, orders, splits, score, max_power, basis=None
+                  ) -> tuple[int, dict]:
+    """Order with the lowest held-out RMS of ``score(prediction, rows)`` (lowest on ties).
+
+    ``basis(u, order)`` gives the design matrix (default: the monomials up to ``order``)."""
     scores = {}
     n = len(u)
     for r in orders:
-        n_terms = len(monomial_exponents(r, max_power))
+        A = monomials(u, r, max_power) if basis is None else basis(u, r)
+        n_terms = A.shape[1]
         if n_terms > min(len(tr) for tr, _ in splits):
             continue
-        A = monomials(u, r, max_power)
         held = np.empty(n)
         for train, test in splits:
             coef = _lstsq(A[train], target[train])

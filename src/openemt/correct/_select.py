@@ -16,7 +16,7 @@ from ._model import Correction, fit_correction, held_out_score_mm
 __all__ = ["AUTO_METHODS", "fit_auto_correction"]
 
 #: Candidates of ``auto``, simplest first (ties keep the simpler one).
-AUTO_METHODS = ("none", "dlt", "poly", "grid", "rbf")
+AUTO_METHODS = ("none", "dlt", "poly", "bernstein", "grid", "rbf")
 
 
 def fit_auto_correction(measured, reference, *, methods=AUTO_METHODS, k: int = 5,

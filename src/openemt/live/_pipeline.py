@@ -216,6 +216,9 @@ class SensorSetup:
         OpenIGTLink device name (default: the server's).
     filter : FilterSpec, optional
         Tracking filter (None or kind "none" = off).
+    tip : ndarray (4, 4), optional
+        Tool-tip transform (``openemt pivot``): poses are streamed, logged and scored as
+        ``pose @ tip``.
     """
 
     name: str = "openemt"
@@ -226,6 +229,7 @@ class SensorSetup:
     hemisphere: str = "+x"
     device_name: str | None = None
     filter: object = None
+    tip: object = None
 
 
 class _SensorState:
@@ -261,6 +265,7 @@ class _SensorState:
                 raise InputError(f"expected a finite (4, 4) `correction`, got shape {L.shape}")
             corr = L
         self.correction = corr
+        self.tip = None if setup.tip is None else np.asarray(setup.tip, dtype=np.float64)
         f = setup.filter
         self.filter = f if f is not None and getattr(f, "enabled", False) else None
         self.filter_state = None
@@ -554,6 +559,11 @@ class TrackingPipeline:
                 self.sensors, parts, solved, ratios, flags):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
+            if st.tip is not None:              # the tool tip instead of the sensor
+                from ..geometry import vector_from_pose
+
+                poses = poses @ st.tip
+                vecs = vector_from_pose(poses)
             ok = status == _CONVERGED
             oks.append(ok)
             if self.igtl is not None:
@@ -623,6 +633,8 @@ class TrackingPipeline:
         truth = np.asarray(truth)
         if truth.ndim == 4:                # (N, n_sensors, 4, 4): one pose per sensor
             truth = truth[:, st.index]
+        if st.tip is not None:
+            truth = truth @ st.tip
         err = np.linalg.norm(xyz - truth[:, :3, 3], axis=1)
         st.err_n += err.size
         st.err_ss += float(np.sum(err ** 2))

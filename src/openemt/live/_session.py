@@ -36,7 +36,8 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
             solver = boards.setdefault(id(cal), board_solver(cal.model))
             out.append(SensorSetup(name=s.name, columns=cols, solver=solver,
                                    device_name=s.device_name,
-                                   filter=s.filter_or(spec.filter) if filter is None else filter))
+                                   filter=s.filter_or(spec.filter) if filter is None else filter,
+                                   tip=s.tip))
             continue
         if cal is None:
             if preset_model is None:
@@ -48,7 +49,8 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
             model, corr = cal.model, getattr(cal, "linear_correction", None)
         out.append(SensorSetup(name=s.name, columns=cols, model=model, correction=corr,
                                hemisphere=s.hemisphere, device_name=s.device_name,
-                               filter=s.filter_or(spec.filter) if filter is None else filter))
+                               filter=s.filter_or(spec.filter) if filter is None else filter,
+                               tip=s.tip))
     return out
 
 

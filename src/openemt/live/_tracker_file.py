@@ -117,6 +117,10 @@ class SensorSpec:
     filter : FilterSpec or None
         This sensor's own filter settings (``[filter.sensors.<name>]``); None = the
         tracker's ``[filter]``.
+    tip : ndarray (4, 4) or None
+        Tip transform of the tool the sensor is mounted in (key ``tip``: a pivot calibration
+        from ``openemt pivot``, relative to the tracker file): the stream shows
+        ``pose @ tip``, the tool tip.
     """
 
     name: str
@@ -126,6 +130,7 @@ class SensorSpec:
     hemisphere: str = "+x"
     simulation_offset: tuple = (0.0, 0.0, 0.0)
     filter: FilterSpec | None = None
+    tip: object = None
 
     def filter_or(self, default: FilterSpec) -> FilterSpec:
         return default if self.filter is None else self.filter
@@ -384,7 +389,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     for i, t in enumerate(tables):
         pre = f"sensors[{i}]"
         _unknown_keys(r, t, pre, ("name", "channels", "calibration", "device_name",
-                                  "hemisphere", "simulation_offset"))
+                                  "hemisphere", "simulation_offset", "tip"))
         name = r.get(t, pre, "name", "string")
         if not name or any(s.name == name for s in sensors):
             raise r.fail(f"{pre}.name", "a unique non-empty sensor name", repr(name))
@@ -413,9 +418,18 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         off = r.get(t, pre, "simulation_offset", "list of numbers", [0.0, 0.0, 0.0])
         if len(off) != 3:
             raise r.fail(f"{pre}.simulation_offset", "3 numbers (m)", f"{len(off)} numbers")
+        tip = r.get(t, pre, "tip", "string", None)
+        if tip is not None:
+            from ..navigate import read_tip_transform
+
+            tip_path = Path(tip) if Path(tip).is_absolute() else base / tip
+            if not tip_path.is_file():
+                raise r.fail(f"{pre}.tip", "an existing pivot calibration file from 'openemt "
+                             "pivot' (relative to the tracker file)", f"missing {str(tip_path)!r}")
+            tip = read_tip_transform(tip_path)
         sensors.append(SensorSpec(name=name, channels=tuple(chans), calibration=cal_path,
                                   device_name=device, hemisphere=hemi,
-                                  simulation_offset=tuple(off)))
+                                  simulation_offset=tuple(off), tip=tip))
 
     flt = r.get(doc, "", "filter", "table", {})
     keys = ("kind", "process_noise", "measurement_noise", "rotation_process_noise",

@@ -5,6 +5,7 @@ from ._built import BuiltReport, characterization_report, paper_report
 from ._figures import error_histogram_figure, error_map_figure, error_vector_figure, sweep_figure
 from ._glossary import GLOSSARY, glossary_section
 from ._html import Report, figure_png
+from ._navigation import assessment_document, distance_error_figure
 from ._planar import planar_document, planar_report
 from ._sections import (
     accuracy_section,
@@ -24,9 +25,11 @@ __all__ = [
     "BuiltReport",
     "Report",
     "accuracy_section",
+    "assessment_document",
     "by_fixture_table",
     "characterization_report",
     "characterization_document",
+    "distance_error_figure",
     "error_figures",
     "error_histogram_figure",
     "error_map_figure",
