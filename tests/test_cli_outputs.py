@@ -7,10 +7,10 @@ import sys
 
 import pytest
 
+from openemt._atomic import check_output_path, remove_stale_temporaries
 from openemt._errors import InputError
 from openemt.cli import main
 from openemt.io import atomic_path
-from openemt.io._atomic import check_output_path, remove_stale_temporaries
 
 
 @pytest.fixture(scope="module")

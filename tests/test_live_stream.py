@@ -86,7 +86,7 @@ def test_stream_full_disk_by_free_space(tmp_path, monkeypatch):
 
 
 def test_stream_full_disk_inside_hdf5_does_not_crash(tmp_path, monkeypatch):
-    from openemt.io import _atomic
+    from openemt.io import _h5write
 
     path = tmp_path / "s.h5"
     s = H5Stream(path, {}, flush_seconds=0.0)
@@ -96,7 +96,7 @@ def test_stream_full_disk_inside_hdf5_does_not_crash(tmp_path, monkeypatch):
     def pwrite(fd, data, offset):                  # the disk fills up now
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(_atomic.os, "pwrite", pwrite)
+    monkeypatch.setattr(_h5write.os, "pwrite", pwrite)
     s.append("/", {"a": np.arange(5000.0)})
     with pytest.raises(DiskFullError, match="disk full writing"):
         s.flush()

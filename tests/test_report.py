@@ -54,7 +54,8 @@ def test_report_renders_in_chromium(tmp_path):
     assert "openemt test report" in dom
 
 def test_atomic_output_has_ordinary_permissions(tmp_path):
-    from openemt.io import _atomic, atomic_path
+    from openemt import _atomic
+    from openemt.io import atomic_path
 
     with atomic_path(tmp_path / "out.txt") as tmp:
         tmp.write_text("x")

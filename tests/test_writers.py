@@ -16,10 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from openemt import _atomic
+from openemt._atomic import remove_stale_temporaries
 from openemt._errors import InputError
 from openemt.cli import main
-from openemt.io import Dataset, _atomic, atomic_h5, atomic_path, read_dataset, write_dataset
-from openemt.io._atomic import GuardedFile, raise_if_write_failed, remove_stale_temporaries
+from openemt.io import Dataset, atomic_h5, atomic_path, read_dataset, write_dataset
+from openemt.io._h5write import GuardedFile, raise_if_write_failed
 
 
 def _dataset(n: int = 50) -> Dataset:

@@ -172,7 +172,7 @@ def check_outputs(args) -> None:
     """Refuse outputs that would overwrite an input (every other existing path named on the
     command line counts as an input) or that are not a regular file or a new name (a device,
     FIFO, socket, folder, symbolic-link loop; see :func:`openemt.io.check_output_path`)."""
-    from ..io._atomic import check_output_path
+    from .._atomic import check_output_path
 
     outputs = [v for d in OUTPUT_DESTS for v in _paths(getattr(args, d, None))]
     if not outputs:

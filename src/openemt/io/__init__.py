@@ -1,11 +1,12 @@
 """Reading and writing every box of the pipeline: datasets, calibrations, importers."""
 
-from ._atomic import atomic_h5, atomic_path
+from .._atomic import atomic_path
 from ._board_file import load_board, read_board, write_board
 from ._calfile import read_calibration, write_calibration
 from ._calibration import Calibration
 from ._csv import export_csv, import_csv
 from ._dataset import Dataset, signed_real
+from ._h5write import atomic_h5
 from ._hdf5 import CouplingReader, open_dataset_couplings, read_dataset, write_dataset
 from ._ilemt import (
                      compensate_stage,
@@ -18,12 +19,12 @@ from ._ilemt_mat import read_ilemt_calibration
 from ._ndi import NdiRecording, NdiTool, import_ndi, read_ndi_tsv, write_ndi_tsv
 from ._pose_dataset import pose_dataset, read_pose_dataset
 from ._poses_csv import (
-    PoseTable,
-    StaticAverage,
-    average_static,
-    import_poses_csv,
-    read_poses_csv,
-    write_poses_csv,
+                     PoseTable,
+                     StaticAverage,
+                     average_static,
+                     import_poses_csv,
+                     read_poses_csv,
+                     write_poses_csv,
 )
 
 __all__ = ["Calibration", "Dataset", "atomic_h5", "atomic_path", "signed_real"]

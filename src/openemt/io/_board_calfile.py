@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .._atomic import atomic_path
 from .._errors import InputError
-from ._atomic import atomic_path
 from ._calibration import CALIBRATION_SCHEMA
 from ._jsontext import free_to_json
 

@@ -8,10 +8,10 @@ import json
 import tomllib
 from pathlib import Path
 
+from .._atomic import atomic_path
 from .._errors import InputError
 from ..board import Board, board_from_dict, builtin_board
 from ..board._geometry import BUILTIN_BOARDS
-from ._atomic import atomic_path
 from ._jsontext import loads_json
 from ._safefile import MAX_CONFIG_BYTES, check_text_nesting, read_limited
 

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .._atomic import atomic_path
 from .._errors import InputError
 from ..field import DipoleModel
-from ._atomic import atomic_path
 from ._calibration import (
     CALIBRATION_SCHEMA,
     Calibration,

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_path
 from .._errors import InputError
 from ..geometry import pose_from_vector, stage_transform, vector_from_pose
-from ._atomic import atomic_path
 from ._dataset import Dataset
 from ._safefile import MAX_TEXT_BYTES, read_limited
 

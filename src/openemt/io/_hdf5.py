@@ -16,9 +16,9 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from ._atomic import atomic_h5
 from ._dataset import Dataset, signed_real
 from ._h5safe import SEAL_SIZE, check_rows, open_h5
+from ._h5write import atomic_h5
 from ._jsontext import loads_json
 
 __all__ = ["DATASET_SCHEMA", "DATASET_SCHEMA_VERSION", "CouplingReader", "open_dataset_couplings",

@@ -319,7 +319,7 @@ def write_ndi_tsv(path, tools, *, errors=None, first_frame: int = 1) -> Path:
     -------
     Path
     """
-    from ._atomic import atomic_path
+    from .._atomic import atomic_path
 
     labels = list(tools)
     if not labels:

@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._atomic import atomic_path
 from .._errors import InputError
 from ..geometry import check_poses, pose_from_rt, vector_from_pose
-from ._atomic import atomic_path
 from ._safefile import MAX_TEXT_BYTES, read_limited
 
 __all__ = ["PoseTable", "StaticAverage", "average_static", "import_poses_csv", "read_poses_csv",

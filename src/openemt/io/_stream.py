@@ -5,7 +5,7 @@ A one-shot output is written whole under a temporary name and renamed at the end
 moment, so its outputs are appended in chunks instead, with bounded memory:
 
 - the file is created under a temporary name beside the target (the naming of
-  :mod:`openemt.io._atomic`, so that the next run removes it when the session was killed
+  :mod:`openemt._atomic`, so that the next run removes it when the session was killed
   before it held anything; a symbolic-link target is written through) and renamed to the target **when it
   first holds a row** (or at a clean end): a session stopped during start-up never replaces
   an existing file, with an empty one or otherwise;
@@ -18,7 +18,7 @@ moment, so its outputs are appended in chunks instead, with bounded memory:
 - before each append the free space of the file system is compared with the bytes to write;
   a full disk (or an I/O error) ends the session as :class:`DiskFullError` ("disk full writing
   X", exit 2 in the CLI) with the rows flushed so far readable. libhdf5 writes through the
-  guarded file object of the one-shot writers (:class:`openemt.io._atomic.GuardedFile`): a
+  guarded file object of the one-shot writers (:class:`openemt.io._h5write.GuardedFile`): a
   failed write never reaches the library, so closing the file cannot crash inside it.
 """
 
@@ -32,15 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import InputError
-from ._atomic import (
-    GuardedFile,
+from .._atomic import (
     _fsync_file,
     _fsync_folder,
     _missing_folder,
     new_temporary,
     resolve_output,
 )
+from .._errors import InputError
+from ._h5write import GuardedFile
 
 __all__ = ["CsvStream", "DiskFullError", "H5Stream", "check_stream_outputs"]
 
@@ -71,7 +71,7 @@ def check_stream_outputs(outputs: dict) -> None:
     Raises
     ------
     InputError
-        What :func:`openemt.io._atomic.resolve_output` refuses (a folder, device, FIFO,
+        What :func:`openemt._atomic.resolve_output` refuses (a folder, device, FIFO,
         socket or link loop at the path, the bundled-dataset folder), a missing or read-only
         folder, or the same file named by two options.
     """
@@ -252,7 +252,7 @@ class H5Stream(_Stream):
         super().__init__(path, ".h5", flush_seconds=flush_seconds,
                          max_buffered_bytes=max_buffered_bytes)
         self.chunk_rows = chunk_rows
-        # libhdf5 writes through the guard of the one-shot writers (openemt.io._atomic): a
+        # libhdf5 writes through the guard of the one-shot writers (openemt.io._h5write): a
         # failed write is kept there, never seen by the library, and raised by check()
         self._fd = os.open(self.tmp, os.O_RDWR)
         self._guard = GuardedFile(self._fd, str(self.path))

@@ -51,20 +51,16 @@ def read_tool_poses(path, *, length_unit: str = "m", angle_unit: str = "rad") ->
 
     path = Path(path)
     if _is_h5(path):
-        import h5py
-
         from ..io import read_pose_dataset
+        from ..io._h5safe import open_h5
         from ..solve import read_poses
         from ..solve._output import POSES_SCHEMA
 
         if not path.is_file():
             raise FileNotFoundError(f"expected a poses or dataset file, got missing file "
                                     f"{str(path)!r}")
-        try:
-            with h5py.File(path, "r") as f:
-                schema = f.attrs.get("schema")
-        except OSError:
-            schema = None
+        with open_h5(path, "an openemt poses file or pose dataset") as f:   # checked first
+            schema = f.attrs.get("schema")
         if isinstance(schema, bytes):
             schema = schema.decode()
         if schema == POSES_SCHEMA:

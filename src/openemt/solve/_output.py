@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from ..io._atomic import raise_if_write_failed
+from ..io._h5write import raise_if_write_failed
 from ._result import SolveResult, Status, status_count_names
 
 __all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseWriter", "read_poses"]

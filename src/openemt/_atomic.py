@@ -40,10 +40,10 @@ import tempfile
 import zlib
 from pathlib import Path
 
-from .._errors import InputError
+from ._errors import InputError
 
-__all__ = ["GuardedFile", "atomic_h5", "atomic_path", "check_output_path", "raise_if_write_failed",
-           "remove_stale_temporaries", "resolve_output"]
+__all__ = ["atomic_path", "check_output_path", "new_temporary", "remove_stale_temporaries",
+           "resolve_output"]
 
 # the process umask, read once at import (setting it to read it is not thread-safe later)
 _UMASK = os.umask(0o022)
@@ -51,7 +51,7 @@ os.umask(_UMASK)
 
 _TMP_TAG = "openemt"
 #: the installed bundled-dataset folder (openemt.datasets), never written into
-_DATASETS_DIR = Path(__file__).resolve().parent.parent / "datasets"
+_DATASETS_DIR = Path(__file__).resolve().parent / "datasets"
 
 
 def _host_tag() -> str:
@@ -323,153 +323,3 @@ def atomic_path(path, suffix: str | None = None):
             os.unlink(tmp)
         raise
     _fsync_folder(folder)
-
-
-class GuardedFile:
-    """A binary file object for the HDF5 library (h5py's ``fileobj`` driver) that never lets a
-    failed write reach it.
-
-    libhdf5 (2.0) crashes with a segmentation fault when it closes a file after a failed write
-    (a full disk), so this object absorbs the failure: the first ``OSError`` of a write is kept
-    in :attr:`error`, and from then on written bytes are kept in memory (so that what the
-    library reads back is what it wrote) instead of going to the disk. The owner calls
-    :meth:`check` after closing the HDF5 file (and, when streaming, after each block, so that a
-    full disk stops a long write early) and discards the file when it raises.
-
-    In the normal case every write goes straight to the disk (``os.pwrite``): memory does not
-    grow with the file. Usable for any HDF5 output, atomic (:func:`atomic_h5`) or appended to
-    in place.
-    """
-
-    def __init__(self, fd: int, name: str = ""):
-        self._fd = fd
-        self.name = name
-        self._pos = 0
-        self._size = os.fstat(fd).st_size
-        self.error: OSError | None = None
-        self._kept: list[tuple[int, bytes]] = []  # (offset, bytes) written after a failure
-
-    # the subset of the io API that h5py's fileobj driver uses
-    def readable(self) -> bool:
-        return True
-
-    def writable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def tell(self) -> int:
-        return self._pos
-
-    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
-        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._pos, os.SEEK_END: self._size}[whence]
-        self._pos = base + offset
-        return self._pos
-
-    def readinto(self, buf) -> int:
-        view = memoryview(buf).cast("B")
-        n = max(0, min(len(view), self._size - self._pos))
-        data = b""
-        if n:
-            try:
-                data = os.pread(self._fd, n, self._pos)
-            except OSError as exc:
-                self._fail(exc)
-        view[:len(data)] = data
-        view[len(data):n] = bytes(n - len(data))
-        for off, kept in self._kept:  # bytes that could not be written, in write order
-            lo, hi = max(off, self._pos), min(off + len(kept), self._pos + n)
-            if lo < hi:
-                view[lo - self._pos:hi - self._pos] = kept[lo - off:hi - off]
-        self._pos += n
-        return n
-
-    def read(self, n: int = -1) -> bytes:
-        n = self._size - self._pos if n is None or n < 0 else n
-        buf = bytearray(n)
-        got = self.readinto(buf)
-        return bytes(buf[:got])
-
-    def write(self, data) -> int:
-        view = memoryview(data).cast("B")
-        n = len(view)
-        if self.error is None:
-            try:
-                done = 0
-                while done < n:
-                    done += os.pwrite(self._fd, view[done:], self._pos + done)
-            except OSError as exc:
-                self._fail(exc)
-        if self.error is not None:
-            self._kept.append((self._pos, bytes(view)))
-        self._pos += n
-        self._size = max(self._size, self._pos)
-        return n
-
-    def truncate(self, size: int | None = None) -> int:
-        size = self._pos if size is None else int(size)
-        if self.error is None:
-            try:
-                os.ftruncate(self._fd, size)
-            except OSError as exc:
-                self._fail(exc)
-        self._size = size
-        return size
-
-    def flush(self) -> None:
-        pass
-
-    def _fail(self, exc: OSError) -> None:
-        if self.error is None:
-            self.error = exc
-
-    def check(self) -> None:
-        """Raise the first write error, if any (as an ``OSError`` with its errno)."""
-        if self.error is not None:
-            code = self.error.errno
-            raise OSError(code, os.strerror(code) if code else str(self.error), self.name)
-
-
-#: id(h5py.File) -> its GuardedFile, while the file is open in :func:`atomic_h5`
-_GUARDS: dict[int, GuardedFile] = {}
-
-
-def raise_if_write_failed(h5file) -> None:
-    """For streaming writers: raise now if a write into ``h5file`` (opened by
-    :func:`atomic_h5`) has failed, so that a full disk ends a long write at once instead of
-    at its end. A file not opened by :func:`atomic_h5` passes."""
-    guard = _GUARDS.get(id(h5file))
-    if guard is not None:
-        guard.check()
-
-
-@contextlib.contextmanager
-def atomic_h5(path, *, seal: bool = False, **h5_options):
-    """Yield a new ``h5py.File`` that becomes ``path`` on success (see :func:`atomic_path`).
-
-    The HDF5 library writes through a :class:`GuardedFile`, so a full disk or an I/O error is
-    one ``OSError`` (``disk full writing 'X'``) with the temporary file removed, never a crash
-    inside the library. ``seal``: write openemt's CRC seal after closing (needs
-    ``userblock_size=SEAL_SIZE``, see :mod:`openemt.io._h5safe`). ``h5_options`` go to
-    ``h5py.File`` (``libver``, ``userblock_size``, ...).
-    """
-    import h5py
-
-    with atomic_path(path, suffix=".h5") as tmp:
-        fd = os.open(tmp, os.O_RDWR)
-        try:
-            guard = GuardedFile(fd, str(path))
-            f = h5py.File(guard, "w", **h5_options)
-            _GUARDS[id(f)] = guard
-            try:
-                yield f
-            finally:
-                _GUARDS.pop(id(f), None)
-                f.close()  # cannot fail on I/O: the guard keeps the error
-            guard.check()
-        finally:
-            os.close(fd)
-        if seal:
-            from ._h5safe import seal as write_seal
-            write_seal(tmp)
