@@ -4,7 +4,8 @@ Data: the built-in ``anser`` board (8 square spiral coils, 8 mm sensor coil; doc
 unit gains (couplings in tesla for 1 A, ~1e-8..1e-5), a smooth sensor path sampled at 1 kHz
 60-160 mm above the board (about 0.2 m/s and 1 rad/s), white noise at the given SNR.
 
-- ``planar_lm_tracking``: :func:`openemt.solve._planar.solve_planar`, warm-started from the
+- ``planar_lm_tracking``: the board solver of :func:`openemt.solve.prepare` (prepared once,
+  :func:`openemt.solve.solve_planar`), warm-started from the
   previous sample, one numba thread, process CPU time, best of the repeats after a warm-up;
 - baseline: ``scipy.optimize.least_squares`` per pose ('trf', 2-point finite differences;
   the approach of the Anser software, Jaeger et al. 2017) on the same model in its reference
@@ -56,8 +57,7 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
     from scipy.optimize import least_squares
 
     from ..board import PlanarModel
-    from ..solve import Status
-    from ..solve._planar import solve_planar
+    from ..solve import Status, prepare
 
     n, nb = int(samples), int(baseline_samples)
     threads = numba.get_num_threads()
@@ -69,8 +69,9 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
         rng = np.random.default_rng(seed)
         sigma = np.sqrt(np.mean(C ** 2, axis=1)) * 10 ** (-snr_db / 20)
         C = C + sigma[:, None] * rng.normal(size=C.shape)
-        solve_planar(C[:20], model)                         # warm-up: load the kernels
-        dt, res = _cpu(lambda: solve_planar(C, model, initial="track"), repeats)
+        solver = prepare(model, initial="track")            # the factory's board solver
+        solver(C[:20])                                      # warm-up: load the kernels
+        dt, res = _cpu(lambda: solver(C), repeats)
 
         import magpylib
 

@@ -72,7 +72,7 @@ def run(args) -> dict:
 
     from ..geometry import pose_from_vector
     from ..simulate import get_preset
-    from ..solve import solve_kim18, solve_kuipers, solve_lm, solve_svd
+    from ..solve import prepare, solve_kim18
 
     n = int(args.samples)
     nb = int(args.baseline_samples)
@@ -89,14 +89,15 @@ def run(args) -> dict:
         sigma = np.sqrt(np.mean(C ** 2, axis=(1, 2))) * 10 ** (-args.snr_db / 20)
         C = C + sigma[:, None, None] * rng.normal(size=C.shape)
 
+        # the solvers of the one factory (openemt.solve.prepare), prepared once
+        lm = prepare(model, hemisphere="+x", concentric_model=conc)
+        closed = {s: prepare(conc, solver=s, hemisphere="+x") for s in ("svd", "kuipers", "kim18")}
         runs = {
-            "lm_tracking": lambda c: solve_lm(c, model, initial="track", hemisphere="+x",
-                                              concentric_model=conc),
-            "lm_cold": lambda c: solve_lm(c, model, initial="kim18", hemisphere="+x",
-                                          concentric_model=conc),
-            "svd": lambda c: solve_svd(c, conc, hemisphere="+x"),
-            "kuipers": lambda c: solve_kuipers(c, conc, hemisphere="+x"),
-            "kim18": lambda c: solve_kim18(c, conc, hemisphere="+x"),
+            "lm_tracking": lambda c: lm(c, "track"),
+            "lm_cold": lambda c: lm(c, "kim18"),
+            "svd": closed["svd"],
+            "kuipers": closed["kuipers"],
+            "kim18": closed["kim18"],
         }
         summary: dict = {"samples": n, "preset": "dipole-approx", "snr_db": args.snr_db,
                          "numba_threads": numba.get_num_threads(),

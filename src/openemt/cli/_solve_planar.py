@@ -33,7 +33,7 @@ def solve_board(args, cal) -> int:
     from .._compile_notice import PLANAR_KERNELS, announce_compile
     from ..io import open_dataset_couplings
     from ..io._h5safe import open_h5
-    from ..solve._planar import solve_planar
+    from ..solve import prepare
     from ._common import emit, write_solved
 
     if args.solver != "lm":
@@ -49,6 +49,7 @@ def solve_board(args, cal) -> int:
     # its coils' normal (a --hemisphere default meant for dipole sources does not apply)
     rule = {k: getattr(args, k) for k in ("max_relative_residual", "max_range")
             if getattr(args, k, None) is not None}
+    solver = prepare(cal, initial="track", max_iter=args.max_iter, bounds=args.bounds, **rule)
     t0 = time.perf_counter()
     with open_dataset_couplings(args.dataset, real=True) as reader, \
             open_h5(args.dataset, "an openemt dataset HDF5 file") as side:
@@ -64,8 +65,7 @@ def solve_board(args, cal) -> int:
         def chunks():
             for start in range(0, n, args.chunk_rows):
                 C = reader[start:start + args.chunk_rows]
-                res = solve_planar(C, model, initial="track", max_iter=args.max_iter,
-                                   bounds=args.bounds, **rule)
+                res = solver(C)
                 truth.add(start, C, res)
                 yield start, res
 

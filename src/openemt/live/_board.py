@@ -5,7 +5,7 @@
 The live chain is the dipole tracker's (:mod:`openemt.live._pipeline`): the raw-signal
 simulator and the demodulator take the board's ``n_coils`` carriers and one channel per sensor
 coil, and the demodulated ``(N, n_coils, 1)`` couplings of each sensor go to
-:func:`board_solver`, the 5-DOF solver :func:`openemt.solve._planar.solve_planar` warm-started
+:func:`board_solver`, the 5-DOF board solver of :func:`openemt.solve.prepare` warm-started
 from the last converged pose of the previous chunk. Its pose's rotation is the smallest one
 taking the sensor's z axis to the measured coil axis (a 5-DOF sensor has no measurable roll),
 and that is the TRANSFORM sent over OpenIGTLink.
@@ -102,43 +102,16 @@ def board_solver(model, **options):
 
     ``initial`` is a string while acquiring (the first sample starts cold from the seed grid,
     the next from its predecessor) or the tiled pose vector of the last converged sample; a
-    sample that does not converge from it is solved again cold. ``options`` go to
-    :func:`openemt.solve._planar.solve_planar` (validity rule, ``max_iter``).
+    sample that does not converge from it is solved again cold. The solver is
+    :func:`openemt.solve.prepare`'s for the board (``options``: the validity rule,
+    ``max_iter``, ... of :class:`openemt.solve.SolveOptions`).
     """
-    from ..solve import Status
-    from ..solve._planar import planar_seed_grid, solve_planar
+    from ..solve import prepare
 
-    seed = planar_seed_grid(model)
-    # a warm start never visits the seed grid: one candidate spares evaluating the grid's field
-    warm_seed = seed[:1]
-    conv = int(Status.CONVERGED)
-    retry = np.array([int(Status.NOT_CONVERGED), int(Status.MAX_ITERATIONS),
-                      int(Status.AMBIGUOUS), int(Status.OUT_OF_VOLUME)])
+    solver = prepare(model, **options)
 
     def solve(C, initial):
-        if isinstance(initial, str):
-            return solve_planar(C, model, initial="track", seed_grid=seed, **options)
-        start = pose_from_vector(np.asarray(initial, dtype=np.float64))
-        res = solve_planar(C, model, initial=start, seed_grid=warm_seed, **options)
-        again = np.isin(res.status, retry)
-        if not np.any(again):
-            return res
-        cold = solve_planar(np.asarray(C)[again], model, initial="track", seed_grid=seed,
-                            **options)
-        take = np.flatnonzero(again)[cold.status == conv]
-        if not len(take):
-            return res
-        pick = cold.status == conv
-        fields = {}
-        for name in ("poses", "pose_vectors", "status", "residual", "iterations",
-                     "relative_residual"):
-            a = getattr(res, name, None)
-            if a is None:
-                continue
-            a = a.copy()
-            a[take] = getattr(cold, name)[pick]
-            fields[name] = a
-        return res.replace(**fields)
+        return solver(C, None if isinstance(initial, str) else initial)
 
     return solve
 

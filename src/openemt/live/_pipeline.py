@@ -5,7 +5,7 @@ The solver is injected: any callable ``solver(couplings (N, n_so, n_se) real, in
 returning an object with ``poses (N, 4, 4)``, ``pose_vectors (N, 6)``, ``status (N,)`` and
 ``residual (N,)`` (the :class:`openemt.solve.SolveResult` fields). ``initial`` is either
 ``(N, 6)`` pose vectors (warm start from the last valid pose) or the string ``"kim18"`` when no
-valid pose is known yet. The default wraps :func:`openemt.solve.solve_lm`.
+valid pose is known yet. The default is :func:`openemt.solve.prepare`'s solver of the model.
 """
 
 from __future__ import annotations
@@ -32,16 +32,17 @@ _CONVERGED = int(Status.CONVERGED)
 
 
 def lm_solver(model, *, hemisphere="+x", **kwargs):
-    """The default solver callable: :func:`openemt.solve.solve_lm` on ``model``, prepared once
-    (:class:`openemt.solve._prepared.PreparedLM`: the model, options, concentric start model
-    and hemisphere are checked and packed here, not on every chunk; same results).
+    """The default solver callable: :func:`openemt.solve.prepare` of ``model`` (a
+    :class:`openemt.solve._prepared.PreparedLM`: the model, options, concentric start model
+    and hemisphere are checked and packed here, not on every chunk; the results of
+    :func:`openemt.solve.solve_lm`). ``kwargs`` are :class:`openemt.solve.SolveOptions` fields.
 
     ``hemisphere`` only matters while (re)acquiring with the closed-form start; afterwards
     each sample starts from the previous valid pose.
     """
-    from ..solve._prepared import PreparedLM
+    from ..solve import prepare
 
-    return PreparedLM(model, hemisphere=hemisphere, **kwargs)
+    return prepare(model, hemisphere=hemisphere, **kwargs)
 
 
 @contextlib.contextmanager

@@ -1,13 +1,17 @@
 """Pose solution: closed forms (the SVD closed form of Teixeira Silva et al. 2017, Kuipers, Kim18), a compiled batched
-Levenberg-Marquardt solver for any dipole model, the Cramer-Rao bound and a chunked runner.
+Levenberg-Marquardt solver for any dipole model, the 5-DOF finite-coil board solver, the
+Cramer-Rao bound and a chunked runner. :func:`prepare` makes every one of them from a
+calibration or a model and one options record (:class:`SolveOptions`).
 
 See docs/solve.md for the algorithms, status codes, SNR definition and benchmarks.
 """
 
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd, spectral_norms
 from ._crb import cramer_rao, solver_covariance
+from ._factory import prepare
 from ._hemisphere import hemisphere_from_positions, hemisphere_vectors, rig_hemispheres
 from ._lm_solver import solve_lm
+from ._options import SolveOptions
 from ._output import POSES_SCHEMA, PoseWriter, read_poses
 from ._planar import solve_planar
 from ._refine import refine_poses
@@ -17,6 +21,7 @@ from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
 __all__ = [
     "POSES_SCHEMA",
     "SOLVERS",
+    "SolveOptions",
     "PoseWriter",
     "SolveResult",
     "Status",
@@ -24,6 +29,7 @@ __all__ = [
     "cramer_rao",
     "hemisphere_from_positions",
     "hemisphere_vectors",
+    "prepare",
     "read_poses",
     "refine_poses",
     "rig_hemispheres",

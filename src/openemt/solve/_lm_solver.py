@@ -1,9 +1,12 @@
 """Public entry point of the compiled Levenberg-Marquardt solver (see ``_lm.py``): one call that
-prepares a solver (:class:`openemt.solve._prepared.PreparedLM`) and solves."""
+prepares a solver (:func:`openemt.solve.prepare`, a :class:`openemt.solve._prepared.PreparedLM`)
+and solves."""
 
 from __future__ import annotations
 
+from ..field import DipoleModel
 from ._hemisphere import DEFAULT_HEMISPHERE
+from ._options import SolveOptions
 from ._prepared import PreparedLM
 from ._result import SolveResult
 from ._validity import EXPLORE_RELATIVE_RESIDUAL, MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
@@ -86,9 +89,11 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
 
     Notes
     -----
-    ``solve_lm`` is ``PreparedLM(model, **options).solve(couplings, initial)``
-    (:class:`openemt.solve._prepared.PreparedLM`); for many calls with one model and one set of
-    options, prepare once and call the prepared solver (same results, bit for bit).
+    ``solve_lm`` is ``prepare(model, **options).solve(couplings, initial)``, a
+    :class:`~openemt.solve._prepared.PreparedLM`
+    (:func:`openemt.solve.prepare`, docs/solve.md#one-solver-factory); for many calls with one
+    model and one set of options, prepare once and call the prepared solver (same results, bit
+    for bit).
 
     Examples
     --------
@@ -105,10 +110,14 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
     >>> result.status, np.round(result.pose_vectors, 6)
     (array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
     """
-    return PreparedLM(model, hemisphere=hemisphere, max_iter=max_iter,
-                      max_relative_residual=max_relative_residual, max_range=max_range,
-                      retries=retries, retry_resnorm=retry_resnorm, explore_above=explore_above,
-                      concentric_model=concentric_model, bounds=bounds, xtol=xtol,
-                      ambiguity_tol=ambiguity_tol).solve(couplings, initial,
-                                                         covariance=covariance,
-                                                         fallback=fallback)
+    if model is not None and not isinstance(model, DipoleModel):
+        raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
+    options = SolveOptions(hemisphere=hemisphere, initial=initial, max_iter=max_iter,
+                           max_relative_residual=max_relative_residual, max_range=max_range,
+                           retries=retries, retry_resnorm=retry_resnorm,
+                           explore_above=explore_above, concentric_model=concentric_model,
+                           bounds=bounds, xtol=xtol, ambiguity_tol=ambiguity_tol,
+                           covariance=covariance, fallback=fallback)
+    # the solver prepare(model, options) makes for a dipole model
+    solver = PreparedLM(model, options)
+    return solver.solve(couplings, initial, covariance=covariance, fallback=fallback)

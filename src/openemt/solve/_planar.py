@@ -40,7 +40,7 @@ from ._validity import (
     relative_residual,
 )
 
-__all__ = ["planar_seed_grid", "solve_planar"]
+__all__ = ["PreparedPlanar", "planar_seed_grid", "solve_planar"]
 
 _INVALID = np.int8(Status.INVALID_INPUT)
 _CONV = np.int8(Status.CONVERGED)
@@ -412,62 +412,100 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
         (``rho**2 ||C||``) and ``relative_residual``, where the result type has it, the
         relative residual ``rho`` the status is judged by.
     """
-    from ..board import PlanarModel
+    return PreparedPlanar(model, max_iter=max_iter, xtol=xtol,
+                          max_relative_residual=max_relative_residual, max_range=max_range,
+                          bounds=bounds, ambiguity_tol=ambiguity_tol, hemisphere=hemisphere,
+                          n_tries=n_tries, seed_grid=seed_grid,
+                          min_sep=min_sep).solve(couplings, initial)
 
-    if not isinstance(model, PlanarModel):
-        raise TypeError(f"expected a PlanarModel, got {type(model).__name__}")
-    C = np.asarray(couplings, dtype=np.float64)
-    if C.ndim == 3 and C.shape[2] == 1:
-        C = C[:, :, 0]
-    if C.ndim != 2 or C.shape[1] != model.n_coils:
-        raise InputError(f"expected couplings of shape (N, {model.n_coils}) or "
-                         f"(N, {model.n_coils}, 1), got {np.shape(couplings)}")
-    max_rel, max_rng = check_validity_options(max_relative_residual, max_range)
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise InputError(f"expected a positive integer max_iter, got {max_iter!r}")
-    N = len(C)
-    P0 = np.zeros((N, 3))
-    U0 = np.zeros((N, 3))
-    if isinstance(initial, str):
-        if initial not in ("track", "grid"):
-            raise InputError(f"expected initial 'track', 'grid' or poses, got {initial!r}")
-        mode = 2 if initial == "track" else 1
-    else:
-        init = np.asarray(initial, dtype=np.float64)
-        if init.shape != (N, 4, 4):
-            raise InputError(f"expected initial poses of shape ({N}, 4, 4), got {init.shape}")
-        P0, U0 = np.ascontiguousarray(init[:, :3, 3]), np.ascontiguousarray(init[:, :3, 2])
-        mode = 0
-    grid = planar_seed_grid(model) if seed_grid is None else np.asarray(seed_grid, np.float64)
-    F = _grid_fields(model, grid)
-    nodes, wts = sensor_rule(model.sensor_length)
-    normals = np.stack([c.normal for c in model.board.coils])
-    if hemisphere is None and np.allclose(normals, normals[0], atol=1e-9):
-        nvec = np.ascontiguousarray(normals[0])          # a planar board: its front side
-    elif hemisphere is None or (isinstance(hemisphere, str) and hemisphere == "none"):
-        nvec = np.zeros(3)
-    else:
-        nvec = np.ascontiguousarray(hemisphere_vectors(hemisphere, 1, allow_none=False)[0])
-    if bounds is None:
-        lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
-    else:
-        b = float(bounds)
-        if not b > 0:
-            raise InputError(f"expected a positive bounds half-width (m), got {bounds!r}")
-        lo, hi = np.full(3, -b), np.full(3, b)
-    pos = np.full((N, 3), np.nan)
-    axes = np.full((N, 3), np.nan)
-    status = np.zeros(N, np.int8)
-    rho = np.full(N, np.nan)
-    iters = np.zeros(N, np.int32)
-    _batch(model.segments, model.segment_offsets, np.ascontiguousarray(model.gains), nodes, wts,
-           np.ascontiguousarray(C), P0, U0, mode, F, np.ascontiguousarray(grid),
-           float(min_sep), int(n_tries), int(max_iter), float(xtol), nvec,
-           np.ascontiguousarray(np.stack([lo, hi])), _rule_options(ambiguity_tol, max_rel, max_rng),
-           pos, axes, status, rho, iters)
-    poses, vec = pose_from_axis(pos, axes)
-    # ``residual`` is ILEMT's resnorm as for every solver (squared residual norm over the
-    # measured norm, the spectral norm of a single column); the status is judged by ``rho``
-    resnorm = rho ** 2 * np.linalg.norm(C, axis=1)
-    return SolveResult(poses, vec, status, resnorm, iters, None, "planar-lm",
-                       relative_residual=rho)
+
+class PreparedPlanar:
+    """:func:`solve_planar` for one board model and one set of options, prepared once: the
+    options checked, the seed grid's fields, the sensor's quadrature rule, the side of the
+    board and the validity rule's packed options computed here; :meth:`solve` then only checks
+    the couplings and runs the kernel (same results as :func:`solve_planar`, bit for bit).
+    The parameters are those of :func:`solve_planar` other than ``couplings`` and ``initial``.
+    """
+
+    def __init__(self, model, *, max_iter=50, xtol=1e-9,
+                 max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
+                 bounds=None, ambiguity_tol=1e-9, hemisphere=None, n_tries=12,
+                 seed_grid=None, min_sep=0.04):
+        from ..board import PlanarModel
+
+        if not isinstance(model, PlanarModel):
+            raise TypeError(f"expected a PlanarModel, got {type(model).__name__}")
+        max_rel, max_rng = check_validity_options(max_relative_residual, max_range)
+        if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) \
+                or max_iter < 1:
+            raise InputError(f"expected a positive integer max_iter, got {max_iter!r}")
+        self.model = model
+        grid = planar_seed_grid(model) if seed_grid is None else np.asarray(seed_grid,
+                                                                            np.float64)
+        self.grid = np.ascontiguousarray(grid)
+        self.F = _grid_fields(model, grid)
+        self.nodes, self.wts = sensor_rule(model.sensor_length)
+        normals = np.stack([c.normal for c in model.board.coils])
+        if hemisphere is None and np.allclose(normals, normals[0], atol=1e-9):
+            nvec = np.ascontiguousarray(normals[0])          # a planar board: its front side
+        elif hemisphere is None or (isinstance(hemisphere, str) and hemisphere == "none"):
+            nvec = np.zeros(3)
+        else:
+            nvec = np.ascontiguousarray(hemisphere_vectors(hemisphere, 1, allow_none=False)[0])
+        self.nvec = nvec
+        if bounds is None:
+            lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+        else:
+            try:
+                b = float(bounds)
+            except (TypeError, ValueError):
+                raise InputError(f"expected a bounds half-width (m) for a board, got "
+                                 f"{bounds!r}") from None
+            if not b > 0:
+                raise InputError(f"expected a positive bounds half-width (m), got {bounds!r}")
+            lo, hi = np.full(3, -b), np.full(3, b)
+        self.box = np.ascontiguousarray(np.stack([lo, hi]))
+        self.rule = _rule_options(ambiguity_tol, max_rel, max_rng)
+        self.gains = np.ascontiguousarray(model.gains)
+        self.min_sep, self.n_tries = float(min_sep), int(n_tries)
+        self.max_iter, self.xtol = int(max_iter), float(xtol)
+
+    def solve(self, couplings, initial="track") -> SolveResult:
+        """:func:`solve_planar` of ``couplings`` from ``initial`` (see there)."""
+        model = self.model
+        C = np.asarray(couplings, dtype=np.float64)
+        if C.ndim == 3 and C.shape[2] == 1:
+            C = C[:, :, 0]
+        if C.ndim != 2 or C.shape[1] != model.n_coils:
+            raise InputError(f"expected couplings of shape (N, {model.n_coils}) or "
+                             f"(N, {model.n_coils}, 1), got {np.shape(couplings)}")
+        N = len(C)
+        P0 = np.zeros((N, 3))
+        U0 = np.zeros((N, 3))
+        if isinstance(initial, str):
+            if initial not in ("track", "grid"):
+                raise InputError(f"expected initial 'track', 'grid' or poses, got {initial!r}")
+            mode = 2 if initial == "track" else 1
+        else:
+            init = np.asarray(initial, dtype=np.float64)
+            if init.shape != (N, 4, 4):
+                raise InputError(f"expected initial poses of shape ({N}, 4, 4), got "
+                                 f"{init.shape}")
+            P0 = np.ascontiguousarray(init[:, :3, 3])
+            U0 = np.ascontiguousarray(init[:, :3, 2])
+            mode = 0
+        pos = np.full((N, 3), np.nan)
+        axes = np.full((N, 3), np.nan)
+        status = np.zeros(N, np.int8)
+        rho = np.full(N, np.nan)
+        iters = np.zeros(N, np.int32)
+        _batch(model.segments, model.segment_offsets, self.gains, self.nodes, self.wts,
+               np.ascontiguousarray(C), P0, U0, mode, self.F, self.grid, self.min_sep,
+               self.n_tries, self.max_iter, self.xtol, self.nvec, self.box, self.rule,
+               pos, axes, status, rho, iters)
+        poses, vec = pose_from_axis(pos, axes)
+        # ``residual`` is ILEMT's resnorm as for every solver (squared residual norm over the
+        # measured norm, the spectral norm of a single column); the status is judged by ``rho``
+        resnorm = rho ** 2 * np.linalg.norm(C, axis=1)
+        return SolveResult(poses, vec, status, resnorm, iters, None, "planar-lm",
+                           relative_residual=rho)

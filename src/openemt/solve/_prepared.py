@@ -37,6 +37,7 @@ from ._lm_starts import (
     _run_batch,
     canonical_5dof,
 )
+from ._options import SolveOptions
 from ._packing import (
     O_RETRIES,
     O_RETRY_RELATIVE,
@@ -46,12 +47,7 @@ from ._packing import (
     pack_options,
 )
 from ._result import SolveResult, Status
-from ._validity import (
-    EXPLORE_RELATIVE_RESIDUAL,
-    MAX_RANGE_M,
-    MAX_RELATIVE_RESIDUAL,
-    check_validity_options,
-)
+from ._validity import check_validity_options
 
 __all__ = ["PreparedLM"]
 
@@ -70,13 +66,17 @@ def _uniform(hemisphere) -> bool:
 class PreparedLM:
     """:func:`openemt.solve.solve_lm` for one model and one set of options, prepared once.
 
-    Parameters are those of :func:`~openemt.solve.solve_lm` other than ``couplings``,
-    ``initial``, ``covariance`` and ``fallback`` (given per call to :meth:`solve`). A
+    Parameters: the model and the options (:class:`~openemt.solve.SolveOptions`, or its
+    fields as keywords: those of :func:`~openemt.solve.solve_lm` other than ``couplings``);
+    :func:`openemt.solve.prepare` makes it for a dipole model. ``initial``, ``covariance`` and
+    ``fallback`` of the options apply to calls ``solver(couplings)``; :meth:`solve` takes
+    them per call. A
     ``hemisphere`` given per sample (shape (N, 3) or (N,) strings) is resolved at each call;
     one hemisphere for all samples is resolved here.
 
-    Calling the object, ``solver(couplings, initial)``, is the live pipeline's solver
-    interface (:mod:`openemt.live`): ``initial`` is ``(N, 6)`` start pose vectors (a warm start;
+    Calling the object, ``solver(couplings, initial=None)``, is the solver interface of
+    :func:`~openemt.solve.prepare` and the live pipeline (:mod:`openemt.live`): ``initial`` is
+    ``(N, 6)`` start pose vectors (a warm start;
     real float64 couplings of the model's shape go straight to the compiled kernel) or a start
     name such as ``"kim18"``. Either way the result equals
     ``solve_lm(couplings, model, initial=initial, ...)``.
@@ -102,42 +102,44 @@ class PreparedLM:
     #: live pipeline does so for distorted samples, which it does not send)
     explore_optional = True
 
-    def __init__(self, model=None, *, hemisphere=DEFAULT_HEMISPHERE, max_iter=100,
-                 max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
-                 retries=True, retry_resnorm=None, explore_above=EXPLORE_RELATIVE_RESIDUAL,
-                 concentric_model=None, bounds=None, xtol=1e-8, ambiguity_tol=1e-9):
+    def __init__(self, model=None, options: SolveOptions | None = None, **overrides):
         model = _check_model(DipoleModel.concentric() if model is None else model)
-        max_rel, max_range = check_validity_options(max_relative_residual, max_range)
+        options = SolveOptions.of(options, overrides)     # checked there, once
+        kw = options.lm_kwargs()
+        hemisphere, max_iter = kw["hemisphere"], kw["max_iter"]
+        retry_resnorm, concentric_model = kw["retry_resnorm"], kw["concentric_model"]
+        max_rel, max_range = check_validity_options(kw["max_relative_residual"],
+                                                    kw["max_range"])
+        self.options = options
         self.model = model
+        self.n_source, self.n_sensor = model.n_source, model.n_sensor
+        self.dof = 5 if model.n_sensor == 1 else 6
         self.hemisphere = hemisphere
         # one hemisphere for all samples: its row, checked now
         self._hrow = hemisphere_vectors(hemisphere, 1)[0] if _uniform(hemisphere) else None
-        self.box = pack_box(*_bounds(bounds))
-        if int(max_iter) < 1:
-            raise InputError(f"expected `max_iter` >= 1, got {max_iter!r}")
+        self.box = pack_box(*_bounds(kw["bounds"]))
         if retry_resnorm is None:
             retry_res, retry_rel = np.inf, max_rel
         else:
-            try:
-                retry_res = float(retry_resnorm)
-            except (TypeError, ValueError):
-                retry_res = np.nan
-            if not retry_res > 0:
-                raise InputError(f"expected a positive `retry_resnorm`, got {retry_resnorm!r}")
-            retry_rel = np.inf
+            retry_res, retry_rel = float(retry_resnorm), np.inf
         self.retry_resnorm = retry_resnorm
-        retries = bool(retries) and (np.isfinite(retry_res) or np.isfinite(retry_rel))
+        retries = bool(kw["retries"]) and (np.isfinite(retry_res) or np.isfinite(retry_rel))
+        explore_above = kw["explore_above"]
         self.conc = _concentric_for(model, concentric_model)
         self.concentric_given = concentric_model is not None
         self.mdl = pack_model(model)
-        self.opts = pack_options(max_iter=int(max_iter), xtol=xtol, retry_resnorm=retry_res,
-                                 retry_relative=retry_rel, ambiguity_tol=ambiguity_tol,
+        self.opts = pack_options(max_iter=int(max_iter), xtol=kw["xtol"],
+                                 retry_resnorm=retry_res, retry_relative=retry_rel,
+                                 ambiguity_tol=kw["ambiguity_tol"],
                                  max_relative_residual=max_rel, max_range=max_range,
                                  retries=retries, five_dof=model.n_sensor == 1,
                                  use_closed_form=self.conc is not None,
                                  cf_gain=(self.conc or model).gain, rank_tol=RANK_TOL)
         self.explore = (None if explore_above is None or retry_resnorm is not None
-                        else check_validity_options(explore_above, None)[0])
+                        else float(explore_above))
+        # per-call options of ``solver(couplings)``
+        self._initial = "kim18" if options.initial is None else options.initial
+        self._per_call = options.covariance or options.fallback is not None
         self._shape = (model.n_source, model.n_sensor)
         self._W = None
         # per-call constants of warm starts, grown as needed: norms "compute here" (-1) and
@@ -158,8 +160,12 @@ class PreparedLM:
             return hemisphere_vectors(self.hemisphere, n)
         return self._constants(n)[1]
 
-    def __call__(self, couplings, initial, *, explore: bool = True) -> SolveResult:
+    def __call__(self, couplings, initial=None, *, explore: bool = True) -> SolveResult:
         C = couplings
+        if initial is None or self._per_call:  # the options' start: the path of solve_lm
+            return self.solve(C, self._initial if initial is None else initial,
+                              covariance=self.options.covariance,
+                              fallback=self.options.fallback, explore=explore)
         if (isinstance(initial, np.ndarray) and isinstance(C, np.ndarray)
                 and C.dtype == np.float64 and C.ndim == 3 and C.shape[1:] == self._shape
                 and initial.shape == (C.shape[0], 6) and initial.dtype == np.float64

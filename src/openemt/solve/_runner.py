@@ -6,30 +6,12 @@ import numpy as np
 
 from .._errors import InputError
 from ..io import Calibration
-from ._closed_form import solve_kim18, solve_kuipers, solve_svd
+from ._factory import SOLVERS, apply_position_correction, prepare
 from ._hemisphere import DEFAULT_HEMISPHERE
-from ._lm_solver import solve_lm
-from ._refine import refine_result
+from ._options import SolveOptions
 from ._result import SolveResult
-from ._validity import MAX_RELATIVE_RESIDUAL
 
 __all__ = ["SOLVERS", "apply_position_correction", "solve", "solve_chunks"]
-
-#: Solver names accepted by :func:`solve` and ``openemt solve --solver``.
-SOLVERS = ("lm", "svd", "kuipers", "kim18")
-
-
-def apply_position_correction(result: SolveResult, L) -> SolveResult:
-    """Apply a 4x4 homogeneous output correction to the solved positions (orientation kept),
-    docs/paper-procedure.md#applying-correction."""
-    from ..correct import apply_linear_correction
-
-    xyz = apply_linear_correction(L, result.pose_vectors[:, :3])
-    poses = result.poses.copy()
-    vecs = result.pose_vectors.copy()
-    poses[:, :3, 3] = xyz
-    vecs[:, :3] = xyz
-    return result.replace(poses=poses, pose_vectors=vecs)
 
 
 def solve(couplings, calibration: Calibration, *, solver: str = "lm",
@@ -61,32 +43,30 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm",
     """
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, got {type(calibration).__name__}")
+    return _prepared(calibration, solver, hemisphere, apply_correction, concentric_calibration,
+                     SolveOptions.of(None, options))(couplings)
+
+
+def _prepared(calibration, solver, hemisphere, apply_correction, concentric_calibration,
+              options: SolveOptions):
+    """:func:`prepare` with the arguments of :func:`solve` (``hemisphere`` None: no constraint
+    for LM, ``'+x'`` for a closed form)."""
     if solver not in SOLVERS:
         raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
-    model = calibration.model
-    if solver == "lm":
-        if concentric_calibration is not None:
-            options.setdefault("concentric_model", concentric_calibration.model)
-        result = solve_lm(couplings, model, hemisphere=hemisphere, **options)
-    else:
-        hemi = DEFAULT_HEMISPHERE if hemisphere is None else hemisphere
-        f = {"kim18": solve_kim18, "svd": solve_svd, "kuipers": solve_kuipers}[solver]
-        result = f(couplings, model, hemisphere=hemi, **options)
-    full = calibration.coupling_model
-    if full is not model:
-        # octupole terms of an improved calibration: refine the dipole solution for them
-        result = refine_result(result, full, couplings, max_relative_residual=options.get(
-            "max_relative_residual", MAX_RELATIVE_RESIDUAL))
-    if apply_correction and calibration.linear_correction is not None:
-        result = apply_position_correction(result, calibration.linear_correction)
-    return result
+    over = {"hemisphere": hemisphere}
+    if solver == "lm" and concentric_calibration is not None \
+            and options.concentric_model is None:
+        over["concentric_model"] = concentric_calibration.model
+    return prepare(calibration, options.replace(**over), solver=solver,
+                   apply_correction=apply_correction)
 
 
 def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_correction,
-                 options):
+                 options, prepared=None):
     C = reader[start:stop]
-    return solve(C, calibration, solver=solver, hemisphere=hemisphere,
-                 apply_correction=apply_correction, **options)
+    if prepared is None:  # a per-row hemisphere: this block's rows
+        prepared = _prepared(calibration, solver, hemisphere, apply_correction, None, options)
+    return prepared(C)
 
 
 def _per_row(hemisphere, n: int):
@@ -143,14 +123,18 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
     if max_in_flight < 1:
         raise InputError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
     per_row = _per_row(hemisphere, n)
-    if solver not in SOLVERS:
-        raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
+    options = SolveOptions.of(None, options)               # checked once, before any block
+    # one solver for all blocks (prepared once), or one per block for per-row hemispheres
+    whole = _prepared(calibration, solver, hemisphere if per_row is None else None,
+                      apply_correction, None, options)
+    if per_row is not None:
+        whole = None
     starts = list(range(0, n, rows))
 
     def args(s):  # each block gets only its rows' hemispheres
         hemi = hemisphere if per_row is None else \
             np.asarray(per_row[s:min(n, s + rows)], dtype=np.float64)
-        return (calibration, solver, hemi, apply_correction, options)
+        return (calibration, solver, hemi, apply_correction, options, whole)
 
     if scheduler is None:
         for s in starts:

@@ -1,0 +1,253 @@
+"""One solver factory: :func:`prepare` turns a calibration or a model and the options
+(:class:`~openemt.solve.SolveOptions`) into a prepared solver
+``solver(couplings, initial=None) -> SolveResult``.
+
+Every entry point that solves poses goes through here: :func:`openemt.solve.solve` and
+:func:`~openemt.solve.solve_chunks`, :func:`~openemt.solve.solve_lm`, the live pipeline's default
+solvers (dipole and board), ``openemt solve`` and the benchmarks. The options are checked once,
+when their record is made; the model, its packed form and the options' packed form once, when
+the solver is prepared.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._errors import InputError
+from ..field import DipoleModel
+from ._hemisphere import DEFAULT_HEMISPHERE
+from ._options import DEFAULT, SolveOptions
+from ._result import SolveResult, Status
+
+__all__ = ["SOLVERS", "apply_position_correction", "prepare"]
+
+#: Solver names accepted by :func:`prepare`, :func:`openemt.solve.solve` and
+#: ``openemt solve --solver``.
+SOLVERS = ("lm", "svd", "kuipers", "kim18")
+
+# options only the dipole Levenberg-Marquardt solver has (a closed form or the board solver
+# refuses a value other than the default)
+_LM_ONLY = ("max_iter", "retries", "retry_resnorm", "explore_above", "concentric_model",
+            "bounds", "xtol", "covariance", "fallback", "initial")
+_BOARD_REFUSED = ("retries", "retry_resnorm", "explore_above", "concentric_model",
+                  "covariance", "fallback")
+
+
+
+def apply_position_correction(result: SolveResult, L) -> SolveResult:
+    """Apply a 4x4 homogeneous output correction to the solved positions (orientation kept),
+    docs/paper-procedure.md#applying-correction."""
+    from ..correct import apply_linear_correction
+
+    xyz = apply_linear_correction(L, result.pose_vectors[:, :3])
+    poses = result.poses.copy()
+    vecs = result.pose_vectors.copy()
+    poses[:, :3, 3] = xyz
+    vecs[:, :3] = xyz
+    return result.replace(poses=poses, pose_vectors=vecs)
+
+
+class _Shape:
+    """``n_source``, ``n_sensor`` and ``dof`` of a model."""
+
+    def _shape_of(self, n_source, n_sensor):
+        self.n_source, self.n_sensor = int(n_source), int(n_sensor)
+        self.dof = 5 if self.n_sensor == 1 else 6
+
+
+class ClosedFormSolver(_Shape):
+    """A closed form (``'svd'``, ``'kuipers'``, ``'kim18'``) on a concentric 3x3 model."""
+
+    serial = True
+
+    def __init__(self, model, method, options: SolveOptions):
+        from ._closed_form import solve_kim18, solve_kuipers, solve_svd
+
+        if not isinstance(model, DipoleModel):
+            raise InputError(f"expected a DipoleModel for the {method!r} closed form, got "
+                             f"{type(model).__name__}")
+        extra = options.changed(_LM_ONLY)
+        if extra:
+            raise InputError(f"expected no {', '.join(extra)} with the {method!r} closed form "
+                             f"(options of the LM solver), got them set")
+        self._f = {"kim18": solve_kim18, "svd": solve_svd, "kuipers": solve_kuipers}[method]
+        self.model = model
+        self.method = method
+        self.options = options
+        h = options.hemisphere
+        self._kw = {"hemisphere": DEFAULT_HEMISPHERE if h is None or (isinstance(h, str)
+                                                                      and h == DEFAULT) else h,
+                    "max_relative_residual": options.max_relative_residual,
+                    "max_range": options.max_range}
+        if options.ambiguity_tol is not None:
+            self._kw["ambiguity_tol"] = options.ambiguity_tol
+        self._shape_of(model.n_source, model.n_sensor)
+
+    def __call__(self, couplings, initial=None) -> SolveResult:
+        if initial is not None:
+            raise InputError(f"expected no start for the {self.method!r} closed form, got one")
+        return self._f(couplings, self.model, **self._kw)
+
+
+class PlanarSolver(_Shape):
+    """The 5-DOF finite-coil board solver (:class:`~openemt.solve._planar.PreparedPlanar`).
+
+    ``initial`` is a start name (``'track'``, ``'grid'``), start poses ``(N, 4, 4)``, or pose
+    vectors ``(N, 6)`` (a warm start, the live pipeline's): a sample that does not converge
+    from its start is solved again cold, from the seed grid.
+    """
+
+    serial = True
+
+    def __init__(self, model, options: SolveOptions):
+        from ._planar import PreparedPlanar
+
+        extra = options.changed(_BOARD_REFUSED)
+        if extra:
+            raise InputError(f"expected no {', '.join(extra)} with a finite-coil board "
+                             f"(options of the dipole LM solver), got them set")
+        h = options.hemisphere
+        hemi = None if isinstance(h, str) and h == DEFAULT else "none" if h is None else h
+        kw = {"max_relative_residual": options.max_relative_residual,
+              "max_range": options.max_range, "bounds": options.bounds, "hemisphere": hemi}
+        for name in ("max_iter", "xtol", "ambiguity_tol"):
+            if getattr(options, name) is not None:
+                kw[name] = getattr(options, name)
+        self.prepared = PreparedPlanar(model, **kw)
+        self.model = model
+        self.options = options
+        self._initial = "track" if options.initial is None else options.initial
+        self._shape_of(model.n_coils, 1)
+
+    def __call__(self, couplings, initial=None) -> SolveResult:
+        if initial is None:
+            initial = self._initial
+        if isinstance(initial, str) or np.ndim(initial) == 3:
+            return self.prepared.solve(couplings, initial)
+        from ..geometry import pose_from_vector
+
+        return self._warm(couplings, pose_from_vector(np.asarray(initial, dtype=np.float64)))
+
+    def _warm(self, C, start) -> SolveResult:
+        res = self.prepared.solve(C, start)
+        again = np.isin(res.status, _RETRY)
+        if not np.any(again):
+            return res
+        cold = self.prepared.solve(np.asarray(C)[again], "track")
+        pick = cold.status == int(Status.CONVERGED)
+        take = np.flatnonzero(again)[pick]
+        if not len(take):
+            return res
+        fields = {}
+        for name in ("poses", "pose_vectors", "status", "residual", "iterations",
+                     "relative_residual"):
+            a = getattr(res, name, None)
+            if a is None:
+                continue
+            a = a.copy()
+            a[take] = getattr(cold, name)[pick]
+            fields[name] = a
+        return res.replace(**fields)
+
+
+_RETRY = np.array([int(Status.NOT_CONVERGED), int(Status.MAX_ITERATIONS),
+                   int(Status.AMBIGUOUS), int(Status.OUT_OF_VOLUME)])
+
+
+class CalibrationSolver:
+    """A solver of a calibration's dipole model followed by what the calibration adds: the
+    refinement under an improved calibration's octupole terms and the linear output
+    correction."""
+
+    def __init__(self, inner, full_model=None, correction=None):
+        self.inner = inner
+        self.full_model = full_model
+        self.correction = correction
+        self.options = inner.options
+        self.n_source, self.n_sensor, self.dof = inner.n_source, inner.n_sensor, inner.dof
+
+    def __call__(self, couplings, initial=None) -> SolveResult:
+        result = self.inner(couplings, initial)
+        if self.full_model is not None:
+            from ._refine import refine_result
+
+            result = refine_result(result, self.full_model, couplings,
+                                   max_relative_residual=self.options.max_relative_residual)
+        if self.correction is not None:
+            result = apply_position_correction(result, self.correction)
+        return result
+
+
+def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
+            solver: str = "lm", apply_correction: bool = True, **overrides):
+    """A prepared pose solver for a calibration or a model.
+
+    Parameters
+    ----------
+    calibration_or_model : Calibration, DipoleModel, board calibration or PlanarModel
+        A dipole :class:`~openemt.io.Calibration` (an improved one's octupole terms refine the
+        dipole solution, its ``linear_correction`` is applied to the positions, as
+        :func:`openemt.solve.solve` does), a :class:`~openemt.field.DipoleModel`, or a
+        finite-coil board calibration / :class:`~openemt.board.PlanarModel` (the 5-DOF board
+        solver).
+    options : SolveOptions or dict, optional
+        The options (default ``SolveOptions()``); ``overrides`` replace single fields.
+    solver : {'lm', 'svd', 'kuipers', 'kim18'}
+        The closed forms need a concentric 3x3 model; a board has the LM solver only.
+    apply_correction : bool
+        Apply a calibration's linear output correction.
+
+    Returns
+    -------
+    solver
+        ``solver(couplings, initial=None) -> SolveResult`` (``initial``: a start name or start
+        pose vectors (N, 6); None: ``options.initial``, else the solver's default) with the
+        attributes ``options``, ``n_source``, ``n_sensor`` and ``dof``. The dipole LM solver
+        is a :class:`~openemt.solve._prepared.PreparedLM`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from openemt.geometry import pose_from_vector
+    >>> from openemt.simulate import truth_calibration
+    >>> from openemt.solve import prepare
+    >>> cal = truth_calibration("dipole-approx")
+    >>> solver = prepare(cal, max_iter=50)
+    >>> C = cal.model.coupling(pose_from_vector(np.array([[0.3, 0.1, -0.05, 0.2, -0.4, 1.0]])))
+    >>> result = solver(C)
+    >>> solver.dof, result.status, np.round(result.pose_vectors, 6)
+    (6, array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
+    """
+    from ..board import PlanarModel
+    from ..io import Calibration
+    from ..io._board_calfile import BoardCalibration
+
+    opts = SolveOptions.of(options, overrides)
+    if solver not in SOLVERS:
+        raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
+    obj = calibration_or_model
+    if isinstance(obj, BoardCalibration):
+        obj = obj.model
+    if isinstance(obj, PlanarModel):
+        if solver != "lm":
+            raise InputError(f"expected solver 'lm' for a finite-coil board, got {solver!r}")
+        return PlanarSolver(obj, opts)
+    if isinstance(obj, Calibration):
+        inner = _dipole(obj.model, solver, opts)
+        full = obj.coupling_model
+        corr = obj.linear_correction if apply_correction else None
+        if full is obj.model and corr is None:
+            return inner
+        return CalibrationSolver(inner, None if full is obj.model else full, corr)
+    if isinstance(obj, DipoleModel):
+        return _dipole(obj, solver, opts)
+    raise TypeError(f"expected a Calibration, a DipoleModel, a finite-coil board calibration "
+                    f"or a PlanarModel, got {type(obj).__name__}")
+
+
+def _dipole(model, solver, opts):
+    if solver == "lm":
+        from ._prepared import PreparedLM
+
+        return PreparedLM(model, opts)
+    return ClosedFormSolver(model, solver, opts)
