@@ -27,9 +27,9 @@ from math import comb
 import numpy as np
 
 from .._errors import InputError
-from ._crossval import apply_rotation_offsets, location_kfold, pair_errors, rotation_offsets
+from ._crossval import apply_rotation_offsets, location_kfold
 from ._dof import MIN_PAIRS_FACTOR
-from ._poly import _lstsq, _select_order
+from ._poly import fit_offset_terms
 
 __all__ = ["BERNSTEIN_DEGREES", "BOX_MARGIN", "MAX_BERNSTEIN_DEGREE", "BernsteinCorrection",
            "bernstein_basis", "data_box", "fit_bernstein"]
@@ -172,7 +172,6 @@ def fit_bernstein(measured_xyz, reference_xyz, measured_R=None, reference_R=None
         raise InputError(f"expected a box with lower < upper, got {lower} and {upper}")
     probe = BernsteinCorrection(lower, upper, 0, np.zeros((1, 3)))
     u = probe._u(m)
-    n = len(m)
     splits = (location_kfold(m, k, seed=seed) if (degree is None or rot_degree is None)
               else None)
     if splits is not None:
@@ -185,35 +184,9 @@ def fit_bernstein(measured_xyz, reference_xyz, measured_R=None, reference_R=None
         return bernstein_basis(uu, r)
 
     selection = {}
-    off = d - m
-    if degree is None:
-        degree, selection["position"] = _select_order(
-            u, off, degrees, splits,
-            lambda pred, rows: pair_errors(pred, None, off[rows], None)[0], None, basis)
-    n_terms = (degree + 1) ** 3
-    if n_terms > n:
-        raise InputError(f"expected at least {n_terms} pairs for a bernstein correction of "
-                         f"degree {degree}, got {n}")
-    pos_coef = _lstsq(bernstein_basis(u, degree), off)
-    rot_coef = None
-    if measured_R is not None and reference_R is not None:
-        Rm = np.asarray(measured_R, dtype=np.float64)
-        Rd = np.asarray(reference_R, dtype=np.float64)
-        rho = rotation_offsets(Rm, Rd)
-
-        def rot_score(pred, rows):
-            zero = np.zeros((len(rows), 3))
-            return pair_errors(zero, apply_rotation_offsets(pred, Rm[rows]), zero, Rd[rows])[1]
-
-        if rot_degree is None:
-            rot_degree, selection["orientation"] = _select_order(u, rho, degrees, splits,
-                                                                 rot_score, None, basis)
-        if (rot_degree + 1) ** 3 > n:
-            raise InputError(f"expected at least {(rot_degree + 1) ** 3} pairs for a bernstein "
-                             f"rotation correction of degree {rot_degree}, got {n}")
-        rot_coef = _lstsq(bernstein_basis(u, rot_degree), rho)
-    else:
-        rot_degree = None
+    degree, pos_coef, rot_degree, rot_coef = fit_offset_terms(
+        u, d - m, measured_R, reference_R, degree, rot_degree, degrees, splits, selection, basis,
+        "a bernstein correction of degree")
     return BernsteinCorrection(lower=lower, upper=upper, pos_degree=int(degree),
                                pos_coef=pos_coef,
                                rot_degree=None if rot_degree is None else int(rot_degree),

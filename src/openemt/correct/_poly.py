@@ -195,6 +195,44 @@ def _select_order(u, target, orders, splits, score, max_power, basis=None
     return best, scores
 
 
+def fit_offset_terms(u, off, measured_R, reference_R, order, rot_order, orders, splits,
+                     selection: dict, basis, what: str):
+    """Position offsets ``off`` and (with both rotation arrays) rotation offsets fitted as linear
+    combinations of the terms ``basis(u, order)``, each order chosen by held-out error when
+    None (recorded in ``selection``); shared by the total-degree polynomial and the
+    tensor-product Bernstein corrections.
+
+    Returns ``(order, pos_coef, rot_order, rot_coef)`` (the rotation pair None without
+    rotations)."""
+    n = len(u)
+    if order is None:
+        order, selection["position"] = _select_order(
+            u, off, orders, splits, lambda pred, rows: pair_errors(pred, None, off[rows], None)[0],
+            None, basis)
+    A = basis(u, order)
+    if A.shape[1] > n:
+        raise InputError(f"expected at least {A.shape[1]} pairs for {what} {order}, got {n}")
+    pos_coef = _lstsq(A, off)
+    if measured_R is None or reference_R is None:
+        return order, pos_coef, None, None
+    Rm = np.asarray(measured_R, dtype=np.float64)
+    Rd = np.asarray(reference_R, dtype=np.float64)
+    rho = rotation_offsets(Rm, Rd)
+
+    def rot_score(pred, rows):
+        zero = np.zeros((len(rows), 3))
+        return pair_errors(zero, apply_rotation_offsets(pred, Rm[rows]), zero, Rd[rows])[1]
+
+    if rot_order is None:
+        rot_order, selection["orientation"] = _select_order(u, rho, orders, splits, rot_score,
+                                                            None, basis)
+    A = basis(u, rot_order)
+    if A.shape[1] > n:
+        raise InputError(f"expected at least {A.shape[1]} pairs for {what} {rot_order} of the "
+                         f"rotations, got {n}")
+    return order, pos_coef, rot_order, _lstsq(A, rho)
+
+
 def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
                    order: int | None = None, rot_order: int | None = None,
                    orders=POLY_ORDERS, max_power="auto", k: int = 5,
@@ -229,7 +267,6 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
     d = np.asarray(reference_xyz, dtype=np.float64)
     center, scale = normalizer(m)
     u = (m - center) / scale
-    n = len(m)
     if isinstance(max_power, str):
         if max_power != "auto":
             raise InputError(f"expected max_power 'auto', None or 3 ints, got {max_power!r}")
@@ -244,32 +281,9 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
               else None)
     selection = {}
 
-    off = d - m
-    if order is None:
-        order, selection["position"] = _select_order(
-            u, off, orders, splits, lambda pred, rows: pair_errors(pred, None, off[rows], None)[0],
-            max_power)
-    n_terms = len(monomial_exponents(order, max_power))
-    if n_terms > n:
-        raise InputError(f"expected at least {n_terms} pairs for order {order}, got {n}")
-    pos_coef = _lstsq(monomials(u, order, max_power), off)
-
-    rot_coef = None
-    if measured_R is not None and reference_R is not None:
-        Rm = np.asarray(measured_R, dtype=np.float64)
-        Rd = np.asarray(reference_R, dtype=np.float64)
-        rho = rotation_offsets(Rm, Rd)
-
-        def rot_score(pred, rows):
-            zero = np.zeros((len(rows), 3))
-            return pair_errors(zero, apply_rotation_offsets(pred, Rm[rows]), zero, Rd[rows])[1]
-
-        if rot_order is None:
-            rot_order, selection["orientation"] = _select_order(u, rho, orders, splits,
-                                                                rot_score, max_power)
-        rot_coef = _lstsq(monomials(u, rot_order, max_power), rho)
-    else:
-        rot_order = None
+    order, pos_coef, rot_order, rot_coef = fit_offset_terms(
+        u, d - m, measured_R, reference_R, order, rot_order, orders, splits, selection,
+        lambda uu, r: monomials(uu, r, max_power), "a polynomial correction of order")
     return PolynomialCorrection(center=center, scale=scale, pos_order=int(order),
                                 pos_coef=pos_coef,
                                 rot_order=None if rot_order is None else int(rot_order),
