@@ -368,7 +368,32 @@ class SourceStalled(OSError):
     """A live source delivered no samples for longer than the allowed time."""
 
 
-class StallWatch(Backend):
+class BackendWrapper(Backend):
+    """A backend around another one (``self.backend``): layout, start time, truth and closing
+    are the wrapped backend's; a subclass changes :meth:`read`."""
+
+    def __init__(self, backend):
+        self.backend = backend
+
+    @property
+    def layout(self):
+        return self.backend.layout
+
+    @property
+    def t0_epoch(self):
+        return self.backend.t0_epoch
+
+    def truth_poses(self, times):
+        return self.backend.truth_poses(times)
+
+    def read(self):
+        return self.backend.read()
+
+    def close(self) -> None:
+        self.backend.close()
+
+
+class StallWatch(BackendWrapper):
     """Watch a backend for silence: an empty read (a sound card's read timeout) is not the
     end of the data; after ``warn_after`` seconds without a sample ``on_warn(message)`` is
     called once per silence, and after ``timeout`` seconds :class:`SourceStalled` is raised
@@ -391,7 +416,7 @@ class StallWatch(Backend):
             if v is not None and not 0 < float(v) < np.inf:
                 raise InputError(f"expected a positive, finite `{name}` in seconds (or None), "
                                  f"got {v!r}")
-        self.backend = backend
+        super().__init__(backend)
         self.warn_after = None if warn_after is None else float(warn_after)
         self.timeout = None if timeout is None else float(timeout)
         self.on_warn = on_warn or logger.warning
@@ -400,17 +425,6 @@ class StallWatch(Backend):
         self._started = False
         self._last = None            # the silence counts from the first read
         self._warned = False
-
-    @property
-    def layout(self):
-        return self.backend.layout
-
-    @property
-    def t0_epoch(self):
-        return self.backend.t0_epoch
-
-    def truth_poses(self, times):
-        return self.backend.truth_poses(times)
 
     def read(self):
         if self._last is None:
@@ -440,5 +454,3 @@ class StallWatch(Backend):
                                 f"{self.timeout:g} s)")
         return x
 
-    def close(self) -> None:
-        self.backend.close()

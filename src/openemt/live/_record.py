@@ -25,6 +25,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..io._stream import CsvStream, H5Stream
+from ._backends import BackendWrapper
 
 __all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log"]
 
@@ -306,7 +307,7 @@ def _read_csv_log(path: Path) -> TrackLogData:
     return TrackLogData(sensors=tuple(order or ["openemt"]), arrays=arrays, complete=complete)
 
 
-class RawRecorder:
+class RawRecorder(BackendWrapper):
     """A backend wrapper that streams every raw chunk read (and, for simulations, the truth
     at the output rate) to an HDF5 raw file (:func:`openemt.signal.write_raw` schema, plus
     ``rows``/``complete``) while the session runs."""
@@ -314,7 +315,7 @@ class RawRecorder:
     def __init__(self, backend, path, *, truth_rate: float, flush_seconds: float = 1.0):
         from ..signal._rawsim import raw_attrs
 
-        self.backend = backend
+        super().__init__(backend)
         self.truth_rate = float(truth_rate)
         self._n = 0
         self._k = 0
@@ -322,14 +323,6 @@ class RawRecorder:
         self.stream = H5Stream(path, raw_attrs(backend.layout, 0.0),
                                chunk_rows={"/": 16384, "truth": 1500},
                                flush_seconds=flush_seconds)
-
-    @property
-    def layout(self):
-        return self.backend.layout
-
-    @property
-    def t0_epoch(self):
-        return self.backend.t0_epoch
 
     def read(self):
         x = self.backend.read()
@@ -358,8 +351,3 @@ class RawRecorder:
     def published(self) -> bool:
         return self.stream.published
 
-    def truth_poses(self, times):
-        return self.backend.truth_poses(times)
-
-    def close(self) -> None:
-        self.backend.close()
