@@ -380,6 +380,18 @@ CLI_COMMANDS = {
 }
 
 
+def fresh_case_folders(workdir) -> tuple[Path, Path]:
+    """``(input folder, output folder)``, empty, under ``workdir`` (whatever an earlier case
+    left there removed): a command case must leave nothing in the output folder."""
+    workdir = Path(workdir)
+    if workdir.exists():
+        shutil.rmtree(workdir)
+    case_dir, out_dir = workdir / "in", workdir / "out"
+    case_dir.mkdir(parents=True)
+    out_dir.mkdir()
+    return case_dir, out_dir
+
+
 def run_cli_case(target: Target, content: bytes, workdir, seed_dir) -> Outcome:
     """Run the target's CLI command on the mutated file, in this process, and classify it:
     exit 0 with its output written, or exit 2 with one ``error:`` line and no output or
@@ -393,12 +405,7 @@ def run_cli_case(target: Target, content: bytes, workdir, seed_dir) -> Outcome:
     argv_t = CLI_COMMANDS.get(target.name)
     if argv_t is None:
         return Outcome("ok", "no command", 0.0)
-    workdir = Path(workdir)
-    if workdir.exists():
-        shutil.rmtree(workdir)
-    case_dir, out_dir = workdir / "in", workdir / "out"
-    case_dir.mkdir(parents=True)
-    out_dir.mkdir()
+    case_dir, out_dir = fresh_case_folders(workdir)
     path = case_dir / target.filename
     path.write_bytes(content)
     out = out_dir / "result"

@@ -521,12 +521,9 @@ def run_case(case: HostileCase, workdir, seeds, *, cli: bool, time_limit: float 
              ) -> RunOutcome:
     """Build ``case`` in a fresh folder under ``workdir`` and run its reader (``cli=False``)
     or its command in a child process; classify the outcome."""
-    workdir = Path(workdir)
-    if workdir.exists():
-        shutil.rmtree(workdir)
-    folder, out = workdir / "in", workdir / "out"
-    folder.mkdir(parents=True)
-    out.mkdir()
+    from ._fuzzcases import fresh_case_folders
+
+    folder, out = fresh_case_folders(workdir)
     path = case.build(folder, Path(seeds))
     argv = [sys.executable, "-m", "openemt.bench._fuzzhostile_readers"]
     if cli:
