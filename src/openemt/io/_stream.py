@@ -25,7 +25,6 @@ moment, so its outputs are appended in chunks instead, with bounded memory:
 from __future__ import annotations
 
 import contextlib
-import errno
 import os
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import (
+    _WRITE_ERRORS,
     _fsync_file,
     _fsync_folder,
     _missing_folder,
@@ -43,9 +43,6 @@ from .._errors import InputError
 from ._h5write import GuardedFile
 
 __all__ = ["CsvStream", "DiskFullError", "H5Stream", "check_stream_outputs"]
-
-#: errors of a write that mean "the disk cannot take it" (reported as disk full / I/O error)
-_DISK_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO}
 
 #: free space kept beyond the bytes of a flush (HDF5 metadata, chunk rounding)
 _HEADROOM = 256 * 1024
@@ -139,10 +136,9 @@ class _Stream:
     def _disk_error(self, exc) -> DiskFullError:
         err = getattr(self, "_guard", None)
         err = err.error if err is not None and err.error is not None else exc
-        if isinstance(err, OSError) and err.errno in _DISK_ERRNOS:
-            what = "disk full" if err.errno != errno.EIO else "I/O error"
-        else:
-            what = "cannot write"
+        # the one-shot writers' wording for the same errors ("disk full", "input/output
+        # error", ...), with what the stream kept instead of "nothing was written"
+        what = _WRITE_ERRORS.get(getattr(err, "errno", None), ("cannot write",))[0]
         return DiskFullError(f"{what} writing {str(self.path)!r} ({self._kept()})")
 
     def maybe_flush(self) -> None:
