@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 import openemt.cli as cli_mod
-from openemt.io._stream import CsvStream, DiskFullError, H5Stream, check_stream_outputs
+from openemt._atomic import check_outputs
+from openemt.io._stream import CsvStream, DiskFullError, H5Stream
 from openemt.live import (
     SimulatedBackend,
     TrackingPipeline,
@@ -107,27 +108,27 @@ def test_stream_full_disk_inside_hdf5_does_not_crash(tmp_path, monkeypatch):
         np.testing.assert_array_equal(f["a"][:n], np.arange(5000.0))
 
 
-def test_check_stream_outputs(tmp_path):
-    check_stream_outputs({"--log": tmp_path / "a.h5", "--save-raw": tmp_path / "b.h5",
+def test_check_outputs_of_a_live_session(tmp_path):
+    check_outputs({"--log": tmp_path / "a.h5", "--save-raw": tmp_path / "b.h5",
                           "--x": None})
     with pytest.raises(OSError, match="missing folder"):
-        check_stream_outputs({"--log": tmp_path / "no" / "a.h5"})
+        check_outputs({"--log": tmp_path / "no" / "a.h5"})
     with pytest.raises(ValueError, match="--log and --save-raw"):
-        check_stream_outputs({"--log": tmp_path / "a.h5", "--save-raw": tmp_path / "a.h5"})
+        check_outputs({"--log": tmp_path / "a.h5", "--save-raw": tmp_path / "a.h5"})
     (tmp_path / "real.h5").write_bytes(b"")
     os.symlink(tmp_path / "real.h5", tmp_path / "link.h5")
     with pytest.raises(ValueError, match="--log and --save-raw"):
-        check_stream_outputs({"--log": tmp_path / "real.h5",
+        check_outputs({"--log": tmp_path / "real.h5",
                               "--save-raw": tmp_path / "link.h5"})
     with pytest.raises(ValueError, match="folder"):
-        check_stream_outputs({"--log": tmp_path})
+        check_outputs({"--log": tmp_path})
     with pytest.raises(ValueError, match="which is a character device"):
-        check_stream_outputs({"--log": "/dev/null"})
+        check_outputs({"--log": "/dev/null"})
     if os.geteuid() != 0:                          # root writes anywhere
         ro = tmp_path / "ro"
         ro.mkdir(mode=0o555)
         with pytest.raises(ValueError, match="read-only folder"):
-            check_stream_outputs({"--log": ro / "a.h5"})
+            check_outputs({"--log": ro / "a.h5"})
 
 
 # ------------------------------------------------------------------ logs and readers

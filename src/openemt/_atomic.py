@@ -42,8 +42,8 @@ from pathlib import Path
 
 from ._errors import InputError
 
-__all__ = ["atomic_path", "check_output_path", "new_temporary", "remove_stale_temporaries",
-           "resolve_output"]
+__all__ = ["atomic_path", "check_output_path", "check_outputs", "new_temporary",
+           "remove_stale_temporaries", "resolve_output"]
 
 # the process umask, read once at import (setting it to read it is not thread-safe later)
 _UMASK = os.umask(0o022)
@@ -226,6 +226,38 @@ def check_output_path(output, inputs, *, folder: bool = False) -> None:
             raise InputError(f"expected an output path outside the input folder {str(inp)!r}, "
                              f"got {str(out)!r} inside it")
     _refuse_datasets(out, out_resolved)
+
+
+def check_outputs(named: dict, inputs=(), *, folders=()) -> None:
+    """Check every output of one command before any work: each as :func:`check_output_path`
+    does, its folder writable, and no two options naming the same file (through links too).
+
+    Parameters
+    ----------
+    named : dict
+        Option name (``"--log"``) -> output path; None values are skipped.
+    inputs : iterable of path-like
+        Files and folders being read.
+    folders : iterable of str
+        Options whose output is a folder (``--output-dir``), not a file.
+    """
+    seen: dict = {}
+    for opt, given in named.items():
+        if given is None:
+            continue
+        folder = opt in folders
+        check_output_path(given, inputs, folder=folder)
+        target = resolve_output(given, folder=folder, check_datasets=False)
+        parent = target if folder and target.is_dir() else target.parent
+        if parent.is_dir() and not os.access(parent, os.W_OK | os.X_OK):
+            raise InputError(f"expected a writable folder for {opt} {str(given)!r}, got "
+                             f"read-only folder {str(parent)!r}")
+        for other, seen_target in seen.items():
+            if seen_target == target or (target.exists() and seen_target.exists()
+                                         and os.path.samefile(target, seen_target)):
+                raise InputError(f"expected different files for {other} and {opt}, got "
+                                 f"{str(given)!r} for both")
+        seen[opt] = target
 
 
 def _missing_folder(output: Path, folder: Path) -> FileNotFoundError:

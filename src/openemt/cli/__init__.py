@@ -169,19 +169,20 @@ def _paths(value):
 
 
 def check_outputs(args) -> None:
-    """Refuse outputs that would overwrite an input (every other existing path named on the
-    command line counts as an input) or that are not a regular file or a new name (a device,
-    FIFO, socket, folder, symbolic-link loop; see :func:`openemt.io.check_output_path`)."""
-    from .._atomic import check_output_path
+    """Refuse, before the command runs, outputs that would overwrite an input (every other
+    existing path named on the command line counts as an input), that are not a regular file
+    or a new name (a device, FIFO, socket, folder, symbolic-link loop), whose folder is missing
+    or read-only, or two options naming the same file (:func:`openemt._atomic.check_outputs`)."""
+    from .._atomic import check_outputs as check
 
-    outputs = [v for d in OUTPUT_DESTS for v in _paths(getattr(args, d, None))]
-    if not outputs:
+    named = {("-o" if d == "output" else "--" + d.replace("_", "-"))
+             + (f" ({k + 1})" if k else ""): out
+             for d in OUTPUT_DESTS for k, out in enumerate(_paths(getattr(args, d, None)))}
+    if not named:
         return
     inputs = [v for d, val in vars(args).items() if d not in OUTPUT_DESTS
               for v in _paths(val) if os.path.exists(v)]
-    for d in OUTPUT_DESTS:
-        for out in _paths(getattr(args, d, None)):
-            check_output_path(out, inputs, folder=d == "output_dir")
+    check(named, inputs, folders=("--output-dir",))
 
 
 def main(argv=None) -> int:

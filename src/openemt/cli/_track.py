@@ -228,7 +228,6 @@ def run(args) -> int:
     if not args.quiet and sys.stderr.isatty():
         print(f"openemt track: starting (--source {args.source}; loading the solver and the "
               f"source)", file=sys.stderr, flush=True)
-    from ..io._stream import check_stream_outputs
     from ..live import IgtlServer, StallWatch, TrackingPipeline, read_tracker
     from ..live._record import RawRecorder, TrackLogWriter
     from ..live._session import tracker_backend, tracker_sensors
@@ -274,8 +273,8 @@ def run(args) -> int:
                          f"{args.source}")
     if args.log is not None and args.log.suffix.lower() not in (".h5", ".hdf5", ".csv"):
         raise InputError(f"expected --log ending in .h5, .hdf5 or .csv, got {str(args.log)!r}")
-    # every output checked before anything starts: folders, file kinds, one file per option
-    check_stream_outputs({"--log": args.log, "--save-raw": args.save_raw})
+    # every output was checked before anything started (folders, file kinds, one file per
+    # option: openemt.cli.check_outputs)
     device = args.device
     if isinstance(device, str) and device.isdigit():
         device = int(device)

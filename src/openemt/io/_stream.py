@@ -35,14 +35,12 @@ from .._atomic import (
     _WRITE_ERRORS,
     _fsync_file,
     _fsync_folder,
-    _missing_folder,
     new_temporary,
-    resolve_output,
 )
 from .._errors import InputError
 from ._h5write import GuardedFile
 
-__all__ = ["CsvStream", "DiskFullError", "H5Stream", "check_stream_outputs"]
+__all__ = ["CsvStream", "DiskFullError", "H5Stream"]
 
 #: free space kept beyond the bytes of a flush (HDF5 metadata, chunk rounding)
 _HEADROOM = 256 * 1024
@@ -55,40 +53,6 @@ class DiskFullError(OSError):
 
 def _folder(path: Path) -> Path:
     return path.parent if str(path.parent) else Path(".")
-
-
-def check_stream_outputs(outputs: dict) -> None:
-    """Check the outputs of a live session before it starts acquiring.
-
-    Parameters
-    ----------
-    outputs : dict
-        Option name (e.g. ``"--log"``) -> path; None values are skipped.
-
-    Raises
-    ------
-    InputError
-        What :func:`openemt._atomic.resolve_output` refuses (a folder, device, FIFO,
-        socket or link loop at the path, the bundled-dataset folder), a missing or read-only
-        folder, or the same file named by two options.
-    """
-    seen: dict = {}
-    for opt, given in outputs.items():
-        if given is None:
-            continue
-        target = resolve_output(given)          # the one-shot writers' checks (device, ...)
-        folder = target.parent
-        if not folder.is_dir():
-            raise _missing_folder(Path(given), folder)
-        if not os.access(folder, os.W_OK | os.X_OK):
-            raise InputError(f"expected a writable folder for {opt} {str(given)!r}, got "
-                             f"read-only folder {str(folder)!r}")
-        key = folder.resolve() / target.name
-        for other, okey in seen.items():
-            if okey == key or (key.exists() and okey.exists() and os.path.samefile(key, okey)):
-                raise InputError(f"expected different files for {other} and {opt}, got "
-                                 f"{str(given)!r} for both")
-        seen[opt] = key
 
 
 class _Stream:
