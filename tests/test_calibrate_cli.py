@@ -129,7 +129,7 @@ def test_calibrate_improved_and_planar_modes(ilemt_dir, tmp_path, capsys):
     d_true = np.zeros((8, 3))
     d_true[3] = [3e-4, -2e-4, 1e-4]
     # the built-in board file (the corrected Anser geometry) is the fit's default board
-    C = PlanarModel.from_board("anser", gains=0.01, offsets=d_true).coupling(pts, u)
+    C = PlanarModel.from_board("anser", gains=0.01, offsets=d_true).coupling_points(pts, u)
     grid = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), grid)
     res = tmp_path / "planar.json"

@@ -12,7 +12,6 @@ import pytest
 
 import openemt
 from openemt.cli import main
-from openemt.io._board_calfile import write_board_calibration
 
 TRACKERS = Path(openemt.__file__).parent / "live" / "trackers"
 
@@ -48,7 +47,7 @@ def made(tmp_path_factory):
         "--save-raw", d / "raw.h5", "--log", d / "log.h5")
     run("track", "--tracker", TRACKERS / "simulated-2.toml", "--duration", "0.2", "--fast",
         "--no-igtl", "--log", d / "log2.csv")
-    write_board_calibration(openemt.read_calibration(TRACKERS / "anser-nominal.json"),
+    openemt.write_calibration(openemt.read_calibration(TRACKERS / "anser-nominal.json"),
                       d / "board_cal.json")
     shutil.copy(openemt.datasets.path("cal_9_15_premo_cmu") / "base_calibration.mat",
                 d / "base.mat")

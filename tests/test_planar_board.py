@@ -124,12 +124,12 @@ def test_coupling_derivatives(anser):
     p = np.array([[0.02, 0.03, 0.09]])
     u = np.array([[0.3, -0.2, 0.93]])
     u /= np.linalg.norm(u)
-    _, dp, du = m.coupling(p, u, gradient=True)
+    _, dp, du = m.coupling_points(p, u, gradient=True)
     h = 1e-7
     for j in range(3):
         e = np.zeros(3)
         e[j] = h
-        fd = (m.coupling(p + e, u) - m.coupling(p - e, u)) / (2 * h)
+        fd = (m.coupling_points(p + e, u) - m.coupling_points(p - e, u)) / (2 * h)
         assert np.allclose(fd, dp[..., j], rtol=1e-6, atol=1e-9 * np.abs(dp).max())
         # derivative by the axis vector (unnormalised): the kernel takes u as given
         S, off = m.segments, m.segment_offsets
@@ -150,7 +150,7 @@ def _track(n=300):
 def test_solver_recovers_exact_poses(anser):
     m = PlanarModel.from_board(anser, gains=0.5)       # tesla-scale couplings ~1e-8..1e-5
     P, U = _track()
-    C = m.coupling(P, U)
+    C = m.coupling_points(P, U)
     assert 1e-10 < np.abs(C).min() and np.abs(C).max() < 1e-4
     res = solve_planar(C, m)                            # warm-started tracking
     assert np.all(res.status == Status.CONVERGED)
@@ -158,7 +158,7 @@ def test_solver_recovers_exact_poses(anser):
     assert np.abs(res.poses[:, :3, 2] - U).max() < 1e-7
     from openemt.solve._validity import relative_residuals
 
-    fit = m.coupling(res.poses[:, :3, 3], res.poses[:, :3, 2])
+    fit = m.coupling_points(res.poses[:, :3, 3], res.poses[:, :3, 2])
     assert np.all(relative_residuals(fit[:, :, None], C[:, :, None]) < 1e-8)
     assert np.all(res.residual < 1e-16 * np.linalg.norm(C, axis=1))     # resnorm = rho^2 |C|
     cold = solve_planar(C[::30], m, initial="grid")     # cold starts from the seed grid
@@ -172,7 +172,7 @@ def test_solver_recovers_exact_poses(anser):
 def test_solver_statuses(anser):
     m = PlanarModel.from_board(anser)
     P, U = _track(4)
-    C = m.coupling(P, U)
+    C = m.coupling_points(P, U)
     C[1] = np.nan
     C[2] = 0.0
     C[3] = np.random.default_rng(0).normal(size=8) * 1e-6    # no pose explains this
@@ -181,16 +181,16 @@ def test_solver_statuses(anser):
     assert res.status[1] == Status.INVALID_INPUT and np.isnan(res.poses[1]).all()
     assert res.status[2] == Status.INVALID_INPUT
     assert res.status[3] != Status.CONVERGED
-    lim = solve_planar(m.coupling(P[:1], U[:1]), m, initial="grid", max_iter=1, n_tries=1)
+    lim = solve_planar(m.coupling_points(P[:1], U[:1]), m, initial="grid", max_iter=1, n_tries=1)
     assert lim.status[0] == Status.MAX_ITERATIONS
-    box = solve_planar(m.coupling(P[:1], U[:1]), m, bounds=0.05)
+    box = solve_planar(m.coupling_points(P[:1], U[:1]), m, bounds=0.05)
     assert box.status[0] == Status.OUT_OF_VOLUME
     with pytest.raises(InputError, match="couplings of shape"):
         solve_planar(np.zeros((3, 5)), m)
     # the wrong side of the board is the ambiguous side
-    other = solve_planar(m.coupling(P[:1], U[:1]), m, hemisphere=[0.0, 0.0, -1.0])
+    other = solve_planar(m.coupling_points(P[:1], U[:1]), m, hemisphere=[0.0, 0.0, -1.0])
     assert other.status[0] == Status.AMBIGUOUS
-    assert solve_planar(m.coupling(P[:1], U[:1]), m, hemisphere="none").status[0] == 0
+    assert solve_planar(m.coupling_points(P[:1], U[:1]), m, hemisphere="none").status[0] == 0
     with pytest.raises(InputError, match="hemisphere"):
         solve_planar(C[:1], m, hemisphere=[0.0, 0.0, 0.0])
 

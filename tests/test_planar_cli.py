@@ -34,7 +34,7 @@ def truth():
 
 
 def _noisy(model, pts, u, sigma, seed):
-    C = model.coupling(pts, u)
+    C = model.coupling_points(pts, u)
     return C + np.random.default_rng(seed).normal(0.0, sigma, C.shape)
 
 
@@ -50,7 +50,7 @@ def test_checkerboard_split_alternates():
 
 def test_grid_fit_recovers_offsets_and_holds_out_at_noise_level(truth):
     pts, u = _grid()
-    C0 = truth.coupling(pts, u)
+    C0 = truth.coupling_points(pts, u)
     sigma = 2e-4 * np.abs(C0).max()                      # ~1e-9 T on ~5e-6 T peaks
     C = _noisy(truth, pts, u, sigma, 1)
     mask = checkerboard_split(pts)
@@ -76,7 +76,7 @@ def test_fit_with_tilt_and_iteration_limit(truth):
     w = np.zeros((8, 3))
     w[:, :2] = np.random.default_rng(2).normal(0, 0.01, (8, 2))
     tilted = truth.replace(tilts=w)
-    C = tilted.coupling(pts, u)
+    C = tilted.coupling_points(pts, u)
     fit = fit_planar(GridData(pts, u, C), fit_tilt=True)
     assert fit.status == "converged"
     assert np.abs(fit.model.tilts - w).max() < 1e-9
@@ -95,7 +95,7 @@ def test_calibrate_info_solve_end_to_end(truth, tmp_path, capsys):
     from openemt.io import Dataset, write_dataset
 
     pts, u = _grid()
-    C0 = truth.coupling(pts, u)
+    C0 = truth.coupling_points(pts, u)
     C = _noisy(truth, pts, u, 1e-4 * np.abs(C0).max(), 3)
     grid = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), grid)
@@ -118,8 +118,11 @@ def test_calibrate_info_solve_end_to_end(truth, tmp_path, capsys):
     cal = read_calibration(cal_path)
     assert cal.kind == "finite" and cal.model.gains.tolist() == s["gains"]
     assert "holdout" in cal.stats and cal.provenance["grid_file"] == str(grid)
-    # where a dipole calibration is needed, a board calibration is bad input, not a crash
-    assert not hasattr(cal, "source_fixture") and not hasattr(cal.model, "n_source")
+    # one calibration type: the board model is a coupling model (8 coils into one sensor coil,
+    # 5-DOF) with the fixtures of every calibration (zero: a board calibration has none)
+    assert (cal.model.n_source, cal.model.n_sensor, cal.model.dof) == (8, 1, 5)
+    assert not np.any(cal.source_fixture) and not np.any(cal.sensor_fixture)
+    # where a dipole model is needed, a board calibration is bad input, not a crash
     with pytest.raises(InputError, match="dipole-model calibration"):
         _ = cal.model.M_so
     from openemt.datasets import path as dataset_path
@@ -140,7 +143,7 @@ def test_calibrate_info_solve_end_to_end(truth, tmp_path, capsys):
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, :3, 3] = P
     poses[:, :3, :3] = np.diag([1.0, -1.0, -1.0])       # sensor axis -z
-    ds = Dataset(couplings=cal.model.coupling_poses(poses), stage=np.zeros((n, 6)),
+    ds = Dataset(couplings=cal.model.coupling(poses), stage=np.zeros((n, 6)),
                  source_fixture=["YoutZup"] * n, sensor_fixture=["YoutZup"] * n,
                  pattern=["track"] * n, file_index=np.full(n, -1), poses=poses)
     h5 = tmp_path / "track.h5"
@@ -171,7 +174,7 @@ def test_custom_board_and_unit_errors(tmp_path, capsys):
     board = load_board("anser")
     bfile = write_board(board, tmp_path / "my.toml")
     pts, u = _grid()
-    C = PlanarModel.from_board(load_board(bfile)).coupling(pts, u)
+    C = PlanarModel.from_board(load_board(bfile)).coupling_points(pts, u)
     grid = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), grid)
     rc, out, err = _run(["calibrate", str(grid), "--mode", "planar", "--board", str(bfile),
@@ -223,7 +226,7 @@ def test_simulate_with_board_file(tmp_path, capsys):
 def test_fit_reports_singular_normal_equations():
     pts = np.tile([[0.0, 0.0, 0.08]], (10, 1))            # one point repeated: 8 x 4 unknowns
     u = np.tile([0.0, 0.0, -1.0], (10, 1))
-    C = PlanarModel.from_board("anser").coupling(pts, u)
+    C = PlanarModel.from_board("anser").coupling_points(pts, u)
     fit = fit_planar(GridData(pts, u, C))
     assert fit.status == "singular"
 
@@ -232,7 +235,7 @@ def test_library_fits_refuse_millimetres():
     from openemt.calibrate import calibrate_planar
 
     pts, u = _grid()
-    C = PlanarModel.from_board("anser").coupling(pts, u)
+    C = PlanarModel.from_board("anser").coupling_points(pts, u)
     for fit in (fit_planar, calibrate_planar):
         with pytest.raises(InputError, match="millimetres"):
             fit(GridData(pts * 1e3, u, C))
@@ -243,6 +246,6 @@ def test_library_fits_refuse_millimetres():
 def test_holdout_scheme_is_checked(tmp_path, capsys):
     pts, u = _grid()
     grid = tmp_path / "grid.csv"
-    write_grid_csv(GridData(pts, u, PlanarModel.from_board("anser").coupling(pts, u)), grid)
+    write_grid_csv(GridData(pts, u, PlanarModel.from_board("anser").coupling_points(pts, u)), grid)
     rc, _, err = _run(["calibrate", str(grid), "--mode", "planar", "--holdout", "0.3"], capsys)
     assert rc == 2 and "--holdout checkerboard" in err

@@ -13,7 +13,7 @@ from _counts import converged_only
 from _igtl_listener import Listener
 
 from openemt.board import PlanarModel
-from openemt.io._board_calfile import BoardCalibration, write_board_calibration
+from openemt.io import Calibration, write_calibration
 from openemt.live import IgtlServer, TrackingPipeline, example_tracker, read_tracker
 from openemt.live._board import (
     BOARD_FREQUENCIES,
@@ -31,7 +31,7 @@ def board_cal(tmp_path_factory):
     model = PlanarModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
                                    offsets=rng.normal(0.0, 1e-3, (8, 3)))
     path = tmp_path_factory.mktemp("board") / "board_cal.json"
-    write_board_calibration(BoardCalibration(model, "planar"), path)
+    write_calibration(Calibration(model, mode="planar"), path)
     return path
 
 
@@ -123,7 +123,7 @@ def test_board_solver_recovers_after_a_jump():
     solve = board_solver(model)
     poses = board_trajectory(np.array([0.0, 0.5, 0.5, 0.5]))
     poses[2:, :3, 3] += [0.06, -0.05, 0.04]                  # the sensor jumps 9 cm
-    C = model.coupling_poses(poses)
+    C = model.coupling(poses)
     first = solve(C[:1], "kim18")                             # acquiring: cold
     assert first.status[0] == Status.CONVERGED
     res = solve(C[1:], np.tile(first.pose_vectors[0], (3, 1)))

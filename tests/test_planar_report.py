@@ -27,7 +27,7 @@ def _grid_dataset(model, path, sigma_rel=1e-4, seed=3):
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, :3, 3] = pts
     poses[:, :3, :3] = np.diag([1.0, -1.0, -1.0])            # sensor axis -z
-    C = model.coupling_poses(poses)
+    C = model.coupling(poses)
     C = C + np.random.default_rng(seed).normal(0.0, sigma_rel * np.abs(C).max(), C.shape)
     ds = Dataset(couplings=C, stage=np.zeros((n, 6)), source_fixture=["YoutZup"] * n,
                  sensor_fixture=["YoutZup"] * n, pattern=["grid"] * n,

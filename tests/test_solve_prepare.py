@@ -15,7 +15,6 @@ from openemt.board import PlanarModel
 from openemt.field import DipoleModel, OctupoleModel
 from openemt.geometry import pose_from_vector
 from openemt.io import Calibration, Dataset, write_calibration, write_dataset
-from openemt.io._board_calfile import BoardCalibration, write_board_calibration
 from openemt.live._board import board_trajectory
 from openemt.simulate import truth_calibration
 from openemt.solve import (
@@ -115,12 +114,12 @@ def board():
     model = PlanarModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
                                    offsets=rng.normal(0.0, 1e-3, (8, 3)))
     P = board_trajectory(np.linspace(0.0, 4.0, 120))
-    return model, P, model.coupling_poses(P)
+    return model, P, model.coupling(P)
 
 
 def test_board_calibration_same_as_solve_planar(board):
     model, P, C = board
-    solver = prepare(BoardCalibration(model, "planar"), max_iter=80, bounds=0.5)
+    solver = prepare(Calibration(model, mode="planar"), max_iter=80, bounds=0.5)
     assert (solver.n_source, solver.n_sensor, solver.dof) == (8, 1, 5)
     got = solver(C)
     _same(got, solve_planar(C, model, max_iter=80, bounds=0.5))
@@ -160,7 +159,7 @@ def test_options_are_checked_once_with_one_line_errors(dipole, monkeypatch):
         prepare(cal, solver="svd", max_iter=5)          # an LM option for a closed form
     with pytest.raises(InputError, match="solver in"):
         prepare(cal, solver="newton")
-    with pytest.raises(TypeError, match="PlanarModel"):
+    with pytest.raises(TypeError, match="coupling model, got ndarray"):
         prepare(np.eye(3))
     opts = SolveOptions(hemisphere=np.array([1.0, 0.0, 0.0]), bounds=0.4,
                         concentric_model=DipoleModel.concentric(), initial="track")
@@ -234,12 +233,12 @@ def test_solve_command_builds_its_solvers_with_the_factory(dipole, board, tmp_pa
                   source_fixture="YoutZup", sensor_fixture="YoutZup", pattern="sim",
                   file_index=np.zeros(len(BP), int), files=("sim",), poses=BP)
     write_dataset(bds, tmp_path / "b.h5")
-    write_board_calibration(BoardCalibration(bmodel, "planar"), tmp_path / "bcal.json")
+    write_calibration(Calibration(bmodel, mode="planar"), tmp_path / "bcal.json")
     calls = _spy(monkeypatch, openemt.solve)
     argv = ["solve", str(tmp_path / "b.h5"), "-c", str(tmp_path / "bcal.json"), "-o",
             str(tmp_path / "bp.h5"), "--json"]
     assert cli.main(argv) == 0, capsys.readouterr().err
-    assert calls == ["BoardCalibration"]
+    assert calls == ["Calibration"]
     got = read_poses(tmp_path / "bp.h5")
     ref = solve_planar(BC, bmodel, max_iter=100)
     np.testing.assert_array_equal(got.poses, ref.poses)

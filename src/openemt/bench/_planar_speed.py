@@ -65,7 +65,7 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
     try:
         model = PlanarModel.from_board("anser")
         P, U = planar_trajectory(n)
-        C = model.coupling(P, U)
+        C = model.coupling_points(P, U)
         rng = np.random.default_rng(seed)
         sigma = np.sqrt(np.mean(C ** 2, axis=1)) * 10 ** (-snr_db / 20)
         C = C + sigma[:, None] * rng.normal(size=C.shape)
@@ -90,7 +90,7 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
             return model.gains * (B.mean(axis=1) @ u)
 
         def coupling_compiled(x):
-            return model.coupling(x[None, :3], axis(x)[None])[0]
+            return model.coupling_points(x[None, :3], axis(x)[None])[0]
 
         def baseline(fun):
             out = np.empty((nb, 3))

@@ -5,8 +5,8 @@ A board is a list of source coils, each a printed or wound spiral described by i
 normal, in-plane angle, shape (``square_spiral``, ``rectangular``, ``circular``), turns per
 layer (a multiple of 1/4 for the rectangular shapes), number of layers (1 or 2) and their
 spacing, outer size, trace width and trace spacing; and a sensor (``single``: one coil along
-the sensor's z axis, 5-DOF; ``triad``: three coils along x, y, z), with a length (0 = point)
-and diameter. Each coil is turned into straight current segments (:meth:`CoilSpec.segments`)
+the sensor's z axis, 5-DOF; ``dual``: two coils at an angle, 6-DOF; ``triad``: three coils
+along x, y, z), with a length (0 = point) and diameter. Each coil is turned into straight current segments (:meth:`CoilSpec.segments`)
 for the Biot-Savart kernel (:mod:`openemt.field._segments`).
 
 A two-layer coil is one trace: it spirals inward on the top layer, passes through a via and
@@ -39,10 +39,11 @@ __all__ = [
 
 #: Coil shapes a board file may name.
 SHAPES = ("square_spiral", "rectangular", "circular")
-#: Sensor kinds: one coil along the sensor z axis (5-DOF) or three along x, y, z (6-DOF).
-SENSOR_KINDS = ("single", "triad")
+#: Sensor kinds: one coil along the sensor z axis (5-DOF), two coils at an angle (6-DOF, as
+#: commercial 6-DOF tools are built) or three along x, y, z (6-DOF).
+SENSOR_KINDS = ("single", "dual", "triad")
 #: Board files shipped with the package (``builtin_board(name)``).
-BUILTIN_BOARDS = ("anser",)
+BUILTIN_BOARDS = ("anser", "anser-6dof")
 
 #: Plausibility limits (m) used to catch millimetres given where metres are expected.
 MAX_POSITION_M = 2.0
@@ -199,14 +200,44 @@ class CoilSpec:
 
 @dataclass(frozen=True, eq=False)
 class SensorSpec:
-    """The sensor: ``kind`` (``single`` or ``triad``), coil ``length`` and ``diameter`` (m)."""
+    """The sensor: ``kind`` (``single``, ``dual`` or ``triad``), coil ``length`` and
+    ``diameter`` (m); a ``dual`` sensor's two coils are ``angle`` (rad) apart and ``separation``
+    (m) apart (docs/planar.md#board-file)."""
 
     kind: str = "single"
     length: float = 0.0
     diameter: float = 0.0
+    angle: float = 0.0
+    separation: float = 0.0
+
+    @property
+    def n_coils(self) -> int:
+        return {"single": 1, "dual": 2, "triad": 3}[self.kind]
+
+    def coil_axes(self) -> np.ndarray:
+        """Unit axes ``(n_coils, 3)`` of the coils in the sensor frame: ``single`` along z;
+        ``dual`` in the x-z plane at ``-angle/2`` and ``+angle/2`` from z (turned about y);
+        ``triad`` along x, y, z."""
+        if self.kind == "single":
+            return np.array([[0.0, 0.0, 1.0]])
+        if self.kind == "triad":
+            return np.eye(3)
+        h = self.angle / 2
+        return np.array([[-math.sin(h), 0.0, math.cos(h)], [math.sin(h), 0.0, math.cos(h)]])
+
+    def coil_positions(self) -> np.ndarray:
+        """Coil centres ``(n_coils, 3)`` in the sensor frame (m): a ``dual`` sensor's at
+        ``y = -separation/2`` and ``+separation/2``, otherwise at the origin."""
+        if self.kind == "dual":
+            h = self.separation / 2
+            return np.array([[0.0, -h, 0.0], [0.0, h, 0.0]])
+        return np.zeros((self.n_coils, 3))
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "length": self.length, "diameter": self.diameter}
+        d = {"kind": self.kind, "length": self.length, "diameter": self.diameter}
+        if self.kind == "dual":
+            d.update(angle=self.angle, separation=self.separation)
+        return d
 
 
 @dataclass(frozen=True, eq=False)
@@ -307,10 +338,27 @@ def board_from_dict(doc: dict, src: str = "") -> Board:
     kind = s.get("kind", "single")
     if kind not in SENSOR_KINDS:
         raise InputError(f"{_where(src)}expected sensor kind in {list(SENSOR_KINDS)}, got {kind!r}")
+    unknown = sorted(set(s) - {"kind", "length", "diameter", "angle", "separation"})
+    if unknown:
+        raise InputError(f"{_where(src)}expected sensor keys kind, length, diameter (and for a "
+                         f"dual sensor angle, separation), got unknown {unknown}")
+    angle = sep = 0.0
+    if kind == "dual":
+        angle = _num(s.get("angle", math.pi / 2), "sensor angle (rad)", src, unit="rad",
+                     limit=math.pi)
+        sep = _num(s.get("separation", 0.0), "sensor separation", src,
+                   limit=MAX_SENSOR_LENGTH_M)
+        if not math.radians(5.0) <= angle <= math.radians(175.0):
+            raise InputError(f"{_where(src)}expected a dual sensor's coil angle between 5 and "
+                             f"175 degrees (two parallel coils give no roll), got "
+                             f"{math.degrees(angle):.3g} degrees")
+    elif "angle" in s or "separation" in s:
+        raise InputError(f"{_where(src)}expected sensor angle/separation only for kind 'dual', "
+                         f"got them for kind {kind!r}")
     sensor = SensorSpec(kind, _num(s.get("length", 0.0), "sensor length", src,
                                    limit=MAX_SENSOR_LENGTH_M),
                         _num(s.get("diameter", 0.0), "sensor diameter", src,
-                             limit=MAX_SENSOR_LENGTH_M))
+                             limit=MAX_SENSOR_LENGTH_M), angle, sep)
     return Board(str(doc.get("name", "board")), specs, sensor, str(doc.get("description", "")))
 
 

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._errors import InputError
-from ..field import OctupoleModel, coupling_jacobians
+from ..field import ModelJacobians, OctupoleModel, coupling_jacobians
+from ..field._dipole import param_jacobian
 from ..geometry import (
     SENSOR_FIXTURES,
     SOURCE_FIXTURES,
@@ -234,11 +235,15 @@ class ImprovedProblem:
         P = ch["P"]
         model = self.model(x)
         if isinstance(model, OctupoleModel):
-            jac, dks, dke = model.jacobians(P)
+            jac, dks, dke = model.split_jacobians(P)
         else:
             jac, dks, dke = coupling_jacobians(model, P), None, None
         lay, e = self.layout, self.extra
-        dC_base, H = self.base.gradients(x[:lay.size], jac, P, ch["A"], ch["D"])
+        # the base problem's part: the dipole parameters and fixtures (the model interface's
+        # Jacobians of the dipole part; the octupole strengths follow below)
+        dip = model.dipole if isinstance(model, OctupoleModel) else model
+        mj = ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, param_jacobian(dip, jac))
+        dC_base, H = self.base.gradients(x[:lay.size], mj, P, ch["A"], ch["D"])
         n, ns, ne = jac.C.shape
         J = np.zeros((n, ns, ne, self.size))
         J[..., :lay.size] = dC_base

@@ -34,29 +34,32 @@ __all__ = ["FIELD_NAMES", "ParameterLayout"]
 FIELD_NAMES = ("L_so", "M_so", "L_se", "M_se", "F_so", "F_st", "F_se")
 
 
-def _coil_block(arr: np.ndarray) -> np.ndarray:
-    """(3, n) coil array -> coil-major flat vector (3 n,)."""
-    return np.asarray(arr, dtype=np.float64).T.ravel()
-
-
 @dataclass(frozen=True, eq=False)
 class ParameterLayout:
-    """Layout of the full calibration vector for ``n_source`` and ``n_sensor`` coils.
+    """Layout of the full calibration vector: the model's parameters, then F_so, F_st, F_se.
+
+    ``ParameterLayout(n_source, n_sensor)`` is the dipole model's layout; any other coupling
+    model (:class:`openemt.field.CouplingModel`) has its own with :meth:`for_model`, whose
+    model block is ``template.params`` with the template's groups and gauge.
 
     Attributes
     ----------
     n_source, n_sensor : int
         Coil counts.
+    template : coupling model or None
+        The model whose parameter vector the model block is (None: a dipole model).
     slices : dict of str -> slice
-        Block of each field of ``FIELD_NAMES`` in the full vector.
+        Block of each field in the full vector (``model``, the dipole's ``L_so`` ... ``M_se``,
+        ``F_so``, ``F_st``, ``F_se``).
     groups : dict of str -> ndarray of int
         Named parameter groups (indices into the full vector), as docs/paper-procedure.md#parameter-groups.
     gauge : ndarray of int
-        Indices that are never fitted (reference-coil position and transverse moment).
+        Indices that are never fitted (the model's gauge).
     """
 
     n_source: int
     n_sensor: int
+    template: object = None
     slices: dict = field(init=False)
     groups: dict = field(init=False)
     gauge: np.ndarray = field(init=False)
@@ -68,39 +71,24 @@ class ParameterLayout:
                 raise InputError(f"expected `{name}` to be a positive integer, got {v!r}")
             object.__setattr__(self, name, int(v))
         ns, ne = self.n_source, self.n_sensor
-        sizes = {"L_so": 3 * ns, "M_so": 3 * ns, "L_se": 3 * ne, "M_se": 3 * ne,
-                 "F_so": 6, "F_st": 6, "F_se": 6}
-        slices, start = {}, 0
-        for name in FIELD_NAMES:
-            slices[name] = slice(start, start + sizes[name])
-            start += sizes[name]
+        if self.template is None:
+            # a dipole model of these coil counts: only its shape and gain matter here
+            object.__setattr__(self, "template", DipoleModel(
+                np.zeros((3, ns)), np.ones((3, ns)), np.zeros((3, ne)), np.ones((3, ne))))
+        t = self.template
+        if (t.n_source, t.n_sensor) != (ns, ne):
+            raise InputError(f"expected a template model with {ns} x {ne} coils, got "
+                             f"{t.n_source} x {t.n_sensor}")
+        p = int(np.asarray(t.params).size)
+        slices = {"model": slice(0, p)}
+        if self.is_dipole:
+            slices.update(t.param_slices())
+        for k, name in enumerate(("F_so", "F_st", "F_se")):
+            slices[name] = slice(p + 6 * k, p + 6 * k + 6)
         object.__setattr__(self, "slices", slices)
-
-        def idx(name, coil=None, comp=None):
-            s = slices[name]
-            base = np.arange(s.start, s.stop)
-            if coil is None:
-                return base
-            c = np.atleast_1d(coil)
-            comps = np.arange(3) if comp is None else np.atleast_1d(comp)
-            return np.array([s.start + 3 * i + a for i in c for a in comps], dtype=np.int64)
-
-        g: dict[str, np.ndarray] = {}
-        gauge = []
-        for side, n in (("so", ns), ("se", ne)):
-            L, M = f"L_{side}", f"M_{side}"
-            ref = n - 1
-            others = np.arange(n - 1)
-            g[f"d_{side}_pos"] = idx(L, others)
-            g[f"{side}_z_gain"] = idx(M, ref, 2)
-            g[f"d_{side}_z_gain"] = g[f"{side}_z_gain"]
-            g[f"d_{side}_mo"] = np.concatenate([idx(M, others), g[f"d_{side}_z_gain"]])
-            g[f"d_{side}_y_co"] = idx(M, 0, 1) if n > 1 else np.zeros(0, dtype=np.int64)
-            gauge.append(idx(L, ref))
-            gauge.append(idx(M, ref, [0, 1]))
-            del g[f"{side}_z_gain"]
+        g = {k: np.asarray(v, dtype=np.int64) for k, v in t.parameter_groups.items()}
         for short, name in (("so", "F_so"), ("st", "F_st"), ("se", "F_se")):
-            full = idx(name)
+            full = np.arange(slices[name].start, slices[name].stop)
             g[f"{short}_fix"] = full
             for k, ax in enumerate("xyz"):
                 g[f"{ax}_{short}_fix"] = full[k:k + 1]
@@ -108,33 +96,44 @@ class ParameterLayout:
             g[f"{short}_fix_rot"] = full[3:]
         for v in g.values():
             v.setflags(write=False)
-        gauge_arr = np.unique(np.concatenate(gauge))
-        gauge_arr.setflags(write=False)
+        gauge = np.asarray(t.gauge, dtype=np.int64)
+        gauge.setflags(write=False)
         object.__setattr__(self, "groups", g)
-        object.__setattr__(self, "gauge", gauge_arr)
+        object.__setattr__(self, "gauge", gauge)
+
+    @property
+    def is_dipole(self) -> bool:
+        return isinstance(self.template, DipoleModel)
 
     # -- sizes -----------------------------------------------------------------------------
     @property
     def size(self) -> int:
-        """Length of the full vector, ``6 (n_source + n_sensor) + 18``."""
+        """Length of the full vector (the model's parameters + 18; ``6 (n_source + n_sensor)
+        + 18`` for a dipole model)."""
         return self.slices["F_se"].stop
 
     @classmethod
-    def for_model(cls, model: DipoleModel) -> ParameterLayout:
-        return cls(model.n_source, model.n_sensor)
+    def for_model(cls, model) -> ParameterLayout:
+        """The layout of ``model``'s parameters and the three fixtures."""
+        if isinstance(model, DipoleModel):
+            return cls(model.n_source, model.n_sensor)
+        from ..field import check_coupling_model
+
+        check_coupling_model(model)
+        return cls(model.n_source, model.n_sensor, model)
 
     # -- pack / unpack ----------------------------------------------------------------------
-    def pack(self, model: DipoleModel, source_fixture, stage_fixture, sensor_fixture
-             ) -> np.ndarray:
+    def pack(self, model, source_fixture, stage_fixture, sensor_fixture) -> np.ndarray:
         """Model and fixture pose vectors -> full vector ``(size,)``."""
         if (model.n_source, model.n_sensor) != (self.n_source, self.n_sensor):
             raise InputError(f"expected a model with {self.n_source} source and {self.n_sensor} "
                              f"sensor coils, got {model.n_source} and {model.n_sensor}")
         x = np.empty(self.size)
-        x[self.slices["L_so"]] = _coil_block(model.L_so)
-        x[self.slices["M_so"]] = _coil_block(model.M_so)
-        x[self.slices["L_se"]] = _coil_block(model.L_se)
-        x[self.slices["M_se"]] = _coil_block(model.M_se)
+        params = np.asarray(model.params, dtype=np.float64)
+        if params.size != self.slices["model"].stop:
+            raise InputError(f"expected a model of {self.slices['model'].stop} parameters like "
+                             f"the layout's, got {params.size}")
+        x[self.slices["model"]] = params
         x[self.slices["F_so"]] = source_fixture
         x[self.slices["F_st"]] = stage_fixture
         x[self.slices["F_se"]] = sensor_fixture
@@ -145,7 +144,10 @@ class ParameterLayout:
         return self.pack(cal.model, cal.source_fixture, cal.stage_fixture, cal.sensor_fixture)
 
     def coil_arrays(self, x) -> dict[str, np.ndarray]:
-        """Full vector -> ``{'L_so': (3, n_so), 'M_so', 'L_se', 'M_se'}`` (copies)."""
+        """Full vector of a dipole layout -> ``{'L_so': (3, n_so), 'M_so', 'L_se', 'M_se'}``."""
+        if not self.is_dipole:
+            raise InputError("expected a dipole-model layout for coil arrays, got a "
+                             f"{type(self.template).__name__} layout")
         out = {}
         for name, n in (("L_so", self.n_source), ("M_so", self.n_source),
                         ("L_se", self.n_sensor), ("M_se", self.n_sensor)):
@@ -156,15 +158,23 @@ class ParameterLayout:
         """Full vector -> (F_so, F_st, F_se) pose vectors, each ``(6,)`` (copies)."""
         return tuple(np.array(x[self.slices[n]]) for n in ("F_so", "F_st", "F_se"))
 
-    def model(self, x, gain: float) -> DipoleModel:
-        """Full vector -> :class:`DipoleModel`."""
-        return DipoleModel(gain=gain, **self.coil_arrays(x))
+    def model(self, x, gain: float | None = None):
+        """Full vector -> the model (a :class:`DipoleModel` of coupling scale ``gain`` for a
+        dipole layout; the template with these parameters otherwise)."""
+        if self.is_dipole:
+            return DipoleModel(gain=self.template.gain if gain is None else gain,
+                               **self.coil_arrays(x))
+        return self.template.with_params(np.asarray(x)[self.slices["model"]])
 
     def as_fields(self, values) -> dict[str, np.ndarray]:
         """Full-length per-parameter values (e.g. standard errors) -> arrays keyed like a
-        calibration: ``L_so``... as (3, n) and ``source_fixture``/... as (6,)."""
+        calibration: the model's blocks (``L_so``... as (3, n) for a dipole model) and
+        ``source_fixture``/... as (6,)."""
         v = np.asarray(values, dtype=np.float64)
-        out = self.coil_arrays(v)
+        if self.is_dipole:
+            out = self.coil_arrays(v)
+        else:
+            out = self.template.split_params(v[self.slices["model"]])
         F = self.fixtures(v)
         out.update(source_fixture=F[0], stage_fixture=F[1], sensor_fixture=F[2])
         return out
@@ -188,11 +198,10 @@ class ParameterLayout:
 
     def label(self, i: int) -> str:
         """Human-readable name of full-vector entry ``i``, e.g. ``M_so[1, 0]`` or ``F_st[3]``."""
-        for name in FIELD_NAMES:
+        if 0 <= i < self.slices["model"].stop:
+            return self.template.parameter_label(int(i))
+        for name in ("F_so", "F_st", "F_se"):
             s = self.slices[name]
             if s.start <= i < s.stop:
-                k = i - s.start
-                if name.startswith("F_"):
-                    return f"{name}[{k}]"
-                return f"{name}[{k % 3}, {k // 3}]"
+                return f"{name}[{i - s.start}]"
         raise InputError(f"expected an index below {self.size}, got {i}")

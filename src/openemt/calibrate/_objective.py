@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import InputError
-from ..field import coupling_jacobians
 from ..geometry import (
     adjoint,
     left_jacobian_so3,
@@ -100,7 +99,7 @@ class CalibrationProblem:
     def residuals_and_jacobian(self, x) -> tuple[np.ndarray, np.ndarray]:
         """Residuals ``(m,)`` and their Jacobian ``(m, layout.size)`` w.r.t. the full vector."""
         P, A, D, _ = self.poses(x)
-        jac = coupling_jacobians(self.layout.model(x, self.gain), P)
+        jac = self.layout.model(x, self.gain).jacobians(P)
         dC, _ = self.gradients(x, jac, P, A, D)
         r = (self.C_meas - jac.C) * self.weight[:, None, None]
         J = dC * -self.weight[:, None, None, None]
@@ -112,8 +111,8 @@ class CalibrationProblem:
         Parameters
         ----------
         x : ndarray, shape (layout.size,)
-        jac : CouplingJacobians
-            Coupling derivatives at the poses ``P``.
+        jac : openemt.field.ModelJacobians
+            Coupling derivatives at the poses ``P`` (the model's ``jacobians``).
         P, A, D : ndarray, shape (N, 4, 4)
             Poses and the partial products of :meth:`poses`.
 
@@ -129,18 +128,7 @@ class CalibrationProblem:
         lay = self.layout
         n, ns, ne = jac.C.shape
         J = np.zeros((n, ns, ne, lay.size))
-        # model parameters: C[i, j] depends on source coil i and sensor coil j only
-        for name, d, by_source in (("L_so", jac.d_L_so, True), ("M_so", jac.d_M_so, True),
-                                   ("L_se", jac.d_L_se, False), ("M_se", jac.d_M_se, False)):
-            s = lay.slices[name]
-            blk = J[..., s].reshape(n, ns, ne, -1, 3)
-            if by_source:
-                for i in range(ns):
-                    blk[:, i, :, i, :] = d[:, i, :, :]
-            else:
-                for j in range(ne):
-                    blk[:, :, j, j, :] = d[:, :, j, :]
-            J[..., s] = blk.reshape(n, ns, ne, -1)
+        J[..., lay.slices["model"]] = jac.d_params
         H = pose_twist_gradient(jac.d_translation, jac.d_rotation, P)
         F_so_v, F_st_v, F_se_v = lay.fixtures(x)
         J[..., lay.slices["F_so"]] = H @ fixture_twist_map(F_so_v)

@@ -399,7 +399,7 @@ def _cross_cols(v):
 def _board_jacobian(model, P, U, fit_tilt):
     """Model couplings (N, n) and the Jacobian (N, n, k) by each coil's own parameters:
     gain, offset (3) and, with ``fit_tilt``, the tilt about the coil's local x and y."""
-    C, dp, du = model.coupling(P, U, gradient=True)
+    C, dp, du = model.coupling_points(P, U, gradient=True)
     n = model.n_coils
     k = 6 if fit_tilt else 4
     J = np.zeros((len(P), n, k))
@@ -443,7 +443,7 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
         raise TypeError(f"expected GridData, got {type(data).__name__}")
     if not isinstance(model, PlanarModel):
         model = PlanarModel.from_board(load_board(model))   # a Board, built-in name or file
-        f0 = model.coupling(data.points, data.axes)
+        f0 = model.coupling_points(data.points, data.axes)
         if data.couplings.shape[1] == model.n_coils:
             g0 = np.sum(f0 * data.couplings, 0) / np.sum(f0 * f0, 0)
             model = model.replace(gains=np.where(g0 != 0, g0, 1.0))
@@ -634,7 +634,7 @@ def planar_errors(model, data: GridData, *, result=None, **solve_options) -> Pla
     ang = np.full(len(ok), np.nan)
     cosang = np.clip(np.einsum("ij,ij->i", res.poses[ok, :3, 2], data.axes[ok]), -1.0, 1.0)
     ang[ok] = np.degrees(np.arccos(cosang))
-    resid = data.couplings - model.coupling(data.points, data.axes)
+    resid = data.couplings - model.coupling_points(data.points, data.axes)
     return PlanarErrors(res, ok, ev, np.linalg.norm(ev, axis=1), ang, resid, data.couplings)
 
 

@@ -100,8 +100,7 @@ def _planar(args) -> int:
         planar_accuracy,
         read_grid,
     )
-    from ..io import load_board, read_calibration
-    from ..io._board_calfile import BoardCalibration, write_board_calibration
+    from ..io import Calibration, atomic_path, load_board, read_calibration, write_calibration
 
     if args.holdout not in (None, "checkerboard"):
         raise InputError(f"expected --holdout checkerboard in planar mode, got "
@@ -111,9 +110,9 @@ def _planar(args) -> int:
     check_grid_units(data, args.sensor_length)
     if args.start is not None:
         start = read_calibration(args.start)
-        if start.kind != "finite":
+        if not isinstance(start.model, PlanarModel):
             raise InputError(f"expected a finite-coil (planar) calibration for --from in planar "
-                             f"mode, got a {getattr(start, 'mode', 'dipole')!r} calibration")
+                             f"mode, got a {start.model.kind!r} model calibration")
         if args.board is not None:
             raise InputError("expected either --from CAL or --board BOARD in planar mode, "
                              "got both")
@@ -160,13 +159,16 @@ def _planar(args) -> int:
                                          "condition", "coil_residual_percent", "insample")}
         if "holdout" in summary:
             stats["holdout"] = summary["holdout"]
-        cal = BoardCalibration(
-            fit.model, "planar",
-            {"gains": fit.gains_se, "offsets": fit.offsets_se, "tilts": fit.tilts_se}, stats,
-            {"grid_file": str(args.dataset), "start_file": args.start,
-             "board": args.board or (None if args.start else "anser"),
-             "fit_tilt": bool(args.tilt), "holdout": args.holdout})
-        write_board_calibration(cal, args.output)
+        cal = Calibration(
+            fit.model, mode="planar",
+            standard_errors={"gains": fit.gains_se, "offsets": fit.offsets_se,
+                             "tilts": fit.tilts_se},
+            stats=stats,
+            provenance={"grid_file": str(args.dataset), "start_file": args.start,
+                        "board": args.board or (None if args.start else "anser"),
+                        "fit_tilt": bool(args.tilt), "holdout": args.holdout})
+        with atomic_path(args.output) as tmp:
+            write_calibration(cal, tmp)
     ins = summary["insample"]
     human = [(f"planar: {len(fit.model.gains)} coils, fit {fit.status} in {fit.iterations} "
               f"iterations, max |offset| {np.abs(fit.model.offsets).max() * 1e3:.3f} mm, "
@@ -294,6 +296,7 @@ def run(args) -> int:
 def _run(args) -> int:
     from ..calibrate import fit, fit_output_correction, get_mode, select_rows
     from ..calibrate._fit import check_fit_inputs
+    from ..field import DipoleModel
     from ..io import atomic_path, read_calibration, write_calibration
 
     if args.mode == "planar":
@@ -310,7 +313,7 @@ def _run(args) -> int:
                              "folder), got none")
         start_path = cand
     start = read_calibration(start_path)
-    if start.kind == "finite":   # a board: only the planar mode fits it
+    if not isinstance(start.model, DipoleModel):   # the rig's modes name dipole groups
         raise InputError(f"expected a dipole-model calibration for --from in mode "
                          f"{args.mode}, got a finite-coil board calibration (--mode planar)")
     if args.mode == "improved":

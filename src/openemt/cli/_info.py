@@ -58,17 +58,12 @@ def dataset_info(ds) -> dict:
 
 
 def calibration_info(cal) -> dict:
-    """JSON-able summary of a Calibration."""
-    if cal.kind == "finite":          # a board calibration
-        return cal.info()
-    m = cal.model
+    """JSON-able summary of a Calibration of any model (the model's own part from its
+    ``describe()``)."""
     return {
         "kind": "calibration",
         "mode": cal.mode,
-        "n_source": m.n_source,
-        "n_sensor": m.n_sensor,
-        "concentric": bool(m.is_concentric),
-        "gain": m.gain,
+        **cal.model.describe(),
         "source_fixture": cal.source_fixture,
         "stage_fixture": cal.stage_fixture,
         "sensor_fixture": cal.sensor_fixture,
@@ -77,8 +72,6 @@ def calibration_info(cal) -> dict:
         "frozen": list(cal.frozen),
         "standard_errors": sorted(cal.standard_errors),
         "stats": cal.stats,
-        "source_gains": np.linalg.norm(m.M_so, axis=0),
-        "sensor_gains": np.linalg.norm(m.M_se, axis=0),
     }
 
 

@@ -56,21 +56,21 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from ..field import DipoleModel
+    from ..io import read_calibration
+    from ._solve_planar import solve_board
 
-    from ._solve_planar import read_board_calibration, solve_board
-    board = read_board_calibration(args.calibration)
-    if board is not None:  # a finite-coil board: the 5-DOF solver (docs/planar.md#solving)
-        return solve_board(args, board)
-
+    cal = read_calibration(args.calibration)
+    if not isinstance(cal.model, DipoleModel):   # no dipole batch kernel: docs/planar.md#solving
+        return solve_board(args, cal)
 
     from .._compile_notice import announce_compile
-    from ..io import open_dataset_couplings, read_calibration
+    from ..io import open_dataset_couplings
     from ..io._h5safe import open_h5
     from ..solve import solve_chunks
     from ..solve._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
     from ._common import emit, write_solved
 
-    cal = read_calibration(args.calibration)
     options = {"max_relative_residual": args.max_relative_residual,
                "max_range": args.max_range}
     spec = args.hemisphere.strip().lower()

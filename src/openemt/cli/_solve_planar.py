@@ -1,7 +1,9 @@
-"""``openemt solve`` with a finite-coil (board) calibration: the 5-DOF planar solver, block by
-block (warm-started tracking; the first sample of a block and any sample after a failure start
-cold from the seed grid). The sensor is on the board's front side (its coils' normal);
-``--hemisphere`` and ``--initial`` do not apply. See docs/planar.md#solving."""
+"""``openemt solve`` with a calibration of a model other than the dipole model (a finite-coil
+board, read by a 5-DOF or a 6-DOF sensor): the solver of :func:`openemt.solve.prepare`, block by
+block (warm-started tracking; the first sample and any sample after a failure start cold: from
+the seed grid, or coil by coil for a multi-coil sensor). The sensor is on the board's front
+side (its coils' normal); ``--hemisphere`` and ``--initial`` do not apply. See
+docs/planar.md#solving."""
 
 from __future__ import annotations
 
@@ -9,24 +11,7 @@ import time
 
 from .._errors import InputError
 
-__all__ = ["read_board_calibration", "solve_board"]
-
-
-def read_board_calibration(path):
-    """The finite-coil calibration in ``path``, or None for any other calibration file."""
-    from pathlib import Path
-
-    from ..io._board_calfile import board_calibration_from_dict, is_board_calibration
-    from ..io._jsontext import load_json_file
-
-    path = Path(path)
-    if path.suffix.lower() == ".mat" or not path.is_file():
-        return None
-    try:
-        doc = load_json_file(path, "an openemt calibration JSON file")
-    except ValueError:
-        return None                 # not JSON: the dipole reader reports it
-    return board_calibration_from_dict(doc, path.name) if is_board_calibration(doc) else None
+__all__ = ["solve_board"]
 
 
 def solve_board(args, cal) -> int:
@@ -54,11 +39,13 @@ def solve_board(args, cal) -> int:
     with open_dataset_couplings(args.dataset, real=True) as reader, \
             open_h5(args.dataset, "an openemt dataset HDF5 file") as side:
         n = reader.shape[0]
-        if reader.shape[1:] != (model.n_coils, 1):
-            raise InputError(f"expected couplings of shape (N, {model.n_coils}, 1) for this "
-                             f"board calibration, got {reader.shape}")
+        shape = (model.n_source, model.n_sensor)
+        if reader.shape[1:] != shape:
+            raise InputError(f"expected couplings of shape (N, {shape[0]}, {shape[1]}) for "
+                             f"this {model.kind!r} calibration, got {reader.shape}")
         meta = {"dataset": str(args.dataset), "calibration": str(args.calibration),
-                "model": "finite", "board": model.board.name, "correction_applied": False}
+                "model": model.kind, "dof": model.dof, "correction_applied": False,
+                **({"board": model.board.name} if hasattr(model, "board") else {})}
         truth = _TruthScore(side.get("poses"), model, n, args.dataset)
         announce_compile(args, "finite-coil kernels", kernels=PLANAR_KERNELS)
 
@@ -69,22 +56,26 @@ def solve_board(args, cal) -> int:
                 truth.add(start, C, res)
                 yield start, res
 
-        writer = write_solved(args, n, "planar-lm", meta, chunks())
+        name = "planar-lm" if model.dof == 5 else f"{model.kind}-lm"
+        writer = write_solved(args, n, name, meta, chunks())
     elapsed = time.perf_counter() - t0
     counts = writer.status_counts()
     summary = {"dataset": str(args.dataset), "calibration": str(args.calibration),
-               "output": str(args.output), "solver": "planar-lm", "model": "finite",
-               "n_samples": n, "status_counts": counts, "correction_applied": False,
-               "elapsed_s": elapsed, "poses_per_s": n / elapsed if elapsed > 0 else None}
-    human = [(f"solved {n} samples with the 5-DOF finite-coil solver in {elapsed:.2f} s -> "
-              f"{args.output}"),
+               "output": str(args.output), "solver": name, "model": model.kind,
+               "dof": model.dof, "n_samples": n, "status_counts": counts,
+               "correction_applied": False, "elapsed_s": elapsed,
+               "poses_per_s": n / elapsed if elapsed > 0 else None}
+    human = [(f"solved {n} samples with the {model.dof}-DOF {model.kind} solver in "
+              f"{elapsed:.2f} s -> {args.output}"),
              "status: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v)]
     acc = truth.summary()
     if acc is not None:
         summary["accuracy"] = acc
+        rot = ("axis", acc["axis_rms_deg"]) if "axis_rms_deg" in acc else \
+            ("rotation", acc["rot_rms_deg"])
         human.append(f"accuracy against the dataset's poses: {acc['position_rms_mm']:.4f} mm "
-                     f"RMS, {acc['position_max_mm']:.4f} mm max, {acc['axis_rms_deg']:.4f} deg "
-                     f"axis RMS over {acc['n']} converged samples")
+                     f"RMS, {acc['position_max_mm']:.4f} mm max, {rot[1]:.4f} deg "
+                     f"{rot[0]} RMS over {acc['n']} converged samples")
     emit(args, summary, human)
     return 0
 
@@ -115,11 +106,15 @@ class _TruthScore:
         from ..calibrate._planar import GridData, planar_errors
 
         P = np.asarray(self.poses[start:start + len(res)], dtype=np.float64)
-        C = np.asarray(C, dtype=np.float64).reshape(len(res), -1)
+        C = np.asarray(C, dtype=np.float64)
         if not (np.all(np.isfinite(P)) and np.all(np.isfinite(C))):
             self.poses, self.parts = None, []     # rows without a truth: no accuracy block
             return
-        self.parts.append(planar_errors(self.model, GridData(P[:, :3, 3], P[:, :3, 2], C),
+        if self.model.dof == 6:                   # full poses: position and rotation error
+            self.parts.append((res, P))
+            return
+        self.parts.append(planar_errors(self.model, GridData(P[:, :3, 3], P[:, :3, 2],
+                                                             C.reshape(len(res), -1)),
                                         result=res))
 
     def summary(self) -> dict | None:
@@ -127,4 +122,18 @@ class _TruthScore:
             return None
         from ..calibrate._planar import PlanarErrors
 
+        if self.model.dof == 6:
+            import numpy as np
+
+            from ..evaluate import error_summary, pose_error_magnitudes
+            from ..solve import SolveResult
+
+            res = SolveResult.concatenate([r for r, _ in self.parts])
+            ok = res.valid
+            t, r = pose_error_magnitudes(res.poses[ok], np.concatenate(
+                [P for _, P in self.parts])[ok])
+            s = error_summary(t, r)
+            return {"n": int(ok.sum()), "n_failed": int((~ok).sum()),
+                    "position_rms_mm": s["trans_rms_mm"], "position_max_mm": s["trans_max_mm"],
+                    "rot_rms_deg": s["rot_rms_deg"], "rot_max_deg": s["rot_max_deg"]}
         return PlanarErrors.concatenate(self.parts).summary()

@@ -1,4 +1,4 @@
-"""Coupling models: the dipole model with analytic Jacobians, axial octupole terms of finite
+"""Coupling models behind one interface (:class:`CouplingModel`): the dipole model with analytic Jacobians, axial octupole terms of finite
 coils, and finite-size coils on magpylib."""
 
 from ._coils import (
@@ -22,6 +22,7 @@ from ._dipole import (
 )
 from ._finite import FiniteCoilModel
 from ._octupole import OctupoleModel, octupole_coupling
+from ._protocol import CouplingModel, ModelJacobians, check_coupling_model, numeric_jacobians
 
 __all__ = [
     "ANSER_COIL_CENTERS",
@@ -30,15 +31,19 @@ __all__ = [
     "ILEMT_GAIN",
     "Coil",
     "CouplingJacobians",
+    "CouplingModel",
     "DipoleModel",
     "FiniteCoilModel",
+    "ModelJacobians",
     "OctupoleModel",
     "anser_field_generator",
+    "check_coupling_model",
     "circular_coil",
     "coil_fields",
     "coupling",
     "coupling_jacobian_pose",
     "coupling_jacobians",
+    "numeric_jacobians",
     "octupole_coupling",
     "square_coil",
     "square_spiral_coil",

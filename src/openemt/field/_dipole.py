@@ -9,6 +9,7 @@ convention: it stands in for mu0/(4 pi) so that fitted source and sensor gains s
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -106,6 +107,143 @@ class DipoleModel:
     def coupling(self, poses) -> np.ndarray:
         """Couplings for poses ``(N, 4, 4)`` -> ``(N, n_source, n_sensor)``; see :func:`coupling`."""
         return coupling(self, poses)
+
+    # -- the coupling-model interface (openemt.field.CouplingModel) ------------------------
+    @property
+    def dof(self) -> int:
+        """6 with two or more sensor coils of non-parallel moments, else 5 (no roll)."""
+        if self.n_sensor < 2:
+            return 5
+        return 6 if np.linalg.matrix_rank(self.M_se, tol=1e-9 * np.abs(self.M_se).max()) >= 2 \
+            else 5
+
+    @property
+    def params(self) -> np.ndarray:
+        """``[L_so | M_so | L_se | M_se]``, coil by coil (3 numbers per coil)."""
+        return np.concatenate([np.asarray(getattr(self, n)).T.ravel() for n in _PARAM_BLOCKS])
+
+    def param_slices(self) -> dict:
+        """Slice of each block (``L_so``, ``M_so``, ``L_se``, ``M_se``) in :attr:`params`."""
+        return _param_layout(self.n_source, self.n_sensor)[0]
+
+    @property
+    def parameter_groups(self) -> dict:
+        """The paper's named groups (docs/paper-procedure.md#parameter-groups) as indices into
+        :attr:`params`."""
+        return _param_layout(self.n_source, self.n_sensor)[1]
+
+    @property
+    def gauge(self) -> np.ndarray:
+        """The reference (last) coil of each side at its origin with its moment along +z
+        (docs/paper-procedure.md#gauge)."""
+        return _param_layout(self.n_source, self.n_sensor)[2]
+
+    @property
+    def fit_groups(self) -> tuple:
+        return ("d_so_pos", "d_so_mo", "d_se_pos", "d_se_mo")
+
+    def with_params(self, x) -> DipoleModel:
+        x = np.asarray(x, dtype=np.float64)
+        sl = self.param_slices()
+        n = {"L_so": self.n_source, "M_so": self.n_source, "L_se": self.n_sensor,
+             "M_se": self.n_sensor}
+        return DipoleModel(gain=self.gain, **{k: x[sl[k]].reshape(n[k], 3).T for k in sl})
+
+    def split_params(self, x) -> dict:
+        """A parameter-length vector (e.g. standard errors) -> ``{'L_so': (3, n_so), ...}``."""
+        x = np.asarray(x, dtype=np.float64)
+        return {k: np.ascontiguousarray(x[s].reshape(-1, 3).T)
+                for k, s in self.param_slices().items()}
+
+    def parameter_label(self, i: int) -> str:
+        for name, s in self.param_slices().items():
+            if s.start <= i < s.stop:
+                k = i - s.start
+                return f"{name}[{k % 3}, {k // 3}]"
+        raise InputError(f"expected a parameter index below {self.params.size}, got {i}")
+
+    def jacobians(self, poses, params: bool = True):
+        """:class:`~openemt.field.ModelJacobians` (pose and, unless ``params`` is False,
+        parameter derivatives)."""
+        from ._protocol import ModelJacobians
+
+        jac = coupling_jacobians(self, poses)
+        return ModelJacobians(jac.C, jac.d_translation, jac.d_rotation,
+                              param_jacobian(self, jac) if params else None)
+
+    def packed(self):
+        """The arrays of the compiled dipole kernel."""
+        return pack_model(self)
+
+    def describe(self) -> dict:
+        """JSON-able summary for ``openemt info``."""
+        return {"model_kind": self.kind, "n_source": self.n_source, "n_sensor": self.n_sensor,
+                "dof": self.dof, "concentric": bool(self.is_concentric), "gain": self.gain,
+                "source_gains": np.linalg.norm(self.M_so, axis=0),
+                "sensor_gains": np.linalg.norm(self.M_se, axis=0)}
+
+
+_PARAM_BLOCKS = ("L_so", "M_so", "L_se", "M_se")
+
+
+@functools.cache
+def _param_layout(ns: int, ne: int):
+    """Slices, named groups and gauge of the dipole parameter vector of ``ns`` x ``ne`` coils.
+
+    * the **reference coil** of each side is its last coil (the Z coil of a tri-axial set): its
+      position is held at the frame origin and its moment along +z, ``[0, 0, k]``;
+    * the **y component of coil 0's moment** (``M[1, 0]``) is its own group
+      (``d_so_y_co``/``d_se_y_co``), which fixes the rotation of the frame about z;
+    * ``d_so_z_gain`` (the source reference gain) is a group of its own because a common scale
+      of source and sensor moments is not observable (calibration modes hold it).
+    """
+    sizes = {"L_so": 3 * ns, "M_so": 3 * ns, "L_se": 3 * ne, "M_se": 3 * ne}
+    slices, start = {}, 0
+    for name in _PARAM_BLOCKS:
+        slices[name] = slice(start, start + sizes[name])
+        start += sizes[name]
+
+    def idx(name, coil, comp=None):
+        s = slices[name]
+        comps = np.arange(3) if comp is None else np.atleast_1d(comp)
+        return np.array([s.start + 3 * i + a for i in np.atleast_1d(coil) for a in comps],
+                        dtype=np.int64)
+
+    g, gauge = {}, []
+    for side, n in (("so", ns), ("se", ne)):
+        L, M = f"L_{side}", f"M_{side}"
+        ref, others = n - 1, np.arange(n - 1)
+        g[f"d_{side}_pos"] = idx(L, others)
+        g[f"d_{side}_z_gain"] = idx(M, ref, 2)
+        g[f"d_{side}_mo"] = np.concatenate([idx(M, others), g[f"d_{side}_z_gain"]])
+        g[f"d_{side}_y_co"] = idx(M, 0, 1) if n > 1 else np.zeros(0, dtype=np.int64)
+        gauge += [idx(L, ref), idx(M, ref, [0, 1])]
+    for v in g.values():
+        v.setflags(write=False)
+    gauge_arr = np.unique(np.concatenate(gauge))
+    gauge_arr.setflags(write=False)
+    return slices, g, gauge_arr
+
+
+def param_jacobian(model: DipoleModel, jac) -> np.ndarray:
+    """``(N, n_so, n_se, n_params)`` derivative of the couplings with respect to ``params``
+    from :func:`coupling_jacobians`'s per-coil gradients (C[i, j] depends on source coil i and
+    sensor coil j only)."""
+    n, ns, ne = jac.C.shape
+    sl = model.param_slices()
+    J = np.zeros((n, ns, ne, sl["M_se"].stop))
+    for name, d, by_source in (("L_so", jac.d_L_so, True), ("M_so", jac.d_M_so, True),
+                               ("L_se", jac.d_L_se, False), ("M_se", jac.d_M_se, False)):
+        s = sl[name]
+        blk = J[..., s].reshape(n, ns, ne, -1, 3)
+        if by_source:
+            for i in range(ns):
+                blk[:, i, :, i, :] = d[:, i, :, :]
+        else:
+            for j in range(ne):
+                blk[:, :, j, j, :] = d[:, :, j, :]
+        J[..., s] = blk.reshape(n, ns, ne, -1)
+    return J
 
 
 @dataclass(frozen=True, eq=False)

@@ -123,6 +123,7 @@ class OctupoleModel:
     dipole: DipoleModel
     k_so: np.ndarray
     k_se: np.ndarray
+    kind = "octupole"
 
     def __post_init__(self):
         for name, n in (("k_so", self.dipole.n_source), ("k_se", self.dipole.n_sensor)):
@@ -145,7 +146,7 @@ class OctupoleModel:
         C3, _ = octupole_coupling(self.dipole, self.k_so, self.k_se, P[:, :3, :3], P[:, :3, 3])
         return self.dipole.coupling(P) + C3
 
-    def jacobians(self, poses) -> tuple[CouplingJacobians, np.ndarray, np.ndarray]:
+    def split_jacobians(self, poses) -> tuple[CouplingJacobians, np.ndarray, np.ndarray]:
         """Coupling derivatives of the sum (as :func:`~openemt.field.coupling_jacobians`) and the
         derivatives with respect to ``k_so`` and ``k_se`` (each ``(N, n_so, n_se)``, the
         coupling of unit strength of the coil concerned)."""
@@ -156,3 +157,76 @@ class OctupoleModel:
         fields = {k: getattr(jd, k) + g[k] for k in ("C", "d_translation", "d_rotation",
                                                      "d_L_so", "d_M_so", "d_L_se", "d_M_se")}
         return CouplingJacobians(**fields), g["d_k_so"], g["d_k_se"]
+
+    # -- the coupling-model interface (openemt.field.CouplingModel) ------------------------
+    @property
+    def gain(self) -> float:
+        return self.dipole.gain
+
+    @property
+    def dof(self) -> int:
+        return self.dipole.dof
+
+    @property
+    def params(self) -> np.ndarray:
+        """The dipole's parameters, then ``k_so`` and ``k_se``."""
+        return np.concatenate([self.dipole.params, self.k_so, self.k_se])
+
+    def _k_slices(self):
+        p = self.dipole.params.size
+        return slice(p, p + self.n_source), slice(p + self.n_source,
+                                                  p + self.n_source + self.n_sensor)
+
+    @property
+    def parameter_groups(self) -> dict:
+        so, se = self._k_slices()
+        return {**self.dipole.parameter_groups, "k_so": np.arange(so.start, so.stop),
+                "k_se": np.arange(se.start, se.stop)}
+
+    @property
+    def gauge(self) -> np.ndarray:
+        return self.dipole.gauge
+
+    @property
+    def fit_groups(self) -> tuple:
+        return self.dipole.fit_groups + ("k_so", "k_se")
+
+    def with_params(self, x) -> OctupoleModel:
+        x = np.asarray(x, dtype=np.float64)
+        so, se = self._k_slices()
+        return OctupoleModel(self.dipole.with_params(x[:so.start]), x[so], x[se])
+
+    def split_params(self, x) -> dict:
+        so, se = self._k_slices()
+        x = np.asarray(x, dtype=np.float64)
+        return {**self.dipole.split_params(x[:so.start]), "k_so": x[so], "k_se": x[se]}
+
+    def parameter_label(self, i: int) -> str:
+        so, se = self._k_slices()
+        if i < so.start:
+            return self.dipole.parameter_label(i)
+        return f"k_so[{i - so.start}]" if i < so.stop else f"k_se[{i - se.start}]"
+
+    def jacobians(self, poses, params: bool = True):
+        """:class:`~openemt.field.ModelJacobians` of the sum."""
+        from ._dipole import param_jacobian
+        from ._protocol import ModelJacobians
+
+        jac, dks, dke = self.split_jacobians(poses)
+        if not params:
+            return ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, None)
+        d = np.concatenate([param_jacobian(self.dipole, jac), np.zeros(jac.C.shape + (
+            self.n_source + self.n_sensor,))], axis=-1)
+        so, se = self._k_slices()
+        for i in range(self.n_source):
+            d[:, i, :, so.start + i] = dks[:, i, :]
+        for j in range(self.n_sensor):
+            d[:, :, j, se.start + j] = dke[:, :, j]
+        return ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, d)
+
+    def packed(self):
+        return self.dipole.packed(), self.k_so, self.k_se
+
+    def describe(self) -> dict:
+        return {**self.dipole.describe(), "model_kind": self.kind, "k_so": self.k_so,
+                "k_se": self.k_se}

@@ -21,6 +21,7 @@ from ._calibration import (
     check_correction_matrix,
     check_model_moments,
 )
+from ._board_calfile import BOARD_UNITS, board_model_block, board_model_from_block
 from ._jsontext import free_to_json as _free_to_json
 from ._jsontext import load_json_file
 
@@ -37,6 +38,11 @@ CALIBRATION_SCHEMA_VERSION = 1
 #: most source or sensor coils of a dipole calibration (docs/robustness.md, "Bounded work")
 MAX_CALIBRATION_COILS = 64
 
+_UNITS_COMMON = {
+    "fixtures": "pose vector [x, y, z, rx, ry, rz]: m and rotation vector in rad",
+    "linear_correction": "homogeneous 4x4 acting on positions [x, y, z, 1] in m",
+    "stats": "SI (m, rad) unless the key says otherwise",
+}
 _UNITS = {
     "model.L_so": "m", "model.L_se": "m",
     "model.M_so": "gain units (coil moment relative to model.gain)",
@@ -56,27 +62,34 @@ def _arr_to_json(a) -> list | float | None:
 
 
 
+def _dipole_block(m) -> dict:
+    return {
+        "kind": "dipole",
+        "n_source": m.n_source,
+        "n_sensor": m.n_sensor,
+        "gain": m.gain,
+        "L_so": _arr_to_json(m.L_so),
+        "M_so": _arr_to_json(m.M_so),
+        "L_se": _arr_to_json(m.L_se),
+        "M_se": _arr_to_json(m.M_se),
+    }
+
+
 def calibration_to_dict(cal: Calibration) -> dict:
     """The JSON document of a calibration (plain dicts/lists, see docs/calibration-format.md)."""
     if not isinstance(cal, Calibration):
         raise TypeError(f"expected a Calibration, got {type(cal).__name__}")
-    m = cal.model
+    kind = cal.model.kind
+    if kind not in MODEL_CODECS:
+        raise InputError(f"expected a calibration of a model kind in {sorted(MODEL_CODECS)}, "
+                         f"got {kind!r}")
     return {
         "schema": CALIBRATION_SCHEMA,
         "schema_version": CALIBRATION_SCHEMA_VERSION,
         "written_by": f"openemt {__version__}",
-        "units": dict(_UNITS),
+        "units": dict(MODEL_CODECS[kind][2]),
         "mode": cal.mode,
-        "model": {
-            "kind": "dipole",
-            "n_source": m.n_source,
-            "n_sensor": m.n_sensor,
-            "gain": m.gain,
-            "L_so": _arr_to_json(m.L_so),
-            "M_so": _arr_to_json(m.M_so),
-            "L_se": _arr_to_json(m.L_se),
-            "M_se": _arr_to_json(m.M_se),
-        },
+        "model": MODEL_CODECS[kind][0](cal.model),
         "fixtures": {
             "source": _arr_to_json(cal.source_fixture),
             "stage": _arr_to_json(cal.stage_fixture),
@@ -156,26 +169,13 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
                          f"got {version!r}")
     model = _get(doc, "model", src, dict)
     kind = model.get("kind", "dipole")
-    if kind != "dipole":
-        raise InputError(f"{_where(src)}expected `model.kind` 'dipole', got {kind!r}")
-    gain = _get(model, "gain", src, (int, float), "model.gain")
-    arrays = {}
-    for key, rows in (("L_so", 3), ("M_so", 3), ("L_se", 3), ("M_se", 3)):
-        arrays[key] = _array(_get(model, key, src, list, f"model.{key}"), f"model.{key}",
-                             (rows, None), src)
-        if arrays[key].shape[1] > MAX_CALIBRATION_COILS:
-            raise InputError(f"{_where(src)}expected `model.{key}` with at most "
-                             f"{MAX_CALIBRATION_COILS} columns (coils), got "
-                             f"{arrays[key].shape[1]}")
-    for key, n_key, coil_key in (("n_source", "n_source", "L_so"), ("n_sensor", "n_sensor", "L_se")):
-        if n_key in model and model[n_key] != arrays[coil_key].shape[1]:
-            raise InputError(f"{_where(src)}expected `model.{n_key}` = {arrays[coil_key].shape[1]} "
-                             f"(columns of model.{coil_key}), got {model[n_key]!r}")
-    try:
-        dm = DipoleModel(gain=float(gain), **arrays)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{_where(src)}{exc}") from None
-    check_model_moments(dm, _where(src))
+    if kind not in MODEL_CODECS:
+        raise InputError(f"{_where(src)}expected `model.kind` in {sorted(MODEL_CODECS)}, got "
+                         f"{kind!r}")
+    dm = MODEL_CODECS[kind][1](model, src)
+    arrays = dm.split_params(dm.params)
+    if kind != "dipole" and "fixtures" not in doc:
+        doc = {**doc, "fixtures": {k: [0.0] * 6 for k in ("source", "stage", "sensor")}}
     fix = _get(doc, "fixtures", src, dict)
     fixtures = {f"{k}_fixture": _array(_get(fix, k, src, list, f"fixtures.{k}"), f"fixtures.{k}",
                                        (6,), src)
@@ -194,7 +194,7 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
         ref = arrays.get(k)
         if ref is not None and v.shape != ref.shape:
             raise InputError(f"{_where(src)}expected `standard_errors.{k}` of shape "
-                             f"{ref.shape} (as model.{k}), got shape {v.shape}")
+                             f"{np.shape(ref)} (as model.{k}), got shape {v.shape}")
     for name in ("free", "frozen"):
         v = doc.get(name) or []
         if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
@@ -213,6 +213,42 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
                        standard_errors=std, stats=dict(doc.get("stats") or {}),
                        provenance=dict(doc.get("provenance") or {}),
                        extra=dict(doc.get("extra") or {}), **fixtures)
+
+
+def _dipole_from_block(model: dict, src: str) -> DipoleModel:
+    gain = _get(model, "gain", src, (int, float), "model.gain")
+    arrays = {}
+    for key, rows in (("L_so", 3), ("M_so", 3), ("L_se", 3), ("M_se", 3)):
+        arrays[key] = _array(_get(model, key, src, list, f"model.{key}"), f"model.{key}",
+                             (rows, None), src)
+        if arrays[key].shape[1] > MAX_CALIBRATION_COILS:
+            raise InputError(f"{_where(src)}expected `model.{key}` with at most "
+                             f"{MAX_CALIBRATION_COILS} columns (coils), got "
+                             f"{arrays[key].shape[1]}")
+    for n_key, coil_key in (("n_source", "L_so"), ("n_sensor", "L_se")):
+        if n_key in model and model[n_key] != arrays[coil_key].shape[1]:
+            raise InputError(f"{_where(src)}expected `model.{n_key}` = {arrays[coil_key].shape[1]} "
+                             f"(columns of model.{coil_key}), got {model[n_key]!r}")
+    try:
+        dm = DipoleModel(gain=float(gain), **arrays)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{_where(src)}{exc}") from None
+    check_model_moments(dm, _where(src))
+    return dm
+
+
+def _board_from_block(model: dict, src: str):
+    try:
+        return board_model_from_block(model, _where(src))
+    except (TypeError, AttributeError) as exc:
+        raise InputError(f"{_where(src)}expected a finite-coil model block, got {exc}") from None
+
+
+#: The one registry of model blocks: ``model.kind`` -> (encode, decode, units). Every other
+#: part of openemt works through the model interface (:class:`openemt.field.CouplingModel`).
+MODEL_CODECS = {"dipole": (_dipole_block, _dipole_from_block, _UNITS),
+                "finite": (board_model_block, _board_from_block,
+                           {**_UNITS_COMMON, **BOARD_UNITS})}
 
 
 # -- files -------------------------------------------------------------------------------------
@@ -272,7 +308,4 @@ def read_calibration(path) -> Calibration:
         raise FileNotFoundError(f"expected a calibration file (.json or ILEMT .mat), "
                                 f"got missing file {str(path)!r}")
     doc = load_json_file(path, "an openemt calibration JSON file")
-    from ._board_calfile import board_calibration_from_dict, is_board_calibration
-    if is_board_calibration(doc):  # finite-coil board model (docs/calibration-format.md)
-        return board_calibration_from_dict(doc, path.name)
     return calibration_from_dict(doc, path.name)

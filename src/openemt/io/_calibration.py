@@ -67,12 +67,15 @@ def _vec6(v, name):
 
 @dataclass(frozen=True, eq=False)
 class Calibration:
-    """A coupling model with the rig's fixture transforms and optional output correction.
+    """A coupling model with the rig's fixture transforms and optional output correction: the
+    one calibration type of every model (docs/calibration-format.md).
 
     Attributes
     ----------
-    model : DipoleModel
-        Source and sensor coil parameters (SI units, gain units for moments).
+    model : coupling model
+        Any :class:`openemt.field.CouplingModel`: a :class:`~openemt.field.DipoleModel` (source
+        and sensor coil parameters, SI units, gain units for moments), a finite-coil board
+        (:class:`openemt.board.PlanarModel`), ...
     source_fixture, stage_fixture, sensor_fixture : ndarray, shape (6,)
         F_so, F_st, F_se as pose vectors ``[x, y, z, rx, ry, rz]`` (m, rad); zeros if unknown.
     linear_correction : ndarray, shape (4, 4), optional
@@ -104,14 +107,11 @@ class Calibration:
     provenance: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
-    #: the model family, as in the file; ``"finite"`` for a board calibration
-    #: (:class:`openemt.io._board_calfile.BoardCalibration`, which has the same ``kind``,
-    #: ``n_source`` and ``n_sensor``)
-    kind = "dipole"
-
     def __post_init__(self):
         if not isinstance(self.model, DipoleModel):
-            raise TypeError(f"expected `model` to be a DipoleModel, got {type(self.model).__name__}")
+            from ..field import check_coupling_model
+
+            check_coupling_model(self.model)
         for name in ("source_fixture", "stage_fixture", "sensor_fixture"):
             object.__setattr__(self, name, _vec6(getattr(self, name), name))
         if self.linear_correction is not None:
@@ -119,6 +119,11 @@ class Calibration:
                                check_correction_matrix(self.linear_correction))
         object.__setattr__(self, "free", tuple(self.free))
         object.__setattr__(self, "frozen", tuple(self.frozen))
+
+    @property
+    def kind(self) -> str:
+        """The model family, as in the file's model block (``dipole``, ``finite``, ...)."""
+        return self.model.kind
 
     @property
     def n_source(self) -> int:
@@ -141,7 +146,7 @@ class Calibration:
         ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), else ``model`` itself."""
         rig = self.extra.get("rig") or {}
         k_so, k_se = rig.get("octupole_k_so"), rig.get("octupole_k_se")
-        if k_so is None and k_se is None:
+        if (k_so is None and k_se is None) or not isinstance(self.model, DipoleModel):
             return self.model
         return OctupoleModel(self.model,
                              np.zeros(self.model.n_source) if k_so is None else k_so,

@@ -21,7 +21,6 @@ from ..geometry import pose_from_vector
 __all__ = [
     "BOARD_FREQUENCIES",
     "BOARD_PEAK_VOLTS",
-    "BoardCoupling",
     "board_default_spec",
     "board_frequencies",
     "board_solver",
@@ -47,21 +46,6 @@ def board_frequencies(n: int) -> tuple:
 BOARD_FREQUENCIES = board_frequencies(8)
 #: Peak sensor voltage (V) the simulated board tracker's sensor gain is set for.
 BOARD_PEAK_VOLTS = 0.3
-
-
-class BoardCoupling:
-    """A board model (:class:`openemt.board.PlanarModel`) behind the coupling-model interface
-    of the raw-signal simulator: ``n_source`` (the coils), ``n_sensor = 1`` and
-    ``coupling(poses (N, 4, 4)) -> (N, n_coils, 1)`` with the sensor axis the poses' z axis."""
-
-    n_sensor = 1
-
-    def __init__(self, model):
-        self.model = model
-        self.n_source = model.n_coils
-
-    def coupling(self, poses) -> np.ndarray:
-        return self.model.coupling_poses(poses)
 
 
 def board_trajectory(t) -> np.ndarray:
@@ -90,7 +74,7 @@ def fit_sensor_gain(model, trajectory=board_trajectory, offsets=None,
     for d in off:
         Q = P.copy()
         Q[:, :3, 3] += d
-        big = max(big, float(np.abs(model.coupling_poses(Q)).max()))
+        big = max(big, float(np.abs(model.coupling(Q)).max()))
     if not big > 0:
         raise InputError("expected a board model with non-zero couplings along the simulated "
                          "path, got none")
@@ -132,7 +116,7 @@ def board_default_spec(calibration, device_name: str = "openemt", *, preset=None
         cal = read_calibration(calibration)
     except (ValueError, OSError):
         return None                       # the dipole path reports an unreadable file
-    if cal.kind != "finite":
+    if not hasattr(cal.model, "board"):
         return None
     if preset is not None:
         raise InputError(f"expected no --preset with a finite-coil board calibration (the "
@@ -151,15 +135,15 @@ def board_default_spec(calibration, device_name: str = "openemt", *, preset=None
 
 
 def board_truth(spec):
-    """The simulated truth of a board tracker: :class:`BoardCoupling` of its sensors' board
-    calibration (None for a dipole tracker). Every sensor must name a board calibration of the
+    """The simulated truth of a board tracker: its sensors' board model (a coupling model like
+    any other; None for a dipole tracker). Every sensor must name a board calibration of the
     same coil count, with one channel, and the tracker one carrier per coil."""
     cals = spec.calibrations()
-    boards = [c for c in cals if c is not None and c.kind == "finite"]
+    boards = [c for c in cals if c is not None and hasattr(c.model, "board")]
     if not boards:
         return None
     if len(boards) != len(cals):
         raise InputError(f"{spec._where()}: expected every sensor of a board tracker to name a "
                          f"finite-coil board calibration (the simulation's truth), got "
                          f"{len(boards)} of {len(cals)}")
-    return BoardCoupling(boards[0].model)
+    return boards[0].model

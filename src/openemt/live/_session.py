@@ -7,6 +7,7 @@ import numpy as np
 
 from .._constants import SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
+from ..field import DipoleModel
 from ._tracker_file import TrackerSpec
 
 __all__ = ["tracker_backend", "tracker_sensors"]
@@ -30,7 +31,9 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
     out = []
     boards: dict = {}
     for s, cols, cal in zip(spec.sensors, spec.sensor_columns(), cals):
-        if cal is not None and cal.kind == "finite":    # a board: the 5-DOF solver
+        if cal is not None and not isinstance(cal.model, DipoleModel):
+            # not a dipole model: the solver of openemt.solve.prepare for its model (the
+            # dipole path below adds the preset model, hemisphere and correction per sensor)
             from ._board import board_solver
 
             solver = boards.setdefault(id(cal), board_solver(cal.model))

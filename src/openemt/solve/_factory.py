@@ -184,16 +184,18 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
 
     Parameters
     ----------
-    calibration_or_model : Calibration, DipoleModel, board calibration or PlanarModel
-        A dipole :class:`~openemt.io.Calibration` (an improved one's octupole terms refine the
-        dipole solution, its ``linear_correction`` is applied to the positions, as
-        :func:`openemt.solve.solve` does), a :class:`~openemt.field.DipoleModel`, or a
-        finite-coil board calibration / :class:`~openemt.board.PlanarModel` (the 5-DOF board
-        solver).
+    calibration_or_model : Calibration or coupling model
+        A :class:`~openemt.io.Calibration` of any model (an improved one's octupole terms
+        refine the dipole solution, its ``linear_correction`` is applied to the positions, as
+        :func:`openemt.solve.solve` does) or a coupling model
+        (:class:`openemt.field.CouplingModel`). The dipole model and the 5-DOF board have
+        compiled solvers; any other model (a board read by a 6-DOF sensor of two coils, ...)
+        is solved by :class:`~openemt.solve._model_lm.ModelSolver` from its interface.
     options : SolveOptions or dict, optional
         The options (default ``SolveOptions()``); ``overrides`` replace single fields.
     solver : {'lm', 'svd', 'kuipers', 'kim18'}
-        The closed forms need a concentric 3x3 model; a board has the LM solver only.
+        The closed forms need a concentric 3x3 dipole model; other models have the LM solver
+        only.
     apply_correction : bool
         Apply a calibration's linear output correction.
 
@@ -219,30 +221,36 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
     (6, array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
     """
     from ..board import PlanarModel
+    from ..field import check_coupling_model
     from ..io import Calibration
-    from ..io._board_calfile import BoardCalibration
 
     opts = SolveOptions.of(options, overrides)
     if solver not in SOLVERS:
         raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
-    obj = calibration_or_model
-    if isinstance(obj, BoardCalibration):
-        obj = obj.model
-    if isinstance(obj, PlanarModel):
-        if solver != "lm":
-            raise InputError(f"expected solver 'lm' for a finite-coil board, got {solver!r}")
-        return PlanarSolver(obj, opts)
-    if isinstance(obj, Calibration):
-        inner = _dipole(obj.model, solver, opts)
-        full = obj.coupling_model
-        corr = obj.linear_correction if apply_correction else None
-        if full is obj.model and corr is None:
-            return inner
-        return CalibrationSolver(inner, None if full is obj.model else full, corr)
-    if isinstance(obj, DipoleModel):
-        return _dipole(obj, solver, opts)
-    raise TypeError(f"expected a Calibration, a DipoleModel, a finite-coil board calibration "
-                    f"or a PlanarModel, got {type(obj).__name__}")
+    cal = calibration_or_model if isinstance(calibration_or_model, Calibration) else None
+    if cal is None and not isinstance(calibration_or_model, DipoleModel):
+        try:
+            check_coupling_model(calibration_or_model, "calibration_or_model")
+        except TypeError:
+            raise TypeError(f"expected a Calibration or a coupling model, got "
+                            f"{type(calibration_or_model).__name__}") from None
+    model = calibration_or_model if cal is None else cal.model
+    if isinstance(model, DipoleModel):
+        inner = _dipole(model, solver, opts)
+        full = model if cal is None else cal.coupling_model
+    elif solver != "lm":
+        raise InputError(f"expected solver 'lm' for a {model.kind!r} model (the closed forms "
+                         f"need a concentric 3x3 dipole model), got {solver!r}")
+    elif isinstance(model, PlanarModel) and model.n_sensor == 1:
+        inner, full = PlanarSolver(model, opts), model      # the compiled 5-DOF board solver
+    else:
+        from ._model_lm import ModelSolver
+
+        inner, full = ModelSolver(model, opts), model
+    corr = cal.linear_correction if cal is not None and apply_correction else None
+    if full is model and corr is None:
+        return inner
+    return CalibrationSolver(inner, None if full is model else full, corr)
 
 
 def _dipole(model, solver, opts):

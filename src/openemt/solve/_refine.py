@@ -15,8 +15,8 @@ __all__ = ["refine_poses", "refine_result"]
 
 def refine_poses(model, couplings, pose_vectors, *, iterations: int = 10,
                  damping: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-    """Refine pose vectors ``(N, 6)`` for a model with ``.jacobians(poses)`` and ``.coupling``
-    (:class:`openemt.field.OctupoleModel`) by batched Gauss-Newton.
+    """Refine pose vectors ``(N, 6)`` for any coupling model (:class:`openemt.field.CouplingModel`,
+    e.g. an :class:`~openemt.field.OctupoleModel`) by batched Gauss-Newton.
 
     Starts from (for example) the dipole-model solution, which differs from the octupole-model
     solution by a small amount, and returns the refined pose vectors and the ILEMT residual
@@ -34,7 +34,7 @@ def refine_poses(model, couplings, pose_vectors, *, iterations: int = 10,
     lam = damping
     for _ in range(iterations):
         P = pose_from_vector(v)
-        jac, _, _ = model.jacobians(P)
+        jac = model.jacobians(P, params=False)
         r = (Cd - jac.C).reshape(n, -1)
         J = jac.pose_vector(v[:, 3:]).reshape(n, -1, 6)
         JtJ = np.einsum("kma,kmb->kab", J, J)

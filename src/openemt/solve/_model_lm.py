@@ -1,0 +1,267 @@
+"""Levenberg-Marquardt pose solving for any coupling model (:class:`openemt.field.CouplingModel`).
+
+The dipole model and the 5-DOF board have compiled solvers of their own
+(:mod:`openemt.solve._lm`, :mod:`openemt.solve._planar`); every other model -- a board read by a
+multi-coil 6-DOF sensor, a model added later -- is solved here from the interface alone: the
+model's couplings and pose Jacobian, batched over samples with numpy, one damping factor per
+sample (Marquardt 1963 scaling). The residual is the coupling misfit divided by the measured
+norm, and every sample is judged by the one validity rule (:mod:`openemt.solve._validity`).
+
+Starts: given poses or pose vectors, ``'track'`` (blocks of samples start from the last
+converged pose of the previous block; a sample that fails from there is solved again cold) and
+``'cold'`` (every sample from the model's own cold start: :func:`sensor_coil_starts` for a
+board with a multi-coil sensor).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._errors import InputError
+from ..geometry import pose_from_vector, vector_from_pose
+from ._result import SolveResult, Status
+from ._validity import check_validity_options, classify
+
+__all__ = ["ModelSolver", "sensor_coil_starts"]
+
+#: Samples solved together from one start while tracking.
+TRACK_BLOCK = 32
+
+
+def _kabsch(body, measured) -> np.ndarray:
+    """Rotations ``(N, 3, 3)`` taking the body vectors ``(K, 3)`` closest to the measured
+    ones ``(N, K, 3)`` (orthogonal Procrustes)."""
+    H = np.einsum("nka,kb->nab", measured, body)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.zeros_like(H)
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    return U @ D @ Vt
+
+
+def sensor_coil_starts(model, couplings, options=None):
+    """Cold starts ``(N, 4, 4)`` for a board read by a sensor of several coils: each coil is
+    solved on its own by the 5-DOF board solver (position and axis), the rotation is the one
+    that best takes the sensor's coil axes (and their cross product) to the measured axes, and
+    the position the mean of the coil positions less their rotated offsets. Rows where a coil
+    fails are NaN."""
+    from ._planar import PreparedPlanar
+
+    C = np.asarray(couplings, dtype=np.float64)
+    n, ne = C.shape[0], model.n_sensor
+    kw = {} if options is None else options
+    p = np.empty((n, ne, 3))
+    u = np.empty((n, ne, 3))
+    ok = np.ones(n, bool)
+    for k in range(ne):
+        res = PreparedPlanar(model.sensor_coil_model(k), **kw).solve(C[:, :, k], "grid")
+        ok &= res.status == int(Status.CONVERGED)
+        p[:, k] = res.poses[:, :3, 3]
+        u[:, k] = res.poses[:, :3, 2]
+    A = model.board.sensor.coil_axes()
+    L = model.board.sensor.coil_positions()
+    body = np.vstack([A, np.cross(A[0], A[1]) / np.linalg.norm(np.cross(A[0], A[1]))])
+    x = np.cross(u[:, 0], u[:, 1])
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    R = _kabsch(body, np.concatenate([u, x[:, None]], axis=1))
+    t = (p - np.einsum("nab,kb->nka", R, L)).mean(axis=1)
+    P = np.tile(np.eye(4), (n, 1, 1))
+    P[:, :3, :3] = R
+    P[:, :3, 3] = t
+    P[~ok] = np.nan
+    return P
+
+
+class ModelSolver:
+    """Batched Levenberg-Marquardt for any coupling model (see the module docstring).
+
+    Parameters
+    ----------
+    model : coupling model
+    options : SolveOptions
+        ``max_iter`` (default 50), ``xtol`` (default 1e-10: the step in m / rad below which a
+        sample has converged), ``max_relative_residual``, ``max_range``, ``bounds`` (a position
+        box half-width, m), ``hemisphere`` (default: the board's front side, if the model is a
+        board of one coil normal) and ``initial`` (default ``'track'``).
+    """
+
+    serial = True
+
+    def __init__(self, model, options):
+        from ._hemisphere import hemisphere_vectors
+        from ._options import DEFAULT
+        from ._packing import pack_options
+
+        refused = options.changed(("retries", "retry_resnorm", "explore_above",
+                                   "concentric_model", "covariance", "fallback"))
+        if refused:
+            raise InputError(f"expected no {', '.join(refused)} with a {model.kind!r} model "
+                             f"(options of the dipole LM solver), got them set")
+        self.model = model
+        self.options = options
+        self.n_source, self.n_sensor, self.dof = model.n_source, model.n_sensor, model.dof
+        self.max_iter = 50 if options.max_iter is None else int(options.max_iter)
+        self.xtol = 1e-10 if options.xtol is None else float(options.xtol)
+        max_rel, max_rng = check_validity_options(options.max_relative_residual,
+                                                  options.max_range)
+        h = options.hemisphere
+        if h is None or (isinstance(h, str) and h == "none"):
+            nvec = np.zeros(3)
+        elif isinstance(h, str) and h == DEFAULT:
+            nvec = getattr(model, "front", np.zeros(3))
+        else:
+            nvec = hemisphere_vectors(h, 1, allow_none=False)[0]
+        self.nvec = np.ascontiguousarray(nvec, dtype=np.float64)
+        b = np.inf if options.bounds is None else float(options.bounds)
+        self.box = np.ascontiguousarray(np.stack([np.full(3, -b), np.full(3, b)]))
+        tol = 1e-9 if options.ambiguity_tol is None else options.ambiguity_tol
+        self.rule = pack_options(ambiguity_tol=tol, max_relative_residual=max_rel,
+                                 max_range=max_rng)
+        self._initial = "track" if options.initial is None else options.initial
+        if isinstance(self._initial, str) and self._initial not in ("track", "cold"):
+            raise InputError(f"expected initial 'track', 'cold' or start poses for a "
+                             f"{model.kind!r} model, got {self._initial!r}")
+
+    # -- starts ------------------------------------------------------------------------------
+    def cold_starts(self, C) -> np.ndarray:
+        if hasattr(self.model, "sensor_coil_model") and self.n_sensor > 1:
+            # a start need only be near: the coils' 5-DOF fits are accepted up to 50 % misfit
+            return sensor_coil_starts(self.model, C, {"max_relative_residual": 0.5})
+        raise InputError(f"expected start poses for a {self.model.kind!r} model with "
+                         f"{self.n_sensor} sensor coil(s) (it has no cold start), got none")
+
+    # -- the iteration -----------------------------------------------------------------------
+    def refine(self, C, start_vectors):
+        """LM from start pose vectors ``(N, 6)``: vectors, hit-the-limit flags, relative
+        residuals and iterations."""
+        n = len(C)
+        x = np.array(start_vectors, dtype=np.float64)
+        Cf = C.reshape(n, -1)
+        norm = np.linalg.norm(Cf, axis=1)
+        w = np.where(norm > 0, 1.0 / np.where(norm > 0, norm, 1.0), 0.0)
+        lam = np.full(n, 1e-3)
+        iters = np.zeros(n, np.int32)
+        done = ~np.all(np.isfinite(x), axis=1)
+        cost = np.full(n, np.inf)
+
+        def residual(v, rows):
+            Cp = self.model.coupling(pose_from_vector(v)).reshape(len(rows), -1)
+            return (Cf[rows] - Cp) * w[rows, None]
+
+        for _ in range(self.max_iter):
+            act = np.flatnonzero(~done)
+            if not act.size:
+                break
+            jac = self.model.jacobians(pose_from_vector(x[act]), params=False)
+            J = jac.pose_vector(x[act, 3:]).reshape(act.size, -1, 6) * w[act, None, None]
+            r = (Cf[act] - jac.C.reshape(act.size, -1)) * w[act, None]
+            cost[act] = np.einsum("nm,nm->n", r, r)
+            JtJ = np.einsum("nma,nmb->nab", J, J)
+            g = np.einsum("nma,nm->na", J, r)
+            diag = np.einsum("naa->na", JtJ)
+            A = JtJ + lam[act, None, None] * np.einsum("na,ab->nab", np.maximum(diag, 1e-12),
+                                                       np.eye(6))
+            try:
+                dx = np.linalg.solve(A, g[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                dx = np.stack([np.linalg.lstsq(a, b, rcond=None)[0] for a, b in zip(A, g)])
+            trial = x[act] + dx
+            rt = residual(trial, act)
+            new = np.einsum("nm,nm->n", rt, rt)
+            better = np.isfinite(new) & (new < cost[act])
+            iters[act] += 1
+            x[act[better]] = trial[better]
+            cost[act[better]] = new[better]
+            lam[act] = np.where(better, np.maximum(lam[act] / 10, 1e-12),
+                                np.minimum(lam[act] * 10, 1e12))
+            step = np.linalg.norm(dx, axis=1)
+            done[act[(better & (step < self.xtol)) | (lam[act] >= 1e12)]] = True
+        hit = ~done
+        rho = np.sqrt(cost)
+        return x, hit, rho, iters
+
+    def _judge(self, x, hit, rho) -> np.ndarray:
+        status = np.empty(len(x), np.int8)
+        for i in range(len(x)):
+            if not np.all(np.isfinite(x[i])):
+                status[i] = int(Status.NOT_CONVERGED)
+                continue
+            status[i] = classify(bool(hit[i]), float(rho[i]), np.ascontiguousarray(x[i, :3]),
+                                 self.nvec, self.box, self.rule)
+        return status
+
+    def _solve_from(self, C, start_vectors):
+        x, hit, rho, iters = self.refine(C, start_vectors)
+        return x, self._judge(x, hit, rho), rho, iters
+
+    def __call__(self, couplings, initial=None) -> SolveResult:
+        C = np.asarray(couplings, dtype=np.float64)
+        if C.ndim != 3 or C.shape[1:] != (self.n_source, self.n_sensor):
+            raise InputError(f"expected couplings of shape (N, {self.n_source}, "
+                             f"{self.n_sensor}), got {np.shape(couplings)}")
+        n = len(C)
+        bad = ~np.all(np.isfinite(C.reshape(n, -1)), axis=1) | ~np.any(C.reshape(n, -1), axis=1)
+        start = self._initial if initial is None else initial
+        x = np.full((n, 6), np.nan)
+        status = np.full(n, int(Status.INVALID_INPUT), np.int8)
+        rho = np.full(n, np.nan)
+        iters = np.zeros(n, np.int32)
+        good = np.flatnonzero(~bad)
+        if isinstance(start, str):
+            if start == "cold":
+                v0 = vector_from_pose(self.cold_starts(C[good])) if good.size else x[:0]
+                x[good], status[good], rho[good], iters[good] = self._solve_from(C[good], v0)
+            elif start == "track":
+                self._track(C, good, x, status, rho, iters)
+            else:
+                raise InputError(f"expected initial 'track', 'cold' or start poses, got "
+                                 f"{start!r}")
+        else:
+            s = np.asarray(start, dtype=np.float64)
+            if s.shape == (n, 4, 4):
+                s = vector_from_pose(s)
+            if s.shape != (n, 6):
+                raise InputError(f"expected start poses ({n}, 4, 4) or pose vectors ({n}, 6), "
+                                 f"got shape {s.shape}")
+            x[good], status[good], rho[good], iters[good] = self._solve_from(C[good], s[good])
+            self._retry_cold(C, x, status, rho, iters)
+        poses = np.full((n, 4, 4), np.nan)
+        ok = np.all(np.isfinite(x), axis=1)
+        poses[ok] = pose_from_vector(x[ok])
+        vec = np.where(ok[:, None], vector_from_pose(np.where(ok[:, None, None], poses,
+                                                              np.eye(4))), np.nan)
+        norm2 = np.linalg.norm(C.reshape(n, -1), axis=1)
+        return SolveResult(poses, vec, status, rho ** 2 * norm2, iters, None,
+                           f"{self.model.kind}-lm", relative_residual=rho)
+
+    def _retry_cold(self, C, x, status, rho, iters):
+        again = np.flatnonzero((status != int(Status.CONVERGED))
+                               & (status != int(Status.INVALID_INPUT)))
+        if not again.size:
+            return
+        v0 = vector_from_pose(self.cold_starts(C[again]))
+        xc, sc, rc, ic = self._solve_from(C[again], v0)
+        take = sc == int(Status.CONVERGED)
+        for a, b in ((x, xc), (status, sc), (rho, rc)):
+            a[again[take]] = b[take]
+        iters[again] += ic
+
+    def _track(self, C, good, x, status, rho, iters):
+        last = None
+        for lo in range(0, good.size, TRACK_BLOCK):
+            rows = good[lo:lo + TRACK_BLOCK]
+            if last is None:
+                v0 = vector_from_pose(self.cold_starts(C[rows[:1]]))
+                last = v0[0] if np.all(np.isfinite(v0)) else None
+            if last is None:
+                x[rows], status[rows], rho[rows], iters[rows] = self._solve_from(
+                    C[rows], vector_from_pose(self.cold_starts(C[rows])))
+            else:
+                x[rows], status[rows], rho[rows], iters[rows] = self._solve_from(
+                    C[rows], np.tile(last, (rows.size, 1)))
+                sub = (x[rows], status[rows], rho[rows], iters[rows])
+                self._retry_cold(C[rows], *sub)
+                x[rows], status[rows], rho[rows], iters[rows] = sub
+            conv = np.flatnonzero(status[rows] == int(Status.CONVERGED))
+            last = x[rows[conv[-1]]] if conv.size else None
