@@ -204,7 +204,20 @@ class PlanarModel:
 
     @property
     def fit_groups(self) -> tuple:
+        """Groups a calibration fits by default: coil gains and offsets (and the sensor coils'
+        relative gains); tilts on request."""
         return ("gains", "offsets") + (("sensor_gains",) if self.n_sensor > 1 else ())
+
+    @property
+    def fixed_groups(self) -> tuple:
+        """Held by default beside the gauge: coil 0's offset and tilt, which a fitted frame
+        (a reference calibration's Y) would otherwise share."""
+        return ("frame",)
+
+    @property
+    def cold_start(self) -> str:
+        """The start name of :func:`openemt.solve.prepare`'s solver from no prior pose."""
+        return "grid" if self.n_sensor == 1 else "cold"
 
     def parameter_label(self, i: int) -> str:
         for name, s in self._slices().items():

@@ -116,7 +116,7 @@ class ParameterLayout:
     def for_model(cls, model) -> ParameterLayout:
         """The layout of ``model``'s parameters and the three fixtures."""
         if isinstance(model, DipoleModel):
-            return cls(model.n_source, model.n_sensor)
+            return cls(model.n_source, model.n_sensor, model)
         from ..field import check_coupling_model
 
         check_coupling_model(model)

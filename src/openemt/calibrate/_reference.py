@@ -36,7 +36,6 @@ from ..solve import spectral_norms
 from ._identifiability import IdentifiabilityWarning, analyse_identifiability
 from ._layout import ParameterLayout
 from ._lsq import fit_free_parameters
-from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE
 from ._objective import CalibrationProblem
 
 __all__ = [
@@ -251,9 +250,8 @@ def _hand_eye_start(C, B, model, hemisphere) -> tuple[np.ndarray, np.ndarray, di
     from ..align import fit_axyb, reference_in_measured_frame
     from ..evaluate import pose_error_magnitudes
     from ..geometry import rotation_diversity
-    from ..solve import solve_lm
 
-    res = solve_lm(C, model, initial="kim18", hemisphere=hemisphere)
+    res = solve_cold(model, C, hemisphere)
     ok = np.all(np.isfinite(res.pose_vectors), axis=1)
     if ok.sum() < MIN_REFERENCE_POSES:
         raise InputError(f"expected at least {MIN_REFERENCE_POSES} poses solvable with the "
@@ -327,7 +325,16 @@ def _start_xy(start, C, B, hemisphere):
     return _hand_eye_start(C, B, start.model, hemisphere)
 
 
-def _xy_identifiability(J, free, layout, ident, null_tol=1e-4) -> dict:
+def solve_cold(model, couplings, hemisphere):
+    """Poses of ``couplings`` from no prior pose with the solver of
+    :func:`openemt.solve.prepare` for ``model``, from the model's own cold start (Kim18 for a
+    dipole model, coil by coil for a board's multi-coil sensor)."""
+    from ..solve import prepare
+
+    return prepare(model, initial=model.cold_start, hemisphere=hemisphere)(couplings)
+
+
+def _xy_identifiability(J, free, layout, ident, groups, null_tol=1e-4) -> dict:
     """Rank and conditioning of the X/Y block: the column-scaled Jacobian of the fixture
     columns with the coil columns projected out (Schur complement)."""
     fix = np.concatenate([layout.groups["st_fix"], layout.groups["se_fix"]])
@@ -349,7 +356,7 @@ def _xy_identifiability(J, free, layout, ident, null_tol=1e-4) -> dict:
         cols = [pos[int(k)] for k in idx if int(k) in pos]
         if cols and np.any(ident.null_weight[cols] > null_tol):
             undetermined.append(name)
-    for g in DEFAULT_OPTIMIZE:
+    for g in groups:
         if g.endswith("_fix"):
             continue
         cols = [pos[int(k)] for k in layout.groups[g] if int(k) in pos]
@@ -396,7 +403,7 @@ def score_reference(calibration, couplings, B, *, X=None, Y=None, noise_trans=No
         ``reference_noise_deg``, ``trans_uncert_mm``, ``rot_uncert_deg`` (eq. 10).
     """
     from ..evaluate import combined_uncertainty, error_summary, pose_error_magnitudes
-    from ..solve import Status, hemisphere_from_positions, solve_lm
+    from ..solve import Status, hemisphere_from_positions
 
     block = (calibration.extra or {}).get("reference") or {}
     X = np.asarray(block.get("X") if X is None else X, dtype=np.float64)
@@ -408,7 +415,7 @@ def score_reference(calibration, couplings, B, *, X=None, Y=None, noise_trans=No
 
     D = reference_in_measured_frame(B, X, Y)
     hemi = hemisphere_from_positions(D[:, :3, 3])
-    res = solve_lm(couplings, calibration.model, initial="kim18", hemisphere=hemi)
+    res = solve_cold(calibration.model, couplings, hemi)
     trans, rot = pose_error_magnitudes(res.poses, D)
     s = error_summary(trans, rot)
     out = {"n": s["n"], "trans_rms_mm": s["trans_rms_mm"], "trans_max_mm": s["trans_max_mm"],
@@ -497,19 +504,22 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     if np.any(norms <= 0):
         raise InputError("expected non-zero coupling matrices, got zero rows")
     prob = CalibrationProblem(layout=layout, C_meas=C, weight=1.0 / norms, so_J=so_J,
-                              st_J=np.ascontiguousarray(B), gain=start.model.gain)
+                              st_J=np.ascontiguousarray(B),
+                              gain=getattr(layout.template, "gain", None))
     from ..geometry import invert
 
     x0 = layout.pack(start.model, np.zeros(6), vector_from_pose(Y0),
                      vector_from_pose(invert(X0)))
-    frz = tuple(DEFAULT_FREEZE) + tuple(freeze)
-    free = layout.free_indices(DEFAULT_OPTIMIZE, frz)
+    # the model's default groups (the paper's XYZ mode for a dipole model) with X and Y
+    optimize = tuple(start.model.fit_groups) + ("st_fix", "se_fix")
+    frz = tuple(start.model.fixed_groups) + tuple(freeze)
+    free = layout.free_indices(optimize, frz)
 
     x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
     r, J = prob.residuals_and_jacobian(x)
-    groups = [g for g in DEFAULT_OPTIMIZE if g not in frz]
+    groups = [g for g in optimize if g not in frz]
     ident = analyse_identifiability(J[:, free], r, free, layout, groups, warn=False)
-    xy = _xy_identifiability(J[:, free], free, layout, ident)
+    xy = _xy_identifiability(J[:, free], free, layout, ident, optimize)
     messages = []
     if xy["undetermined"]:
         messages.append(f"the reference poses cannot determine {', '.join(xy['undetermined'])} "
@@ -560,7 +570,7 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
                   "xy": start_info["method"]},
     }
     block = _reference_block(X, Y, info, X_se, Y_se)
-    cal = Calibration(model=layout.model(x, start.model.gain), source_fixture=np.zeros(6),
+    cal = Calibration(model=layout.model(x), source_fixture=np.zeros(6),
                       stage_fixture=F_st, sensor_fixture=F_se, mode="reference",
                       free=tuple(groups), frozen=frz,
                       standard_errors=layout.as_fields(se_full), stats=stats,

@@ -140,7 +140,16 @@ class DipoleModel:
 
     @property
     def fit_groups(self) -> tuple:
+        """Groups a calibration fits by default: coil positions and moments."""
         return ("d_so_pos", "d_so_mo", "d_se_pos", "d_se_mo")
+
+    @property
+    def fixed_groups(self) -> tuple:
+        """Groups held by default beside the gauge (ILEMT's): the source Z gain (a common scale
+        of source and sensor moments is not observable) and the X coils' Y components."""
+        return ("d_so_z_gain", "d_so_y_co", "d_se_y_co")
+
+    cold_start = "kim18"
 
     def with_params(self, x) -> DipoleModel:
         x = np.asarray(x, dtype=np.float64)

@@ -191,6 +191,12 @@ class OctupoleModel:
     def fit_groups(self) -> tuple:
         return self.dipole.fit_groups + ("k_so", "k_se")
 
+    @property
+    def fixed_groups(self) -> tuple:
+        return self.dipole.fixed_groups
+
+    cold_start = "kim18"
+
     def with_params(self, x) -> OctupoleModel:
         x = np.asarray(x, dtype=np.float64)
         so, se = self._k_slices()

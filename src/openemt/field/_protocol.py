@@ -14,7 +14,9 @@ coils, dipole plus octupole terms, the finite coils of a planar board):
   ``split_params(v)`` (a parameter-length vector, e.g. standard errors, as named arrays),
   ``parameter_groups`` (named index arrays into ``params``, the names calibration modes use),
   ``gauge`` (indices never fitted: the choices that fix the model's frame and scale),
-  ``fit_groups`` (the groups a calibration fits by default) and ``parameter_label(i)``;
+  ``fit_groups`` / ``fixed_groups`` (the groups a calibration fits / holds by default) and
+  ``parameter_label(i)``;
+* ``cold_start``: the start name of its solver from no prior pose (``kim18``, ``grid``, ...);
 * ``packed()``: the model's arrays as the compiled kernels take them.
 
 Compiled kernels stay specialised per model family (the dipole kernel, the segment kernel);
@@ -88,6 +90,11 @@ class CouplingModel(Protocol):
     @property
     def fit_groups(self) -> tuple: ...
 
+    @property
+    def fixed_groups(self) -> tuple: ...
+
+    cold_start: str
+
     def coupling(self, poses) -> np.ndarray: ...
 
     def jacobians(self, poses, params: bool = True) -> ModelJacobians: ...
@@ -106,7 +113,7 @@ def check_coupling_model(model, what: str = "model"):
     missing."""
     missing = [n for n in ("kind", "n_source", "n_sensor", "dof", "coupling", "jacobians",
                            "params", "with_params", "split_params", "parameter_groups", "gauge",
-                           "fit_groups")
+                           "fit_groups", "fixed_groups", "cold_start")
                if not hasattr(model, n)]
     if missing:
         raise TypeError(f"expected `{what}` to be a coupling model (openemt.field.CouplingModel"

@@ -15,13 +15,13 @@ from .. import __version__
 from .._atomic import atomic_path
 from .._errors import InputError
 from ..field import DipoleModel
+from ._board_calfile import BOARD_UNITS, board_model_block, board_model_from_block
 from ._calibration import (
     CALIBRATION_SCHEMA,
     Calibration,
     check_correction_matrix,
     check_model_moments,
 )
-from ._board_calfile import BOARD_UNITS, board_model_block, board_model_from_block
 from ._jsontext import free_to_json as _free_to_json
 from ._jsontext import load_json_file
 

@@ -247,7 +247,8 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
 
 
 def truth_calibration(preset) -> Calibration:
-    """The preset's dipole-equivalent model with the true fixtures, as a ``Calibration``.
+    """The preset's true model (its dipole equivalent for finite coils without a parameter
+    vector) with the true fixtures, as a ``Calibration``.
 
     Mode ``"truth"``. Solving simulated data with it gives the error that is due to the dipole
     approximation of the finite coils alone (no calibration error).
@@ -259,9 +260,14 @@ def truth_calibration(preset) -> Calibration:
     >>> truth.mode, truth.model.n_source, truth.model.n_sensor
     ('truth', 3, 3)
     """
+    from ..field import CouplingModel
+
     p = get_preset(preset)
+    # a preset whose truth is itself a calibratable model (the anser-6dof board) has that
+    # model as its truth; a finite-coil truth without parameters has its dipole equivalent
     return Calibration(
-        model=p.dipole, source_fixture=p.source_fixture.copy(),
+        model=p.model if isinstance(p.model, CouplingModel) else p.dipole,
+        source_fixture=p.source_fixture.copy(),
         stage_fixture=p.stage_fixture.copy(), sensor_fixture=p.sensor_fixture.copy(),
         mode="truth",
         provenance={"openemt_version": __version__, "preset": p.name,

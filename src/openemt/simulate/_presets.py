@@ -218,14 +218,7 @@ def anser_preset(board=None) -> Preset:
     return Preset(
         name="anser",
         description="Anser-style planar 8-coil field generator with a single-coil 5-DOF sensor",
-        model=model, dipole=dipole,
-        source_fixture=np.array([0.0004, -0.0003, 0.0, 0.0, 0.0, 0.0021]),
-        stage_fixture=np.array([0.0007, -0.0005, _ANSER_HEIGHT, 0.0015, -0.0012, 0.0]),
-        sensor_fixture=np.array([0.0, 0.0, 0.0, np.pi, 0.0, 0.0]),  # coil axis along -z
-        # the board can only be turned in its own plane; ZoutYup/XinYup would put the sensor
-        # path through the board
-        source_fixtures=("YoutZup", "XoutZup"), sensor_fixtures=SENSOR_FIXTURES,
-        default_pattern="grid", frequencies=np.array(_ANSER_FREQUENCIES),
+        model=model, dipole=dipole, **_anser_rig(),
         source={"kind": "Anser-style planar board, 8 square spiral coils (board file anser)",
                 "positions_m": np.round(dipole.L_so, 9).tolist(),
                 "moments": np.round(dipole.M_so, 9).tolist()},
@@ -233,7 +226,74 @@ def anser_preset(board=None) -> Preset:
                 "gain": gain_se})
 
 
-_BUILDERS = {"concentric": _concentric, "dipole-approx": _dipole_approx, "anser": anser_preset}
+def _anser_rig() -> dict:
+    return dict(
+        source_fixture=np.array([0.0004, -0.0003, 0.0, 0.0, 0.0, 0.0021]),
+        stage_fixture=np.array([0.0007, -0.0005, _ANSER_HEIGHT, 0.0015, -0.0012, 0.0]),
+        sensor_fixture=np.array([0.0, 0.0, 0.0, np.pi, 0.0, 0.0]),  # coil axis along -z
+        # the board can only be turned in its own plane; ZoutYup/XinYup would put the sensor
+        # path through the board
+        source_fixtures=("YoutZup", "XoutZup"), sensor_fixtures=SENSOR_FIXTURES,
+        default_pattern="grid", frequencies=np.array(_ANSER_FREQUENCIES))
+
+
+#: Manufacturing tolerances of the ``anser-6dof`` preset's board and sensor (seeded, so the
+#: truth is fixed): coil gains 2 % RMS, coil offsets 0.3 mm RMS per axis, the second sensor
+#: coil's gain 3 % above the first's.
+_BOARD_TOLERANCES = {"seed": 6, "gain_rms": 0.02, "offset_rms_m": 0.0003,
+                     "sensor_gain_2": 1.03}
+
+
+def _anser_6dof() -> Preset:
+    """The Anser board read by the two-coil 6-DOF sensor of ``anser-6dof.toml``; its truth is
+    the board model with manufacturing tolerances (:data:`_BOARD_TOLERANCES`), so a
+    calibration from the board file's nominal values has something to find."""
+    from ..board import PlanarModel, board_coils, builtin_board
+
+    board = builtin_board("anser-6dof")
+    scale = board_gain_scale(board)
+    t = _BOARD_TOLERANCES
+    rng = np.random.default_rng(t["seed"])
+    truth = PlanarModel.from_board(
+        board, gains=scale * (1 + t["gain_rms"] * rng.standard_normal(8)),
+        offsets=t["offset_rms_m"] * rng.standard_normal((8, 3)),
+        sensor_gains=[1.0, t["sensor_gain_2"]])
+    sensor = board.sensor
+    # the dipole equivalent (coil positions and moments) only sizes the live simulator
+    coils = tuple(_field.square_coil(pos, ax, side=0.0005, length=sensor.length, gain=0.01)
+                  for pos, ax in zip(sensor.coil_positions(), sensor.coil_axes()))
+    _, dipole = _finite_model(tuple(board_coils(board)), coils)
+    return Preset(
+        name="anser-6dof",
+        description="Anser-style planar 8-coil field generator with a two-coil 6-DOF sensor "
+                    "(coils 60 degrees apart)",
+        model=truth, dipole=dipole, **_anser_rig(),
+        source={"kind": "Anser-style planar board, 8 square spiral coils (board file "
+                        "anser-6dof), gains and offsets with manufacturing tolerances",
+                "tolerances": dict(t)},
+        sensor={"kind": "two coils (6-DOF)", **sensor.to_dict()})
+
+
+def board_gain_scale(board) -> float:
+    """The coupling of the simulated sensor coil (0.5 mm x 8 mm, gain 0.01, as the ``anser``
+    preset's) per unit board-model gain: the nominal gain of a board model of these presets."""
+    from dataclasses import replace
+
+    from ..board import PlanarModel, board_coils
+    from ..geometry import pose_from_vector
+
+    b = board
+    coil = _field.square_coil(np.zeros(3), np.array([0.0, 0.0, 1.0]), side=0.0005,
+                              length=b.sensor.length, gain=0.01)
+    fin = _field.FiniteCoilModel(tuple(board_coils(b))[:1], (coil,), gain=ILEMT_GAIN)
+    one = replace(b, sensor=replace(b.sensor, kind="single", angle=0.0, separation=0.0),
+                  coils=b.coils[:1])
+    P = pose_from_vector(np.array([[0.01, 0.02, 0.1, 0.2, 0.1, 0.0]]))
+    return float(fin.coupling(P)[0, 0, 0] / PlanarModel.from_board(one).coupling(P)[0, 0, 0])
+
+
+_BUILDERS = {"concentric": _concentric, "dipole-approx": _dipole_approx, "anser": anser_preset,
+             "anser-6dof": _anser_6dof}
 #: Names accepted by :func:`get_preset`.
 PRESETS = tuple(_BUILDERS)
 
@@ -244,7 +304,8 @@ def _cached(name: str) -> Preset:
 
 
 def get_preset(name) -> Preset:
-    """The simulated tracker named ``name`` (``concentric``, ``dipole-approx`` or ``anser``).
+    """The simulated tracker named ``name`` (``concentric``, ``dipole-approx``, ``anser`` or
+    ``anser-6dof``).
 
     A :class:`Preset` passed in is returned unchanged.
 

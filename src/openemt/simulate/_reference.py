@@ -143,9 +143,22 @@ def nominal_calibration(preset) -> Calibration:
     of the true one (no offsets, no cross terms), unknown fixtures zero. Mode ``nominal``.
 
     It satisfies the gauge of docs/paper-procedure.md#gauge, so it can start a reference
-    calibration of simulated data without knowing the truth.
+    calibration of simulated data without knowing the truth. A board preset's nominal model is
+    its board file with the nominal gain of every coil, no offsets and equal sensor gains.
     """
+    from ..field import CouplingModel
+
     p = get_preset(preset)
+    if isinstance(p.model, CouplingModel):       # a board: its file's nominal geometry and gain
+        from ..board import PlanarModel
+        from ._presets import board_gain_scale
+
+        board = p.model.board
+        return Calibration(model=PlanarModel.from_board(board, gains=board_gain_scale(board)),
+                           mode="nominal",
+                           provenance={"openemt_version": __version__, "preset": p.name,
+                                       "generator": "openemt.simulate.nominal_calibration"},
+                           extra={"preset": p.name})
     d = p.dipole
 
     def axes(M):
@@ -172,8 +185,8 @@ def simulate_reference(preset="concentric", reference="robot", n_poses: int = 30
     Parameters
     ----------
     preset : str or Preset
-        Simulated tracker with a 3 x 3 coil set (``concentric``, ``dipole-approx``); its coupling
-        model (finite coils) generates the couplings.
+        Simulated tracker with a 6-DOF sensor (``concentric``, ``dipole-approx``,
+        ``anser-6dof``); its coupling model (finite coils) generates the couplings.
     reference : {'robot', 'optical'} or ReferenceKind
         Reference device: default noise, rotation range, X and Y (:data:`REFERENCE_KINDS`).
     n_poses : int
@@ -199,9 +212,9 @@ def simulate_reference(preset="concentric", reference="robot", n_poses: int = 30
         hemisphere of the volume; ``meta['truth']`` = X and Y.
     """
     p = get_preset(preset)
-    if p.n_source != 3 or p.n_sensor != 3:
-        raise InputError(f"expected a preset with 3 source and 3 sensor coils for a reference "
-                         f"collection, got {p.name!r} with {p.n_source} x {p.n_sensor}")
+    if p.n_sensor == 1:
+        raise InputError(f"expected a preset with a 6-DOF sensor (two or more coils) for a "
+                         f"reference collection, got {p.name!r} with {p.n_sensor} sensor coil")
     k = _kind(reference)
     n = int(n_poses)
     if n < 3:

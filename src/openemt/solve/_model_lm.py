@@ -107,12 +107,13 @@ class ModelSolver:
                                                   options.max_range)
         h = options.hemisphere
         if h is None or (isinstance(h, str) and h == "none"):
-            nvec = np.zeros(3)
+            self.nvec = np.zeros(3)
         elif isinstance(h, str) and h == DEFAULT:
-            nvec = getattr(model, "front", np.zeros(3))
-        else:
-            nvec = hemisphere_vectors(h, 1, allow_none=False)[0]
-        self.nvec = np.ascontiguousarray(nvec, dtype=np.float64)
+            self.nvec = np.asarray(getattr(model, "front", np.zeros(3)), dtype=np.float64)
+        elif isinstance(h, str) or np.shape(h) == (3,):
+            self.nvec = hemisphere_vectors(h, 1, allow_none=False)[0]
+        else:                                            # one per sample: checked per call
+            self.nvec = h
         b = np.inf if options.bounds is None else float(options.bounds)
         self.box = np.ascontiguousarray(np.stack([np.full(3, -b), np.full(3, b)]))
         tol = 1e-9 if options.ambiguity_tol is None else options.ambiguity_tol
@@ -181,22 +182,27 @@ class ModelSolver:
         rho = np.sqrt(cost)
         return x, hit, rho, iters
 
-    def _judge(self, x, hit, rho) -> np.ndarray:
+    def _judge(self, x, hit, rho, nvec) -> np.ndarray:
         status = np.empty(len(x), np.int8)
         for i in range(len(x)):
             if not np.all(np.isfinite(x[i])):
                 status[i] = int(Status.NOT_CONVERGED)
                 continue
             status[i] = classify(bool(hit[i]), float(rho[i]), np.ascontiguousarray(x[i, :3]),
-                                 self.nvec, self.box, self.rule)
+                                 np.ascontiguousarray(nvec[i]), self.box, self.rule)
         return status
 
-    def _solve_from(self, C, start_vectors):
+    def _solve_from(self, C, start_vectors, nvec):
         x, hit, rho, iters = self.refine(C, start_vectors)
-        return x, self._judge(x, hit, rho), rho, iters
+        return x, self._judge(x, hit, rho, nvec), rho, iters
 
     def __call__(self, couplings, initial=None) -> SolveResult:
-        C = np.asarray(couplings, dtype=np.float64)
+        C = np.asarray(couplings)
+        if np.iscomplexobj(C):
+            from ..io import signed_real
+
+            C = signed_real(C)
+        C = np.asarray(C, dtype=np.float64)
         if C.ndim != 3 or C.shape[1:] != (self.n_source, self.n_sensor):
             raise InputError(f"expected couplings of shape (N, {self.n_source}, "
                              f"{self.n_sensor}), got {np.shape(couplings)}")
@@ -208,10 +214,18 @@ class ModelSolver:
         rho = np.full(n, np.nan)
         iters = np.zeros(n, np.int32)
         good = np.flatnonzero(~bad)
+        if isinstance(self.nvec, np.ndarray) and self.nvec.shape == (3,):
+            nvec = np.broadcast_to(self.nvec, (n, 3))
+        else:
+            from ._hemisphere import hemisphere_vectors
+
+            nvec = hemisphere_vectors(self.nvec, n, allow_none=False)
+        self._nvec = nvec
         if isinstance(start, str):
             if start == "cold":
                 v0 = vector_from_pose(self.cold_starts(C[good])) if good.size else x[:0]
-                x[good], status[good], rho[good], iters[good] = self._solve_from(C[good], v0)
+                x[good], status[good], rho[good], iters[good] = self._solve_from(
+                    C[good], v0, nvec[good])
             elif start == "track":
                 self._track(C, good, x, status, rho, iters)
             else:
@@ -224,8 +238,9 @@ class ModelSolver:
             if s.shape != (n, 6):
                 raise InputError(f"expected start poses ({n}, 4, 4) or pose vectors ({n}, 6), "
                                  f"got shape {s.shape}")
-            x[good], status[good], rho[good], iters[good] = self._solve_from(C[good], s[good])
-            self._retry_cold(C, x, status, rho, iters)
+            x[good], status[good], rho[good], iters[good] = self._solve_from(C[good], s[good],
+                                                                             nvec[good])
+            self._retry_cold(C, x, status, rho, iters, nvec)
         poses = np.full((n, 4, 4), np.nan)
         ok = np.all(np.isfinite(x), axis=1)
         poses[ok] = pose_from_vector(x[ok])
@@ -235,19 +250,20 @@ class ModelSolver:
         return SolveResult(poses, vec, status, rho ** 2 * norm2, iters, None,
                            f"{self.model.kind}-lm", relative_residual=rho)
 
-    def _retry_cold(self, C, x, status, rho, iters):
+    def _retry_cold(self, C, x, status, rho, iters, nvec):
         again = np.flatnonzero((status != int(Status.CONVERGED))
                                & (status != int(Status.INVALID_INPUT)))
         if not again.size:
             return
         v0 = vector_from_pose(self.cold_starts(C[again]))
-        xc, sc, rc, ic = self._solve_from(C[again], v0)
+        xc, sc, rc, ic = self._solve_from(C[again], v0, nvec[again])
         take = sc == int(Status.CONVERGED)
         for a, b in ((x, xc), (status, sc), (rho, rc)):
             a[again[take]] = b[take]
         iters[again] += ic
 
     def _track(self, C, good, x, status, rho, iters):
+        nvec = self._nvec
         last = None
         for lo in range(0, good.size, TRACK_BLOCK):
             rows = good[lo:lo + TRACK_BLOCK]
@@ -256,12 +272,12 @@ class ModelSolver:
                 last = v0[0] if np.all(np.isfinite(v0)) else None
             if last is None:
                 x[rows], status[rows], rho[rows], iters[rows] = self._solve_from(
-                    C[rows], vector_from_pose(self.cold_starts(C[rows])))
+                    C[rows], vector_from_pose(self.cold_starts(C[rows])), nvec[rows])
             else:
                 x[rows], status[rows], rho[rows], iters[rows] = self._solve_from(
-                    C[rows], np.tile(last, (rows.size, 1)))
+                    C[rows], np.tile(last, (rows.size, 1)), nvec[rows])
                 sub = (x[rows], status[rows], rho[rows], iters[rows])
-                self._retry_cold(C[rows], *sub)
+                self._retry_cold(C[rows], *sub, nvec[rows])
                 x[rows], status[rows], rho[rows], iters[rows] = sub
             conv = np.flatnonzero(status[rows] == int(Status.CONVERGED))
             last = x[rows[conv[-1]]] if conv.size else None

@@ -26,7 +26,7 @@ __all__ = ["DEFAULT", "SolveOptions"]
 DEFAULT = "default"
 
 #: start names: the dipole LM's and the board solver's
-_STARTS = ("kim18", "svd", "kuipers", "track", "multistart", "grid")
+_STARTS = ("kim18", "svd", "kuipers", "track", "multistart", "grid", "cold")
 
 def _positive(name, v, *, integer=False, finite=True):
     if integer:
