@@ -219,6 +219,12 @@ class PlanarModel:
         """The start name of :func:`openemt.solve.prepare`'s solver from no prior pose."""
         return "grid" if self.n_sensor == 1 else "cold"
 
+    def parameter_unit(self, i: int) -> tuple:
+        """Report unit and scale of parameter ``i`` (offsets in mm, tilts in degrees)."""
+        name = self.parameter_label(i).split("[")[0]
+        return {"offsets": ("mm", 1e3), "tilts": ("deg", float(np.rad2deg(1.0)))}.get(
+            name, ("gain", 1.0))
+
     def parameter_label(self, i: int) -> str:
         for name, s in self._slices().items():
             if s.start <= i < s.stop:

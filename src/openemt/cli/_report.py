@@ -99,11 +99,12 @@ def run(args) -> int:
             raise InputError(f"expected --calibration CAL.json to characterise on "
                              f"{src.name}, got none")
         cal = read_calibration(args.calibration)
-        if cal.kind == "finite":     # a board: docs/planar.md#reports
+        if cal.model.dof == 5 and hasattr(cal.model, "board"):
+            # a board's 5-DOF sensor: the grid report of positions and axes (docs/planar.md#reports)
             return _board_report(args, src, cal, out_path)
         if args.holdout is not None:
-            raise InputError(f"expected --holdout only with a finite-coil (board) calibration, "
-                             f"got it with the dipole calibration {args.calibration!r}")
+            raise InputError(f"expected --holdout only with a 5-DOF board calibration (a grid), "
+                             f"got it with the {cal.kind!r} calibration {args.calibration!r}")
         ds = _read_dataset(src)
         conc = read_calibration(args.concentric) if args.concentric else None
         check_inputs(ds, cal, conc, args.reference)   # refused before any stage line

@@ -164,6 +164,10 @@ class DipoleModel:
         return {k: np.ascontiguousarray(x[s].reshape(-1, 3).T)
                 for k, s in self.param_slices().items()}
 
+    def parameter_unit(self, i: int) -> tuple:
+        """Report unit and scale of parameter ``i`` (positions in mm, moments in gain units)."""
+        return ("mm", 1e3) if self.parameter_label(i).startswith("L") else ("gain", 1.0)
+
     def parameter_label(self, i: int) -> str:
         for name, s in self.param_slices().items():
             if s.start <= i < s.stop:

@@ -207,6 +207,10 @@ class OctupoleModel:
         x = np.asarray(x, dtype=np.float64)
         return {**self.dipole.split_params(x[:so.start]), "k_so": x[so], "k_se": x[se]}
 
+    def parameter_unit(self, i: int) -> tuple:
+        so, _ = self._k_slices()
+        return self.dipole.parameter_unit(i) if i < so.start else ("mm^2", 1e6)
+
     def parameter_label(self, i: int) -> str:
         so, se = self._k_slices()
         if i < so.start:

@@ -15,7 +15,7 @@ coils, dipole plus octupole terms, the finite coils of a planar board):
   ``parameter_groups`` (named index arrays into ``params``, the names calibration modes use),
   ``gauge`` (indices never fitted: the choices that fix the model's frame and scale),
   ``fit_groups`` / ``fixed_groups`` (the groups a calibration fits / holds by default) and
-  ``parameter_label(i)``;
+  ``parameter_label(i)`` / ``parameter_unit(i)`` (name, and report unit with its scale);
 * ``cold_start``: the start name of its solver from no prior pose (``kim18``, ``grid``, ...);
 * ``packed()``: the model's arrays as the compiled kernels take them.
 
@@ -104,6 +104,8 @@ class CouplingModel(Protocol):
     def split_params(self, x) -> dict: ...
 
     def parameter_label(self, i: int) -> str: ...
+
+    def parameter_unit(self, i: int) -> tuple: ...
 
     def packed(self): ...
 

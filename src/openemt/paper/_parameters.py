@@ -67,8 +67,22 @@ def parameter_rows(cal, truth=None) -> list:
             row["truth"] = true
         rows.append(row)
 
-    for name, unit, scale in (("L_so", "mm", 1e3), ("M_so", "gain", 1.0),
-                              ("L_se", "mm", 1e3), ("M_se", "gain", 1.0)):
+    if not layout.is_dipole:      # any other model: its own labels and units
+        x = cal.model.params
+        errs = cal.model.split_params(np.full(x.size, np.nan))
+        if se:
+            flat = [np.ravel(se.get(k, np.full(np.shape(v), np.nan))) for k, v in errs.items()]
+            errs = np.concatenate(flat)
+        else:
+            errs = np.full(x.size, np.nan)
+        tv = None if truth is None else truth.model.params
+        for i in range(x.size):
+            unit, scale = cal.model.parameter_unit(i)
+            add(cal.model.parameter_label(i), unit, float(x[i]) * scale, float(errs[i]) * scale,
+                status[i], None if tv is None else float(tv[i]) * scale)
+    for name, unit, scale in (() if not layout.is_dipole else
+                              (("L_so", "mm", 1e3), ("M_so", "gain", 1.0),
+                               ("L_se", "mm", 1e3), ("M_se", "gain", 1.0))):
         val = np.asarray(getattr(cal.model, name))
         err = se.get(name)
         err = None if err is None else np.asarray(err)

@@ -40,12 +40,54 @@ def _kabsch(body, measured) -> np.ndarray:
     return U @ D @ Vt
 
 
+#: Rolls tried about a coil's measured axis when the sensor's other coils gave no 5-DOF fit.
+N_ROLLS = 24
+
+
+def _align(a, u) -> np.ndarray:
+    """Rotations ``(N, 3, 3)`` taking the unit vector ``a`` (3,) to each ``u`` (N, 3) by the
+    smallest angle."""
+    from ..geometry import pose_from_vector
+
+    axis = np.cross(a, u)
+    s = np.linalg.norm(axis, axis=1)
+    c = u @ a
+    ang = np.arctan2(s, c)
+    unit = np.where(s[:, None] > 1e-12, axis / np.where(s > 1e-12, s, 1.0)[:, None],
+                    np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+    v = np.concatenate([np.zeros((len(u), 3)), unit * ang[:, None]], axis=1)
+    return pose_from_vector(v)[:, :3, :3]
+
+
+def _roll_starts(model, C, p, u, k):
+    """Best of :data:`N_ROLLS` poses whose coil ``k`` sits at ``p`` (N, 3) with axis ``u``
+    (N, 3), turned about that axis: the one whose couplings fit ``C`` best."""
+    from ..geometry import pose_from_vector
+
+    a = model.board.sensor.coil_axes()[k]
+    lk = model.board.sensor.coil_positions()[k]
+    R0 = _align(a, u)
+    n = len(C)
+    best = np.full(n, np.inf)
+    out = np.full((n, 4, 4), np.nan)
+    for th in np.linspace(0.0, 2 * np.pi, N_ROLLS, endpoint=False):
+        Rr = pose_from_vector(np.concatenate([np.zeros((n, 3)), u * th], axis=1))[:, :3, :3]
+        P = np.tile(np.eye(4), (n, 1, 1))
+        P[:, :3, :3] = Rr @ R0
+        P[:, :3, 3] = p - np.einsum("nab,b->na", P[:, :3, :3], lk)
+        r = np.linalg.norm((model.coupling(P) - C).reshape(n, -1), axis=1)
+        take = r < best
+        best[take], out[take] = r[take], P[take]
+    return out
+
+
 def sensor_coil_starts(model, couplings, options=None):
     """Cold starts ``(N, 4, 4)`` for a board read by a sensor of several coils: each coil is
     solved on its own by the 5-DOF board solver (position and axis), the rotation is the one
     that best takes the sensor's coil axes (and their cross product) to the measured axes, and
-    the position the mean of the coil positions less their rotated offsets. Rows where a coil
-    fails are NaN."""
+    the position the mean of the coil positions less their rotated offsets. Where only some
+    coils have a 5-DOF fit, the pose is the best of :data:`N_ROLLS` rolls about the first such
+    coil's axis; rows where no coil has one are NaN."""
     from ._planar import PreparedPlanar
 
     C = np.asarray(couplings, dtype=np.float64)
@@ -53,12 +95,13 @@ def sensor_coil_starts(model, couplings, options=None):
     kw = {} if options is None else options
     p = np.empty((n, ne, 3))
     u = np.empty((n, ne, 3))
-    ok = np.ones(n, bool)
+    coil_ok = np.zeros((n, ne), bool)
     for k in range(ne):
         res = PreparedPlanar(model.sensor_coil_model(k), **kw).solve(C[:, :, k], "grid")
-        ok &= res.status == int(Status.CONVERGED)
+        coil_ok[:, k] = res.status == int(Status.CONVERGED)
         p[:, k] = res.poses[:, :3, 3]
         u[:, k] = res.poses[:, :3, 2]
+    ok = coil_ok.all(axis=1)
     A = model.board.sensor.coil_axes()
     L = model.board.sensor.coil_positions()
     body = np.vstack([A, np.cross(A[0], A[1]) / np.linalg.norm(np.cross(A[0], A[1]))])
@@ -70,6 +113,10 @@ def sensor_coil_starts(model, couplings, options=None):
     P[:, :3, :3] = R
     P[:, :3, 3] = t
     P[~ok] = np.nan
+    for k in range(ne):                       # some coils fitted: roll about the first one
+        rows = np.flatnonzero(~ok & coil_ok[:, k] & ~coil_ok[:, :k].any(axis=1))
+        if rows.size:
+            P[rows] = _roll_starts(model, C[rows], p[rows, k], u[rows, k], k)
     return P
 
 
@@ -83,7 +130,9 @@ class ModelSolver:
         ``max_iter`` (default 50), ``xtol`` (default 1e-10: the step in m / rad below which a
         sample has converged), ``max_relative_residual``, ``max_range``, ``bounds`` (a position
         box half-width, m), ``hemisphere`` (default: the board's front side, if the model is a
-        board of one coil normal) and ``initial`` (default ``'track'``).
+        board of one coil normal), ``retry_resnorm`` (a converged sample above this ILEMT
+        resnorm is solved again cold, as a failed one is) and ``initial`` (default
+        ``'track'``).
     """
 
     serial = True
@@ -93,7 +142,7 @@ class ModelSolver:
         from ._options import DEFAULT
         from ._packing import pack_options
 
-        refused = options.changed(("retries", "retry_resnorm", "explore_above",
+        refused = options.changed(("retries", "explore_above",
                                    "concentric_model", "covariance", "fallback"))
         if refused:
             raise InputError(f"expected no {', '.join(refused)} with a {model.kind!r} model "
@@ -119,6 +168,7 @@ class ModelSolver:
         tol = 1e-9 if options.ambiguity_tol is None else options.ambiguity_tol
         self.rule = pack_options(ambiguity_tol=tol, max_relative_residual=max_rel,
                                  max_range=max_rng)
+        self.retry_resnorm = options.retry_resnorm
         self._initial = "track" if options.initial is None else options.initial
         if isinstance(self._initial, str) and self._initial not in ("track", "cold"):
             raise InputError(f"expected initial 'track', 'cold' or start poses for a "
@@ -135,7 +185,8 @@ class ModelSolver:
     # -- the iteration -----------------------------------------------------------------------
     def refine(self, C, start_vectors):
         """LM from start pose vectors ``(N, 6)``: vectors, hit-the-limit flags, relative
-        residuals and iterations."""
+        residuals and iterations. One model evaluation per iteration: the Jacobian of a trial
+        point is computed with its couplings and kept when the step is taken."""
         n = len(C)
         x = np.array(start_vectors, dtype=np.float64)
         Cf = C.reshape(n, -1)
@@ -145,39 +196,46 @@ class ModelSolver:
         iters = np.zeros(n, np.int32)
         done = ~np.all(np.isfinite(x), axis=1)
         cost = np.full(n, np.inf)
+        m = Cf.shape[1]
+        J = np.zeros((n, m, 6))
+        r = np.zeros((n, m))
 
-        def residual(v, rows):
-            Cp = self.model.coupling(pose_from_vector(v)).reshape(len(rows), -1)
-            return (Cf[rows] - Cp) * w[rows, None]
+        def evaluate(v, rows):
+            jac = self.model.jacobians(pose_from_vector(v), params=False)
+            Jv = jac.pose_vector(v[:, 3:]).reshape(len(rows), m, 6) * w[rows, None, None]
+            rv = (Cf[rows] - jac.C.reshape(len(rows), m)) * w[rows, None]
+            return Jv, rv, np.einsum("nm,nm->n", rv, rv)
 
+        act = np.flatnonzero(~done)
+        if act.size:
+            J[act], r[act], cost[act] = evaluate(x[act], act)
+        done |= ~np.isfinite(cost)
+        eye = np.eye(6)
         for _ in range(self.max_iter):
             act = np.flatnonzero(~done)
             if not act.size:
                 break
-            jac = self.model.jacobians(pose_from_vector(x[act]), params=False)
-            J = jac.pose_vector(x[act, 3:]).reshape(act.size, -1, 6) * w[act, None, None]
-            r = (Cf[act] - jac.C.reshape(act.size, -1)) * w[act, None]
-            cost[act] = np.einsum("nm,nm->n", r, r)
-            JtJ = np.einsum("nma,nmb->nab", J, J)
-            g = np.einsum("nma,nm->na", J, r)
-            diag = np.einsum("naa->na", JtJ)
-            A = JtJ + lam[act, None, None] * np.einsum("na,ab->nab", np.maximum(diag, 1e-12),
-                                                       np.eye(6))
+            Ja, ra = J[act], r[act]
+            JtJ = np.einsum("nma,nmb->nab", Ja, Ja)
+            g = np.einsum("nma,nm->na", Ja, ra)
+            diag = np.maximum(np.einsum("naa->na", JtJ), 1e-30)
+            A = JtJ + lam[act, None, None] * diag[:, :, None] * eye
             try:
                 dx = np.linalg.solve(A, g[..., None])[..., 0]
             except np.linalg.LinAlgError:
                 dx = np.stack([np.linalg.lstsq(a, b, rcond=None)[0] for a, b in zip(A, g)])
             trial = x[act] + dx
-            rt = residual(trial, act)
-            new = np.einsum("nm,nm->n", rt, rt)
+            Jt, rt, new = evaluate(trial, act)
             better = np.isfinite(new) & (new < cost[act])
             iters[act] += 1
-            x[act[better]] = trial[better]
-            cost[act[better]] = new[better]
+            take = act[better]
+            x[take], J[take], r[take], cost[take] = trial[better], Jt[better], rt[better], \
+                new[better]
             lam[act] = np.where(better, np.maximum(lam[act] / 10, 1e-12),
                                 np.minimum(lam[act] * 10, 1e12))
-            step = np.linalg.norm(dx, axis=1)
-            done[act[(better & (step < self.xtol)) | (lam[act] >= 1e12)]] = True
+            small = np.linalg.norm(dx, axis=1) < self.xtol
+            # converged: a step below xtol (taken, or refused because nothing smaller helps)
+            done[act[small | (lam[act] >= 1e12)]] = True
         hit = ~done
         rho = np.sqrt(cost)
         return x, hit, rho, iters
@@ -251,8 +309,11 @@ class ModelSolver:
                            f"{self.model.kind}-lm", relative_residual=rho)
 
     def _retry_cold(self, C, x, status, rho, iters, nvec):
-        again = np.flatnonzero((status != int(Status.CONVERGED))
-                               & (status != int(Status.INVALID_INPUT)))
+        again = (status != int(Status.CONVERGED)) & (status != int(Status.INVALID_INPUT))
+        if self.retry_resnorm is not None:       # ILEMT's resnorm above the limit: retry too
+            resnorm = rho ** 2 * np.linalg.norm(C.reshape(len(C), -1), axis=1)
+            again |= (status == int(Status.CONVERGED)) & ~(resnorm <= self.retry_resnorm)
+        again = np.flatnonzero(again)
         if not again.size:
             return
         v0 = vector_from_pose(self.cold_starts(C[again]))
