@@ -195,6 +195,14 @@ class PlanarModel:
         g = {k: np.arange(s.start, s.stop) for k, s in sl.items()}
         g["sensor_gains"] = g["sensor_gains"][1:]
         g["frame"] = np.concatenate([g["offsets"][:3], g["tilts"][:3]])
+        # tilts out of each coil's plane (turning a coil about its own normal barely changes
+        # its field): the two rotation-vector components across a normal along x, y or z
+        inplane = []
+        for i, c in enumerate(self.board.coils):
+            ax = np.flatnonzero(np.abs(np.abs(c.normal) - 1.0) < 1e-12)
+            comps = [a for a in range(3) if a != ax[0]] if ax.size else [0, 1, 2]
+            inplane += [g["tilts"][3 * i + a] for a in comps]
+        g["tilts_in_plane"] = np.array(inplane, dtype=np.int64)
         return g
 
     @property

@@ -27,11 +27,8 @@ from ._objective import CalibrationProblem, build_problem, fixture_twist_map
 from ._perturb import perturb_calibration
 from ._planar import (
     GridData,
-    PlanarCalibration,
     PlanarFit,
-    calibrate_planar,
     fit_planar,
-    planar_coupling,
     read_grid_csv,
     write_grid_csv,
 )
@@ -79,7 +76,6 @@ __all__ = [
     "ImprovedTest",
     "OutputCorrection",
     "ParameterLayout",
-    "PlanarCalibration",
     "ReferenceFit",
     "ResidueStats",
     "RigModel",
@@ -87,7 +83,6 @@ __all__ = [
     "SequenceStep",
     "analyse_identifiability",
     "build_problem",
-    "calibrate_planar",
     "cross_validate",
     "fit",
     "fit_improved",
@@ -98,7 +93,6 @@ __all__ = [
     "held_out_rows",
     "improved_calibration",
     "perturb_calibration",
-    "planar_coupling",
     "read_grid_csv",
     "reference_block",
     "reference_poses",

@@ -2,16 +2,12 @@
 
 A single-coil (5-DOF) sensor is placed at known points of a grid over the board with a known
 axis; each source coil's coupling into it is measured. The model is the finite-coil model of
-the board (the built-in ``anser`` board file by default, docs/planar.md): coil ``i``, shifted by an
-offset ``delta_i`` and scaled by a gain ``g_i``, couples into a sensor at ``p`` with axis ``u``
-as::
-
-    C_i = gain * g_i * B_i(p - delta_i) . u
-
-where ``B_i`` is the nominal coil's field for unit gain (``coil_fields``, dipole-model units)
-averaged over the sensor's length (2-point Gauss rule along ``u``; 0 = point sensor). The gain
-``g_i`` includes the sensor's gain. Per coil 4 parameters are fitted by Gauss-Newton with step halving;
-the field is evaluated by the finite-coil code, its gradient by central differences.
+the board (the built-in ``anser`` board file by default, docs/planar.md),
+:class:`openemt.board.PlanarModel`: coil ``i``, shifted by an offset ``delta_i`` (and, on
+request, tilted out of its plane) and scaled by a gain ``g_i``, couples into a sensor at ``p``
+with axis ``u`` as ``C_i = g_i B_i(p - delta_i) . u``, the Biot-Savart field of its traces
+averaged over the sensor's length. The gain ``g_i`` includes the sensor's gain. The fit is the
+one calibration engine with the grid's known sensor poses as kinematics (:func:`fit_planar`).
 
 Grid CSV: a header with columns ``x, y, z`` (sensor position, m), ``ux, uy, uz`` (sensor
 axis) and one column per source coil (any names, in coil order).
@@ -27,20 +23,20 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ..field import ILEMT_GAIN, coil_fields
+from ._identifiability import analyse_identifiability
+from ._layout import ParameterLayout
+from ._lsq import fit_free_parameters
+from ._objective import CalibrationProblem
 
 __all__ = [
     "GridData",
-    "PlanarCalibration",
     "PlanarErrors",
     "PlanarFit",
-    "calibrate_planar",
     "check_grid_units",
     "checkerboard_split",
     "coil_residual_percent",
     "fit_planar",
     "planar_accuracy",
-    "planar_coupling",
     "planar_errors",
     "read_grid",
     "read_grid_csv",
@@ -156,171 +152,7 @@ def write_grid_csv(data: GridData, path) -> None:
             w.writerow([repr(float(v)) for v in (*p, *u, *c)])
 
 
-def _sensor_rule(length: float):
-    if length <= 0:
-        return np.array([0.0]), np.array([1.0])
-    s = length / (2 * np.sqrt(3.0))
-    return np.array([-s, s]), np.array([0.5, 0.5])
-
-
-def _coil_coupling(coil, points, axes, offset, length, step: float = 0.0):
-    """``B(p - offset) . u`` of one coil (unit gain), averaged over the sensor length, (N,).
-
-    With ``step > 0`` also its gradient with respect to ``offset`` by central differences,
-    (N, 3); all points go to the field code in one call.
-    """
-    s, w = _sensor_rule(length)
-    shifts = [np.zeros(3)]
-    if step > 0:
-        shifts += [sg * step * e for e in np.eye(3) for sg in (1.0, -1.0)]
-    base = points[None, :, :] + s[:, None, None] * axes[None]              # (k, N, 3)
-    pts = np.concatenate([(base - offset - sh).reshape(-1, 3) for sh in shifts])
-    B = coil_fields([coil], pts)[0].reshape(len(shifts), len(s), len(points), 3)
-    f = np.einsum("k,mkna,na->mn", w, B, axes)                            # (n_shift, N)
-    if step <= 0:
-        return f[0]
-    # shift +h e evaluates the coil displaced to offset + h e
-    grad = (f[1::2] - f[2::2]).T / (2 * step)
-    return f[0], grad
-
-
-def planar_coupling(coils, gains, offsets, points, axes, *, gain=ILEMT_GAIN,
-                    sensor_length: float = 0.0) -> np.ndarray:
-    """Model couplings ``(N, n_coils)`` of shifted, scaled coils into a single-coil sensor."""
-    gains = np.asarray(gains, dtype=np.float64)
-    offsets = np.asarray(offsets, dtype=np.float64).reshape(len(coils), 3)
-    u = np.asarray(axes, dtype=np.float64)
-    u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    return gain * np.column_stack([
-        g * _coil_coupling(c, np.asarray(points, dtype=np.float64), u, d, sensor_length)
-        for c, g, d in zip(coils, gains, offsets)])
-
-
-@dataclass(frozen=True, eq=False)
-class PlanarCalibration:
-    """Fitted per-coil gains and position offsets of a planar field generator.
-
-    Attributes
-    ----------
-    gains : ndarray, shape (n_coils,)
-        Coil gain (times the sensor gain) relative to the nominal coil.
-    offsets : ndarray, shape (n_coils, 3)
-        Coil position offsets (m) in the board frame.
-    gains_se, offsets_se : ndarray
-        Standard errors (Gauss-Newton covariance).
-    rms_residue : float
-        RMS of the residuals relative to the RMS coupling.
-    coils : tuple of Coil
-        The nominal coils.
-    iterations : int
-    """
-
-    gains: np.ndarray
-    offsets: np.ndarray
-    gains_se: np.ndarray
-    offsets_se: np.ndarray
-    rms_residue: float
-    coils: tuple
-    iterations: int
-
-    def coupling(self, points, axes, *, gain=ILEMT_GAIN, sensor_length=0.0) -> np.ndarray:
-        """Predicted couplings ``(N, n_coils)``."""
-        return planar_coupling(self.coils, self.gains, self.offsets, points, axes, gain=gain,
-                               sensor_length=sensor_length)
-
-    def to_dict(self) -> dict:
-        """JSON-ready summary: gains, offsets (mm) with standard errors, residue, iterations."""
-        return {"gains": self.gains.tolist(), "gains_se": self.gains_se.tolist(),
-                "offsets_mm": (self.offsets * 1e3).tolist(),
-                "offsets_se_mm": (self.offsets_se * 1e3).tolist(),
-                "rms_residue": self.rms_residue, "iterations": self.iterations}
-
-
-def calibrate_planar(data: GridData, coils=None, *, gain=ILEMT_GAIN, sensor_length: float = 0.0,
-                     max_iter: int = 10, step: float = 1e-5, tol: float = 1e-6
-                     ) -> PlanarCalibration:
-    """Fit per-coil gain and position offset of a planar field generator to grid data.
-
-    Parameters
-    ----------
-    data : GridData
-    coils : sequence of Coil, optional
-        Nominal coils (default: the built-in ``anser`` board file, :func:`openemt.board.board_coils`).
-    gain : float
-        Coupling scale (``1/250`` as the dipole model).
-    sensor_length : float
-        Sensor coil length (m) for the field average along the axis; 0 for a point sensor.
-    max_iter, step, tol
-        Gauss-Newton iterations, finite-difference step (m) of the field gradient, and the
-        convergence threshold (offset steps below ``1e3 * tol * step``, relative gain steps
-        below ``1e2 * tol``).
-    """
-    if not isinstance(data, GridData):
-        raise TypeError(f"expected GridData, got {type(data).__name__}")
-    check_grid_units(data, sensor_length)
-    if coils is None:
-        from ..board import board_coils
-
-        coils = board_coils("anser")
-    coils = tuple(coils)
-    n_c = len(coils)
-    if data.couplings.shape[1] != n_c:
-        raise InputError(f"expected {n_c} coil columns, got {data.couplings.shape[1]}")
-    P, U, C = data.points, data.axes, data.couplings
-    n = len(P)
-    scale = np.sqrt(np.mean(C ** 2))
-    g = np.ones(n_c)
-    d = np.zeros((n_c, 3))
-
-    def evaluate(g, d, jac):
-        F = np.empty((n, n_c))
-        J = np.zeros((n, n_c, n_c, 4)) if jac else None
-        for i, c in enumerate(coils):
-            if jac:
-                f0, grad = _coil_coupling(c, P, U, d[i], sensor_length, step)
-                J[:, i, i, 0] = gain * f0
-                J[:, i, i, 1:] = gain * g[i] * grad
-            else:
-                f0 = _coil_coupling(c, P, U, d[i], sensor_length)
-            F[:, i] = gain * g[i] * f0
-        return F, J
-
-    # Gauss-Newton (the problem is nearly linear: gains enter linearly, offsets are sub-mm);
-    # a step that raises the cost is halved, which needs no extra evaluation when it does not
-    F, J = evaluate(g, d, True)
-    r = (C - F) / scale
-    cost = float(np.sum(r ** 2))
-    it = 0
-    for it in range(1, max_iter + 1):
-        A = J.reshape(n * n_c, 4 * n_c) / scale
-        H = A.T @ A
-        delta = np.linalg.solve(H + 1e-12 * np.diag(np.diag(H)), A.T @ r.ravel()).reshape(n_c, 4)
-        t = 1.0
-        while True:
-            g_new, d_new = g + t * delta[:, 0], d + t * delta[:, 1:]
-            F_new, J_new = evaluate(g_new, d_new, True)
-            r_new = (C - F_new) / scale
-            cost_new = float(np.sum(r_new ** 2))
-            if cost_new <= cost * (1 + 1e-12) or t < 1e-3:
-                break
-            t *= 0.5
-        converged = (np.max(np.abs(t * delta[:, 1:])) < tol * 1e3 * step
-                     and np.max(np.abs(t * delta[:, 0] / g)) < tol * 1e2)
-        g, d, F, J, r, cost = g_new, d_new, F_new, J_new, r_new, cost_new
-        if converged:
-            break
-    A = J.reshape(n * n_c, 4 * n_c) / scale
-    dof = max(A.shape[0] - A.shape[1], 1)
-    cov = np.linalg.pinv(A.T @ A) * cost / dof
-    se = np.sqrt(np.clip(np.diag(cov), 0, None)).reshape(n_c, 4)
-    return PlanarCalibration(gains=g, offsets=d, gains_se=se[:, 0], offsets_se=se[:, 1:],
-                             rms_residue=float(np.sqrt(cost / r.size)), coils=coils,
-                             iterations=it)
-
-
-# --------------------------------------------------------------------------- board fit
-
-#: Largest plausible grid coordinate (m): beyond it the grid is taken for millimetres.
+#: Largest plausible grid coordinate (m): larger values are millimetres given as metres.
 _MAX_GRID_M = 2.0
 
 
@@ -388,40 +220,13 @@ def coil_residual_percent(residual, couplings) -> np.ndarray:
         return 100.0 * np.sqrt(np.mean(np.asarray(residual) ** 2, axis=0)) / peak
 
 
-def _cross_cols(v):
-    """``e_k x v`` for k = 0, 1, 2: (N, 3 [k], 3)."""
-    z = np.zeros(len(v))
-    return np.stack([np.column_stack([z, -v[:, 2], v[:, 1]]),
-                     np.column_stack([v[:, 2], z, -v[:, 0]]),
-                     np.column_stack([-v[:, 1], v[:, 0], z])], axis=1)
-
-
-def _board_jacobian(model, P, U, fit_tilt):
-    """Model couplings (N, n) and the Jacobian (N, n, k) by each coil's own parameters:
-    gain, offset (3) and, with ``fit_tilt``, the tilt about the coil's local x and y."""
-    C, dp, du = model.coupling_points(P, U, gradient=True)
-    n = model.n_coils
-    k = 6 if fit_tilt else 4
-    J = np.zeros((len(P), n, k))
-    J[:, :, 0] = C / model.gains
-    J[:, :, 1:4] = -dp                               # moving the coil by d = moving p by -d
-    if fit_tilt:
-        for i, c in enumerate(model.board.coils):
-            centre = c.center + model.offsets[i]
-            # turning the coil by w about its centre = turning the sensor by -w
-            dpw = -np.einsum("nkj,nj->nk", _cross_cols(P - centre), dp[:, i])
-            duw = -np.einsum("nkj,nj->nk", _cross_cols(U), du[:, i])
-            dw = dpw + duw                                   # (N, 3): by board-frame w
-            R = c.rotation
-            J[:, i, 4] = dw @ R[:, 0]
-            J[:, i, 5] = dw @ R[:, 1]
-    return C, J
-
-
 def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1e-10
                ) -> PlanarFit:
     """Fit per-coil gain, position offset (and with ``fit_tilt`` a small tilt) of a board to
-    grid data with the compiled finite-coil model (analytic Jacobian, Levenberg-Marquardt).
+    grid data: the one calibration engine (:class:`~openemt.calibrate.CalibrationProblem`,
+    scipy's Levenberg-Marquardt with the model interface's analytic Jacobian) with the grid's
+    known sensor poses as its kinematics; standard errors and the condition number from
+    :func:`~openemt.calibrate.analyse_identifiability`.
 
     Parameters
     ----------
@@ -434,7 +239,8 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
     fit_tilt : bool
         Also fit a tilt of each coil about its local x and y axes.
     max_iter, tol
-        Iteration limit and relative step size below which the fit has converged.
+        Iteration limit (function evaluations of the Levenberg-Marquardt fit) and its relative
+        tolerance.
     """
     from ..board import PlanarModel
     from ..io import load_board
@@ -451,82 +257,42 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
     if data.couplings.shape[1] != n:
         raise InputError(f"expected {n} coil columns for this board, got "
                          f"{data.couplings.shape[1]}")
+    if model.n_sensor != 1:
+        raise InputError(f"expected a board with a single-coil sensor for a grid of points and "
+                         f"axes, got {model.n_sensor} sensor coils (calibrate a 6-DOF sensor "
+                         f"against reference poses: --mode reference)")
     check_grid_units(data, model.sensor_length)
-    P, U, Cm = data.points, data.axes, data.couplings
-    k = 6 if fit_tilt else 4
+    Cm = data.couplings
+    # the one calibration engine with known poses as its kinematics: the sensor pose of row i
+    # is st_J_i (its z axis the grid axis), every fixture identity and held
+    from ..solve._planar import pose_from_axis
+
+    known, _ = pose_from_axis(data.points, data.axes)
+    N = len(known)
     scale = np.sqrt(np.mean(Cm ** 2))
-
-    def unpack(m, x):
-        x = x.reshape(n, k)
-        tilts = m.tilts.copy()
-        if fit_tilt:
-            # tilt rotation vectors stay in the coil plane (no turn about the normal); the
-            # Jacobian is exact at zero tilt and first-order accurate for small ones
-            for i, c in enumerate(m.board.coils):
-                tilts[i] = tilts[i] + x[i, 4] * c.rotation[:, 0] + x[i, 5] * c.rotation[:, 1]
-        return m.replace(gains=m.gains + x[:, 0], offsets=m.offsets + x[:, 1:4], tilts=tilts)
-
-    def full_jacobian(J):
-        A = np.zeros((len(P), n, n, k))
-        A[:, np.arange(n), np.arange(n)] = J
-        return A.reshape(len(P) * n, n * k) / scale
-
-    C, J = _board_jacobian(model, P, U, fit_tilt)
-    r = ((Cm - C) / scale).ravel()
-    cost = r @ r
-    lam = 1e-6
-    status, it = "max_iterations", 0
-    A = full_jacobian(J)
-    for it in range(1, max_iter + 1):
-        col = np.linalg.norm(A, axis=0)
-        if np.any(col == 0):
-            status = "singular"
-            break
-        As = A / col
-        H = As.T @ As
-        g = As.T @ r
-        improved = False
-        step = np.zeros(n * k)
-        while lam < 1e10:
-            try:
-                step = np.linalg.solve(H + lam * np.diag(np.diag(H)), g) / col
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            trial = unpack(model, step)
-            C_t, J_t = _board_jacobian(trial, P, U, fit_tilt)
-            r_t = ((Cm - C_t) / scale).ravel()
-            cost_t = r_t @ r_t
-            if cost_t <= cost:
-                improved = True
-                model, C, J, r, cost = trial, C_t, J_t, r_t, cost_t
-                A = full_jacobian(J)
-                lam = max(lam / 10, 1e-12)
-                break
-            lam *= 10
-        xs = np.abs(step.reshape(n, k))
-        rel = np.max(xs[:, 0] / np.abs(model.gains))
-        small = rel < tol and xs[:, 1:].max() < tol * 1.0
-        if not improved or small:
-            status = "converged"
-            break
-    col = np.linalg.norm(A, axis=0)
-    sv = np.linalg.svd(A / np.where(col > 0, col, 1), compute_uv=False)
-    condition = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
-    if not np.isfinite(condition) or condition > 1e12:
-        status = "singular"
-    dof = max(A.shape[0] - A.shape[1], 1)
-    cov = np.linalg.pinv(A.T @ A) * cost / dof
-    se = np.sqrt(np.clip(np.diag(cov), 0, None)).reshape(n, k)
-    resid = Cm - C
-    tilts_se = np.zeros((n, 3))
-    if fit_tilt:
-        tilts_se[:, :2] = se[:, 4:6]         # about the coil's local x and y
-    return PlanarFit(model=model, gains_se=se[:, 0], offsets_se=se[:, 1:4], tilts_se=tilts_se,
-                     status=status, iterations=it,
+    layout = ParameterLayout.for_model(model)
+    prob = CalibrationProblem(layout=layout, C_meas=Cm[:, :, None],
+                              weight=np.full(N, 1.0 / scale),
+                              so_J=np.broadcast_to(np.eye(4), (N, 4, 4)).copy(), st_J=known,
+                              gain=None)
+    groups = ("gains", "offsets") + (("tilts_in_plane",) if fit_tilt else ())
+    free = layout.free_indices(groups)
+    x0 = layout.pack(model, np.zeros(6), np.zeros(6), np.zeros(6))
+    x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_iter)
+    r, J = prob.residuals_and_jacobian(x)
+    ident = analyse_identifiability(J[:, free], r, free, layout, groups, warn=False)
+    model = layout.model(x)
+    se = np.zeros(layout.size)
+    se[free] = ident.standard_errors
+    parts = model.split_params(se[layout.slices["model"]])
+    status = ("singular" if not ident.condition <= 1e12 else
+              "converged" if res.status > 0 else "max_iterations")
+    resid = Cm - model.coupling_points(data.points, data.axes)
+    return PlanarFit(model=model, gains_se=parts["gains"], offsets_se=parts["offsets"],
+                     tilts_se=parts["tilts"], status=status, iterations=int(res.nfev),
                      rms_residual=float(np.sqrt(np.mean(resid ** 2))),
                      coil_residual_percent=coil_residual_percent(resid, Cm),
-                     n_points=len(P), condition=condition)
+                     n_points=N, condition=float(ident.condition))
 
 
 def checkerboard_split(points, tolerance: float = 1e-3) -> np.ndarray:

@@ -103,7 +103,7 @@ def run(args) -> int:
             # a board's 5-DOF sensor: the grid report of positions and axes (docs/planar.md#reports)
             return _board_report(args, src, cal, out_path)
         if args.holdout is not None:
-            raise InputError(f"expected --holdout only with a 5-DOF board calibration (a grid), "
+            raise InputError(f"expected --holdout only with a finite-coil (5-DOF board) calibration, "
                              f"got it with the {cal.kind!r} calibration {args.calibration!r}")
         ds = _read_dataset(src)
         conc = read_calibration(args.concentric) if args.concentric else None
