@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from .. import __version__
 from .._errors import InputError
 from .._result import Result
 from ..io import Calibration, Dataset
-from ._identifiability import Identifiability, analyse_identifiability
+from ._engine import fit_problem, fit_provenance, residue_block
+from ._identifiability import Identifiability
 from ._layout import ParameterLayout
 from ._modes import CalibrationMode, get_mode, select_rows
 from ._objective import CalibrationProblem, build_problem
@@ -128,12 +126,6 @@ def check_fit_inputs(dataset, start, mode="XYZ", *, select: bool = True, optimiz
     _setup(dataset, start, mode, select, optimize, freeze)
 
 
-def _stats(r: np.ndarray, n_rows: int) -> dict:
-    ss = float(r @ r)
-    return {"rms_residue": float(np.sqrt(ss / n_rows)), "sum_squared_residue": ss,
-            "num_points": int(n_rows)}
-
-
 def residue_stats(dataset, calibration, mode="XYZ", *, select=True) -> ResidueStats:
     """Residue of a calibration on the rows of ``dataset`` a mode uses
     (docs/paper-procedure.md#calibration-objective).
@@ -154,7 +146,7 @@ def residue_stats(dataset, calibration, mode="XYZ", *, select=True) -> ResidueSt
     data = _rows(dataset, mode, select)
     layout = ParameterLayout.for_model(calibration.model)
     prob = build_problem(data, layout, calibration.model.gain)
-    return ResidueStats(**_stats(prob.residuals(layout.pack_calibration(calibration)),
+    return ResidueStats(**residue_block(prob.residuals(layout.pack_calibration(calibration)),
                                  prob.n_rows))
 
 
@@ -206,49 +198,14 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
     mode, opt, frz, data, layout, x0, free = _setup(dataset, start, mode, select, optimize,
                                                     freeze)
     prob = build_problem(data, layout, start.model.gain)
-
-    def full(xf):
-        x = x0.copy()
-        x[free] = xf
-        return x
-
-    def fun(xf):
-        return prob.residuals(full(xf))
-
-    def jac(xf):
-        return prob.residuals_and_jacobian(full(xf))[1][:, free]
-
-    t0 = time.perf_counter()
-    res = least_squares(fun, x0[free], jac=jac, method="lm", x_scale="jac", ftol=tol,
-                        xtol=tol, gtol=tol, max_nfev=max_nfev)
-    seconds = time.perf_counter() - t0
-    x = full(res.x)
-    r, J = prob.residuals_and_jacobian(x)
-    ident = None
-    se_full = np.zeros(layout.size)
-    if uncertainty:
-        groups = [g for g in opt if g not in frz]
-        ident = analyse_identifiability(J[:, free], r, free, layout, groups, warn=warn)
-        se_full[free] = ident.standard_errors
-    stats = _stats(r, prob.n_rows)
-    stats.update(nfev=int(res.nfev), optimizer_status=int(res.status), fit_seconds=seconds)
-    if ident is not None:
-        stats.update(jacobian_rank=ident.rank, n_free=ident.n_free,
-                     condition=ident.to_dict()["condition"],
-                     undetermined_groups=list(ident.undetermined))
+    groups = [g for g in opt if g not in frz]
+    f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_nfev,
+                    uncertainty=uncertainty, warn=warn)
+    x, r, ident, se_full, seconds = (f.x, f.residuals, f.identifiability, f.standard_errors,
+                                     f.seconds)
+    stats = f.stats
     F_so, F_st, F_se = layout.fixtures(x)
-    files = sorted(set(data.file_names().tolist()) - {""})
-    hashes = dict(dataset.meta.get("provenance", {}).get("inputs", {}))
-    sp = start.provenance
-    provenance = {
-        "openemt_version": __version__,
-        "mode": mode.name,
-        "optimizer": "scipy.optimize.least_squares(lm), analytic Jacobian",
-        "inputs": {f: hashes.get(f) for f in files},
-        "num_rows": int(prob.n_rows),
-        "start": {"mode": start.mode, "file": sp.get("file"), "inputs": sp.get("inputs"),
-                  "start_mode": (sp.get("start") or {}).get("mode")},
-    }
+    provenance = fit_provenance(mode.name, data, start_calibration=start)
     se = {k: v for k, v in layout.as_fields(se_full).items()} if uncertainty else {}
     cal = Calibration(model=layout.model(x, start.model.gain), source_fixture=F_so,
                       stage_fixture=F_st, sensor_fixture=F_se, linear_correction=None,
@@ -257,6 +214,6 @@ def fit(dataset, start, mode="XYZ", *, select: bool = True, optimize=None, freez
                       extra={k: v for k, v in start.extra.items()
                              if k not in ("rig", "rig_options")})
     return CalibrationFit(calibration=cal, mode=mode, layout=layout, problem=prob, x=x,
-                          free=free, residuals=r, identifiability=ident, nfev=int(res.nfev),
-                          seconds=seconds)
+                          free=free, residuals=r, identifiability=ident,
+                          nfev=int(f.result.nfev), seconds=seconds)
 

@@ -23,9 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._identifiability import analyse_identifiability
+from ._engine import fit_problem, fit_provenance
 from ._layout import ParameterLayout
-from ._lsq import fit_free_parameters
 from ._objective import CalibrationProblem
 
 __all__ = [
@@ -188,6 +187,26 @@ class PlanarFit:
     coil_residual_percent: np.ndarray
     n_points: int
     condition: float
+    free: tuple = ("gains", "offsets")
+
+    def to_calibration(self, *, insample=None, holdout=None, provenance=None):
+        """The calibration file's content: the board model with this fit's standard errors,
+        statistics (with the ``insample`` / ``holdout`` accuracy blocks given) and provenance
+        (:func:`~openemt.calibrate._engine.fit_provenance` plus the dict ``provenance``)."""
+        from ..io import Calibration
+
+        stats = {k: v for k, v in self.to_dict().items()
+                 if k in ("status", "iterations", "n_points", "rms_residual", "condition",
+                          "coil_residual_percent")}
+        for key, block in (("insample", insample), ("holdout", holdout)):
+            if block is not None:
+                stats[key] = block
+        return Calibration(self.model, mode="planar", free=tuple(self.free),
+                           standard_errors={"gains": self.gains_se,
+                                            "offsets": self.offsets_se,
+                                            "tilts": self.tilts_se},
+                           stats=stats, provenance=fit_provenance("planar",
+                                                                  **(provenance or {})))
 
     def to_dict(self) -> dict:
         m = self.model
@@ -278,21 +297,18 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
     groups = ("gains", "offsets") + (("tilts_in_plane",) if fit_tilt else ())
     free = layout.free_indices(groups)
     x0 = layout.pack(model, np.zeros(6), np.zeros(6), np.zeros(6))
-    x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_iter)
-    r, J = prob.residuals_and_jacobian(x)
-    ident = analyse_identifiability(J[:, free], r, free, layout, groups, warn=False)
-    model = layout.model(x)
-    se = np.zeros(layout.size)
-    se[free] = ident.standard_errors
-    parts = model.split_params(se[layout.slices["model"]])
-    status = ("singular" if not ident.condition <= 1e12 else
-              "converged" if res.status > 0 else "max_iterations")
+    f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_iter, warn=False)
+    model = layout.model(f.x)
+    parts = model.split_params(f.standard_errors[layout.slices["model"]])
+    status = ("singular" if not f.identifiability.condition <= 1e12 else
+              "converged" if f.converged else "max_iterations")
     resid = Cm - model.coupling_points(data.points, data.axes)
     return PlanarFit(model=model, gains_se=parts["gains"], offsets_se=parts["offsets"],
-                     tilts_se=parts["tilts"], status=status, iterations=int(res.nfev),
+                     tilts_se=parts["tilts"], status=status, iterations=int(f.result.nfev),
                      rms_residual=float(np.sqrt(np.mean(resid ** 2))),
                      coil_residual_percent=coil_residual_percent(resid, Cm),
-                     n_points=N, condition=float(ident.condition))
+                     n_points=N, condition=float(f.identifiability.condition),
+                     free=groups)
 
 
 def checkerboard_split(points, tolerance: float = 1e-3) -> np.ndarray:

@@ -29,13 +29,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .. import __version__
 from .._errors import InputError
 from ..io import Calibration, Dataset
 from ..solve import spectral_norms
-from ._identifiability import IdentifiabilityWarning, analyse_identifiability
+from ._engine import fit_problem, fit_provenance
+from ._identifiability import IdentifiabilityWarning
 from ._layout import ParameterLayout
-from ._lsq import fit_free_parameters
 from ._objective import CalibrationProblem
 
 __all__ = [
@@ -515,10 +514,9 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     frz = tuple(start.model.fixed_groups) + tuple(freeze)
     free = layout.free_indices(optimize, frz)
 
-    x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
-    r, J = prob.residuals_and_jacobian(x)
     groups = [g for g in optimize if g not in frz]
-    ident = analyse_identifiability(J[:, free], r, free, layout, groups, warn=False)
+    f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_nfev, warn=False)
+    x, r, J, ident = f.x, f.residuals, f.jacobian, f.identifiability
     xy = _xy_identifiability(J[:, free], free, layout, ident, optimize)
     messages = []
     if xy["undetermined"]:
@@ -553,22 +551,13 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     cov_xy, X_se, Y_se = _xy_covariance(F_st, F_se, cov_vec, bad)
     seconds = time.perf_counter() - t0
 
-    rms = float(np.sqrt(r @ r / n))
-    stats = {"rms_residue": rms, "sum_squared_residue": float(r @ r), "num_points": int(n),
-             "nfev": int(res.nfev), "optimizer_status": int(res.status), "fit_seconds": seconds,
-             "jacobian_rank": ident.rank, "n_free": ident.n_free,
-             "condition": xy["condition"], "xy_condition": xy["xy_condition"],
+    rms = f.stats["rms_residue"]
+    stats = {**f.stats, "fit_seconds": seconds, "xy_condition": xy["xy_condition"],
              "undetermined_groups": list(xy["undetermined"])}
-    hashes = dict(dataset.meta.get("provenance", {}).get("inputs", {}))
-    files = sorted(set(dataset.select(train).file_names().tolist()) - {""})
-    provenance = {
-        "openemt_version": __version__, "mode": "reference",
-        "optimizer": "scipy.optimize.least_squares(lm), analytic Jacobian",
-        "inputs": {f: hashes.get(f) for f in files}, "num_rows": int(n),
-        "held_out_rows": test.tolist(), "seed": int(seed),
-        "start": {"mode": start.mode, "file": start.provenance.get("file"),
-                  "xy": start_info["method"]},
-    }
+    provenance = fit_provenance(
+        "reference", dataset, train, held_out_rows=test.tolist(), seed=int(seed),
+        start={"mode": start.mode, "file": start.provenance.get("file"),
+               "xy": start_info["method"]})
     block = _reference_block(X, Y, info, X_se, Y_se)
     cal = Calibration(model=layout.model(x), source_fixture=np.zeros(6),
                       stage_fixture=F_st, sensor_fixture=F_se, mode="reference",

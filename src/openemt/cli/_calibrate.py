@@ -100,7 +100,7 @@ def _planar(args) -> int:
         planar_accuracy,
         read_grid,
     )
-    from ..io import Calibration, atomic_path, load_board, read_calibration, write_calibration
+    from ..io import atomic_path, load_board, read_calibration, write_calibration
 
     if args.holdout not in (None, "checkerboard"):
         raise InputError(f"expected --holdout checkerboard in planar mode, got "
@@ -155,15 +155,8 @@ def _planar(args) -> int:
     summary["warnings"] = warns
     summary["seconds"] = time.perf_counter() - t0
     if args.output:
-        stats = {k: summary[k] for k in ("status", "iterations", "n_points", "rms_residual",
-                                         "condition", "coil_residual_percent", "insample")}
-        if "holdout" in summary:
-            stats["holdout"] = summary["holdout"]
-        cal = Calibration(
-            fit.model, mode="planar",
-            standard_errors={"gains": fit.gains_se, "offsets": fit.offsets_se,
-                             "tilts": fit.tilts_se},
-            stats=stats,
+        cal = fit.to_calibration(
+            insample=summary["insample"], holdout=summary.get("holdout"),
             provenance={"grid_file": str(args.dataset), "start_file": args.start,
                         "board": args.board or (None if args.start else "anser"),
                         "fit_tilt": bool(args.tilt), "holdout": args.holdout})
