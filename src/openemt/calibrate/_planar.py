@@ -26,6 +26,7 @@ from .._errors import InputError
 from ._engine import fit_problem, fit_provenance
 from ._layout import ParameterLayout
 from ._objective import CalibrationProblem
+from ._split import checkerboard_split
 
 __all__ = [
     "GridData",
@@ -309,23 +310,6 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
                      coil_residual_percent=coil_residual_percent(resid, Cm),
                      n_points=N, condition=float(f.identifiability.condition),
                      free=groups)
-
-
-def checkerboard_split(points, tolerance: float = 1e-3) -> np.ndarray:
-    """Boolean mask of the "black" squares of a grid (fit points); the rest are held out.
-
-    Along each of x, y and z the sorted coordinates are grouped into grid lines wherever
-    neighbours differ by more than ``tolerance`` (m), which absorbs a slightly tilted or noisy
-    grid; a point is black when the sum of its three line indices is even, so every held-out
-    point has fitted neighbours on all sides.
-    """
-    P = np.asarray(points, dtype=np.float64)
-    idx = np.zeros(len(P), dtype=np.int64)
-    for a in range(3):
-        order = np.argsort(P[:, a], kind="stable")
-        line = np.concatenate([[0], np.cumsum(np.diff(P[order, a]) > tolerance)])
-        idx[order] += line
-    return idx % 2 == 0
 
 
 @dataclass(frozen=True, eq=False)

@@ -36,6 +36,7 @@ from ._engine import fit_problem, fit_provenance
 from ._identifiability import IdentifiabilityWarning
 from ._layout import ParameterLayout
 from ._objective import CalibrationProblem
+from ._split import holdout_split
 
 __all__ = [
     "MIN_REFERENCE_POSES",
@@ -431,18 +432,12 @@ def score_reference(calibration, couplings, B, *, X=None, Y=None, noise_trans=No
     return out
 
 
-def _split(n, holdout, seed):
-    h = float(holdout)
-    if not 0.0 <= h < 1.0:
-        raise InputError(f"expected a held-out fraction in [0, 1), got {holdout!r}")
-    n_test = round(h * n)
-    if h > 0 and n_test == 0:
-        n_test = 1
-    if n - n_test < MIN_REFERENCE_POSES:
-        raise InputError(f"expected at least {MIN_REFERENCE_POSES} training poses, got "
-                         f"{n - n_test} of {n} (held-out fraction {h})")
-    perm = np.random.default_rng(seed).permutation(n)
-    return np.sort(perm[n_test:]), np.sort(perm[:n_test])
+def _split(B, holdout, seed):
+    """Training and held-out rows (:func:`~openemt.calibrate.holdout_split`; ``location``
+    blocks by the reference's positions)."""
+    test = holdout_split(holdout, len(B), points=B[:, :3, 3], seed=seed,
+                         min_train=MIN_REFERENCE_POSES, what="poses")
+    return np.flatnonzero(~test), np.flatnonzero(test)
 
 
 def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float = 0.0,
@@ -463,8 +458,9 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     freeze : sequence of str
         Further parameter groups to hold (layout names: ``st_fix`` is Y, ``se_fix`` is X^-1,
         e.g. ``z_se_fix`` holds X^-1's z translation, the gauge of rotations about one axis).
-    holdout : float
-        Fraction of poses held out at random (``seed``), scored by :func:`score_reference`
+    holdout : float or str
+        Fraction of poses held out at random (``seed``), or ``'location'`` (regions of the
+        volume, :func:`~openemt.calibrate.holdout_split`), scored by :func:`score_reference`
         with the calibration fitted on the others.
     max_nfev, tol : passed to ``scipy.optimize.least_squares``.
     warn : bool
@@ -491,7 +487,7 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
         raise InputError(f"expected finite couplings and reference poses, got "
                          f"{int((~ok).sum())} rows with NaN or inf")
     t0 = time.perf_counter()
-    train, test = _split(len(B_all), holdout, seed)
+    train, test = _split(np.where(np.isfinite(B_all), B_all, 0.0), holdout, seed)
     C, B = C_all[train], B_all[train]
     hemi = _hemisphere(info, hemisphere)
     X0, Y0, start_info = _start_xy(start, dataset.couplings[train], B, hemi)
@@ -555,7 +551,8 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     stats = {**f.stats, "fit_seconds": seconds, "xy_condition": xy["xy_condition"],
              "undetermined_groups": list(xy["undetermined"])}
     provenance = fit_provenance(
-        "reference", dataset, train, held_out_rows=test.tolist(), seed=int(seed),
+        "reference", dataset, train, held_out_rows=test.tolist(), holdout=holdout,
+        seed=int(seed),
         start={"mode": start.mode, "file": start.provenance.get("file"),
                "xy": start_info["method"]})
     block = _reference_block(X, Y, info, X_se, Y_se)

@@ -39,11 +39,12 @@ def register(sub) -> None:
                         "dataset with known poses; 'reference': coil model and the X, Y of "
                         "A X = Y B against the reference poses of a robot arm or optical tracker "
                         "(docs/reference-calibration.md)")
-    p.add_argument("--holdout", default=None, metavar="FRACTION|checkerboard",
-                   help="reference mode: hold out this fraction of the poses at random and "
-                        "report their error with the calibration fitted on the others; "
-                        "planar mode: 'checkerboard' fits on alternate grid points and solves "
-                        "the others")
+    p.add_argument("--holdout", default=None, metavar="FRACTION|checkerboard|location",
+                   help="reference mode: hold out this fraction of the poses at random, or "
+                        "'location' (alternate regions of the volume), and report their error "
+                        "with the calibration fitted on the others; planar mode: "
+                        "'checkerboard' fits on alternate grid points and solves the others, "
+                        "'location' holds out alternate regions (docs/calibration.md)")
     p.add_argument("--seed", type=int, default=0,
                    help="reference mode: seed of the held-out choice (default 0)")
     p.add_argument("--hemisphere", default=None,
@@ -95,15 +96,15 @@ def _planar(args) -> int:
     from ..calibrate._planar import (
         GridData,
         check_grid_units,
-        checkerboard_split,
         fit_planar,
         planar_accuracy,
         read_grid,
     )
+    from ..calibrate._split import holdout_split
     from ..io import atomic_path, load_board, read_calibration, write_calibration
 
-    if args.holdout not in (None, "checkerboard"):
-        raise InputError(f"expected --holdout checkerboard in planar mode, got "
+    if args.holdout not in (None, "checkerboard", "location"):
+        raise InputError(f"expected --holdout checkerboard (or location) in planar mode, got "
                          f"{args.holdout!r}")
     t0 = time.perf_counter()
     data = read_grid(args.dataset)
@@ -124,8 +125,8 @@ def _planar(args) -> int:
         board = replace(board, sensor=replace(board.sensor, length=float(args.sensor_length)))
         start_model = (start_model.replace(board=board)
                        if isinstance(start_model, PlanarModel) else board)
-    fit_mask = (checkerboard_split(data.points) if args.holdout
-                else np.ones(len(data.points), bool))
+    fit_mask = (~holdout_split(args.holdout, len(data.points), points=data.points)
+                if args.holdout else np.ones(len(data.points), bool))
     need = 7 if args.tilt else 5                     # more points than parameters per coil
     if fit_mask.sum() < need or (args.holdout and (~fit_mask).sum() < 1):
         raise InputError(f"expected at least {need} grid points to fit"
@@ -374,15 +375,17 @@ def _run(args) -> int:
     return 0
 
 
-def _fraction(value) -> float:
-    """``--holdout`` of the reference mode: a fraction in [0, 1)."""
+def _fraction(value):
+    """``--holdout`` of the reference mode: a fraction in [0, 1) or ``'location'``."""
     if value is None:
         return 0.0
+    if value == "location":
+        return value
     try:
         f = float(value)
     except ValueError:
         f = math.nan
     if not 0.0 <= f < 1.0:
-        raise InputError(f"expected --holdout FRACTION in [0, 1) in reference mode, got "
-                         f"{value!r}")
+        raise InputError(f"expected --holdout FRACTION in [0, 1) (or location) in reference "
+                         f"mode, got {value!r}")
     return f

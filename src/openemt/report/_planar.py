@@ -123,7 +123,8 @@ def planar_report(data, cal, *, holdout: str | None = None, dataset: str = "",
         ``tilts_se_deg``, ``seconds``.
     """
     from .._errors import InputError
-    from ..calibrate._planar import check_grid_units, checkerboard_split, planar_errors
+    from ..calibrate._planar import check_grid_units, planar_errors
+    from ..calibrate._split import checkerboard_split
     from ._built import BuiltReport
 
     t0 = time.perf_counter()
