@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from ..evaluate import axis_errors, coil_residual_percent, point_axis_summary
 from ._engine import fit_problem, fit_provenance
 from ._layout import ParameterLayout
 from ._objective import CalibrationProblem
@@ -233,13 +234,6 @@ def check_grid_units(data: GridData, sensor_length: float | None = None) -> None
                          f"{sensor_length:g}: millimetres given where metres are expected?")
 
 
-def coil_residual_percent(residual, couplings) -> np.ndarray:
-    """RMS residual of each coil (column) in percent of its peak |coupling|."""
-    peak = np.abs(couplings).max(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return 100.0 * np.sqrt(np.mean(np.asarray(residual) ** 2, axis=0)) / peak
-
-
 def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1e-10
                ) -> PlanarFit:
     """Fit per-coil gain, position offset (and with ``fit_tilt`` a small tilt) of a board to
@@ -366,13 +360,8 @@ class PlanarErrors:
         """``n`` (converged points scored), ``n_failed``, ``position_rms_mm``,
         ``position_max_mm``, ``axis_rms_deg`` and ``coil_residual_percent`` (per coil: RMS of
         measured minus model coupling at the known poses, percent of the coil's peak)."""
-        ok = self.converged
-        dp, ang = self.position_error[ok], self.axis_error_deg[ok]
-        nan = float("nan")
-        return {"n": int(ok.sum()), "n_failed": int((~ok).sum()),
-                "position_rms_mm": float(np.sqrt(np.mean(dp ** 2)) * 1e3) if ok.any() else nan,
-                "position_max_mm": float(dp.max() * 1e3) if ok.any() else nan,
-                "axis_rms_deg": float(np.sqrt(np.mean(ang ** 2))) if ok.any() else nan,
+        return {**point_axis_summary(self.position_error, np.deg2rad(self.axis_error_deg),
+                                     self.converged),
                 "coil_residual_percent": coil_residual_percent(self.coil_residual,
                                                                self.couplings).tolist()}
 
@@ -398,8 +387,7 @@ def planar_errors(model, data: GridData, *, result=None, **solve_options) -> Pla
     ev = np.full((len(ok), 3), np.nan)
     ev[ok] = res.poses[ok, :3, 3] - data.points[ok]
     ang = np.full(len(ok), np.nan)
-    cosang = np.clip(np.einsum("ij,ij->i", res.poses[ok, :3, 2], data.axes[ok]), -1.0, 1.0)
-    ang[ok] = np.degrees(np.arccos(cosang))
+    ang[ok] = np.degrees(axis_errors(res.poses[ok, :3, 2], data.axes[ok]))
     resid = data.couplings - model.coupling_points(data.points, data.axes)
     return PlanarErrors(res, ok, ev, np.linalg.norm(ev, axis=1), ang, resid, data.couplings)
 

@@ -161,3 +161,33 @@ def error_summary(trans_err, rot_err) -> ErrorSummary:
     return ErrorSummary(**{f"trans_{k}": v for k, v in ts.items()},
                         **{f"rot_{k}": v for k, v in rs.items()},
                         n=int(t.size), n_nonfinite=int((~ok).sum()))
+
+
+def axis_errors(axes_measured, axes_reference) -> np.ndarray:
+    """Angles (rad) between measured and reference unit axes ``(N, 3)``: the orientation error
+    of a 5-DOF sensor, whose roll about its axis is not measured (NaN where either is NaN)."""
+    a = np.asarray(axes_measured, dtype=np.float64)
+    b = np.asarray(axes_reference, dtype=np.float64)
+    c = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
+    return np.arccos(c)
+
+
+def point_axis_summary(position_error, axis_error, scored) -> dict:
+    """``n`` (rows scored), ``n_failed``, ``position_rms_mm``, ``position_max_mm`` and
+    ``axis_rms_deg`` of 5-DOF errors: position error magnitudes (m) and axis errors (rad) of
+    the rows ``scored`` (a boolean mask; NaN statistics when none is)."""
+    ok = np.asarray(scored, dtype=bool)
+    dp = np.asarray(position_error, dtype=np.float64)[ok]
+    ang = np.rad2deg(np.asarray(axis_error, dtype=np.float64)[ok])
+    nan = float("nan")
+    return {"n": int(ok.sum()), "n_failed": int((~ok).sum()),
+            "position_rms_mm": float(np.sqrt(np.mean(dp ** 2)) * 1e3) if ok.any() else nan,
+            "position_max_mm": float(dp.max() * 1e3) if ok.any() else nan,
+            "axis_rms_deg": float(np.sqrt(np.mean(ang ** 2))) if ok.any() else nan}
+
+
+def coil_residual_percent(residual, couplings) -> np.ndarray:
+    """RMS residual of each coil (column) in percent of its peak |coupling|."""
+    peak = np.abs(couplings).max(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 100.0 * np.sqrt(np.mean(np.asarray(residual) ** 2, axis=0)) / peak
