@@ -120,7 +120,7 @@ def test_calibrate_improved_and_planar_modes(ilemt_dir, tmp_path, capsys):
     assert cal.mode == "improved" and cal.linear_correction is not None
     assert set(cal.extra["rig"]["sensor_fixture_corrections"]) == {"ZinYup", "ZinXdown"}
 
-    from openemt.board import PlanarModel
+    from openemt.board import BoardModel
     from openemt.calibrate import GridData, write_grid_csv
     from openemt.simulate import stage_pattern
 
@@ -129,7 +129,7 @@ def test_calibrate_improved_and_planar_modes(ilemt_dir, tmp_path, capsys):
     d_true = np.zeros((8, 3))
     d_true[3] = [3e-4, -2e-4, 1e-4]
     # the built-in board file (the corrected Anser geometry) is the fit's default board
-    C = PlanarModel.from_board("anser", gains=0.01, offsets=d_true).coupling_points(pts, u)
+    C = BoardModel.from_board("anser", gains=0.01, offsets=d_true).coupling_points(pts, u)
     grid = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), grid)
     res = tmp_path / "planar.json"

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from openemt.board import PlanarModel, board_coils, builtin_board
+from openemt.board import BoardModel, board_coils, builtin_board
 from openemt.calibrate import GridData, fit_planar, read_grid_csv, write_grid_csv
 from openemt.field import FiniteCoilModel, circular_coil
 from openemt.geometry import pose_from_vector
@@ -42,7 +42,7 @@ def test_board_model_matches_the_finite_coil_truth():
     sensor = circular_coil(np.zeros(3), [0.0, 0.0, 1.0], radius=1e-4)
     P = pose_from_vector(np.c_[pts, np.tile([np.pi, 0.0, 0.0], (len(pts), 1))])
     C_ref = FiniteCoilModel(tuple(board_coils(board)), (sensor,)).coupling(P)[:, :, 0]
-    C = PlanarModel.from_board(board).coupling_points(pts, u)
+    C = BoardModel.from_board(board).coupling_points(pts, u)
     k = np.sum(C * C_ref) / np.sum(C * C)
     np.testing.assert_allclose(k * C, C_ref, rtol=0, atol=1e-5 * np.abs(C_ref).max())
 
@@ -52,7 +52,7 @@ def test_planar_calibration_recovers_gains_and_offsets(tmp_path):
     pts, u = _grid()
     g_true = 0.01 * (1 + rng.normal(0, 0.02, 8))
     d_true = rng.normal(0, 0.5e-3, (8, 3))
-    C = PlanarModel.from_board("anser", gains=g_true, offsets=d_true).coupling_points(pts, u)
+    C = BoardModel.from_board("anser", gains=g_true, offsets=d_true).coupling_points(pts, u)
     C = C + rng.normal(0, 1e-4 * np.sqrt(np.mean(C ** 2)), C.shape)
     path = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), path)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from openemt._errors import InputError
-from openemt.board import PlanarModel, builtin_board
+from openemt.board import BoardModel, builtin_board
 from openemt.calibrate import ParameterLayout
 from openemt.field import (
     CouplingModel,
@@ -35,7 +35,7 @@ def _dipole(ne=3):
 def _board(name="anser-6dof", seed=1):
     rng = np.random.default_rng(seed)
     ne = builtin_board(name).sensor.n_coils
-    return PlanarModel.from_board(name, gains=rng.uniform(0.5, 2.0, 8),
+    return BoardModel.from_board(name, gains=rng.uniform(0.5, 2.0, 8),
                                   offsets=rng.normal(0.0, 1e-3, (8, 3)),
                                   tilts=rng.normal(0.0, 1e-2, (8, 3)),
                                   sensor_gains=np.r_[1.0, rng.uniform(0.9, 1.1, ne - 1)])

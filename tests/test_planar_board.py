@@ -9,7 +9,7 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from openemt._errors import InputError
-from openemt.board import PlanarModel, board_from_dict
+from openemt.board import BoardModel, board_from_dict
 from openemt.field._segments import segment_coupling, segment_fields
 from openemt.io import load_board, read_board, write_board
 from openemt.solve import Status, solve_planar
@@ -120,7 +120,7 @@ def test_segment_gradient_matches_differences(anser):
 
 
 def test_coupling_derivatives(anser):
-    m = PlanarModel.from_board(anser, gains=2.0)
+    m = BoardModel.from_board(anser, gains=2.0)
     p = np.array([[0.02, 0.03, 0.09]])
     u = np.array([[0.3, -0.2, 0.93]])
     u /= np.linalg.norm(u)
@@ -148,7 +148,7 @@ def _track(n=300):
 
 
 def test_solver_recovers_exact_poses(anser):
-    m = PlanarModel.from_board(anser, gains=0.5)       # tesla-scale couplings ~1e-8..1e-5
+    m = BoardModel.from_board(anser, gains=0.5)       # tesla-scale couplings ~1e-8..1e-5
     P, U = _track()
     C = m.coupling_points(P, U)
     assert 1e-10 < np.abs(C).min() and np.abs(C).max() < 1e-4
@@ -170,7 +170,7 @@ def test_solver_recovers_exact_poses(anser):
 
 
 def test_solver_statuses(anser):
-    m = PlanarModel.from_board(anser)
+    m = BoardModel.from_board(anser)
     P, U = _track(4)
     C = m.coupling_points(P, U)
     C[1] = np.nan

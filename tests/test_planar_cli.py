@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from openemt._errors import InputError
-from openemt.board import PlanarModel
+from openemt.board import BoardModel
 from openemt.calibrate import GridData, write_grid_csv
 from openemt.calibrate._planar import checkerboard_split, fit_planar
 from openemt.cli import main
@@ -30,7 +30,7 @@ def truth():
     rng = np.random.default_rng(7)
     offsets = rng.normal(0.0, 2e-3, (8, 3))             # a few mm per coil
     gains = rng.uniform(0.9, 1.1, 8)                     # tesla-scale couplings for 1 A
-    return PlanarModel.from_board("anser", gains=gains, offsets=offsets)
+    return BoardModel.from_board("anser", gains=gains, offsets=offsets)
 
 
 def _noisy(model, pts, u, sigma, seed):
@@ -174,7 +174,7 @@ def test_custom_board_and_unit_errors(tmp_path, capsys):
     board = load_board("anser")
     bfile = write_board(board, tmp_path / "my.toml")
     pts, u = _grid()
-    C = PlanarModel.from_board(load_board(bfile)).coupling_points(pts, u)
+    C = BoardModel.from_board(load_board(bfile)).coupling_points(pts, u)
     grid = tmp_path / "grid.csv"
     write_grid_csv(GridData(pts, u, C), grid)
     rc, out, err = _run(["calibrate", str(grid), "--mode", "planar", "--board", str(bfile),
@@ -226,7 +226,7 @@ def test_simulate_with_board_file(tmp_path, capsys):
 def test_fit_reports_singular_normal_equations():
     pts = np.tile([[0.0, 0.0, 0.08]], (10, 1))            # one point repeated: 8 x 4 unknowns
     u = np.tile([0.0, 0.0, -1.0], (10, 1))
-    C = PlanarModel.from_board("anser").coupling_points(pts, u)
+    C = BoardModel.from_board("anser").coupling_points(pts, u)
     fit = fit_planar(GridData(pts, u, C))
     assert fit.status == "singular"
 
@@ -235,7 +235,7 @@ def test_library_fits_refuse_millimetres():
     from openemt.calibrate._planar import check_grid_units
 
     pts, u = _grid()
-    C = PlanarModel.from_board("anser").coupling_points(pts, u)
+    C = BoardModel.from_board("anser").coupling_points(pts, u)
     with pytest.raises(InputError, match="millimetres"):
         fit_planar(GridData(pts * 1e3, u, C))
     with pytest.raises(InputError, match="sensor length in m"):
@@ -245,6 +245,6 @@ def test_library_fits_refuse_millimetres():
 def test_holdout_scheme_is_checked(tmp_path, capsys):
     pts, u = _grid()
     grid = tmp_path / "grid.csv"
-    write_grid_csv(GridData(pts, u, PlanarModel.from_board("anser").coupling_points(pts, u)), grid)
+    write_grid_csv(GridData(pts, u, BoardModel.from_board("anser").coupling_points(pts, u)), grid)
     rc, _, err = _run(["calibrate", str(grid), "--mode", "planar", "--holdout", "0.3"], capsys)
     assert rc == 2 and "--holdout checkerboard" in err

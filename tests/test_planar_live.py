@@ -12,7 +12,7 @@ import pytest
 from _counts import converged_only
 from _igtl_listener import Listener
 
-from openemt.board import PlanarModel
+from openemt.board import BoardModel
 from openemt.io import Calibration, write_calibration
 from openemt.live import IgtlServer, TrackingPipeline, example_tracker, read_tracker
 from openemt.live._board import (
@@ -28,7 +28,7 @@ from openemt.solve import Status
 @pytest.fixture(scope="module")
 def board_cal(tmp_path_factory):
     rng = np.random.default_rng(5)
-    model = PlanarModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
+    model = BoardModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
                                    offsets=rng.normal(0.0, 1e-3, (8, 3)))
     path = tmp_path_factory.mktemp("board") / "board_cal.json"
     write_calibration(Calibration(model, mode="planar"), path)
@@ -119,7 +119,7 @@ def test_board_calibration_refusals(cli, capsys, board_cal, tmp_path):
 
 
 def test_board_solver_recovers_after_a_jump():
-    model = PlanarModel.from_board("anser")
+    model = BoardModel.from_board("anser")
     solve = board_solver(model)
     poses = board_trajectory(np.array([0.0, 0.5, 0.5, 0.5]))
     poses[2:, :3, 3] += [0.06, -0.05, 0.04]                  # the sensor jumps 9 cm

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from _report_checks import defined_symbols, shown_symbols
 
-from openemt.board import PlanarModel
+from openemt.board import BoardModel
 from openemt.cli import main
 from openemt.simulate import stage_pattern
 
@@ -40,7 +40,7 @@ def _grid_dataset(model, path, sigma_rel=1e-4, seed=3):
 def calibrated(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("planar_report")
     rng = np.random.default_rng(11)
-    truth = PlanarModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
+    truth = BoardModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
                                    offsets=rng.normal(0.0, 2e-3, (8, 3)))
     grid = _grid_dataset(truth, tmp / "grid.h5")
     cal = tmp / "cal.json"

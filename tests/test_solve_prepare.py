@@ -11,7 +11,7 @@ import pytest
 
 import openemt.solve
 from openemt._errors import InputError
-from openemt.board import PlanarModel
+from openemt.board import BoardModel
 from openemt.field import DipoleModel, OctupoleModel
 from openemt.geometry import pose_from_vector
 from openemt.io import Calibration, Dataset, write_calibration, write_dataset
@@ -111,7 +111,7 @@ def test_improved_calibration_refines_for_its_octupole_terms():
 @pytest.fixture(scope="module")
 def board():
     rng = np.random.default_rng(5)
-    model = PlanarModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
+    model = BoardModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
                                    offsets=rng.normal(0.0, 1e-3, (8, 3)))
     P = board_trajectory(np.linspace(0.0, 4.0, 120))
     return model, P, model.coupling(P)
@@ -200,7 +200,7 @@ def test_live_pipeline_builds_its_solvers_with_the_factory(board, monkeypatch):
     assert isinstance(lm_solver(model), PreparedLM)
     bmodel, P, C = board
     solve = board_solver(bmodel)
-    assert calls[-1] == "PlanarModel"
+    assert calls[-1] == "BoardModel"
     first = solve(C[:1], "kim18")                          # acquiring: cold, from the grid
     _same(first, solve_planar(C[:1], bmodel))
     warm = solve(C[1:4], np.tile(first.pose_vectors[0], (3, 1)))

@@ -59,14 +59,14 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
     import numba
     from scipy.optimize import least_squares
 
-    from ..board import PlanarModel
+    from ..board import BoardModel
     from ..solve import Status, prepare
 
     n, nb = int(samples), int(baseline_samples)
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        model = PlanarModel.from_board("anser")
+        model = BoardModel.from_board("anser")
         P, U = planar_trajectory(n)
         C = model.coupling_points(P, U)
         rng = np.random.default_rng(seed)
@@ -152,7 +152,7 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
     warm-up."""
     import numba
 
-    from ..board import PlanarModel
+    from ..board import BoardModel
     from ..evaluate import error_summary, pose_error_magnitudes
     from ..geometry import pose_from_vector
     from ..solve import prepare
@@ -162,7 +162,7 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        model = PlanarModel.from_board("anser-6dof")
+        model = BoardModel.from_board("anser-6dof")
         pos, axes = planar_trajectory(n)
         roll = np.deg2rad(60.0) * np.sin(2 * np.pi * 0.4 * np.arange(n) / 1000.0)
         P, _ = pose_from_axis(pos, axes)

@@ -7,12 +7,12 @@ from ._geometry import (
     SHAPES,
     Board,
     CoilSpec,
-    SensorSpec,
+    SensorCoils,
     as_board,
     board_from_dict,
     builtin_board,
 )
-from ._model import PlanarModel
+from ._model import BoardModel
 
-__all__ = ["BUILTIN_BOARDS", "SENSOR_KINDS", "SHAPES", "Board", "CoilSpec", "PlanarModel",
-           "SensorSpec", "as_board", "board_coils", "board_from_dict", "builtin_board"]
+__all__ = ["BUILTIN_BOARDS", "SENSOR_KINDS", "SHAPES", "Board", "BoardModel", "CoilSpec",
+           "SensorCoils", "as_board", "board_coils", "board_from_dict", "builtin_board"]

@@ -31,7 +31,7 @@ __all__ = [
     "SHAPES",
     "Board",
     "CoilSpec",
-    "SensorSpec",
+    "SensorCoils",
     "as_board",
     "board_from_dict",
     "builtin_board",
@@ -199,7 +199,7 @@ class CoilSpec:
 
 
 @dataclass(frozen=True, eq=False)
-class SensorSpec:
+class SensorCoils:
     """The sensor: ``kind`` (``single``, ``dual`` or ``triad``), coil ``length`` and
     ``diameter`` (m); a ``dual`` sensor's two coils are ``angle`` (rad) apart and ``separation``
     (m) apart (docs/planar.md#board-file)."""
@@ -246,7 +246,7 @@ class Board:
 
     name: str
     coils: tuple
-    sensor: SensorSpec = field(default_factory=SensorSpec)
+    sensor: SensorCoils = field(default_factory=SensorCoils)
     description: str = ""
 
     @property
@@ -355,7 +355,7 @@ def board_from_dict(doc: dict, src: str = "") -> Board:
     elif "angle" in s or "separation" in s:
         raise InputError(f"{_where(src)}expected sensor angle/separation only for kind 'dual', "
                          f"got them for kind {kind!r}")
-    sensor = SensorSpec(kind, _num(s.get("length", 0.0), "sensor length", src,
+    sensor = SensorCoils(kind, _num(s.get("length", 0.0), "sensor length", src,
                                    limit=MAX_SENSOR_LENGTH_M),
                         _num(s.get("diameter", 0.0), "sensor diameter", src,
                              limit=MAX_SENSOR_LENGTH_M), angle, sep)

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from .._errors import InputError
 from ._geometry import Board, as_board
 
-__all__ = ["DipoleOnlyError", "PlanarModel", "dipole_only"]
+__all__ = ["DipoleOnlyError", "BoardModel", "dipole_only"]
 
 
 class DipoleOnlyError(InputError, AttributeError):
@@ -39,7 +39,7 @@ def dipole_only(name: str) -> DipoleOnlyError:
 
 
 @dataclass(frozen=True, eq=False)
-class PlanarModel:
+class BoardModel:
     """A board with per-coil gains ``(n,)``, offsets ``(n, 3)`` (m) and tilts ``(n, 3)``
     (rotation vectors, rad), read by the board file's sensor: one coil (5-DOF) or several
     (6-DOF), each with a relative gain ``sensor_gains (n_sensor,)`` (the first is 1, the gauge
@@ -89,7 +89,7 @@ class PlanarModel:
 
     @classmethod
     def from_board(cls, board=None, gains=1.0, offsets=None, tilts=None,
-                   sensor_gains=None) -> PlanarModel:
+                   sensor_gains=None) -> BoardModel:
         """A model of ``board`` (a :class:`Board` or built-in name; default ``anser``; a file:
         :func:`openemt.io.load_board`)."""
         b = as_board(board)
@@ -98,12 +98,12 @@ class PlanarModel:
                    np.zeros((n, 3)) if offsets is None else offsets,
                    np.zeros((n, 3)) if tilts is None else tilts, sensor_gains)
 
-    def replace(self, **kw) -> PlanarModel:
+    def replace(self, **kw) -> BoardModel:
         d = {"board": self.board, "gains": self.gains, "offsets": self.offsets,
              "tilts": self.tilts, "sensor_gains": self.sensor_gains, **kw}
         if d["board"].sensor.n_coils != self.board.sensor.n_coils and "sensor_gains" not in kw:
             d["sensor_gains"] = None
-        return PlanarModel(**d)
+        return BoardModel(**d)
 
     @property
     def n_coils(self) -> int:
@@ -174,10 +174,10 @@ class PlanarModel:
         return np.concatenate([self.gains, self.offsets.ravel(), self.tilts.ravel(),
                                self.sensor_gains])
 
-    def with_params(self, x) -> PlanarModel:
+    def with_params(self, x) -> BoardModel:
         x = np.asarray(x, dtype=np.float64)
         sl = self._slices()
-        return PlanarModel(self.board, x[sl["gains"]], x[sl["offsets"]].reshape(-1, 3),
+        return BoardModel(self.board, x[sl["gains"]], x[sl["offsets"]].reshape(-1, 3),
                            x[sl["tilts"]].reshape(-1, 3), x[sl["sensor_gains"]])
 
     def split_params(self, x) -> dict:
@@ -291,11 +291,11 @@ class PlanarModel:
                 "tilts_deg": np.degrees(self.tilts).tolist(),
                 "sensor_gains": self.sensor_gains.tolist()}
 
-    def sensor_coil_model(self, k: int) -> PlanarModel:
+    def sensor_coil_model(self, k: int) -> BoardModel:
         """The board read by sensor coil ``k`` alone (a single-coil, 5-DOF model whose gains
         carry that coil's gain): used to start a multi-coil sensor's solve coil by coil."""
         from dataclasses import replace
 
         one = replace(self.board.sensor, kind="single", angle=0.0, separation=0.0)
-        return PlanarModel(replace(self.board, sensor=one), self.gains * self.sensor_gains[k],
+        return BoardModel(replace(self.board, sensor=one), self.gains * self.sensor_gains[k],
                            self.offsets, self.tilts)

@@ -3,7 +3,7 @@
 A single-coil (5-DOF) sensor is placed at known points of a grid over the board with a known
 axis; each source coil's coupling into it is measured. The model is the finite-coil model of
 the board (the built-in ``anser`` board file by default, docs/planar.md),
-:class:`openemt.board.PlanarModel`: coil ``i``, shifted by an offset ``delta_i`` (and, on
+:class:`openemt.board.BoardModel`: coil ``i``, shifted by an offset ``delta_i`` (and, on
 request, tilted out of its plane) and scaled by a gain ``g_i``, couples into a sensor at ``p``
 with axis ``u`` as ``C_i = g_i B_i(p - delta_i) . u``, the Biot-Savart field of its traces
 averaged over the sensor's length. The gain ``g_i`` includes the sensor's gain. The fit is the
@@ -163,7 +163,7 @@ class PlanarFit:
 
     Attributes
     ----------
-    model : openemt.board.PlanarModel
+    model : openemt.board.BoardModel
         Board with fitted per-coil gains, offsets (m) and tilts (rotation vectors, rad).
     gains_se, offsets_se, tilts_se : ndarray
         Standard errors (Gauss-Newton covariance scaled by the residual variance).
@@ -247,7 +247,7 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
     data : GridData
         Known sensor positions (m) and axes and the measured couplings (any units: tesla for
         the Anser board; the gains carry the scale).
-    model : openemt.board.PlanarModel, Board, str or path, optional
+    model : openemt.board.BoardModel, Board, str or path, optional
         Starting model (a previous fit, ``--from``) or a board (default: built-in ``anser``);
         a board starts with zero offsets and tilts and per-coil least-squares gains.
     fit_tilt : bool
@@ -256,13 +256,13 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
         Iteration limit (function evaluations of the Levenberg-Marquardt fit) and its relative
         tolerance.
     """
-    from ..board import PlanarModel
+    from ..board import BoardModel
     from ..io import load_board
 
     if not isinstance(data, GridData):
         raise TypeError(f"expected GridData, got {type(data).__name__}")
-    if not isinstance(model, PlanarModel):
-        model = PlanarModel.from_board(load_board(model))   # a Board, built-in name or file
+    if not isinstance(model, BoardModel):
+        model = BoardModel.from_board(load_board(model))   # a Board, built-in name or file
         f0 = model.coupling_points(data.points, data.axes)
         if data.couplings.shape[1] == model.n_coils:
             g0 = np.sum(f0 * data.couplings, 0) / np.sum(f0 * f0, 0)

@@ -92,7 +92,7 @@ def _groups(text):
 
 def _planar(args) -> int:
     """Planar mode: fit a finite-coil board to a grid CSV (docs/planar.md#calibration)."""
-    from ..board import PlanarModel
+    from ..board import BoardModel
     from ..calibrate._planar import (
         GridData,
         check_grid_units,
@@ -111,7 +111,7 @@ def _planar(args) -> int:
     check_grid_units(data, args.sensor_length)
     if args.start is not None:
         start = read_calibration(args.start)
-        if not isinstance(start.model, PlanarModel):
+        if not isinstance(start.model, BoardModel):
             raise InputError(f"expected a finite-coil (planar) calibration for --from in planar "
                              f"mode, got a {start.model.kind!r} model calibration")
         if args.board is not None:
@@ -121,10 +121,10 @@ def _planar(args) -> int:
     else:
         start_model = load_board(args.board)           # least-squares gains, zero offsets
     if args.sensor_length is not None:
-        board = start_model.board if isinstance(start_model, PlanarModel) else start_model
+        board = start_model.board if isinstance(start_model, BoardModel) else start_model
         board = replace(board, sensor=replace(board.sensor, length=float(args.sensor_length)))
         start_model = (start_model.replace(board=board)
-                       if isinstance(start_model, PlanarModel) else board)
+                       if isinstance(start_model, BoardModel) else board)
     fit_mask = (~holdout_split(args.holdout, len(data.points), points=data.points)
                 if args.holdout else np.ones(len(data.points), bool))
     need = 7 if args.tilt else 5                     # more points than parameters per coil

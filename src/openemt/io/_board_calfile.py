@@ -25,7 +25,7 @@ BOARD_UNITS = {"model.offsets": "m", "model.tilts": "rotation vector, rad",
 
 
 def board_model_block(m) -> dict:
-    """The JSON model block of a :class:`openemt.board.PlanarModel`."""
+    """The JSON model block of a :class:`openemt.board.BoardModel`."""
     return {"kind": "finite", "n_source": m.n_source, "n_sensor": m.n_sensor,
             "board": m.board.to_dict(), "gains": m.gains.tolist(),
             "offsets": m.offsets.tolist(), "tilts": m.tilts.tolist(),
@@ -33,9 +33,9 @@ def board_model_block(m) -> dict:
 
 
 def board_model_from_block(m: dict, where: str = ""):
-    """Validate a finite-coil model block and build the :class:`openemt.board.PlanarModel`
+    """Validate a finite-coil model block and build the :class:`openemt.board.BoardModel`
     (``where`` prefixes error messages)."""
-    from ..board import PlanarModel, board_from_dict
+    from ..board import BoardModel, board_from_dict
 
     board = board_from_dict(m.get("board"), f"{where}model.board")
     n, ne = board.n_coils, board.sensor.n_coils
@@ -55,4 +55,4 @@ def board_model_from_block(m: dict, where: str = ""):
         if key in m and m[key] != want:
             raise InputError(f"{where}expected model.{key} = {want} (from model.board), got "
                              f"{m[key]!r}")
-    return PlanarModel(board, **arrays)
+    return BoardModel(board, **arrays)

@@ -75,7 +75,7 @@ class Calibration:
     model : coupling model
         Any :class:`openemt.field.CouplingModel`: a :class:`~openemt.field.DipoleModel` (source
         and sensor coil parameters, SI units, gain units for moments), a finite-coil board
-        (:class:`openemt.board.PlanarModel`), ...
+        (:class:`openemt.board.BoardModel`), ...
     source_fixture, stage_fixture, sensor_fixture : ndarray, shape (6,)
         F_so, F_st, F_se as pose vectors ``[x, y, z, rx, ry, rz]`` (m, rad); zeros if unknown.
     linear_correction : ndarray, shape (4, 4), optional

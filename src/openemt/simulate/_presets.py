@@ -248,13 +248,13 @@ def _anser_6dof() -> Preset:
     """The Anser board read by the two-coil 6-DOF sensor of ``anser-6dof.toml``; its truth is
     the board model with manufacturing tolerances (:data:`_BOARD_TOLERANCES`), so a
     calibration from the board file's nominal values has something to find."""
-    from ..board import PlanarModel, board_coils, builtin_board
+    from ..board import BoardModel, board_coils, builtin_board
 
     board = builtin_board("anser-6dof")
     scale = board_gain_scale(board)
     t = _BOARD_TOLERANCES
     rng = np.random.default_rng(t["seed"])
-    truth = PlanarModel.from_board(
+    truth = BoardModel.from_board(
         board, gains=scale * (1 + t["gain_rms"] * rng.standard_normal(8)),
         offsets=t["offset_rms_m"] * rng.standard_normal((8, 3)),
         sensor_gains=[1.0, t["sensor_gain_2"]])
@@ -279,7 +279,7 @@ def board_gain_scale(board) -> float:
     preset's) per unit board-model gain: the nominal gain of a board model of these presets."""
     from dataclasses import replace
 
-    from ..board import PlanarModel, board_coils
+    from ..board import BoardModel, board_coils
     from ..geometry import pose_from_vector
 
     b = board
@@ -289,7 +289,7 @@ def board_gain_scale(board) -> float:
     one = replace(b, sensor=replace(b.sensor, kind="single", angle=0.0, separation=0.0),
                   coils=b.coils[:1])
     P = pose_from_vector(np.array([[0.01, 0.02, 0.1, 0.2, 0.1, 0.0]]))
-    return float(fin.coupling(P)[0, 0, 0] / PlanarModel.from_board(one).coupling(P)[0, 0, 0])
+    return float(fin.coupling(P)[0, 0, 0] / BoardModel.from_board(one).coupling(P)[0, 0, 0])
 
 
 _BUILDERS = {"concentric": _concentric, "dipole-approx": _dipole_approx, "anser": anser_preset,

@@ -150,11 +150,11 @@ def nominal_calibration(preset) -> Calibration:
 
     p = get_preset(preset)
     if isinstance(p.model, CouplingModel):       # a board: its file's nominal geometry and gain
-        from ..board import PlanarModel
+        from ..board import BoardModel
         from ._presets import board_gain_scale
 
         board = p.model.board
-        return Calibration(model=PlanarModel.from_board(board, gains=board_gain_scale(board)),
+        return Calibration(model=BoardModel.from_board(board, gains=board_gain_scale(board)),
                            mode="nominal",
                            provenance={"openemt_version": __version__, "preset": p.name,
                                        "generator": "openemt.simulate.nominal_calibration"},

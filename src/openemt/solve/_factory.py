@@ -220,7 +220,7 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
     >>> solver.dof, result.status, np.round(result.pose_vectors, 6)
     (6, array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
     """
-    from ..board import PlanarModel
+    from ..board import BoardModel
     from ..field import check_coupling_model
     from ..io import Calibration
 
@@ -241,7 +241,7 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
     elif solver != "lm":
         raise InputError(f"expected solver 'lm' for a {model.kind!r} model (the closed forms "
                          f"need a concentric 3x3 dipole model), got {solver!r}")
-    elif isinstance(model, PlanarModel) and model.n_sensor == 1:
+    elif isinstance(model, BoardModel) and model.n_sensor == 1:
         inner, full = PlanarSolver(model, opts), model      # the compiled 5-DOF board solver
     else:
         from ._model_lm import ModelSolver

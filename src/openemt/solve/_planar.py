@@ -387,7 +387,7 @@ def solve_planar(couplings, model, *, initial="track", max_iter=50, xtol=1e-9,
     ----------
     couplings : array_like, shape (N, n_coils) or (N, n_coils, 1)
         Measured couplings (any units consistent with the model's gains, e.g. tesla).
-    model : openemt.board.PlanarModel
+    model : openemt.board.BoardModel
     initial : {"track", "grid"} or array (N, 4, 4)
         Warm-started tracking (cold grid start for the first sample and after a failure),
         a cold grid start for every sample, or given start poses (sensor z = coil axis).
@@ -431,10 +431,10 @@ class PreparedPlanar:
                  max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
                  bounds=None, ambiguity_tol=1e-9, hemisphere=None, n_tries=12,
                  seed_grid=None, min_sep=0.04):
-        from ..board import PlanarModel
+        from ..board import BoardModel
 
-        if not isinstance(model, PlanarModel):
-            raise TypeError(f"expected a PlanarModel, got {type(model).__name__}")
+        if not isinstance(model, BoardModel):
+            raise TypeError(f"expected a BoardModel, got {type(model).__name__}")
         max_rel, max_rng = check_validity_options(max_relative_residual, max_range)
         if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) \
                 or max_iter < 1:
