@@ -373,13 +373,12 @@ def planar_errors(model, data: GridData, *, result=None, **solve_options) -> Pla
     ``result`` (a :class:`~openemt.solve.SolveResult` of the grid's couplings, e.g. a tracked
     solution) is scored instead of solving again.
     """
-    from ..solve import Status
-    from ..solve._planar import solve_planar
+    from ..solve import Status, prepare
 
     if data.couplings.shape[1] != model.n_coils:
         raise InputError(f"expected {model.n_coils} coil columns for this board, got "
                          f"{data.couplings.shape[1]}")
-    res = (solve_planar(data.couplings, model, initial="grid", **solve_options)
+    res = (prepare(model, initial="grid", **solve_options)(data.couplings)
            if result is None else result)
     if len(res) != len(data.points):
         raise InputError(f"expected a solution of {len(data.points)} points, got {len(res)}")
