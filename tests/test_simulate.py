@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from openemt.field import DipoleModel
+from openemt.field import CouplingModel, DipoleModel
 from openemt.geometry import (
     SENSOR_FIXTURES,
     SOURCE_FIXTURES,
@@ -270,9 +270,10 @@ def test_presets(name):
     p = get_preset(name)
     assert get_preset(name) is p and get_preset(p) is p
     assert isinstance(p.dipole, DipoleModel) and p.finite
-    assert (p.n_source, p.n_sensor) == ((8, 1) if name == "anser" else (3, 3))
+    shapes = {"anser": (8, 1), "anser-6dof": (8, 2)}
+    assert (p.n_source, p.n_sensor) == shapes.get(name, (3, 3))
     assert p.frequencies.shape == (p.n_source,)
-    if name != "anser":
+    if name not in shapes:
         # gauge of MacLachlan et al. 2025, eq. 7: Z coils at the origin along z, source Z gain 1, M[1, 0] = 0
         for L, M in ((p.dipole.L_so, p.dipole.M_so), (p.dipole.L_se, p.dipole.M_se)):
             np.testing.assert_array_equal(L[:, 2], 0)
@@ -285,7 +286,7 @@ def test_presets(name):
 def test_all_fixture_combinations_of_each_preset():
     for name in PRESETS:
         ds = simulate(name, "md", snr_db=80, seed=1)
-        n_combos = 4 if name == "anser" else 6
+        n_combos = 4 if name.startswith("anser") else 6     # a board turns in its plane only
         assert ds.n_samples == 142 * n_combos
         assert np.all(np.isfinite(ds.couplings))
 
@@ -314,7 +315,9 @@ def test_truth_calibration():
         p = get_preset(name)
         cal = truth_calibration(name)
         assert isinstance(cal, Calibration) and cal.mode == "truth"
-        assert cal.model is p.dipole
+        # a finite-coil truth has its dipole equivalent; a board truth is itself the model
+        assert cal.model is (p.model if isinstance(p.model, CouplingModel) else p.dipole)
+        assert (name == "anser-6dof") == isinstance(p.model, CouplingModel)
         np.testing.assert_array_equal(cal.stage_fixture, p.stage_fixture)
         _F_so, F_st, _F_se = cal.fixture_poses
         np.testing.assert_allclose(F_st, pose_from_vector(p.stage_fixture))
