@@ -387,8 +387,7 @@ def _dataset(args, dws, n, setup, motion, server, kind, noise_t, noise_r, hemisp
     C = dws.couplings[:n]
     B = dws.reference_poses[:n]
     iv = dws.intervals[:n]
-    ref_kind = kind if (server is not None or motion is not None) else "igtl" if \
-        args.reference else "csv"
+    ref_kind = kind if server is not None else "igtl" if args.reference else "csv"
     dwells = dws.stats()
     dwells["used"] = n
     meta = {

@@ -39,6 +39,7 @@ __all__ = [
     "coverage",
     "estimate_time_offset",
     "find_dwells",
+    "log_profile",
     "mean_pose",
     "pose_motion",
 ]
@@ -54,6 +55,8 @@ ROTATION_SPEED_STATIC = np.deg2rad(1.0)
 BASELINE_S = 0.1
 #: Lever (m) that turns a rotation speed into a speed for the motion profile of the reference.
 LEVER_M = 0.1
+#: Floor of :func:`log_profile`, a fraction of the 99th percentile of the motion.
+PROFILE_FLOOR = 0.01
 #: Grid step (s) of the cross-correlation of the two motion profiles.
 GRID_S = 0.002
 #: A dwell is trimmed by this much at both ends (the settling of the robot and the frame
@@ -61,11 +64,12 @@ GRID_S = 0.002
 MARGIN_S = 0.1
 #: ... and kept when at least this long after trimming.
 MIN_DWELL_S = 0.3
-#: Within a kept dwell, no tracker sample may differ from the dwell mean by more than this
-#: fraction of its norm, and no reference pose from the mean pose by more than these.
-COUPLING_SPREAD = 2e-3
-TRANS_SPREAD_M = 0.5e-3
-ROT_SPREAD_RAD = np.deg2rad(0.25)
+#: Within a kept dwell, the means of its first and second halves may differ by at most this
+#: fraction of the couplings' norm (tracker), and by these (reference): a slow drift below
+#: the static speeds is caught, while the per-sample noise averages out.
+COUPLING_DRIFT = 1e-3
+TRANS_DRIFT_M = 0.2e-3
+ROT_DRIFT_RAD = np.deg2rad(0.1)
 
 
 def _uniform(times, values, step):
@@ -222,6 +226,20 @@ def estimate_time_offset(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0
     return float(offsets[k] + frac * step), float(r[k])
 
 
+def log_profile(motion, floor: float = PROFILE_FLOOR):
+    """``log(max(motion, floor * q99))``: a motion profile for :func:`estimate_time_offset`.
+
+    The couplings' rate of change and the reference's speed are different functions of the
+    same progress along each move; their ratio varies within a move, which biases a
+    correlation of the raw profiles by a few ms. The logarithm turns that ratio into an
+    additive term small beside the steep rise from the floor (here ``floor`` times the 99th
+    percentile) when a move starts and ends, which both streams share.
+    """
+    x = np.asarray(motion, dtype=np.float64)
+    q = np.quantile(x, 0.99) if len(x) else 0.0
+    return np.log(np.maximum(x, max(floor * q, np.finfo(float).tiny)))
+
+
 def find_dwells(times, static, *, margin: float = MARGIN_S, min_duration: float = MIN_DWELL_S):
     """Intervals ``(start, end)`` (s) where ``static`` holds, trimmed by ``margin`` at both
     ends and at least ``min_duration`` long after trimming; an interval that touches the end of
@@ -238,6 +256,12 @@ def find_dwells(times, static, *, margin: float = MARGIN_S, min_duration: float 
     a, b = t[starts[keep]] + margin, t[ends[keep]] - margin
     ok = b - a >= min_duration
     return np.column_stack([a[ok], b[ok]])
+
+
+def _drift(x):
+    """Norm of the difference of the means of the second and first halves of ``x`` (N, ...)."""
+    h = len(x) // 2
+    return float(np.linalg.norm(x[h:].mean(axis=0) - x[:h].mean(axis=0)))
 
 
 def mean_pose(poses) -> np.ndarray:
@@ -267,8 +291,10 @@ class DwellSet:
     tracker_dwells, reference_dwells : int
         Dwells found in each stream alone.
     dropped : dict
-        Dwells where both were static but one moved within (``moved``), or with too few
-        samples of the reference (``no_reference``).
+        Dwells of the tracker not kept: the reference moved within them or within the kept
+        part failed a drift test (``moved``; a tracker that moved within a reference dwell
+        shows as fewer ``tracker_dwells``), or the reference has no poses there
+        (``no_reference``).
     """
 
     couplings: np.ndarray
@@ -300,12 +326,12 @@ class DwellSet:
 
 
 def thresholds() -> dict:
-    """The static and spread thresholds, for the dataset's metadata."""
+    """The static and drift thresholds, for the dataset's metadata."""
     return {"coupling_rate_per_s": COUPLING_RATE_STATIC, "speed_m_per_s": SPEED_STATIC,
             "rotation_speed_rad_per_s": float(ROTATION_SPEED_STATIC),
             "baseline_s": BASELINE_S, "margin_s": MARGIN_S, "min_dwell_s": MIN_DWELL_S,
-            "coupling_spread": COUPLING_SPREAD, "trans_spread_m": TRANS_SPREAD_M,
-            "rot_spread_rad": float(ROT_SPREAD_RAD)}
+            "coupling_drift": COUPLING_DRIFT, "trans_drift_m": TRANS_DRIFT_M,
+            "rot_drift_rad": float(ROT_DRIFT_RAD)}
 
 
 def collect_dwells(t_tracker, couplings, t_reference, reference_poses, *,
@@ -334,7 +360,8 @@ def collect_dwells(t_tracker, couplings, t_reference, reference_poses, *,
     gb, v, w = pose_motion(tr, B)
     corr = float("nan")
     if time_offset is None:
-        time_offset, corr = estimate_time_offset(ga, rate, gb, v + LEVER_M * w,
+        time_offset, corr = estimate_time_offset(ga, log_profile(rate), gb,
+                                                 log_profile(v + LEVER_M * w),
                                                  max_offset=max_offset)
     static_a = rate < COUPLING_RATE_STATIC
     static_b = (v < SPEED_STATIC) & (w < ROTATION_SPEED_STATIC)
@@ -344,31 +371,40 @@ def collect_dwells(t_tracker, couplings, t_reference, reference_poses, *,
     gbt = ga + time_offset
     inside = (gbt >= gb[0]) & (gbt <= gb[-1])
     sb = np.interp(gbt, gb, static_b.astype(float)) > 0.999
+    tracker_iv = find_dwells(ga, static_a)
     both = find_dwells(ga, static_a & sb & inside)
-    # a static tracker without reference samples: counted as dropped for want of a reference
-    alone = find_dwells(ga, static_a & ~inside)
-    K = len(both)
     out_C, out_B, keep, n_ca, n_ba = [], [], [], [], []
     moved = 0
-    for a, b in both:
+    for a, b in both:                   # (a dwell failing a drift test counts below)
         ia = (tt >= a) & (tt <= b)
         ib = (tr >= a + time_offset) & (tr <= b + time_offset)
         if ia.sum() < 3 or ib.sum() < 3:
             continue
         Cm = C[ia].mean(axis=0)
-        dc = np.linalg.norm((C[ia] - Cm).reshape(ia.sum(), -1), axis=1).max()
         Bm = mean_pose(B[ib])
-        dt = np.linalg.norm(B[ib, :3, 3] - Bm[:3, 3], axis=1).max()
-        dR = Rotation.from_matrix(np.swapaxes(B[ib, :3, :3], 1, 2) @ Bm[:3, :3]).magnitude()
-        if dc > COUPLING_SPREAD * np.linalg.norm(Cm) or dt > TRANS_SPREAD_M \
-                or dR.max() > ROT_SPREAD_RAD:
-            moved += 1
+        if _drift(C[ia]) > COUPLING_DRIFT * np.linalg.norm(Cm):
+            continue
+        h = ib.sum() // 2
+        B1, B2 = mean_pose(B[ib][:h]), mean_pose(B[ib][h:])
+        if np.linalg.norm(B1[:3, 3] - B2[:3, 3]) > TRANS_DRIFT_M or \
+                Rotation.from_matrix(B1[:3, :3].T @ B2[:3, :3]).magnitude() > ROT_DRIFT_RAD:
             continue
         out_C.append(Cm)
         out_B.append(Bm)
         keep.append((a, b))
         n_ca.append(int(ia.sum()))
         n_ba.append(int(ib.sum()))
+    # every dwell of the tracker is kept, or dropped because the reference moved in it (or
+    # within the kept part), or because the reference has no poses there
+    kept = np.array(keep, dtype=np.float64).reshape(len(keep), 2)
+    no_ref = 0
+    for a, b in tracker_iv:
+        if np.any((kept[:, 0] < b) & (kept[:, 1] > a)):
+            continue
+        if a + time_offset < tr[0] or b + time_offset > tr[-1]:
+            no_ref += 1
+        else:
+            moved += 1
     shape = C.shape[1:]
     return DwellSet(couplings=np.array(out_C).reshape(len(out_C), *shape),
                     reference_poses=np.array(out_B).reshape(len(out_B), 4, 4),
@@ -377,7 +413,7 @@ def collect_dwells(t_tracker, couplings, t_reference, reference_poses, *,
                     n_reference_samples=np.array(n_ba, dtype=np.int64),
                     time_offset=float(time_offset), offset_correlation=corr,
                     tracker_dwells=n_a, reference_dwells=n_b,
-                    dropped={"moved": moved, "no_reference": len(alone) + K - moved - len(keep)})
+                    dropped={"moved": moved, "no_reference": no_ref})
 
 
 def coverage(positions, rotations_or_poses, box, *, cells: int = 4) -> dict:

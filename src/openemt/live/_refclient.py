@@ -293,9 +293,8 @@ def simulated_motion(kind: str = "robot", n_poses: int = 100, *, preset: str = "
     move takes ``move`` seconds with a minimum-jerk profile, and the stream adds a
     per-message noise of ``jitter`` times the stated noise.
     """
-    from ..simulate import simulate_reference
+    from ..simulate import get_preset, simulate_reference
     from ..simulate._reference import _volume
-    from ..simulate import get_preset
 
     if not 0 < hold[0] <= hold[1] or not move > 0:
         raise InputError(f"expected positive hold times (min <= max) and move time, got "
