@@ -149,9 +149,10 @@ def _sim_backend(spec, motion, seed):
                             offsets=offsets)
 
 
-def motion_poses(n_poses: int) -> int:
-    """Holds of the simulated motion for a collection of ``n_poses`` (some to spare)."""
-    return int(n_poses) + max(5, int(n_poses) // 4)
+def spare_poses(n_poses: int) -> int:
+    """Holds of the simulated motion after the ``n_poses`` of ``openemt simulate --reference``,
+    for holds that a collection drops."""
+    return max(5, int(n_poses) // 4)
 
 
 class _Status:
@@ -182,6 +183,14 @@ class _Status:
             f"{0.0 if spread is None else spread:.1f} deg, rotation diversity {div}")
 
 
+def _warm_up(model, hemisphere) -> None:
+    from ..solve import solve_lm
+
+    P = np.eye(4)[None].copy()
+    P[0, :3, 3] = [0.25, 0.02, 0.01]                   # any pose in the volume will do
+    solve_lm(model.coupling(P), model, hemisphere=hemisphere)
+
+
 def _coverage(dws, model, hemisphere, box):
     from ..live._collect import coverage
     from ..solve import solve_lm
@@ -208,7 +217,7 @@ def run(args) -> int:  # noqa: C901 - one acquisition loop with its stop conditi
     from ..simulate import REFERENCE_KINDS, get_preset
     from ..simulate._reference import _volume
     from ._common import emit
-    from ._track import _Session
+    from ._track import _announce_compile, _Session
 
     _check(args)
     spec = read_tracker(args.tracker if args.tracker is not None
@@ -235,13 +244,17 @@ def run(args) -> int:  # noqa: C901 - one acquisition loop with its stop conditi
     preset = spec.simulation.get("preset", "concentric")
     motion = None
     if args.source == "sim":
-        motion = simulated_motion(kind, motion_poses(args.n_poses), preset=preset,
-                                  seed=args.seed, noise_trans=noise_t, noise_rot=noise_r)
+        motion = simulated_motion(kind, args.n_poses, spare=spare_poses(args.n_poses),
+                                  preset=preset, seed=args.seed, noise_trans=noise_t,
+                                  noise_rot=noise_r)
     box = motion.box if motion is not None else np.array(_volume(get_preset(preset))[:2])
     hemisphere = setup.hemisphere
     if motion is not None and args.tracker is None:
         hemisphere = motion.hemisphere
 
+    # the coverage feedback solves each dwell: compile (first run only) before the streams start
+    _announce_compile(args, [setup])
+    _warm_up(setup.model, hemisphere)
     session = _Session(args)
     backend = server = client = None
     stopped = lost = None

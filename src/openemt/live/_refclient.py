@@ -282,16 +282,17 @@ class DwellMotion:
         return int(np.sum((self.hold_starts >= t0) & (self.hold_ends <= t1)))
 
 
-def simulated_motion(kind: str = "robot", n_poses: int = 100, *, preset: str = "concentric",
-                     seed=0, hold=(0.8, 1.4), move: float = 0.6, jitter: float = 0.2,
-                     noise_trans=None, noise_rot=None) -> DwellMotion:
+def simulated_motion(kind: str = "robot", n_poses: int = 100, *, spare: int = 0,
+                     preset: str = "concentric", seed=0, hold=(0.8, 1.4), move: float = 0.6,
+                     jitter: float = 0.2, noise_trans=None, noise_rot=None) -> DwellMotion:
     """A :class:`DwellMotion` through the poses of :func:`openemt.simulate.simulate_reference`.
 
-    The poses, X, Y and the reference's error at each pose are those of ``simulate_reference(
-    preset, kind, n_poses, seed=seed)`` (the same draw as ``openemt simulate --reference
-    KIND``); hold times are uniform in ``hold`` (s, so that the motion is not periodic), each
-    move takes ``move`` seconds with a minimum-jerk profile, and the stream adds a
-    per-message noise of ``jitter`` times the stated noise.
+    The first ``n_poses`` poses, X, Y and the reference's error at each pose are those of
+    ``simulate_reference(preset, kind, n_poses, seed=seed)`` (the same draw as ``openemt
+    simulate --reference KIND --n-poses N --seed S``); ``spare`` more poses follow (another
+    draw), for holds that a collection drops. Hold times are uniform in ``hold`` (s, so that
+    the motion is not periodic), each move takes ``move`` seconds with a minimum-jerk profile,
+    and the stream adds a per-message noise of ``jitter`` times the stated noise.
     """
     from ..simulate import get_preset, simulate_reference
     from ..simulate._reference import _volume
@@ -299,13 +300,17 @@ def simulated_motion(kind: str = "robot", n_poses: int = 100, *, preset: str = "
     if not 0 < hold[0] <= hold[1] or not move > 0:
         raise InputError(f"expected positive hold times (min <= max) and move time, got "
                          f"hold={hold!r}, move={move!r}")
-    ds = simulate_reference(preset, kind, n_poses, noise_trans=noise_trans,
-                            noise_rot=noise_rot, seed=seed)
-    P = ds.poses
-    B, Bt = ds.extra["reference_poses"], ds.extra["reference_poses_true"]
+    draws = [simulate_reference(preset, kind, n, noise_trans=noise_trans, noise_rot=noise_rot,
+                                seed=s)
+             for n, s in ((n_poses, seed), (spare, None if seed is None else int(seed) + 7919))
+             if n > 0]
+    ds = draws[0]
+    P = np.concatenate([d.poses for d in draws])
+    B = np.concatenate([d.extra["reference_poses"] for d in draws])
+    Bt = np.concatenate([d.extra["reference_poses_true"] for d in draws])
     ref = ds.meta["reference"]
     rng = np.random.default_rng([0 if seed is None else int(seed), 20])
-    h = rng.uniform(hold[0], hold[1], n_poses)
+    h = rng.uniform(hold[0], hold[1], len(P))
     starts = np.concatenate([[0.0], np.cumsum(h[:-1] + move)])
     lo, hi, _ = _volume(get_preset(preset))
     return DwellMotion(poses=P, reported=B, errors=invert(Bt) @ B,
