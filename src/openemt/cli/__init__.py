@@ -42,6 +42,7 @@ COMMANDS = {
     "report": ("report", "write a self-contained HTML calibration and characterization report"),
     "track": ("track",
               "live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)"),
+    "collect": ("collect", "collect couplings at reference poses (robot, optical tracker)"),
     "devices": ("devices", "list audio input devices for sound-card tracking"),
     "bench": ("bench", "run a benchmark and print its JSON summary"),
     "datasets": ("datasets", "list (and verify) the bundled data sets"),

@@ -24,6 +24,8 @@ BENCHMARKS = {
                 "output corrections on a simulated distortion: held-out vs in-sample"),
     "hybrid": ("openemt.bench._hybrid",
                "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs"),
+    "collect": ("openemt.bench._collect",
+                "collect on a simulated robot over OpenIGTLink, then calibrate: offset, dwells, held-out error vs the simulate path"),
     "fuzz": ("openemt.bench._fuzz",
              "fuzzed files for every reader and command and couplings for every solver"),
     "compile": ("openemt.bench._compile",
