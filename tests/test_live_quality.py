@@ -321,3 +321,22 @@ def test_tracker_file_igtl_table(tmp_path):
     with pytest.raises(InputError, match="reference"):
         TrackingPipeline(tracker_backend(spec, "sim", duration=0.01),
                          sensors=tracker_sensors(spec), reference="Nope")
+
+
+def test_bench_many_tools_counts_what_a_pyigtl_client_decodes():
+    from openemt.bench._track import _many_tools
+
+    out = _many_tools("concentric", 2, 0.3, 0)
+    for way in ("transform", "transform_v1", "tdata"):
+        r = out[way]
+        assert r["samples"] == 449
+        received = r["frame_rate_hz"] * 0.3 * 449 / 450
+        assert 0 < received <= r["samples"] + 1e-6
+        assert r["messages_sent"] >= r["messages_per_s"] * 0.3 * 449 / 450 - 1e-6
+    t, v1, td = out["transform"], out["transform_v1"], out["tdata"]
+    assert td["messages_per_s"] == td["frame_rate_hz"]       # one message per sample
+    assert t["messages_per_s"] >= 2 * t["frame_rate_hz"] - 1e-6   # one per tool and sample
+    if t["messages_skipped"] == v1["messages_skipped"] == 0:
+        # the same poses: metadata makes each TRANSFORM 90 bytes longer (106 -> 196)
+        assert t["bytes_per_s"] > 1.7 * v1["bytes_per_s"]
+    assert set(out["pack_us_per_sample"]) == {"transform", "transform_v1", "tdata"}
