@@ -378,8 +378,9 @@ def _many_tools(preset, k: int, seconds: float, seed: int) -> dict:
 
 def _pack_per_sample(k: int) -> dict:
     """CPU time to pack the K tools of one sample, in blocks of 10 samples (one 640-sample
-    read): K ``pack_transforms`` calls with and without metadata, one ``pack_tdata``."""
-    from ..live._igtl import pack_transforms
+    read) as the pipeline packs them: the 10 K TRANSFORMs in one call (with and without
+    metadata), or 10 TDATA messages."""
+    from ..live._igtl import frame_messages, transform_bodies
     from ..live._tdata import pack_tdata
 
     M = np.repeat(np.eye(4)[None], 10, axis=0)
@@ -401,9 +402,20 @@ def _pack_per_sample(k: int) -> dict:
             best = min(best, 1e6 * (time.process_time() - c0) / (reps * 10))
         return best
 
+    flat = np.concatenate([M] * k)
+    devices = [n for n in names for _ in range(10)]
+    stamps = np.concatenate([ts] * k)
+    meta_k = {key: (v * k if isinstance(v, list) else np.concatenate([v] * k))
+              for key, v in meta.items()}
+
+    def transforms(metadata):
+        body, off = transform_bodies(flat, metadata)
+        return frame_messages(body, off, "TRANSFORM", devices, stamps,
+                              header_version=1 if metadata is None else 2)
+
     return {"pack_us_per_sample": {
-        "transform": per_sample(lambda: [pack_transforms(M, ts, n, meta) for n in names]),
-        "transform_v1": per_sample(lambda: [pack_transforms(M, ts, n) for n in names]),
+        "transform": per_sample(lambda: transforms(meta_k)),
+        "transform_v1": per_sample(lambda: transforms(None)),
         "tdata": per_sample(lambda: pack_tdata(MK, valid, names, ts))}}
 
 

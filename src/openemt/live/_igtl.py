@@ -195,7 +195,8 @@ def frame_messages(bodies, offsets, message_type: str, device_names, timestamps,
         dev = _name_bytes(device_names, 20)[None]
     else:
         names = list(device_names)
-        dev = (np.stack([_name_bytes(n, 20) for n in names]) if names
+        dev = (np.frombuffer(b"".join([_name_bytes(n, 20).tobytes() for n in names]),
+                             np.uint8).reshape(len(names), 20) if names
                else np.zeros((1, 20), np.uint8))
     sec = np.trunc(ts)
     body = np.frombuffer(bodies, np.uint8) if len(bodies) else np.zeros(1, np.uint8)
@@ -514,8 +515,9 @@ class IgtlServer:
             Acquisition times (s since the epoch).
         t_ready : float, optional
             See :meth:`send_pose`; the latency is recorded for each of the N poses.
-        device_name : str, optional
-            See :meth:`send_pose`.
+        device_name : str or sequence of N str, optional
+            See :meth:`send_pose`; a sequence names each message's device (the poses of
+            several sensors in one call, written to each client in one piece).
         metadata : dict, optional
             OpenIGTLink version-2 metadata of each message: key -> N values (str, or numbers
             written as ``format(x, ".3e")``), e.g. ``{"Status": [...], "Distortion": [...]}``;
@@ -528,7 +530,15 @@ class IgtlServer:
         ts = [None] * len(P) if timestamps is None else [float(t) for t in timestamps]
         if len(ts) != len(P):
             raise InputError(f"expected {len(P)} timestamps, got {len(ts)}")
-        name = self.device_name if device_name is None else _check_device_name(device_name)
+        if device_name is None or isinstance(device_name, str):
+            name = self.device_name if device_name is None else _check_device_name(device_name)
+            names = None
+        else:                                    # one device name per message
+            name = names = list(device_name)
+            if len(names) != len(P):
+                raise InputError(f"expected {len(P)} device names, got {len(names)}")
+            for d in set(names):
+                _check_device_name(d)
         if len(P) == 0:
             return False
         if not self._clients:                    # cheap exit before packing
@@ -542,13 +552,19 @@ class IgtlServer:
         else:
             stamps = np.asarray(ts, dtype=np.float64)
         if np.all(np.isfinite(M)) and np.all(stamps >= 0) and np.all(stamps < 2.0 ** 32):
-            data = pack_transforms(M, stamps, name, metadata)
+            if names is None:
+                data = pack_transforms(M, stamps, name, metadata)
+            else:
+                body, off = transform_bodies(M, metadata)
+                data = frame_messages(body, off, "TRANSFORM", names, stamps,
+                                      header_version=1 if metadata is None else 2)
         else:                                    # unusual values: pyigtl's own checks
             keys, cols = (None, None) if metadata is None else _metadata_columns(metadata,
                                                                                    len(M))
             msgs = []
             for i, (m, t) in enumerate(zip(M, stamps)):
-                msg = pyigtl.TransformMessage(m, timestamp=t, device_name=name)
+                msg = pyigtl.TransformMessage(m, timestamp=t,
+                                              device_name=name if names is None else names[i])
                 if keys is not None:
                     msg.header_version = 2
                     msg.metadata = {k.decode(): c[i].decode() for k, c in zip(keys, cols)}

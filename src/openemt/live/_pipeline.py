@@ -704,22 +704,27 @@ class TrackingPipeline:
             if count:
                 self.igtl.send_packed(data, count, t_ready)
             return
-        for device, poses, pick, distorted, resid, ratio in streams:
-            if not pick.any():
-                continue
-            meta = None
-            if self.igtl_metadata:
-                meta = {"Status": (["OK"] * n if not distorted.any()
-                                   else np.where(distorted, "DISTORTED", "OK").tolist()),
-                        "RelativeResidual": resid, "Distortion": ratio}
-            if pick.all():                      # the usual case, without a copy
-                self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device,
-                                     metadata=meta)
-            else:
-                self.igtl.send_poses(poses[pick], stamps[pick], t_ready=t_ready,
-                                     device_name=device,
-                                     metadata=None if meta is None else
-                                     {k: np.asarray(v)[pick] for k, v in meta.items()})
+        # every stream's poses in one call (one packing pass, one write per client): the
+        # samples of the first stream, then those of the next, ...
+        if all(s[2].all() for s in streams):
+            sel = [slice(None)] * len(streams)
+        else:
+            sel = [s[2] for s in streams]
+        poses = np.concatenate([s[1][k] for s, k in zip(streams, sel)])
+        if not len(poses):
+            return
+        devices = [d for s, k in zip(streams, sel)
+                   for d in [s[0]] * (n if isinstance(k, slice) else int(k.sum()))]
+        meta = None
+        if self.igtl_metadata:
+            distorted = np.concatenate([s[3][k] for s, k in zip(streams, sel)])
+            meta = {"Status": (["OK"] * len(poses) if not distorted.any()
+                               else np.where(distorted, "DISTORTED", "OK").tolist()),
+                    "RelativeResidual": np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
+                    "Distortion": np.concatenate([s[5][k] for s, k in zip(streams, sel)])}
+        self.igtl.send_poses(poses, np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
+                             device_name=devices[0] if len(streams) == 1 else devices,
+                             metadata=meta)
 
     def _watch(self, st: _SensorState, step: TrackStep, valid, now: float, stamp) -> None:
         """Update the stream state of ``st`` after a chunk (see the class docstring) and
