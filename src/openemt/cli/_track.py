@@ -386,6 +386,11 @@ def run(args) -> int:
     if summary.truth:
         human.append(f"position error vs truth: rms {summary.truth['position_error_mm_rms']:.4f}"
                      f" mm, max {summary.truth['position_error_mm_max']:.4f} mm")
+    ev = out["events"]
+    if ev["lost"] or ev["distorted"] or ev["stale"]:
+        human.append(f"stream states: lost {ev['lost']}, distorted {ev['distorted']}, stale "
+                     f"{ev['stale']}, recovered {ev['recovered']} time(s) (sent on "
+                     f"<device>State)")
     if summary.latency_ms_p50 is not None:
         human.append(f"latency coupling -> send: p50 {summary.latency_ms_p50:.3f} ms, p99 "
                      f"{summary.latency_ms_p99:.3f} ms")
