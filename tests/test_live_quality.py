@@ -155,6 +155,28 @@ def test_tool_to_reference_is_inv_reference_at_tool():
         want = np.linalg.inv(ref[t]) @ tool[t]              # from the two sent transforms
         np.testing.assert_allclose(rel[t][:3, :3], want[:3, :3], atol=1e-5)
         np.testing.assert_allclose(rel[t][:3, 3], want[:3, 3], atol=1e-3)       # mm, float32
+    # RelativeResidual is ||C_model(pose) - C||_F / ||C||_F of the sent pose; a relative
+    # stream carries the larger of its two sensors' (and so does its Distortion)
+    spec = read_tracker(example_tracker("simulated-2"))
+    model = tracker_sensors(spec)[0].model
+    meta = {m["device"]: {} for m in msgs}
+    for m in msgs:
+        if m["type"] == "TRANSFORM":
+            meta[m["device"]][round(m["timestamp"], 6)] = m["metadata"]
+    a, b = log.arrays("Probe"), log.arrays("Reference")
+    C = a["couplings"].real
+    want = (np.linalg.norm((model.coupling(a["poses"]) - C).reshape(len(C), -1), axis=1)
+            / np.linalg.norm(C.reshape(len(C), -1), axis=1))
+    got = np.array([float(meta["ProbeToTracker"][t]["RelativeResidual"]) for t in common])
+    np.testing.assert_allclose(got, want, rtol=2e-3)
+    for k, t in enumerate(common):
+        r = meta["ProbeToReference"][t]
+        assert r["Status"] == "OK"
+        assert float(r["RelativeResidual"]) == max(
+            float(meta["ProbeToTracker"][t]["RelativeResidual"]),
+            float(meta["ReferenceToTracker"][t]["RelativeResidual"]))
+        assert float(r["Distortion"]) == pytest.approx(max(a["distortion"][k],
+                                                           b["distortion"][k]), rel=1e-3)
     # and against the simulated truth: the probe rides 30 mm in x and 50 mm in z below it
     t = np.array(common) - backend.t0_epoch
     truth = backend.truth_poses(t)

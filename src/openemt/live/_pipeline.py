@@ -99,6 +99,9 @@ class TrackStep:
         ``distortion > distortion_threshold``.
     t_ready : float
         ``time.perf_counter()`` when the demodulated couplings were available.
+    relative_residual : ndarray, shape (N,), optional
+        ``||C_pred - C_meas||_F / ||C_meas||_F`` of the solve (NaN where the solver reports
+        none); sent as the ``RelativeResidual`` metadata.
     """
 
     times: np.ndarray
@@ -110,6 +113,7 @@ class TrackStep:
     distortion: np.ndarray
     distorted: np.ndarray
     t_ready: float = 0.0
+    relative_residual: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.times.shape[0]
@@ -472,10 +476,13 @@ class TrackingPipeline:
 
     @staticmethod
     def _unpack(res):
+        rel = getattr(res, "relative_residual", None)     # NaN where a solver gives none
+        status = np.asarray(res.status, dtype=np.int8)
         return (np.asarray(res.poses, dtype=np.float64),
-                np.asarray(res.pose_vectors, dtype=np.float64),
-                np.asarray(res.status, dtype=np.int8),
-                np.asarray(res.residual, dtype=np.float64))
+                np.asarray(res.pose_vectors, dtype=np.float64), status,
+                np.asarray(res.residual, dtype=np.float64),
+                np.full(status.shape, np.nan) if rel is None
+                else np.asarray(rel, dtype=np.float64))
 
     def _call(self, solver, C, initial, quick):
         """``solver(C, initial)``; samples marked in ``quick`` (distorted, not sent) are solved
@@ -513,15 +520,15 @@ class TrackingPipeline:
                 C = np.concatenate([Cs[st.index] for st in group])
                 initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
                 q = None if quick is None else np.concatenate([quick[st.index] for st in group])
-                P, V, S, R = self._call(group[0].solver, C, initial, q)
+                P, V, S, R, RR = self._call(group[0].solver, C, initial, q)
                 k = len(group)                  # one view per sensor: (k, n, ...) blocks
                 P, V = P.reshape(k, n, 4, 4), V.reshape(k, n, 6)
-                S, R = S.reshape(k, n), R.reshape(k, n)
+                S, R, RR = S.reshape(k, n), R.reshape(k, n), RR.reshape(k, n)
                 # the usual case: every sensor's last sample converged (one test for all)
                 tracked = n > 0 and not (S[:, -1] != _CONVERGED).any()
                 lasts = V[:, -1].copy() if tracked else None
                 for j, st in enumerate(group):
-                    out[st.index] = (P[j], V[j], S[j], R[j])
+                    out[st.index] = (P[j], V[j], S[j], R[j], RR[j])
                     if tracked:
                         st.last = lasts[j]
                     else:
@@ -615,7 +622,7 @@ class TrackingPipeline:
         else:
             solved = self._solve_all(Cs, quick)
         oks, valids = [], []
-        for st, couplings, (poses, vecs, status, resid), ratio, flag in zip(
+        for st, couplings, (poses, vecs, status, resid, rel), ratio, flag in zip(
                 self.sensors, parts, solved, ratios, flags):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
@@ -629,7 +636,7 @@ class TrackingPipeline:
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
-                                   t_ready))
+                                   t_ready, rel))
         stamps = epoch + d.times
         if self.igtl is not None:
             self._send(steps, valids, stamps, t_ready)
@@ -652,11 +659,11 @@ class TrackingPipeline:
 
     def _streams(self, steps, picks):
         """The streams of one chunk: per sensor, then per sensor relative to the reference,
-        ``(device, poses, pick, distorted, residual, distortion)``; a relative stream's pose
-        is ``inv(reference) @ sensor`` where both are picked (elsewhere the sensor's own,
-        never sent), flagged distorted where either is, with the larger residual and
+        ``(device, poses, pick, distorted, relative residual, distortion)``; a relative
+        stream's pose is ``inv(reference) @ sensor`` where both are picked (elsewhere the
+        sensor's own, never sent), flagged distorted where either is, with the larger relative residual and
         quadrature ratio of the two."""
-        out = [(self._device(st), step.poses, pick, step.distorted, step.residual,
+        out = [(self._device(st), step.poses, pick, step.distorted, step.relative_residual,
                 step.distortion) for st, step, pick in zip(self.sensors, steps, picks)]
         if self.reference is not None:
             from ..geometry import invert
@@ -670,7 +677,7 @@ class TrackingPipeline:
                 if pick.any():
                     poses[pick] = invert(ref.poses[pick]) @ tool.poses[pick]
                 out.append((device, poses, pick, tool.distorted | ref.distorted,
-                            np.maximum(tool.residual, ref.residual),
+                            np.fmax(tool.relative_residual, ref.relative_residual),
                             np.maximum(tool.distortion, ref.distortion)))
         return out
 
