@@ -362,3 +362,16 @@ def test_bench_many_tools_counts_what_a_pyigtl_client_decodes():
         # the same poses: metadata makes each TRANSFORM 90 bytes longer (106 -> 196)
         assert t["bytes_per_s"] > 1.7 * v1["bytes_per_s"]
     assert set(out["pack_us_per_sample"]) == {"transform", "transform_v1", "tdata"}
+
+
+def test_cli_tdata_and_stale_after_options(capsys):
+    import openemt.cli as cli_mod
+
+    code = cli_mod.main(["track", "--source", "sim", "--duration", "0.1", "--fast", "--tdata",
+                         "--stale-after", "0.3", "--igtl-port", "0", "--json", "--quiet"])
+    d = json.loads(capsys.readouterr().out)
+    assert code == 0 and d["tdata"] is True and d["stale_after"] == 0.3
+    assert d["reference"] is None and d["events"]["tracking"] == 1
+    assert cli_mod.main(["track", "--source", "sim", "--stale-after", "0", "--no-igtl"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: expected a positive, finite --stale-after in seconds, got 0.0"]
