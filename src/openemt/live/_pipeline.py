@@ -144,6 +144,20 @@ class TrackSummary:
         return d
 
 
+def _takes_metadata(igtl) -> bool:
+    """Whether ``igtl.send_poses`` takes ``metadata`` (an :class:`IgtlServer` does; a
+    stand-in with the older signature gets TRANSFORMs without it)."""
+    if igtl is None:
+        return True
+    import inspect
+
+    try:
+        params = inspect.signature(igtl.send_poses).parameters.values()
+    except (TypeError, ValueError):  # pragma: no cover - not introspectable
+        return True
+    return any(p.name == "metadata" or p.kind is p.VAR_KEYWORD for p in params)
+
+
 def state_device_name(device: str) -> str:
     """The device of a sensor's stream-state STRING messages: ``<device>State``, the device
     name cut to 15 characters (OpenIGTLink names have at most 20)."""
@@ -357,7 +371,8 @@ class TrackingPipeline:
     igtl_metadata : bool
         Give every TRANSFORM the OpenIGTLink version-2 metadata ``Status`` (``OK`` or
         ``DISTORTED``), ``RelativeResidual`` and ``Distortion`` (header version 2); False
-        sends version-1 TRANSFORMs without metadata.
+        sends version-1 TRANSFORMs without metadata (so does a stand-in server whose
+        ``send_poses`` takes no ``metadata``).
 
     Stream states: after every chunk each sensor's state is that of its last sample (``OK``,
     ``DISTORTED``: converged with a quadrature ratio above the threshold, ``LOST``: not
@@ -436,7 +451,7 @@ class TrackingPipeline:
             raise InputError(f"expected a positive `stale_after` in seconds, got {stale_after!r}")
         self.tdata = bool(tdata)
         self.tdata_device = tdata_device
-        self.igtl_metadata = bool(igtl_metadata)
+        self.igtl_metadata = bool(igtl_metadata) and _takes_metadata(igtl)
         self.reference = None
         self._relative: list = []      # (sensor state, device name) streamed relative to it
         if reference is not None:
@@ -689,7 +704,7 @@ class TrackingPipeline:
         if self.igtl_every != 1:
             every = (self._n_out + np.arange(n)) % self.igtl_every == 0
             picks = [v & every for v in valids]
-        if not self.igtl.connected:             # cheap exit: count what nobody received
+        if not getattr(self.igtl, "connected", True):   # cheap exit: count what nobody got
             if self.tdata:
                 count = int(np.logical_or.reduce(picks).sum())
             else:
@@ -729,9 +744,9 @@ class TrackingPipeline:
                                else np.where(distorted, "DISTORTED", "OK").tolist()),
                     "RelativeResidual": np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
                     "Distortion": np.concatenate([s[5][k] for s, k in zip(streams, sel)])}
+        kw = {} if meta is None else {"metadata": meta}
         self.igtl.send_poses(poses, np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
-                             device_name=devices[0] if len(streams) == 1 else devices,
-                             metadata=meta)
+                             device_name=devices[0] if len(streams) == 1 else devices, **kw)
 
     def _watch(self, st: _SensorState, step: TrackStep, valid, now: float, stamp) -> None:
         """Update the stream state of ``st`` after a chunk (see the class docstring) and
