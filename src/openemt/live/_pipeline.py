@@ -379,8 +379,8 @@ class TrackingPipeline:
     converged) or ``STALE`` (no valid pose for ``stale_after`` seconds); a change is sent once
     as a STRING on device ``<device name>State`` (:func:`state_device_name`: the device name
     cut to 15 characters so that the suffix stays), e.g.
-    ``"LOST ProbeToTracker: status DIVERGED"`` or ``"RECOVERED ProbeToTracker after 0.21 s"``,
-    and counted in the summary (``events``).
+    ``"LOST ProbeToTracker: status OUT_OF_VOLUME"`` or
+    ``"RECOVERED ProbeToTracker after 0.21 s"``, and counted in the summary (``events``).
     """
 
     def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
