@@ -30,7 +30,8 @@ def test_bench_demod_keys_and_physics():
 
 
 def test_bench_track_noise_matches_cramer_rao():
-    out = _track.run(_args(_track, ["--seconds", "0.2", "--noise-seconds", "0.5"]))
+    out = _track.run(_args(_track, ["--seconds", "0.2", "--noise-seconds", "0.5",
+                                    "--tools-seconds", "0"]))
     for key in ("latency_ms_p50", "latency_ms_p99", "position_noise_um",
                 "crb_position_noise_um"):
         assert np.isfinite(out[key])
@@ -92,7 +93,7 @@ def test_sounddevice_missing_is_a_clear_error(monkeypatch):
 
 def test_bench_track_several_sensors_and_filter():
     out = _track.run(_args(_track, ["--seconds", "0.2", "--noise-seconds", "0.4", "--sensors",
-                                    "2", "--rate-seconds", "0.2"]))
+                                    "2", "--rate-seconds", "0.2", "--tools-seconds", "0"]))
     assert out["sensors"] == 2
     assert out["status_counts"] == converged_only(2 * round(out["signal_seconds"] * 1500))
     assert out["igtl"]["sent"] > 0 and out["igtl"]["clients_max"] == 1

@@ -47,6 +47,18 @@ filter
     filtered minus unfiltered) and the rms error to the truth without and with the filter;
     ``step_settle_ms`` is the time after a 1 mm position step until the output stays within
     1 % of it (``step_overshoot``: largest excess, as a fraction of the step).
+many_tools
+    ``--tools K`` simulated tri-axial sensors (default 4) tracked in real time for
+    ``--tools-seconds`` and served to a pyigtl client in another process that counts every
+    message it decodes, three ways: one TRANSFORM per sensor and sample with the version-2
+    metadata (``transform``, the default stream), the same without metadata
+    (``transform_v1``), and one TDATA message per sample holding all K tools (``tdata``;
+    the client is given a TDATA message class, pyigtl has none). Per way:
+    ``messages_per_s`` (decoded by the client per second of signal), ``frame_rate_hz`` (whole
+    samples of all K tools received per second: the slowest tool's TRANSFORM rate, or the
+    TDATA rate), ``messages_skipped`` (shed by the server for the client), ``bytes_per_s``,
+    ``kept_up_with_real_time`` and ``pack_us_per_sample`` (CPU time to pack the K tools of one
+    sample: ``pack_transforms`` K times with and without metadata, ``pack_tdata`` once).
 baseline
     ``one_frame_reads`` with the solver unprepared: :func:`openemt.solve.solve_lm` called on
     every read, checking and packing the model and options each time, as the pipeline did
@@ -83,6 +95,11 @@ def add_arguments(parser) -> None:
                         help="tri-axial sensors tracked at once (default 1)")
     parser.add_argument("--rate-seconds", type=float, default=2.0,
                         help="seconds of signal for the realtime factor (default 2)")
+    parser.add_argument("--tools", type=int, default=4,
+                        help="sensors streamed for the many-tools rate test (default 4)")
+    parser.add_argument("--tools-seconds", type=float, default=3.0,
+                        help="seconds of real-time streaming per way in the many-tools test "
+                             "(default 3; 0 skips it)")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -258,8 +275,148 @@ def run(args) -> dict:
         "coupling_magnitude_max": float(np.abs(model.coupling(pose[None])).max()),
     })
     out["filter"] = _filter_report(model, a, ok, noise_um, args.seed)
+    if args.tools_seconds > 0:
+        out["many_tools"] = _many_tools(args.preset, int(args.tools),
+                                        float(args.tools_seconds), args.seed)
     out["load_average_end"] = list(os.getloadavg())
     return out
+
+
+# A viewer that decodes and counts every message (pyigtl keeps only the latest per device):
+# pyigtl's own classes, counted, and a TDATA class (pyigtl has none; the body is K 70-byte
+# elements, see openemt.live._tdata). It prints the counts after the STRING on device
+# "benchEnd", which the server sends after the run (TCP keeps the order).
+_COUNTER = """
+import json, sys, time, pyigtl
+from pyigtl import messages as M
+counts, nbytes = {}, [0]
+def counted(base):
+    class C(base):
+        def unpack(self, header, body):
+            super().unpack(header, body)
+            counts[(self.message_type, self.device_name)] = counts.get(
+                (self.message_type, self.device_name), 0) + 1
+            nbytes[0] += 58 + len(body)
+    return C
+class TData(M.MessageBase):
+    def _unpack_content(self, content):
+        self.tools = [content[k:k + 20].rstrip(b"\\0").decode()
+                      for k in range(0, len(content), 70)]
+for name, cls in (("TRANSFORM", M.TransformMessage), ("STRING", M.StringMessage),
+                  ("TDATA", TData)):
+    M.message_type_to_class_constructor[name] = counted(cls)
+c = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=int(sys.argv[1]))
+end = time.time() + float(sys.argv[2])
+while time.time() < end and ("STRING", "benchEnd") not in counts:
+    time.sleep(0.02)
+c.stop()
+print(json.dumps({"counts": [[t, d, n] for (t, d), n in counts.items()], "bytes": nbytes[0]}))
+"""
+
+
+def _many_tools(preset, k: int, seconds: float, seed: int) -> dict:
+    """K sensors in real time to a counting pyigtl client: TRANSFORMs (with and without
+    metadata) against one TDATA per sample (see the module docstring, ``many_tools``)."""
+    import json
+    import subprocess
+    import sys
+
+    from ..live import IgtlServer, TrackingPipeline
+    from ..live._session import tracker_backend, tracker_sensors
+
+    spec = _spec(preset, k)
+    names = [s.device_name for s in spec.sensors]
+    out = {"tools": k, "seconds": seconds, "output_rate": spec.output_rate}
+    ways = (("transform", {}), ("transform_v1", {"igtl_metadata": False}),
+            ("tdata", {"tdata": True}))
+    for way, kw in ways:
+        backend = tracker_backend(spec, "sim", realtime=True, duration=seconds, seed=seed)
+        srv = IgtlServer(port=0, device_name=names[0])
+        client = subprocess.Popen([sys.executable, "-c", _COUNTER, str(srv.port),
+                                   str(seconds + 60)], stdout=subprocess.PIPE, text=True)
+        try:
+            if not srv.wait_for_client(30.0):
+                raise OSError("expected a loopback OpenIGTLink client to connect, got none "
+                              "in 30 s")
+            pipe = TrackingPipeline(backend, sensors=tracker_sensors(spec), igtl=srv, **kw)
+            backend.restart_clock()
+            t0 = time.perf_counter()
+            s = pipe.run()
+            wall = time.perf_counter() - t0
+            stats = srv.stats()
+            import pyigtl
+
+            srv.send_message(pyigtl.StringMessage("end", device_name="benchEnd"))
+            end = time.monotonic() + 30.0        # the client reads what its socket holds
+            while client.poll() is None and time.monotonic() < end:
+                time.sleep(0.02)
+        finally:
+            srv.close()
+            try:
+                got, _ = client.communicate(timeout=30.0)
+            except subprocess.TimeoutExpired:  # pragma: no cover
+                client.kill()
+                got, _ = client.communicate()
+        rep = json.loads(got)
+        counts = {(t, d): n for t, d, n in rep["counts"]}
+        sig = s.signal_seconds
+        if way == "tdata":
+            msgs = counts.get(("TDATA", "openemt"), 0)
+            frames = msgs
+        else:
+            per = [counts.get(("TRANSFORM", d), 0) for d in names]
+            msgs, frames = sum(per), min(per)
+        out[way] = {"messages_per_s": msgs / sig, "frame_rate_hz": frames / sig,
+                    "messages_skipped": stats["messages_skipped"],
+                    "messages_sent": stats["sent"], "bytes_per_s": rep["bytes"] / sig,
+                    "kept_up_with_real_time": bool(wall <= 1.05 * sig + 0.05),
+                    "samples": s.n_samples}
+    out.update(_pack_per_sample(k))
+    out["load_average"] = list(os.getloadavg())
+    return out
+
+
+def _pack_per_sample(k: int) -> dict:
+    """CPU time to pack the K tools of one sample, in blocks of 10 samples (one 640-sample
+    read) as the pipeline packs them: the 10 K TRANSFORMs in one call (with and without
+    metadata), or 10 TDATA messages."""
+    from ..live._igtl import frame_messages, transform_bodies
+    from ..live._tdata import pack_tdata
+
+    M = np.repeat(np.eye(4)[None], 10, axis=0)
+    M[:, :3, 3] = [200.0, 10.0, -5.0]
+    ts = time.time() + np.arange(10) / OUTPUT_RATE_HZ
+    meta = {"Status": ["OK"] * 10, "RelativeResidual": np.full(10, 1.234e-9),
+            "Distortion": np.full(10, 5.6e-6)}
+    MK = np.repeat(M[:, None], k, axis=1)
+    valid = np.ones((10, k), bool)
+    names = [f"S{j}" for j in range(k)]
+
+    def per_sample(fn, reps=200):
+        fn()
+        best = float("inf")
+        for _ in range(3):
+            c0 = time.process_time()
+            for _ in range(reps):
+                fn()
+            best = min(best, 1e6 * (time.process_time() - c0) / (reps * 10))
+        return best
+
+    flat = np.concatenate([M] * k)
+    devices = [n for n in names for _ in range(10)]
+    stamps = np.concatenate([ts] * k)
+    meta_k = {key: (v * k if isinstance(v, list) else np.concatenate([v] * k))
+              for key, v in meta.items()}
+
+    def transforms(metadata):
+        body, off = transform_bodies(flat, metadata)
+        return frame_messages(body, off, "TRANSFORM", devices, stamps,
+                              header_version=1 if metadata is None else 2)
+
+    return {"pack_us_per_sample": {
+        "transform": per_sample(lambda: transforms(meta_k)),
+        "transform_v1": per_sample(lambda: transforms(None)),
+        "tdata": per_sample(lambda: pack_tdata(MK, valid, names, ts))}}
 
 
 class _Memory:

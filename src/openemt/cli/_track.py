@@ -81,6 +81,14 @@ def register(subparsers) -> None:
     p.add_argument("--stall-timeout", type=float, default=10.0,
                    help="stop with an error (exit 2) after this many seconds without samples "
                         "from the source, also before the first one (default 10)")
+    p.add_argument("--stale-after", type=float, default=None,
+                   help="watchdog: report a sensor STALE on its <device>State message after "
+                        "this many seconds without a valid pose (default: the tracker file's "
+                        "[igtl] stale_after, else 0.5)")
+    p.add_argument("--tdata", action="store_true",
+                   help="send all sensors of one sample in one OpenIGTLink TDATA (tracking "
+                        "data) message on device 'openemt' instead of one TRANSFORM per sensor "
+                        "(default: the tracker file's [igtl] tdata, else off)")
     p.add_argument("--send-distorted", action="store_true",
                    help="also send converged poses flagged as distorted (default: distorted "
                         "samples are logged and flagged, not sent)")
@@ -231,6 +239,7 @@ def run(args) -> int:
     from ..live import IgtlServer, StallWatch, TrackingPipeline, read_tracker
     from ..live._record import RawRecorder, TrackLogWriter
     from ..live._session import tracker_backend, tracker_sensors
+    from ..live._tracker_file import relative_device_name
     from ._common import emit
 
     if args.duration is not None and not 0 < args.duration < math.inf:
@@ -241,6 +250,9 @@ def run(args) -> int:
             raise InputError(f"expected a positive, finite {opt} in seconds, got {v}")
     if args.distortion_threshold is not None:
         check_nonnegative(args.distortion_threshold, "--distortion-threshold")
+    if args.stale_after is not None and not 0 < args.stale_after < math.inf:
+        raise InputError(f"expected a positive, finite --stale-after in seconds, got "
+                         f"{args.stale_after}")
     if args.tracker is not None:
         for opt, v in (("--preset", args.preset), ("--calibration", args.calibration),
                        ("--device-name", args.device_name)):
@@ -300,17 +312,25 @@ def run(args) -> int:
         window = args.window or spec.window
         threshold = (spec.distortion_threshold if args.distortion_threshold is None
                      else args.distortion_threshold)
+        tdata = bool(args.tdata or spec.tdata)
         if not args.no_igtl:
             server = IgtlServer(args.igtl_port, host=args.host,
                                 device_name=spec.sensors[0].device_name)
             if not args.quiet:
-                names = ", ".join(repr(s.device_name) for s in spec.sensors)
-                print(f"OpenIGTLink: serving TRANSFORM {names} (mm) on "
+                names = [s.device_name for s in spec.sensors]
+                if spec.reference is not None:
+                    names += [relative_device_name(s.name) for s in spec.sensors
+                              if s.name != spec.reference]
+                what = (f"TDATA 'openemt' (tools {', '.join(map(repr, names))})" if tdata
+                        else f"TRANSFORM {', '.join(map(repr, names))}")
+                print(f"OpenIGTLink: serving {what} (mm) on "
                       f"{args.host}:{server.port}; Ctrl-C to stop", file=sys.stderr)
         pipe = TrackingPipeline(source, sensors=sensors, window=window,
                                 output_rate=spec.output_rate,
                                 distortion_threshold=threshold, igtl=server, log=log,
-                                send_distorted=args.send_distorted)
+                                send_distorted=args.send_distorted, reference=spec.reference,
+                                stale_after=(spec.stale_after if args.stale_after is None
+                                             else args.stale_after), tdata=tdata)
         _announce_compile(args, sensors)
         if not args.quiet:
             print(f"tracking {len(spec.sensors)} sensor(s) from --source {args.source}"
@@ -366,6 +386,11 @@ def run(args) -> int:
     if summary.truth:
         human.append(f"position error vs truth: rms {summary.truth['position_error_mm_rms']:.4f}"
                      f" mm, max {summary.truth['position_error_mm_max']:.4f} mm")
+    ev = out["events"]
+    if ev["lost"] or ev["distorted"] or ev["stale"]:
+        human.append(f"stream states: lost {ev['lost']}, distorted {ev['distorted']}, stale "
+                     f"{ev['stale']}, recovered {ev['recovered']} time(s) (sent on "
+                     f"<device>State)")
     if summary.latency_ms_p50 is not None:
         human.append(f"latency coupling -> send: p50 {summary.latency_ms_p50:.3f} ms, p99 "
                      f"{summary.latency_ms_p99:.3f} ms")

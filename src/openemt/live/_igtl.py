@@ -27,9 +27,11 @@ The server serves any number of clients at once (several Slicer instances, a rec
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 import selectors
 import socket
+import struct
 import threading
 import time
 
@@ -39,7 +41,8 @@ from numba import njit
 
 from .._errors import InputError
 
-__all__ = ["DEFAULT_IGTL_PORT", "IgtlServer", "pack_transforms"]
+__all__ = ["DEFAULT_IGTL_PORT", "IgtlServer", "frame_messages", "pack_transforms",
+           "transform_bodies"]
 
 #: The OpenIGTLink port 3D Slicer's client connector uses by default.
 DEFAULT_IGTL_PORT = 18944
@@ -66,6 +69,8 @@ def _crc64_table() -> np.ndarray:
 
 
 _CRC_TABLE = _crc64_table()
+
+
 def _fraction_bases() -> np.ndarray:
     """The halving bases of OpenIGTLink's nanoseconds -> 2^-32 fraction conversion."""
     out, base = [], 1_000_000_000
@@ -76,6 +81,20 @@ def _fraction_bases() -> np.ndarray:
 
 
 _FRAC_BASES = _fraction_bases()
+
+
+@njit(cache=True, inline="always")
+def _put_stamp(out, o, sec, ns, bases):
+    """The header's time stamp at ``out[o + 34:o + 42]``: seconds and 2^-32 fractions."""
+    frac = np.uint64(0)
+    for b in range(32):
+        if ns >= bases[b]:
+            frac |= np.uint64(1) << np.uint64(31 - b)
+            ns -= bases[b]
+    s = np.uint64(sec)
+    for i in range(4):
+        out[o + 34 + i] = (s >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
+        out[o + 38 + i] = (frac >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
 
 
 @njit(cache=True)
@@ -91,16 +110,7 @@ def _pack_kernel(M, sec, nanosec, device, table, bases, out):
             out[o + 2 + i] = ord(name[i]) if i < 9 else 0
         for i in range(20):
             out[o + 14 + i] = device[i]
-        frac = np.uint64(0)
-        ns = nanosec[k]
-        for b in range(32):
-            if ns >= bases[b]:
-                frac |= np.uint64(1) << np.uint64(31 - b)
-                ns -= bases[b]
-        s = np.uint64(sec[k])
-        for i in range(4):
-            out[o + 34 + i] = (s >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
-            out[o + 38 + i] = (frac >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
+        _put_stamp(out, o, sec[k], nanosec[k], bases)
         for i in range(8):
             out[o + 42 + i] = 48 if i == 7 else 0          # body size
         for c in range(4):
@@ -118,7 +128,158 @@ def _pack_kernel(M, sec, nanosec, device, table, bases, out):
             out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
 
 
-def pack_transforms(matrices, timestamps, device_name: str) -> bytes:
+@njit(cache=True)
+def _frame_kernel(body, offsets, version, tname, devices, sec, nanosec, table, bases, out):
+    """Frame message bodies: message k is ``body[offsets[k]:offsets[k + 1]]`` behind a
+    58-byte header (``version``, type ``tname``, device ``devices[k]`` or ``devices[0]``,
+    time stamp, body size, CRC-64 of the body)."""
+    o = 0
+    for k in range(offsets.shape[0] - 1):
+        b0, b1 = offsets[k], offsets[k + 1]
+        out[o] = (version >> 8) & 0xFF
+        out[o + 1] = version & 0xFF
+        for i in range(12):
+            out[o + 2 + i] = tname[i]
+        d = k if devices.shape[0] > 1 else 0
+        for i in range(20):
+            out[o + 14 + i] = devices[d, i]
+        _put_stamp(out, o, sec[k], nanosec[k], bases)
+        size = np.uint64(b1 - b0)
+        for i in range(8):
+            out[o + 42 + i] = (size >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
+        crc = np.uint64(0)
+        for j in range(b1 - b0):
+            byte = body[b0 + j]
+            out[o + 58 + j] = byte
+            idx = ((crc >> np.uint64(56)) ^ np.uint64(byte)) & np.uint64(0xFF)
+            crc = table[idx] ^ (crc << np.uint64(8))
+        for i in range(8):
+            out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
+        o += 58 + (b1 - b0)
+
+
+@functools.lru_cache(maxsize=1024)
+def _name_bytes(name: str, size: int) -> np.ndarray:
+    out = np.zeros(size, np.uint8)
+    raw = name.encode("ascii")[:size]
+    out[:len(raw)] = np.frombuffer(raw, np.uint8)
+    return out
+
+
+def frame_messages(bodies, offsets, message_type: str, device_names, timestamps, *,
+                   header_version: int = 1) -> bytes:
+    """Put OpenIGTLink headers in front of N message bodies, byte for byte what pyigtl's
+    ``pack`` writes (a compiled loop: header, time stamp, CRC-64 of each body).
+
+    Parameters
+    ----------
+    bodies : bytes
+        The N bodies one after the other (with a version-2 header: extended header, content,
+        metadata).
+    offsets : array of N + 1 ints
+        Body k is ``bodies[offsets[k]:offsets[k + 1]]``.
+    message_type : str
+        E.g. ``"TRANSFORM"`` or ``"TDATA"`` (at most 12 ASCII characters).
+    device_names : str or sequence of N str
+        One device name (1-20 ASCII characters) for all messages, or one per message.
+    timestamps : array of N floats
+        Seconds since the epoch, in [0, 2**32).
+    header_version : int
+        1 (OpenIGTLink 1 and 2) or 2 (OpenIGTLink 3: extended header and metadata in the body).
+    """
+    off = np.asarray(offsets, dtype=np.int64)
+    ts = np.asarray(timestamps, dtype=np.float64)
+    if ts.shape != (off.size - 1,):
+        raise InputError(f"expected {off.size - 1} timestamps, got {ts.shape}")
+    if isinstance(device_names, str):
+        dev = _name_bytes(device_names, 20)[None]
+    else:
+        names = list(device_names)
+        dev = (np.frombuffer(b"".join([_name_bytes(n, 20).tobytes() for n in names]),
+                             np.uint8).reshape(len(names), 20) if names
+               else np.zeros((1, 20), np.uint8))
+    sec = np.trunc(ts)
+    body = np.frombuffer(bodies, np.uint8) if len(bodies) else np.zeros(1, np.uint8)
+    out = np.empty(58 * ts.size + int(off[-1] - off[0]) if ts.size else 0, np.uint8)
+    _frame_kernel(body, off - off[0], int(header_version), _name_bytes(message_type, 12), dev,
+                  sec.astype(np.int64), ((ts - sec) * 1e9).astype(np.int64), _CRC_TABLE,
+                  _FRAC_BASES, out)
+    return out.tobytes()
+
+
+_EXT_HEADER = struct.Struct(">HHII")          # extended header: size, metadata sizes, id
+_META_ENTRY = struct.Struct(">HHI")           # metadata index: key size, encoding, value size
+_ASCII = 3                                    # IANA US-ASCII, the encoding pyigtl writes
+
+
+def _metadata_columns(metadata, n: int) -> tuple:
+    """``metadata`` (key -> N values) as ASCII keys and, per key, N ASCII values; numbers are
+    written as ``format(x, ".3e")``."""
+    keys, cols = [], []
+    for key, values in metadata.items():
+        vals = values.tolist() if isinstance(values, np.ndarray) else list(values)
+        if len(vals) != n:
+            raise InputError(f"expected {n} values of metadata {key!r}, got {len(vals)}")
+        keys.append(key.encode("ascii"))
+        if isinstance(values, np.ndarray) and values.dtype.kind in "fiu":
+            cols.append([b"%.3e" % v for v in vals])           # one kind: no test per value
+        else:
+            cols.append([(v if isinstance(v, str) else format(v, ".3e")).encode("ascii")
+                         for v in vals])
+    return keys, cols
+
+
+def transform_bodies(matrices, metadata=None) -> tuple:
+    """TRANSFORM message bodies and their offsets (see :func:`frame_messages`): the 3x4 matrix
+    as big-endian float32 column by column; with ``metadata`` (key -> one value per message,
+    str or number) in the version-2 layout: extended header, matrix, metadata index, keys and
+    values."""
+    M = np.asarray(matrices, dtype=np.float64)
+    n = len(M)
+    content = np.ascontiguousarray(M[:, :3, :].transpose(0, 2, 1)).reshape(n, 12)
+    content = content.astype(">f4").tobytes()
+    if metadata is None:
+        return content, 48 * np.arange(n + 1)
+    keys, cols = _metadata_columns(metadata, n)
+    key_sizes = [len(k) for k in keys]
+
+    def head(lens):                   # extended header + metadata index, body size
+        index = struct.pack(">H", len(keys)) + b"".join(
+            _META_ENTRY.pack(k, _ASCII, v) for k, v in zip(key_sizes, lens))
+        ext = _EXT_HEADER.pack(12, len(index), sum(key_sizes) + sum(lens), 0)
+        return ext, index, 60 + len(index) + sum(key_sizes) + sum(lens)
+
+    lens0 = tuple(len(c[0]) for c in cols) if n else ()
+    if n and all(len(v) == w for c, w in zip(cols, lens0) for v in c):
+        # the usual case, every value of a key as long (e.g. all "OK"): one array operation
+        # per part of the body instead of a loop over the messages
+        ext, index, size = head(lens0)
+        body = np.empty((n, size), np.uint8)
+        body[:, :12] = np.frombuffer(ext, np.uint8)
+        body[:, 12:60] = np.frombuffer(content, np.uint8).reshape(n, 48)
+        o = 60 + len(index)
+        body[:, 60:o] = np.frombuffer(index, np.uint8)
+        for k, c, w in zip(keys, cols, lens0):
+            body[:, o:o + len(k)] = np.frombuffer(k, np.uint8)
+            o += len(k)
+            body[:, o:o + w] = np.frombuffer(b"".join(c), np.uint8).reshape(n, w)
+            o += w
+        return body.tobytes(), size * np.arange(n + 1)
+    heads: dict = {}
+    parts, sizes = [], [0]
+    for i, vals in enumerate(zip(*cols)):
+        lens = tuple(map(len, vals))
+        h = heads.get(lens)
+        if h is None:
+            h = heads[lens] = head(lens)
+        parts += [h[0], content[48 * i:48 * i + 48], h[1]]
+        for k, v in zip(keys, vals):
+            parts += [k, v]
+        sizes.append(h[2])
+    return b"".join(parts), np.cumsum(sizes)
+
+
+def pack_transforms(matrices, timestamps, device_name: str, metadata=None) -> bytes:
     """Pack N TRANSFORM messages at once, byte for byte what pyigtl's
     ``TransformMessage.pack`` gives, in a compiled loop (a block of poses costs about as much
     as one pyigtl message).
@@ -131,13 +292,19 @@ def pack_transforms(matrices, timestamps, device_name: str) -> bytes:
         Seconds since the epoch, in [0, 2**32).
     device_name : str
         1-20 ASCII characters.
+    metadata : dict, optional
+        OpenIGTLink version-2 metadata, key -> N values (str, or numbers written as
+        ``format(x, ".3e")``): the messages then have header version 2 (as pyigtl's with
+        ``header_version = 2`` and the same ``metadata`` dict); without it, version 1.
     """
+    if metadata is not None:
+        body, off = transform_bodies(matrices, metadata)
+        return frame_messages(body, off, "TRANSFORM", device_name, timestamps,
+                              header_version=2)
     M = np.ascontiguousarray(matrices, dtype=np.float64)
     ts = np.asarray(timestamps, dtype=np.float64)
     sec = np.trunc(ts)
-    dev = np.zeros(20, np.uint8)
-    raw = device_name.encode("ascii")[:20]
-    dev[:len(raw)] = np.frombuffer(raw, np.uint8)
+    dev = _name_bytes(device_name, 20)
     out = np.empty(M.shape[0] * _MSG, np.uint8)
     _pack_kernel(M, sec.astype(np.int64), ((ts - sec) * 1e9).astype(np.int64), dev,
                  _CRC_TABLE, _FRAC_BASES, out)
@@ -337,7 +504,7 @@ class IgtlServer:
                                t_ready=t_ready, device_name=device_name)
 
     def send_poses(self, poses, timestamps=None, *, t_ready: float | None = None,
-                   device_name: str | None = None) -> bool:
+                   device_name: str | None = None, metadata: dict | None = None) -> bool:
         """Queue several poses (metres) as consecutive TRANSFORMs, written to each client's
         socket in one piece (one system call per client for a block of samples).
 
@@ -348,8 +515,14 @@ class IgtlServer:
             Acquisition times (s since the epoch).
         t_ready : float, optional
             See :meth:`send_pose`; the latency is recorded for each of the N poses.
-        device_name : str, optional
-            See :meth:`send_pose`.
+        device_name : str or sequence of N str, optional
+            See :meth:`send_pose`; a sequence names each message's device (the poses of
+            several sensors in one call, written to each client in one piece).
+        metadata : dict, optional
+            OpenIGTLink version-2 metadata of each message: key -> N values (str, or numbers
+            written as ``format(x, ".3e")``), e.g. ``{"Status": [...], "Distortion": [...]}``;
+            the messages then have header version 2 (3D Slicer shows the metadata as
+            attributes of the transform node). Without it, header version 1.
         """
         P = np.asarray(poses, dtype=np.float64)
         if P.ndim != 3 or P.shape[1:] != (4, 4):
@@ -357,7 +530,15 @@ class IgtlServer:
         ts = [None] * len(P) if timestamps is None else [float(t) for t in timestamps]
         if len(ts) != len(P):
             raise InputError(f"expected {len(P)} timestamps, got {len(ts)}")
-        name = self.device_name if device_name is None else _check_device_name(device_name)
+        if device_name is None or isinstance(device_name, str):
+            name = self.device_name if device_name is None else _check_device_name(device_name)
+            names = None
+        else:                                    # one device name per message
+            name = names = list(device_name)
+            if len(names) != len(P):
+                raise InputError(f"expected {len(P)} device names, got {len(names)}")
+            for d in set(names):
+                _check_device_name(d)
         if len(P) == 0:
             return False
         if not self._clients:                    # cheap exit before packing
@@ -371,15 +552,38 @@ class IgtlServer:
         else:
             stamps = np.asarray(ts, dtype=np.float64)
         if np.all(np.isfinite(M)) and np.all(stamps >= 0) and np.all(stamps < 2.0 ** 32):
-            data = pack_transforms(M, stamps, name)
+            if names is None:
+                data = pack_transforms(M, stamps, name, metadata)
+            else:
+                body, off = transform_bodies(M, metadata)
+                data = frame_messages(body, off, "TRANSFORM", names, stamps,
+                                      header_version=1 if metadata is None else 2)
         else:                                    # unusual values: pyigtl's own checks
-            data = b"".join(pyigtl.TransformMessage(m, timestamp=t, device_name=name).pack()
-                            for m, t in zip(M, stamps))
+            keys, cols = (None, None) if metadata is None else _metadata_columns(metadata,
+                                                                                   len(M))
+            msgs = []
+            for i, (m, t) in enumerate(zip(M, stamps)):
+                msg = pyigtl.TransformMessage(m, timestamp=t,
+                                              device_name=name if names is None else names[i])
+                if keys is not None:
+                    msg.header_version = 2
+                    msg.metadata = {k.decode(): c[i].decode() for k, c in zip(keys, cols)}
+                msgs.append(msg.pack())
+            data = b"".join(msgs)
         return self._enqueue(data, len(P), t_ready)
 
     def send_message(self, message, t_ready: float | None = None) -> bool:
         """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status)."""
         return self._enqueue(message.pack(), 1, t_ready)
+
+    def send_packed(self, data: bytes, count: int = 1, t_ready: float | None = None) -> bool:
+        """Queue ``count`` messages already packed into ``data`` (e.g. TDATA messages from
+        :func:`openemt.live._tdata.pack_tdata`), written to each client in one piece."""
+        if not self._clients:
+            with self._lock:
+                self.n_no_client += count
+            return False
+        return self._enqueue(bytes(data), int(count), t_ready)
 
     def _enqueue(self, data: bytes, count: int, t_ready) -> bool:
         wake = False

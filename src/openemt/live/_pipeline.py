@@ -24,11 +24,15 @@ from ..signal import Demodulator
 from ..solve import Status
 from ..solve._result import status_count_names
 from ._filter import filter_restarts
+from ._tracker_file import relative_device_name
 
-__all__ = ["SensorSetup", "TrackLog", "TrackStep", "TrackSummary", "TrackingPipeline",
-           "lm_solver"]
+__all__ = ["STREAM_EVENTS", "SensorSetup", "TrackLog", "TrackStep", "TrackSummary",
+           "TrackingPipeline", "lm_solver", "state_device_name"]
 
 _CONVERGED = int(Status.CONVERGED)
+
+#: The stream states a sensor's ``<device>State`` STRING message reports on change.
+STREAM_EVENTS = ("tracking", "lost", "distorted", "stale", "recovered")
 
 
 def lm_solver(model, *, hemisphere="+x", **kwargs):
@@ -95,6 +99,9 @@ class TrackStep:
         ``distortion > distortion_threshold``.
     t_ready : float
         ``time.perf_counter()`` when the demodulated couplings were available.
+    relative_residual : ndarray, shape (N,), optional
+        ``||C_pred - C_meas||_F / ||C_meas||_F`` of the solve (NaN where the solver reports
+        none); sent as the ``RelativeResidual`` metadata.
     """
 
     times: np.ndarray
@@ -106,6 +113,7 @@ class TrackStep:
     distortion: np.ndarray
     distorted: np.ndarray
     t_ready: float = 0.0
+    relative_residual: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.times.shape[0]
@@ -134,6 +142,26 @@ class TrackSummary:
              "igtl": self.igtl, "truth": self.truth}
         d.update(self.extra)
         return d
+
+
+def _takes_metadata(igtl) -> bool:
+    """Whether ``igtl.send_poses`` takes ``metadata`` (an :class:`IgtlServer` does; a
+    stand-in with the older signature gets TRANSFORMs without it)."""
+    if igtl is None:
+        return True
+    import inspect
+
+    try:
+        params = inspect.signature(igtl.send_poses).parameters.values()
+    except (TypeError, ValueError):  # pragma: no cover - not introspectable
+        return True
+    return any(p.name == "metadata" or p.kind is p.VAR_KEYWORD for p in params)
+
+
+def state_device_name(device: str) -> str:
+    """The device of a sensor's stream-state STRING messages: ``<device>State``, the device
+    name cut to 15 characters (OpenIGTLink names have at most 20)."""
+    return device[:15] + "State"
 
 
 class TrackLog:
@@ -277,6 +305,10 @@ class _SensorState:
         self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
         self.pending: list = []
         self.n_pending = 0
+        self.state = None            # "OK", "DISTORTED", "LOST" or "STALE" (stream state)
+        self.last_valid = None       # time.monotonic() of the last valid (sendable) pose
+        self.bad_since = None        # time.monotonic() when the state left "OK"
+        self.events = dict.fromkeys(STREAM_EVENTS, 0)
 
 
 class TrackingPipeline:
@@ -325,6 +357,30 @@ class TrackingPipeline:
     serial_small_batches : bool
         Solve chunks of fewer than 256 samples with numba's parallel regions limited to this
         thread (see ``openemt bench track``'s baseline for why).
+    reference : str, optional
+        Name of the reference sensor: every other sensor is also streamed relative to it,
+        ``inv(reference) @ sensor``, on device ``<sensor name>ToReference``, for the samples
+        where both are valid (docs/live.md#reference-relative-output).
+    stale_after : float
+        Watchdog: a sensor without a valid pose for this many seconds of wall-clock time
+        (also when no samples arrive) is reported ``STALE`` on its ``<device>State`` message.
+    tdata : bool
+        Send all sensors (and relative streams) of one sample in one OpenIGTLink TDATA message
+        on device ``tdata_device`` instead of one TRANSFORM per sensor
+        (:func:`openemt.live._tdata.pack_tdata`).
+    igtl_metadata : bool
+        Give every TRANSFORM the OpenIGTLink version-2 metadata ``Status`` (``OK`` or
+        ``DISTORTED``), ``RelativeResidual`` and ``Distortion`` (header version 2); False
+        sends version-1 TRANSFORMs without metadata (so does a stand-in server whose
+        ``send_poses`` takes no ``metadata``).
+
+    Stream states: after every chunk each sensor's state is that of its last sample (``OK``,
+    ``DISTORTED``: converged with a quadrature ratio above the threshold, ``LOST``: not
+    converged) or ``STALE`` (no valid pose for ``stale_after`` seconds); a change is sent once
+    as a STRING on device ``<device name>State`` (:func:`state_device_name`: the device name
+    cut to 15 characters so that the suffix stays), e.g.
+    ``"LOST ProbeToTracker: status OUT_OF_VOLUME"`` or
+    ``"RECOVERED ProbeToTracker after 0.21 s"``, and counted in the summary (``events``).
     """
 
     def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
@@ -332,7 +388,9 @@ class TrackingPipeline:
                  window: str = "hann", phase=None, distortion_threshold: float = 1e-3,
                  igtl=None, log: TrackLog | None = None, igtl_every: int = 1,
                  status_every: int = 150, serial_small_batches: bool = True,
-                 send_distorted: bool = False):
+                 send_distorted: bool = False, reference: str | None = None,
+                 stale_after: float = 0.5, tdata: bool = False,
+                 tdata_device: str = "openemt", igtl_metadata: bool = True):
         if sensors is None:
             if solver is None and model is None:
                 raise InputError("expected a `model` or a `solver`, got neither")
@@ -388,6 +446,27 @@ class TrackingPipeline:
             log.set_sensors(names)
         self.igtl_every = max(1, int(igtl_every))
         self.status_every = max(1, int(status_every))
+        self.stale_after = float(stale_after)
+        if not self.stale_after > 0:
+            raise InputError(f"expected a positive `stale_after` in seconds, got {stale_after!r}")
+        self.tdata = bool(tdata)
+        self.tdata_device = tdata_device
+        self.igtl_metadata = bool(igtl_metadata) and _takes_metadata(igtl)
+        self.reference = None
+        self._relative: list = []      # (sensor state, device name) streamed relative to it
+        if reference is not None:
+            if reference not in names:
+                raise InputError(f"expected `reference` to name a sensor in {names}, got "
+                                 f"{reference!r}")
+            self.reference = self.sensors[names.index(reference)]
+            self._relative = [(st, relative_device_name(st.setup.name)) for st in self.sensors
+                              if st is not self.reference]
+        for dev in [d for _, d in self._relative] + ([tdata_device] if self.tdata else []):
+            if not (isinstance(dev, str) and 1 <= len(dev) <= 20 and dev.isascii()):
+                raise InputError(f"expected OpenIGTLink device names of 1-20 ASCII characters "
+                                 f"(relative streams <sensor>ToReference, `tdata_device`), got "
+                                 f"{dev!r}")
+        self.events: collections.deque = collections.deque(maxlen=1000)
         # confining numba's threads only matters for solvers that may start parallel regions
         self.serial_small_batches = bool(serial_small_batches) and not all(
             getattr(st.solver, "serial", False) for st in self.sensors)
@@ -412,10 +491,13 @@ class TrackingPipeline:
 
     @staticmethod
     def _unpack(res):
+        rel = getattr(res, "relative_residual", None)     # NaN where a solver gives none
+        status = np.asarray(res.status, dtype=np.int8)
         return (np.asarray(res.poses, dtype=np.float64),
-                np.asarray(res.pose_vectors, dtype=np.float64),
-                np.asarray(res.status, dtype=np.int8),
-                np.asarray(res.residual, dtype=np.float64))
+                np.asarray(res.pose_vectors, dtype=np.float64), status,
+                np.asarray(res.residual, dtype=np.float64),
+                np.full(status.shape, np.nan) if rel is None
+                else np.asarray(rel, dtype=np.float64))
 
     def _call(self, solver, C, initial, quick):
         """``solver(C, initial)``; samples marked in ``quick`` (distorted, not sent) are solved
@@ -453,15 +535,15 @@ class TrackingPipeline:
                 C = np.concatenate([Cs[st.index] for st in group])
                 initial = np.repeat(np.stack([st.last for st in group]), n, axis=0)
                 q = None if quick is None else np.concatenate([quick[st.index] for st in group])
-                P, V, S, R = self._call(group[0].solver, C, initial, q)
+                P, V, S, R, RR = self._call(group[0].solver, C, initial, q)
                 k = len(group)                  # one view per sensor: (k, n, ...) blocks
                 P, V = P.reshape(k, n, 4, 4), V.reshape(k, n, 6)
-                S, R = S.reshape(k, n), R.reshape(k, n)
+                S, R, RR = S.reshape(k, n), R.reshape(k, n), RR.reshape(k, n)
                 # the usual case: every sensor's last sample converged (one test for all)
                 tracked = n > 0 and not (S[:, -1] != _CONVERGED).any()
                 lasts = V[:, -1].copy() if tracked else None
                 for j, st in enumerate(group):
-                    out[st.index] = (P[j], V[j], S[j], R[j])
+                    out[st.index] = (P[j], V[j], S[j], R[j], RR[j])
                     if tracked:
                         st.last = lasts[j]
                     else:
@@ -522,6 +604,9 @@ class TrackingPipeline:
                 steps.append(TrackStep(d.times, d.couplings, np.empty((0, 4, 4)),
                                        np.empty((0, 6)), np.empty(0, np.int8), e, e,
                                        np.empty(0, bool), t_ready))
+            now = time.monotonic()
+            for st, step in zip(self.sensors, steps):   # the watchdog runs without samples too
+                self._watch(st, step, step.distorted, now, None)
             return steps[0] if len(steps) == 1 else tuple(steps)
         send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
         epoch = self.backend.t0_epoch
@@ -551,12 +636,8 @@ class TrackingPipeline:
                 solved = self._solve_all(Cs, quick)
         else:
             solved = self._solve_all(Cs, quick)
-        if self.igtl is not None:               # the same for every sensor
-            every = (None if self.igtl_every == 1
-                     else (self._n_out + np.arange(n)) % self.igtl_every == 0)
-            stamps = epoch + d.times
-        oks = []
-        for st, couplings, (poses, vecs, status, resid), ratio, flag in zip(
+        oks, valids = [], []
+        for st, couplings, (poses, vecs, status, resid, rel), ratio, flag in zip(
                 self.sensors, parts, solved, ratios, flags):
             poses, vecs = self._correct(st, poses, vecs, status)
             poses, vecs = self._filter(st, d.times, poses, vecs, status)
@@ -567,26 +648,156 @@ class TrackingPipeline:
                 vecs = vector_from_pose(poses)
             ok = status == _CONVERGED
             oks.append(ok)
-            if self.igtl is not None:
-                pick = ok if every is None else ok & every
-                if not self.send_distorted and flag.any():
-                    pick = pick & ~flag
-                device = st.setup.device_name or self.igtl.device_name
-                if pick.all():                  # the usual case, without a copy
-                    self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device)
-                elif pick.any():
-                    self.igtl.send_poses(poses[pick], stamps[pick], t_ready=t_ready,
-                                         device_name=device)
-                if send_status:
-                    self._send_status(device, int(status[-1]), bool(flag[-1]),
-                                      float(ratio[-1]), stamps[-1])
+            # valid = sent: converged, and not distorted unless distorted samples are sent
+            valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
-                                   t_ready))
+                                   t_ready, rel))
+        stamps = epoch + d.times
+        if self.igtl is not None:
+            self._send(steps, valids, stamps, t_ready)
+            if send_status:
+                for st, step in zip(self.sensors, steps):
+                    self._send_status(self._device(st), int(step.status[-1]),
+                                      bool(step.distorted[-1]), float(step.distortion[-1]),
+                                      stamps[-1])
+        now = time.monotonic()
+        for st, step, valid in zip(self.sensors, steps, valids):
+            self._watch(st, step, valid, now, stamps[-1])
         for st, step, ok in zip(self.sensors, steps, oks):   # after every sensor's poses are sent
             self._account(st, step, ok)
         self._latency.extend([time.perf_counter() - t_ready] * n)
         self._n_out += n
         return steps[0] if len(steps) == 1 else tuple(steps)
+
+    def _device(self, st: _SensorState) -> str:
+        return st.setup.device_name or self.igtl.device_name
+
+    def _streams(self, steps, picks):
+        """The streams of one chunk: per sensor, then per sensor relative to the reference,
+        ``(device, poses, pick, distorted, relative residual, distortion)``; a relative
+        stream's pose is ``inv(reference) @ sensor`` where both are picked (elsewhere the
+        sensor's own, never sent), flagged distorted where either is, with the larger relative residual and
+        quadrature ratio of the two."""
+        out = [(self._device(st), step.poses, pick, step.distorted, step.relative_residual,
+                step.distortion) for st, step, pick in zip(self.sensors, steps, picks)]
+        if self.reference is not None:
+            from ..geometry import invert
+
+            r = self.reference.index
+            ref, rpick = steps[r], picks[r]
+            for st, device in self._relative:
+                tool = steps[st.index]
+                pick = picks[st.index] & rpick
+                poses = tool.poses.copy()
+                if pick.any():
+                    poses[pick] = invert(ref.poses[pick]) @ tool.poses[pick]
+                out.append((device, poses, pick, tool.distorted | ref.distorted,
+                            np.fmax(tool.relative_residual, ref.relative_residual),
+                            np.maximum(tool.distortion, ref.distortion)))
+        return out
+
+    def _send(self, steps, valids, stamps, t_ready) -> None:
+        """Send the chunk's valid poses of every stream: one TRANSFORM per stream and sample
+        (with metadata), or one TDATA per sample."""
+        n = len(stamps)
+        picks = valids
+        if self.igtl_every != 1:
+            every = (self._n_out + np.arange(n)) % self.igtl_every == 0
+            picks = [v & every for v in valids]
+        if not getattr(self.igtl, "connected", True):   # cheap exit: count what nobody got
+            if self.tdata:
+                count = int(np.logical_or.reduce(picks).sum())
+            else:
+                rp = picks[self.reference.index] if self.reference is not None else None
+                count = sum(int(p.sum()) for p in picks) + sum(
+                    int((picks[st.index] & rp).sum()) for st, _ in self._relative)
+            self.igtl.send_packed(b"", count)
+            return
+        streams = self._streams(steps, picks)
+        if self.tdata:
+            from ._tdata import pack_tdata
+
+            M = np.stack([s[1] for s in streams], axis=1)          # (n, streams, 4, 4)
+            valid = np.stack([s[2] for s in streams], axis=1)
+            M = np.where(valid[:, :, None, None], M, np.eye(4))    # unsent slots: finite
+            M[:, :, :3, 3] *= 1000.0                               # m -> mm (Slicer)
+            data, count = pack_tdata(M, valid, [s[0] for s in streams], stamps,
+                                     self.tdata_device)
+            if count:
+                self.igtl.send_packed(data, count, t_ready)
+            return
+        # every stream's poses in one call (one packing pass, one write per client): the
+        # samples of the first stream, then those of the next, ...
+        if all(s[2].all() for s in streams):
+            sel = [slice(None)] * len(streams)
+        else:
+            sel = [s[2] for s in streams]
+        poses = np.concatenate([s[1][k] for s, k in zip(streams, sel)])
+        if not len(poses):
+            return
+        devices = [d for s, k in zip(streams, sel)
+                   for d in [s[0]] * (n if isinstance(k, slice) else int(k.sum()))]
+        meta = None
+        if self.igtl_metadata:
+            distorted = np.concatenate([s[3][k] for s, k in zip(streams, sel)])
+            meta = {"Status": (["OK"] * len(poses) if not distorted.any()
+                               else np.where(distorted, "DISTORTED", "OK").tolist()),
+                    "RelativeResidual": np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
+                    "Distortion": np.concatenate([s[5][k] for s, k in zip(streams, sel)])}
+        kw = {} if meta is None else {"metadata": meta}
+        self.igtl.send_poses(poses, np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
+                             device_name=devices[0] if len(streams) == 1 else devices, **kw)
+
+    def _watch(self, st: _SensorState, step: TrackStep, valid, now: float, stamp) -> None:
+        """Update the stream state of ``st`` after a chunk (see the class docstring) and
+        report a change."""
+        if st.last_valid is None:               # the watchdog starts with the first chunk
+            st.last_valid = now
+        n = len(step)
+        new = st.state
+        if n and valid.any():
+            st.last_valid = now
+        if n:
+            ok = step.status[-1] == _CONVERGED
+            new = ("DISTORTED" if step.distorted[-1] else "OK") if ok else "LOST"
+            if st.state == "STALE" and not valid.any():
+                new = "STALE"                   # stale until a valid pose arrives
+        if new != "STALE" and not (n and valid.any()) and now - st.last_valid >= self.stale_after:
+            new = "STALE"
+        if new == st.state:
+            return
+        old, st.state = st.state, new
+        device = st.setup.device_name or (self.igtl.device_name if self.igtl is not None
+                                          else st.setup.name)
+        if new == "OK":
+            event = "tracking" if old is None else "recovered"
+            detail = "" if old is None else f" after {now - st.bad_since:.2f} s"
+            st.bad_since = None
+        else:
+            event = new.lower()
+            if st.bad_since is None:
+                st.bad_since = now
+            if new == "LOST":
+                try:
+                    name = Status(int(step.status[-1])).name
+                except ValueError:  # pragma: no cover - a custom solver's own code
+                    name = str(int(step.status[-1]))
+                detail = f": status {name}"
+            elif new == "DISTORTED":
+                detail = (f": quadrature {float(step.distortion[-1]):.2e} > "
+                          f"{self.distortion_threshold:.2e}")
+            else:
+                detail = f": no valid pose for {now - st.last_valid:.2f} s"
+        st.events[event] += 1
+        text = f"{event.upper()} {device}{detail}"
+        self.events.append({"sensor": st.setup.name, "event": event, "text": text,
+                            "n_samples": self._n_out + n})
+        if self.igtl is not None:
+            import pyigtl
+
+            self.igtl.send_message(pyigtl.StringMessage(
+                text, timestamp=time.time() if stamp is None else float(stamp),
+                device_name=state_device_name(device)))
 
     def _send_status(self, device, code, distorted, ratio, timestamp):
         import pyigtl
@@ -692,7 +903,7 @@ class TrackingPipeline:
                "not_sent_distorted": st.n_not_sent,
                "device_name": (st.setup.device_name or self.igtl.device_name)
                if self.igtl is not None else None,
-               "truth": None, "filter": None}
+               "truth": None, "filter": None, "state": st.state, "events": dict(st.events)}
         if st.err_n:
             out["truth"] = {"position_error_mm_rms": 1e3 * float(np.sqrt(st.err_ss / st.err_n)),
                             "position_error_mm_max": 1e3 * st.err_max}
@@ -730,7 +941,12 @@ class TrackingPipeline:
         n = self._n_out
         k = len(self.sensors)
         extra = {"not_sent_distorted": sum(st.n_not_sent for st in self.sensors),
-                 "send_distorted": self.send_distorted}
+                 "send_distorted": self.send_distorted,
+                 "events": {e: sum(st.events[e] for st in self.sensors) for e in STREAM_EVENTS},
+                 "stale_after": self.stale_after,
+                 "reference": None if self.reference is None else self.reference.setup.name,
+                 "relative_devices": [d for _, d in self._relative] or None,
+                 "tdata": self.tdata}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:

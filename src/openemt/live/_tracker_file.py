@@ -35,6 +35,7 @@ __all__ = [
     "TrackerSpec",
     "example_tracker",
     "read_tracker",
+    "relative_device_name",
     "tracker_from_dict",
 ]
 
@@ -43,6 +44,14 @@ TRACKER_FORMAT = "openemt-tracker"
 _VERSION = 1
 _MISSING = object()
 _FILTER_KINDS = ("none", "kalman")
+#: Default of ``[igtl] stale_after``: seconds without a valid pose before a sensor is stale.
+DEFAULT_STALE_AFTER = 0.5
+
+
+def relative_device_name(sensor_name: str) -> str:
+    """The OpenIGTLink device name of a sensor streamed relative to the reference sensor:
+    ``<sensor name>ToReference``."""
+    return f"{sensor_name}ToReference"
 
 # Limits of a tracker file (docs/robustness.md, "Bounded work"): far above any real tracker,
 # low enough that a careless or hostile value is an error instead of an exhausted memory.
@@ -153,6 +162,9 @@ class TrackerSpec:
     filter: FilterSpec = field(default_factory=FilterSpec)
     simulation: dict = field(default_factory=dict)
     path: Path | None = None
+    reference: str | None = None
+    stale_after: float = DEFAULT_STALE_AFTER
+    tdata: bool = False
 
     @property
     def sensor_names(self) -> tuple:
@@ -248,6 +260,10 @@ class _Reader:
             if not isinstance(v, str):
                 raise self.fail(full, "a string", _show(v))
             return v
+        if kind == "boolean":
+            if not isinstance(v, bool):
+                raise self.fail(full, "true or false", _show(v))
+            return v
         if kind == "table":
             if not isinstance(v, dict):
                 raise self.fail(full, "a table", _show(v))
@@ -310,7 +326,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     base = path.parent if path is not None else Path(".")
     r = _Reader(where)
     _unknown_keys(r, doc, "", ("format", "version", "adc", "source", "demodulation", "sensors",
-                               "filter", "simulation"))
+                               "filter", "simulation", "igtl"))
     fmt = r.get(doc, "", "format", "string")
     if fmt != TRACKER_FORMAT:
         raise r.fail("format", repr(TRACKER_FORMAT), repr(fmt))
@@ -477,11 +493,39 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         simd["mains_amplitudes"] = tuple(r.get(sim, "simulation", "mains_amplitudes",
                                                "list of numbers"))
 
+    ig = r.get(doc, "", "igtl", "table", {})
+    _unknown_keys(r, ig, "igtl", ("reference", "stale_after", "tdata"))
+    reference = r.get(ig, "igtl", "reference", "string", None)
+    if reference is not None:
+        if reference not in names:
+            raise r.fail("igtl.reference", f"the name of a sensor in {names}",
+                         f"unknown sensor {reference!r}")
+        if len(names) < 2:
+            raise r.fail("igtl.reference", "a sensor of a tracker with at least two sensors",
+                         f"{reference!r}, the only sensor")
+        devices = {s.device_name for s in sensors}
+        for s in sensors:
+            rel = relative_device_name(s.name)
+            if s.name == reference:
+                continue
+            if not (len(rel) <= 20 and rel.isascii()):
+                raise r.fail("igtl.reference", "sensors whose relative device names "
+                             "<name>ToReference have 1-20 ASCII characters",
+                             f"{rel!r} for sensor {s.name!r} (shorten its name)")
+            if rel in devices:
+                raise r.fail("igtl.reference", "relative device names no sensor uses",
+                             f"{rel!r} already the device name of a sensor")
+    stale = r.get(ig, "igtl", "stale_after", "number", DEFAULT_STALE_AFTER)
+    if not (stale > 0 and stale < float("inf")):
+        raise r.fail("igtl.stale_after", "a positive number of seconds", stale)
+    tdata = r.get(ig, "igtl", "tdata", "boolean", False)
+
     spec = TrackerSpec(sample_rate=fs, n_channels=n_ch, frequencies=tuple(freqs),
                        reference_channels=tuple(refs), sensors=tuple(sensors),
                        sensor_gain=gains["sensor_gain"], reference_gain=gains["reference_gain"],
                        output_rate=rate, window=window, distortion_threshold=thr,
-                       filter=fspec, simulation=simd, path=path)
+                       filter=fspec, simulation=simd, path=path, reference=reference,
+                       stale_after=stale, tdata=tdata)
     try:                                       # the carrier plan must suit the demodulator
         from ..signal import frame_length
 
