@@ -132,23 +132,6 @@ def _sensor(spec, sensors, name):
     return names.index(name)
 
 
-def _sim_backend(spec, motion, seed):
-    """The simulated tracker of ``spec`` on ``motion`` (the preset's dipole model as truth)."""
-    from .._constants import SIMULATED_MAINS_AMPLITUDES_V
-    from ..live import SimulatedBackend
-    from ..signal import RawSignalConfig
-    from ..simulate import get_preset
-
-    sim = spec.simulation
-    kw = {k: sim[k] for k in ("noise_rms", "eddy_strength") if k in sim}
-    cfg = RawSignalConfig(layout=spec.layout(), mains_amplitudes=sim.get(
-        "mains_amplitudes", SIMULATED_MAINS_AMPLITUDES_V), **kw)
-    offsets = np.array([s.simulation_offset for s in spec.sensors], dtype=np.float64)
-    model = get_preset(sim.get("preset", "concentric")).dipole
-    return SimulatedBackend(model, motion.sensor_poses, config=cfg, seed=seed, realtime=False,
-                            offsets=offsets)
-
-
 def spare_poses(n_poses: int) -> int:
     """Holds of the simulated motion after the ``n_poses`` of ``openemt simulate --reference``,
     for holds that a collection drops."""
@@ -262,7 +245,8 @@ def run(args) -> int:  # noqa: C901 - one acquisition loop with its stop conditi
     dws = None
     try:
         if motion is not None:
-            backend = _sim_backend(spec, motion, args.seed)
+            backend = tracker_backend(spec, "sim", realtime=False, seed=args.seed,
+                                      trajectory=motion.sensor_poses)
         else:
             device = args.device
             if isinstance(device, str) and device.isdigit():

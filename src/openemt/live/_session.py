@@ -60,12 +60,12 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
 def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
                     realtime: bool = True, duration: float | None = None, seed=None,
                     noise_rms: float | None = None, eddy_strength: float | None = None,
-                    chunk: int = 640, match_layout: bool = True):
+                    chunk: int = 640, match_layout: bool = True, trajectory=None):
     """The backend of ``source`` (``"sim"``, ``"replay"`` or ``"sound"``) for a tracker.
 
-    ``sim`` simulates the tracker's channel layout (every sensor follows
-    :func:`~openemt.live.default_trajectory` shifted by its ``simulation_offset``, truth model
-    from ``[simulation] preset``); ``replay`` reads a raw recording whose channel layout must
+    ``sim`` simulates the tracker's channel layout (every sensor follows ``trajectory``, a
+    callable of times giving poses, by default :func:`~openemt.live.default_trajectory`,
+    shifted by its ``simulation_offset``; truth model from ``[simulation] preset``); ``replay`` reads a raw recording whose channel layout must
     match the tracker's (``match_layout=False``: the recording's own layout is used); ``sound``
     opens the audio input ``device`` with ``adc.channels``
     channels at ``adc.sample_rate``.
@@ -99,7 +99,7 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
     from ._board import board_trajectory, board_truth
 
     sim = spec.simulation
-    model, trajectory = board_truth(spec), board_trajectory   # a board calibration's truth
+    model, path = board_truth(spec), board_trajectory   # a board calibration's truth
     if model is None:
         preset = get_preset(sim.get("preset", "concentric"))
         n_coils = {len(s.channels) for s in spec.sensors}
@@ -108,7 +108,7 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
                              f"and {preset.n_source} carriers for the simulated preset "
                              f"{preset.name!r}, got {sorted(n_coils)} coils and "
                              f"{len(spec.frequencies)} carriers")
-        model, trajectory = preset.dipole, None
+        model, path = preset.dipole, None
     kw = {"mains_amplitudes": sim.get("mains_amplitudes", SIMULATED_MAINS_AMPLITUDES_V)}
     for key, over in (("noise_rms", noise_rms), ("eddy_strength", eddy_strength)):
         v = sim.get(key) if over is None else over
@@ -116,6 +116,7 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
             kw[key] = v
     cfg = RawSignalConfig(layout=layout, **kw)
     offsets = np.array([s.simulation_offset for s in spec.sensors], dtype=np.float64)
-    return SimulatedBackend(model, trajectory, config=cfg, seed=sim.get("seed", 0)
+    return SimulatedBackend(model, path if trajectory is None else trajectory, config=cfg,
+                            seed=sim.get("seed", 0)
                             if seed is None else seed, realtime=realtime, duration=duration,
                             offsets=offsets, chunk=chunk)
