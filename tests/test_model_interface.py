@@ -175,3 +175,19 @@ def test_six_dof_board_solved_from_the_interface_alone():
         solver(C[:, :, :1])
     with pytest.raises(InputError, match="closed forms"):
         prepare(model, solver="kim18")
+
+
+def test_octupole_calibration_round_trips_and_is_solved_with_its_terms(tmp_path):
+    model = MODELS["octupole"]()
+    cal = Calibration(model, mode="improved")
+    back = read_calibration(write_calibration(cal, tmp_path / "oct.json"))
+    assert back.kind == "octupole"
+    np.testing.assert_array_equal(back.model.params, model.params)
+    P = pose_from_vector(np.array([[0.25, 0.05, -0.04, 0.3, -0.2, 0.7],
+                                   [0.18, -0.07, 0.06, -1.0, 0.4, 2.2]]))
+    C = model.coupling(P)
+    res = prepare(back, hemisphere="+x")(C)        # the dipole kernel, refined by the octupoles
+    assert np.all(res.status == Status.CONVERGED)
+    np.testing.assert_allclose(res.poses, P, atol=1e-9)
+    plain = prepare(model.dipole, hemisphere="+x")(C)   # the dipole alone misses the terms
+    assert np.abs(plain.poses[:, :3, 3] - P[:, :3, 3]).max() > 1e-7

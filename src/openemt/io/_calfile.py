@@ -237,6 +237,20 @@ def _dipole_from_block(model: dict, src: str) -> DipoleModel:
     return dm
 
 
+def _octupole_block(m) -> dict:
+    return {**_dipole_block(m.dipole), "kind": "octupole", "k_so": _arr_to_json(m.k_so),
+            "k_se": _arr_to_json(m.k_se)}
+
+
+def _octupole_from_block(model: dict, src: str):
+    from ..field import OctupoleModel
+
+    dm = _dipole_from_block(model, src)
+    k = {key: _array(_get(model, key, src, list, f"model.{key}"), f"model.{key}", (n,), src)
+         for key, n in (("k_so", dm.n_source), ("k_se", dm.n_sensor))}
+    return OctupoleModel(dm, **k)
+
+
 def _board_from_block(model: dict, src: str):
     try:
         return board_model_from_block(model, _where(src))
@@ -247,6 +261,8 @@ def _board_from_block(model: dict, src: str):
 #: The one registry of model blocks: ``model.kind`` -> (encode, decode, units). Every other
 #: part of openemt works through the model interface (:class:`openemt.field.CouplingModel`).
 MODEL_CODECS = {"dipole": (_dipole_block, _dipole_from_block, _UNITS),
+                "octupole": (_octupole_block, _octupole_from_block,
+                             {**_UNITS, "model.k_so": "m^2", "model.k_se": "m^2"}),
                 "finite": (board_model_block, _board_from_block,
                            {**_UNITS_COMMON, **BOARD_UNITS})}
 

@@ -235,22 +235,27 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
             raise TypeError(f"expected a Calibration or a coupling model, got "
                             f"{type(calibration_or_model).__name__}") from None
     model = calibration_or_model if cal is None else cal.model
+    refine = None                      # a fuller model that refines the inner solution
     if isinstance(model, DipoleModel):
         inner = _dipole(model, solver, opts)
-        full = model if cal is None else cal.coupling_model
+        if cal is not None and cal.coupling_model is not model:
+            refine = cal.coupling_model
+    elif isinstance(getattr(model, "dipole", None), DipoleModel):
+        # a dipole model with further terms (octupoles): the dipole kernel, then refined
+        inner, refine = _dipole(model.dipole, solver, opts), model
     elif solver != "lm":
         raise InputError(f"expected solver 'lm' for a {model.kind!r} model (the closed forms "
                          f"need a concentric 3x3 dipole model), got {solver!r}")
     elif isinstance(model, BoardModel) and model.n_sensor == 1:
-        inner, full = PlanarSolver(model, opts), model      # the compiled 5-DOF board solver
+        inner = PlanarSolver(model, opts)                  # the compiled 5-DOF board solver
     else:
         from ._model_lm import ModelSolver
 
-        inner, full = ModelSolver(model, opts), model
+        inner = ModelSolver(model, opts)
     corr = cal.linear_correction if cal is not None and apply_correction else None
-    if full is model and corr is None:
+    if refine is None and corr is None:
         return inner
-    return CalibrationSolver(inner, None if full is model else full, corr)
+    return CalibrationSolver(inner, refine, corr)
 
 
 def _dipole(model, solver, opts):
