@@ -127,8 +127,8 @@ class ModelSolver:
     ----------
     model : coupling model
     options : SolveOptions
-        ``max_iter`` (default 50), ``xtol`` (default 1e-10: the step in m / rad below which a
-        sample has converged), ``max_relative_residual``, ``max_range``, ``bounds`` (a position
+        ``max_iter`` (default 50), ``xtol`` (default 1e-9, as the board solver: the step in
+        m / rad below which a sample has converged), ``max_relative_residual``, ``max_range``, ``bounds`` (a position
         box half-width, m), ``hemisphere`` (default: the board's front side, if the model is a
         board of one coil normal), ``retry_resnorm`` (a converged sample above this ILEMT
         resnorm is solved again cold, as a failed one is) and ``initial`` (default
@@ -151,7 +151,7 @@ class ModelSolver:
         self.options = options
         self.n_source, self.n_sensor, self.dof = model.n_source, model.n_sensor, model.dof
         self.max_iter = 50 if options.max_iter is None else int(options.max_iter)
-        self.xtol = 1e-10 if options.xtol is None else float(options.xtol)
+        self.xtol = 1e-9 if options.xtol is None else float(options.xtol)
         max_rel, max_rng = check_validity_options(options.max_relative_residual,
                                                   options.max_range)
         h = options.hemisphere
@@ -324,21 +324,34 @@ class ModelSolver:
         iters[again] += ic
 
     def _track(self, C, good, x, status, rho, iters):
+        """Blocks of :data:`TRACK_BLOCK` samples; each starts from the last two converged
+        samples of the previous block, extrapolated at constant velocity to its own row (from
+        the last one alone after a gap or at the start)."""
         nvec = self._nvec
-        last = None
+        last = prev = None                   # (row, pose vector) of the last two converged
         for lo in range(0, good.size, TRACK_BLOCK):
             rows = good[lo:lo + TRACK_BLOCK]
             if last is None:
                 v0 = vector_from_pose(self.cold_starts(C[rows[:1]]))
-                last = v0[0] if np.all(np.isfinite(v0)) else None
+                last = (rows[0], v0[0]) if np.all(np.isfinite(v0)) else None
             if last is None:
                 x[rows], status[rows], rho[rows], iters[rows] = self._solve_from(
                     C[rows], vector_from_pose(self.cold_starts(C[rows])), nvec[rows])
             else:
+                start = np.tile(last[1], (rows.size, 1))
+                if prev is not None and 0 < last[0] - prev[0] <= TRACK_BLOCK:
+                    rate = (last[1] - prev[1]) / (last[0] - prev[0])
+                    start = start + np.outer(rows - last[0], rate)
                 x[rows], status[rows], rho[rows], iters[rows] = self._solve_from(
-                    C[rows], np.tile(last, (rows.size, 1)), nvec[rows])
+                    C[rows], start, nvec[rows])
                 sub = (x[rows], status[rows], rho[rows], iters[rows])
                 self._retry_cold(C[rows], *sub, nvec[rows])
                 x[rows], status[rows], rho[rows], iters[rows] = sub
             conv = np.flatnonzero(status[rows] == int(Status.CONVERGED))
-            last = x[rows[conv[-1]]] if conv.size else None
+            if conv.size >= 2:
+                prev, last = (rows[conv[-2]], x[rows[conv[-2]]]), (rows[conv[-1]],
+                                                                   x[rows[conv[-1]]])
+            elif conv.size == 1:
+                prev, last = last, (rows[conv[-1]], x[rows[conv[-1]]])
+            else:
+                prev = last = None
