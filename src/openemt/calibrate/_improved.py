@@ -13,7 +13,10 @@ the calibration (md) rows only:
   ``Rz(theta') -> E Rz(theta') E^T``, ``E = exp([wx, wy, 0]x)``;
 * ``source_code_fix`` -- as ``sensor_code_fix`` for the source fixture (only with several
   source fixtures in the data);
-* ``k_so`` / ``k_se`` -- an axial octupole per coil (finite coil size, :mod:`openemt.field._octupole`).
+* ``k_so`` / ``k_se`` -- an axial octupole per coil (finite coil size, :mod:`openemt.field._octupole`);
+* ``rz_motion`` -- the Rz axis's error motions (runout, wobble, angle error) as harmonics of
+  the angle, and ``gain_nonlinear`` -- a signal-level dependent gain per sensor channel
+  (:mod:`openemt.calibrate._rig`).
 
 A global stage scale is deliberately not offered: a uniform scale trades exactly against the coil
 gains. The improved rig model also defines the ground truth of the test rows, since it is a
@@ -43,6 +46,7 @@ from ..geometry import (
 from ._layout import ParameterLayout
 from ._lsq import fit_free_parameters
 from ._objective import build_problem, fixture_twist_map
+from ._rig import error_motion_twists, gain_linearise, gain_linearise_gradient
 
 __all__ = ["STAGE_LINEAR_BASIS", "ImprovedProblem", "RigModel", "RigOptions", "fit_improved"]
 
@@ -58,6 +62,8 @@ class RigOptions:
     octupole_source: bool = True
     octupole_sensor: bool = False
     stage_linear: tuple = ()
+    rz_motion: int = 0
+    gain_nonlinear: bool = False
 
 
 #: Basis of the stage's linear-map errors ``t -> (I + G) t``; ``stage_linear`` picks entries
@@ -93,6 +99,11 @@ class RigModel:
         Rz axis tilt (rotation vector x, y components, rad).
     k_so, k_se : ndarray, shape (n_source,), (n_sensor,)
         Octupole strengths (m^2).
+    rz_motion : ndarray, shape (2 order, 6)
+        Rz error-motion coefficients (rows ``sin theta, 1 - cos theta, sin 2 theta, ...``;
+        columns translation m, rotation rad; :func:`openemt.calibrate._rig.error_motion_basis`).
+    gain_beta : ndarray, shape (n_sensor,) or None
+        Gain non-linearity per sensor channel (per unit coupling).
     """
 
     sensor_codes: tuple = ()
@@ -105,6 +116,8 @@ class RigModel:
     k_se: np.ndarray | None = None
     stage_linear_names: tuple = ()
     stage_linear: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    rz_motion: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    gain_beta: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready form (stored in ``Calibration.extra['rig']``)."""
@@ -117,7 +130,10 @@ class RigModel:
                 "octupole_k_so": None if self.k_so is None else self.k_so.tolist(),
                 "octupole_k_se": None if self.k_se is None else self.k_se.tolist(),
                 "stage_linear": dict(zip(self.stage_linear_names,
-                                         np.asarray(self.stage_linear).tolist()))}
+                                         np.asarray(self.stage_linear).tolist())),
+                "rz_error_motion": np.asarray(self.rz_motion).tolist(),
+                "gain_nonlinearity": None if self.gain_beta is None else
+                np.asarray(self.gain_beta).tolist()}
 
 
 class ImprovedProblem:
@@ -154,7 +170,9 @@ class ImprovedProblem:
                  "rz_poly": options.rz_poly, "rz_tilt": 2 if options.rz_tilt else 0,
                  "k_so": layout.n_source if options.octupole_source else 0,
                  "k_se": layout.n_sensor if options.octupole_sensor else 0,
-                 "stage_linear": len(options.stage_linear)}
+                 "stage_linear": len(options.stage_linear),
+                 "rz_motion": 12 * int(options.rz_motion),
+                 "gain": layout.n_sensor if options.gain_nonlinear else 0}
         bad = [b for b in options.stage_linear if b not in STAGE_LINEAR_BASIS]
         if bad:
             raise InputError(f"expected stage_linear names from {sorted(STAGE_LINEAR_BASIS)}, "
@@ -178,7 +196,15 @@ class ImprovedProblem:
             k_so=np.array(x[e["k_so"]]) if self.options.octupole_source else None,
             k_se=np.array(x[e["k_se"]]) if self.options.octupole_sensor else None,
             stage_linear_names=tuple(self.options.stage_linear),
-            stage_linear=np.array(x[e["stage_linear"]]))
+            stage_linear=np.array(x[e["stage_linear"]]),
+            rz_motion=np.reshape(x[e["rz_motion"]], (-1, 6)),
+            gain_beta=np.array(x[e["gain"]]) if self.options.gain_nonlinear else None)
+
+    def linearised(self, C, x):
+        """Couplings ``C`` with the fitted gain non-linearity removed (unchanged without it)."""
+        if not self.options.gain_nonlinear:
+            return C
+        return gain_linearise(C, x[self.extra["gain"]])
 
     def model(self, x):
         dip = self.layout.model(x, self.base.gain)
@@ -214,12 +240,14 @@ class ImprovedProblem:
         A = A0 @ dso                            # prefix of F_st
         G = np.einsum("p,pab->ab", x[self.extra["stage_linear"]], self.G_basis)
         t_stage = self.stage[:, :3] + self.stage[:, :3] @ G.T
-        K = A @ F_st @ pose_from_rt(np.eye(3), t_stage)              # prefix of the Rz rotation
-        Q = K @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))       # prefix of a sensor-code fix
+        K = A @ F_st @ pose_from_rt(np.eye(3), t_stage)              # prefix of the error motion
+        Em, Mm = error_motion_twists(theta, x[self.extra["rz_motion"]])
+        K2 = K @ Em                                                   # prefix of the Rz rotation
+        Q = K2 @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))      # prefix of a sensor-code fix
         D = Q @ dse                             # prefix of F_se
         P = D @ F_se
-        return {"P": P, "A0": A0, "A": A, "K": K, "Q": Q, "D": D, "Rn": Rn, "E": E, "w": w,
-                "theta": theta}
+        return {"P": P, "A0": A0, "A": A, "K": K, "K2": K2, "Mm": Mm, "Q": Q, "D": D, "Rn": Rn,
+                "E": E, "w": w, "theta": theta}
 
     def poses(self, x) -> np.ndarray:
         """Ground-truth poses ``(N, 4, 4)`` of the rows under the improved rig model."""
@@ -227,7 +255,8 @@ class ImprovedProblem:
 
     def residuals(self, x) -> np.ndarray:
         C = self.model(x).coupling(self.poses(x))
-        return ((self.base.C_meas - C) * self.base.weight[:, None, None]).ravel()
+        return ((self.linearised(self.base.C_meas, x) - C)
+                * self.base.weight[:, None, None]).ravel()
 
     def residuals_and_jacobian(self, x):
         ch = self._chain(x)
@@ -253,7 +282,7 @@ class ImprovedProblem:
             T = adjoint(ch["A0"][rows]) @ fixture_twist_map(v)
             J[rows, :, :, s] = np.einsum("kijb,kbc->kijc", H[rows], T)
         if e["rz_poly"].stop > e["rz_poly"].start or self.options.rz_tilt:
-            HK = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K"]))[..., 3:]  # rotation part
+            HK = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K2"]))[..., 3:]  # rotation part
             axis = ch["E"][:, 2]
             g_axis = HK @ axis                                                # (n, ns, ne)
             for p in range(e["rz_poly"].stop - e["rz_poly"].start):
@@ -267,6 +296,9 @@ class ImprovedProblem:
             HKt = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K"]))[..., :3]
             dt = np.einsum("pab,kb->kpa", self.G_basis, self.stage[:, :3])   # (n, p, 3)
             J[..., e["stage_linear"]] = np.einsum("kija,kpa->kijp", HKt, dt)
+        if self.options.rz_motion:
+            J[..., e["rz_motion"]] = np.einsum("kijb,kbc->kijc", H,
+                                               adjoint(ch["K"]) @ ch["Mm"])
         if dks is not None and self.options.octupole_source:
             for i in range(ns):
                 J[:, i, :, e["k_so"].start + i] = dks[:, i, :]
@@ -274,8 +306,10 @@ class ImprovedProblem:
             for j in range(ne):
                 J[:, :, j, e["k_se"].start + j] = dke[:, :, j]
         w = self.base.weight[:, None, None]
-        r = (self.base.C_meas - jac.C) * w
+        r = (self.linearised(self.base.C_meas, x) - jac.C) * w
         J *= -w[..., None]
+        if self.options.gain_nonlinear:
+            J[..., e["gain"]] = gain_linearise_gradient(self.base.C_meas) * w[..., None]
         return r.ravel(), J.reshape(r.size, self.size)
 
 
