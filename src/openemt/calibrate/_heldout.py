@@ -23,7 +23,6 @@ from ..evaluate import (
     pose_error_magnitudes,
     repeat_scatter,
 )
-from ..field import OctupoleModel
 from ..geometry import SOURCE_FIXTURES, pose_from_vector
 from ..solve import refine_poses
 from ._check import ILEMT_VALID_RESNORM
@@ -68,12 +67,19 @@ CANDIDATES = {
 }
 
 #: Terms ``--improved`` tries on top of :data:`IMPROVED_OPTIONS`, in this order (RigOptions
-#: changes): the Rz axis's error motions (second harmonic of runout, wobble and angle error;
-#: :mod:`openemt.calibrate._rig`) and a signal-level dependent gain per sensor channel.
+#: changes; :mod:`openemt.calibrate._rig`): the Rz axis's error motions (second harmonic of
+#: runout, wobble and angle error), the field induced in a conductive or magnetic object
+#: (one dipole, a moment per carrier), a signal-level dependent gain per sensor channel and a
+#: pose-independent coupling offset (crosstalk).
 TERMS = {
     "rz_error_motion": {"rz_motion": 1},
+    "induced_dipole": {"induced": True},
     "gain_nonlinearity": {"gain_nonlinear": True},
+    "coupling_offset": {"coupling_offset": True},
 }
+
+#: Folds of the md cross-validation that decides on each term (whole grid positions held out).
+SELECTION_FOLDS = 3
 
 #: A term is kept when it lowers the md cross-validation translation RMS by at least this
 #: fraction ...
@@ -192,7 +198,7 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
 
     D = tp.poses(xt)
     model = tp.model(xt)
-    dip = model.dipole if isinstance(model, OctupoleModel) else model
+    dip = getattr(model, "dipole", model)
     hemi = hemisphere_from_positions(D[:, :3, 3])
     init = initial if isinstance(initial, str) else np.asarray(initial)
     couplings = tp.linearised(rows.couplings, xt)
@@ -200,7 +206,7 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
                    bounds=ILEMT_POSITION_BOX_M, concentric_model=concentric_model,
                    retry_resnorm=ILEMT_VALID_RESNORM)
     v, resid = res.pose_vectors, np.asarray(res.residual)
-    if isinstance(model, OctupoleModel):
+    if model is not dip:
         v, resid = refine_poses(model, couplings, v)
     M = pose_from_vector(v)
     if correction is not None:
@@ -281,7 +287,8 @@ class TermDecision(Result):
     parameters: dict
 
 
-_TERM_KEYS = {"rz_error_motion": "rz_error_motion", "gain_nonlinearity": "gain_nonlinearity"}
+_TERM_KEYS = {"rz_error_motion": "rz_error_motion", "induced_dipole": "induced_dipole",
+              "gain_nonlinearity": "gain_nonlinearity", "coupling_offset": "coupling_offset"}
 
 
 def _identify(md, start, options):
@@ -295,7 +302,7 @@ def _identify(md, start, options):
 
 
 def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPTIONS,
-                 terms=None, folds: int = 9):
+                 terms=None, folds: int = SELECTION_FOLDS):
     """Forward selection of :data:`TERMS` on calibration (md) rows only.
 
     Each term, in order, is added to the model kept so far and kept when (a) the
@@ -309,15 +316,20 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
         ``base`` with the kept terms.
     decisions : list of TermDecision
     base_cv : CrossValidation
+    fits : dict of str -> (ImprovedProblem, ndarray)
+        The fit on every md row of the base model (``"base"``) and of each trial (the term's
+        name), for the before/after scores.
     """
     terms = TERMS if terms is None else terms
     options = base
     cv = cross_validate(md, start, options, concentric_model, folds=folds)
     base_cv, decisions = cv, []
+    fits = {"base": _fit(md, start, options)[:2]}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
         cv_t = cross_validate(md, start, trial, concentric_model, folds=folds)
         prob, x, free, ident, se = _identify(md, start, trial)
+        fits[name] = (prob, x)
         cond = ident.to_dict()["condition"]
         gain = 1.0 - cv_t.trans_rms_mm / cv.trans_rms_mm
         full = ident.rank == ident.n_free and cond is not None and cond < TERM_MAX_CONDITION
@@ -338,7 +350,7 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
             parameters=params))
         if kept:
             options, cv = trial, cv_t
-    return options, decisions, base_cv
+    return options, decisions, base_cv, fits
 
 
 def repeat_pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
@@ -541,16 +553,14 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
                  for k, o in (candidates or {}).items()}
     decisions, steps = [], {}
     if terms:
-        base = options
-        options, decisions, _ = select_terms(md, start, concentric_model, base=base,
-                                             terms=terms, folds=folds)
-        label, trial = name, base
-        steps[label] = _fit(md, start, trial)[:2]
+        options, decisions, _, fits = select_terms(md, start, concentric_model, base=options,
+                                                   terms=terms)
+        label = name
+        steps[label] = fits["base"]
         for d in decisions:
-            t = dataclasses.replace(trial, **terms[d.term])
-            steps[f"{label}+{d.term}"] = _fit(md, start, t)[:2]
+            steps[f"{label}+{d.term}"] = fits[d.term]
             if d.kept:
-                label, trial = f"{label}+{d.term}", t
+                label = f"{label}+{d.term}"
         name = label
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -15,7 +15,8 @@ the calibration (md) rows only:
   source fixtures in the data);
 * ``k_so`` / ``k_se`` -- an axial octupole per coil (finite coil size, :mod:`openemt.field._octupole`);
 * ``rz_motion`` -- the Rz axis's error motions (runout, wobble, angle error) as harmonics of
-  the angle, and ``gain_nonlinear`` -- a signal-level dependent gain per sensor channel
+  the angle; ``gain_nonlinear`` -- a signal-level dependent gain per sensor channel;
+  ``coupling_offset`` -- a pose-independent coupling added to every reading (crosstalk)
   (:mod:`openemt.calibrate._rig`).
 
 A global stage scale is deliberately not offered: a uniform scale trades exactly against the coil
@@ -43,12 +44,23 @@ from ..geometry import (
     rotation_z,
     sensor_fixture_rotation,
 )
+from ..io import signed_real
 from ._layout import ParameterLayout
 from ._lsq import fit_free_parameters
 from ._objective import build_problem, fixture_twist_map
-from ._rig import error_motion_twists, gain_linearise, gain_linearise_gradient
+from ._rig import (
+    InducedDipoles,
+    error_motion_twists,
+    gain_linearise,
+    gain_linearise_gradient,
+)
 
 __all__ = ["STAGE_LINEAR_BASIS", "ImprovedProblem", "RigModel", "RigOptions", "fit_improved"]
+
+
+#: Start of the induced dipole's position: this far beyond the centroid of the fitted rows,
+#: seen from the source (m).
+INDUCED_START_OFFSET_M = 0.15
 
 
 @dataclass(frozen=True)
@@ -64,6 +76,9 @@ class RigOptions:
     stage_linear: tuple = ()
     rz_motion: int = 0
     gain_nonlinear: bool = False
+    coupling_offset: bool = False
+    induced: bool = False
+    induced_start: tuple | None = None
 
 
 #: Basis of the stage's linear-map errors ``t -> (I + G) t``; ``stage_linear`` picks entries
@@ -104,6 +119,11 @@ class RigModel:
         columns translation m, rotation rad; :func:`openemt.calibrate._rig.error_motion_basis`).
     gain_beta : ndarray, shape (n_sensor,) or None
         Gain non-linearity per sensor channel (per unit coupling).
+    offset : ndarray, shape (n_source, n_sensor) or None
+        Pose-independent coupling offset (crosstalk), in coupling units.
+    induced : ndarray, shape (3 + 3 n_source,) or None
+        Position (m, source frame) and per-carrier moments of an induced dipole
+        (:class:`openemt.calibrate._rig.InducedDipoles`).
     """
 
     sensor_codes: tuple = ()
@@ -118,6 +138,8 @@ class RigModel:
     stage_linear: np.ndarray = field(default_factory=lambda: np.zeros(0))
     rz_motion: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
     gain_beta: np.ndarray | None = None
+    offset: np.ndarray | None = None
+    induced: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready form (stored in ``Calibration.extra['rig']``)."""
@@ -133,7 +155,12 @@ class RigModel:
                                          np.asarray(self.stage_linear).tolist())),
                 "rz_error_motion": np.asarray(self.rz_motion).tolist(),
                 "gain_nonlinearity": None if self.gain_beta is None else
-                np.asarray(self.gain_beta).tolist()}
+                np.asarray(self.gain_beta).tolist(),
+                "coupling_offset": None if self.offset is None else
+                np.asarray(self.offset).tolist(),
+                "induced_dipole": None if self.induced is None else {
+                    "position": np.asarray(self.induced)[:3].tolist(),
+                    "moments": np.asarray(self.induced)[3:].reshape(-1, 3).tolist()}}
 
 
 class ImprovedProblem:
@@ -172,7 +199,9 @@ class ImprovedProblem:
                  "k_se": layout.n_sensor if options.octupole_sensor else 0,
                  "stage_linear": len(options.stage_linear),
                  "rz_motion": 12 * int(options.rz_motion),
-                 "gain": layout.n_sensor if options.gain_nonlinear else 0}
+                 "gain": layout.n_sensor if options.gain_nonlinear else 0,
+                 "offset": layout.n_source * layout.n_sensor if options.coupling_offset else 0,
+                 "induced": 3 + 3 * layout.n_source if options.induced else 0}
         bad = [b for b in options.stage_linear if b not in STAGE_LINEAR_BASIS]
         if bad:
             raise InputError(f"expected stage_linear names from {sorted(STAGE_LINEAR_BASIS)}, "
@@ -198,22 +227,36 @@ class ImprovedProblem:
             stage_linear_names=tuple(self.options.stage_linear),
             stage_linear=np.array(x[e["stage_linear"]]),
             rz_motion=np.reshape(x[e["rz_motion"]], (-1, 6)),
-            gain_beta=np.array(x[e["gain"]]) if self.options.gain_nonlinear else None)
+            gain_beta=np.array(x[e["gain"]]) if self.options.gain_nonlinear else None,
+            offset=np.reshape(x[e["offset"]], (self.layout.n_source, self.layout.n_sensor))
+            if self.options.coupling_offset else None,
+            induced=np.array(x[e["induced"]]) if self.options.induced else None)
 
     def linearised(self, C, x):
-        """Couplings ``C`` with the fitted gain non-linearity removed (unchanged without it)."""
-        if not self.options.gain_nonlinear:
+        """Couplings ``C`` with the fitted gain non-linearity and coupling offset removed
+        (signed real, :meth:`openemt.io.Dataset.signed_real`); unchanged without them."""
+        o = self.options
+        if not (o.gain_nonlinear or o.coupling_offset):
             return C
-        return gain_linearise(C, x[self.extra["gain"]])
+        C = signed_real(C) if np.iscomplexobj(C) else np.asarray(C, dtype=np.float64)
+        if o.gain_nonlinear:
+            C = gain_linearise(C, x[self.extra["gain"]])
+        if o.coupling_offset:
+            C = C - np.reshape(x[self.extra["offset"]], C.shape[1:])
+        return C
 
     def model(self, x):
         dip = self.layout.model(x, self.base.gain)
         o = self.options
-        if not (o.octupole_source or o.octupole_sensor):
-            return dip
-        k_so = x[self.extra["k_so"]] if o.octupole_source else np.zeros(dip.n_source)
-        k_se = x[self.extra["k_se"]] if o.octupole_sensor else np.zeros(dip.n_sensor)
-        return OctupoleModel(dip, k_so, k_se)
+        base = dip
+        if o.octupole_source or o.octupole_sensor:
+            k_so = x[self.extra["k_so"]] if o.octupole_source else np.zeros(dip.n_source)
+            k_se = x[self.extra["k_se"]] if o.octupole_sensor else np.zeros(dip.n_sensor)
+            base = OctupoleModel(dip, k_so, k_se)
+        if o.induced:
+            v = x[self.extra["induced"]]
+            return InducedDipoles(base, v[:3], v[3:])
+        return base
 
     # -- kinematics ---------------------------------------------------------------------------
     def _chain(self, x):
@@ -262,7 +305,7 @@ class ImprovedProblem:
         ch = self._chain(x)
         P = ch["P"]
         model = self.model(x)
-        if isinstance(model, OctupoleModel):
+        if hasattr(model, "jacobians"):
             jac, dks, dke = model.jacobians(P)
         else:
             jac, dks, dke = coupling_jacobians(model, P), None, None
@@ -299,6 +342,12 @@ class ImprovedProblem:
         if self.options.rz_motion:
             J[..., e["rz_motion"]] = np.einsum("kijb,kbc->kijc", H,
                                                adjoint(ch["K"]) @ ch["Mm"])
+        if self.options.induced:
+            ji = model.induced_jacobians(P)
+            s0 = e["induced"].start
+            J[..., s0:s0 + 3] = ji.d_L_so
+            for i in range(ns):
+                J[:, i, :, s0 + 3 + 3 * i:s0 + 6 + 3 * i] = ji.d_M_so[:, i, :, :]
         if dks is not None and self.options.octupole_source:
             for i in range(ns):
                 J[:, i, :, e["k_so"].start + i] = dks[:, i, :]
@@ -310,6 +359,9 @@ class ImprovedProblem:
         J *= -w[..., None]
         if self.options.gain_nonlinear:
             J[..., e["gain"]] = gain_linearise_gradient(self.base.C_meas) * w[..., None]
+        if self.options.coupling_offset:
+            J[..., e["offset"]] = (-np.eye(ns * ne).reshape(ns, ne, ns * ne)
+                                   * w[..., None])
         return r.ravel(), J.reshape(r.size, self.size)
 
 
@@ -323,6 +375,14 @@ def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize
     prob = ImprovedProblem(dataset, layout, start.model.gain, options)
     x0 = np.zeros(prob.size)
     x0[:layout.size] = layout.pack_calibration(start)
+    if options.induced:
+        # start: beyond the rows' centroid, 0.15 m further from the source, with a small moment
+        # (at zero moment the position has no gradient)
+        s0 = prob.extra["induced"].start
+        c = prob.poses(x0)[:, :3, 3].mean(axis=0)
+        q0 = c * (1.0 + INDUCED_START_OFFSET_M / np.linalg.norm(c))
+        x0[s0:s0 + 3] = q0 if options.induced_start is None else options.induced_start
+        x0[s0 + 3:prob.extra["induced"].stop] = 1e-4
     free = np.r_[layout.free_indices(optimize, freeze), np.arange(layout.size, prob.size)]
 
     x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)

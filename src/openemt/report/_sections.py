@@ -83,20 +83,16 @@ def by_fixture_table(rep: Report, by_group: dict, caption: str) -> None:
 
 def breakdown_section(rep: Report, breakdowns: dict, noise_floor: dict | None) -> None:
     """Held-out error by range, stage rotation and sensor fixture
-    (:func:`openemt.evaluate.error_breakdown` dicts, one column per calibration row), with
+    (:func:`openemt.evaluate.error_breakdown` dicts, one row per group and calibration), with
     the repeat-pose noise floor (:func:`openemt.evaluate.repeat_scatter`) beside it."""
     from ..evaluate import ErrorBreakdown
 
     names = list(breakdowns)
     tables = {n: ErrorBreakdown(**breakdowns[n]).rows() for n in names}
-    rows = []
-    for k, r in enumerate(tables[names[0]]):
-        row = {"test rows": r["group"], "n": r["n"]}
-        for n in names:
-            t = tables[n][k] if k < len(tables[n]) else {}
-            row[f"{n} trans RMS mm"] = t.get("trans_rms_mm")
-            row[f"{n} rot RMS deg"] = t.get("rot_rms_deg")
-        rows.append(row)
+    rows = [{"group": r["group"], "calibration": n, "n": r["n"],
+             "trans_rms_mm": r["trans_rms_mm"], "rot_rms_deg": r["rot_rms_deg"]}
+            for k in range(len(tables[names[0]])) for n in names
+            for r in tables[n][k:k + 1]]
     rep.table(rows, digits=4, caption="Held-out errors by range from the source (r), stage "
               "rotation Rz and sensor fixture: where the error sits")
     if noise_floor and noise_floor.get("n_pairs"):
