@@ -291,6 +291,13 @@ _TERM_KEYS = {"rz_error_motion": "rz_error_motion", "induced_dipole": "induced_d
               "gain_nonlinearity": "gain_nonlinearity", "coupling_offset": "coupling_offset"}
 
 
+def _flat(v) -> np.ndarray:
+    """Numbers of a nested dict / list (a RigModel.to_dict entry), flattened."""
+    if isinstance(v, dict):
+        return np.concatenate([_flat(x) for x in v.values()] or [np.zeros(0)])
+    return np.ravel(np.asarray(v, dtype=np.float64))
+
+
 def _identify(md, start, options):
     """Fit on every md row; ``(prob, x, free, ident, se)``."""
     prob, x, free, _ = _fit(md, start, options)
@@ -338,12 +345,17 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
               f"({-100 * gain:+.1f} %, needs <= {-100 * TERM_MIN_GAIN:.0f} %), rank "
               f"{ident.rank} of {ident.n_free}, condition "
               + (f"{cond:.3g}" if cond is not None else "inf"))
-        reason = ("kept: " if kept else "not kept: ") + ev
         key = _TERM_KEYS.get(name)
         params = {}
         if key is not None:
             params = {"value": prob.rig(x).to_dict()[key],
                       "standard_error": prob.rig(se).to_dict()[key]}
+            v, e_ = _flat(params["value"]), _flat(params["standard_error"])
+            weak = int(np.sum(np.abs(v) < 2 * e_))
+            if weak:
+                ev += (f"; {weak} of {v.size} of its parameters within 2 standard errors of "
+                       "zero")
+        reason = ("kept: " if kept else "not kept: ") + ev
         decisions.append(TermDecision(
             term=name, kept=kept, reason=reason, md_cv_before=cv.to_dict(),
             md_cv_after=cv_t.to_dict(), rank=ident.rank, n_free=ident.n_free, condition=cond,

@@ -385,5 +385,11 @@ def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize
         x0[s0 + 3:prob.extra["induced"].stop] = 1e-4
     free = np.r_[layout.free_indices(optimize, freeze), np.arange(layout.size, prob.size)]
 
+    if options.induced:
+        # first the moments with the position held at its start (at a near-zero moment the
+        # position's gradient is tiny and a free position wanders), then everything
+        s0 = prob.extra["induced"].start
+        x0, _ = fit_free_parameters(prob, x0, np.setdiff1d(free, np.arange(s0, s0 + 3)),
+                                    tol=tol, max_nfev=max_nfev)
     x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
     return prob, x, free, res
