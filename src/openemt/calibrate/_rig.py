@@ -1,10 +1,12 @@
-"""Error motions of the stage's rotary axis and the acquisition's gain non-linearity.
+"""Terms of the improved rig model beyond the paper's: the stage's rotary-axis error motions,
+the acquisition's gain non-linearity and coupling offset, and an induced dipole.
 
-Two groups of parameters of the improved rig model (:mod:`openemt.calibrate._improved`):
+Parameter groups of the improved rig model (:mod:`openemt.calibrate._improved`), tried by
+``--improved`` on md rows (:data:`openemt.calibrate.TERMS`):
 
 * **Rz error motions.** A rotary axis carries, besides its location errors (axis position and
   tilt, fitted elsewhere), six *error motions* that vary with its angle: radial and axial
-  runout (3 translations), wobble (2 tilts) and angular positioning error (ISO 230-1 §3;
+  runout (3 translations), wobble (2 tilts) and angular positioning error (ISO 230-1;
   Schwenke et al., CIRP Annals 57(2), 2008). openemt writes them as a small pose
   ``E(theta) = exp(xi(theta))`` inserted between the translation stages and the rotation,
   ``xi(theta) = sum_k (sin(k theta) a_k + (1 - cos(k theta)) b_k)`` with ``a_k, b_k`` in R^6
@@ -16,8 +18,12 @@ Two groups of parameters of the improved rig model (:mod:`openemt.calibrate._imp
 * **Gain non-linearity.** A sensor channel whose gain changes with the signal level reads
   ``c_read = c (1 - beta_j |c|)``; the calibration fits ``beta_j`` per sensor coil and reads
   ``c = c_read (1 + beta_j |c_read|)`` (first order) before the coupling model.
+* **Coupling offset.** A pose-independent coupling ``C0`` (crosstalk of the drive into the
+  sensor channels) is subtracted from every reading.
+* **Induced dipole.** The field of a conductive or magnetic object near the rig
+  (:class:`InducedDipoles`).
 
-Pure array functions; the calibration problem wires them in.
+Pure array functions and a thin model wrapper; the calibration problem wires them in.
 """
 
 from __future__ import annotations
@@ -106,8 +112,10 @@ class InducedDipoles:
     ``mu_i`` (in phase with the drive, what the signed real coupling sees: eddy currents of a
     conductor or the magnetisation of iron, frequency-dependent). Its field reaches the sensor
     coils as that of a dipole at ``q``, so the coupling gains ``C_ind[i, j]`` = the dipole model
-    of a "source coil" ``i`` at ``q`` with moment ``mu_i`` into sensor coil ``j`` (Kindratenko,
-    Presence 9(2), 2000, reviews such distortions). ``base`` is a :class:`~openemt.field.DipoleModel`
+    of a "source coil" ``i`` at ``q`` with moment ``mu_i`` into sensor coil ``j`` (such metal
+    distortions are reviewed by Kindratenko, "A survey of electromagnetic position tracker
+    calibration techniques", Virtual Reality 5(3), 2000). ``base`` is a
+    :class:`~openemt.field.DipoleModel`
     or :class:`~openemt.field.OctupoleModel`; ``coupling`` and ``jacobians`` follow the latter
     (``jacobians`` returns ``(CouplingJacobians, d_k_so, d_k_se)``, the last two None for a
     dipole base), so :func:`openemt.solve.refine_poses` refines poses with it.
