@@ -126,7 +126,14 @@ def test_report_of_an_ilemt_folder_renders(ilemt_dir, tmp_path, capsys):
     assert s["table4"]["n_curves"] == {"xyz": 9, "rot": 3}
     assert set(s["by_fixture"]) == {"soYoutZup_seYoutZup", "soYoutZup_seZinYup",
                                     "soYoutZup_seZinXdown"}
+    # held-out breakdown and the md/ld repeat-pose noise floor
+    b = s["breakdown"]["default"]
+    assert sum(v["n"] for v in b["by_range"].values()) == 1896
+    assert list(b["by_rz"]) == ["-90 deg", "-45 deg", "0 deg", "45 deg", "90 deg"]
+    assert s["noise_floor"]["n_pairs"] >= 3 * 5 * 27
+    assert 0 < s["noise_floor"]["trans_rms_mm"] < t2["default"]["trans_rms_mm"]
     text = out.read_text()
+    assert "Held-out errors by range" in text
     _self_contained(text)
     for heading in ("Table II", "Table III", "Table IV", "parameters and standard errors"):
         assert heading in text

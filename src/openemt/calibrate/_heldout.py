@@ -7,6 +7,7 @@ positions are new, as the ld grid's are). The test files are used only to report
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -14,8 +15,14 @@ import numpy as np
 
 from .._constants import ILEMT_POSITION_BOX_M
 from .._result import Result
-from ..evaluate import ACCURACY_KEYS, STAGE_UNCERTAINTY_MM, error_summary, pose_error_magnitudes
-from ..field import OctupoleModel
+from ..evaluate import (
+    ACCURACY_KEYS,
+    STAGE_UNCERTAINTY_MM,
+    error_breakdown,
+    error_summary,
+    pose_error_magnitudes,
+    repeat_scatter,
+)
 from ..geometry import SOURCE_FIXTURES, pose_from_vector
 from ..solve import refine_poses
 from ._check import ILEMT_VALID_RESNORM
@@ -26,12 +33,18 @@ from ._modes import MODES
 __all__ = [
     "CANDIDATES",
     "IMPROVED_OPTIONS",
+    "TERMS",
+    "TERM_MAX_CONDITION",
+    "TERM_MIN_GAIN",
     "CrossValidation",
     "ImprovedCalibration",
     "ImprovedTest",
     "ScoredPoses",
+    "TermDecision",
     "cross_validate",
     "improved_calibration",
+    "repeat_pairs",
+    "select_terms",
     "solve_and_score",
     "transfer",
 ]
@@ -52,6 +65,28 @@ CANDIDATES = {
     "rig+octupole": RigOptions(octupole_sensor=True),
     "improved": IMPROVED_OPTIONS,
 }
+
+#: Terms ``--improved`` tries on top of :data:`IMPROVED_OPTIONS`, in this order (RigOptions
+#: changes; :mod:`openemt.calibrate._rig`): the Rz axis's error motions (second harmonic of
+#: runout, wobble and angle error), the field induced in a conductive or magnetic object
+#: (one dipole, a moment per carrier), a signal-level dependent gain per sensor channel and a
+#: pose-independent coupling offset (crosstalk).
+TERMS = {
+    "rz_error_motion": {"rz_motion": 1},
+    "induced_dipole": {"induced": True},
+    "gain_nonlinearity": {"gain_nonlinear": True},
+    "coupling_offset": {"coupling_offset": True},
+}
+
+#: Folds of the md cross-validation that decides on each term (whole grid positions held out).
+SELECTION_FOLDS = 3
+
+#: A term is kept when it lowers the md cross-validation translation RMS by at least this
+#: fraction ...
+TERM_MIN_GAIN = 0.01
+
+#: ... and the fit with it is full rank with a column-scaled Jacobian condition below this.
+TERM_MAX_CONDITION = 1e6
 
 
 def transfer(prob: ImprovedProblem, x, rows) -> tuple[ImprovedProblem, np.ndarray]:
@@ -94,10 +129,13 @@ class ScoredPoses(Result):
     residual : ndarray, shape (N,)
         Solution residuals.
 
+    poses : ndarray, shape (N, 4, 4)
+        Solved (and corrected) poses.
+
     ``to_dict()`` gives ``summary``.
     """
 
-    _not_in_dict = ("trans", "rot", "positions", "truth", "residual")
+    _not_in_dict = ("trans", "rot", "positions", "truth", "residual", "poses")
 
     trans: np.ndarray
     rot: np.ndarray
@@ -105,6 +143,14 @@ class ScoredPoses(Result):
     positions: np.ndarray
     truth: np.ndarray
     residual: np.ndarray
+    poses: np.ndarray | None = None
+
+    def breakdown(self, rows):
+        """:func:`openemt.evaluate.error_breakdown` of these errors on ``rows`` (the Dataset
+        that was solved): by range, stage Rz and sensor fixture."""
+        return error_breakdown(self.trans, self.rot, self.truth[:, :3, 3],
+                               stage_rz=np.asarray(rows.stage)[:, 5],
+                               sensor_fixture=rows.sensor_fixture)
 
 
 @dataclass(frozen=True)
@@ -152,22 +198,23 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
 
     D = tp.poses(xt)
     model = tp.model(xt)
-    dip = model.dipole if isinstance(model, OctupoleModel) else model
+    dip = getattr(model, "dipole", model)
     hemi = hemisphere_from_positions(D[:, :3, 3])
     init = initial if isinstance(initial, str) else np.asarray(initial)
-    res = solve_lm(rows.couplings, dip, initial=init, hemisphere=hemi,
+    couplings = tp.linearised(rows.couplings, xt)
+    res = solve_lm(couplings, dip, initial=init, hemisphere=hemi,
                    bounds=ILEMT_POSITION_BOX_M, concentric_model=concentric_model,
                    retry_resnorm=ILEMT_VALID_RESNORM)
     v, resid = res.pose_vectors, np.asarray(res.residual)
-    if isinstance(model, OctupoleModel):
-        v, resid = refine_poses(model, rows.couplings, v)
+    if model is not dip:
+        v, resid = refine_poses(model, couplings, v)
     M = pose_from_vector(v)
     if correction is not None:
         M[:, :3, 3] = apply_linear_correction(correction, M[:, :3, 3])
     F_se = tp.layout.fixtures(xt)[2]
     trans, rot = pose_error_magnitudes(M, D, sensor_fixture=F_se)
     return ScoredPoses(trans=trans, rot=rot, summary=error_summary(trans, rot),
-                       positions=M[:, :3, 3], truth=D, residual=resid)
+                       positions=M[:, :3, 3], truth=D, residual=resid, poses=M)
 
 
 def _fit(rows, start, options):
@@ -209,6 +256,137 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
                            n=int(t.size))
 
 
+@dataclass(frozen=True)
+class TermDecision(Result):
+    """Whether ``--improved`` kept a term of :data:`TERMS`, and why (md rows only).
+
+    Attributes
+    ----------
+    term : str
+    kept : bool
+    reason : str
+        One sentence with the evidence.
+    md_cv_before, md_cv_after : dict
+        :class:`CrossValidation` of the model without and with the term.
+    rank, n_free : int
+        Jacobian rank and free parameters of the fit with the term (all md rows).
+    condition : float or None
+        Column-scaled Jacobian condition of that fit (None when rank deficient).
+    parameters : dict
+        The term's fitted values and standard errors (``RigModel.to_dict`` entries).
+    """
+
+    term: str
+    kept: bool
+    reason: str
+    md_cv_before: dict
+    md_cv_after: dict
+    rank: int
+    n_free: int
+    condition: float | None
+    parameters: dict
+
+
+_TERM_KEYS = {"rz_error_motion": "rz_error_motion", "induced_dipole": "induced_dipole",
+              "gain_nonlinearity": "gain_nonlinearity", "coupling_offset": "coupling_offset"}
+
+
+def _flat(v) -> np.ndarray:
+    """Numbers of a nested dict / list (a RigModel.to_dict entry), flattened."""
+    if isinstance(v, dict):
+        return np.concatenate([_flat(x) for x in v.values()] or [np.zeros(0)])
+    return np.ravel(np.asarray(v, dtype=np.float64))
+
+
+def _identify(md, start, options):
+    """Fit on every md row; ``(prob, x, free, ident, se)``."""
+    prob, x, free, _ = _fit(md, start, options)
+    r, J = prob.residuals_and_jacobian(x)
+    ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
+    se = np.zeros(prob.size)
+    se[free] = ident.standard_errors
+    return prob, x, free, ident, se
+
+
+def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPTIONS,
+                 terms=None, folds: int = SELECTION_FOLDS):
+    """Forward selection of :data:`TERMS` on calibration (md) rows only.
+
+    Each term, in order, is added to the model kept so far and kept when (a) the
+    position-grouped cross-validation translation RMS (:func:`cross_validate`) drops by at
+    least :data:`TERM_MIN_GAIN` and (b) the fit with it on every md row is full rank with a
+    condition below :data:`TERM_MAX_CONDITION`.
+
+    Returns
+    -------
+    options : RigOptions
+        ``base`` with the kept terms.
+    decisions : list of TermDecision
+    base_cv : CrossValidation
+    fits : dict of str -> (ImprovedProblem, ndarray)
+        The fit on every md row of the base model (``"base"``) and of each trial (the term's
+        name), for the before/after scores.
+    """
+    terms = TERMS if terms is None else terms
+    options = base
+    cv = cross_validate(md, start, options, concentric_model, folds=folds)
+    base_cv, decisions = cv, []
+    fits = {"base": _fit(md, start, options)[:2]}
+    for name, change in terms.items():
+        trial = dataclasses.replace(options, **change)
+        cv_t = cross_validate(md, start, trial, concentric_model, folds=folds)
+        prob, x, free, ident, se = _identify(md, start, trial)
+        fits[name] = (prob, x)
+        cond = ident.to_dict()["condition"]
+        gain = 1.0 - cv_t.trans_rms_mm / cv.trans_rms_mm
+        full = ident.rank == ident.n_free and cond is not None and cond < TERM_MAX_CONDITION
+        kept = bool(gain >= TERM_MIN_GAIN and full)
+        ev = (f"md cross-validation {cv.trans_rms_mm:.3f} -> {cv_t.trans_rms_mm:.3f} mm "
+              f"({-100 * gain:+.1f} %, needs <= {-100 * TERM_MIN_GAIN:.0f} %), rank "
+              f"{ident.rank} of {ident.n_free}, condition "
+              + (f"{cond:.3g}" if cond is not None else "inf"))
+        key = _TERM_KEYS.get(name)
+        params = {}
+        if key is not None:
+            params = {"value": prob.rig(x).to_dict()[key],
+                      "standard_error": prob.rig(se).to_dict()[key]}
+            v, e_ = _flat(params["value"]), _flat(params["standard_error"])
+            weak = int(np.sum(np.abs(v) < 2 * e_))
+            if weak:
+                ev += (f"; {weak} of {v.size} of its parameters within 2 standard errors of "
+                       "zero")
+        reason = ("kept: " if kept else "not kept: ") + ev
+        decisions.append(TermDecision(
+            term=name, kept=kept, reason=reason, md_cv_before=cv.to_dict(),
+            md_cv_after=cv_t.to_dict(), rank=ident.rank, n_free=ident.n_free, condition=cond,
+            parameters=params))
+        if kept:
+            options, cv = trial, cv_t
+    return options, decisions, base_cv, fits
+
+
+def repeat_pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of datasets ``a`` and ``b`` at the same logged stage vector, source and sensor
+    fixture (e.g. an md and an ld row of one grid point and angle): index arrays ``(i, j)``.
+    Null rows (all-zero stage) are left out."""
+    def keys(d):
+        st = np.asarray(d.stage if d.stage_logged is None else d.stage_logged)
+        q = np.round(st * 1e5).astype(np.int64)
+        so = np.asarray(d.source_fixture).astype(str)
+        se = np.asarray(d.sensor_fixture).astype(str)
+        return [(tuple(v), c1, c2) if np.any(v) else None for v, c1, c2 in zip(q, so, se)]
+
+    first = {}
+    for i, k in enumerate(keys(a)):
+        if k is not None:
+            first.setdefault(k, i)
+    pairs = [(first[k], j) for j, k in enumerate(keys(b)) if k is not None and k in first]
+    if not pairs:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    i, j = np.array(pairs, dtype=np.int64).T
+    return i, j
+
+
 @dataclass(frozen=True, eq=False)
 class ImprovedCalibration:
     """The improved calibration chosen and fitted on calibration rows.
@@ -234,6 +412,15 @@ class ImprovedCalibration:
     identifiability : dict
         Jacobian rank and condition at the solution and the standard errors of the extra
         parameters (``rig_standard_errors``, shaped like ``rig``).
+    terms : list of TermDecision
+        The terms of :data:`TERMS` tried on md rows, kept or not (empty when none were tried).
+    steps : dict of str -> (ImprovedProblem, ndarray)
+        The md fit of the base model and of the model with each term tried, in order (for the
+        before/after breakdown of :meth:`step_breakdowns`).
+    md_scored : ScoredPoses or None
+        The calibration rows solved with the final model (uncorrected).
+    md_rows : Dataset or None
+        The calibration rows.
     """
 
     name: str
@@ -248,6 +435,38 @@ class ImprovedCalibration:
     concentric_model: object
     identifiability: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
+    terms: list = field(default_factory=list)
+    steps: dict = field(default_factory=dict)
+    md_scored: object = None
+    md_rows: object = None
+
+    def noise_floor(self, rows, concentric_model=None):
+        """Repeat-pose scatter (:func:`openemt.evaluate.repeat_scatter`) of the calibration
+        rows and the ``rows`` measured at the same stage vector and fixtures
+        (:func:`repeat_pairs`), both solved with this model: the noise floor of the data."""
+        cm = self.concentric_model if concentric_model is None else concentric_model
+        i, j = repeat_pairs(self.md_rows, rows)
+        if i.size == 0:
+            return repeat_scatter(np.zeros((0, 4, 4)), np.zeros((0, 4, 4)))
+        sub = rows.select(j)
+        tp, xt = transfer(self.problem, self.x, sub)
+        s = solve_and_score(tp, xt, sub, cm)
+        return repeat_scatter(self.md_scored.poses[i], s.poses)
+
+    def step_breakdowns(self, rows, concentric_model=None) -> dict:
+        """Held-out breakdown (:meth:`ScoredPoses.breakdown`) of ``rows`` before and after each
+        term tried: ``{step: {"kept": bool, "summary": ..., "breakdown": ...}}``, the first step
+        the base model. Scores only: nothing is chosen from them."""
+        cm = self.concentric_model if concentric_model is None else concentric_model
+        kept = {d.term: d.kept for d in self.terms}
+        out = {}
+        for label, (prob, x) in self.steps.items():
+            tp, xt = transfer(prob, x, rows)
+            s = solve_and_score(tp, xt, rows, cm)
+            out[label] = {"kept": kept.get(label.rsplit("+", 1)[-1], True),
+                          "summary": {k: s.summary[k] for k in ("trans_rms_mm", "rot_rms_deg")},
+                          "breakdown": s.breakdown(rows).to_dict()}
+        return out
 
     def extra_parameters(self) -> int:
         """Number of fitted parameters beyond the paper's XYZ mode (35 for 3 x 3 coils)."""
@@ -310,12 +529,13 @@ class ImprovedCalibration:
                 "identifiability": self.identifiability,
                 "selection_cv_md": {k: v.to_dict() for k, v in self.selection.items()},
                 "correction": self.correction_stats,
+                "terms": [d.to_dict() for d in self.terms],
                 "seconds": self.seconds}
 
 
 def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_OPTIONS,
-                         name: str = "improved", candidates=None, folds: int = 9
-                         ) -> ImprovedCalibration:
+                         name: str = "improved", candidates=None, folds: int = 9,
+                         terms=None) -> ImprovedCalibration:
     """The ``--improved`` procedure: fit the improved model on the md rows of the home source
     fixture and the DLT output correction on the same rows (docs/paper-procedure.md#output-correction).
 
@@ -332,6 +552,9 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     candidates : dict of str -> RigOptions, optional
         Also report position-grouped cross-validation of these variants on the md rows
         (``selection``); nothing is chosen from it.
+    terms : dict of str -> dict, optional
+        Terms tried on top of ``options`` by :func:`select_terms` (e.g. :data:`TERMS`); the
+        model fitted is ``options`` with the kept ones, and ``name`` gets ``+term`` for each.
     """
     from ..correct import fit_dlt
     from ..geometry import vector_from_pose
@@ -340,16 +563,25 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     t0 = time.perf_counter()
     selection = {k: cross_validate(md, start, o, concentric_model, folds=folds)
                  for k, o in (candidates or {}).items()}
+    decisions, steps = [], {}
+    if terms:
+        options, decisions, _, fits = select_terms(md, start, concentric_model, base=options,
+                                                   terms=terms)
+        label = name
+        steps[label] = fits["base"]
+        for d in decisions:
+            steps[f"{label}+{d.term}"] = fits[d.term]
+            if d.kept:
+                label = f"{label}+{d.term}"
+        name = label
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()
-    prob, x, free, _ = _fit(md, start, options)
-    r, J = prob.residuals_and_jacobian(x)
-    ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
-    se = np.zeros(prob.size)
-    se[free] = ident.standard_errors
+    prob, x, free, ident, se = _identify(md, start, options)
+    r = prob.residuals(x)
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)
     s = solve_and_score(prob, x, md, concentric_model, initial=vector_from_pose(D))
+    md_scored = solve_and_score(prob, x, md, concentric_model)
     ok = np.isfinite(s.residual) & (s.residual < ILEMT_VALID_RESNORM)
     corr, cstats = None, {"n_invalid": int((~ok).sum())}
     if ok.sum() >= 0.75 * len(ok):
@@ -364,4 +596,5 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
         identifiability={"rank": ident.rank, "n_free": ident.n_free,
                          "condition": ident.to_dict()["condition"],
                          "rig_standard_errors": prob.rig(se).to_dict()},
-        seconds={"cross_validation": t_sel, "fit_and_correction": time.perf_counter() - t0})
+        seconds={"cross_validation": t_sel, "fit_and_correction": time.perf_counter() - t0},
+        terms=decisions, steps=steps, md_scored=md_scored, md_rows=md)

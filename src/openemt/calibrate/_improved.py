@@ -13,7 +13,11 @@ the calibration (md) rows only:
   ``Rz(theta') -> E Rz(theta') E^T``, ``E = exp([wx, wy, 0]x)``;
 * ``source_code_fix`` -- as ``sensor_code_fix`` for the source fixture (only with several
   source fixtures in the data);
-* ``k_so`` / ``k_se`` -- an axial octupole per coil (finite coil size, :mod:`openemt.field._octupole`).
+* ``k_so`` / ``k_se`` -- an axial octupole per coil (finite coil size, :mod:`openemt.field._octupole`);
+* ``rz_motion`` -- the Rz axis's error motions (runout, wobble, angle error) as harmonics of
+  the angle; ``gain_nonlinear`` -- a signal-level dependent gain per sensor channel;
+  ``coupling_offset`` -- a pose-independent coupling added to every reading (crosstalk)
+  (:mod:`openemt.calibrate._rig`).
 
 A global stage scale is deliberately not offered: a uniform scale trades exactly against the coil
 gains. The improved rig model also defines the ground truth of the test rows, since it is a
@@ -41,11 +45,23 @@ from ..geometry import (
     rotation_z,
     sensor_fixture_rotation,
 )
+from ..io import signed_real
 from ._layout import ParameterLayout
 from ._lsq import fit_free_parameters
 from ._objective import build_problem, fixture_twist_map
+from ._rig import (
+    InducedDipoles,
+    error_motion_twists,
+    gain_linearise,
+    gain_linearise_gradient,
+)
 
 __all__ = ["STAGE_LINEAR_BASIS", "ImprovedProblem", "RigModel", "RigOptions", "fit_improved"]
+
+
+#: Start of the induced dipole's position: this far beyond the centroid of the fitted rows,
+#: seen from the source (m).
+INDUCED_START_OFFSET_M = 0.15
 
 
 @dataclass(frozen=True)
@@ -59,6 +75,11 @@ class RigOptions:
     octupole_source: bool = True
     octupole_sensor: bool = False
     stage_linear: tuple = ()
+    rz_motion: int = 0
+    gain_nonlinear: bool = False
+    coupling_offset: bool = False
+    induced: bool = False
+    induced_start: tuple | None = None
 
 
 #: Basis of the stage's linear-map errors ``t -> (I + G) t``; ``stage_linear`` picks entries
@@ -94,6 +115,16 @@ class RigModel:
         Rz axis tilt (rotation vector x, y components, rad).
     k_so, k_se : ndarray, shape (n_source,), (n_sensor,)
         Octupole strengths (m^2).
+    rz_motion : ndarray, shape (2 order, 6)
+        Rz error-motion coefficients (rows ``sin theta, 1 - cos theta, sin 2 theta, ...``;
+        columns translation m, rotation rad; :func:`openemt.calibrate._rig.error_motion_basis`).
+    gain_beta : ndarray, shape (n_sensor,) or None
+        Gain non-linearity per sensor channel (per unit coupling).
+    offset : ndarray, shape (n_source, n_sensor) or None
+        Pose-independent coupling offset (crosstalk), in coupling units.
+    induced : ndarray, shape (3 + 3 n_source,) or None
+        Position (m, source frame) and per-carrier moments of an induced dipole
+        (:class:`openemt.calibrate._rig.InducedDipoles`).
     """
 
     sensor_codes: tuple = ()
@@ -106,6 +137,10 @@ class RigModel:
     k_se: np.ndarray | None = None
     stage_linear_names: tuple = ()
     stage_linear: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    rz_motion: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    gain_beta: np.ndarray | None = None
+    offset: np.ndarray | None = None
+    induced: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready form (stored in ``Calibration.extra['rig']``)."""
@@ -118,7 +153,15 @@ class RigModel:
                 "octupole_k_so": None if self.k_so is None else self.k_so.tolist(),
                 "octupole_k_se": None if self.k_se is None else self.k_se.tolist(),
                 "stage_linear": dict(zip(self.stage_linear_names,
-                                         np.asarray(self.stage_linear).tolist()))}
+                                         np.asarray(self.stage_linear).tolist())),
+                "rz_error_motion": np.asarray(self.rz_motion).tolist(),
+                "gain_nonlinearity": None if self.gain_beta is None else
+                np.asarray(self.gain_beta).tolist(),
+                "coupling_offset": None if self.offset is None else
+                np.asarray(self.offset).tolist(),
+                "induced_dipole": None if self.induced is None else {
+                    "position": np.asarray(self.induced)[:3].tolist(),
+                    "moments": np.asarray(self.induced)[3:].reshape(-1, 3).tolist()}}
 
 
 class ImprovedProblem:
@@ -155,7 +198,11 @@ class ImprovedProblem:
                  "rz_poly": options.rz_poly, "rz_tilt": 2 if options.rz_tilt else 0,
                  "k_so": layout.n_source if options.octupole_source else 0,
                  "k_se": layout.n_sensor if options.octupole_sensor else 0,
-                 "stage_linear": len(options.stage_linear)}
+                 "stage_linear": len(options.stage_linear),
+                 "rz_motion": 12 * int(options.rz_motion),
+                 "gain": layout.n_sensor if options.gain_nonlinear else 0,
+                 "offset": layout.n_source * layout.n_sensor if options.coupling_offset else 0,
+                 "induced": 3 + 3 * layout.n_source if options.induced else 0}
         bad = [b for b in options.stage_linear if b not in STAGE_LINEAR_BASIS]
         if bad:
             raise InputError(f"expected stage_linear names from {sorted(STAGE_LINEAR_BASIS)}, "
@@ -179,16 +226,38 @@ class ImprovedProblem:
             k_so=np.array(x[e["k_so"]]) if self.options.octupole_source else None,
             k_se=np.array(x[e["k_se"]]) if self.options.octupole_sensor else None,
             stage_linear_names=tuple(self.options.stage_linear),
-            stage_linear=np.array(x[e["stage_linear"]]))
+            stage_linear=np.array(x[e["stage_linear"]]),
+            rz_motion=np.reshape(x[e["rz_motion"]], (-1, 6)),
+            gain_beta=np.array(x[e["gain"]]) if self.options.gain_nonlinear else None,
+            offset=np.reshape(x[e["offset"]], (self.layout.n_source, self.layout.n_sensor))
+            if self.options.coupling_offset else None,
+            induced=np.array(x[e["induced"]]) if self.options.induced else None)
+
+    def linearised(self, C, x):
+        """Couplings ``C`` with the fitted gain non-linearity and coupling offset removed
+        (signed real, :meth:`openemt.io.Dataset.signed_real`); unchanged without them."""
+        o = self.options
+        if not (o.gain_nonlinear or o.coupling_offset):
+            return C
+        C = signed_real(C) if np.iscomplexobj(C) else np.asarray(C, dtype=np.float64)
+        if o.gain_nonlinear:
+            C = gain_linearise(C, x[self.extra["gain"]])
+        if o.coupling_offset:
+            C = C - np.reshape(x[self.extra["offset"]], C.shape[1:])
+        return C
 
     def model(self, x):
         dip = self.layout.model(x, self.base.gain)
         o = self.options
-        if not (o.octupole_source or o.octupole_sensor):
-            return dip
-        k_so = x[self.extra["k_so"]] if o.octupole_source else np.zeros(dip.n_source)
-        k_se = x[self.extra["k_se"]] if o.octupole_sensor else np.zeros(dip.n_sensor)
-        return OctupoleModel(dip, k_so, k_se)
+        base = dip
+        if o.octupole_source or o.octupole_sensor:
+            k_so = x[self.extra["k_so"]] if o.octupole_source else np.zeros(dip.n_source)
+            k_se = x[self.extra["k_se"]] if o.octupole_sensor else np.zeros(dip.n_sensor)
+            base = OctupoleModel(dip, k_so, k_se)
+        if o.induced:
+            v = x[self.extra["induced"]]
+            return InducedDipoles(base, v[:3], v[3:])
+        return base
 
     # -- kinematics ---------------------------------------------------------------------------
     def _chain(self, x):
@@ -215,12 +284,14 @@ class ImprovedProblem:
         A = A0 @ dso                            # prefix of F_st
         G = np.einsum("p,pab->ab", x[self.extra["stage_linear"]], self.G_basis)
         t_stage = self.stage[:, :3] + self.stage[:, :3] @ G.T
-        K = A @ F_st @ pose_from_rt(np.eye(3), t_stage)              # prefix of the Rz rotation
-        Q = K @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))       # prefix of a sensor-code fix
+        K = A @ F_st @ pose_from_rt(np.eye(3), t_stage)              # prefix of the error motion
+        Em, Mm = error_motion_twists(theta, x[self.extra["rz_motion"]])
+        K2 = K @ Em                                                   # prefix of the Rz rotation
+        Q = K2 @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))      # prefix of a sensor-code fix
         D = Q @ dse                             # prefix of F_se
         P = D @ F_se
-        return {"P": P, "A0": A0, "A": A, "K": K, "Q": Q, "D": D, "Rn": Rn, "E": E, "w": w,
-                "theta": theta}
+        return {"P": P, "A0": A0, "A": A, "K": K, "K2": K2, "Mm": Mm, "Q": Q, "D": D, "Rn": Rn,
+                "E": E, "w": w, "theta": theta}
 
     def poses(self, x) -> np.ndarray:
         """Ground-truth poses ``(N, 4, 4)`` of the rows under the improved rig model."""
@@ -228,20 +299,21 @@ class ImprovedProblem:
 
     def residuals(self, x) -> np.ndarray:
         C = self.model(x).coupling(self.poses(x))
-        return ((self.base.C_meas - C) * self.base.weight[:, None, None]).ravel()
+        return ((self.linearised(self.base.C_meas, x) - C)
+                * self.base.weight[:, None, None]).ravel()
 
     def residuals_and_jacobian(self, x):
         ch = self._chain(x)
         P = ch["P"]
         model = self.model(x)
-        if isinstance(model, OctupoleModel):
+        if hasattr(model, "split_jacobians"):       # octupole terms, an induced dipole
             jac, dks, dke = model.split_jacobians(P)
         else:
             jac, dks, dke = coupling_jacobians(model, P), None, None
         lay, e = self.layout, self.extra
         # the base problem's part: the dipole parameters and fixtures (the model interface's
         # Jacobians of the dipole part; the octupole strengths follow below)
-        dip = model.dipole if isinstance(model, OctupoleModel) else model
+        dip = getattr(model, "dipole", model)
         mj = ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, param_jacobian(dip, jac))
         dC_base, H = self.base.gradients(x[:lay.size], mj, P, ch["A"], ch["D"])
         n, ns, ne = jac.C.shape
@@ -258,7 +330,7 @@ class ImprovedProblem:
             T = adjoint(ch["A0"][rows]) @ fixture_twist_map(v)
             J[rows, :, :, s] = np.einsum("kijb,kbc->kijc", H[rows], T)
         if e["rz_poly"].stop > e["rz_poly"].start or self.options.rz_tilt:
-            HK = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K"]))[..., 3:]  # rotation part
+            HK = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K2"]))[..., 3:]  # rotation part
             axis = ch["E"][:, 2]
             g_axis = HK @ axis                                                # (n, ns, ne)
             for p in range(e["rz_poly"].stop - e["rz_poly"].start):
@@ -272,6 +344,15 @@ class ImprovedProblem:
             HKt = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K"]))[..., :3]
             dt = np.einsum("pab,kb->kpa", self.G_basis, self.stage[:, :3])   # (n, p, 3)
             J[..., e["stage_linear"]] = np.einsum("kija,kpa->kijp", HKt, dt)
+        if self.options.rz_motion:
+            J[..., e["rz_motion"]] = np.einsum("kijb,kbc->kijc", H,
+                                               adjoint(ch["K"]) @ ch["Mm"])
+        if self.options.induced:
+            ji = model.induced_jacobians(P)
+            s0 = e["induced"].start
+            J[..., s0:s0 + 3] = ji.d_L_so
+            for i in range(ns):
+                J[:, i, :, s0 + 3 + 3 * i:s0 + 6 + 3 * i] = ji.d_M_so[:, i, :, :]
         if dks is not None and self.options.octupole_source:
             for i in range(ns):
                 J[:, i, :, e["k_so"].start + i] = dks[:, i, :]
@@ -279,8 +360,13 @@ class ImprovedProblem:
             for j in range(ne):
                 J[:, :, j, e["k_se"].start + j] = dke[:, :, j]
         w = self.base.weight[:, None, None]
-        r = (self.base.C_meas - jac.C) * w
+        r = (self.linearised(self.base.C_meas, x) - jac.C) * w
         J *= -w[..., None]
+        if self.options.gain_nonlinear:
+            J[..., e["gain"]] = gain_linearise_gradient(self.base.C_meas) * w[..., None]
+        if self.options.coupling_offset:
+            J[..., e["offset"]] = (-np.eye(ns * ne).reshape(ns, ne, ns * ne)
+                                   * w[..., None])
         return r.ravel(), J.reshape(r.size, self.size)
 
 
@@ -294,7 +380,21 @@ def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize
     prob = ImprovedProblem(dataset, layout, start.model.gain, options)
     x0 = np.zeros(prob.size)
     x0[:layout.size] = layout.pack_calibration(start)
+    if options.induced:
+        # start: beyond the rows' centroid, 0.15 m further from the source, with a small moment
+        # (at zero moment the position has no gradient)
+        s0 = prob.extra["induced"].start
+        c = prob.poses(x0)[:, :3, 3].mean(axis=0)
+        q0 = c * (1.0 + INDUCED_START_OFFSET_M / np.linalg.norm(c))
+        x0[s0:s0 + 3] = q0 if options.induced_start is None else options.induced_start
+        x0[s0 + 3:prob.extra["induced"].stop] = 1e-4
     free = np.r_[layout.free_indices(optimize, freeze), np.arange(layout.size, prob.size)]
 
+    if options.induced:
+        # first the moments with the position held at its start (at a near-zero moment the
+        # position's gradient is tiny and a free position wanders), then everything
+        s0 = prob.extra["induced"].start
+        x0, _ = fit_free_parameters(prob, x0, np.setdiff1d(free, np.arange(s0, s0 + 3)),
+                                    tol=tol, max_nfev=max_nfev)
     x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
     return prob, x, free, res

@@ -1,5 +1,12 @@
 """Error statistics, uncertainty, dimensionality tables, sweeps and linearity."""
 
+from ._breakdown import (
+    RANGE_EDGES_MM,
+    ErrorBreakdown,
+    RepeatScatter,
+    error_breakdown,
+    repeat_scatter,
+)
 from ._characterize import (
     Characterization,
     UncertaintySummary,
@@ -34,12 +41,15 @@ from ._sweeps import (
 
 __all__ = [
     "ACCURACY_KEYS",
+    "RANGE_EDGES_MM",
     "STAGE_UNCERTAINTY_DEG",
     "STAGE_UNCERTAINTY_M",
     "STAGE_UNCERTAINTY_MM",
     "STAGE_UNCERTAINTY_RAD",
     "Characterization",
+    "ErrorBreakdown",
     "ErrorSummary",
+    "RepeatScatter",
     "SweepAnalysis",
     "SweepCurve",
     "SweepTable",
@@ -48,6 +58,7 @@ __all__ = [
     "characterize",
     "coil_residual_percent",
     "combined_uncertainty",
+    "error_breakdown",
     "error_summary",
     "find_sweeps",
     "fixture_labels",
@@ -55,6 +66,7 @@ __all__ = [
     "pose_error_magnitudes",
     "pose_error_vectors",
     "pose_errors",
+    "repeat_scatter",
     "sweep_linearity",
     "sweep_table",
     "uncertainty_summary",

@@ -308,11 +308,17 @@ class PaperCharacterization(Result):
         Residue and output-correction fit of every calibration of the sequence.
     seconds : dict
         Wall time per stage.
+    breakdown : dict
+        Table II rows (``default``, ``corrected``) by range, stage Rz and sensor fixture
+        (:func:`openemt.evaluate.error_breakdown`).
+    noise_floor : dict or None
+        Repeat-pose scatter of the md and ld rows at the same stage pose, both solved with
+        ``XYZ_hr_cal`` (:func:`openemt.evaluate.repeat_scatter`); None without md rows.
 
     ``to_dict()`` is the ``openemt report ILEMT_DIR --json`` summary: ``mode`` (``"ilemt"``),
     ``folder``, ``n_rows``, ``n_test``, ``table2``, ``table2_paper_column``, ``table3`` and
     ``table4`` (without their ``seconds``; ``table4`` without its curves), ``by_fixture``,
-    ``calibration_stats`` (by calibration) and ``seconds``.
+    ``calibration_stats`` (by calibration), ``breakdown``, ``noise_floor`` and ``seconds``.
     """
 
     run: object
@@ -327,6 +333,8 @@ class PaperCharacterization(Result):
     shown: np.ndarray
     calibration_stats: list
     seconds: dict
+    breakdown: dict | None = None
+    noise_floor: dict | None = None
 
     def _items(self) -> dict:
         t3, t4 = self.table3, self.table4
@@ -340,6 +348,7 @@ class PaperCharacterization(Result):
                                                if k not in ("curves", "seconds")},
             "by_fixture": self.characterization.by_group,
             "calibration_stats": {r["calibration"]: r for r in self.calibration_stats},
+            "breakdown": self.breakdown, "noise_floor": self.noise_floor,
             "seconds": self.seconds,
         }
 
@@ -402,8 +411,31 @@ def characterize_paper_run(source) -> PaperCharacterization:
                  corrections=[("default", "corrected")])
     char = characterize(default.poses, D, groups=fixture_labels(test),
                         sensor_fixture=xyz.sensor_fixture)
+    t0 = time.perf_counter()
+    breakdown, floor = _breakdown(run, test, results, D)
+    seconds["breakdown"] = time.perf_counter() - t0
     return PaperCharacterization(
         run=run, test=test, table2=t2, table2_column=column, table3=t3, table4=t4,
         default=default, reference_poses=D, characterization=char,
         shown=np.flatnonzero(test.sensor_fixture == "YoutZup"),
-        calibration_stats=_sequence_stats(run), seconds=seconds)
+        calibration_stats=_sequence_stats(run), seconds=seconds, breakdown=breakdown,
+        noise_floor=floor)
+
+
+def _breakdown(run, test, results, D):
+    """Breakdown of the Table II rows and the md/ld repeat-pose noise floor (XYZ_hr_cal)."""
+    from ..calibrate import repeat_pairs, solve_held_out
+    from ..evaluate import error_breakdown, repeat_scatter
+
+    rz = np.asarray(test.stage)[:, 5]
+    out = {k: error_breakdown(results[k].trans, results[k].rot, D[:, :3, 3], stage_rz=rz,
+                              sensor_fixture=test.sensor_fixture).to_dict()
+           for k in ("default", "corrected") if k in results}
+    ds = run.dataset
+    md = ds.select(ds.mask(pattern="md", source_fixture="YoutZup"))
+    i, j = repeat_pairs(md, test)
+    if i.size == 0:
+        return out, None
+    xyz, conc = run.calibration("XYZ"), run.calibration("XYZ_concentric")
+    m = solve_held_out(md.select(i), xyz, concentric_model=conc.model)
+    return out, repeat_scatter(m.poses, results["default"].poses[j]).to_dict()

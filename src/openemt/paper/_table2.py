@@ -201,7 +201,16 @@ class Table2Reproduction(DictResult):
     improved, improved_corrected : dict or None
         The improved calibration's rows (only with ``improved=True``).
     improved_model : dict or None
-        :meth:`openemt.calibrate.ImprovedCalibration.to_dict` (only with ``improved=True``).
+        :meth:`openemt.calibrate.ImprovedCalibration.to_dict` (only with ``improved=True``);
+        its ``terms`` say which terms of :data:`openemt.calibrate.TERMS` were kept and why.
+    breakdown : dict or None
+        Held-out errors by range, stage Rz and sensor fixture
+        (:func:`openemt.evaluate.error_breakdown`): ``default`` and, per improved step (the
+        base model, then each term tried, with ``kept``), ``improved_steps`` (only with
+        ``improved=True``).
+    noise_floor : dict or None
+        Repeat-pose scatter of md and ld rows at the same stage pose, solved with the improved
+        model (:func:`openemt.evaluate.repeat_scatter`; only with ``improved=True``).
     n_test : int
     calibration_residues : dict
         Calibration step -> rms residue.
@@ -231,13 +240,16 @@ class Table2Reproduction(DictResult):
     improved: dict | None = None
     improved_corrected: dict | None = None
     improved_model: dict | None = None
+    breakdown: dict | None = None
+    noise_floor: dict | None = None
 
     def _items(self) -> dict:
         out = {"default": self.default, "corrected": self.corrected,
                "concentric": self.concentric}
         if self.improved_model is not None:
             out.update(improved=self.improved, improved_corrected=self.improved_corrected,
-                       improved_model=self.improved_model)
+                       improved_model=self.improved_model, breakdown=self.breakdown,
+                       noise_floor=self.noise_floor)
         return {**out, "n_test": self.n_test, "calibration_residues": self.calibration_residues,
                 "calibration_stats": self.calibration_stats,
                 "skipped_steps": self.skipped_steps, "paper": self.paper,
@@ -271,19 +283,26 @@ def reproduce_table2(source, *, improved: bool = False, cross_validation: bool =
     seconds = {**run.seconds, **solve_seconds}
     rows = {name: table2_row(results[name]) if name in results else None
             for name in ("default", "corrected", "concentric")}
+    extra = {}
     if improved:
-        from ..calibrate import CANDIDATES, improved_calibration
+        from ..calibrate import CANDIDATES, TERMS, improved_calibration
 
         xyz, conc = run.calibration("XYZ"), run.calibration("XYZ_concentric")
         t0 = time.perf_counter()
         imp = improved_calibration(run.dataset, xyz, conc.model,
-                                   candidates=CANDIDATES if cross_validation else None)
+                                   candidates=CANDIDATES if cross_validation else None,
+                                   terms=TERMS)
         seconds["improved_calibration"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         it = imp.test(test)
         seconds["test_solve_improved"] = time.perf_counter() - t0
         rows.update(improved=it.improved, improved_corrected=it.improved_corrected,
                     improved_model=imp.to_dict())
+        t0 = time.perf_counter()
+        extra = {"breakdown": {"default": default_breakdown(run, test, results["default"]),
+                               "improved_steps": imp.step_breakdowns(test)},
+                 "noise_floor": imp.noise_floor(test).to_dict()}
+        seconds["breakdown"] = time.perf_counter() - t0
     column = identify_table2_column(run, test)
     seconds["total"] = time.perf_counter() - t_all
     return Table2Reproduction(
@@ -293,4 +312,19 @@ def reproduce_table2(source, *, improved: bool = False, cross_validation: bool =
                                ("num_points", "num_invalid", "uncorrected", "corrected")}
                            for k, f in run.fits.items()},
         skipped_steps=list(run.skipped), paper=column.values, paper_column=column.to_dict(),
-        seconds=seconds)
+        seconds=seconds, **extra)
+
+
+def default_breakdown(run, test, result) -> dict:
+    """:func:`openemt.evaluate.error_breakdown` (as a dict) of a Table II row's
+    :class:`~openemt.calibrate.HeldOutTest` of the XYZ calibration, against the rig's ground
+    truth of that calibration."""
+    from ..evaluate import error_breakdown
+    from ..geometry import ground_truth_poses
+
+    xyz = run.calibration("XYZ")
+    D = ground_truth_poses(xyz.source_fixture, xyz.stage_fixture, xyz.sensor_fixture,
+                           test.source_fixture, test.stage, test.sensor_fixture)
+    return error_breakdown(result.trans, result.rot, D[:, :3, 3],
+                           stage_rz=np.asarray(test.stage)[:, 5],
+                           sensor_fixture=test.sensor_fixture).to_dict()

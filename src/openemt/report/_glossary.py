@@ -63,6 +63,8 @@ GLOSSARY = {
     "test rows": "a fixture combination soA_seB (source fixture A, sensor fixture B: the rig's "
                  "manual orientations, e.g. YoutZup = Y axis out, Z axis up; "
                  "docs/ilemt-data.md), with the stage pattern when there are several",
+    "group": "rows of the held-out breakdown: all rows, a range bin of the distance r of the "
+             "sensor from the source, a stage rotation Rz, or a sensor fixture",
     "trans_rms_mm": "RMS of the translation error magnitude over the rows (mm): distance between "
                     "the solved and the reference sensor position, in stage coordinates "
                     "(docs/paper-procedure.md#test-error)",
