@@ -18,9 +18,10 @@ from ._closed_form import (
     solve_kuipers,
     solve_svd,
 )
-from ._hemisphere import DEFAULT_HEMISPHERE
+from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch
 from ._packing import O_MAX_ITER, O_RETRIES
+from ._result import Status
 
 __all__ = ["canonical_5dof"]
 
@@ -82,6 +83,72 @@ def _closed_form_start(couplings, model, conc, method, hemi, explicit, n_correct
         poses = np.where(keep[:, None, None], res.poses, nxt.poses)
         res = res.replace(poses=poses, pose_vectors=vecs)
     return res.pose_vectors
+
+
+def _table_starts(C, couplings, model, conc, hemi, nvec, table, k=4):
+    """Cold-start candidates of a non-concentric 3x3 model (no concentric model given),
+    ``(k + 1, N, 6)`` ordered per sample by their coupling residual under ``model``, lowest
+    first (a candidate that is not finite last): the Kim18 closed form under the concentric
+    model ``conc`` and the ``k`` nearest positions of the invariant table ``table``
+    (:class:`~openemt.solve._cold_start.InvariantTable`) with their Procrustes rotations."""
+    kim18 = _CLOSED["kim18"](couplings, conc, hemisphere=hemi, max_relative_residual=None,
+                             max_range=None).pose_vectors
+    return np.swapaxes(table.candidates(C, nvec, kim18, k), 0, 1)
+
+
+def _merge(result, rows, again):
+    """``result`` with rows ``rows`` replaced by those of ``again`` (solved for them) that have
+    a lower relative residual; the iterations of both runs are added."""
+    with np.errstate(invalid="ignore"):
+        better = again.relative_residual < result.relative_residual[rows]
+    keep = rows[better]
+    fields = {f: getattr(result, f).copy() for f in
+              ("poses", "pose_vectors", "status", "residual", "iterations", "relative_residual")}
+    for f, arr in fields.items():
+        arr[keep] = getattr(again, f)[better]
+    fields["iterations"][rows] = result.iterations[rows] + again.iterations
+    return result.replace(**fields)
+
+
+def _table_solve(C, cnorm, couplings, model, conc, hemi, mdl, nvec, box, opts, table, level,
+                 k=4):
+    """The cold solve of a non-concentric 3x3 model (docs/solve.md#cold-start): LM from the
+    best candidate of ``_table_starts``; a sample whose relative residual is above ``level``
+    or that reached the iteration limit is solved again from the next candidate (keeping the
+    lower residual), and so on; samples still above the level are solved as before this start
+    existed (Kim18 start with ILEMT's sign-flip retries), again keeping the lower residual. ``iterations`` counts every run of a sample."""
+    cands = _table_starts(C, couplings, model, conc, hemi, nvec, table, k)
+    plain = opts.copy()
+    plain[O_RETRIES] = 0.0
+    result = _run_batch(C, cnorm, cands[0], mdl, nvec, box, plain)
+
+    def pending(rows):
+        r = result.relative_residual[rows]
+        with np.errstate(invalid="ignore"):
+            bad = ~(r <= level) | (result.status[rows] == Status.MAX_ITERATIONS)
+        return rows[bad & (result.status[rows] != Status.INVALID_INPUT)]
+
+    redo = pending(np.arange(C.shape[0]))
+    for v in cands[1:]:
+        redo = redo[np.all(np.isfinite(v[redo]), axis=1)]
+        if not redo.size:
+            break
+        result = _merge(result, redo, _run_batch(C[redo], cnorm[redo], v[redo], mdl,
+                                                 nvec[redo], box, plain))
+        redo = pending(redo)
+    if redo.size and opts[O_RETRIES] != 0.0:
+        # the rows' own hemisphere vectors (none: the closed forms' default, as ``hemi``)
+        h = np.where(np.any(nvec[redo] != 0.0, axis=1)[:, None], nvec[redo],
+                     hemisphere_vectors(DEFAULT_HEMISPHERE, 1))
+        init = _closed_form_start(couplings[redo], model, conc, "kim18", h, False)
+        result = _merge(result, redo, _run_batch(C[redo], cnorm[redo], init, mdl, nvec[redo],
+                                                 box, opts))
+    # polish: one more Gauss-Newton step from each solution (the LM stops once its next step
+    # is predicted below xtol, which leaves up to ~xtol * |t| of the minimum; this step brings
+    # it to rounding, as the start it came from no longer decides how close it stopped)
+    rows = np.flatnonzero(np.all(np.isfinite(result.pose_vectors), axis=1))
+    return _merge(result, rows, _run_batch(C[rows], cnorm[rows], result.pose_vectors[rows], mdl,
+                                           nvec[rows], box, plain))
 
 
 def _bounds(bounds):
