@@ -20,7 +20,7 @@ from ._closed_form import (
 )
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch
-from ._packing import O_MAX_ITER, O_RETRIES
+from ._packing import O_MAX_ITER, O_RETRIES, O_RETRY_RELATIVE
 from ._result import Status
 
 __all__ = ["canonical_5dof"]
@@ -110,45 +110,79 @@ def _merge(result, rows, again):
     return result.replace(**fields)
 
 
+def _row_hemispheres(nvec):
+    """The closed-form start's hemisphere of rows with hemisphere vectors ``nvec``: their own,
+    and the closed forms' default where there is none (as ``solve`` passes them)."""
+    return np.where(np.any(nvec != 0.0, axis=1)[:, None], nvec,
+                    hemisphere_vectors(DEFAULT_HEMISPHERE, 1))
+
+
 def _table_solve(C, cnorm, couplings, model, conc, hemi, mdl, nvec, box, opts, table, level,
-                 k=4):
-    """The cold solve of a non-concentric 3x3 model (docs/solve.md#cold-start): LM from the
-    best candidate of ``_table_starts``; a sample whose relative residual is above ``level``
-    or that reached the iteration limit is solved again from the next candidate (keeping the
-    lower residual), and so on; samples still above the level are solved as before this start
-    existed (Kim18 start with ILEMT's sign-flip retries), again keeping the lower residual. ``iterations`` counts every run of a sample."""
+                 k=4, same_tol=1e-6):
+    """The cold solve of a non-concentric 3x3 model (docs/solve.md#cold-start).
+
+    LM from the best candidate of ``_table_starts``. A sample whose relative residual is above
+    ``level``, or that reached the iteration limit, is solved again from the next candidate
+    (keeping the lower residual), and so on, until it is below the level or *settled*: a
+    second candidate converged to the same position (within ``same_tol`` m) and the residual
+    passes the retry test (``opts[O_RETRY_RELATIVE]``, the validity threshold by default),
+    from a start distinct from the kept run's (``_distinct``): two different starts found one
+    minimum whose residual is the data's, not a wrong
+    minimum's. Samples still pending after all candidates are solved as before this start
+    existed (Kim18 start with ILEMT's sign-flip retries), keeping the lower residual. Last, one
+    polishing step from every solution. ``iterations`` counts every run of a sample.
+
+    Returns the result and the settled rows' mask (the caller's exploration skips them).
+    """
     cands = _table_starts(C, couplings, model, conc, hemi, nvec, table, k)
     plain = opts.copy()
     plain[O_RETRIES] = 0.0
     result = _run_batch(C, cnorm, cands[0], mdl, nvec, box, plain)
+    settled = np.zeros(C.shape[0], dtype=bool)
 
     def pending(rows):
         r = result.relative_residual[rows]
         with np.errstate(invalid="ignore"):
             bad = ~(r <= level) | (result.status[rows] == Status.MAX_ITERATIONS)
-        return rows[bad & (result.status[rows] != Status.INVALID_INPUT)]
+        return rows[bad & (result.status[rows] != Status.INVALID_INPUT) & ~settled[rows]]
 
     redo = pending(np.arange(C.shape[0]))
-    for v in cands[1:]:
+    if redo.size:
+        # the second candidate, then the previous default start (the offset-corrected Kim18
+        # closed form): an independent start; where it finds the same minimum, that minimum
+        # is settled; then the other candidates
+        v = np.full(cands[0].shape, np.nan)
+        v[redo] = _closed_form_start(couplings[redo], model, conc, "kim18",
+                                     _row_hemispheres(nvec[redo]), False)
+        starts = [(cands[1], False), (v, True)] + [(c, False) for c in cands[2:]]
+    else:
+        starts = []
+    for v, independent in starts:
         redo = redo[np.all(np.isfinite(v[redo]), axis=1)]
         if not redo.size:
             break
-        result = _merge(result, redo, _run_batch(C[redo], cnorm[redo], v[redo], mdl,
-                                                 nvec[redo], box, plain))
+        again = _run_batch(C[redo], cnorm[redo], v[redo], mdl, nvec[redo], box, plain)
+        with np.errstate(invalid="ignore"):
+            same = ((np.linalg.norm(again.pose_vectors[:, :3]
+                                    - result.pose_vectors[redo, :3], axis=1) <= same_tol)
+                    & (again.status != Status.MAX_ITERATIONS)
+                    & (result.status[redo] != Status.MAX_ITERATIONS) & independent)
+        result = _merge(result, redo, again)
+        with np.errstate(invalid="ignore"):
+            settled[redo] = same & (result.relative_residual[redo] <= opts[O_RETRY_RELATIVE])
         redo = pending(redo)
     if redo.size and opts[O_RETRIES] != 0.0:
-        # the rows' own hemisphere vectors (none: the closed forms' default, as ``hemi``)
-        h = np.where(np.any(nvec[redo] != 0.0, axis=1)[:, None], nvec[redo],
-                     hemisphere_vectors(DEFAULT_HEMISPHERE, 1))
-        init = _closed_form_start(couplings[redo], model, conc, "kim18", h, False)
+        init = _closed_form_start(couplings[redo], model, conc, "kim18",
+                                  _row_hemispheres(nvec[redo]), False)
         result = _merge(result, redo, _run_batch(C[redo], cnorm[redo], init, mdl, nvec[redo],
                                                  box, opts))
     # polish: one more Gauss-Newton step from each solution (the LM stops once its next step
     # is predicted below xtol, which leaves up to ~xtol * |t| of the minimum; this step brings
     # it to rounding, as the start it came from no longer decides how close it stopped)
     rows = np.flatnonzero(np.all(np.isfinite(result.pose_vectors), axis=1))
-    return _merge(result, rows, _run_batch(C[rows], cnorm[rows], result.pose_vectors[rows], mdl,
-                                           nvec[rows], box, plain))
+    result = _merge(result, rows, _run_batch(C[rows], cnorm[rows], result.pose_vectors[rows],
+                                             mdl, nvec[rows], box, plain))
+    return result, settled
 
 
 def _bounds(bounds):

@@ -227,10 +227,11 @@ class PreparedLM:
                     if initial == "kim18" and self._use_table():
                         if self._table is None:
                             self._table = InvariantTable(model)
-                        result = _table_solve(C, cnorm, couplings, model, conc, cf_hemi, mdl,
-                                              nvec, box, opts, self._table, self._level)
+                        result, settled = _table_solve(C, cnorm, couplings, model, conc,
+                                                       cf_hemi, mdl, nvec, box, opts,
+                                                       self._table, self._level)
                         return self._finish(result, C, cnorm, nvec, fallback, explore,
-                                            covariance)
+                                            covariance, settled)
                     init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
                                               self.concentric_given)
                 elif initial == "multistart":
@@ -249,18 +250,22 @@ class PreparedLM:
             result = _run_batch(C, cnorm, init, mdl, nvec, box, opts)
         return self._finish(result, C, cnorm, nvec, fallback, explore, covariance)
 
-    def _finish(self, result, C, cnorm, nvec, fallback, explore, covariance) -> SolveResult:
-        result = self._after(result, C, cnorm, nvec, fallback, explore=explore)
+    def _finish(self, result, C, cnorm, nvec, fallback, explore, covariance,
+                settled=None) -> SolveResult:
+        result = self._after(result, C, cnorm, nvec, fallback, explore=explore,
+                             settled=settled)
         if covariance:
             from ._crb import solver_covariance
 
             result = result.replace(covariance=solver_covariance(self.model, result, C, cnorm))
         return result
 
-    def _after(self, result, C, cnorm, nvec, fallback, *, explore=True) -> SolveResult:
+    def _after(self, result, C, cnorm, nvec, fallback, *, explore=True,
+               settled=None) -> SolveResult:
         """The steps after the first solve: more starts for samples above the exploration
-        level (unless not ``explore``), the optional multi-start fallback, the 5-DOF
-        canonical rotation."""
+        level (unless not ``explore``; no multi-start grid for the rows of the mask
+        ``settled``, which the cold start already solved from two starts to one minimum), the
+        optional multi-start fallback, the 5-DOF canonical rotation."""
         model, mdl, box, opts = self.model, self.mdl, self.box, self.opts
         level = self.explore if explore else None
         if level is not None and (result.relative_residual > level).any():
@@ -277,6 +282,8 @@ class PreparedLM:
                                    flips)
                 result = _keep_better(result, redo, again)
                 redo = redo[result.relative_residual[redo] > level]
+                if settled is not None:
+                    redo = redo[~settled[redo]]
                 if redo.size:
                     init2 = _multistart_init(C[redo], cnorm[redo], mdl, model, nvec[redo], box,
                                              opts)
