@@ -14,7 +14,9 @@ at 80 dB SNR on the couplings.
   (``cold_iterations_p50/p90/p99/max``, per solver), and the previous default start (the
   offset-corrected Kim18 closed form, ``lm_cold_previous_start_*``) on the same couplings in the
   same process; ``cold_comparison`` counts the samples whose converged positions differ by more
-  than 1e-9 m and which of the two has the lower residual there;
+  than 1e-9 m and which of the two has the lower residual there; ``lm_cold_ilemt_*``
+  (:func:`cold_ilemt`, unless ``--no-ilemt``): the same on the bundled ILEMT data's rows of the
+  home source fixture with a fitted calibration;
 - ``svd``, ``kuipers``, ``kim18``: the closed forms on the same couplings with the preset's
   moments and the coil offsets dropped (the concentric approximation they need; their
   accuracy on this source is not the point here);
@@ -49,8 +51,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats (best taken)")
     parser.add_argument("--snr-db", type=float, default=80.0, help="coupling SNR (80 dB)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--cold-samples", type=int, default=100000,
-                        help="random poses of the cold-start benchmark (100000)")
+    parser.add_argument("--cold-samples", type=int, default=None,
+                        help="random poses of the cold-start benchmark (--samples, at most "
+                             "100000)")
+    parser.add_argument("--no-ilemt", dest="ilemt", action="store_false",
+                        help="skip the cold solves of the bundled ILEMT data (they fit a "
+                             "calibration first, about 20-30 s)")
 
 
 def trajectory(n, rate_hz=1000.0):
@@ -148,6 +154,45 @@ def cold_quality(model, n, repeats, seed) -> dict:
         out[f"cold_iterations_{p}"] = {name: v[p] for name, v in its.items()}
     out["cold_comparison"] = compare_cold(new, old)
     return out
+
+
+def cold_ilemt(summary, repeats) -> None:
+    """Add the ``lm_cold_ilemt_*`` keys (and the ``lm_cold_ilemt*`` entries of the
+    ``cold_iterations_*`` keys) to ``summary``: cold solves of the bundled ILEMT folder's rows
+    of the home source fixture with the calibration of the paper's ``XYZ`` step (fitted here,
+    without output corrections), hemisphere ``+x`` (every such row is, docs/paper-procedure.md),
+    the default start against the previous one."""
+    import warnings
+
+    from .. import datasets
+    from ..paper._run import load_paper_run
+    from ..solve import prepare
+    from ..solve._lm_starts import _closed_form_start
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run = load_paper_run(datasets.path("cal_9_15_premo_cmu"), steps=["XYZ"],
+                             correction=False)
+    model = run.calibration("XYZ").model
+    ds = run.dataset
+    C = np.ascontiguousarray(ds.signed_real()[np.asarray(ds.source_fixture) == "YoutZup"])
+    conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
+    (new, cpu, wall), (old, cpu_o, _) = cold_runs(
+        prepare(model, hemisphere="+x"), C,
+        lambda c: _closed_form_start(c, model, conc, "kim18", "+x", False), repeats)
+    n = C.shape[0]
+    summary.update({
+        "lm_cold_ilemt_samples": n,
+        "lm_cold_ilemt_set": "bundled cal_9_15_premo_cmu rows of the home source fixture "
+                             "(YoutZup), calibration of the paper's XYZ step, hemisphere '+x'",
+        "lm_cold_ilemt_poses_per_s": n / cpu, "lm_cold_ilemt_wall_poses_per_s": n / wall,
+        "lm_cold_ilemt_previous_start_poses_per_s": n / cpu_o,
+        "lm_cold_ilemt_status_counts": new.status_counts(),
+        "lm_cold_ilemt_previous_start_status_counts": old.status_counts(),
+        "cold_comparison_ilemt": compare_cold(new, old)})
+    for name, res in (("lm_cold_ilemt", new), ("lm_cold_ilemt_previous_start", old)):
+        for p, v in _percentiles(res.iterations).items():
+            summary[f"cold_iterations_{p}"][name] = v
 
 
 def _best_time(f, repeats):
@@ -255,7 +300,10 @@ def run(args) -> dict:
                                            for s in ("svd", "kuipers", "kim18")),
             "max_position_diff_m <= 1e-9": summary["max_position_diff_m"] <= 1e-9,
         }
-        summary.update(cold_quality(model, int(args.cold_samples), args.repeats, args.seed))
+        n_cold = getattr(args, "cold_samples", None) or min(n, 100000)
+        summary.update(cold_quality(model, int(n_cold), args.repeats, args.seed))
+        if getattr(args, "ilemt", False):
+            cold_ilemt(summary, args.repeats)
         summary["lm_cold_vs_scipy_ratio"] = summary["lm_cold_poses_per_s"] / (nb / dt_b)
         summary["targets"]["lm_cold_poses_per_s >= 50000"] = summary["lm_cold_poses_per_s"] >= 5e4
         summary["targets"]["cold_iterations_p99 <= 15"] = (

@@ -30,7 +30,24 @@ from ..field import DipoleModel
 from ..field._dipole_kernel import dipole_eval, pack_model, unpack_model
 from ._linalg import det33, exp_so3, rotvec_from_matrix, svd3
 
-__all__ = ["InvariantTable", "table_candidates"]
+__all__ = ["InvariantTable", "table_candidates", "table_for"]
+
+# the tables of the last models used (one build costs about 1 s and 60 MB)
+_TABLES: dict = {}
+_KEEP = 2
+
+
+def table_for(model: DipoleModel) -> InvariantTable:
+    """The :class:`InvariantTable` of ``model`` with the default grid, built once per process
+    for each of the last two models (keyed by the model's coils and gain)."""
+    key = pack_model(model).tobytes()
+    table = _TABLES.pop(key, None)
+    if table is None:
+        table = InvariantTable(model)
+    _TABLES[key] = table    # most recent last
+    while len(_TABLES) > _KEEP:
+        del _TABLES[next(iter(_TABLES))]
+    return table
 
 _IU = np.triu_indices(3)
 

@@ -23,7 +23,7 @@ from ._closed_form import (
     result_from_outputs,
     whitening,
 )
-from ._cold_start import InvariantTable
+from ._cold_start import table_for
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch, lm_track
 from ._lm_starts import (
@@ -226,7 +226,7 @@ class PreparedLM:
                                else DEFAULT_HEMISPHERE)
                     if initial == "kim18" and self._use_table():
                         if self._table is None:
-                            self._table = InvariantTable(model)
+                            self._table = table_for(model)
                         result, settled = _table_solve(C, cnorm, couplings, model, conc,
                                                        cf_hemi, mdl, nvec, box, opts,
                                                        self._table, self._level)
