@@ -93,7 +93,7 @@ class InvariantTable:
         feats = _features(F @ np.swapaxes(F, 1, 2))
         good = np.all(np.isfinite(feats), axis=1)
         self.positions = self.positions[good]
-        self._tree = cKDTree(feats[good], balanced_tree=False, compact_nodes=False)
+        self._tree = cKDTree(feats[good])
 
     def _fields(self, t):
         P = np.zeros((t.shape[0], 4, 4))
@@ -121,7 +121,8 @@ class InvariantTable:
             feats[:, -1] -= np.log(f) / 3.0
         ok = np.all(np.isfinite(feats), axis=1)
         feats[~ok] = 0.0
-        idx = self._tree.query(feats, k=k)[1].reshape(n, k)
+        # approximate nearest entries (within 1.5 times the nearest distance): a start
+        idx = self._tree.query(feats, k=k, eps=0.5)[1].reshape(n, k)
         tc = self.positions[idx]
         tc[~ok] = np.nan
         out = np.empty((n, k + 1, 6))
