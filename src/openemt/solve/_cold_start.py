@@ -102,12 +102,16 @@ class InvariantTable:
         P[:, 3, 3] = 1.0
         return self._field.coupling(P)
 
-    def candidates(self, C, nvec, extra, k=4):
+    def candidates(self, C, nvec, extra, k=4, away=None, far=16):
         """``(N, k + 1, 6)`` start pose vectors of real couplings ``C`` (N, 3, 3), ordered per
         sample by their coupling residual under the model (lowest first; a candidate that is
         not finite last): the ``k`` nearest table positions, each projected onto its sample's
         hemisphere ``t . n >= 0`` (``nvec`` (N, 3), zero rows for none), with their
-        Procrustes rotations, and the pose vectors ``extra`` (N, 6)."""
+        Procrustes rotations, and the pose vectors ``extra`` (N, 6).
+
+        With positions ``away`` (N, 3): only table positions more than 20 % of ``|away|`` from
+        ``away``, the first ``k`` of the ``far`` nearest (fewer: NaN candidates), to look for
+        another minimum than one found at ``away``."""
         n = C.shape[0]
         # each sample divided by a power of two near its largest coupling: exact, and the
         # same features and candidates at any coupling scale
@@ -122,12 +126,22 @@ class InvariantTable:
         ok = np.all(np.isfinite(feats), axis=1)
         feats[~ok] = 0.0
         # approximate nearest entries (within 1.5 times the nearest distance): a start
-        idx = self._tree.query(feats, k=k, eps=0.5)[1].reshape(n, k)
+        q = k if away is None else far
+        idx = self._tree.query(feats, k=q, eps=0.5)[1].reshape(n, q)
         tc = self.positions[idx]
+        if away is not None:
+            with np.errstate(invalid="ignore"):
+                keep = (np.linalg.norm(tc - away[:, None], axis=2)
+                        > 0.2 * np.linalg.norm(away, axis=1)[:, None])
+            # the first k kept entries of each row, NaN where fewer
+            order = np.argsort(~keep, axis=1, kind="stable")[:, :k]
+            tc = np.take_along_axis(tc, order[:, :, None], axis=1)
+            tc[~np.take_along_axis(keep, order, axis=1)] = np.nan
         tc[~ok] = np.nan
         out = np.empty((n, k + 1, 6))
         table_candidates(self._mdl, self._fmdl, f, np.ascontiguousarray(CW),
-                         np.ascontiguousarray(C), tc, np.ascontiguousarray(nvec),
+                         np.ascontiguousarray(C), np.ascontiguousarray(tc),
+                         np.ascontiguousarray(nvec),
                          np.ascontiguousarray(extra, dtype=np.float64), out)
         return out
 

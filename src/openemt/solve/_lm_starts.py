@@ -171,6 +171,31 @@ def _table_solve(C, cnorm, couplings, model, conc, hemi, mdl, nvec, box, opts, t
         with np.errstate(invalid="ignore"):
             settled[redo] = same & (result.relative_residual[redo] <= opts[O_RETRY_RELATIVE])
         redo = pending(redo)
+    rows = np.flatnonzero(settled)
+    if rows.size:
+        # a settled minimum: also the 2 best table entries away from it (another region
+        # whose couplings look alike), which the exploration's multi-start grid would
+        # otherwise be needed for
+        far = table.candidates(C[rows], nvec[rows], np.full((rows.size, 6), np.nan), 2,
+                               away=result.pose_vectors[rows, :3])
+        probe = plain.copy()
+        probe[O_MAX_ITER] = 20
+        for j in range(2):
+            v = far[:, j]
+            sub = rows[np.all(np.isfinite(v), axis=1)]
+            v = v[np.all(np.isfinite(v), axis=1)]
+            if not sub.size:
+                continue
+            # a 20-iteration probe; where it is already lower, finished from there
+            again = _run_batch(C[sub], cnorm[sub], v, mdl, nvec[sub], box, probe)
+            with np.errstate(invalid="ignore"):
+                lower = again.relative_residual < result.relative_residual[sub]
+            result.iterations[sub] += again.iterations
+            sub = sub[lower]
+            if sub.size:
+                result = _merge(result, sub, _run_batch(C[sub], cnorm[sub],
+                                                        again.pose_vectors[lower], mdl,
+                                                        nvec[sub], box, plain))
     if redo.size and opts[O_RETRIES] != 0.0:
         init = _closed_form_start(couplings[redo], model, conc, "kim18",
                                   _row_hemispheres(nvec[redo]), False)
