@@ -76,6 +76,7 @@ def test_concentric_model_given_keeps_the_closed_form_start(random_set):
     assert not solver._use_table()
     assert prepare(model, hemisphere="+x")._use_table()
     assert not prepare(conc, hemisphere="+x")._use_table()
+    assert not prepare(model, hemisphere="+x", retry_resnorm=1e-5)._use_table()
 
 
 def test_bench_cold_keys():

@@ -154,10 +154,11 @@ class PreparedLM:
         self._hrows = np.empty((0, 3))
 
     def _use_table(self) -> bool:
-        """The Kim18 start is the invariant-table start (``_table_start``): a 3x3 model with
-        coil offsets and no concentric model given."""
+        """The Kim18 start is the cold start of the invariant table (``_table_solve``): a 3x3
+        model with coil offsets, no concentric model given, and not the paper's procedure
+        (``retry_resnorm``: its Kim18 start and retries are kept as ILEMT has them)."""
         return (not self.concentric_given and not self.model.is_concentric
-                and self.n_source == 3 and self.n_sensor == 3)
+                and self.n_source == 3 and self.n_sensor == 3 and self.retry_resnorm is None)
 
     def _constants(self, n: int):
         if self._neg.shape[0] < n:
