@@ -91,8 +91,8 @@ def test_bench_cold_keys():
         assert all(v >= 1 for v in its.values())
     cmp = out["cold_comparison"]
     assert cmp["samples"] == 200
-    assert cmp["differ"] == cmp["new_lower_residual"] + cmp["previous_lower_residual"] + cmp[
-        "equal_residual"]
+    assert cmp["differ"] == (cmp["new_lower_residual"] + cmp["previous_lower_residual"]
+                             + cmp["equal_residual"] + cmp["not_comparable"])
     assert out["lm_cold_status_counts"]["converged"] == 200
 
 

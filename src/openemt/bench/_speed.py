@@ -104,6 +104,9 @@ def compare_cold(new, old, tol=1e-9) -> dict:
             "new_lower_residual": int(np.sum(rn < ro)),
             "previous_lower_residual": int(np.sum(ro < rn)),
             "equal_residual": int(np.sum(rn == ro)),
+            # a residual that is not finite on either side (e.g. the previous start's
+            # INVALID_INPUT)
+            "not_comparable": int(np.sum(~np.isfinite(rn) | ~np.isfinite(ro))),
             "max_position_diff_m": float(np.nanmax(dp)) if dp.size else 0.0}
 
 
