@@ -37,7 +37,10 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
     initial : {'kim18', 'svd', 'kuipers', 'track', 'multistart'} or array (N, 6) / (6,)
         Closed-form start (needs a 3x3 model; uses ``concentric_model`` as is, or else the
         model's moments with the coil offsets dropped and a fixed-point correction of the offset
-        effect, see ``_closed_form_start``), tracking (each sample starts from the previous valid
+        effect, see ``_closed_form_start``; ``'kim18'`` on a model with coil offsets and no
+        ``concentric_model``: the cold start of docs/solve.md#cold-start, candidates from a
+        table of rotation-invariant couplings and the closed form, restarts only for samples
+        whose residual is above ``explore_above``), tracking (each sample starts from the previous valid
         solution; the first and any failed sample from the Kim18 closed form when available,
         else multi-start), a coarse multi-start grid, or given pose vectors.
     max_iter : int
@@ -64,6 +67,8 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
         the multi-start grid. A wrong local minimum can leave a residual below the validity
         threshold (about 1 sample in 1000 with a 45 mm coil-offset source at 5-60 cm); this
         finds the right one. It costs time only for samples above the level (noisy data).
+        A sample the cold start settled (two independent starts to one minimum that passes the
+        retry test, docs/solve.md#cold-start) gets the sign-flip retries only.
         ``None`` disables it; it is off with ``retry_resnorm`` (the paper's procedure).
     concentric_model : DipoleModel, optional
         Concentric model for the closed-form start (ILEMT: the concentric calibration).

@@ -18,9 +18,10 @@ from ._closed_form import (
     solve_kuipers,
     solve_svd,
 )
-from ._hemisphere import DEFAULT_HEMISPHERE
+from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch
-from ._packing import O_MAX_ITER, O_RETRIES
+from ._packing import O_MAX_ITER, O_RETRIES, O_RETRY_RELATIVE
+from ._result import Status
 
 __all__ = ["canonical_5dof"]
 
@@ -82,6 +83,131 @@ def _closed_form_start(couplings, model, conc, method, hemi, explicit, n_correct
         poses = np.where(keep[:, None, None], res.poses, nxt.poses)
         res = res.replace(poses=poses, pose_vectors=vecs)
     return res.pose_vectors
+
+
+def _table_starts(C, couplings, model, conc, hemi, nvec, table, k=4):
+    """Cold-start candidates of a non-concentric 3x3 model (no concentric model given),
+    ``(k + 1, N, 6)`` ordered per sample by their coupling residual under ``model``, lowest
+    first (a candidate that is not finite last): the Kim18 closed form under the concentric
+    model ``conc`` and the ``k`` nearest positions of the invariant table ``table``
+    (:class:`~openemt.solve._cold_start.InvariantTable`) with their Procrustes rotations."""
+    kim18 = _CLOSED["kim18"](couplings, conc, hemisphere=hemi, max_relative_residual=None,
+                             max_range=None).pose_vectors
+    return np.swapaxes(table.candidates(C, nvec, kim18, k), 0, 1)
+
+
+def _merge(result, rows, again):
+    """``result`` with rows ``rows`` replaced by those of ``again`` (solved for them) that have
+    a lower relative residual; the iterations of both runs are added."""
+    with np.errstate(invalid="ignore"):
+        better = again.relative_residual < result.relative_residual[rows]
+    keep = rows[better]
+    fields = {f: getattr(result, f).copy() for f in
+              ("poses", "pose_vectors", "status", "residual", "iterations", "relative_residual")}
+    for f, arr in fields.items():
+        arr[keep] = getattr(again, f)[better]
+    fields["iterations"][rows] = result.iterations[rows] + again.iterations
+    return result.replace(**fields)
+
+
+def _row_hemispheres(nvec):
+    """The closed-form start's hemisphere of rows with hemisphere vectors ``nvec``: their own,
+    and the closed forms' default where there is none (as ``solve`` passes them)."""
+    return np.where(np.any(nvec != 0.0, axis=1)[:, None], nvec,
+                    hemisphere_vectors(DEFAULT_HEMISPHERE, 1))
+
+
+def _table_solve(C, cnorm, couplings, model, conc, hemi, mdl, nvec, box, opts, table, level,
+                 k=4, same_tol=1e-6):
+    """The cold solve of a non-concentric 3x3 model (docs/solve.md#cold-start).
+
+    LM from the best candidate of ``_table_starts``. A sample whose relative residual is above
+    ``level``, or that reached the iteration limit, is solved again from the next candidate
+    (keeping the lower residual), and so on, until it is below the level or *settled*: a
+    second candidate converged to the same position (within ``same_tol`` m) and the residual
+    passes the retry test (``opts[O_RETRY_RELATIVE]``, the validity threshold by default),
+    from a start distinct from the kept run's (``_distinct``): two different starts found one
+    minimum whose residual is the data's, not a wrong
+    minimum's. Samples still pending after all candidates are solved as before this start
+    existed (Kim18 start with ILEMT's sign-flip retries), keeping the lower residual. Last, one
+    polishing step from every solution. ``iterations`` counts every run of a sample.
+
+    Returns the result and the settled rows' mask (the caller's exploration skips them).
+    """
+    cands = _table_starts(C, couplings, model, conc, hemi, nvec, table, k)
+    plain = opts.copy()
+    plain[O_RETRIES] = 0.0
+    result = _run_batch(C, cnorm, cands[0], mdl, nvec, box, plain)
+    settled = np.zeros(C.shape[0], dtype=bool)
+
+    def pending(rows):
+        r = result.relative_residual[rows]
+        with np.errstate(invalid="ignore"):
+            bad = ~(r <= level) | (result.status[rows] == Status.MAX_ITERATIONS)
+        return rows[bad & (result.status[rows] != Status.INVALID_INPUT) & ~settled[rows]]
+
+    redo = pending(np.arange(C.shape[0]))
+    if redo.size:
+        # the second candidate, then the previous default start (the offset-corrected Kim18
+        # closed form): an independent start; where it finds the same minimum, that minimum
+        # is settled; then the other candidates
+        v = np.full(cands[0].shape, np.nan)
+        v[redo] = _closed_form_start(couplings[redo], model, conc, "kim18",
+                                     _row_hemispheres(nvec[redo]), False)
+        starts = [(cands[1], False), (v, True)] + [(c, False) for c in cands[2:]]
+    else:
+        starts = []
+    for v, independent in starts:
+        redo = redo[np.all(np.isfinite(v[redo]), axis=1)]
+        if not redo.size:
+            break
+        again = _run_batch(C[redo], cnorm[redo], v[redo], mdl, nvec[redo], box, plain)
+        with np.errstate(invalid="ignore"):
+            same = ((np.linalg.norm(again.pose_vectors[:, :3]
+                                    - result.pose_vectors[redo, :3], axis=1) <= same_tol)
+                    & (again.status != Status.MAX_ITERATIONS)
+                    & (result.status[redo] != Status.MAX_ITERATIONS) & independent)
+        result = _merge(result, redo, again)
+        with np.errstate(invalid="ignore"):
+            settled[redo] = same & (result.relative_residual[redo] <= opts[O_RETRY_RELATIVE])
+        redo = pending(redo)
+    rows = np.flatnonzero(settled)
+    if rows.size:
+        # a settled minimum: also the 2 best table entries away from it (another region
+        # whose couplings look alike), which the exploration's multi-start grid would
+        # otherwise be needed for
+        far = table.candidates(C[rows], nvec[rows], np.full((rows.size, 6), np.nan), 2,
+                               away=result.pose_vectors[rows, :3])
+        probe = plain.copy()
+        probe[O_MAX_ITER] = 20
+        for j in range(2):
+            v = far[:, j]
+            sub = rows[np.all(np.isfinite(v), axis=1)]
+            v = v[np.all(np.isfinite(v), axis=1)]
+            if not sub.size:
+                continue
+            # a 20-iteration probe; where it is already lower, finished from there
+            again = _run_batch(C[sub], cnorm[sub], v, mdl, nvec[sub], box, probe)
+            with np.errstate(invalid="ignore"):
+                lower = again.relative_residual < result.relative_residual[sub]
+            result.iterations[sub] += again.iterations
+            sub = sub[lower]
+            if sub.size:
+                result = _merge(result, sub, _run_batch(C[sub], cnorm[sub],
+                                                        again.pose_vectors[lower], mdl,
+                                                        nvec[sub], box, plain))
+    if redo.size and opts[O_RETRIES] != 0.0:
+        init = _closed_form_start(couplings[redo], model, conc, "kim18",
+                                  _row_hemispheres(nvec[redo]), False)
+        result = _merge(result, redo, _run_batch(C[redo], cnorm[redo], init, mdl, nvec[redo],
+                                                 box, opts))
+    # polish: one more Gauss-Newton step from each solution (the LM stops once its next step
+    # is predicted below xtol, which leaves up to ~xtol * |t| of the minimum; this step brings
+    # it to rounding, as the start it came from no longer decides how close it stopped)
+    rows = np.flatnonzero(np.all(np.isfinite(result.pose_vectors), axis=1))
+    result = _merge(result, rows, _run_batch(C[rows], cnorm[rows], result.pose_vectors[rows],
+                                             mdl, nvec[rows], box, plain))
+    return result, settled
 
 
 def _bounds(bounds):

@@ -23,6 +23,7 @@ from ._closed_form import (
     result_from_outputs,
     whitening,
 )
+from ._cold_start import table_for
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch, lm_track
 from ._lm_starts import (
@@ -35,6 +36,7 @@ from ._lm_starts import (
     _keep_better,
     _multistart_init,
     _run_batch,
+    _table_solve,
     canonical_5dof,
 )
 from ._options import SolveOptions
@@ -137,15 +139,26 @@ class PreparedLM:
                                  cf_gain=(self.conc or model).gain, rank_tol=RANK_TOL)
         self.explore = (None if explore_above is None or retry_resnorm is not None
                         else float(explore_above))
+        # the cold start's restart level: the exploration level, else the retry test's
+        self._level = self.explore if self.explore is not None else retry_rel
         # per-call options of ``solver(couplings)``
         self._initial = "kim18" if options.initial is None else options.initial
         self._per_call = options.covariance or options.fallback is not None
         self._shape = (model.n_source, model.n_sensor)
         self._W = None
+        # the invariant table of the cold start (built at the first cold solve that uses it)
+        self._table = None
         # per-call constants of warm starts, grown as needed: norms "compute here" (-1) and
         # the uniform hemisphere's rows
         self._neg = np.empty(0)
         self._hrows = np.empty((0, 3))
+
+    def _use_table(self) -> bool:
+        """The Kim18 start is the cold start of the invariant table (``_table_solve``): a 3x3
+        model with coil offsets, no concentric model given, and not the paper's procedure
+        (``retry_resnorm``: its Kim18 start and retries are kept as ILEMT has them)."""
+        return (not self.concentric_given and not self.model.is_concentric
+                and self.n_source == 3 and self.n_sensor == 3 and self.retry_resnorm is None)
 
     def _constants(self, n: int):
         if self._neg.shape[0] < n:
@@ -212,6 +225,14 @@ class PreparedLM:
                                          f"{model.n_sensor} model; use initial='multistart'")
                     cf_hemi = (self.hemisphere if self.hemisphere is not None
                                else DEFAULT_HEMISPHERE)
+                    if initial == "kim18" and self._use_table():
+                        if self._table is None:
+                            self._table = table_for(model)
+                        result, settled = _table_solve(C, cnorm, couplings, model, conc,
+                                                       cf_hemi, mdl, nvec, box, opts,
+                                                       self._table, self._level)
+                        return self._finish(result, C, cnorm, nvec, fallback, explore,
+                                            covariance, settled)
                     init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
                                               self.concentric_given)
                 elif initial == "multistart":
@@ -228,17 +249,24 @@ class PreparedLM:
                     raise InputError(f"expected `initial` pose vectors of shape ({n}, 6) or "
                                      f"(6,), got {init.shape}")
             result = _run_batch(C, cnorm, init, mdl, nvec, box, opts)
-        result = self._after(result, C, cnorm, nvec, fallback, explore=explore)
+        return self._finish(result, C, cnorm, nvec, fallback, explore, covariance)
+
+    def _finish(self, result, C, cnorm, nvec, fallback, explore, covariance,
+                settled=None) -> SolveResult:
+        result = self._after(result, C, cnorm, nvec, fallback, explore=explore,
+                             settled=settled)
         if covariance:
             from ._crb import solver_covariance
 
-            result = result.replace(covariance=solver_covariance(model, result, C, cnorm))
+            result = result.replace(covariance=solver_covariance(self.model, result, C, cnorm))
         return result
 
-    def _after(self, result, C, cnorm, nvec, fallback, *, explore=True) -> SolveResult:
+    def _after(self, result, C, cnorm, nvec, fallback, *, explore=True,
+               settled=None) -> SolveResult:
         """The steps after the first solve: more starts for samples above the exploration
-        level (unless not ``explore``), the optional multi-start fallback, the 5-DOF
-        canonical rotation."""
+        level (unless not ``explore``; no multi-start grid for the rows of the mask
+        ``settled``, which the cold start already solved from two starts to one minimum), the
+        optional multi-start fallback, the 5-DOF canonical rotation."""
         model, mdl, box, opts = self.model, self.mdl, self.box, self.opts
         level = self.explore if explore else None
         if level is not None and (result.relative_residual > level).any():
@@ -255,6 +283,8 @@ class PreparedLM:
                                    flips)
                 result = _keep_better(result, redo, again)
                 redo = redo[result.relative_residual[redo] > level]
+                if settled is not None:
+                    redo = redo[~settled[redo]]
                 if redo.size:
                     init2 = _multistart_init(C[redo], cnorm[redo], mdl, model, nvec[redo], box,
                                              opts)
