@@ -34,8 +34,10 @@ class FileSolveSummary:
     """What :func:`solve_to_file` gathered: ``counts`` per status code, per row group
     (``group_counts`` (K, n_status), sums and numbers of finite relative residuals
     ``group_residual_sum`` / ``group_residual_n``), ``cold_retries`` (samples of a
-    warm-started series solved again cold), ``n_samples``, ``elapsed_s``, ``blocks`` and,
-    per block, the peak resident memory of the process that solved it (``block_rss_mb``)."""
+    warm-started series solved again cold), ``n_samples``, ``elapsed_s``, ``blocks``, per
+    block the peak resident memory of the process that solved it (``block_rss_mb``), and the
+    process CPU and wall seconds of all block tasks together (``block_cpu_s``,
+    ``block_wall_s``)."""
 
     n_samples: int
     counts: np.ndarray
@@ -46,6 +48,8 @@ class FileSolveSummary:
     elapsed_s: float = 0.0
     blocks: int = 0
     block_rss_mb: list = field(default_factory=list)
+    block_cpu_s: float = 0.0
+    block_wall_s: float = 0.0
 
     def add(self, part: dict) -> None:
         self.counts += part["counts"]
@@ -55,6 +59,8 @@ class FileSolveSummary:
         self.cold_retries += part["cold_retries"]
         self.blocks += 1
         self.block_rss_mb.append(part["rss_mb"])
+        self.block_cpu_s += part["cpu_s"]
+        self.block_wall_s += part["wall_s"]
 
 
 # per process: open readers (path, real, size, mtime) -> CouplingReader, and prepared solvers
@@ -114,6 +120,7 @@ def solve_block(source, start: int, stop: int, spec, hemi, series: bool, token,
     from ._runner import _subsets
     from ._series import solve_series
 
+    c0, w0 = time.process_time(), time.perf_counter()
     C = _reader(source)[start:stop]
     solver = prepared if prepared is not None else _solver(spec, hemi, token)
     cold = 0
@@ -138,7 +145,8 @@ def solve_block(source, start: int, stop: int, spec, hemi, series: bool, token,
         np.add.at(rn, (g[ok], st[ok]), 1)
     return {"counts": np.bincount(st, minlength=n_status), "group_counts": gc,
             "group_residual_sum": rs, "group_residual_n": rn, "cold_retries": cold,
-            "rss_mb": _peak_rss_mb(), "rows": len(res)}
+            "rss_mb": _peak_rss_mb(), "rows": len(res),
+            "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0}
 
 
 def solve_to_file(couplings, calibration, output, *, chunk_rows: int = 262144,
