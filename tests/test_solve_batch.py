@@ -171,3 +171,35 @@ def test_a_failed_block_leaves_no_output_and_no_temporary(recording):
         solve_to_file(_FailingRows(C[:100]), cal, folder / "out.h5", chunk_rows=40,
                       hemisphere="+x")
     assert os.listdir(folder) == []
+
+
+def test_a_track_log_imports_as_a_recording_that_solve_tracks(recording, capsys):
+    """``track --log`` couplings -> ``import track-log`` -> a dataset marked as a recording,
+    which ``openemt solve`` solves as a time series by default."""
+    from openemt.cli import main
+    from openemt.live import TrackLogWriter
+
+    tmp, _, truth, C = recording
+    n = 600
+    writer = TrackLogWriter(tmp / "log.h5")
+    writer.set_sensors(["openemt"])
+    for a in range(0, n, 200):
+        m = min(200, n - a)
+        writer.append_arrays({"times": np.arange(a, a + m) / 1500.0,
+                              "poses": pose_from_vector(truth[a:a + m]),
+                              "pose_vectors": truth[a:a + m], "status": np.zeros(m, np.int8),
+                              "residual": np.zeros(m), "distortion": np.zeros(m),
+                              "distorted": np.zeros(m, bool),
+                              "couplings": C[a:a + m].astype(complex)})
+    writer.close()
+    assert main(["import", "track-log", str(tmp / "log.h5"), "-o", str(tmp / "log_ds.h5"),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["n_samples"] == n and summary["sample_rate_hz"] == pytest.approx(1500.0)
+    assert main(["solve", str(tmp / "log_ds.h5"), "--calibration", str(tmp / "cal.json"),
+                 "-o", str(tmp / "log_poses.h5"), "--hemisphere", "+x", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["recording"] is True and summary["initial"] == "track"
+    assert summary["status_counts"]["converged"] == n
+    np.testing.assert_allclose(read_poses(tmp / "log_poses.h5").pose_vectors[:, :3],
+                               truth[:n, :3], atol=1e-3)
