@@ -17,13 +17,14 @@ marked as a recording (``meta["recording"]``, docs/data-format.md).
 - ``--workers 1,2``: for each k a ``dask.distributed.LocalCluster`` of k worker processes with
   one thread each (and one numba thread), a recording of ``--worker-samples`` rows solved with ``--workers-initial``
   (default ``kim18``: independent rows, the compute-bound case) in blocks of
-  ``--chunk-rows``; each worker reads its blocks from the input and writes them into the
+  ``--chunk-rows`` (12500); each worker reads its blocks from the input and writes them into the
   output. ``poses_per_s`` per k (wall clock, after a warm-up solve that loads the kernels on
   every worker), ``scaling_efficiency`` = poses/s at k / (k x poses/s at 1),
   ``worker_peak_rss_mb`` the largest peak resident memory of a worker process (and after the
   warm-up, before the first full block: ``worker_rss_after_warmup_mb``), the CPU and wall
   seconds of the block tasks together (``block_cpu_s``, ``block_wall_s``; ``cpu_per_wall``:
-  the cores' worth of CPU the workers got over the run), and the
+  the cores' worth of CPU the workers got over the run; ``cpu_efficiency``: the block CPU at 1
+  worker over that at k, the overhead of parallel running apart from other load), and the
   machine's load average before and after (other work on a shared machine lowers the
   scaling).
 """
@@ -56,8 +57,9 @@ def add_arguments(parser) -> None:
                         help="LM start of the LocalCluster runs (kim18: independent rows)")
     parser.add_argument("--worker-samples", type=int, default=300000,
                         help="rows of the recording the LocalCluster runs solve (300000)")
-    parser.add_argument("--chunk-rows", type=int, default=16384,
-                        help="rows per block of the LocalCluster runs (16384)")
+    parser.add_argument("--chunk-rows", type=int, default=12500,
+                        help="rows per block of the LocalCluster runs (12500: 24 equal blocks "
+                             "of the default 300000 rows)")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -213,6 +215,10 @@ def _scaling(data, cal, ks, args, tmp) -> dict:
                     out["status_counts"] = status_count_names(done.counts)
     base = out["poses_per_s"].get("1")
     if base:
+        out["cpu_efficiency"] = {}
         for k in ks:
             out["scaling_efficiency"][str(k)] = out["poses_per_s"][str(k)] / (k * base)
+            # the same work's CPU at 1 and at k workers: the cost of running in parallel,
+            # whatever else the machine runs
+            out["cpu_efficiency"][str(k)] = out["block_cpu_s"]["1"] / out["block_cpu_s"][str(k)]
     return out

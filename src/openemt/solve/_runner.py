@@ -121,7 +121,11 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
     """Solve a (possibly larger-than-memory) coupling array block by block.
 
     Yields ``(start, SolveResult)`` in row order, so the caller can write each block out and
-    drop it; at most ``max_in_flight`` blocks are held at once.
+    drop it; at most ``max_in_flight`` blocks are held at once. On a cluster every result
+    comes back through the client: :func:`openemt.solve.solve_to_file` (what ``openemt
+    solve`` runs) has the workers write their blocks into the output file instead.
+    ``initial='track'`` (LM) solves each block as a time series with cold retries
+    (:func:`openemt.solve.solve_series`).
 
     Parameters
     ----------
