@@ -200,7 +200,7 @@ def solve_to_file(couplings, calibration, output, *, chunk_rows: int = 262144,
     series = solver == "lm" and isinstance(opts.initial, str) and opts.initial == "track"
     spec = (calibration, solver, apply_correction, opts)
     index, n_groups = (None, 1) if groups is None else groups
-    source = ("file", str(couplings.path), couplings.real) \
+    source = ("file", os.path.abspath(couplings.path), couplings.real) \
         if isinstance(couplings, CouplingReader) else couplings
     token = uuid.uuid4().hex
     summary = FileSolveSummary(n, np.zeros(len(Status), np.int64),
@@ -218,7 +218,7 @@ def solve_to_file(couplings, calibration, output, *, chunk_rows: int = 262144,
 
     t0 = time.perf_counter()
     with atomic_h5_layout(output, PoseLayout.build(n, solver, meta)) as (tmp, layout):
-        tmp = str(tmp)
+        tmp = os.path.abspath(tmp)           # workers may run in another folder
         if scheduler is None:
             for s in starts:
                 s, e, spec_, hemi, ser, tok, g = block_args(s)
