@@ -205,8 +205,9 @@ def _scaling(data, cal, ks, args, tmp) -> dict:
                     run_ = solve_to_file(reader, cal, tmp / f"workers{k}.h5",
                                          hemisphere="+x", initial=args.workers_initial,
                                          chunk_rows=args.chunk_rows, scheduler=client)
-                    if time.perf_counter() - t0 < wall:
-                        wall, done = time.perf_counter() - t0, run_
+                    dt = time.perf_counter() - t0
+                    if dt < wall:
+                        wall, done = dt, run_
                 out["poses_per_s"][str(k)] = n / wall
                 out["worker_peak_rss_mb"][str(k)] = float(max(done.block_rss_mb))
                 out["block_cpu_s"][str(k)] = done.block_cpu_s
