@@ -92,12 +92,15 @@ def test_suspicious_converged_sample_is_retried(recording):
                                              cold.relative_residual[0])
 
 
-def _run(tmp, out, *extra, capsys):
+def _run(tmp, out, *extra, capsys, err=None):
     args = _parser().parse_args(["solve", str(tmp / "rec.h5"), "--calibration",
                                  str(tmp / "cal.json"), "-o", str(tmp / out), "--hemisphere",
                                  "+x", "--chunk-rows", "700", "--json", *extra])
     assert args.func(args) == 0
-    return json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    if err is not None:
+        err.append(captured.err)
+    return json.loads(captured.out)
 
 
 def test_solve_command_tracks_a_recording_and_initial_kim18_forces_independent_rows(
@@ -142,10 +145,14 @@ def test_same_file_in_process_and_on_one_and_two_worker_processes(recording, cap
             cluster.scale(k)
             client.wait_for_workers(k, timeout=60)
             assert len(client.scheduler_info()["workers"]) == k
+            err = []
             summary = _run(tmp, f"dist{k}.h5", "--scheduler", cluster.scheduler_address,
-                           capsys=capsys)
+                           "--progress", capsys=capsys, err=err)
             assert summary["status_counts"]["converged"] == len(local)
             _same(read_poses(tmp / f"dist{k}.h5"), local)
+            # the rows of every worker's blocks are counted as they finish
+            done = [line for line in err[0].splitlines() if line.startswith("solve: ")]
+            assert done[-1].startswith(f"solve: {len(local)}/{len(local)} rows (100.0 %)")
 
 
 class _FailingRows:
