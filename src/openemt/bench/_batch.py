@@ -23,7 +23,8 @@ marked as a recording (``meta["recording"]``, docs/data-format.md).
   ``worker_peak_rss_mb`` the largest peak resident memory of a worker process (and after the
   warm-up, before the first full block: ``worker_rss_after_warmup_mb``), the CPU and wall
   seconds of the block tasks together (``block_cpu_s``, ``block_wall_s``; ``cpu_per_wall``:
-  the cores' worth of CPU the workers got over the run; ``cpu_efficiency``: the block CPU at 1
+  the cores' worth of CPU the workers got over the run; ``busy_fraction``: the share of the
+  run's wall time the k workers spent in block tasks; ``cpu_efficiency``: the block CPU at 1
   worker over that at k, the overhead of parallel running apart from other load), and the
   machine's load average before and after (other work on a shared machine lowers the
   scaling).
@@ -183,7 +184,7 @@ def _scaling(data, cal, ks, args, tmp) -> dict:
     out: dict = {"initial": args.workers_initial, "chunk_rows": args.chunk_rows,
                  "poses_per_s": {}, "scaling_efficiency": {}, "worker_peak_rss_mb": {},
                  "worker_rss_after_warmup_mb": {}, "samples": None, "block_cpu_s": {},
-                 "block_wall_s": {}, "cpu_per_wall": {},
+                 "block_wall_s": {}, "cpu_per_wall": {}, "busy_fraction": {},
                  "load_average": {}}
     with open_dataset_couplings(data) as reader:
         n = out["samples"] = reader.shape[0]
@@ -213,6 +214,7 @@ def _scaling(data, cal, ks, args, tmp) -> dict:
                 out["block_cpu_s"][str(k)] = done.block_cpu_s
                 out["block_wall_s"][str(k)] = done.block_wall_s
                 out["cpu_per_wall"][str(k)] = done.block_cpu_s / wall
+                out["busy_fraction"][str(k)] = done.block_wall_s / (k * wall)
                 out["worker_rss_after_warmup_mb"][str(k)] = float(max(warm.block_rss_mb))
                 out["load_average"][str(k)] = [load0, os.getloadavg()[0]]
                 if k == ks[0]:
