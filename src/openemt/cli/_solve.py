@@ -78,6 +78,7 @@ def run(args) -> int:
     from ..io._h5safe import open_h5
     from ..solve import solve_to_file
     from ..solve._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
+    from ..solve._result import status_count_names
     from ._common import emit
 
     cal = read_calibration(args.calibration)
@@ -135,8 +136,6 @@ def run(args) -> int:
         if fixtures is not None:
             fixtures.add(done)
     elapsed = time.perf_counter() - t0
-    from ..solve._result import status_count_names
-
     counts = status_count_names(done.counts)
     failed = failure_reasons(done.counts, args, fixtures,
                              None if hemisphere is fixtures else hemisphere)
