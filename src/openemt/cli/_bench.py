@@ -30,6 +30,9 @@ BENCHMARKS = {
              "fuzzed files for every reader and command and couplings for every solver"),
     "compile": ("openemt.bench._compile",
                 "numba compile time per kernel in a fresh process (empty cache) and cached"),
+    "batch": ("openemt.bench._batch",
+              "openemt solve file to file: a 1500/s recording warm-started vs cold, and "
+              "poses/s per LocalCluster worker count (--workers 1,2)"),
 }
 
 

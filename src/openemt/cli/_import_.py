@@ -81,6 +81,36 @@ def register(sub) -> None:
     add_common(c)
     c.set_defaults(func=run_poses)
 
+    t = fsub.add_parser(
+        "track-log", help="the couplings of a track --log .h5 file: a recording",
+        description="Import the couplings one sensor of a 'track --log' HDF5 file recorded "
+                    "into a dataset marked as a recording, which 'openemt solve' solves as a "
+                    "time series.")
+    t.add_argument("log_file", metavar="LOG", help="track log (.h5)")
+    t.add_argument("-o", "--output", required=True, help="output dataset file (.h5)")
+    t.add_argument("--sensor", default=None, help="sensor name (needed for a log of several)")
+    add_common(t)
+    t.set_defaults(func=run_track_log)
+
+
+def run_track_log(args) -> int:
+    """``import track-log``: a track log's couplings as a dataset marked as a recording."""
+    from ..io import write_dataset
+    from ..live import read_track_log, track_log_dataset
+
+    log = Path(args.log_file)
+    ds = track_log_dataset(read_track_log(log), args.sensor, log.name)
+    out = Path(args.output)
+    write_dataset(ds, out)
+    rec = ds.meta["recording"]
+    summary = {"path": str(out), "format": "track-log", "n_samples": ds.n_samples,
+               "n_source": ds.n_source, "n_sensor": ds.n_sensor,
+               "sensor": ds.meta["sensor"]["name"], "complete": ds.meta["complete"],
+               "sample_rate_hz": rec["sample_rate_hz"]}
+    emit(args, summary, [f"imported {ds.n_samples} samples of sensor "
+                         f"{summary['sensor']} (a recording) -> {out}"])
+    return 0
+
 
 def run(args) -> int:
     from ..io import import_ilemt_folder, write_dataset

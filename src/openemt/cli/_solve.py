@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -34,9 +35,13 @@ def register(subparsers) -> None:
                         "else +x; 'none': unconstrained (lm only)")
     p.add_argument("--concentric-calibration", type=Path, default=None,
                    help="concentric calibration whose Kim18 solution starts the LM solver")
-    p.add_argument("--initial", default="kim18",
+    p.add_argument("--initial", default=None,
                    choices=("kim18", "svd", "kuipers", "track", "multistart"),
-                   help="LM start (default kim18)")
+                   help="LM start: 'track' warm-starts each row from the previous converged "
+                        "one (a failed or suspicious row is solved again cold); a closed form "
+                        "(kim18, svd, kuipers) or multistart solves every row independently. "
+                        "Default: track when the dataset is a recording (its meta says so), "
+                        "else kim18")
     p.add_argument("--max-iter", type=int, default=100)
     p.add_argument("--max-relative-residual", type=float, default=MAX_RELATIVE_RESIDUAL,
                    help="largest relative coupling residual ||C_pred - C||/||C|| of a "
@@ -50,7 +55,12 @@ def register(subparsers) -> None:
                    help="do not apply the calibration's linear output correction")
     p.add_argument("--chunk-rows", type=int, default=262144, help="rows per block")
     p.add_argument("--scheduler", default=None,
-                   help="dask.distributed scheduler address (default: local, in process)")
+                   help="dask.distributed scheduler address (default: local, in process); "
+                        "the workers read their blocks from DATASET and write them into the "
+                        "output's folder, so they must see both")
+    p.add_argument("--progress", action="store_true",
+                   help="a line on stderr about every second: rows done, rate and time left "
+                        "(across the cluster with --scheduler)")
     add_common(p)
     p.set_defaults(func=run)
 
@@ -67,9 +77,10 @@ def run(args) -> int:
     from .._compile_notice import announce_compile
     from ..io import open_dataset_couplings
     from ..io._h5safe import open_h5
-    from ..solve import solve_chunks
+    from ..solve import solve_to_file
     from ..solve._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
-    from ._common import emit, write_solved
+    from ..solve._result import status_count_names
+    from ._common import emit
 
     options = {"max_relative_residual": args.max_relative_residual,
                "max_range": args.max_range}
@@ -82,12 +93,13 @@ def run(args) -> int:
         raise InputError(f"expected a hemisphere such as +x for --solver {args.solver}, got "
                          f"'none'")
     if args.solver == "lm":
-        options.update(max_iter=args.max_iter, bounds=args.bounds, initial=args.initial)
+        options.update(max_iter=args.max_iter, bounds=args.bounds)
         if args.concentric_calibration is not None:
             options["concentric_model"] = read_calibration(args.concentric_calibration).model
-    elif args.bounds is not None or args.concentric_calibration is not None:
-        raise InputError(f"expected --bounds/--concentric-calibration only with --solver lm, "
-                         f"got --solver {args.solver}")
+    elif args.bounds is not None or args.concentric_calibration is not None \
+            or args.initial is not None:
+        raise InputError(f"expected --bounds/--concentric-calibration/--initial only with "
+                         f"--solver lm, got --solver {args.solver}")
     if args.chunk_rows < 1:
         raise InputError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
     t0 = time.perf_counter()
@@ -100,31 +112,48 @@ def run(args) -> int:
         fixtures = RowFixtures.read(side, n, args.chunk_rows, cal)
         if spec == "auto" and fixtures is not None and fixtures.usable:
             hemisphere = fixtures
+        recording = _is_recording(side)
+        initial = None
+        if args.solver == "lm":
+            initial = args.initial or ("track" if recording else "kim18")
+            options["initial"] = initial
         meta = {"dataset": str(args.dataset), "calibration": str(args.calibration),
                 "hemisphere": ("per source fixture" if hemisphere is fixtures
                                else args.hemisphere if spec != "auto" else DEFAULT_HEMISPHERE),
                 "correction_applied": bool(cal.linear_correction is not None
                                            and not args.no_correction)}
+        if initial is not None:
+            meta["initial"] = initial
         announce_compile(args, "solver kernels")       # inputs checked: before the first
-        chunks = solve_chunks(reader, cal, chunk_rows=args.chunk_rows,
-                              scheduler=args.scheduler, solver=args.solver,
-                              hemisphere=hemisphere, apply_correction=not args.no_correction,
-                              **options)
+        with _Progress(args, n) as shown:
+            done = solve_to_file(reader, cal, args.output, chunk_rows=args.chunk_rows,
+                                 scheduler=args.scheduler, solver=args.solver,
+                                 hemisphere=hemisphere,
+                                 apply_correction=not args.no_correction, meta=meta,
+                                 groups=None if fixtures is None else
+                                 (fixtures.index, len(fixtures.pairs)),
+                                 on_block=shown.update, **options)
         if fixtures is not None:
-            chunks = fixtures.tally(chunks)
-        writer = write_solved(args, n, args.solver, meta, chunks)
+            fixtures.add(done)
     elapsed = time.perf_counter() - t0
-    counts = writer.status_counts()
-    failed = failure_reasons(writer.counts, args, fixtures,
+    counts = status_count_names(done.counts)
+    failed = failure_reasons(done.counts, args, fixtures,
                              None if hemisphere is fixtures else hemisphere)
     summary = {"dataset": str(args.dataset), "calibration": str(args.calibration),
                "output": str(args.output), "solver": args.solver, "n_samples": n,
                "hemisphere": meta["hemisphere"], "status_counts": counts, "failed": failed,
                "correction_applied": meta["correction_applied"],
                "elapsed_s": elapsed, "poses_per_s": n / elapsed if elapsed > 0 else None}
+    if initial is not None:
+        summary.update(initial=initial, recording=recording, cold_retries=done.cold_retries)
     if hemisphere is fixtures:
         summary["hemispheres"] = fixtures.hemisphere_summary()
     human = [f"solved {n} samples with {args.solver} in {elapsed:.2f} s -> {args.output}"]
+    if initial == "track":
+        why = "the dataset is a recording" if args.initial is None else "--initial track"
+        human.append(f"rows solved as a time series ({why}; --initial kim18 solves them "
+                     f"independently): {done.cold_retries} failed or suspicious rows solved "
+                     f"again cold")
     if hemisphere is fixtures:
         axes: dict = {}
         for key, v in summary["hemispheres"].items():
@@ -140,6 +169,62 @@ def run(args) -> int:
     return 0
 
 
+def _is_recording(side) -> bool:
+    """True if the open dataset's ``meta`` marks its rows as one recording in time order."""
+    import json
+
+    from ..io import is_recording
+
+    text = side.attrs.get("meta")
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", "replace")
+    try:
+        return is_recording(json.loads(text)) if isinstance(text, str) else False
+    except ValueError:
+        return False
+
+
+class _Progress:
+    """Progress of a solve on stderr: with ``--progress`` a plain line about every second
+    (rows done, rate, time left; also when stderr is not a terminal), else the progress bar
+    of the other commands (terminals only). ``update(rows, summary)`` after each block."""
+
+    def __init__(self, args, total: int):
+        self.args, self.total = args, int(total)
+        self.lines = bool(getattr(args, "progress", False)) and not args.quiet
+        self.done = 0
+        self.t0 = self.last = time.perf_counter()
+
+    def __enter__(self):
+        from ._common import progress
+
+        self.bar = None if self.lines else progress(total=self.total, desc="solve",
+                                                    args=self.args, unit="pose")
+        return self
+
+    def update(self, rows: int, _summary=None) -> None:
+        self.done += rows
+        if self.bar is not None:
+            self.bar.update(rows)
+            return
+        now = time.perf_counter()
+        if self.lines and (now - self.last >= 1.0 or self.done >= self.total):
+            self.last = now
+            print(self.line(now), file=sys.stderr, flush=True)
+
+    def line(self, now: float) -> str:
+        elapsed = max(now - self.t0, 1e-9)
+        rate = self.done / elapsed
+        left = (self.total - self.done) / rate if rate > 0 else float("inf")
+        pct = 100 * self.done / max(self.total, 1)
+        return (f"solve: {self.done}/{self.total} rows ({pct:.1f} %), {rate:,.0f} rows/s, "
+                f"{left:.1f} s left")
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
 #: Cosine of the largest angle between the sensor's home direction and the hemisphere axis for
 #: which a fixture's rows count as inside the hemisphere (60 degrees).
 _INSIDE_COS = 0.5
@@ -150,8 +235,8 @@ class RowFixtures:
     pairs, and the rig hemisphere of each pair (:func:`openemt.solve.rig_hemispheres`).
 
     Sliced by rows (``obj[a:b]``) it gives the rows' hemisphere directions, so it can be
-    passed to :func:`openemt.solve.solve_chunks` as a per-row hemisphere; it pickles as two
-    small arrays. ``tally`` counts the status codes per pair while the blocks go by.
+    passed to :func:`openemt.solve.solve_to_file` as a per-row hemisphere; it pickles as two
+    small arrays. ``add`` takes the status counts per pair gathered while the blocks go by.
     """
 
     def __init__(self, index, pairs, home):
@@ -209,17 +294,11 @@ class RowFixtures:
     def __getitem__(self, key) -> np.ndarray:
         return self.home[self.index[key]]
 
-    def tally(self, chunks):
-        for start, res in chunks:
-            k = self.index[start:start + len(res)].astype(np.int64)
-            st = res.status.astype(np.int64)
-            np.add.at(self.counts, (k, st), 1)
-            rr = res.relative_residual
-            if rr is not None:
-                ok = np.isfinite(rr)
-                np.add.at(self.residual_sum, (k[ok], st[ok]), rr[ok])
-                np.add.at(self.residual_n, (k[ok], st[ok]), 1)
-            yield start, res
+    def add(self, summary) -> None:
+        """Take the per-pair tallies gathered by :func:`openemt.solve.solve_to_file`."""
+        self.counts += summary.group_counts
+        self.residual_sum += summary.group_residual_sum
+        self.residual_n += summary.group_residual_n
 
     def hemisphere_summary(self) -> dict:
         from ..solve import hemisphere_from_positions

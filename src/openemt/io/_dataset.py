@@ -13,7 +13,23 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["Dataset", "signed_real"]
+__all__ = ["RECORDING_KEY", "Dataset", "is_recording", "recording_meta", "signed_real"]
+
+#: ``Dataset.meta`` key whose presence says the rows are one recording, in time order
+#: (consecutive samples of a moving sensor): ``openemt solve`` then solves them as a time series
+RECORDING_KEY = "recording"
+
+
+def recording_meta(sample_rate_hz: float | None = None, source: str = "") -> dict:
+    """The ``meta[RECORDING_KEY]`` value a writer of a recording sets:
+    ``{"sample_rate_hz": rate or None, "source": what recorded it}``."""
+    rate = None if sample_rate_hz is None else float(sample_rate_hz)
+    return {"sample_rate_hz": rate, "source": str(source)}
+
+
+def is_recording(meta) -> bool:
+    """True if a dataset's ``meta`` marks its rows as one recording in time order."""
+    return isinstance(meta, dict) and isinstance(meta.get(RECORDING_KEY), dict)
 
 
 def signed_real(C) -> np.ndarray:

@@ -9,7 +9,8 @@ import os
 
 from .._atomic import atomic_path
 
-__all__ = ["GuardedFile", "atomic_h5", "raise_if_write_failed"]
+__all__ = ["GuardedFile", "atomic_h5", "atomic_h5_layout", "contiguous_dataset",
+           "raise_if_write_failed", "write_at"]
 
 
 class GuardedFile:
@@ -160,3 +161,67 @@ def atomic_h5(path, *, seal: bool = False, **h5_options):
         if seal:
             from ._h5safe import seal as write_seal
             write_seal(tmp)
+
+
+def contiguous_dataset(group, name: str, shape: tuple, dtype, units: str | None = None):
+    """Create a contiguous dataset whose storage is allocated now and never filled by the
+    library: the bytes of its rows lie at one known offset of the file, so other processes
+    can write them (:func:`write_at`). Returns ``(dataset, offset)`` (offset None when the
+    dataset is empty)."""
+    import h5py
+    import numpy as np
+
+    dtype = np.dtype(dtype).newbyteorder("<") if np.dtype(dtype).itemsize > 1 \
+        else np.dtype(dtype)
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    dcpl.set_fill_time(h5py.h5d.FILL_TIME_NEVER)
+    space = h5py.h5s.create_simple(tuple(int(d) for d in shape))
+    dsid = h5py.h5d.create(group.id, name.encode(), h5py.h5t.py_create(dtype), space,
+                           dcpl=dcpl)
+    ds = h5py.Dataset(dsid)
+    if units is not None:
+        ds.attrs["units"] = units
+    return ds, (dsid.get_offset() if int(np.prod(shape)) else None)
+
+
+@contextlib.contextmanager
+def atomic_h5_layout(path, build, **h5_options):
+    """An HDF5 file laid out now and filled later, by this or other processes, at known
+    offsets: yields ``(tmp, layout)``, where ``layout = build(f)`` is what ``build`` returned
+    after creating the file's objects in the new ``h5py.File`` ``f`` (typically with
+    :func:`contiguous_dataset`), and ``tmp`` the closed temporary file the writers fill with
+    :func:`write_at`. The file becomes ``path`` when the block ends without an exception
+    (:func:`openemt._atomic.atomic_path`: no partial file otherwise). The layout itself is
+    written through a :class:`GuardedFile` as in :func:`atomic_h5`."""
+    import h5py
+
+    with atomic_path(path, suffix=".h5") as tmp:
+        fd = os.open(tmp, os.O_RDWR)
+        try:
+            guard = GuardedFile(fd, str(path))
+            f = h5py.File(guard, "w", **h5_options)
+            try:
+                layout = build(f)
+            finally:
+                f.close()
+            guard.check()
+        finally:
+            os.close(fd)
+        yield tmp, layout
+
+
+def write_at(path, offset: int, data) -> None:
+    """Write the bytes of the array ``data`` (C order) at ``offset`` of the existing file
+    ``path`` (an :func:`atomic_h5_layout` temporary). A failed write is one ``OSError``
+    with its errno (a full disk: ``ENOSPC``), so the owner of the file can discard it."""
+    import numpy as np
+
+    view = memoryview(np.ascontiguousarray(data)).cast("B")
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        done = 0
+        while done < len(view):
+            done += os.pwrite(fd, view[done:], offset + done)
+    finally:
+        os.close(fd)

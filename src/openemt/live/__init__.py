@@ -21,7 +21,13 @@ from ._pipeline import (
     TrackSummary,
     lm_solver,
 )
-from ._record import RawRecorder, TrackLogData, TrackLogWriter, read_track_log
+from ._record import (
+    RawRecorder,
+    TrackLogData,
+    TrackLogWriter,
+    read_track_log,
+    track_log_dataset,
+)
 from ._tracker_file import (
     FilterSpec,
     SensorSpec,
@@ -59,6 +65,7 @@ __all__ = [
     "lm_solver",
     "new_filter_state",
     "read_track_log",
+    "track_log_dataset",
     "read_tracker",
     "tracker_from_dict",
 ]

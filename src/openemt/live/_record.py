@@ -27,7 +27,8 @@ from .._errors import InputError
 from ..io._stream import CsvStream, H5Stream
 from ._backends import BackendWrapper
 
-__all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log"]
+__all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log",
+           "track_log_dataset"]
 
 TRACK_FORMAT = "openemt-track"
 LOG_KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
@@ -263,6 +264,39 @@ def read_track_log(path) -> TrackLogData:
         raise InputError(f"expected a readable openemt track log, got {str(path)!r} "
                          f"({msg})") from None
     return TrackLogData(sensors=names, arrays=arrays, complete=complete)
+
+
+def track_log_dataset(log: TrackLogData, sensor: str | None = None, name: str = ""):
+    """The couplings one sensor of a track log (:func:`read_track_log`, an .h5 log) recorded,
+    as a :class:`~openemt.io.Dataset` marked as a recording (``meta["recording"]``, the sample
+    rate from the median time step), so that ``openemt solve`` solves its rows as a time
+    series; the sample times go to ``extra["times"]`` (s)."""
+    from ..io import Dataset, recording_meta
+
+    if sensor is None:
+        if len(log.sensors) != 1:
+            raise InputError(f"expected --sensor naming one of {', '.join(log.sensors)} for a "
+                             f"log of {len(log.sensors)} sensors, got none")
+        sensor = log.sensors[0]
+    if sensor not in log.arrays:
+        raise InputError(f"expected a sensor of the log ({', '.join(log.sensors)}), got "
+                         f"{sensor!r}")
+    a = log.arrays[sensor]
+    C = np.asarray(a.get("couplings", np.empty(0)))
+    if C.ndim != 3 or not len(C):
+        raise InputError(f"expected a track log with couplings (an .h5 log with rows), got "
+                         f"{'no rows' if C.ndim == 3 else 'no couplings (a CSV log?)'} for "
+                         f"sensor {sensor!r}")
+    n = len(C)
+    times = np.asarray(a["times"][:n], dtype=np.float64)
+    steps = np.diff(times)
+    rate = 1.0 / float(np.median(steps)) if steps.size and np.median(steps) > 0 else None
+    return Dataset(couplings=C, stage=np.zeros((n, 6)), source_fixture="", sensor_fixture="",
+                   pattern="recording", file_index=np.zeros(n, np.int64),
+                   files=(name or "track log",), extra={"times": times},
+                   meta={"format": TRACK_FORMAT, "sensor": {"name": sensor},
+                         "complete": log.complete,
+                         "recording": recording_meta(rate, "openemt track --log")})
 
 
 def _read_csv_log(path: Path) -> TrackLogData:

@@ -17,6 +17,8 @@ from ._planar import solve_planar
 from ._refine import refine_poses
 from ._result import SolveResult, Status
 from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
+from ._series import solve_series
+from ._tofile import solve_to_file
 
 __all__ = [
     "POSES_SCHEMA",
@@ -39,7 +41,9 @@ __all__ = [
     "solve_kuipers",
     "solve_lm",
     "solve_planar",
+    "solve_series",
     "solve_svd",
+    "solve_to_file",
     "solver_covariance",
     "spectral_norms",
 ]

@@ -19,7 +19,7 @@ from .._errors import InputError
 from ..io._h5write import raise_if_write_failed
 from ._result import SolveResult, Status, status_count_names
 
-__all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseWriter", "read_poses"]
+__all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseLayout", "PoseWriter", "read_poses"]
 
 POSES_SCHEMA = "openemt.poses"
 POSES_SCHEMA_VERSION = 1
@@ -44,13 +44,7 @@ class PoseWriter:
     def __init__(self, h5file, n_samples: int, solver: str, meta: dict | None = None,
                  chunk_rows: int = 65536):
         f = self._file = h5file
-        f.attrs["schema"] = POSES_SCHEMA
-        f.attrs["schema_version"] = POSES_SCHEMA_VERSION
-        f.attrs["openemt_version"] = __version__
-        f.attrs["n_samples"] = int(n_samples)
-        f.attrs["solver"] = solver
-        f.attrs["status_names"] = json.dumps([s.name.lower() for s in Status])
-        f.attrs["meta"] = json.dumps(meta or {})
+        _write_header(f, n_samples, solver, meta)
         self._ds = {}
         for name, (shape, dtype) in _FIELDS.items():
             chunks = (max(1, min(int(n_samples), chunk_rows)),) + shape if n_samples else None
@@ -70,6 +64,60 @@ class PoseWriter:
 
     def status_counts(self) -> dict[str, int]:
         return status_count_names(self.counts)
+
+
+def _write_header(f, n_samples: int, solver: str, meta: dict | None) -> None:
+    f.attrs["schema"] = POSES_SCHEMA
+    f.attrs["schema_version"] = POSES_SCHEMA_VERSION
+    f.attrs["openemt_version"] = __version__
+    f.attrs["n_samples"] = int(n_samples)
+    f.attrs["solver"] = solver
+    f.attrs["status_names"] = json.dumps([s.name.lower() for s in Status])
+    f.attrs["meta"] = json.dumps(meta or {})
+
+
+class PoseLayout:
+    """The same file as :class:`PoseWriter`, laid out at once with contiguous datasets whose
+    storage is allocated up front, so that any process can write any block of rows
+    (:meth:`write`) into the closed file without the HDF5 library: what the Dask workers of
+    :func:`openemt.solve.solve_to_file` do. Picklable (offsets and dtypes only).
+
+    ``PoseLayout.build(n, solver, meta)`` is the ``build`` callable of
+    :func:`openemt.io._h5write.atomic_h5_layout`.
+    """
+
+    def __init__(self, offsets: dict):
+        self.offsets = offsets                   # name -> (byte offset or None, row shape)
+
+    @staticmethod
+    def build(n_samples: int, solver: str, meta: dict | None = None):
+        from ..io._h5write import contiguous_dataset
+
+        def make(f) -> PoseLayout:
+            _write_header(f, n_samples, solver, meta)
+            offsets = {}
+            for name, (shape, dtype) in _FIELDS.items():
+                offsets[name] = (contiguous_dataset(f, name, (int(n_samples),) + shape, dtype,
+                                                    _UNITS[name])[1], shape)
+            return PoseLayout(offsets)
+
+        return make
+
+    def write(self, path, start: int, result: SolveResult) -> None:
+        """Write ``result``'s rows at rows ``start:start + len(result)`` of the file
+        ``path`` (the layout's temporary file)."""
+        from ..io._h5write import write_at
+
+        if not len(result):
+            return
+        for name, (offset, shape) in self.offsets.items():
+            dtype = np.dtype(_FIELDS[name][1]).newbyteorder("<") \
+                if np.dtype(_FIELDS[name][1]).itemsize > 1 else np.dtype(_FIELDS[name][1])
+            v = getattr(result, name)
+            a = np.full((len(result),) + shape, np.nan, dtype) if v is None else \
+                np.asarray(v).astype(dtype, copy=False)
+            row_bytes = dtype.itemsize * int(np.prod(shape, dtype=np.int64))
+            write_at(path, offset + start * row_bytes, a)
 
 
 def read_poses(path) -> SolveResult:

@@ -10,6 +10,7 @@ from ._factory import SOLVERS, apply_position_correction, prepare
 from ._hemisphere import DEFAULT_HEMISPHERE
 from ._options import SolveOptions
 from ._result import SolveResult
+from ._series import solve_series
 
 __all__ = ["SOLVERS", "apply_position_correction", "solve", "solve_chunks"]
 
@@ -43,8 +44,32 @@ def solve(couplings, calibration: Calibration, *, solver: str = "lm",
     """
     if not isinstance(calibration, Calibration):
         raise TypeError(f"expected a Calibration, got {type(calibration).__name__}")
-    return _prepared(calibration, solver, hemisphere, apply_correction, concentric_calibration,
-                     SolveOptions.of(None, options))(couplings)
+    options = SolveOptions.of(None, options)
+    prepared = _prepared(calibration, solver, hemisphere, apply_correction,
+                         concentric_calibration, options)
+    if _is_series(solver, options):
+        return solve_series(prepared, couplings, for_rows=_subsets(
+            calibration, solver, hemisphere, apply_correction, concentric_calibration,
+            options))[0]
+    return prepared(couplings)
+
+
+def _is_series(solver: str, options: SolveOptions) -> bool:
+    """The LM with ``initial='track'``: rows solved as one time series
+    (:func:`openemt.solve._series.solve_series`, with its cold retries)."""
+    return solver == "lm" and isinstance(options.initial, str) and options.initial == "track"
+
+
+def _subsets(calibration, solver, hemisphere, apply_correction, concentric_calibration,
+             options):
+    """``for_rows`` of :func:`solve_series` when the hemisphere is given per row, else None."""
+    if hemisphere is None or isinstance(hemisphere, str):
+        return None
+    hemi = np.asarray(hemisphere)
+    if not (hemi.ndim == 2 or (hemi.ndim == 1 and hemi.dtype.kind in "UO")):
+        return None
+    return lambda rows: _prepared(calibration, solver, hemi[rows], apply_correction,
+                                  concentric_calibration, options)
 
 
 def _prepared(calibration, solver, hemisphere, apply_correction, concentric_calibration,
@@ -66,6 +91,9 @@ def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_cor
     C = reader[start:stop]
     if prepared is None:  # a per-row hemisphere: this block's rows
         prepared = _prepared(calibration, solver, hemisphere, apply_correction, None, options)
+    if _is_series(solver, options):
+        return solve_series(prepared, C, for_rows=_subsets(
+            calibration, solver, hemisphere, apply_correction, None, options))[0]
     return prepared(C)
 
 
@@ -93,7 +121,11 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
     """Solve a (possibly larger-than-memory) coupling array block by block.
 
     Yields ``(start, SolveResult)`` in row order, so the caller can write each block out and
-    drop it; at most ``max_in_flight`` blocks are held at once.
+    drop it; at most ``max_in_flight`` blocks are held at once. On a cluster every result
+    comes back through the client: :func:`openemt.solve.solve_to_file` (what ``openemt
+    solve`` runs) has the workers write their blocks into the output file instead.
+    ``initial='track'`` (LM) solves each block as a time series with cold retries
+    (:func:`openemt.solve.solve_series`).
 
     Parameters
     ----------
