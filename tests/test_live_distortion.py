@@ -30,7 +30,7 @@ class _Sink:
     def send_poses(self, poses, stamps, t_ready=None, device_name=None):
         self.sent += len(poses)
 
-    def send_message(self, message, t_ready=None):
+    def send_message(self, message, t_ready=None, *, retain=None):
         pass
 
     def stats(self):

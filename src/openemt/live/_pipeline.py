@@ -795,9 +795,10 @@ class TrackingPipeline:
         if self.igtl is not None:
             import pyigtl
 
+            # kept as the device's current state: a viewer that connects later gets it first
             self.igtl.send_message(pyigtl.StringMessage(
                 text, timestamp=time.time() if stamp is None else float(stamp),
-                device_name=state_device_name(device)))
+                device_name=state_device_name(device)), retain=state_device_name(device))
 
     def _send_status(self, device, code, distorted, ratio, timestamp):
         import pyigtl
