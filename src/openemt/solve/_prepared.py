@@ -51,6 +51,11 @@ from ._packing import (
 from ._result import SolveResult, Status
 from ._validity import check_validity_options
 
+#: Relative residual above which the table start's solution is checked from independent
+#: starts, a tenth of the exploration level (docs/solve.md#cold-start): noise-free couplings
+#: whose best candidate ends in a wrong minimum at 4e-4 are restarted too
+TABLE_RESTART_LEVEL = 1e-4
+
 __all__ = ["PreparedLM"]
 
 # below this many samples one kernel call on this thread (as ``_run_batch``)
@@ -230,7 +235,8 @@ class PreparedLM:
                             self._table = table_for(model)
                         result, settled = _table_solve(C, cnorm, couplings, model, conc,
                                                        cf_hemi, mdl, nvec, box, opts,
-                                                       self._table, self._level)
+                                                       self._table,
+                                                       min(self._level, TABLE_RESTART_LEVEL))
                         return self._finish(result, C, cnorm, nvec, fallback, explore,
                                             covariance, settled)
                     init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
