@@ -178,6 +178,14 @@ class PreparedLM:
             return hemisphere_vectors(self.hemisphere, n)
         return self._constants(n)[1]
 
+    def _table_level(self) -> float:
+        """The table start's restart level: :data:`TABLE_RESTART_LEVEL` under the exploration
+        level while exploring; without exploration (``explore_above=None``) the retry test's,
+        as before (no residual-driven restarts beyond it)."""
+        if self.explore is None:
+            return self._level
+        return min(self._level, TABLE_RESTART_LEVEL)
+
     def __call__(self, couplings, initial=None, *, explore: bool = True) -> SolveResult:
         C = couplings
         if initial is None or self._per_call:  # the options' start: the path of solve_lm
@@ -235,8 +243,7 @@ class PreparedLM:
                             self._table = table_for(model)
                         result, settled = _table_solve(C, cnorm, couplings, model, conc,
                                                        cf_hemi, mdl, nvec, box, opts,
-                                                       self._table,
-                                                       min(self._level, TABLE_RESTART_LEVEL))
+                                                       self._table, self._table_level())
                         return self._finish(result, C, cnorm, nvec, fallback, explore,
                                             covariance, settled)
                     init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
