@@ -15,45 +15,21 @@ import time
 
 import numpy as np
 import pytest
+from _igtl_decode import RawReader
 
 from openemt.live import IgtlServer
 
 MSG = 106          # bytes of one TRANSFORM message (58 header + 48 body)
 
 
-class _Reader:
+class _Reader(RawReader):
     """A raw TCP client that reads everything and counts whole TRANSFORM messages."""
-
-    def __init__(self, port):
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5.0)
-        self.data = bytearray()
-        self._done = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self):
-        self.sock.settimeout(0.05)
-        while not self._done.is_set():
-            try:
-                b = self.sock.recv(65536)
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            if not b:
-                return
-            self.data += b
 
     def messages(self) -> int:
         n = len(self.data) // MSG
         for k in range(n):
             assert self.data[k * MSG + 2:k * MSG + 11] == b"TRANSFORM"
         return n
-
-    def close(self):
-        self._done.set()
-        self._thread.join(timeout=3.0)
-        self.sock.close()
 
 
 def _wait(cond, timeout=5.0):

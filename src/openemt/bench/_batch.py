@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from ._speed import _best_time
 
 __all__ = ["add_arguments", "run"]
 
@@ -96,17 +97,6 @@ def simulated_recording(path, n: int, rate_hz: float, snr_db: float, seed: int):
     return cal, truth
 
 
-def _timed(f, repeats: int):
-    best_cpu = best_wall = np.inf
-    out = None
-    for _ in range(max(1, repeats)):
-        c0, w0 = time.process_time(), time.perf_counter()
-        out = f()
-        best_cpu = min(best_cpu, time.process_time() - c0)
-        best_wall = min(best_wall, time.perf_counter() - w0)
-    return best_cpu, best_wall, out
-
-
 def run(args) -> dict:
     import numba
 
@@ -137,7 +127,7 @@ def run(args) -> dict:
                     # warm-up on a few rows: loads (or compiles) the kernels
                     solve_to_file(reader[:200], cal, tmp / "warm.h5", hemisphere="+x",
                                   initial=initial)
-                    cpu, wall, done = _timed(lambda out=out, initial=initial: solve_to_file(
+                    cpu, wall, done = _best_time(lambda out=out, initial=initial: solve_to_file(
                         reader, cal, out, hemisphere="+x", initial=initial), args.repeats)
                     res = read_poses(out)
                     answers[name] = res

@@ -148,11 +148,7 @@ class ParameterLayout:
         if not self.is_dipole:
             raise InputError("expected a dipole-model layout for coil arrays, got a "
                              f"{type(self.template).__name__} layout")
-        out = {}
-        for name, n in (("L_so", self.n_source), ("M_so", self.n_source),
-                        ("L_se", self.n_sensor), ("M_se", self.n_sensor)):
-            out[name] = np.ascontiguousarray(np.asarray(x[self.slices[name]]).reshape(n, 3).T)
-        return out
+        return self.template.split_params(np.asarray(x)[self.slices["model"]])
 
     def fixtures(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Full vector -> (F_so, F_st, F_se) pose vectors, each ``(6,)`` (copies)."""
@@ -171,10 +167,7 @@ class ParameterLayout:
         calibration: the model's blocks (``L_so``... as (3, n) for a dipole model) and
         ``source_fixture``/... as (6,)."""
         v = np.asarray(values, dtype=np.float64)
-        if self.is_dipole:
-            out = self.coil_arrays(v)
-        else:
-            out = self.template.split_params(v[self.slices["model"]])
+        out = self.template.split_params(v[self.slices["model"]])
         F = self.fixtures(v)
         out.update(source_fixture=F[0], stage_fixture=F[1], sensor_fixture=F[2])
         return out

@@ -98,16 +98,11 @@ def _table_starts(C, couplings, model, conc, hemi, nvec, table, k=4):
 
 def _merge(result, rows, again):
     """``result`` with rows ``rows`` replaced by those of ``again`` (solved for them) that have
-    a lower relative residual; the iterations of both runs are added."""
-    with np.errstate(invalid="ignore"):
-        better = again.relative_residual < result.relative_residual[rows]
-    keep = rows[better]
-    fields = {f: getattr(result, f).copy() for f in
-              ("poses", "pose_vectors", "status", "residual", "iterations", "relative_residual")}
-    for f, arr in fields.items():
-        arr[keep] = getattr(again, f)[better]
-    fields["iterations"][rows] = result.iterations[rows] + again.iterations
-    return result.replace(**fields)
+    a lower relative residual (:func:`_keep_better`); the iterations of both runs are added."""
+    out = _keep_better(result, rows, again)
+    iterations = out.iterations.copy()
+    iterations[rows] = result.iterations[rows] + again.iterations
+    return out.replace(iterations=iterations)
 
 
 def _row_hemispheres(nvec):

@@ -19,6 +19,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..geometry import pose_from_vector, vector_from_pose
+from ._planar import _rule_options
 from ._result import SolveResult, Status
 from ._validity import check_validity_options, classify
 
@@ -140,7 +141,6 @@ class ModelSolver:
     def __init__(self, model, options):
         from ._hemisphere import hemisphere_vectors
         from ._options import DEFAULT
-        from ._packing import pack_options
 
         refused = options.changed(("retries", "explore_above",
                                    "concentric_model", "covariance", "fallback"))
@@ -166,8 +166,7 @@ class ModelSolver:
         b = np.inf if options.bounds is None else float(options.bounds)
         self.box = np.ascontiguousarray(np.stack([np.full(3, -b), np.full(3, b)]))
         tol = 1e-9 if options.ambiguity_tol is None else options.ambiguity_tol
-        self.rule = pack_options(ambiguity_tol=tol, max_relative_residual=max_rel,
-                                 max_range=max_rng)
+        self.rule = _rule_options(tol, max_rel, max_rng)   # the board solver's rule
         self.retry_resnorm = options.retry_resnorm
         self._initial = "track" if options.initial is None else options.initial
         if isinstance(self._initial, str) and self._initial not in ("track", "cold"):

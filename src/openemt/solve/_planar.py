@@ -445,10 +445,9 @@ class PreparedPlanar:
         self.grid = np.ascontiguousarray(grid)
         self.F = _grid_fields(model, grid)
         self.nodes, self.wts = sensor_rule(model.sensor_length)
-        normals = np.stack([c.normal for c in model.board.coils])
-        if hemisphere is None and np.allclose(normals, normals[0], atol=1e-9):
-            nvec = np.ascontiguousarray(normals[0])          # a planar board: its front side
-        elif hemisphere is None or (isinstance(hemisphere, str) and hemisphere == "none"):
+        if hemisphere is None:
+            nvec = np.ascontiguousarray(model.front)   # a planar board: its front side, else none
+        elif isinstance(hemisphere, str) and hemisphere == "none":
             nvec = np.zeros(3)
         else:
             nvec = np.ascontiguousarray(hemisphere_vectors(hemisphere, 1, allow_none=False)[0])
