@@ -1,6 +1,7 @@
 """A pyigtl client polling some devices on its own thread, as a viewer such as 3D Slicer would,
 keeping every new message: ``got[device]`` lists ``(timestamp, matrix)`` for TRANSFORMs and
-``(timestamp, text)`` for STRING messages."""
+``(timestamp, text)`` for STRING messages, or with ``whole=True`` every message object as it
+arrived (metadata included)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ import pyigtl
 
 
 class Listener:
-    def __init__(self, port, devices):
+    def __init__(self, port, devices, whole=False):
         self.client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port)
         self.devices = devices
+        self.whole = whole
         self.got = {d: [] for d in devices}
         self._done = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -22,8 +24,10 @@ class Listener:
     def _run(self):
         while not self._done.is_set():
             for d in self.devices:
-                m = self.client.wait_for_message(d, timeout=0.01)
-                if m is not None and (not self.got[d] or m.timestamp != self.got[d][-1][0]):
+                m = self.client.wait_for_message(d, timeout=0.005 if self.whole else 0.01)
+                if m is not None and self.whole:
+                    self.got[d].append(m)
+                elif m is not None and (not self.got[d] or m.timestamp != self.got[d][-1][0]):
                     self.got[d].append((m.timestamp, np.array(getattr(m, "matrix", None))
                                         if hasattr(m, "matrix") else m.string))
 

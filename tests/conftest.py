@@ -22,3 +22,26 @@ if os.environ.get("CI"):
 def ilemt_dir() -> Path:
     """The real ILEMT "concentric source" folder cal_9_15_premo_cmu (read-only)."""
     return datasets.path("cal_9_15_premo_cmu")
+
+
+@pytest.fixture
+def cli():
+    """``openemt.cli.main``: ``cli([...])`` runs a command in this process and returns its
+    exit code."""
+    from openemt.cli import main
+
+    return main
+
+
+@pytest.fixture
+def run_cli(capsys):
+    """``run_cli(*argv) -> (code, stdout, stderr)``: a command run in this process, its
+    arguments turned into strings."""
+    from openemt.cli import main
+
+    def run(*argv):
+        code = main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return run

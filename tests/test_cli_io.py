@@ -7,23 +7,12 @@ import json
 import numpy as np
 import pytest
 
-import openemt.cli
 from openemt.io import import_ilemt_folder, read_calibration, read_dataset, write_calibration
 
 
-@pytest.fixture
-def cli(capsys):
-    def run(*argv):
-        code = openemt.cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return code, out, err
-
-    return run
-
-
-def test_import_ilemt_json_and_round_trip(cli, ilemt_dir, tmp_path):
+def test_import_ilemt_json_and_round_trip(run_cli, ilemt_dir, tmp_path):
     out = tmp_path / "cal_9_15.h5"
-    code, stdout, _ = cli("import", "ilemt", ilemt_dir, "-o", out, "--json", "--quiet")
+    code, stdout, _ = run_cli("import", "ilemt", ilemt_dir, "-o", out, "--json", "--quiet")
     assert code == 0
     s = json.loads(stdout)
     assert s["n_samples"] == 8033 and s["n_source"] == 3 and s["n_sensor"] == 3
@@ -39,16 +28,16 @@ def test_import_ilemt_json_and_round_trip(cli, ilemt_dir, tmp_path):
     np.testing.assert_array_equal(ds.extra["couplings_lr"], ref.extra["couplings_lr"])
     assert ds.files == ref.files and ds.meta == ref.meta
 
-    code, stdout, _ = cli("info", out, "--json")
+    code, stdout, _ = run_cli("info", out, "--json")
     info = json.loads(stdout)
     assert code == 0 and info["kind"] == "dataset" and info["n_samples"] == 8033
     assert info["patterns"]["md"] == 6 * 142 and info["source"] == "CMU"
     assert info["complex"] is True and info["extra"] == ["couplings_lr"]
 
 
-def test_import_options(cli, ilemt_dir, tmp_path):
+def test_import_options(run_cli, ilemt_dir, tmp_path):
     out = tmp_path / "md.h5"
-    code, stdout, err = cli("import", "ilemt", ilemt_dir, "-o", out, "--patterns", "md",
+    code, stdout, err = run_cli("import", "ilemt", ilemt_dir, "-o", out, "--patterns", "md",
                             "--source-signs", "XinYup=-1,1,1", "--no-compensate", "--json")
     assert code == 0 and "imported 852 rows" in err
     ds = read_dataset(out)
@@ -59,14 +48,14 @@ def test_import_options(cli, ilemt_dir, tmp_path):
     np.testing.assert_array_equal(ds.stage, ds.stage_logged)
 
 
-def test_info_on_calibrations(cli, ilemt_dir, tmp_path):
-    code, stdout, _ = cli("info", ilemt_dir / "output" / "XYZ_hr_cal.mat", "--json")
+def test_info_on_calibrations(run_cli, ilemt_dir, tmp_path):
+    code, stdout, _ = run_cli("info", ilemt_dir / "output" / "XYZ_hr_cal.mat", "--json")
     info = json.loads(stdout)
     assert code == 0 and info["kind"] == "calibration" and info["mode"] == "XYZ"
     assert info["linear_correction"] is True and info["stats"]["num_points"] == 426
     write_calibration(read_calibration(ilemt_dir / "output" / "XYZ_concentric_hr_cal.mat"),
                       tmp_path / "c.json")
-    code, stdout, _ = cli("info", tmp_path / "c.json", "--json")
+    code, stdout, _ = run_cli("info", tmp_path / "c.json", "--json")
     info = json.loads(stdout)
     assert code == 0 and info["concentric"] is True and info["mode"] == "XYZ_concentric"
 
@@ -76,32 +65,32 @@ def test_info_on_calibrations(cli, ilemt_dir, tmp_path):
     (["--source-signs", "md=1,1,2"], "expected a sign rule"),
     (["--patterns", "zz"], "got none"),
 ])
-def test_import_bad_input_exit_2_without_output(cli, ilemt_dir, tmp_path, argv, match):
+def test_import_bad_input_exit_2_without_output(run_cli, ilemt_dir, tmp_path, argv, match):
     out = tmp_path / "o.h5"
-    code, _, err = cli("import", "ilemt", ilemt_dir, "-o", out, *argv)
+    code, _, err = run_cli("import", "ilemt", ilemt_dir, "-o", out, *argv)
     assert code == 2 and err.startswith("error: ") and match in err
     assert len(err.strip().splitlines()) == 1
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
-def test_import_corrupt_folder_exit_2(cli, tmp_path):
+def test_import_corrupt_folder_exit_2(run_cli, tmp_path):
     src = tmp_path / "src"
     src.mkdir()
     (src / "soYoutZup_seYoutZup_md.dat").write_text("1\t2\t3\n")
     out = tmp_path / "o.h5"
-    code, _, err = cli("import", "ilemt", src, "-o", out)
+    code, _, err = run_cli("import", "ilemt", src, "-o", out)
     assert code == 2 and "soYoutZup_seYoutZup_md.dat: line 1: expected 24 fields, got 3" in err
     assert not out.exists()
-    code, _, err = cli("import", "ilemt", tmp_path / "missing", "-o", out)
+    code, _, err = run_cli("import", "ilemt", tmp_path / "missing", "-o", out)
     assert code == 2 and "missing folder" in err and not out.exists()
 
 
-def test_info_bad_input(cli, tmp_path):
-    code, _, err = cli("info", tmp_path / "none.h5")
+def test_info_bad_input(run_cli, tmp_path):
+    code, _, err = run_cli("info", tmp_path / "none.h5")
     assert code == 2 and "missing file" in err
     (tmp_path / "x.h5").write_text("nope")
-    code, _, err = cli("info", tmp_path / "x.h5")
+    code, _, err = run_cli("info", tmp_path / "x.h5")
     assert code == 2 and "expected a readable openemt HDF5 file, got x.h5" in err
     (tmp_path / "x.txt").write_text("nope")
-    code, _, err = cli("info", tmp_path / "x.txt")
+    code, _, err = run_cli("info", tmp_path / "x.txt")
     assert code == 2 and "expected a file openemt writes (dataset or poses .h5" in err

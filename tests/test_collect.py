@@ -12,7 +12,6 @@ import time
 import numpy as np
 import pytest
 
-import openemt.cli
 from openemt.calibrate import reference_poses
 from openemt.geometry import pose_from_vector
 from openemt.io import read_dataset, write_poses_csv
@@ -28,16 +27,6 @@ from openemt.live._refclient import (
     parse_reference_url,
     simulated_motion,
 )
-
-
-@pytest.fixture
-def cli(capsys):
-    def run(*argv):
-        code = openemt.cli.main([str(a) for a in argv])
-        out, err = capsys.readouterr()
-        return code, out, err
-
-    return run
 
 
 def _bumps(t, starts, width=0.5):
@@ -176,15 +165,15 @@ def test_reference_client_keeps_every_transform_of_its_device():
         time.sleep(0.01)
 
 
-def _collect(cli, tmp_path, *extra, n=4):
+def _collect(run_cli, tmp_path, *extra, n=4):
     out = tmp_path / "col.h5"
-    code, stdout, err = cli("collect", "--source", "sim", "--n-poses", n, "--seed", 2,
+    code, stdout, err = run_cli("collect", "--source", "sim", "--n-poses", n, "--seed", 2,
                             "--sim-speed", 4, "-o", out, "--json", *extra)
     return code, (json.loads(stdout) if stdout else None), err, out
 
 
-def test_collect_simulated_robot_end_to_end(cli, tmp_path):
-    code, s, err, out = _collect(cli, tmp_path, "--simulate-reference", "robot")
+def test_collect_simulated_robot_end_to_end(run_cli, tmp_path):
+    code, s, err, out = _collect(run_cli, tmp_path, "--simulate-reference", "robot")
     assert code == 0, err
     assert s["n_poses"] == 4 and s["ended_by"] == "n_poses"
     assert abs(s["time_offset_error_ms"]) < 5.0
@@ -206,8 +195,8 @@ def test_collect_simulated_robot_end_to_end(cli, tmp_path):
     assert "coverage" in err and "rotation diversity" in err or s["coverage"]["n_poses"] >= 4
 
 
-def test_collect_reference_at_another_rate(cli, tmp_path):
-    code, s, err, _ = _collect(cli, tmp_path, "--simulate-reference", "optical",
+def test_collect_reference_at_another_rate(run_cli, tmp_path):
+    code, s, err, _ = _collect(run_cli, tmp_path, "--simulate-reference", "optical",
                                "--sim-rate", 40, "--sim-latency-ms", 80,
                                "--sim-clock-offset-ms", -1500)
     assert code == 0, err
@@ -217,8 +206,8 @@ def test_collect_reference_at_another_rate(cli, tmp_path):
     assert 10 <= s["dwells"]["reference_samples_mean"] <= 60
 
 
-def test_collect_reference_that_stops_keeps_the_data(cli, tmp_path):
-    code, s, err, out = _collect(cli, tmp_path, "--simulate-reference", "robot",
+def test_collect_reference_that_stops_keeps_the_data(run_cli, tmp_path):
+    code, s, err, out = _collect(run_cli, tmp_path, "--simulate-reference", "robot",
                                  "--sim-stop-after", 6, n=50)
     assert code == 0, err
     assert s["ended_by"] == "reference lost"
@@ -227,11 +216,11 @@ def test_collect_reference_that_stops_keeps_the_data(cli, tmp_path):
     assert read_dataset(out).n_samples == s["n_poses"]
 
 
-def test_collect_from_a_reference_csv(cli, tmp_path):
+def test_collect_from_a_reference_csv(run_cli, tmp_path):
     m = simulated_motion("robot", 4, spare=5, seed=2)    # the motion of --n-poses 4 --seed 2
     t = np.arange(0, 12, 0.01)
     csv = write_poses_csv(tmp_path / "ref.csv", m.reference_poses(t), time=t + 1.7e9)
-    code, s, err, out = _collect(cli, tmp_path, "--reference-csv", csv)
+    code, s, err, out = _collect(run_cli, tmp_path, "--reference-csv", csv)
     assert code == 0, err
     assert s["n_poses"] == 4
     # the CSV's clock starts at 1.7e9 s; the simulated tracker's at its start
@@ -242,32 +231,32 @@ def test_collect_from_a_reference_csv(cli, tmp_path):
     assert np.all(np.diff(iv[:, 0]) > 0)
 
 
-def test_collect_bad_input_is_one_line(cli, tmp_path):
-    code, _, err, out = _collect(cli, tmp_path, "--simulate-reference", "robot",
+def test_collect_bad_input_is_one_line(run_cli, tmp_path):
+    code, _, err, out = _collect(run_cli, tmp_path, "--simulate-reference", "robot",
                                  "--sim-speed", 0)
     assert code == 2 and err.count("error:") == 1 and "--sim-speed" in err
-    code, _, err = cli("collect", "--source", "replay", "x.h5", "--simulate-reference",
+    code, _, err = run_cli("collect", "--source", "replay", "x.h5", "--simulate-reference",
                        "robot", "-o", tmp_path / "c.h5")
     assert code == 2 and "--simulate-reference only with --source sim" in err
-    code, _, err = cli("collect", "--reference", "igtl://nowhere", "-o", tmp_path / "c.h5")
+    code, _, err = run_cli("collect", "--reference", "igtl://nowhere", "-o", tmp_path / "c.h5")
     assert code == 2 and "igtl://HOST:PORT/DEVICE" in err
     assert not out.exists() and not (tmp_path / "c.h5").exists()
 
 
-def test_collect_external_reference_server_unreachable_writes_nothing(cli, tmp_path):
+def test_collect_external_reference_server_unreachable_writes_nothing(run_cli, tmp_path):
     import socket
 
     with socket.socket() as s:                 # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    code, _, err, out = _collect(cli, tmp_path, "--reference",
+    code, _, err, out = _collect(run_cli, tmp_path, "--reference",
                                  f"igtl://127.0.0.1:{port}/RobotToBase",
                                  "--reference-timeout", 0.5)
     assert code == 2 and "error:" in err and "no reference pose" in err
     assert not out.exists()
 
 
-def test_collect_against_an_external_pyigtl_reference(cli, tmp_path):
+def test_collect_against_an_external_pyigtl_reference(run_cli, tmp_path):
     """The reference runs as its own OpenIGTLink server (as PLUS or a robot bridge would):
     the same simulated motion, started on its own clock; collect connects as a client."""
     from openemt.cli._collect import spare_poses
@@ -275,7 +264,7 @@ def test_collect_against_an_external_pyigtl_reference(cli, tmp_path):
     m = simulated_motion("robot", 4, spare=spare_poses(4), seed=2)
     server = SimulatedReferenceServer(m, t0=time.time() + 0.3, speed=4.0, clock_offset=0.8)
     try:
-        code, s, err, out = _collect(cli, tmp_path, "--reference", server.url)
+        code, s, err, out = _collect(run_cli, tmp_path, "--reference", server.url)
     finally:
         server.close()
     assert code == 0, err

@@ -143,13 +143,6 @@ def test_igtl_client_receives_the_trajectory():
 
 # ---------------------------------------------------------------------------- CLI
 
-@pytest.fixture
-def cli():
-    import openemt.cli as cli_mod
-
-    return cli_mod.main
-
-
 def test_cli_track_sim_json(cli, capsys, tmp_path):
     code = cli(["track", "--source", "sim", "--duration", "0.1", "--fast", "--no-igtl",
                 "--log", str(tmp_path / "log.csv"), "--save-raw", str(tmp_path / "raw.h5"),

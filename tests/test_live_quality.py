@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import json
 import socket
-import threading
 import time
 
 import numpy as np
 import pyigtl
 import pytest
 from _igtl_decode import RawReader, decode, tdata_tools
+from _igtl_listener import Listener
 
 from openemt._errors import InputError
 from openemt.live import (
@@ -70,29 +70,6 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-class _Messages:
-    """A pyigtl client (as a viewer) keeping every new message object per device."""
-
-    def __init__(self, port, devices):
-        self.client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port)
-        self.got = {d: [] for d in devices}
-        self._done = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self):
-        while not self._done.is_set():
-            for d, seen in self.got.items():
-                m = self.client.wait_for_message(d, timeout=0.005)
-                if m is not None:
-                    seen.append(m)
-
-    def stop(self):
-        self._done.set()
-        self._thread.join(timeout=3.0)
-        self.client.stop()
-
-
 def test_track_sim_stream_carries_metadata_and_relative_poses(tmp_path, capsys):
     """`openemt track --source sim` with the shipped two-sensor tracker (reference sensor
     "Reference"): a pyigtl client sees Status, RelativeResidual and Distortion on every
@@ -101,7 +78,7 @@ def test_track_sim_stream_carries_metadata_and_relative_poses(tmp_path, capsys):
 
     port = _free_port()
     devices = ["ProbeToTracker", "ReferenceToTracker", "ProbeToReference"]
-    viewer = _Messages(port, devices + [state_device_name("ProbeToTracker")])
+    viewer = Listener(port, devices + [state_device_name("ProbeToTracker")], whole=True)
     try:
         code = cli_mod.main(["track", "--tracker", str(example_tracker("simulated-2")),
                              "--source", "sim", "--duration", "1.0", "--igtl-port", str(port),
@@ -264,7 +241,7 @@ class _Dropout(SimulatedBackend):
 def test_lost_stale_and_recovered_are_sent_once_each():
     b = _Dropout(MODEL, duration=0.8, realtime=True, start=0.1, stop=0.5)
     with IgtlServer(port=0, device_name="Sensor") as srv:
-        viewer = _Messages(srv.port, ["SensorState"])
+        viewer = Listener(srv.port, ["SensorState"], whole=True)
         reader = RawReader(srv.port)
         try:
             assert srv.wait_for_client(5.0, count=2)
@@ -385,7 +362,7 @@ def test_a_viewer_that_connects_late_gets_the_current_state_first():
     from openemt.live import IgtlServer
 
     with IgtlServer(_free_port()) as server:
-        early = _Messages(server.port, ["ProbeState"])
+        early = Listener(server.port, ["ProbeState"], whole=True)
         assert server.wait_for_client(5.0)
         server.send_message(pyigtl.StringMessage("TRACKING Probe", device_name="ProbeState"),
                             retain="ProbeState")
@@ -394,7 +371,7 @@ def test_a_viewer_that_connects_late_gets_the_current_state_first():
             time.sleep(0.01)
         server.send_message(pyigtl.StringMessage("LOST Probe", device_name="ProbeState"),
                             retain="ProbeState")
-        late = _Messages(server.port, ["ProbeState"])
+        late = Listener(server.port, ["ProbeState"], whole=True)
         assert server.wait_for_client(5.0, count=2)
         time.sleep(0.3)
         early.stop()

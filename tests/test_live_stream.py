@@ -19,7 +19,6 @@ import h5py
 import numpy as np
 import pytest
 
-import openemt.cli as cli_mod
 from openemt._atomic import check_outputs
 from openemt.io._stream import CsvStream, DiskFullError, H5Stream
 from openemt.live import (
@@ -30,12 +29,6 @@ from openemt.live import (
     read_track_log,
 )
 from openemt.signal import read_raw
-
-
-@pytest.fixture
-def cli():
-    return cli_mod.main
-
 
 # ------------------------------------------------------------------ the stream primitives
 

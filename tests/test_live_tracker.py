@@ -227,13 +227,6 @@ def test_sound_backend_tracks_two_sensors_from_the_tracker_file(monkeypatch):
         assert np.sqrt(np.mean(err ** 2)) < 50e-6
 
 
-@pytest.fixture
-def cli():
-    import openemt.cli as cli_mod
-
-    return cli_mod.main
-
-
 def test_cli_track_sound_with_stand_in_device(cli, capsys, monkeypatch, tmp_path):
     spec = read_tracker(example_tracker("simulated"))
     sim = SimulatedBackend(duration=0.3, chunk=960, config=None)

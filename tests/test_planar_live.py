@@ -35,13 +35,6 @@ def board_cal(tmp_path_factory):
     return path
 
 
-@pytest.fixture
-def cli():
-    import openemt.cli as cli_mod
-
-    return cli_mod.main
-
-
 def test_shipped_board_tracker_and_carrier_plan():
     spec = read_tracker(example_tracker("anser"))
     assert spec.frequencies == BOARD_FREQUENCIES

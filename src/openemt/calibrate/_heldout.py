@@ -249,11 +249,8 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
         s = solve_and_score(tp, xt, test, concentric_model)
         trans.append(s.trans)
         rot.append(s.rot)
-    t, r = np.concatenate(trans), np.concatenate(rot)
-    ok = np.isfinite(t) & np.isfinite(r)
-    return CrossValidation(trans_rms_mm=float(np.sqrt(np.mean(t[ok] ** 2)) * 1e3),
-                           rot_rms_deg=float(np.rad2deg(np.sqrt(np.mean(r[ok] ** 2)))),
-                           n=int(t.size))
+    s = error_summary(np.concatenate(trans), np.concatenate(rot))
+    return CrossValidation(trans_rms_mm=s.trans_rms_mm, rot_rms_deg=s.rot_rms_deg, n=s.n)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from ._pose import (
     rotation_x,
     rotation_y,
     rotation_z,
+    rotvec_between,
     skew,
     vector_from_pose,
 )
@@ -60,6 +61,7 @@ __all__ = [
     "rotation_y",
     "rotation_diversity",
     "rotation_z",
+    "rotvec_between",
     "sensor_fixture_rotation",
     "skew",
     "source_fixture_rotation",

@@ -27,6 +27,7 @@ __all__ = [
     "rotation_x",
     "rotation_y",
     "rotation_z",
+    "rotvec_between",
     "skew",
     "vector_from_pose",
 ]
@@ -160,6 +161,29 @@ def rotation_y(theta) -> np.ndarray:
 def rotation_z(theta) -> np.ndarray:
     """Right-handed rotation matrices about Z, shape ``theta.shape + (3, 3)``."""
     return _elementary(theta, 0, 1)
+
+
+def rotvec_between(a, u) -> np.ndarray:
+    """Rotation vectors ``(N, 3)`` of the smallest rotations taking the unit vector ``a`` (3,)
+    to each unit vector ``u`` (N, 3); a non-finite ``u`` gives NaN.
+
+    An ``u`` opposite to ``a`` turns by pi about the part of x (y when ``a`` is near x)
+    perpendicular to ``a``.
+
+    >>> rotvec_between([0.0, 0.0, 1.0], [[1.0, 0.0, 0.0]]).round(6).tolist()
+    [[0.0, 1.570796, 0.0]]
+    """
+    a = np.asarray(a, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64).reshape(-1, 3)
+    axis = np.cross(a, u)
+    s = np.linalg.norm(axis, axis=1)
+    ang = np.arctan2(s, u @ a)
+    e = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e = e - (e @ a) * a
+    e /= np.linalg.norm(e)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = np.where(s[:, None] > 1e-12, axis / s[:, None], e)
+    return unit * ang[:, None]
 
 
 def skew(w) -> np.ndarray:

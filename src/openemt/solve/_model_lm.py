@@ -48,15 +48,9 @@ N_ROLLS = 24
 def _align(a, u) -> np.ndarray:
     """Rotations ``(N, 3, 3)`` taking the unit vector ``a`` (3,) to each ``u`` (N, 3) by the
     smallest angle."""
-    from ..geometry import pose_from_vector
+    from ..geometry import pose_from_vector, rotvec_between
 
-    axis = np.cross(a, u)
-    s = np.linalg.norm(axis, axis=1)
-    c = u @ a
-    ang = np.arctan2(s, c)
-    unit = np.where(s[:, None] > 1e-12, axis / np.where(s > 1e-12, s, 1.0)[:, None],
-                    np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
-    v = np.concatenate([np.zeros((len(u), 3)), unit * ang[:, None]], axis=1)
+    v = np.concatenate([np.zeros((len(u), 3)), rotvec_between(a, u)], axis=1)
     return pose_from_vector(v)[:, :3, :3]
 
 

@@ -357,16 +357,10 @@ def _grid_fields(model, grid):
 
 def pose_from_axis(points, axes) -> np.ndarray:
     """Poses ``(N, 4, 4)``: the smallest rotation taking z to each unit axis, and the points."""
+    from ..geometry import pose_from_vector, rotvec_between
+
     u = np.asarray(axes, np.float64)
-    z = np.array([0.0, 0.0, 1.0])
-    k = np.cross(z, u)
-    s = np.linalg.norm(k, axis=1)
-    c = u[:, 2]
-    ang = np.arctan2(s, c)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        k = np.where(s[:, None] > 1e-15, k / s[:, None], np.array([1.0, 0.0, 0.0]))
-    rv = k * ang[:, None]
-    from ..geometry import pose_from_vector
+    rv = rotvec_between([0.0, 0.0, 1.0], u)
 
     good = np.all(np.isfinite(rv), axis=1) & np.all(np.isfinite(points), axis=1)
     vec = np.full((len(u), 6), np.nan)
