@@ -62,6 +62,10 @@ class CalibrationProblem:
         Known stage-and-sensor-fixture motions.
     gain : float
         Coupling scale of the model (``1/250`` for ILEMT).
+    whiten : ndarray, shape (N, m, m), optional
+        Per-row whitening of the normalised residual (``m = n_so * n_se``): row n's residual is
+        ``whiten[n] @ r_n``. ``None`` (the paper's objective) leaves the rows as they are; the
+        reference fit's errors-in-variables weighting sets it (docs/reference-calibration.md#errors-in-variables).
     """
 
     layout: ParameterLayout
@@ -70,6 +74,7 @@ class CalibrationProblem:
     so_J: np.ndarray
     st_J: np.ndarray
     gain: float
+    whiten: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -92,9 +97,32 @@ class CalibrationProblem:
         P = self.poses(x)[0]
         return self.layout.model(x, self.gain).coupling(P)
 
+    def with_whitening(self, whiten) -> CalibrationProblem:
+        """The same problem with per-row whitening ``whiten`` ((N, m, m) or None)."""
+        from dataclasses import replace
+
+        if whiten is not None:
+            m = self.C_meas.shape[1] * self.C_meas.shape[2]
+            whiten = np.asarray(whiten, dtype=np.float64)
+            if whiten.shape != (self.n_rows, m, m):
+                raise InputError(f"expected a whitening of shape ({self.n_rows}, {m}, {m}), "
+                                 f"got {whiten.shape}")
+        return replace(self, whiten=whiten)
+
+    def _whitened(self, r, J=None):
+        if self.whiten is None:
+            return r.ravel(), None if J is None else J.reshape(r.size, -1)
+        n = self.n_rows
+        rw = np.einsum("kab,kb->ka", self.whiten, r.reshape(n, -1)).ravel()
+        if J is None:
+            return rw, None
+        Jw = np.einsum("kab,kbp->kap", self.whiten, J.reshape(n, -1, J.shape[-1]))
+        return rw, Jw.reshape(r.size, -1)
+
     def residuals(self, x) -> np.ndarray:
-        """Normalised residual vector ``(N * n_so * n_se,)``."""
-        return ((self.C_meas - self.predict(x)) * self.weight[:, None, None]).ravel()
+        """Normalised residual vector ``(N * n_so * n_se,)`` (whitened when ``whiten`` is
+        set)."""
+        return self._whitened((self.C_meas - self.predict(x)) * self.weight[:, None, None])[0]
 
     def residuals_and_jacobian(self, x) -> tuple[np.ndarray, np.ndarray]:
         """Residuals ``(m,)`` and their Jacobian ``(m, layout.size)`` w.r.t. the full vector."""
@@ -103,7 +131,21 @@ class CalibrationProblem:
         dC, _ = self.gradients(x, jac, P, A, D)
         r = (self.C_meas - jac.C) * self.weight[:, None, None]
         J = dC * -self.weight[:, None, None, None]
-        return r.ravel(), J.reshape(r.size, self.layout.size)
+        return self._whitened(r, J)
+
+    def pose_gradient(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised residuals ``(N, m)`` (not whitened) and their derivative ``(N, m, 6)``
+        with respect to a right perturbation ``(dt, dphi)`` of ``st_J`` (a translation and a
+        small rotation in the moving frame of the known motion, e.g. a reference tool's noise
+        as :func:`openemt.simulate.simulate_reference` draws it)."""
+        P, A, D, _ = self.poses(x)
+        jac = self.layout.model(x, self.gain).jacobians(P)
+        H = pose_twist_gradient(jac.d_translation, jac.d_rotation, P)
+        # st_J exp(d) = exp(Ad(A F_st st_J) d) A F_st st_J ... : a left twist Ad(D) d of P
+        n = self.n_rows
+        G = np.einsum("kijb,kbc->kijc", H, adjoint(D)) * -self.weight[:, None, None, None]
+        r = (self.C_meas - jac.C) * self.weight[:, None, None]
+        return r.reshape(n, -1), G.reshape(n, -1, 6)
 
     def gradients(self, x, jac, P, A, D) -> tuple[np.ndarray, np.ndarray]:
         """Derivatives of the predicted couplings.

@@ -15,7 +15,9 @@ of the paper's XYZ mode (coil positions and moments, sensor gain, ``F_st`` = Y, 
 
 Start: the couplings are solved with the start model (Kim18 + LM) to get ``A_i``; X and Y
 follow from the hand-eye solution (Shah 2013 closed form, refined) unless the start calibration
-carries them. Standard errors come from the Jacobian at the solution and the residual variance;
+carries them. When the reference states its noise, each row's residual is then whitened by the
+covariance that noise gives it and the fit repeated (errors in variables,
+:func:`errors_in_variables_whitening`). Standard errors come from the Jacobian at the solution and the residual variance;
 X and Y standard errors are given for left perturbations (translation, then a small rotation
 about the parent frame's axes), like :class:`openemt.align.HandEyeResult`.
 """
@@ -32,7 +34,7 @@ from scipy.spatial.transform import Rotation
 from .._errors import InputError
 from ..io import Calibration, Dataset
 from ..solve import spectral_norms
-from ._engine import fit_problem, fit_provenance
+from ._engine import fit_problem, fit_provenance, residue_block
 from ._identifiability import IdentifiabilityWarning
 from ._layout import ParameterLayout
 from ._objective import CalibrationProblem
@@ -41,8 +43,12 @@ from ._split import holdout_split
 __all__ = [
     "MIN_REFERENCE_POSES",
     "XY_CONDITION_LIMIT",
+    "EIV_NOISE_FLOOR",
     "ReferenceFit",
+    "WEIGHTINGS",
+    "errors_in_variables_whitening",
     "fit_reference",
+    "reference_noise_covariance",
     "reference_block",
     "reference_poses",
     "score_reference",
@@ -168,6 +174,12 @@ class ReferenceFit:
         Held-out error (see :func:`score_reference`); empty without held-out poses.
     train, test : ndarray of int
         Row indices used for the fit and held out.
+    weighting : dict
+        ``method`` (``ordinary`` or ``errors-in-variables``), for the latter
+        ``coupling_noise`` (the estimated noise of a normalised residual), and for both
+        ``reference_residual_trans_m`` / ``reference_residual_rot_rad``: the 3-D RMS and RMS
+        angle of the reference pose corrections that explain the training rows
+        (:func:`reference_residuals`), to compare with the stated noise.
     seconds : float
     """
 
@@ -188,6 +200,7 @@ class ReferenceFit:
     x: np.ndarray = field(default_factory=lambda: np.zeros(0))
     free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     layout: ParameterLayout | None = None
+    weighting: dict = field(default_factory=lambda: {"method": "ordinary"})
     seconds: float = 0.0
 
     def summary(self) -> dict:
@@ -198,7 +211,7 @@ class ReferenceFit:
             "rms_residue": self.rms_residue, "num_points": self.n_train,
             "identifiability": dict(self.identifiability), "warnings": list(self.warnings),
             "start": dict(self.start), "holdout": dict(self.holdout),
-            "seconds": self.seconds,
+            "weighting": dict(self.weighting), "seconds": self.seconds,
         }
 
 
@@ -369,6 +382,78 @@ def _xy_identifiability(J, free, layout, ident, groups, null_tol=1e-4) -> dict:
             "ill_conditioned": bool(undetermined) or not cond < XY_CONDITION_LIMIT}
 
 
+#: Weightings of the reference fit's rows (docs/reference-calibration.md#errors-in-variables).
+WEIGHTINGS = ("auto", "errors-in-variables", "ordinary")
+#: Whitened fits after the ordinary one.
+EIV_PASSES = 2
+
+
+def reference_noise_covariance(info) -> np.ndarray | None:
+    """Covariance ``(6, 6)`` of a reference pose's noise ``(dt, dphi)`` in the tool frame, from
+    the stated 3-D RMS translation ``noise_trans_m`` and RMS angle ``noise_rot_rad`` of
+    ``meta['reference']`` (each axis gets sigma^2 / 3); None when no noise is stated."""
+    st, sr = info.get("noise_trans_m"), info.get("noise_rot_rad")
+    if st is None or sr is None:
+        return None
+    st, sr = float(st), float(sr)
+    if not (np.isfinite(st) and np.isfinite(sr) and st >= 0 and sr >= 0 and st + sr > 0):
+        return None
+    return np.diag([st ** 2 / 3] * 3 + [sr ** 2 / 3] * 3)
+
+
+def _weighting(weighting, info) -> tuple[str, np.ndarray | None]:
+    if weighting not in WEIGHTINGS:
+        raise InputError(f"expected weighting in {', '.join(WEIGHTINGS)}, got {weighting!r}")
+    S = reference_noise_covariance(info)
+    if weighting == "ordinary" or (weighting == "auto" and S is None):
+        return "ordinary", None
+    if S is None:
+        raise InputError("expected a dataset that states its reference noise "
+                         "(meta['reference'] noise_trans_m and noise_rot_rad, e.g. collect's "
+                         "--reference-noise-mm/--reference-noise-deg) for the "
+                         "errors-in-variables weighting, got none")
+    return "errors-in-variables", S
+
+
+def reference_residuals(prob, x) -> np.ndarray:
+    """Per-row reference pose corrections ``(N, 6)``, ``(dt, dphi)`` in the tool frame: the
+    least-squares change of each ``B_i`` that explains row i's residual at ``x`` to first
+    order (``G_i^+ r_i``, :meth:`CalibrationProblem.pose_gradient`). Their RMS is what the
+    fit says the reference's noise is, to compare with the stated noise."""
+    r, G = prob.pose_gradient(x)
+    return -np.einsum("kab,kb->ka", np.linalg.pinv(G), r)
+
+
+#: Smallest coupling noise (standard deviation of a normalised residual) of the
+#: errors-in-variables weighting: keeps the row covariance invertible when the couplings are
+#: exact (a simulation without coupling noise).
+EIV_NOISE_FLOOR = 1e-8
+
+
+def errors_in_variables_whitening(prob, x, S, *, n_free: int = 0):
+    """Per-row whitening of the normalised residuals for reference poses with noise.
+
+    A reference pose error ``d`` (covariance ``S``) moves row i's residual by ``G_i d``, so the
+    residual's covariance is ``Sigma_i = G_i S G_i^T + s^2 I`` with ``s^2`` the coupling noise
+    (the first-order marginal of the errors-in-variables likelihood; Deming 1943, Williamson
+    1968). ``s^2`` is estimated from the residual left after projecting out each row's pose
+    directions (``m - 6`` per row), floored at :data:`EIV_NOISE_FLOOR`. Returns the whitening
+    ``L_i^-1`` (``Sigma_i = L_i L_i^T``, shape (N, m, m)) and ``{"coupling_noise": s}``.
+    """
+    r, G = prob.pose_gradient(x)
+    n, m = r.shape
+    k = min(6, m)
+    Q = np.linalg.qr(G)[0][:, :, :k]
+    perp = r - np.einsum("kab,kb->ka", Q, np.einsum("kab,ka->kb", Q, r))
+    dof = n * (m - k) - n_free
+    s2 = float(np.sum(perp ** 2) / dof) if dof > 0 else 0.0
+    s2 = max(s2, EIV_NOISE_FLOOR ** 2)
+    Sigma = G @ S @ np.swapaxes(G, 1, 2) + s2 * np.eye(m)
+    L = np.linalg.cholesky(Sigma)
+    W = np.linalg.inv(L)
+    return W, {"coupling_noise": float(np.sqrt(s2))}
+
+
 def _row_covariance(J, r, n_rows, ident) -> tuple[np.ndarray, np.ndarray]:
     """Parameter covariance robust to errors shared by the entries of a row (sandwich
     estimator with rows as clusters, White 1980; Liang and Zeger 1986).
@@ -441,8 +526,8 @@ def _split(B, holdout, seed):
 
 
 def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float = 0.0,
-                  seed: int = 0, max_nfev: int = 200, tol: float = 1e-12,
-                  warn: bool = True) -> ReferenceFit:
+                  seed: int = 0, weighting: str = "auto", max_nfev: int = 200,
+                  tol: float = 1e-12, warn: bool = True) -> ReferenceFit:
     """Fit the coil model, X and Y to couplings measured at reference poses.
 
     Parameters
@@ -462,6 +547,12 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
         Fraction of poses held out at random (``seed``), or ``'location'`` (regions of the
         volume, :func:`~openemt.calibrate.holdout_split`), scored by :func:`score_reference`
         with the calibration fitted on the others.
+    weighting : {'auto', 'errors-in-variables', 'ordinary'}
+        How rows are weighted. ``ordinary``: the paper's normalised residual, every entry alike.
+        ``errors-in-variables``: each row's residual whitened by the covariance the stated
+        reference noise gives it (:func:`errors_in_variables_whitening`; needs
+        ``noise_trans_m`` and ``noise_rot_rad`` in ``meta['reference']``). ``auto`` (default):
+        errors-in-variables when the dataset states its reference noise, else ordinary.
     max_nfev, tol : passed to ``scipy.optimize.least_squares``.
     warn : bool
         Warn (:class:`IdentifiabilityWarning`) when X, Y or a coil group is undetermined or
@@ -477,6 +568,7 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
         raise TypeError(f"expected `start` to be an openemt.io.Calibration, got "
                         f"{type(start).__name__}")
     B_all, info = reference_poses(dataset)
+    method, S = _weighting(weighting, info)
     if (dataset.n_source, dataset.n_sensor) != (start.model.n_source, start.model.n_sensor):
         raise InputError(f"expected a dataset with {start.model.n_source} x "
                          f"{start.model.n_sensor} coils like the start calibration, got "
@@ -512,6 +604,15 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
 
     groups = [g for g in optimize if g not in frz]
     f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_nfev, warn=False)
+    weighting_out = {"method": method}
+    if S is not None:
+        # whiten at the ordinary fit's solution, then once more at the weighted one (the
+        # coupling noise re-estimated without the pose noise's leverage)
+        for _ in range(EIV_PASSES):
+            W, weighting_out = errors_in_variables_whitening(prob, f.x, S, n_free=free.size)
+            f = fit_problem(prob.with_whitening(W), f.x, free, groups, tol=tol,
+                            max_nfev=max_nfev, warn=False)
+        weighting_out = {"method": method, **weighting_out}
     x, r, J, ident = f.x, f.residuals, f.jacobian, f.identifiability
     xy = _xy_identifiability(J[:, free], free, layout, ident, optimize)
     messages = []
@@ -547,8 +648,14 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     cov_xy, X_se, Y_se = _xy_covariance(F_st, F_se, cov_vec, bad)
     seconds = time.perf_counter() - t0
 
-    rms = f.stats["rms_residue"]
-    stats = {**f.stats, "fit_seconds": seconds, "xy_condition": xy["xy_condition"],
+    # the paper's rms_residue (normalised, not whitened) whatever the weighting
+    plain = residue_block(prob.residuals(x), n)
+    d = reference_residuals(prob, x)
+    weighting_out["reference_residual_trans_m"] = float(np.sqrt(np.mean(np.sum(d[:, :3] ** 2, 1))))
+    weighting_out["reference_residual_rot_rad"] = float(np.sqrt(np.mean(np.sum(d[:, 3:] ** 2, 1))))
+    rms = plain["rms_residue"]
+    stats = {**f.stats, **plain, "weighting": weighting_out, "fit_seconds": seconds,
+             "xy_condition": xy["xy_condition"],
              "undetermined_groups": list(xy["undetermined"])}
     provenance = fit_provenance(
         "reference", dataset, train, held_out_rows=test.tolist(), holdout=holdout,
@@ -570,7 +677,7 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     return ReferenceFit(calibration=cal, X=X, Y=Y, X_se=X_se, Y_se=Y_se, covariance_xy=cov_xy,
                         rms_residue=rms, n_train=int(n), identifiability=xy,
                         warnings=messages, start=start_info, holdout=holdout_out, train=train,
-                        test=test, x=x, free=free, layout=layout,
+                        test=test, x=x, free=free, layout=layout, weighting=weighting_out,
                         seconds=time.perf_counter() - t0)
 
 

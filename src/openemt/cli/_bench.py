@@ -26,6 +26,9 @@ BENCHMARKS = {
                "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs"),
     "collect": ("openemt.bench._collect",
                 "collect on a simulated robot over OpenIGTLink, then calibrate: offset, dwells, held-out error vs the simulate path"),
+    "reference": ("openemt.bench._reference",
+                  "reference calibration per row weighting: held-out error against the "
+                  "simulation's truth on the same poses"),
     "fuzz": ("openemt.bench._fuzz",
              "fuzzed files for every reader and command and couplings for every solver"),
     "compile": ("openemt.bench._compile",

@@ -47,6 +47,13 @@ def register(sub) -> None:
                         "'location' holds out alternate regions (docs/calibration.md)")
     p.add_argument("--seed", type=int, default=0,
                    help="reference mode: seed of the held-out choice (default 0)")
+    p.add_argument("--weighting", default="auto",
+                   choices=["auto", "errors-in-variables", "ordinary"],
+                   help="reference mode: 'errors-in-variables' weights each pose's couplings "
+                        "by the covariance the stated reference noise gives them, 'ordinary' "
+                        "weights every coupling alike (the paper's residual); default 'auto': "
+                        "errors-in-variables when the dataset states its reference noise "
+                        "(docs/reference-calibration.md#errors-in-variables)")
     p.add_argument("--hemisphere", default=None,
                    help="reference mode: hemisphere of the sensor for the start solve (+x, "
                         "-x, ...; default: the dataset's, else +x)")
@@ -233,7 +240,7 @@ def _reference(args) -> int:
         warnings.simplefilter("always")
         f = fit_reference(dataset, start, hemisphere=args.hemisphere,
                           freeze=_groups(args.freeze) or (), holdout=_fraction(args.holdout),
-                          seed=args.seed)
+                          seed=args.seed, weighting=args.weighting)
     cal = f.calibration
     stats = {**cal.stats, "seconds": time.perf_counter() - t0}
     cal = cal.replace(stats=stats, provenance={**cal.provenance, "start_file": start_path})
@@ -246,6 +253,7 @@ def _reference(args) -> int:
         "output": args.output,
         "start": start_path,
         "start_xy": f.start,
+        "weighting": f.weighting,
         "rms_residue": f.rms_residue,
         "num_points": f.n_train,
         "n_free": int(f.free.size),
@@ -266,6 +274,14 @@ def _reference(args) -> int:
     human = [(f"reference: rms_residue {f.rms_residue:.7g} over {f.n_train} poses, "
               f"{f.free.size} free parameters (rank {ident['rank']}), X/Y condition "
               f"{ident['xy_condition'] or float('inf'):.3g}")]
+    w = f.weighting
+    ref = cal.extra["reference"]
+    stated = ("" if ref.get("noise_trans_m") is None else
+              f" (stated {1e3 * ref['noise_trans_m']:.4g} mm, "
+              f"{np.rad2deg(ref['noise_rot_rad']):.4g} deg)")
+    human.append(f"weighting: {w['method']}; the reference poses' residual "
+                 f"{1e3 * w['reference_residual_trans_m']:.4g} mm, "
+                 f"{np.rad2deg(w['reference_residual_rot_rad']):.4g} deg RMS{stated}")
     if f.holdout:
         h = f.holdout
         human.append(f"held out {h['n']} poses: {h['trans_rms_mm']:.4f} mm RMS "
