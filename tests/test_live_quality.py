@@ -55,7 +55,21 @@ def test_v2_metadata_bytes_equal_pyigtl():
         got = pack_transforms(P, ts, name, {"Status": status, "RelativeResidual": resid,
                                              "Distortion": dist})
         assert got == b"".join(want)
-    # equal-length values (the vectorised path) and one "DISTORTED" (the general path)
+    # equal-length values: joined below _VECTOR_BODIES messages, arrays from there on; both
+    # byte for byte pyigtl's
+    from openemt.live._igtl import _VECTOR_BODIES
+
+    for n in (1, _VECTOR_BODIES - 1, _VECTOR_BODIES, 12):
+        want = []
+        for i in range(n):
+            m = pyigtl.TransformMessage(P[i], timestamp=ts[i], device_name="S")
+            m.header_version = 2
+            m.metadata = {"Status": "OK", "RelativeResidual": f"{resid[i]:.3e}",
+                          "Distortion": f"{dist[i]:.3e}"}
+            want.append(m.pack())
+        assert pack_transforms(P[:n], ts[:n], "S", {"Status": ["OK"] * n,
+                                                    "RelativeResidual": resid[:n],
+                                                    "Distortion": dist[:n]}) == b"".join(want)
     meta = {"Status": ["OK"] * 12, "RelativeResidual": resid, "Distortion": dist}
     one = decode(pack_transforms(P, ts, "S", meta))
     assert [m["metadata"]["Status"] for m in one] == ["OK"] * 12
