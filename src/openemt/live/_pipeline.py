@@ -755,14 +755,15 @@ class TrackingPipeline:
             st.last_valid = now
         n = len(step)
         new = st.state
-        if n and valid.any():
+        any_valid = bool(n) and bool(valid.any())
+        if any_valid:
             st.last_valid = now
         if n:
             ok = step.status[-1] == _CONVERGED
             new = ("DISTORTED" if step.distorted[-1] else "OK") if ok else "LOST"
-            if st.state == "STALE" and not valid.any():
+            if st.state == "STALE" and not any_valid:
                 new = "STALE"                   # stale until a valid pose arrives
-        if new != "STALE" and not (n and valid.any()) and now - st.last_valid >= self.stale_after:
+        if new != "STALE" and not any_valid and now - st.last_valid >= self.stale_after:
             new = "STALE"
         if new == st.state:
             return
