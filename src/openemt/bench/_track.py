@@ -59,6 +59,11 @@ many_tools
     TDATA rate), ``messages_skipped`` (shed by the server for the client), ``bytes_per_s``,
     ``kept_up_with_real_time`` and ``pack_us_per_sample`` (CPU time to pack the K tools of one
     sample: ``pack_transforms`` K times with and without metadata, ``pack_tdata`` once).
+without_metadata
+    ``latency_ms_p50`` / ``latency_ms_p99`` of the first run again with version-1 TRANSFORMs
+    (no per-message metadata): what the metadata costs, in the same run. On the 2-core
+    development machine most of it is the viewer's decoding (a pyigtl client in another
+    process) competing for the cores.
 baseline
     ``one_frame_reads`` with the solver unprepared: :func:`openemt.solve.solve_lm` called on
     every read, checking and packing the model and options each time, as the pipeline did
@@ -152,7 +157,7 @@ def _unprepared(setup):
     return replace(setup, solver=solve)
 
 
-def _latency_run(spec, seconds, chunk, seed, prepared=True):
+def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
     import subprocess
     import sys
 
@@ -172,7 +177,7 @@ def _latency_run(spec, seconds, chunk, seed, prepared=True):
         sensors = tracker_sensors(spec)
         if not prepared:
             sensors = [_unprepared(st) for st in sensors]
-        pipe = TrackingPipeline(backend, sensors=sensors, igtl=srv)
+        pipe = TrackingPipeline(backend, sensors=sensors, igtl=srv, igtl_metadata=metadata)
         backend.restart_clock()
         t0 = time.perf_counter()
         s = pipe.run()
@@ -209,6 +214,7 @@ def run(args) -> dict:
     s, send, wall, stats = _latency_run(spec, seconds, args.chunk, args.seed)
     s1, send1, wall1, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed)
     _, sendb, _, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed, prepared=False)
+    _, sendv1, _, _ = _latency_run(spec, seconds, args.chunk, args.seed, metadata=False)
 
     def pct(a, q):
         return float(np.percentile(a, q)) if len(a) else None
@@ -227,6 +233,10 @@ def run(args) -> dict:
         "baseline": {"what": "one frame per read, the solver unprepared (solve_lm with its "
                              "checks and packing on every call, one call per sensor)",
                      "latency_ms_p50": pct(sendb, 50), "latency_ms_p99": pct(sendb, 99)},
+        "without_metadata": {
+            "what": "the first run's blocks sent as version-1 TRANSFORMs, without the Status, "
+                    "RelativeResidual and Distortion metadata (TrackingPipeline(igtl_metadata=False))",
+            "latency_ms_p50": pct(sendv1, 50), "latency_ms_p99": pct(sendv1, 99)},
         "one_frame_reads": {
             "chunk_samples": 64, "latency_ms_p50": pct(send1, 50),
             "latency_ms_p99": pct(send1, 99),
