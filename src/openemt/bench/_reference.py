@@ -61,15 +61,9 @@ def _rms_se(e) -> tuple[float, float]:
 
 
 def _held_out_errors(cal, C, B) -> tuple[np.ndarray, np.ndarray]:
-    from ..align import reference_in_measured_frame
-    from ..calibrate._reference import solve_cold
-    from ..evaluate import pose_error_magnitudes
-    from ..solve import hemisphere_from_positions
+    from ..calibrate import reference_errors
 
-    blk = cal.extra["reference"]
-    D = reference_in_measured_frame(B, np.asarray(blk["X"]), np.asarray(blk["Y"]))
-    res = solve_cold(cal.model, C, hemisphere_from_positions(D[:, :3, 3]))
-    t, r = pose_error_magnitudes(res.poses, D)
+    t, r, _ = reference_errors(cal, C, B)
     return 1e3 * t, np.rad2deg(r)
 
 

@@ -41,16 +41,18 @@ from ._objective import CalibrationProblem
 from ._split import holdout_split
 
 __all__ = [
-    "MIN_REFERENCE_POSES",
-    "XY_CONDITION_LIMIT",
     "EIV_NOISE_FLOOR",
-    "ReferenceFit",
+    "MIN_REFERENCE_POSES",
     "WEIGHTINGS",
+    "XY_CONDITION_LIMIT",
+    "ReferenceFit",
     "errors_in_variables_whitening",
     "fit_reference",
-    "reference_noise_covariance",
     "reference_block",
+    "reference_errors",
+    "reference_noise_covariance",
     "reference_poses",
+    "reference_residuals",
     "score_reference",
     "stage_reference",
 ]
@@ -471,6 +473,27 @@ def _row_covariance(J, r, n_rows, ident) -> tuple[np.ndarray, np.ndarray]:
     return cov, np.where(np.isfinite(ident.standard_errors), se, np.inf)
 
 
+def reference_errors(calibration, couplings, B, *, X=None, Y=None):
+    """Per-pose errors of a calibration against reference poses: ``(trans (N,) m, rot (N,)
+    rad, solve result)``, as :func:`score_reference` computes them (solved from no prior pose,
+    hemisphere from the truth ``Y B_i X^-1``; X, Y from the calibration's reference block
+    unless given)."""
+    from ..align import reference_in_measured_frame
+    from ..evaluate import pose_error_magnitudes
+    from ..solve import hemisphere_from_positions
+
+    block = (calibration.extra or {}).get("reference") or {}
+    X = np.asarray(block.get("X") if X is None else X, dtype=np.float64)
+    Y = np.asarray(block.get("Y") if Y is None else Y, dtype=np.float64)
+    if X.shape != (4, 4) or Y.shape != (4, 4):
+        raise InputError("expected X and Y (4, 4), from the calibration's reference block or "
+                         "given, got none")
+    D = reference_in_measured_frame(B, X, Y)
+    res = solve_cold(calibration.model, couplings, hemisphere_from_positions(D[:, :3, 3]))
+    trans, rot = pose_error_magnitudes(res.poses, D)
+    return trans, rot, res
+
+
 def score_reference(calibration, couplings, B, *, X=None, Y=None, noise_trans=None,
                     noise_rot=None) -> dict:
     """Solve couplings with a calibration and compare with the reference, as the paper's
@@ -487,21 +510,10 @@ def score_reference(calibration, couplings, B, *, X=None, Y=None, noise_trans=No
         ``n_not_converged``, and with a stated reference noise ``reference_noise_mm``,
         ``reference_noise_deg``, ``trans_uncert_mm``, ``rot_uncert_deg`` (eq. 10).
     """
-    from ..evaluate import combined_uncertainty, error_summary, pose_error_magnitudes
-    from ..solve import Status, hemisphere_from_positions
+    from ..evaluate import combined_uncertainty, error_summary
+    from ..solve import Status
 
-    block = (calibration.extra or {}).get("reference") or {}
-    X = np.asarray(block.get("X") if X is None else X, dtype=np.float64)
-    Y = np.asarray(block.get("Y") if Y is None else Y, dtype=np.float64)
-    if X.shape != (4, 4) or Y.shape != (4, 4):
-        raise InputError("expected X and Y (4, 4), from the calibration's reference block or "
-                         "given, got none")
-    from ..align import reference_in_measured_frame
-
-    D = reference_in_measured_frame(B, X, Y)
-    hemi = hemisphere_from_positions(D[:, :3, 3])
-    res = solve_cold(calibration.model, couplings, hemi)
-    trans, rot = pose_error_magnitudes(res.poses, D)
+    trans, rot, res = reference_errors(calibration, couplings, B, X=X, Y=Y)
     s = error_summary(trans, rot)
     out = {"n": s["n"], "trans_rms_mm": s["trans_rms_mm"], "trans_max_mm": s["trans_max_mm"],
            "rot_rms_deg": s["rot_rms_deg"], "rot_max_deg": s["rot_max_deg"],
