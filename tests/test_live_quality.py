@@ -363,6 +363,19 @@ def test_cli_tdata_and_stale_after_options(capsys):
     d = json.loads(capsys.readouterr().out)
     assert code == 0 and d["tdata"] is True and d["stale_after"] == 0.3
     assert d["reference"] is None and d["events"]["tracking"] == 1
+    assert d["metadata"] is False                       # TDATA carries no metadata
+    port = _free_port()
+    viewer = Listener(port, ["openemt"], whole=True)
+    try:
+        code = cli_mod.main(["track", "--source", "sim", "--duration", "0.5", "--no-metadata",
+                             "--igtl-port", str(port), "--json", "--quiet"])
+        time.sleep(0.1)
+    finally:
+        viewer.stop()
+    d = json.loads(capsys.readouterr().out)
+    got = viewer.got["openemt"]
+    assert code == 0 and d["metadata"] is False and got
+    assert all(m.header_version == 1 and not m.metadata for m in got)
     assert cli_mod.main(["track", "--source", "sim", "--stale-after", "0", "--no-igtl"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["error: expected a positive, finite --stale-after in seconds, got 0.0"]

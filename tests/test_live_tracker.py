@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from _counts import converged_only
 
+from openemt._errors import InputError
 from openemt.live import (
     SimulatedBackend,
     TrackingPipeline,
@@ -322,3 +323,11 @@ def test_cli_replay_without_tracker_uses_the_recordings_layout(cli, capsys, tmp_
     d = json.loads(capsys.readouterr().out)
     assert code == 0 and d["status_counts"] == converged_only(d["n_samples"])
     assert d["truth"]["position_error_mm_rms"] < 0.05
+
+
+def test_igtl_metadata_key(tracker_dir):
+    assert read_tracker(_write(tracker_dir, GOOD)).metadata is True
+    off = GOOD.replace("[igtl]", "[igtl]\nmetadata = false")
+    assert read_tracker(_write(tracker_dir, off)).metadata is False
+    with pytest.raises(InputError, match=r"`igtl.metadata` to be true or false, got str .no."):
+        read_tracker(_write(tracker_dir, GOOD.replace("[igtl]", '[igtl]\nmetadata = "no"')))

@@ -89,6 +89,10 @@ def register(subparsers) -> None:
                    help="send all sensors of one sample in one OpenIGTLink TDATA (tracking "
                         "data) message on device 'openemt' instead of one TRANSFORM per sensor "
                         "(default: the tracker file's [igtl] tdata, else off)")
+    p.add_argument("--no-metadata", action="store_true",
+                   help="send version-1 TRANSFORMs without the Status, RelativeResidual and "
+                        "Distortion metadata (cheaper for a viewer on the same small machine; "
+                        "default: the tracker file's [igtl] metadata, else on)")
     p.add_argument("--send-distorted", action="store_true",
                    help="also send converged poses flagged as distorted (default: distorted "
                         "samples are logged and flagged, not sent)")
@@ -330,7 +334,8 @@ def run(args) -> int:
                                 distortion_threshold=threshold, igtl=server, log=log,
                                 send_distorted=args.send_distorted, reference=spec.reference,
                                 stale_after=(spec.stale_after if args.stale_after is None
-                                             else args.stale_after), tdata=tdata)
+                                             else args.stale_after), tdata=tdata,
+                                igtl_metadata=spec.metadata and not args.no_metadata)
         _announce_compile(args, sensors)
         if not args.quiet:
             print(f"tracking {len(spec.sensors)} sensor(s) from --source {args.source}"

@@ -948,7 +948,7 @@ class TrackingPipeline:
                  "stale_after": self.stale_after,
                  "reference": None if self.reference is None else self.reference.setup.name,
                  "relative_devices": [d for _, d in self._relative] or None,
-                 "tdata": self.tdata}
+                 "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:

@@ -165,6 +165,7 @@ class TrackerSpec:
     reference: str | None = None
     stale_after: float = DEFAULT_STALE_AFTER
     tdata: bool = False
+    metadata: bool = True
 
     @property
     def sensor_names(self) -> tuple:
@@ -494,7 +495,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
                                                "list of numbers"))
 
     ig = r.get(doc, "", "igtl", "table", {})
-    _unknown_keys(r, ig, "igtl", ("reference", "stale_after", "tdata"))
+    _unknown_keys(r, ig, "igtl", ("metadata", "reference", "stale_after", "tdata"))
     reference = r.get(ig, "igtl", "reference", "string", None)
     if reference is not None:
         if reference not in names:
@@ -519,13 +520,14 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     if not (stale > 0 and stale < float("inf")):
         raise r.fail("igtl.stale_after", "a positive number of seconds", stale)
     tdata = r.get(ig, "igtl", "tdata", "boolean", False)
+    metadata = r.get(ig, "igtl", "metadata", "boolean", True)
 
     spec = TrackerSpec(sample_rate=fs, n_channels=n_ch, frequencies=tuple(freqs),
                        reference_channels=tuple(refs), sensors=tuple(sensors),
                        sensor_gain=gains["sensor_gain"], reference_gain=gains["reference_gain"],
                        output_rate=rate, window=window, distortion_threshold=thr,
                        filter=fspec, simulation=simd, path=path, reference=reference,
-                       stale_after=stale, tdata=tdata)
+                       stale_after=stale, tdata=tdata, metadata=metadata)
     try:                                       # the carrier plan must suit the demodulator
         from ..signal import frame_length
 
