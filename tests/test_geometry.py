@@ -19,6 +19,7 @@ from openemt.geometry import (
     rotation_x,
     rotation_y,
     rotation_z,
+    rotvec_between,
     sensor_fixture_rotation,
     skew,
     source_fixture_rotation,
@@ -268,3 +269,20 @@ def test_pose_error_magnitudes_with_failed_rows():
     assert np.isnan(t[2]) and np.isnan(r[2])
     s = error_summary(t, r)
     assert s["n"] == 3 and s["n_nonfinite"] == 1
+
+
+@pytest.mark.parametrize("a", [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.6, 0.0, 0.8],
+                               [0.0, -1.0, 0.0]])
+def test_rotvec_between_takes_a_to_u_by_the_smallest_angle(a):
+    a = np.asarray(a)
+    rng = np.random.default_rng(7)
+    u = rng.normal(size=(200, 3))
+    u = np.vstack([u / np.linalg.norm(u, axis=1, keepdims=True), a, -a,
+                   [[np.nan, 0.0, 1.0]]])
+    rv = rotvec_between(a, u)
+    R = Rotation.from_rotvec(rv[:-1]).as_matrix()
+    np.testing.assert_allclose(R @ a, u[:-1], atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(rv[:-1], axis=1),
+                               np.arccos(np.clip(u[:-1] @ a, -1, 1)), atol=1e-12)
+    assert abs(rv[-3:-1] @ a).max() < 1e-12      # about an axis perpendicular to a
+    assert np.isnan(rv[-1]).all()
