@@ -253,3 +253,15 @@ def test_weighting_choices_and_refusals():
     # the paper's rms_residue is reported whatever the weighting: not the whitened one
     assert f.rms_residue == pytest.approx(f.calibration.stats["rms_residue"])
     assert f.rms_residue < 0.01
+
+
+def test_weighting_outside_reference_mode_is_refused(tmp_path, capsys):
+    from openemt.cli import main
+
+    ds = simulate_reference(_exact(), "robot", 20, snr_db=80, seed=6)
+    write_dataset(ds, tmp_path / "r.h5")
+    assert main(["calibrate", str(tmp_path / "r.h5"), "--mode", "planar", "--weighting",
+                 "ordinary", "-o", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: expected --weighting with --mode reference only, got --mode planar"]
+    assert not (tmp_path / "c.json").exists()

@@ -309,6 +309,9 @@ def _run(args) -> int:
     from ..field import DipoleModel
     from ..io import atomic_path, read_calibration, write_calibration
 
+    if args.weighting != "auto" and args.mode != "reference":
+        raise InputError(f"expected --weighting with --mode reference only, got --mode "
+                         f"{args.mode}")
     if args.mode == "planar":
         return _planar(args)
     if args.mode == "reference":
