@@ -14,7 +14,7 @@ rotates it by ``phi`` -- the quantities the dipole kernel differentiates against
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -99,8 +99,6 @@ class CalibrationProblem:
 
     def with_whitening(self, whiten) -> CalibrationProblem:
         """The same problem with per-row whitening ``whiten`` ((N, m, m) or None)."""
-        from dataclasses import replace
-
         if whiten is not None:
             m = self.C_meas.shape[1] * self.C_meas.shape[2]
             whiten = np.asarray(whiten, dtype=np.float64)
@@ -141,7 +139,8 @@ class CalibrationProblem:
         P, A, D, _ = self.poses(x)
         jac = self.layout.model(x, self.gain).jacobians(P)
         H = pose_twist_gradient(jac.d_translation, jac.d_rotation, P)
-        # st_J exp(d) = exp(Ad(A F_st st_J) d) A F_st st_J ... : a left twist Ad(D) d of P
+        # with D = F_so so_J F_st st_J: D exp(d) F_se = exp(Ad(D) d) D F_se, a left twist
+        # Ad(D) d of P
         n = self.n_rows
         G = np.einsum("kijb,kbc->kijc", H, adjoint(D)) * -self.weight[:, None, None, None]
         r = (self.C_meas - jac.C) * self.weight[:, None, None]
