@@ -82,14 +82,13 @@ def simulated_recording(path, n: int, rate_hz: float, snr_db: float, seed: int):
     vectors)."""
     from ..geometry import pose_from_vector
     from ..io import Dataset, recording_meta, write_dataset
-    from ..simulate import truth_calibration
+    from ..simulate import add_noise, noise_sigma, truth_calibration
     from ._speed import trajectory
 
     cal = truth_calibration("dipole-approx")
     truth = trajectory(n, rate_hz)
     C = cal.model.coupling(pose_from_vector(truth))
-    sigma = np.sqrt(np.mean(C ** 2, axis=(1, 2))) * 10 ** (-snr_db / 20)
-    C = C + sigma[:, None, None] * np.random.default_rng(seed).normal(size=C.shape)
+    C = add_noise(C, noise_sigma(C, snr_db=snr_db), np.random.default_rng(seed))
     ds = Dataset(couplings=C, stage=np.zeros((n, 6)), source_fixture="", sensor_fixture="",
                  pattern="recording", file_index=np.full(n, -1), poses=pose_from_vector(truth),
                  meta={"recording": recording_meta(rate_hz, "openemt bench batch")})

@@ -155,6 +155,7 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
     from ..board import BoardModel
     from ..evaluate import error_summary, pose_error_magnitudes
     from ..geometry import pose_from_vector
+    from ..simulate import add_noise, noise_sigma
     from ..solve import prepare
     from ..solve._planar import pose_from_axis
 
@@ -168,9 +169,7 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
         P, _ = pose_from_axis(pos, axes)
         P = P @ pose_from_vector(np.column_stack([np.zeros((n, 5)), roll]))
         C = model.coupling(P)
-        rng = np.random.default_rng(seed)
-        sigma = np.sqrt(np.mean(C.reshape(n, -1) ** 2, axis=1)) * 10 ** (-snr_db / 20)
-        C = C + sigma[:, None, None] * rng.normal(size=C.shape)
+        C = add_noise(C, noise_sigma(C, snr_db=snr_db), np.random.default_rng(seed))
         solver = prepare(model, initial="track")
         solver(C[:20])                                      # warm-up: load the kernels
         dt, res = _cpu(lambda: solver(C), repeats)
