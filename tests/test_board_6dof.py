@@ -99,14 +99,15 @@ def test_errors_in_variables_reaches_the_truth(collection):
     for w in ("auto", "ordinary"):
         f = fit_reference(ds, nominal_calibration("anser-6dof"), holdout=0.25, warn=False,
                           weighting=w)
-        test = f.test
-        got[f.weighting["method"]] = (f, _held_out_errors(f.calibration, ds.couplings[test],
-                                                          B[test]))
-    tt, tr = _held_out_errors(truth, ds.couplings[test], B[test])
+        got[f.weighting["method"]] = f
+    assert np.array_equal(got["ordinary"].test, f.test)
+    # the truth calibration on the same held-out poses, scored the same way
+    tt, tr = _held_out_errors(truth, ds.couplings[f.test], B[f.test])
     (rt, st), (rr, sr) = _rms_se(tt), _rms_se(tr)
-    f, (et, er) = got["errors-in-variables"]
-    assert abs(_rms_se(et)[0] - rt) < 3 * st and abs(_rms_se(er)[0] - rr) < 3 * sr
-    assert _rms_se(got["ordinary"][1][1])[0] > rr + 3 * sr
+    f = got["errors-in-variables"]
+    h = f.holdout
+    assert abs(h["trans_rms_mm"] - rt) < 3 * st and abs(h["rot_rms_deg"] - rr) < 3 * sr
+    assert got["ordinary"].holdout["rot_rms_deg"] > rr + 3 * sr
     # the fit's own estimate of the reference noise is the stated one (0.05 mm, 0.02 deg)
     w = f.weighting
     assert 0.035e-3 < w["reference_residual_trans_m"] < 0.06e-3

@@ -17,8 +17,8 @@ Start: the couplings are solved with the start model (Kim18 + LM) to get ``A_i``
 follow from the hand-eye solution (Shah 2013 closed form, refined) unless the start calibration
 carries them. When the reference states its noise, each row's residual is then whitened by the
 covariance that noise gives it and the fit repeated (errors in variables,
-:func:`errors_in_variables_whitening`). Standard errors come from the Jacobian at the solution and the residual variance;
-X and Y standard errors are given for left perturbations (translation, then a small rotation
+:func:`errors_in_variables_whitening`). Standard errors come from the Jacobian at the solution
+and the residual variance; X and Y standard errors are given for left perturbations (translation, then a small rotation
 about the parent frame's axes), like :class:`openemt.align.HandEyeResult`.
 """
 
@@ -615,16 +615,18 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     free = layout.free_indices(optimize, frz)
 
     groups = [g for g in optimize if g not in frz]
-    f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_nfev, warn=False)
+    # the standard errors and identifiability come from the last fit only
+    passes = 0 if S is None else EIV_PASSES
+    f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_nfev,
+                    uncertainty=passes == 0, warn=False)
     weighting_out = {"method": method}
-    if S is not None:
-        # whiten at the ordinary fit's solution, then once more at the weighted one (the
-        # coupling noise re-estimated without the pose noise's leverage)
-        for _ in range(EIV_PASSES):
-            W, weighting_out = errors_in_variables_whitening(prob, f.x, S, n_free=free.size)
-            f = fit_problem(prob.with_whitening(W), f.x, free, groups, tol=tol,
-                            max_nfev=max_nfev, warn=False)
-        weighting_out = {"method": method, **weighting_out}
+    # whiten at the ordinary fit's solution, then once more at the weighted one (the
+    # coupling noise re-estimated without the pose noise's leverage)
+    for k in range(passes):
+        W, noise = errors_in_variables_whitening(prob, f.x, S, n_free=free.size)
+        f = fit_problem(prob.with_whitening(W), f.x, free, groups, tol=tol,
+                        max_nfev=max_nfev, uncertainty=k == passes - 1, warn=False)
+        weighting_out = {"method": method, **noise}
     x, r, J, ident = f.x, f.residuals, f.jacobian, f.identifiability
     xy = _xy_identifiability(J[:, free], free, layout, ident, optimize)
     messages = []
@@ -663,8 +665,9 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     # the paper's rms_residue (normalised, not whitened) whatever the weighting
     plain = residue_block(prob.residuals(x), n)
     d = reference_residuals(prob, x)
-    weighting_out["reference_residual_trans_m"] = float(np.sqrt(np.mean(np.sum(d[:, :3] ** 2, 1))))
-    weighting_out["reference_residual_rot_rad"] = float(np.sqrt(np.mean(np.sum(d[:, 3:] ** 2, 1))))
+    t, a = np.linalg.norm(d[:, :3], axis=1), np.linalg.norm(d[:, 3:], axis=1)
+    weighting_out["reference_residual_trans_m"] = float(np.sqrt(np.mean(t ** 2)))
+    weighting_out["reference_residual_rot_rad"] = float(np.sqrt(np.mean(a ** 2)))
     rms = plain["rms_residue"]
     stats = {**f.stats, **plain, "weighting": weighting_out, "fit_seconds": seconds,
              "xy_condition": xy["xy_condition"],

@@ -258,15 +258,12 @@ def transform_bodies(matrices, metadata=None) -> tuple:
     keys, cols = _metadata_columns(metadata, n)
     key_sizes = tuple(len(k) for k in keys)
 
-    def head(lens):
-        return _v2_head(key_sizes, lens)
-
     lens0 = tuple(len(c[0]) for c in cols) if n else ()
     if n >= _VECTOR_BODIES and all(len(v) == w for c, w in zip(cols, lens0) for v in c):
         # the usual case of a block, every value of a key as long (e.g. all "OK"): one array
         # operation per part of the body instead of a loop over the messages (below a few
         # messages, the loop's byte joins cost less than the arrays: one sample per read)
-        ext, index, size = head(lens0)
+        ext, index, size = _v2_head(key_sizes, lens0)
         body = np.empty((n, size), np.uint8)
         body[:, :12] = np.frombuffer(ext, np.uint8)
         body[:, 12:60] = np.frombuffer(content, np.uint8).reshape(n, 48)
@@ -280,7 +277,7 @@ def transform_bodies(matrices, metadata=None) -> tuple:
         return body.tobytes(), size * np.arange(n + 1)
     parts, offsets = [], [0]
     for i, vals in enumerate(zip(*cols)):
-        h = head(tuple(map(len, vals)))
+        h = _v2_head(key_sizes, tuple(map(len, vals)))
         parts += [h[0], content[48 * i:48 * i + 48], h[1]]
         for k, v in zip(keys, vals):
             parts += [k, v]
