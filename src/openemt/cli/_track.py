@@ -311,6 +311,8 @@ def run(args) -> int:
         source = backend
         if args.save_raw is not None:
             raw = source = RawRecorder(backend, args.save_raw, truth_rate=spec.output_rate)
+            if log is not None:
+                log.flush_first = raw.stream     # the raw behind every logged pose, committed first
         source = StallWatch(source, warn_after=args.stall_warn, timeout=args.stall_timeout,
                             on_warn=session.say)
         window = args.window or spec.window

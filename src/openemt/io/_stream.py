@@ -75,7 +75,12 @@ class _Stream:
         self.rows = 0                     # rows committed (flushed) so far
         self.n_flushes = 0
         self._buffered_bytes = 0
-        self._last_flush = time.monotonic()
+        # the flush clock starts with the first row, not at creation: start-up before the
+        # first sample (loading the solver's kernels) must not make the first flush come at once
+        self._last_flush = None
+        # a stream whose rows must be committed no later than this one's (the raw recording
+        # behind a track log): flushed first whenever this one flushes
+        self.flush_first = None
 
     # -- to be provided by subclasses: _write_buffered() -> rows added, _sync(), _close_file()
     def _publish(self) -> None:
@@ -106,14 +111,22 @@ class _Stream:
         return DiskFullError(f"{what} writing {str(self.path)!r} ({self._kept()})")
 
     def maybe_flush(self) -> None:
-        """Flush when ``flush_seconds`` have passed since the last flush or the buffer is
-        large."""
+        """Flush when ``flush_seconds`` have passed since the last flush (or the first row) or
+        the buffer is large."""
+        now = time.monotonic()
+        if self._last_flush is None:
+            if not self._buffered_bytes:
+                return
+            self._last_flush = now
         if (self._buffered_bytes >= self.max_buffered_bytes
-                or time.monotonic() - self._last_flush >= self.flush_seconds):
+                or now - self._last_flush >= self.flush_seconds):
             self.flush()
 
     def flush(self) -> None:
         """Append the buffered rows to the file and hand them to the operating system."""
+        first = self.flush_first
+        if first is not None and not first.closed:
+            first.flush()
         self._last_flush = time.monotonic()
         if not self._buffered_bytes:
             return

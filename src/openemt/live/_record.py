@@ -62,9 +62,22 @@ class TrackLogWriter:
         self.max_buffered_bytes = int(max_buffered_bytes)
         self.sensor_names: tuple = ()
         self._stream = None
+        self._flush_first = None
         self._appended = False
         self._pending: list = []
         self.set_sensors(sensor_names if sensor_names is not None else ("openemt",))
+
+    @property
+    def flush_first(self):
+        """A stream committed before every flush of the log (``openemt track`` sets the raw
+        recording's, so that a killed session's raw file holds every logged pose's samples)."""
+        return self._flush_first
+
+    @flush_first.setter
+    def flush_first(self, stream) -> None:
+        self._flush_first = stream
+        if self._stream is not None:
+            self._stream.flush_first = stream
 
     @property
     def published(self) -> bool:
@@ -99,10 +112,12 @@ class TrackLogWriter:
                 attrs["sensors"] = list(names)
             self._stream = _H5Log(self.path, attrs, flush_seconds=self.flush_seconds,
                                   max_buffered_bytes=self.max_buffered_bytes)
+            self._stream.flush_first = self._flush_first
         else:
             head = f"time_s,sensor,{_CSV_COLS}" if multi else f"time_s,{_CSV_COLS}"
             self._stream = CsvStream(self.path, head, flush_seconds=self.flush_seconds,
                                      max_buffered_bytes=self.max_buffered_bytes)
+            self._stream.flush_first = self._flush_first
 
     def append(self, step, sensor: int = 0) -> None:
         """Add one chunk of one sensor (a :class:`~openemt.live.TrackStep`)."""
