@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from openemt._errors import InputError
-from openemt.bench._fuzzcases import (
+from openemt_fuzz._fuzzcases import (
     BYTE_OPS,
     JSON_OPS,
     TARGETS,
@@ -60,7 +60,7 @@ def test_mutated_files_are_read_or_refused_cleanly(fuzz, name):
 
 
 def test_runner_reports_hangs_and_crashes_of_compiled_code(tmp_path):
-    from openemt.bench import _fuzzcases
+    from openemt_fuzz import _fuzzcases
 
     with CaseRunner(tmp_path, time_limit=0.5) as runner:
         assert runner.run("ilemt_dat", b"").kind == "rejected"
@@ -86,7 +86,7 @@ def test_non_utf8_calibration_json_is_refused(tmp_path):
 
 @pytest.fixture
 def dataset_file(tmp_path):
-    from openemt.bench._fuzzcases import _small_dataset
+    from openemt_fuzz._fuzzcases import _small_dataset
 
     p = tmp_path / "data.h5"
     write_dataset(_small_dataset(), p)

@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from openemt.bench import _fuzzsolve
+from openemt_fuzz import _fuzzsolve
 from openemt.cli import main
 from openemt.simulate import truth_calibration
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from openemt.bench._fuzzhostile_live import fuzz_live
+from openemt_fuzz._fuzzhostile_live import fuzz_live
 
 
 def test_hostile_live_cases_hold():

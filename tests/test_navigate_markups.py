@@ -132,7 +132,7 @@ def test_mutated_markups_give_points_or_one_input_error(tmp_path, name):
     exception."""
     import random
 
-    from openemt.bench._fuzzcases import BYTE_OPS, mutate_bytes, random_ops
+    from openemt_fuzz._fuzzcases import BYTE_OPS, mutate_bytes, random_ops
 
     path = tmp_path / name
     if name.endswith(".fcsv"):

@@ -349,7 +349,7 @@ def test_bench_hostile_writers_section_holds():
     kind but ``killed`` (a fresh interpreter per case; pinned above by
     test_killed_run_temporary_is_removed_by_the_next_run_writing_another_name); the long run
     covers every writer and kind."""
-    from openemt.bench._fuzzhostile_writers import KINDS, hostile_writers
+    from openemt_fuzz._fuzzhostile_writers import KINDS, hostile_writers
 
     kinds = [k for k in KINDS if k != "killed"]
     out = hostile_writers(1, writers=["track_save_raw"], kinds=kinds, time_limit=60)

@@ -1,142 +1,41 @@
 """``openemt bench fuzz``: the long fuzz run of every reader, the CLI and every solver.
 
-Reader and CLI cases are mutated files (:mod:`openemt.bench._fuzzcases`) run in a child process
-that is killed and counted as a hang when it does not answer within the time limit; solver
-samples are generated coupling matrices checked against an independent reference
-(:mod:`openemt.bench._fuzzsolve`). The JSON counts every outcome; ``findings`` is the number of
-crashes, hangs, vague errors, silent garbage and wrongly ``converged`` poses together (0 is the
-target), with up to 20 reproducible examples (target, mutation list, message).
+The harness is test infrastructure and lives beside the tests (``tests/openemt_fuzz`` of a
+source checkout), not in the installed package; this entry point finds it there. From an
+installed copy without the source tree the command says so in one line.
 """
 
 from __future__ import annotations
 
-import random
-import tempfile
-import time
+import importlib
+import sys
+from pathlib import Path
 
 from .._errors import InputError
 
 __all__ = ["add_arguments", "run"]
 
-_BAD = ("vague", "garbage", "crash", "hang")
+
+def _harness():
+    """The harness package of the source checkout this copy runs from, or None."""
+    tests = Path(__file__).resolve().parents[3] / "tests"
+    if not (tests / "openemt_fuzz" / "__init__.py").is_file():
+        return None
+    if str(tests) not in sys.path:
+        sys.path.insert(0, str(tests))
+    return importlib.import_module("openemt_fuzz")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--reader-cases", type=int, default=10000,
-                        help="mutated files read by the readers, over all formats (10000)")
-    parser.add_argument("--cli-cases", type=int, default=2000,
-                        help="mutated files given to the CLI commands (2000)")
-    parser.add_argument("--solver-samples", type=int, default=100000,
-                        help="generated coupling matrices per solver (100000)")
-    parser.add_argument("--live-cases", type=int, default=15,
-                        help="hostile live-session cases: signals during a logged track "
-                             "session, stalled sources (15)")
-    parser.add_argument("--writer-rounds", type=int, default=1,
-                        help="rounds of hostile output paths for every writing command "
-                             "(openemt.bench._fuzzhostile_writers; 0 skips them) (1)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--time-limit", type=float, default=30.0,
-                        help="seconds one case may take before it counts as a hang (30)")
-    parser.add_argument("--hostile-cases", type=int, default=None,
-                        help="runs of hostile reader inputs (links, external storage, "
-                             "declared-shape bombs, FIFO/device paths, hostile tracker files), "
-                             "spread over the list (default: all)")
-
-
-def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None:
-    from ._fuzzcases import (
-        BYTE_OPS,
-        CLI_COMMANDS,
-        JSON_OPS,
-        TARGETS,
-        CaseRunner,
-        case_bytes,
-        prepare_targets,
-        random_ops,
-    )
-
-    rng = random.Random(args.seed)
-    names = [t for t in TARGETS if kind == "reader" or CLI_COMMANDS.get(t)]
-    with tempfile.TemporaryDirectory(prefix="openemt-fuzz-") as tmp:
-        targets = prepare_targets(f"{tmp}/seed")
-        with CaseRunner(f"{tmp}/runner", time_limit=args.time_limit) as runner:
-            for k in range(n):
-                name = names[k % len(names)]
-                target = targets[name]
-                ops = random_ops(rng, BYTE_OPS, 4) if not target.json or rng.random() < 0.5 \
-                    else []
-                jops = random_ops(rng, JSON_OPS, 3) if target.json else []
-                outcome = runner.run(name, case_bytes(target, ops, jops), cli=kind == "cli")
-                counts = out.setdefault(name, {})
-                counts[outcome.kind] = counts.get(outcome.kind, 0) + 1
-                if outcome.kind in _BAD and len(examples) < 20:
-                    examples.append({"kind": kind, "target": name, "outcome": outcome.kind,
-                                     "ops": ops, "json_ops": jops,
-                                     "message": outcome.message[:200]})
-                progress(1)
+    harness = _harness()
+    if harness is not None:
+        harness.add_arguments(parser)
 
 
 def run(args) -> dict:
-    for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases", "writer_rounds",
-                 "hostile_cases"):
-        if (getattr(args, name) or 0) < 0:
-            raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
-                             f"got {getattr(args, name)}")
-    if not args.time_limit > 0:
-        raise InputError(f"expected --time-limit > 0 s, got {args.time_limit}")
-    from ..cli._common import progress
-    from ._fuzzsolve import fuzz_solvers
-
-    t0 = time.perf_counter()
-    examples: list = []
-    readers: dict = {}
-    cli: dict = {}
-    total = args.reader_cases + args.cli_cases
-    with progress(total=total, desc="fuzz files", args=args, unit="case") as bar:
-        _files(args, "reader", args.reader_cases, readers, examples, bar.update)
-        _files(args, "cli", args.cli_cases, cli, examples, bar.update)
-    t_files = time.perf_counter() - t0
-    solvers = fuzz_solvers(args.solver_samples, args.seed) if args.solver_samples else {}
-    from ._fuzzhostile_live import fuzz_live
-
-    with progress(total=args.live_cases, desc="hostile live", args=args, unit="case") as bar:
-        hostile_live = fuzz_live(args.live_cases, args.seed, time_limit=max(args.time_limit, 30),
-                                 progress=bar.update)
-    writers = {}
-    if args.writer_rounds:
-        from ._fuzzhostile_writers import hostile_writers
-        writers = hostile_writers(args.writer_rounds, time_limit=max(args.time_limit, 60.0))
-    from ._fuzzhostile_readers import n_runs, run_hostile_readers
-
-    limit = args.hostile_cases
-    with progress(total=n_runs(limit), desc="hostile readers", args=args, unit="run") as bar:
-        hostile = run_hostile_readers(limit=limit, time_limit=args.time_limit,
-                                      progress=bar.update)
-
-    def bad(counts):
-        return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
-
-    files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
-    findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
-        + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
-        + hostile.get("findings", 0)
-    return {
-        "reader_cases": args.reader_cases,
-        "cli_cases": args.cli_cases,
-        "solver_samples": solvers.get("n_samples", 0),
-        "crashes": files_bad["crash"] + solvers.get("crashes", 0),
-        "hangs": files_bad["hang"],
-        "vague_errors": files_bad["vague"],
-        "silent_garbage": files_bad["garbage"],
-        "wrong_converged": solvers.get("wrong_converged", 0),
-        "findings": findings,
-        "readers": readers,
-        "cli": cli,
-        "solvers": solvers.get("by_solver", {}),
-        "hostile_live": hostile_live,
-        "hostile_writers": writers,
-        "hostile_readers": hostile,
-        "examples": examples + solvers.get("examples", []),
-        "seconds_files": round(t_files, 1),
-        "seconds_total": round(time.perf_counter() - t0, 1),
-    }
+    harness = _harness()
+    if harness is None:
+        raise InputError("expected the fuzz harness of a source checkout (tests/openemt_fuzz "
+                         "beside src/), got an installed copy without it: run "
+                         "`openemt bench fuzz` from a clone of the repository")
+    return harness.run(args)

@@ -75,7 +75,7 @@ _SEEN = "temporary seen and removed"
 def _serve(conn) -> None:  # worker process: run command lines, answer (exit status, stderr)
     import io
 
-    from ..cli import main
+    from openemt.cli import main
 
     conn.send("ready")
     while True:
@@ -326,8 +326,8 @@ def _bundled_folder() -> Path:
 
 
 def _prepare(work: Path) -> dict:
-    from .. import datasets
-    from ..cli import main
+    from openemt import datasets
+    from openemt.cli import main
 
     sim, truth = work / "sim.h5", work / "truth.json"
     rc = main(["simulate", "--preset", "dipole-approx", "--pattern", "md", "--seed", "1",

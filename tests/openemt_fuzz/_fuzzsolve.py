@@ -39,7 +39,7 @@ REFERENCE_SLACK = 1.5
 def _random_poses(rng, n, r_min=0.08, r_max=0.6):
     from scipy.spatial.transform import Rotation
 
-    from ..geometry import pose_from_rt
+    from openemt.geometry import pose_from_rt
 
     d = rng.standard_normal((n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -51,7 +51,7 @@ def _random_poses(rng, n, r_min=0.08, r_max=0.6):
 
 def make_samples(model, n, rng):
     """``(couplings, truth_poses, class_index)`` for ``n`` samples of all classes."""
-    from ..field import coupling
+    from openemt.field import coupling
 
     P = _random_poses(rng, n)
     C0 = coupling(model, P)
@@ -90,14 +90,14 @@ def make_samples(model, n, rng):
 
 def _concentric(model):
     """The model with every coil moved to its frame origin (what the closed forms assume)."""
-    from ..field import DipoleModel
+    from openemt.field import DipoleModel
 
     return DipoleModel(L_so=np.zeros_like(model.L_so), M_so=model.M_so,
                        L_se=np.zeros_like(model.L_se), M_se=model.M_se, gain=model.gain)
 
 
 def _solvers(model):
-    from .. import solve
+    from openemt import solve
 
     out = {"lm": lambda C: solve.solve_lm(C, model=model, hemisphere="+x")}
     if model.is_concentric:
@@ -108,16 +108,16 @@ def _solvers(model):
 
 
 def _threshold() -> float:
-    from ..solve import _validity
+    from openemt.solve import _validity
 
     return float(_validity.MAX_RELATIVE_RESIDUAL)
 
 
 def reference_check(model, C, poses, truth, cls) -> np.ndarray:
     """Boolean per sample: does the returned pose pass the reference check (module docstring)?"""
-    from ..evaluate import pose_error_magnitudes
-    from ..field import coupling
-    from ..solve._validity import MAX_RANGE_M
+    from openemt.evaluate import pose_error_magnitudes
+    from openemt.field import coupling
+    from openemt.solve._validity import MAX_RANGE_M
 
     ok = np.all(np.isfinite(poses), axis=(1, 2))
     ok &= np.linalg.norm(np.where(ok[:, None], poses[:, :3, 3], np.inf), axis=1) <= MAX_RANGE_M
@@ -140,8 +140,8 @@ def reference_check(model, C, poses, truth, cls) -> np.ndarray:
 def fuzz_solvers(n_samples: int, seed: int = 0, *, batch: int = 5000) -> dict:
     """Run every solver on ``n_samples`` generated samples per model; counts per solver, model
     and class: ``n``, ``converged``, ``wrong_converged``; plus ``crashes`` and examples."""
-    from ..simulate import truth_calibration
-    from ..solve import Status
+    from openemt.simulate import truth_calibration
+    from openemt.solve import Status
 
     rng = np.random.default_rng(seed)
     models = {"concentric": _concentric(truth_calibration("concentric").model),

@@ -181,7 +181,7 @@ def _signal_case(kind: str, rng: random.Random, folder: Path, time_limit: float,
 
 
 def _stall_case(kind: str, folder: Path, time_limit: float) -> dict:
-    from ..live import example_tracker
+    from openemt.live import example_tracker
 
     (folder / "log.h5").write_bytes(_EARLIER)
     blocks = 0 if kind == "stall_never" else 20

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import InputError
+from openemt._errors import InputError
 
 __all__ = ["CLI_COMMANDS", "OUTCOMES", "TARGETS", "CaseRunner", "Outcome", "mutate_bytes",
            "mutate_json", "prepare_targets", "run_case", "run_cli_case"]
@@ -235,8 +235,8 @@ def _check_correction(corr) -> str | None:
 
 
 def _small_dataset():
-    from ..datasets import path as dataset_path
-    from ..io import read_ilemt_dat
+    from openemt.datasets import path as dataset_path
+    from openemt.io import read_ilemt_dat
 
     folder = dataset_path("cal_9_15_premo_cmu")
     ds = read_ilemt_dat(folder / "soYoutZup_seYoutZup_mdtrans.dat")
@@ -245,9 +245,9 @@ def _small_dataset():
 
 def prepare_targets(workdir) -> dict[str, Target]:
     """Build the valid seed files (small, from the bundled ILEMT recording) in ``workdir``."""
-    from ..correct import fit_correction, read_correction, write_correction
-    from ..datasets import path as dataset_path
-    from ..io import (
+    from openemt.correct import fit_correction, read_correction, write_correction
+    from openemt.datasets import path as dataset_path
+    from openemt.io import (
         export_csv,
         import_csv,
         import_ilemt_folder,
@@ -304,7 +304,7 @@ def prepare_targets(workdir) -> dict[str, Target]:
         return rec
 
     def read_h5(path):
-        from ..io import open_dataset_couplings
+        from openemt.io import open_dataset_couplings
 
         out = read_dataset(path)
         with open_dataset_couplings(path) as reader:
@@ -400,7 +400,7 @@ def run_cli_case(target: Target, content: bytes, workdir, seed_dir) -> Outcome:
     import contextlib
     import io
 
-    from ..cli import main
+    from openemt.cli import main
 
     argv_t = CLI_COMMANDS.get(target.name)
     if argv_t is None:

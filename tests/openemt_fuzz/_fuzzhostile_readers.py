@@ -1,7 +1,7 @@
 """Hostile inputs for the readers: files that try to make openemt read outside themselves,
 allocate far more than they hold, block on a FIFO or a device, or set absurd amounts of work.
 
-Unlike the mutation cases of :mod:`openemt.bench._fuzzcases`, each case here is built on
+Unlike the mutation cases of :mod:`openemt_fuzz._fuzzcases`, each case here is built on
 purpose by a *builder* in a fresh folder: HDF5 datasets, raw recordings and pose files with
 external links, soft links out of the file, virtual datasets, external storage (``/etc/passwd``,
 ``/proc/self/environ``, a FIFO), a plugin filter, declared-shape bombs and row counts that
@@ -10,7 +10,7 @@ recompute); FIFO and device paths given to every reader; tracker, board, calibra
 correction files with deep nesting, absurd rates and counts and oversized lists.
 
 Every case (:func:`cases`) is run twice in a child process with a time limit: through its Python reader
-(:func:`run_reader`, via ``python -m openemt.bench._fuzzhostile_readers READER PATH``) and through
+(:func:`run_reader`, via ``this module's ``_child_main````) and through
 a command of the CLI. A run *held* when it ended with exit status 2 and exactly one ``error:``
 line, left nothing in the output folder, finished within the time limit and peaked below
 :data:`MEMORY_LIMIT_BYTES` of resident memory; any other outcome is a finding
@@ -45,7 +45,7 @@ _ADDRESS_LIMIT = 16 << 30
 
 
 def _read_dataset(path):
-    from ..io import open_dataset_couplings, read_dataset
+    from openemt.io import open_dataset_couplings, read_dataset
 
     ds = read_dataset(path)
     with open_dataset_couplings(path) as reader:
@@ -54,8 +54,8 @@ def _read_dataset(path):
 
 
 def _readers() -> dict:
-    from ..correct import read_correction
-    from ..io import (
+    from openemt.correct import read_correction
+    from openemt.io import (
         import_csv,
         read_board,
         read_calibration,
@@ -63,9 +63,9 @@ def _readers() -> dict:
         read_ndi_tsv,
         read_poses_csv,
     )
-    from ..live import read_tracker
-    from ..signal import read_raw
-    from ..solve import read_poses
+    from openemt.live import read_tracker
+    from openemt.signal import read_raw
+    from openemt.solve import read_poses
 
     return {"dataset": _read_dataset, "raw": read_raw, "poses": read_poses,
             "calibration": read_calibration, "tracker": read_tracker, "board": read_board,
@@ -78,7 +78,7 @@ def run_reader(reader: str, path) -> int:
     one ``error:`` line on stderr for :class:`~openemt._errors.InputError`, 3 for another
     refusal (an ``OSError`` such as "missing file" for a path that exists), a traceback and 1
     for anything else."""
-    from .._errors import InputError
+    from openemt._errors import InputError
 
     try:
         _readers()[reader](Path(path))
@@ -99,12 +99,12 @@ def build_seeds(folder) -> Path:
     recording and poses file) that the builders turn hostile."""
     import h5py
 
-    from ..correct import fit_correction, write_correction
-    from ..datasets import path as dataset_path
-    from ..io import read_ilemt_calibration, write_calibration, write_dataset, write_poses_csv
-    from ..live import example_tracker
-    from ..signal import ChannelLayout, RawSignal, write_raw
-    from ..solve._output import POSES_SCHEMA
+    from openemt.correct import fit_correction, write_correction
+    from openemt.datasets import path as dataset_path
+    from openemt.io import read_ilemt_calibration, write_calibration, write_dataset, write_poses_csv
+    from openemt.live import example_tracker
+    from openemt.signal import ChannelLayout, RawSignal, write_raw
+    from openemt.solve._output import POSES_SCHEMA
     from ._fuzzcases import _small_dataset
 
     folder = Path(folder)
@@ -146,7 +146,7 @@ def _h5_case(seed: str, change, *, sealed: bool = True):
     def build(folder: Path, seeds: Path) -> Path:
         import h5py
 
-        from ..io._h5safe import seal
+        from openemt.io._h5safe import seal
 
         path = folder / "data.h5"
         shutil.copy(seeds / seed, path)
@@ -525,7 +525,7 @@ def run_case(case: HostileCase, workdir, seeds, *, cli: bool, time_limit: float 
 
     folder, out = fresh_case_folders(workdir)
     path = case.build(folder, Path(seeds))
-    argv = [sys.executable, "-m", "openemt.bench._fuzzhostile_readers"]
+    argv = [sys.executable, "-c", _CHILD]
     if cli:
         argv += ["cli", *(a.format(file=path, seed=seeds, out=out) for a in case.cli)]
     else:
@@ -595,7 +595,7 @@ def _child_main(argv) -> int:  # pragma: no cover - the child process of run_cas
     resource.setrlimit(resource.RLIMIT_AS, (_ADDRESS_LIMIT, _ADDRESS_LIMIT))
     try:
         if argv[0] == "cli":
-            from ..cli import main
+            from openemt.cli import main
 
             return main(argv[1:])
         return run_reader(argv[1], argv[2])
@@ -603,6 +603,11 @@ def _child_main(argv) -> int:  # pragma: no cover - the child process of run_cas
         with open(".peak", "w") as fh:
             fh.write(str(_hwm(os.getpid())))
 
+
+#: the child's entry point: this harness lives beside the tests, not in the installed package
+_CHILD = (f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r}); "
+          "from openemt_fuzz._fuzzhostile_readers import _child_main; "
+          "sys.exit(_child_main(sys.argv[1:]))")
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(_child_main(sys.argv[1:]))
