@@ -12,15 +12,15 @@ import time
 import numpy as np
 import pytest
 
-from openemt.calibrate import reference_poses
-from openemt.geometry import pose_from_vector
-from openemt.io import read_dataset, write_poses_csv
-from openemt.live._collect import (
+from openemt.align import (
     collect_dwells,
     coverage,
     estimate_time_offset,
     find_dwells,
 )
+from openemt.calibrate import reference_poses
+from openemt.geometry import pose_from_vector
+from openemt.io import read_dataset, write_poses_csv
 from openemt.live._refclient import (
     ReferenceClient,
     SimulatedReferenceServer,

@@ -9,8 +9,6 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from openemt._errors import InputError
 from openemt_fuzz._fuzzcases import (
     BYTE_OPS,
     JSON_OPS,
@@ -19,6 +17,8 @@ from openemt_fuzz._fuzzcases import (
     case_bytes,
     prepare_targets,
 )
+
+from openemt._errors import InputError
 from openemt.io import read_calibration, read_dataset, write_dataset
 from openemt.io._jsontext import MAX_JSON_DEPTH
 

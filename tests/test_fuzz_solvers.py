@@ -6,8 +6,8 @@ computed without the solver."""
 import json
 
 import numpy as np
-
 from openemt_fuzz import _fuzzsolve
+
 from openemt.cli import main
 from openemt.simulate import truth_calibration
 

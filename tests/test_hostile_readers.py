@@ -10,9 +10,9 @@ import signal
 import h5py
 import numpy as np
 import pytest
+from openemt_fuzz import _fuzzhostile_readers as H
 
 from openemt._errors import InputError
-from openemt_fuzz import _fuzzhostile_readers as H
 from openemt.io import read_board, read_calibration, read_dataset, write_dataset
 from openemt.io._h5safe import H5_FLOOR_BYTES, check_structure, open_h5
 from openemt.io._safefile import check_text_nesting, read_limited

@@ -85,6 +85,7 @@ def run(args) -> dict:
     if not args.time_limit > 0:
         raise InputError(f"expected --time-limit > 0 s, got {args.time_limit}")
     from openemt.cli._common import progress
+
     from ._fuzzsolve import fuzz_solvers
 
     t0 = time.perf_counter()

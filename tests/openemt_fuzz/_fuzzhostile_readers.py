@@ -105,6 +105,7 @@ def build_seeds(folder) -> Path:
     from openemt.live import example_tracker
     from openemt.signal import ChannelLayout, RawSignal, write_raw
     from openemt.solve._output import POSES_SCHEMA
+
     from ._fuzzcases import _small_dataset
 
     folder = Path(folder)

@@ -175,7 +175,7 @@ def _warm_up(model, hemisphere) -> None:
 
 
 def _coverage(dws, model, hemisphere, box):
-    from ..live._collect import coverage
+    from ..align import coverage
     from ..solve import solve_lm
 
     if dws is None or not len(dws):
