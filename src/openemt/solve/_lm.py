@@ -46,7 +46,7 @@ from ._packing import (
     unpack_model,
 )
 from ._result import ST_CONVERGED, ST_INVALID_INPUT
-from ._validity import classify
+from ._validity import better_run, classify
 
 __all__ = ["STOP_CONVERGED", "STOP_ITERATION_LIMIT", "lm_batch", "lm_track"]
 
@@ -308,7 +308,7 @@ def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
         exp_so3(rv, R)
         cost, it, stop = _lm_one(geo, Cm, R, t, n, box, opts, lmw)
         total_it += it
-        if cost < best:
+        if better_run(cost, stop == STOP_CONVERGED, best, best_stop == STOP_CONVERGED):
             best = cost
             best_stop = stop
             _copy_pose(R, t, Rb, tb)

@@ -22,6 +22,7 @@ from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm import lm_batch
 from ._packing import O_MAX_ITER, O_RETRIES, O_RETRY_RELATIVE
 from ._result import Status
+from ._validity import SAME_MINIMUM_RTOL
 
 __all__ = ["canonical_5dof"]
 
@@ -302,9 +303,15 @@ def canonical_5dof(result, model):
 
 def _keep_better(result, rows, again):
     """``result`` with rows ``rows`` replaced by those of ``again`` (solved for them) that have
-    a lower relative residual."""
+    a lower relative residual, or at the same minimum met the convergence test where the kept
+    run hit its iteration limit (:func:`~openemt.solve._validity.better_run`)."""
+    r, b = again.relative_residual, result.relative_residual[rows]
+    ok_new = again.status != Status.MAX_ITERATIONS
+    ok_old = result.status[rows] != Status.MAX_ITERATIONS
     with np.errstate(invalid="ignore"):
-        better = again.relative_residual < result.relative_residual[rows]
+        # better_run's rule, batched (a NaN residual is never better, nor replaced)
+        same = np.abs(r - b) <= SAME_MINIMUM_RTOL * np.abs(b)
+        better = np.where(same & (ok_new != ok_old), ok_new, r < b)
     keep = rows[better]
     fields = {f: getattr(result, f).copy() for f in
               ("poses", "pose_vectors", "status", "residual", "iterations", "relative_residual")}

@@ -38,8 +38,33 @@ from ._result import (
     ST_OUT_OF_VOLUME,
 )
 
-__all__ = ["EXPLORE_RELATIVE_RESIDUAL", "MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "check_validity_options", "classify",
-           "rejudge", "relative_residual", "relative_residuals"]
+__all__ = ["EXPLORE_RELATIVE_RESIDUAL", "MAX_RANGE_M", "MAX_RELATIVE_RESIDUAL", "SAME_MINIMUM_RTOL",
+           "better_run", "check_validity_options", "classify", "rejudge", "relative_residual",
+           "relative_residuals"]
+
+#: Two solutions of one sample whose relative residuals agree to this fraction are at the same
+#: minimum: of those, the one whose solver met its convergence test is kept, so a sample's status
+#: never depends on which of several runs reached one minimum first (the last-bit rounding of a
+#: CPU, or couplings scaled by a power of ten, decide that; docs/solve.md#validity).
+SAME_MINIMUM_RTOL = 1e-9
+
+
+@njit(inline="always")
+def better_run(cost, stop_ok, best, best_stop_ok) -> bool:
+    """Whether a run ending at ``cost`` (a residual norm or its square, ``stop_ok``: the solver
+    met its convergence test) replaces the best so far: a lower cost at another minimum, or at
+    the same minimum (costs within :data:`SAME_MINIMUM_RTOL`) a run that converged where the
+    best one hit its iteration limit, or, alike in that, the lower cost."""
+    if not cost == cost:
+        return False
+    if not best < np.inf:
+        return True
+    if abs(cost - best) > SAME_MINIMUM_RTOL * abs(best):
+        return cost < best
+    if stop_ok != best_stop_ok:
+        return stop_ok
+    return cost < best
+
 
 def check_validity_options(max_relative_residual, max_range) -> tuple[float, float]:
     """Validate the two thresholds of the rule (positive; ``None`` or ``inf`` disables one)."""
