@@ -4,8 +4,16 @@ and 3D Slicer markups files. Pure array functions with frozen results; see docs/
 """
 
 from ._assess import DISTANCE_CLASSES_MM, GridAssessment, assess_grid, regular_grid
-from ._inputs import ToolPoses, read_points_csv, read_tool_poses
-from ._markups import MarkupPoints, is_markups_path, read_markups
+from ._inputs import (
+    MAX_POSE_FILE_BYTES,
+    MAX_POSE_ROWS,
+    ROTATION_TOLERANCE,
+    ToolPoses,
+    check_rotations,
+    read_points_csv,
+    read_tool_poses,
+)
+from ._markups import MarkupPoints, is_markups_path, read_markups, write_markups
 from ._pivot import (
     MAX_PIVOT_RMS_MM,
     MAX_SPIN_RMS_DEG,
@@ -28,8 +36,47 @@ from ._register import (
     rigid_fit,
 )
 from ._simulate import simulate_grid_points, simulate_pivot_poses, simulate_spin_poses
+from ._steps import (
+    REGISTRATION_FORMAT,
+    AlignOptions,
+    AssessOptions,
+    NavigationRun,
+    PivotOptions,
+    PointsOptions,
+    RegisterOptions,
+    SpinOptions,
+    align_poses,
+    assess,
+    pivot,
+    points,
+    read_registration,
+    register,
+    spin,
+    write_slicer_transform,
+)
 
 __all__ = [
+    "MAX_POSE_FILE_BYTES",
+    "MAX_POSE_ROWS",
+    "REGISTRATION_FORMAT",
+    "ROTATION_TOLERANCE",
+    "AlignOptions",
+    "AssessOptions",
+    "NavigationRun",
+    "PivotOptions",
+    "PointsOptions",
+    "RegisterOptions",
+    "SpinOptions",
+    "align_poses",
+    "assess",
+    "check_rotations",
+    "pivot",
+    "points",
+    "read_registration",
+    "register",
+    "spin",
+    "write_markups",
+    "write_slicer_transform",
     "DISTANCE_CLASSES_MM",
     "MAX_PIVOT_RMS_MM",
     "MAX_SPIN_RMS_DEG",
