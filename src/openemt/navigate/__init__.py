@@ -35,7 +35,14 @@ from ._register import (
     register_points_batch,
     rigid_fit,
 )
-from ._simulate import simulate_grid_points, simulate_pivot_poses, simulate_spin_poses
+from ._simulate import (
+    MOTIONS,
+    MotionOptions,
+    simulate_grid_points,
+    simulate_pivot_poses,
+    simulate_spin_poses,
+    simulate_tool_session,
+)
 from ._steps import (
     REGISTRATION_FORMAT,
     AlignOptions,
@@ -56,6 +63,9 @@ from ._steps import (
 )
 
 __all__ = [
+    "MOTIONS",
+    "MotionOptions",
+    "simulate_tool_session",
     "MAX_POSE_FILE_BYTES",
     "MAX_POSE_ROWS",
     "REGISTRATION_FORMAT",

@@ -151,12 +151,15 @@ def _read_h5(path: Path, sensor):
                 raise InputError(f"expected datasets poses and status in {path}, got "
                                  f"{sorted(g) if g is not None else 'no sensor group'}")
             n = g["poses"].shape[0] if g["poses"].ndim else 0
+            if "rows" in g.attrs:          # a track log commits its rows (a killed session)
+                n = min(n, max(int(g.attrs["rows"]), 0))
             _rows_bounded(n, path)
-            if g["poses"].shape[1:] != (4, 4) or g["status"].shape[:1] != (n,):
+            if g["poses"].shape[1:] != (4, 4) or g["status"].ndim != 1 or \
+                    g["status"].shape[0] < n:
                 raise InputError(f"expected poses (N, 4, 4) and status (N,) in {path}, got "
                                  f"{g['poses'].shape} and {g['status'].shape}")
-            times = g["times"][:n] if "times" in g and g["times"].shape == (n,) else None
-            P = _status_rows(g["poses"][()], g["status"][()], dropped)
+            times = g["times"][:n] if "times" in g and g["times"].shape[:1] >= (n,) else None
+            P = _status_rows(g["poses"][:n], g["status"][:n], dropped)
             kind = "poses-h5" if schema == POSES_SCHEMA else "track-log"
             return ToolPoses(P, True, None, kind, dropped,
                              None if times is None else np.asarray(times, float))
