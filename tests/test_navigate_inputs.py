@@ -18,6 +18,7 @@ from openemt.navigate import (
     read_registration,
     read_tool_poses,
     register,
+    register_points,
     simulate_pivot_poses,
     write_markups,
     write_slicer_transform,
@@ -99,15 +100,16 @@ def test_track_log_rows_dropped_by_reason(made, tmp_path, capsys):
     body[3] = ",".join(cols)
     body[5] = ",".join(["nan" if k == 2 else v for k, v in enumerate(body[5].split(","))])
     body[7] = ",".join(body[7].split(",")[:4])                  # a torn row
+    body[9] = ",".join(["1e300" if k == 1 else v for k, v in enumerate(body[9].split(","))])
     (tmp_path / "log.csv").write_text("\n".join([head] + body) + "\n")
     t = read_tool_poses(tmp_path / "log.csv")
-    assert t.kind == "track-log" and t.n_usable == 37
-    assert t.dropped == {"bad_line": 1, "not_converged": 1, "not_finite": 1}
+    assert t.kind == "track-log" and t.n_usable == 36
+    assert t.dropped == {"bad_line": 1, "not_converged": 1, "not_finite": 1, "out_of_range": 1}
     rc, cap = _run(capsys, "pivot", tmp_path / "log.csv", "--json")
     s = json.loads(cap.out)
-    assert rc == 0 and s["n"] == 37 and s["dropped"] == t.dropped
-    assert ("left out 3 of 40 rows of log.csv: 1 bad line, 1 not converged, 1 not finite"
-            in cap.err)
+    assert rc == 0 and s["n"] == 36 and s["dropped"] == t.dropped
+    assert ("left out 4 of 40 rows of log.csv: 1 bad line, 1 not converged, 1 not finite, "
+            "1 out of range" in cap.err)
 
 
 def test_rotation_blocks_that_are_not_rotations_are_refused(made, tmp_path, capsys):
@@ -184,10 +186,13 @@ def test_register_pairs_by_label_and_refuses_labels_that_differ(tmp_path, capsys
     rc, cap = _run(capsys, "register", f, m, "-o", m)
     assert rc == 2 and "different from the input" in cap.err
     # points near 1e300, and collinear points: one line each
-    (tmp_path / "huge.csv").write_text("x,y,z\n" + "".join(f"{1e300 * (i + 1)},{i},0\n"
+    (tmp_path / "huge.csv").write_text("x,y,z\n" + "".join(f"{1e300 * (i > 4)},{i},0\n"
                                                            for i in range(6)))
     rc, cap = _run(capsys, "register", tmp_path / "huge.csv", f, "--match", "order")
     assert rc == 2 and cap.err.count("\n") == 1 and "within 10000 m" in cap.err
+    assert "got 1 that are not (rows 5)" in cap.err
+    with pytest.raises(ValueError, match="within 10000 m"):
+        register_points(np.full((4, 3), 1e5) + np.eye(4, 3), np.eye(4, 3))
     (tmp_path / "line.csv").write_text("x,y,z\n" + "".join(f"{i},{2 * i},0\n" for i in range(6)))
     rc, cap = _run(capsys, "register", f, tmp_path / "line.csv")
     assert rc == 2 and cap.err.count("\n") == 1 and "collinear" in cap.err

@@ -12,7 +12,9 @@ navigation steps (``pivot``, ``spin``, ``register``, ``assess``, ``points``, ``a
 Every row that cannot be used is kept as a NaN row (so rows keep their file numbers) and
 counted by reason in ``ToolPoses.dropped``: ``not_converged`` (a solve or track status other
 than converged), ``not_finite`` (missing or non-finite values), ``bad_line`` (a CSV row with
-the wrong number of fields), ``undefined`` (markups points whose position is not defined).
+the wrong number of fields), ``undefined`` (markups points whose position is not defined),
+``out_of_range`` (a position farther than ``MAX_POSITION`` from the origin: a wrong unit or
+garbage, never a tracked pose).
 Refused with one line: a file larger than ``MAX_POSE_FILE_BYTES`` or with more than
 ``MAX_POSE_ROWS`` rows (checked before parsing), rotation blocks that are not rotations (more
 than ``ROTATION_TOLERANCE`` from orthonormal, or a reflection), and a file without one usable
@@ -28,13 +30,15 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["MAX_POSE_FILE_BYTES", "MAX_POSE_ROWS", "ROTATION_TOLERANCE", "ToolPoses",
+__all__ = ["MAX_POSE_FILE_BYTES", "MAX_POSE_ROWS", "MAX_POSITION", "ROTATION_TOLERANCE", "ToolPoses",
            "check_rotations", "read_points_csv", "read_tool_poses"]
 
 #: Largest pose file read (bytes; text files are refused by size before they are parsed).
 MAX_POSE_FILE_BYTES = 1 << 30
 #: Most rows read from one file (an HDF5 file is refused by its shapes before reading).
 MAX_POSE_ROWS = 5_000_000
+#: Farthest position (m) read as a pose; farther rows are left out as ``out_of_range``.
+MAX_POSITION = 1e4
 #: Largest ``max |R^T R - I|`` of a rotation block (float32 storage rounds to about 1e-7).
 ROTATION_TOLERANCE = 1e-5
 _TRACK_FORMAT = "openemt-track"
@@ -231,6 +235,11 @@ def read_tool_poses(path, *, length_unit: str = "m", angle_unit: str = "rad",
     finite = np.all(np.isfinite(t.poses), axis=(1, 2))
     counted = t.dropped.get("not_converged", 0) + t.dropped.get("bad_line", 0)
     t.dropped["not_finite"] = int((~finite).sum()) - counted
+    far = finite & ~(np.abs(t.poses[:, :3, 3]).max(axis=1, initial=0) <= MAX_POSITION)
+    if far.any():
+        t.poses[far] = np.nan
+        finite &= ~far
+    t.dropped["out_of_range"] = int(far.sum())
     if t.has_orientation:
         check_rotations(t.poses, path)
     if not finite.any():

@@ -249,12 +249,14 @@ class RegisterOptions(_Inputs):
 
 
 def _points(o, path):
+    from ._inputs import MAX_POSITION
+
     t = o.read(path)
     pts = t.poses[:, :3, 3]
     bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
     if len(bad):
-        raise InputError(f"expected finite points in {path}, got {len(bad)} missing or "
-                         f"non-finite (rows {', '.join(map(str, bad[:10]))})")
+        raise InputError(f"expected finite points within {MAX_POSITION:g} m in {path}, got "
+                         f"{len(bad)} that are not (rows {', '.join(map(str, bad[:10]))})")
     return pts, t.labels
 
 
