@@ -1,6 +1,9 @@
 """The navigation engineer's toolkit on tracked poses: pivot and spin calibration of a tool,
-paired-point registration with FRE and predicted TRE, the standard grid accuracy assessment,
-and 3D Slicer markups files. Pure array functions with frozen results; see docs/navigation.md.
+paired-point registration with FRE and predicted TRE (and its 3D Slicer transform), the
+standard grid accuracy assessment, points from the dwells of a log, 3D Slicer markups files,
+one reader of every pose file, and simulated tool motions. Pure array functions with frozen
+results, and one workflow per step (an options record in, a :class:`NavigationRun` out); see
+docs/navigation.md.
 """
 
 from ._assess import DISTANCE_CLASSES_MM, GridAssessment, assess_grid, regular_grid
@@ -44,6 +47,7 @@ from ._simulate import (
     simulate_tool_session,
 )
 from ._steps import (
+    MAX_LOG_SECONDS,
     REGISTRATION_FORMAT,
     AlignOptions,
     AssessOptions,
@@ -63,6 +67,7 @@ from ._steps import (
 )
 
 __all__ = [
+    "MAX_LOG_SECONDS",
     "MOTIONS",
     "MotionOptions",
     "simulate_tool_session",

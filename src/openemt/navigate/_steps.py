@@ -20,11 +20,13 @@ from ._inputs import ToolPoses, read_tool_poses
 from ._pivot import MAX_PIVOT_RMS_MM, MAX_SPIN_RMS_DEG, PIVOT_METHODS, TOOL_FORMAT
 from ._register import MAX_FRE_MM
 
-__all__ = ["REGISTRATION_FORMAT", "AlignOptions", "AssessOptions", "NavigationRun",
-           "PivotOptions", "PointsOptions", "RegisterOptions", "SpinOptions", "align_poses",
-           "assess", "pivot", "points", "read_registration", "register", "spin",
+__all__ = ["MAX_LOG_SECONDS", "REGISTRATION_FORMAT", "AlignOptions", "AssessOptions",
+           "NavigationRun", "PivotOptions", "PointsOptions", "RegisterOptions", "SpinOptions",
+           "align_poses", "assess", "pivot", "points", "read_registration", "register", "spin",
            "write_slicer_transform"]
 
+#: Longest log ``points`` takes (s): its motion is analysed on a 2 ms grid (2e6 steps).
+MAX_LOG_SECONDS = 4000.0
 #: ``format`` of the registration file ``openemt register`` writes (:func:`read_registration`).
 REGISTRATION_FORMAT = "openemt.registration"
 
@@ -510,6 +512,10 @@ def points(options: PointsOptions) -> NavigationRun:
         raise InputError(f"expected at least 3 usable poses with increasing times in {o.log}, "
                          f"got {len(times)} usable" + (" with times that do not increase"
                                                        if len(times) >= 3 else ""))
+    if times[-1] - times[0] > MAX_LOG_SECONDS:
+        raise InputError(f"expected a log of at most {MAX_LOG_SECONDS:g} s in {o.log} (times "
+                         f"in seconds), got {times[-1] - times[0]:.6g} s: times in ms, or a "
+                         f"glitch in the time column?")
     g, v, w = pose_motion(times, P)
     still = (v < 1e-3 * check_nonnegative(o.max_speed_mm_s, "--max-speed-mm-s")) & (
         w < np.deg2rad(check_nonnegative(o.max_rotation_deg_s, "--max-rotation-deg-s")))
