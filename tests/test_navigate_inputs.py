@@ -149,7 +149,7 @@ def test_files_too_large_are_refused_before_parsing(tmp_path, capsys):
         f.truncate(5 << 30)                                  # sparse: no disk used
     (tmp_path / "a.csv").write_text("x_mm,y_mm,z_mm\n0,0,0\n1,0,0\n0,1,0\n")
     rc, cap = _run(capsys, "register", tmp_path / "a.csv", big)
-    assert rc == 2 and cap.err.count("\n") == 1 and "at most 1024 MiB" in cap.err
+    assert rc == 2 and cap.err.count("\n") == 1 and "at most 256 MiB" in cap.err
 
 
 # ------------------------------------------------------------------------------ registration
