@@ -6,7 +6,14 @@ results, and one workflow per step (an options record in, a :class:`NavigationRu
 docs/navigation.md.
 """
 
-from ._assess import DISTANCE_CLASSES_MM, GridAssessment, assess_grid, regular_grid
+from ._assess import (
+    DISTANCE_CLASSES_MM,
+    MAX_ASSESS_POINTS,
+    MAX_STORED_PAIRS,
+    GridAssessment,
+    assess_grid,
+    regular_grid,
+)
 from ._inputs import (
     MAX_POSE_FILE_BYTES,
     MAX_POSE_ROWS,
@@ -67,6 +74,8 @@ from ._steps import (
 )
 
 __all__ = [
+    "MAX_ASSESS_POINTS",
+    "MAX_STORED_PAIRS",
     "MAX_LOG_SECONDS",
     "MOTIONS",
     "MotionOptions",
