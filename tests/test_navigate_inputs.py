@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from openemt.cli import main
 from openemt.io import pose_dataset, write_dataset, write_poses_csv
+from openemt.live import example_tracker
 from openemt.navigate import (
     RegisterOptions,
     read_registration,
@@ -42,7 +43,11 @@ def made(tmp_path_factory):
                  ["track", "--source", "sim", "--fast", "--duration", "1", "--no-igtl", "--log",
                   d / "log.h5", "--quiet"],
                  ["track", "--source", "sim", "--fast", "--duration", "1", "--no-igtl", "--log",
-                  d / "log.csv", "--quiet"]):
+                  d / "log.csv", "--quiet"],
+                 ["track", "--tracker", example_tracker("simulated-2"), "--source", "sim",
+                  "--fast", "--duration", "0.5", "--no-igtl", "--log", d / "two.h5", "--quiet"],
+                 ["track", "--tracker", example_tracker("simulated-2"), "--source", "sim",
+                  "--fast", "--duration", "0.5", "--no-igtl", "--log", d / "two.csv", "--quiet"]):
         assert main([str(a) for a in argv]) == 0, argv
     return d
 
@@ -83,6 +88,20 @@ def test_track_logs_read_alike_in_both_formats(made):
     m = min(len(h5.poses), len(csv.poses))
     np.testing.assert_allclose(csv.poses[:m], h5.poses[:m], atol=1e-6)
     np.testing.assert_allclose(csv.times[:m], h5.times[:m], atol=1e-5)
+
+
+def test_track_logs_of_two_sensors(made, capsys):
+    for name in ("two.h5", "two.csv"):
+        rc, cap = _run(capsys, "pivot", made / name)
+        assert rc == 2 and cap.err == (f"error: expected --sensor naming one of Probe, "
+                                       f"Reference for {made / name}, got none\n")
+    probe = [read_tool_poses(made / n, sensor="Probe") for n in ("two.h5", "two.csv")]
+    ref = read_tool_poses(made / "two.h5", sensor="Reference")
+    assert len(probe[0].poses) == len(probe[1].poses) == len(ref.poses) > 100
+    np.testing.assert_allclose(probe[1].poses, probe[0].poses, atol=1e-6)
+    # the two sensors of the example tracker keep a fixed distance (about 58 mm)
+    d = np.linalg.norm(ref.poses[:, :3, 3] - probe[0].poses[:, :3, 3], axis=1)
+    assert np.all(np.abs(d - np.median(d)) < 1e-3) and np.median(d) > 0.01
 
 
 def test_track_log_rows_dropped_by_reason(made, tmp_path, capsys):

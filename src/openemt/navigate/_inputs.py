@@ -133,7 +133,7 @@ def _pick_sensor(names, sensor, path):
         return names[0]
     if sensor not in names:
         raise InputError(f"expected --sensor naming one of {', '.join(map(str, names))} for "
-                         f"{path}, got {sensor!r}")
+                         f"{path}, got {'none' if sensor is None else repr(sensor)}")
     return sensor
 
 
