@@ -232,6 +232,22 @@ def test_slicer_transform_of_a_known_case(tmp_path):
     params = [float(v) for v in text[3].split(":")[1].split()]
     np.testing.assert_allclose(params, [0, 1, 0, -1, 0, 0, 0, 0, 1, 20, -10, -30], atol=1e-12)
     assert text[4] == "FixedParameters: 0 0 0"
+    # read back (as track would read a transform saved by Slicer): the registration again
+    T2, meta = read_registration(tmp_path / "reg.tfm")
+    np.testing.assert_allclose(T2, T, atol=1e-15)
+    assert meta == {"format": "itk"}
+    # an ITK centre is honoured: y = A (x - c) + c + t
+    lines = list(text)
+    lines[3] = "Parameters: 0 1 0 -1 0 0 0 0 1 20 -10 -30"
+    lines[4] = "FixedParameters: 5 6 7"
+    (tmp_path / "c.txt").write_text("\n".join(lines) + "\n")
+    A = np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1.0]])
+    M = np.eye(4)
+    M[:3, :3], M[:3, 3] = A, np.array([20, -10, -30]) + [5, 6, 7] - A @ [5, 6, 7]
+    F = np.diag([-1.0, -1, 1, 1])
+    want = np.linalg.inv(F @ M @ F)
+    want[:3, 3] *= 1e-3
+    np.testing.assert_allclose(read_registration(tmp_path / "c.txt")[0], want, atol=1e-15)
 
 
 def test_registration_file_reads_back(tmp_path):

@@ -334,29 +334,66 @@ def register(options: RegisterOptions) -> NavigationRun:
 
 
 def read_registration(path) -> tuple[np.ndarray, dict]:
-    """The registration written by ``openemt register -o``: ``(T, meta)`` with ``T`` the 4x4
-    (m) that maps the moving frame (the tracker) into the fixed frame (the image, RAS when the
-    fixed points were markups): ``fixed = T @ [moving; 1]``; ``meta`` is the rest of the file
-    (``fre_rms_mm``, ``fixed``, ``moving``, ...)."""
-    from ..io._jsontext import load_json_file
+    """The registration written by ``openemt register``: ``(T, meta)`` with ``T`` the 4x4 (m)
+    that maps the moving frame (the tracker) into the fixed frame (the image, RAS when the
+    fixed points were markups): ``fixed = T @ [moving; 1]``.
 
-    d = load_json_file(Path(path), "a registration file from 'openemt register -o'")
-    if not isinstance(d, dict) or d.get("format") != REGISTRATION_FORMAT:
-        got = d.get("format") if isinstance(d, dict) else type(d).__name__
-        raise InputError(f"expected a registration (format {REGISTRATION_FORMAT!r}) from "
-                         f"'openemt register -o' in {path}, got {got!r}")
-    try:
-        T = np.asarray(d.get("transform"), dtype=np.float64)
-    except (TypeError, ValueError):
-        T = np.zeros(0)
+    ``path`` is the JSON of ``-o`` (``meta`` is the rest of the file: ``fre_rms_mm``,
+    ``fixed``, ``moving``, ...) or an ITK transform file as ``--slicer-transform`` writes it
+    (or 3D Slicer saves a linear transform; ``meta`` is ``{"format": "itk"}``)."""
+    from ..io._safefile import read_limited
+
+    path = Path(path)
+    raw = read_limited(path, "a registration file (openemt register)", 1 << 20)
+    if raw.startswith(b"#Insight Transform File"):
+        T, meta = _read_itk(raw.decode("utf-8", "replace"), path), {"format": "itk"}
+    else:
+        from ..io._jsontext import load_json_file
+
+        d = load_json_file(path, "a registration file from 'openemt register -o'")
+        if not isinstance(d, dict) or d.get("format") != REGISTRATION_FORMAT:
+            got = d.get("format") if isinstance(d, dict) else type(d).__name__
+            raise InputError(f"expected a registration (format {REGISTRATION_FORMAT!r}) from "
+                             f"'openemt register -o' in {path}, got {got!r}")
+        try:
+            T = np.asarray(d.get("transform"), dtype=np.float64)
+        except (TypeError, ValueError):
+            T = np.zeros(0)
+        meta = {k: v for k, v in d.items() if k != "transform"}
     ok = T.shape == (4, 4) and np.all(np.isfinite(T)) and np.allclose(T[3], [0, 0, 0, 1])
     if ok:
         s = np.cbrt(np.linalg.det(T[:3, :3]))
         ok = s > 0 and np.allclose(T[:3, :3].T @ T[:3, :3] / s ** 2, np.eye(3), atol=1e-6)
     if not ok:
-        raise InputError(f"expected `transform` a finite 4x4 rigid (or similarity) transform "
-                         f"in {path}, got {str(d.get('transform'))[:80]!r}")
-    return T, {k: v for k, v in d.items() if k != "transform"}
+        raise InputError(f"expected a finite 4x4 rigid (or similarity) transform in {path}, "
+                         f"got {str(T.tolist())[:80]!r}")
+    return T, meta
+
+
+_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+def _read_itk(text: str, path) -> np.ndarray:
+    """The registration (m, RAS "to parent") of an ITK affine/rigid text transform (LPS, mm,
+    "from parent"); the inverse of :func:`write_slicer_transform`."""
+    fields = dict(line.split(":", 1) for line in text.splitlines() if ":" in line)
+    kind = fields.get("Transform", "").strip()
+    try:
+        p = [float(v) for v in fields.get("Parameters", "").split()]
+        c = [float(v) for v in fields.get("FixedParameters", "0 0 0").split()]
+    except ValueError:
+        p, c = [], []
+    if not kind.startswith(("AffineTransform_", "MatrixOffsetTransformBase_")) or len(p) != 12 \
+            or len(c) != 3:
+        raise InputError(f"expected an ITK AffineTransform_double_3_3 with 12 parameters and "
+                         f"a 3-D centre in {path}, got {kind or 'no Transform'!r} with "
+                         f"{len(p)} parameters")
+    M = np.eye(4)
+    M[:3, :3] = np.reshape(p[:9], (3, 3))
+    M[:3, 3] = np.array(p[9:]) + np.array(c) - M[:3, :3] @ c      # y = A (x - c) + c + t
+    T = np.linalg.inv(_LPS @ M @ _LPS)
+    T[:3, 3] *= 1e-3
+    return T
 
 
 def write_slicer_transform(path, transform) -> Path:
@@ -371,8 +408,7 @@ def write_slicer_transform(path, transform) -> Path:
 
     T = np.array(transform, dtype=np.float64)
     T[:3, 3] *= 1e3
-    F = np.diag([-1.0, -1.0, 1.0, 1.0])
-    M = F @ np.linalg.inv(T) @ F
+    M = _LPS @ np.linalg.inv(T) @ _LPS
     params = " ".join(f"{v:.17g}" for v in [*M[:3, :3].ravel(), *M[:3, 3]])
     text = ("#Insight Transform File V1.0\n#Transform 0\n"
             "Transform: AffineTransform_double_3_3\n"
