@@ -22,8 +22,9 @@ nominal point matched at most once), so measured points may come in any order an
 part of the grid.
 
 Work is bounded: at most ``MAX_ASSESS_POINTS`` points (after averaging repeats); the
-statistics of the ``n (n - 1) / 2`` distances are accumulated in blocks (memory ``O(n)``), and
-the result keeps at most ``MAX_STORED_PAIRS`` of the pairs (evenly spaced) for the figures.
+statistics of the ``n (n - 1) / 2`` distances are accumulated in one compiled pass (memory
+``O(1)``), and the result keeps at most ``MAX_STORED_PAIRS`` of the pairs (evenly spaced) for
+the figures.
 """
 
 from __future__ import annotations
@@ -211,40 +212,62 @@ def _stats(acc) -> dict:
             "bias_mm": 1e3 * mean, "std_mm": 1e3 * float(np.sqrt(var)), "max_mm": 1e3 * mx}
 
 
-def _pair_distances(meas, nm, tolerance, block: int = 512):
-    """Statistics of the distance errors of every pair (blocks of rows, memory O(block n))
-    and at most ``MAX_STORED_PAIRS`` pairs (evenly spaced) with their distances."""
-    from scipy.spatial.distance import cdist
+def _pair_sums_py(meas, nm, classes, tol, acc):
+    """Sums ``[n, sum |e|, sum e, sum e^2, max |e|]`` of the distance errors of every pair
+    into ``acc`` (row 0: all pairs, then one row per class); compiled by :func:`_pair_sums`."""
+    n = meas.shape[0]
+    for i in range(n - 1):
+        for j in range(i + 1, n):
+            dm = 0.0
+            dn = 0.0
+            for a in range(3):
+                u = meas[i, a] - meas[j, a]
+                v = nm[i, a] - nm[j, a]
+                dm += u * u
+                dn += v * v
+            dn = np.sqrt(dn)
+            e = np.sqrt(dm) - dn
+            ae = abs(e)
+            for c in range(classes.shape[0] + 1):
+                if c == 0 or abs(dn - classes[c - 1]) <= tol:
+                    acc[c, 0] += 1.0
+                    acc[c, 1] += ae
+                    acc[c, 2] += e
+                    acc[c, 3] += e * e
+                    if ae > acc[c, 4]:
+                        acc[c, 4] = ae
 
+
+_KERNEL = []
+
+
+def _pair_sums(meas, nm, classes, tolerance):
+    """The sums of :func:`_pair_sums_py` in one compiled pass (numba, cached on disk)."""
+    if not _KERNEL:
+        from numba import njit
+
+        _KERNEL.append(njit(cache=True)(_pair_sums_py))
+    acc = np.zeros((len(classes) + 1, 5))
+    _KERNEL[0](np.ascontiguousarray(meas, dtype=np.float64),
+               np.ascontiguousarray(nm, dtype=np.float64), classes, float(tolerance), acc)
+    return acc
+
+
+def _pair_distances(meas, nm, tolerance):
+    """Statistics of the distance errors of every pair (a compiled pass, memory O(1)) and at
+    most ``MAX_STORED_PAIRS`` pairs (evenly spaced in row-major order) with their distances."""
     n = len(meas)
-    stride = max(1, -(-(n * (n - 1) // 2) // MAX_STORED_PAIRS))
+    total = n * (n - 1) // 2
     classes = 1e-3 * np.array(DISTANCE_CLASSES_MM)
-    acc = np.zeros((1 + len(classes), 5))
-    kept, offset = [], 0
-
-    def add(dn, e, pair):
-        nonlocal offset
-        k = np.searchsorted(0.5 * (classes[1:] + classes[:-1]), dn)
-        ok = np.abs(dn - classes[k]) <= tolerance
-        for row, x in [(0, e)] + [(c + 1, e[ok][k[ok] == c]) for c in range(len(classes))
-                                  if ok.any()]:
-            if len(x):
-                acc[row, :4] += [len(x), np.abs(x).sum(), x.sum(), x @ x]
-                acc[row, 4] = max(acc[row, 4], np.abs(x).max())
-        take = np.arange((-offset) % stride, len(e), stride)
-        kept.append((*pair(take), dn[take], e[take]))
-        offset += len(e)
-
-    for a in range(0, n, block):
-        b = min(a + block, n)
-        iu, ju = np.triu_indices(b - a, k=1)
-        add(cdist(nm[a:b], nm[a:b])[iu, ju], cdist(meas[a:b], meas[a:b])[iu, ju]
-            - cdist(nm[a:b], nm[a:b])[iu, ju], lambda q: (a + iu[q], a + ju[q]))
-        if b < n:
-            dn = cdist(nm[a:b], nm[b:]).ravel()
-            w = n - b
-            add(dn, cdist(meas[a:b], meas[b:]).ravel() - dn, lambda q: (a + q // w, b + q % w))
-    i, j, dn, e = (np.concatenate(v) for v in zip(*kept))
+    acc = _pair_sums(meas, nm, classes, tolerance)
+    k = np.arange(0, total, max(1, -(-total // MAX_STORED_PAIRS)), dtype=np.int64)
+    # row i of the upper triangle starts at i n - i (i + 1) / 2
+    starts = np.arange(n, dtype=np.int64) * n - np.arange(n, dtype=np.int64) * np.arange(
+        1, n + 1, dtype=np.int64) // 2
+    i = np.searchsorted(starts, k, side="right") - 1
+    j = k - starts[i] + i + 1
+    dn = np.linalg.norm(nm[i] - nm[j], axis=1)
+    e = np.linalg.norm(meas[i] - meas[j], axis=1) - dn
     keys = ["all"] + [f"{c:g}" for c in DISTANCE_CLASSES_MM]
     return dict(zip(keys, map(_stats, acc))), np.stack([i, j], axis=1), dn, e
 
