@@ -158,7 +158,7 @@ def pivot(options: PivotOptions) -> NavigationRun:
         threshold_mm=None if o.threshold_mm is None else check_nonnegative(o.threshold_mm,
                                                                            "--threshold-mm"),
         seed=o.seed)
-    s = {"output": o.output, "input": str(o.poses), **res.to_dict()}
+    s = {"output": o.output, "input": str(o.poses), **res.to_dict(), "dropped": t.dropped}
     if o.output:
         _write_json(o.output, {"format": TOOL_FORMAT, "version": 1, "kind": "pivot",
                                "tip_transform": res.tip_transform, **s,
@@ -207,7 +207,7 @@ def spin(options: SpinOptions) -> NavigationRun:
                                                                        "--max-rms-mm"),
         threshold_deg=None if o.threshold_deg is None
         else check_nonnegative(o.threshold_deg, "--threshold-deg"), seed=o.seed)
-    s = {"output": o.output, "input": str(o.poses), **res.to_dict()}
+    s = {"output": o.output, "input": str(o.poses), **res.to_dict(), "dropped": t.dropped}
     if o.output:
         _write_json(o.output, {"format": TOOL_FORMAT, "version": 1, "kind": "spin", **s,
                                "per_pose": res.per_pose()})
