@@ -17,7 +17,8 @@ geometry (50 mm pitch in Hummel's board), several samples are recorded in each, 
 Correspondence: ``"order"`` pairs the i-th measured point (after averaging repeats) with the
 i-th nominal one; ``"nearest"`` finds the pairing by nearest neighbours after a first rigid fit
 (an iterative closest point on a k-d tree, ``O(n log m)`` per iteration, started from the
-identity and from the principal-axes alignments, keeping the start that fits best with every
+identity and the principal-axes alignments, and where these axes are not unique or fail from
+the 24 rotations of a cube about the centroids, keeping the start that fits best with every
 nominal point matched at most once), so measured points may come in any order and cover only
 part of the grid.
 
@@ -82,36 +83,45 @@ def _pca_starts(meas, nom):
     return out
 
 
-def _match_nearest(meas, nom, max_iter: int = 50):
-    """Index of the nominal point of every measured point (ICP on a k-d tree; a start whose
-    final pairing uses a nominal point twice is not taken)."""
-    from scipy.spatial import cKDTree
-
+def _icp(tree, meas, nom, R, t, max_iter):
+    """Nearest-neighbour ICP from ``(R, t)``: (nominal index per measured point, RMS), or
+    None when the final pairing uses a nominal point twice."""
     from ._register import rigid_fit
 
+    cols = None
+    for _ in range(max_iter):
+        new = tree.query(meas @ R.T + t)[1]
+        if cols is not None and np.array_equal(new, cols):
+            break
+        cols = new
+        Rb, tb, _ = rigid_fit(nom[cols][None], meas[None])
+        R, t = Rb[0], tb[0]
+    if len(np.unique(cols)) < len(cols):
+        return None
+    return cols, float(np.sqrt(np.mean(np.sum((meas @ R.T + t - nom[cols]) ** 2, axis=1))))
+
+
+def _match_nearest(meas, nom, max_iter: int = 50):
+    """Index of the nominal point of every measured point (ICP on a k-d tree from several
+    starts; a start whose final pairing uses a nominal point twice is not taken)."""
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
     tree = cKDTree(nom)
-    starts = [(np.eye(3), np.zeros(3)), (np.eye(3), nom.mean(0) - meas.mean(0))]
-    starts += _pca_starts(meas, nom)
-    best, best_rms = None, np.inf
-    for R, t in starts:
-        cols = None
-        for _ in range(max_iter):
-            new = tree.query(meas @ R.T + t)[1]
-            if cols is not None and np.array_equal(new, cols):
-                break
-            cols = new
-            Rb, tb, _ = rigid_fit(nom[cols][None], meas[None])
-            R, t = Rb[0], tb[0]
-        if len(np.unique(cols)) < len(cols):
-            continue
-        rms = float(np.sqrt(np.mean(np.sum((meas @ R.T + t - nom[cols]) ** 2, axis=1))))
-        if rms < best_rms - 1e-12:
-            best, best_rms = cols, rms
-    if best is None:
+    cm, cn = meas.mean(axis=0), nom.mean(axis=0)
+    found = [r for R, t in [(np.eye(3), np.zeros(3))] + _pca_starts(meas, nom)
+             if (r := _icp(tree, meas, nom, R, t, max_iter)) is not None]
+    sv = [np.linalg.svd(x - x.mean(axis=0), compute_uv=False) for x in (meas, nom)]
+    if not found or any(np.min(v[1:] / np.maximum(v[:-1], 1e-300)) > 0.9 for v in sv):
+        # principal axes not unique (a cube, a square grid): the 24 rotations of a cube about
+        # the centroids give a start near every symmetric pairing
+        found += [r for R in Rotation.create_group("O").as_matrix()
+                  if (r := _icp(tree, meas, nom, R, cn - R @ cm, max_iter)) is not None]
+    if not found:
         raise InputError("expected measured points that match distinct nominal points, got "
                          "several nearest to one nominal point from every start: check the "
                          "nominal grid and its units, or use match 'order'")
-    return best
+    return min(found, key=lambda r: r[1])[0]
 
 
 @dataclass(frozen=True, eq=False)
