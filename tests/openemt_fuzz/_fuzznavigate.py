@@ -5,7 +5,8 @@ Every case draws a recording (a pivot, a spin, a fiducial set, a grid, a log wit
 known truth, a file kind (pose CSV, track-log CSV, track-log HDF5, pose dataset, markups) and
 random damage: rotation blocks scaled, sheared or reflected, NaN / inf / 1e300 values, failed
 statuses, torn rows, too few rows, duplicated or collinear points, labels that disagree, times
-that go back. The command runs in this process (``openemt.cli.main``); the outcome is
+that go back, and in HDF5 logs a broken structure (a ``rows`` or ``version`` attribute that is
+not one, poses of the wrong shape or complex, a status of the wrong shape, times too short). The command runs in this process (``openemt.cli.main``); the outcome is
 
 * ``ok``: exit 0 with a finite answer whose row counts add up (``n`` plus every ``dropped``
   reason equals the rows written), and no answer from rotation blocks that are not rotations;
@@ -122,14 +123,32 @@ def _write(path: Path, kind, P, status, times):
         return path.with_suffix(".csv")
     import h5py
 
+    rng = np.random.default_rng(len(P) + int(np.nansum(np.isfinite(P))))
     with h5py.File(path.with_suffix(".h5"), "w") as f:
         f.attrs.update({"format": "openemt-track", "version": 1, "complete": True,
                         "rows": len(P)})
-        f["times"], f["poses"], f["pose_vectors"] = times, P, np.zeros((len(P), 6))
+        f["times"], f["pose_vectors"] = times, np.zeros((len(P), 6))
         f["status"] = status.astype(np.int8)
         for k in ("residual", "distortion"):
             f[k] = np.zeros(len(P))
         f["distorted"] = np.zeros(len(P), bool)
+        broken = str(rng.choice(["none"] * 6 + ["rows", "version", "shape", "status", "dtype",
+                                                 "times"]))
+        if broken == "rows":
+            f.attrs["rows"] = ["x", -5, 10 ** 12, 2.5][int(rng.integers(0, 4))]
+        elif broken == "version":
+            f.attrs["version"] = [2, "two"][int(rng.integers(0, 2))]
+        elif broken == "shape":
+            P = P[:, :3, :3]
+        elif broken == "status":
+            del f["status"]
+            f["status"] = np.zeros((len(P), 2), np.int8)
+        elif broken == "dtype":
+            P = P.astype(np.complex128) + 1j
+        elif broken == "times":
+            del f["times"]
+            f["times"] = np.zeros(1)
+        f["poses"] = P
     return path.with_suffix(".h5")
 
 

@@ -160,9 +160,11 @@ def _read_h5(path: Path, sensor):
                 n = min(n, max(int(g.attrs["rows"]), 0))
             _rows_bounded(n, path)
             if g["poses"].shape[1:] != (4, 4) or g["status"].ndim != 1 or \
-                    g["status"].shape[0] < n:
-                raise InputError(f"expected poses (N, 4, 4) and status (N,) in {path}, got "
-                                 f"{g['poses'].shape} and {g['status'].shape}")
+                    g["status"].shape[0] < n or g["poses"].dtype.kind not in "fiu" or \
+                    g["status"].dtype.kind not in "iu":
+                raise InputError(f"expected real poses (N, 4, 4) and integer status (N,) in "
+                                 f"{path}, got {g['poses'].dtype} {g['poses'].shape} and "
+                                 f"{g['status'].dtype} {g['status'].shape}")
             times = g["times"][:n] if "times" in g and g["times"].shape[:1] >= (n,) else None
             P = _status_rows(g["poses"][:n], g["status"][:n], dropped)
             kind = "poses-h5" if schema == POSES_SCHEMA else "track-log"
