@@ -83,7 +83,6 @@ def _damage(rng, P, status, times, matrices: bool):
                  "shear": np.array([[1, rng.uniform(0.01, 1), 0], [0, 1, 0], [0, 0, 1.0]]),
                  "reflect": np.diag([1.0, 1.0, -1.0])}[what]
             P[rows, :3, :3] = P[rows, :3, :3] @ M
-            names.append("rotation")
         elif what == "nan":
             P[rows, rng.integers(0, 3), 3] = np.nan
         elif what == "inf":
@@ -99,6 +98,12 @@ def _damage(rng, P, status, times, matrices: bool):
         else:
             P[:] = P[0]
         names.append(str(what))
+    # damaged rotations that survive the other damage (NaN rows, copies of row 0)
+    ok = np.all(np.isfinite(P), axis=(1, 2))
+    R = P[ok, :3, :3]
+    if len(R) and (np.any(np.abs(np.einsum("nki,nkj->nij", R, R) - np.eye(3)) > 1e-4)
+                   or np.any(np.linalg.det(R) < 0)):
+        names.append("rotation")
     return names
 
 
