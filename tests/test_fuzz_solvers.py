@@ -38,11 +38,12 @@ def test_no_crash_and_no_wrong_converged_pose():
 def test_bench_fuzz_command(tmp_path, capsys):
     code = main(["bench", "fuzz", "--reader-cases", "18", "--cli-cases", "7",
                  "--solver-samples", "400", "--live-cases", "0", "--writer-rounds", "0",
-                 "--hostile-cases", "2", "--json", "--quiet"])
+                 "--hostile-cases", "2", "--navigate-cases", "3", "--json", "--quiet"])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert out["reader_cases"] == 18 and out["cli_cases"] == 7 and out["solver_samples"] == 400
     assert out["hostile_live"]["cases"] == 0     # tests/test_live_fuzz.py runs live cases
     assert out["hostile_readers"]["runs"] == out["hostile_readers"]["held"] == 2
+    assert out["navigate"]["cases"] == 3      # tests/test_fuzz_navigate.py runs more
     assert out["findings"] == 0, out["examples"]
     assert sum(sum(c.values()) for c in out["readers"].values()) == 18

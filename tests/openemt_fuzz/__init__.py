@@ -34,6 +34,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--writer-rounds", type=int, default=1,
                         help="rounds of hostile output paths for every writing command "
                              "(openemt_fuzz._fuzzhostile_writers; 0 skips them) (1)")
+    parser.add_argument("--navigate-cases", type=int, default=500,
+                        help="generated navigation inputs given to pivot, spin, register, "
+                             "assess and points (openemt_fuzz._fuzznavigate) (500)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -78,7 +81,7 @@ def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None
 
 def run(args) -> dict:
     for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases", "writer_rounds",
-                 "hostile_cases"):
+                 "hostile_cases", "navigate_cases"):
         if (getattr(args, name) or 0) < 0:
             raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
                              f"got {getattr(args, name)}")
@@ -107,6 +110,11 @@ def run(args) -> dict:
     if args.writer_rounds:
         from ._fuzzhostile_writers import hostile_writers
         writers = hostile_writers(args.writer_rounds, time_limit=max(args.time_limit, 60.0))
+    from ._fuzznavigate import fuzz_navigate
+
+    with progress(total=args.navigate_cases, desc="navigation", args=args, unit="case") as bar:
+        navigate = fuzz_navigate(args.navigate_cases, args.seed, time_limit=args.time_limit,
+                                 progress=bar.update)
     from ._fuzzhostile_readers import n_runs, run_hostile_readers
 
     limit = args.hostile_cases
@@ -120,7 +128,7 @@ def run(args) -> dict:
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
         + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
-        + hostile.get("findings", 0)
+        + hostile.get("findings", 0) + navigate["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -137,6 +145,7 @@ def run(args) -> dict:
         "hostile_live": hostile_live,
         "hostile_writers": writers,
         "hostile_readers": hostile,
+        "navigate": navigate,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

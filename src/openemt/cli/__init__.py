@@ -38,6 +38,7 @@ COMMANDS = {
     "spin": ("spin", "spin calibration: a tracked tool's axis"),
     "register": ("register", "paired-point registration with FRE and predicted TRE"),
     "assess": ("assess", "accuracy assessment on a machined grid (Hummel et al. 2005)"),
+    "points": ("points", "points from the dwells of a recorded log, as 3D Slicer markups"),
     "reproduce": ("reproduce", "reproduce a table of MacLachlan et al. 2025 from raw data"),
     "report": ("report", "write a self-contained HTML calibration and characterization report"),
     "track": ("track",

@@ -1,27 +1,33 @@
-"""Pieces shared by the navigation commands (``pivot``, ``spin``, ``register``, ``assess``):
-the unit options and the tool-calibration file they write."""
+"""The navigation commands (``pivot``, ``spin``, ``register``, ``assess``, ``points``,
+``align``): each builds its options from its workflow's options record, calls the workflow
+and prints; the texts live with the workflows in :mod:`openemt.navigate`."""
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
+import sys
 
-__all__ = ["add_units", "write_json"]
+from . import command_help
+from ._common import add_common, add_options, emit, options_from
 
-
-def add_units(p, *, angles: bool = True) -> None:
-    """``--length-unit`` (and ``--angle-unit``) of CSV columns without a unit suffix."""
-    p.add_argument("--length-unit", choices=("m", "mm"), default="m",
-                   help="unit of CSV position columns without a _m/_mm suffix (default m)")
-    if angles:
-        p.add_argument("--angle-unit", choices=("rad", "deg"), default="rad",
-                       help="unit of CSV rotation-vector columns without a _rad/_deg suffix")
+__all__ = ["add_step", "run_step"]
 
 
-def write_json(path, doc: dict) -> None:
-    """Write a JSON document atomically (NaN written as null)."""
-    from ..io import atomic_path
-    from ._common import to_jsonable
+def add_step(sub, name: str, options_cls, workflow, after=None):
+    """Add command ``name``: the fields of ``options_cls`` as options; running it calls
+    ``workflow(options)`` and then ``after(args, run)`` if given."""
+    p = sub.add_parser(name, help=command_help(name),
+                       description=" ".join(options_cls.__doc__.split()))
+    add_options(p, options_cls)
+    add_common(p)
+    p.set_defaults(func=lambda args: run_step(args, options_cls, workflow, after))
+    return p
 
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(to_jsonable(doc), indent=1) + "\n")
+
+def run_step(args, options_cls, workflow, after=None) -> int:
+    run = workflow(options_from(options_cls, args))
+    if after is not None:
+        after(args, run)
+    emit(args, run.to_dict(), run.lines)
+    for w in run.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0

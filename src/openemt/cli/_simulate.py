@@ -8,7 +8,7 @@ import numpy as np
 
 from .._errors import InputError
 from . import command_help
-from ._common import add_common, emit
+from ._common import add_common, add_options, emit, options_from
 
 __all__ = ["parse_distortion", "register", "run"]
 
@@ -76,6 +76,9 @@ def register(subparsers) -> None:
                    help="output dataset (.h5), or export (.tsv) with --format ndi")
     p.add_argument("--truth-calibration", type=Path, default=None, metavar="CAL.json",
                    help="also write the preset's true dipole-equivalent calibration (JSON)")
+    from ..navigate import MotionOptions
+
+    add_options(p, MotionOptions)
     add_common(p)
     p.set_defaults(func=run)
 
@@ -128,6 +131,12 @@ def _preset(args):
 
 
 def run(args) -> int:
+    if args.motion:                                    # a tracked tool's motion
+        from ..navigate import MotionOptions, simulate_tool_session
+
+        run_ = simulate_tool_session(options_from(MotionOptions, args, output=str(args.output)))
+        emit(args, run_.to_dict(), run_.lines)
+        return 0
     from ..io import write_calibration, write_dataset
     from ..simulate import simulate, truth_calibration
 

@@ -11,8 +11,10 @@ names the columns (case-insensitive, any order, extra columns ignored)::
   radians) or scalar-first quaternion ``qw, qx, qy, qz``; none: position-only rows (identity
   rotation, ``has_orientation`` False);
 * reference pose: the same columns with the prefix ``ref_``;
-* ``pose_id`` (or ``group``): label of the static pose a sample belongs to; ``time`` (s);
-  ``frame``: the tracker's frame number.
+* ``pose_id`` (or ``group``): label of the static pose a sample belongs to; ``time`` or
+  ``time_s`` (s); ``frame``: the tracker's frame number; ``sensor``: the sensor's name (a
+  several-sensor ``openemt track --log`` CSV); any other numeric column (``status``, ...) is
+  kept in ``PoseTable.columns``.
 
 Rows of the wrong length (a truncated last row) and rows with empty or non-finite pose values
 are read as NaN rows and listed by line number (``PoseTable.bad_lines``,
@@ -24,7 +26,7 @@ are read as NaN rows and listed by line number (``PoseTable.bad_lines``,
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +67,10 @@ class PoseTable:
         Line numbers of rows with the wrong number of fields (kept as NaN rows).
     nonfinite_lines : tuple of int
         Line numbers of the other rows with a missing or non-finite pose value.
+    sensor : ndarray of str, shape (N,) or None
+        ``sensor`` column.
+    columns : dict of str -> ndarray, shape (N,)
+        The other numeric columns by header name (NaN where empty or not a number).
     """
 
     poses: np.ndarray
@@ -77,6 +83,8 @@ class PoseTable:
     frame: np.ndarray | None = None
     bad_lines: tuple = ()
     nonfinite_lines: tuple = ()
+    sensor: np.ndarray | None = None
+    columns: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -257,9 +265,10 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     body = rows[1:]
     line_no = [k for k, _ in numbered[1:]]
     gcol = cols.get("pose_id", cols.get("group"))
-    tcol = cols.get("time", cols.get("t"))
+    tcol = cols.get("time", cols.get("time_s", cols.get("t")))
     fcol = cols.get("frame")
-    num_idx = [i for i, h in enumerate(header) if i != gcol]
+    scol = cols.get("sensor")
+    num_idx = [i for i, h in enumerate(header) if i not in (gcol, scol)]
     data = np.full((len(body), len(header)), np.nan)
     bad = []
     for r, row in enumerate(body):
@@ -281,9 +290,9 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
         raise InputError(f"expected columns x, y, z (optionally _m/_mm) in {path}, "
                          f"got {', '.join(header)}")
     Pref, ref_rot = _poses_from_columns(cols, data, "ref_", length_unit, angle_unit, path)
-    group = None
-    if gcol is not None:
-        group = np.array([row[gcol].strip() if gcol < len(row) else "" for row in body], dtype=str)
+    group, sensor = (None if c is None else np.array(
+        [row[c].strip() if c < len(row) else "" for row in body], dtype=str)
+        for c in (gcol, scol))
     time = data[:, tcol] if tcol is not None else None
     frame = None
     if fcol is not None:
@@ -297,7 +306,9 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     return PoseTable(poses=P, reference=Pref, group=group, time=time, has_orientation=has_rot,
                      reference_has_orientation=bool(Pref is not None and ref_rot),
                      source=str(path), frame=frame, bad_lines=tuple(bad),
-                     nonfinite_lines=tuple(int(v) for v in nonfinite))
+                     nonfinite_lines=tuple(int(v) for v in nonfinite), sensor=sensor,
+                     columns={h: data[:, i] for i, h in enumerate(header)
+                              if i in num_idx and h not in _ALL_POSE_NAMES})
 
 
 _ALL_POSE_NAMES = {f"{p}{n}{s}" for p in ("", "ref_") for n in

@@ -1,11 +1,29 @@
 """The navigation engineer's toolkit on tracked poses: pivot and spin calibration of a tool,
-paired-point registration with FRE and predicted TRE, the standard grid accuracy assessment,
-and 3D Slicer markups files. Pure array functions with frozen results; see docs/navigation.md.
+paired-point registration with FRE and predicted TRE (and its 3D Slicer transform), the
+standard grid accuracy assessment, points from the dwells of a log, 3D Slicer markups files,
+one reader of every pose file, and simulated tool motions. Pure array functions with frozen
+results, and one workflow per step (an options record in, a :class:`NavigationRun` out); see
+docs/navigation.md.
 """
 
-from ._assess import DISTANCE_CLASSES_MM, GridAssessment, assess_grid, regular_grid
-from ._inputs import ToolPoses, read_points_csv, read_tool_poses
-from ._markups import MarkupPoints, is_markups_path, read_markups
+from ._assess import (
+    DISTANCE_CLASSES_MM,
+    MAX_ASSESS_POINTS,
+    MAX_STORED_PAIRS,
+    GridAssessment,
+    assess_grid,
+    regular_grid,
+)
+from ._inputs import (
+    MAX_POSE_FILE_BYTES,
+    MAX_POSE_ROWS,
+    ROTATION_TOLERANCE,
+    ToolPoses,
+    check_rotations,
+    read_points_csv,
+    read_tool_poses,
+)
+from ._markups import MarkupPoints, is_markups_path, read_markups, write_markups
 from ._pivot import (
     MAX_PIVOT_RMS_MM,
     MAX_SPIN_RMS_DEG,
@@ -27,9 +45,62 @@ from ._register import (
     register_points_batch,
     rigid_fit,
 )
-from ._simulate import simulate_grid_points, simulate_pivot_poses, simulate_spin_poses
+from ._simulate import (
+    MOTIONS,
+    MotionOptions,
+    simulate_grid_points,
+    simulate_pivot_poses,
+    simulate_spin_poses,
+    simulate_tool_session,
+)
+from ._steps import (
+    MAX_LOG_SECONDS,
+    REGISTRATION_FORMAT,
+    AlignOptions,
+    AssessOptions,
+    NavigationRun,
+    PivotOptions,
+    PointsOptions,
+    RegisterOptions,
+    SpinOptions,
+    align_poses,
+    assess,
+    pivot,
+    points,
+    read_registration,
+    register,
+    spin,
+    write_slicer_transform,
+)
 
 __all__ = [
+    "MAX_ASSESS_POINTS",
+    "MAX_STORED_PAIRS",
+    "MAX_LOG_SECONDS",
+    "MOTIONS",
+    "MotionOptions",
+    "simulate_tool_session",
+    "MAX_POSE_FILE_BYTES",
+    "MAX_POSE_ROWS",
+    "REGISTRATION_FORMAT",
+    "ROTATION_TOLERANCE",
+    "AlignOptions",
+    "AssessOptions",
+    "NavigationRun",
+    "PivotOptions",
+    "PointsOptions",
+    "RegisterOptions",
+    "SpinOptions",
+    "align_poses",
+    "assess",
+    "check_rotations",
+    "pivot",
+    "points",
+    "read_registration",
+    "register",
+    "spin",
+    "write_markups",
+    "write_slicer_transform",
     "DISTANCE_CLASSES_MM",
     "MAX_PIVOT_RMS_MM",
     "MAX_SPIN_RMS_DEG",

@@ -16,9 +16,16 @@ geometry (50 mm pitch in Hummel's board), several samples are recorded in each, 
 
 Correspondence: ``"order"`` pairs the i-th measured point (after averaging repeats) with the
 i-th nominal one; ``"nearest"`` finds the pairing by nearest neighbours after a first rigid fit
-(an iterative closest point with one-to-one assignment, started from the identity and from the
-principal-axes alignments, keeping the start that fits best), so measured points may come in
-any order and cover only part of the grid.
+(an iterative closest point on a k-d tree, ``O(n log m)`` per iteration, started from the
+identity and the principal-axes alignments, and where these axes are not unique or fail from
+the 24 rotations of a cube about the centroids, keeping the start that fits best with every
+nominal point matched at most once), so measured points may come in any order and cover only
+part of the grid.
+
+Work is bounded: at most ``MAX_ASSESS_POINTS`` points (after averaging repeats); the
+statistics of the ``n (n - 1) / 2`` distances are accumulated in one compiled pass (memory
+``O(1)``), and the result keeps at most ``MAX_STORED_PAIRS`` of the pairs (evenly spaced) for
+the figures.
 """
 
 from __future__ import annotations
@@ -34,10 +41,15 @@ from .._result import Result
 from ..geometry import check_points
 from ._register import register_points
 
-__all__ = ["DISTANCE_CLASSES_MM", "GridAssessment", "assess_grid", "regular_grid"]
+__all__ = ["DISTANCE_CLASSES_MM", "MAX_ASSESS_POINTS", "MAX_STORED_PAIRS", "GridAssessment",
+           "assess_grid", "regular_grid"]
 
 #: Nominal-distance classes (mm) of Hummel et al. 2005.
 DISTANCE_CLASSES_MM = (50.0, 150.0, 300.0)
+#: Most measured points (after averaging repeats) an assessment takes (2e8 distances).
+MAX_ASSESS_POINTS = 20_000
+#: Most point pairs kept in the result (for the figures); the statistics use every pair.
+MAX_STORED_PAIRS = 200_000
 
 
 def regular_grid(pitch, shape) -> np.ndarray:
@@ -71,28 +83,45 @@ def _pca_starts(meas, nom):
     return out
 
 
-def _match_nearest(meas, nom, max_iter: int = 50):
-    """Index of the nominal point of every measured point (one-to-one ICP)."""
-    from scipy.optimize import linear_sum_assignment
-    from scipy.spatial.distance import cdist
+def _icp(tree, meas, nom, R, t, max_iter):
+    """Nearest-neighbour ICP from ``(R, t)``: (nominal index per measured point, RMS), or
+    None when the final pairing uses a nominal point twice."""
+    from ._register import rigid_fit
 
-    starts = [(np.eye(3), np.zeros(3)), (np.eye(3), nom.mean(0) - meas.mean(0))]
-    starts += _pca_starts(meas, nom)
-    best, best_rms = None, np.inf
-    for R, t in starts:
-        cols = None
-        for _ in range(max_iter):
-            cost = cdist(meas @ R.T + t, nom, "sqeuclidean")
-            _, new = linear_sum_assignment(cost)
-            if cols is not None and np.array_equal(new, cols):
-                break
-            cols = new
-            reg = register_points(nom[cols], meas)
-            R, t = reg.transform[:3, :3], reg.transform[:3, 3]
-        rms = float(np.sqrt(np.mean(np.sum((meas @ R.T + t - nom[cols]) ** 2, axis=1))))
-        if rms < best_rms - 1e-12:
-            best, best_rms = cols, rms
-    return best
+    cols = None
+    for _ in range(max_iter):
+        new = tree.query(meas @ R.T + t)[1]
+        if cols is not None and np.array_equal(new, cols):
+            break
+        cols = new
+        Rb, tb, _ = rigid_fit(nom[cols][None], meas[None])
+        R, t = Rb[0], tb[0]
+    if len(np.unique(cols)) < len(cols):
+        return None
+    return cols, float(np.sqrt(np.mean(np.sum((meas @ R.T + t - nom[cols]) ** 2, axis=1))))
+
+
+def _match_nearest(meas, nom, max_iter: int = 50):
+    """Index of the nominal point of every measured point (ICP on a k-d tree from several
+    starts; a start whose final pairing uses a nominal point twice is not taken)."""
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
+    tree = cKDTree(nom)
+    cm, cn = meas.mean(axis=0), nom.mean(axis=0)
+    found = [r for R, t in [(np.eye(3), np.zeros(3))] + _pca_starts(meas, nom)
+             if (r := _icp(tree, meas, nom, R, t, max_iter)) is not None]
+    sv = [np.linalg.svd(x - x.mean(axis=0), compute_uv=False) for x in (meas, nom)]
+    if not found or any(np.min(v[1:] / np.maximum(v[:-1], 1e-300)) > 0.9 for v in sv):
+        # principal axes not unique (a cube, a square grid): the 24 rotations of a cube about
+        # the centroids give a start near every symmetric pairing
+        found += [r for R in Rotation.create_group("O").as_matrix()
+                  if (r := _icp(tree, meas, nom, R, cn - R @ cm, max_iter)) is not None]
+    if not found:
+        raise InputError("expected measured points that match distinct nominal points, got "
+                         "several nearest to one nominal point from every start: check the "
+                         "nominal grid and its units, or use match 'order'")
+    return min(found, key=lambda r: r[1])[0]
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,7 +142,10 @@ class GridAssessment(Result):
     pair_index : ndarray of int, shape (P, 2)
         The point pairs of the distance errors.
     nominal_distance, distance_error : ndarray, shape (P,)
-        Nominal distance and measured minus nominal distance per pair (m).
+        Nominal distance and measured minus nominal distance per pair (m); at most
+        ``MAX_STORED_PAIRS`` pairs, evenly spaced over all of them.
+    distance_stats : dict
+        Statistics (mm) of the errors of every pair: ``"all"`` and one per distance class.
     jitter : dict or None
         :meth:`openemt.io.StaticAverage.summary` of the repeated samples (mm, deg).
     rotation_errors : ndarray, shape (n,) or None
@@ -138,6 +170,7 @@ class GridAssessment(Result):
     n_rows: int
     n_nonfinite: int
     class_tolerance: float
+    distance_stats: dict
     _not_in_dict: ClassVar[tuple] = ()
 
     @property
@@ -150,11 +183,7 @@ class GridAssessment(Result):
 
     def distance_classes(self) -> dict:
         """Distance-error statistics (mm) per nominal-distance class of Hummel et al. 2005."""
-        out = {}
-        for c in DISTANCE_CLASSES_MM:
-            sel = np.abs(self.nominal_distance - 1e-3 * c) <= self.class_tolerance
-            out[f"{c:g}"] = _distance_stats(self.distance_error[sel])
-        return out
+        return {k: v for k, v in self.distance_stats.items() if k != "all"}
 
     def _items(self) -> dict:
         d = self.residual_distances
@@ -163,7 +192,7 @@ class GridAssessment(Result):
                "rigid_rms_mm": 1e3 * float(np.sqrt(np.mean(d ** 2))),
                "rigid_mean_mm": 1e3 * float(np.mean(d)),
                "rigid_max_mm": 1e3 * float(np.max(d))}
-        s = _distance_stats(self.distance_error)
+        s = self.distance_stats["all"]
         out.update({f"distance_error_{k}": v for k, v in s.items() if k != "n"})
         out["n_distances"] = s["n"]
         out["distance_classes"] = self.distance_classes()
@@ -180,16 +209,77 @@ class GridAssessment(Result):
         return out
 
 
-def _distance_stats(e) -> dict:
-    e = 1e3 * np.asarray(e, dtype=np.float64)
-    if len(e) == 0:
+def _stats(acc) -> dict:
+    """Statistics (mm) from the sums ``[n, sum |e|, sum e, sum e^2, max |e|]`` (m)."""
+    n, sa, se, s2, mx = acc
+    if n == 0:
         nan = float("nan")
         return {"n": 0, "mean_mm": nan, "rms_mm": nan, "bias_mm": nan, "std_mm": nan,
                 "max_mm": nan}
-    return {"n": len(e), "mean_mm": float(np.mean(np.abs(e))),
-            "rms_mm": float(np.sqrt(np.mean(e ** 2))), "bias_mm": float(np.mean(e)),
-            "std_mm": float(np.std(e, ddof=1)) if len(e) > 1 else 0.0,
-            "max_mm": float(np.max(np.abs(e)))}
+    mean = se / n
+    var = max(s2 - n * mean ** 2, 0.0) / (n - 1) if n > 1 else 0.0
+    return {"n": int(n), "mean_mm": 1e3 * sa / n, "rms_mm": 1e3 * float(np.sqrt(s2 / n)),
+            "bias_mm": 1e3 * mean, "std_mm": 1e3 * float(np.sqrt(var)), "max_mm": 1e3 * mx}
+
+
+def _pair_sums_py(meas, nm, classes, tol, acc):
+    """Sums ``[n, sum |e|, sum e, sum e^2, max |e|]`` of the distance errors of every pair
+    into ``acc`` (row 0: all pairs, then one row per class); compiled by :func:`_pair_sums`."""
+    n = meas.shape[0]
+    for i in range(n - 1):
+        for j in range(i + 1, n):
+            dm = 0.0
+            dn = 0.0
+            for a in range(3):
+                u = meas[i, a] - meas[j, a]
+                v = nm[i, a] - nm[j, a]
+                dm += u * u
+                dn += v * v
+            dn = np.sqrt(dn)
+            e = np.sqrt(dm) - dn
+            ae = abs(e)
+            for c in range(classes.shape[0] + 1):
+                if c == 0 or abs(dn - classes[c - 1]) <= tol:
+                    acc[c, 0] += 1.0
+                    acc[c, 1] += ae
+                    acc[c, 2] += e
+                    acc[c, 3] += e * e
+                    if ae > acc[c, 4]:
+                        acc[c, 4] = ae
+
+
+_KERNEL = []
+
+
+def _pair_sums(meas, nm, classes, tolerance):
+    """The sums of :func:`_pair_sums_py` in one compiled pass (numba, cached on disk)."""
+    if not _KERNEL:
+        from numba import njit
+
+        _KERNEL.append(njit(cache=True)(_pair_sums_py))
+    acc = np.zeros((len(classes) + 1, 5))
+    _KERNEL[0](np.ascontiguousarray(meas, dtype=np.float64),
+               np.ascontiguousarray(nm, dtype=np.float64), classes, float(tolerance), acc)
+    return acc
+
+
+def _pair_distances(meas, nm, tolerance):
+    """Statistics of the distance errors of every pair (a compiled pass, memory O(1)) and at
+    most ``MAX_STORED_PAIRS`` pairs (evenly spaced in row-major order) with their distances."""
+    n = len(meas)
+    total = n * (n - 1) // 2
+    classes = 1e-3 * np.array(DISTANCE_CLASSES_MM)
+    acc = _pair_sums(meas, nm, classes, tolerance)
+    k = np.arange(0, total, max(1, -(-total // MAX_STORED_PAIRS)), dtype=np.int64)
+    # row i of the upper triangle starts at i n - i (i + 1) / 2
+    starts = np.arange(n, dtype=np.int64) * n - np.arange(n, dtype=np.int64) * np.arange(
+        1, n + 1, dtype=np.int64) // 2
+    i = np.searchsorted(starts, k, side="right") - 1
+    j = k - starts[i] + i + 1
+    dn = np.linalg.norm(nm[i] - nm[j], axis=1)
+    e = np.linalg.norm(meas[i] - meas[j], axis=1) - dn
+    keys = ["all"] + [f"{c:g}" for c in DISTANCE_CLASSES_MM]
+    return dict(zip(keys, map(_stats, acc))), np.stack([i, j], axis=1), dn, e
 
 
 def assess_grid(measured, nominal, *, match: str = "order", groups=None,
@@ -254,6 +344,9 @@ def assess_grid(measured, nominal, *, match: str = "order", groups=None,
     if len(P) < 3:
         raise InputError(f"expected at least 3 finite measured points, got {len(P)} (of "
                          f"{n_rows} rows)")
+    if len(P) > MAX_ASSESS_POINTS:
+        raise InputError(f"expected at most {MAX_ASSESS_POINTS} measured points (after "
+                         f"averaging repeats), got {len(P)}: assess a part of the grid")
     meas = P[:, :3, 3]
     if match == "order":
         if len(meas) != len(nom):
@@ -268,9 +361,7 @@ def assess_grid(measured, nominal, *, match: str = "order", groups=None,
         idx = _match_nearest(meas, nom)
     nm = nom[idx]
     reg = register_points(nm, meas)
-    iu, ju = np.triu_indices(len(meas), k=1)
-    dn = np.linalg.norm(nm[iu] - nm[ju], axis=1)
-    dm = np.linalg.norm(meas[iu] - meas[ju], axis=1)
+    stats, pairs, dn, de = _pair_distances(meas, nm, float(class_tolerance))
     rot_err = None
     if rot:
         from scipy.spatial.transform import Rotation
@@ -279,7 +370,7 @@ def assess_grid(measured, nominal, *, match: str = "order", groups=None,
         rot_err = (r * r.mean().inv()).magnitude()
     return GridAssessment(match=match, nominal_index=idx, measured=meas, nominal=nm,
                           residuals=reg.residuals, transform=reg.transform,
-                          pair_index=np.stack([iu, ju], axis=1), nominal_distance=dn,
-                          distance_error=dm - dn, jitter=jitter, rotation_errors=rot_err,
-                          n_rows=n_rows, n_nonfinite=int((~ok).sum()),
-                          class_tolerance=float(class_tolerance))
+                          pair_index=pairs, nominal_distance=dn, distance_error=de,
+                          jitter=jitter, rotation_errors=rot_err, n_rows=n_rows,
+                          n_nonfinite=int((~ok).sum()), class_tolerance=float(class_tolerance),
+                          distance_stats=stats)

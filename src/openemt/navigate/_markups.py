@@ -27,7 +27,10 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["MarkupPoints", "is_markups_path", "read_markups"]
+__all__ = ["MAX_MARKUPS_BYTES", "MarkupPoints", "is_markups_path", "read_markups", "write_markups"]
+
+#: Largest markups file read (bytes), checked before parsing.
+MAX_MARKUPS_BYTES = 64 << 20
 
 _DEFAULT_COLUMNS = {
     "fiducial-list": ["label", "x", "y", "z", "sel", "vis"],
@@ -80,8 +83,10 @@ def _ras(points: np.ndarray, system: str) -> np.ndarray:
 
 
 def _read_fcsv(path: Path) -> MarkupPoints:
+    from ..io._safefile import read_limited
+
     try:
-        text = path.read_bytes().decode("utf-8-sig")
+        text = read_limited(path, "a markups .fcsv file", MAX_MARKUPS_BYTES).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(f"expected a markups .fcsv file (UTF-8 text), got a byte that is not "
                          f"UTF-8 at offset {exc.start} in {path}") from None
@@ -195,3 +200,31 @@ def read_markups(path) -> MarkupPoints:
     if str(path).lower().endswith(".fcsv"):
         return _read_fcsv(path)
     return _read_mrk_json(path)
+
+
+def write_markups(path, points, labels) -> Path:
+    """Write points (K, 3; m, RAS) with their labels as 3D Slicer markups: ``.fcsv`` (version
+    4.11 columns) by that suffix, else ``.mrk.json`` (one fiducial node, RAS, mm)."""
+    import json
+
+    from .._atomic import atomic_path
+
+    P = 1e3 * np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    labels = [str(v) for v in labels]
+    if str(path).lower().endswith(".fcsv"):
+        text = ("# Markups fiducial file version = 4.11\n# CoordinateSystem = RAS\n"
+                "# columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID\n"
+                + "".join(f"{i + 1},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f},0,0,0,1,1,1,0,{lab},,\n"
+                          for i, (p, lab) in enumerate(zip(P, labels))))
+    else:
+        cps = [{"id": str(i + 1), "label": lab, "position": p.tolist(),
+                "positionStatus": "defined"} for i, (p, lab) in enumerate(zip(P, labels))]
+        text = json.dumps({"@schema": "https://raw.githubusercontent.com/slicer/slicer/master/"
+                                      "Modules/Loadable/Markups/Resources/Schema/"
+                                      "markups-schema-v1.0.3.json#",
+                           "markups": [{"type": "Fiducial", "coordinateSystem": "RAS",
+                                        "coordinateUnits": "mm", "controlPoints": cps}]},
+                          indent=1) + "\n"
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text)
+    return Path(path)

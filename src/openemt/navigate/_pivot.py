@@ -21,11 +21,12 @@ frame) maps to one tracker direction ``b``: ``R_i a = b``. ``a`` maximises ``|me
 frame, taken perpendicular to ``a``: the axis point nearest the tool origin) satisfies
 ``R_i c + p_i = d``, solved like the pivot with ``c`` restricted to the plane normal to ``a``.
 
-Refusals (``InputError`` naming cause and remedy), checked before any fit where they can be:
-too few poses; pivot rotations that do not turn about two axes
+Refusals (``InputError`` naming cause and remedy), only where no answer can come from the
+poses, checked before any fit: too few poses; pivot rotations that do not turn about two axes
 (:func:`openemt.geometry.require_rotation_diversity`; rotations about one axis leave the tip's
-component along it undetermined); a spin of less than ``MIN_SPIN_DEG``; a residual RMS above
-the limit (``max_rms_mm``, and ``max_rms_deg`` of the spin axis).
+component along it undetermined); a spin of less than ``MIN_SPIN_DEG``. A residual RMS above
+the expected level (``max_rms_mm``, and ``max_rms_deg`` of the spin axis) is flagged: the
+result's ``warnings`` name the figure and the limit.
 """
 
 from __future__ import annotations
@@ -47,10 +48,10 @@ __all__ = ["MAX_PIVOT_RMS_MM", "MAX_SPIN_RMS_DEG", "MIN_POSES", "MIN_SPIN_DEG",
 PIVOT_METHODS = ("algebraic", "sphere", "ransac")
 #: Fewest usable poses of a pivot or spin calibration.
 MIN_POSES = 10
-#: Default limit of the pivot residual RMS (3-D, mm): a tip that slipped in the divot or a bent
-#: tool gives more; EM styluses pivot to about 0.2-1 mm.
+#: Default level of the pivot residual RMS (3-D, mm) above which the result is flagged: a tip
+#: that slipped in the divot or a bent tool gives more; EM styluses pivot to about 0.2-1 mm.
 MAX_PIVOT_RMS_MM = 2.0
-#: Default limit of the spin residual RMS (deg): the axis wobbled (the tool did not turn about
+#: Default level of the spin residual RMS (deg) above which the result is flagged: the axis wobbled (the tool did not turn about
 #: one axis) when the directions ``R_i a`` scatter more.
 MAX_SPIN_RMS_DEG = 2.0
 #: Fewest degrees (RMS about the mean orientation) a spin calibration must turn the tool.
@@ -118,6 +119,8 @@ class PivotResult(Result):
         RMS of the inliers' 3-D residual distances, of their components, and the largest (m).
     rotation_spread_deg : tuple of 2 float
         RMS rotation of the inliers about the dominant and a second axis (deg).
+    warnings : tuple of str
+        Residuals above the expected level, with their figures.
     """
 
     method: str
@@ -131,6 +134,7 @@ class PivotResult(Result):
     rms_component: float
     max: float
     rotation_spread_deg: tuple
+    warnings: tuple = ()
     _not_in_dict: ClassVar[tuple] = ("residuals", "inlier")
 
     @property
@@ -158,7 +162,8 @@ class PivotResult(Result):
                 "tip_length_mm": 1e3 * float(np.linalg.norm(self.tip)),
                 "rms_mm": 1e3 * self.rms, "rms_component_mm": 1e3 * self.rms_component,
                 "max_mm": 1e3 * self.max, "rotation_spread_deg": list(self.rotation_spread_deg),
-                "outlier_rows": np.flatnonzero(finite & ~self.inlier).tolist()}
+                "outlier_rows": np.flatnonzero(finite & ~self.inlier).tolist(),
+                "warnings": list(self.warnings)}
 
     def per_pose(self) -> dict:
         """Per-pose residual vectors and distances (mm) and the inlier flags, JSON-ready."""
@@ -169,10 +174,12 @@ class PivotResult(Result):
                 "inlier": self.inlier.tolist()}
 
 
-def _check_rms(rms_value, limit, unit, what, remedy):
-    if limit is not None and not rms_value <= limit:
-        raise InputError(f"expected a {what} residual RMS <= {limit:g} {unit}, got "
-                         f"{rms_value:.3g} {unit}: {remedy}")
+def _check_rms(rms_value, limit, unit, what, remedy) -> tuple:
+    """A warning (one-tuple) when ``rms_value`` is above ``limit``, else ()."""
+    if limit is None or rms_value <= limit:
+        return ()
+    return (f"{what} residual RMS {rms_value:.3g} {unit} is above the expected {limit:g} "
+            f"{unit}: {remedy}",)
 
 
 def pivot_calibration(poses, method: str = "algebraic", *, max_rms_mm=MAX_PIVOT_RMS_MM,
@@ -186,7 +193,8 @@ def pivot_calibration(poses, method: str = "algebraic", *, max_rms_mm=MAX_PIVOT_
     method : {"algebraic", "sphere", "ransac"}
         See the module docstring.
     max_rms_mm : float or None
-        Refuse a solution whose residual RMS (3-D, inliers) exceeds this (mm); None: no limit.
+        Flag (``warnings``) a solution whose residual RMS (3-D, inliers) exceeds this (mm);
+        None: no flag.
     threshold_mm : float, optional
         ``ransac``: inlier distance (mm); default: from the noise scale (least median of
         squares, chi-square(3) at p = 1e-3).
@@ -250,9 +258,9 @@ def pivot_calibration(poses, method: str = "algebraic", *, max_rms_mm=MAX_PIVOT_
     se = np.sqrt(np.diag(cov))
     dist_in = np.linalg.norm(r_in, axis=1)
     rms = float(np.sqrt(np.mean(dist_in ** 2)))
-    _check_rms(1e3 * rms, max_rms_mm, "mm", "pivot",
-               "the tip slipped in the divot, the tool bends or the tracker is distorted here; "
-               "re-record, use the ransac method, or raise the limit")
+    warn = _check_rms(1e3 * rms, max_rms_mm, "mm", "pivot",
+                      "the tip slipped in the divot, the tool bends or the tracker is distorted "
+                      "here; check the result, re-record or use the ransac method")
     residuals = np.full((len(P), 3), np.nan)
     residuals[ok] = _residuals(R, p, t, q)
     inlier = np.zeros(len(P), bool)
@@ -261,7 +269,7 @@ def pivot_calibration(poses, method: str = "algebraic", *, max_rms_mm=MAX_PIVOT_
     return PivotResult(method=method, tip=t, pivot=q, tip_se=se[:3], pivot_se=se[3:],
                        residuals=residuals, inlier=inlier, rms=rms,
                        rms_component=rms / np.sqrt(3), max=float(dist_in.max()),
-                       rotation_spread_deg=(d.primary_deg, d.second_deg))
+                       rotation_spread_deg=(d.primary_deg, d.second_deg), warnings=warn)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -317,6 +325,8 @@ class SpinResult(Result):
         RMS angle residual (deg) and RMS point-residual distance (m) of the inliers.
     spin_deg : float
         RMS rotation about the mean orientation (deg): how far the tool was turned.
+    warnings : tuple of str
+        Residuals above the expected level, with their figures.
     """
 
     method: str
@@ -332,6 +342,7 @@ class SpinResult(Result):
     rms_deg: float
     rms: float
     spin_deg: float
+    warnings: tuple = ()
     _not_in_dict: ClassVar[tuple] = ("angle_residuals", "point_residuals", "inlier")
 
     @property
@@ -352,7 +363,8 @@ class SpinResult(Result):
                 "point_tracker_mm": 1e3 * self.point_tracker, "rms_deg": self.rms_deg,
                 "rms_mm": 1e3 * self.rms, "rms_component_mm": 1e3 * self.rms / np.sqrt(3),
                 "spin_deg": self.spin_deg,
-                "outlier_rows": np.flatnonzero(finite & ~self.inlier).tolist()}
+                "outlier_rows": np.flatnonzero(finite & ~self.inlier).tolist(),
+                "warnings": list(self.warnings)}
 
     def per_pose(self) -> dict:
         """Per-pose angle (deg) and point residuals (mm) and the inlier flags, JSON-ready."""
@@ -379,7 +391,8 @@ def spin_calibration(poses, method: str = "algebraic", *, tip=None,
         Tool-tip offset (m, e.g. from :func:`pivot_calibration`): the axis is signed to point
         from the tool origin towards it. Default: its largest component is positive.
     max_rms_deg, max_rms_mm : float or None
-        Refuse a solution whose RMS angle residual (deg) or point residual (mm) exceeds these.
+        Flag (``warnings``) a solution whose RMS angle residual (deg) or point residual (mm)
+        exceeds these.
     threshold_deg : float, optional
         ``ransac`` inlier angle (deg); default from the noise scale.
 
@@ -428,9 +441,9 @@ def spin_calibration(poses, method: str = "algebraic", *, tip=None,
     Ri, pi = R[inl], p[inl]
     ang = _spin_angles(Ri, a, b)
     rms_deg = float(np.rad2deg(np.sqrt(np.mean(ang ** 2))))
-    _check_rms(rms_deg, max_rms_deg, "deg", "spin-axis",
-               "the tool wobbled instead of turning about one axis; hold it in a guide, "
-               "re-record, use the ransac method, or raise the limit")
+    warn = _check_rms(rms_deg, max_rms_deg, "deg", "spin-axis",
+                      "the tool wobbled instead of turning about one axis; hold it in a guide, "
+                      "re-record or use the ransac method")
     # axis direction covariance: residuals B_b^T R_i a, unknowns (2 of a, 2 of b)
     Ba, Bb = _perp_basis(a), _perp_basis(b)
     J = np.concatenate([np.einsum("ji,njk,kl->nil", Bb, Ri, Ba),
@@ -447,8 +460,8 @@ def spin_calibration(poses, method: str = "algebraic", *, tip=None,
     covp, _ = linear_covariance(A, rp.reshape(-1), 5)
     point_se = np.sqrt(np.maximum(np.diag(Ba @ covp[:2, :2] @ Ba.T), 0.0))
     rms = float(np.sqrt(np.mean(np.sum(rp ** 2, axis=1))))
-    _check_rms(1e3 * rms, max_rms_mm, "mm", "spin-axis point",
-               "the tool's axis moved while it turned; hold it in a guide and re-record")
+    warn += _check_rms(1e3 * rms, max_rms_mm, "mm", "spin-axis point",
+                       "the tool's axis moved while it turned; hold it in a guide and re-record")
     angles = np.full(len(P), np.nan)
     angles[ok] = _spin_angles(R, a, b)
     pres = np.full((len(P), 3), np.nan)
@@ -458,7 +471,7 @@ def spin_calibration(poses, method: str = "algebraic", *, tip=None,
     return SpinResult(method=method, axis=a, axis_tracker=b, axis_se_deg=axis_se, point=c,
                       point_tracker=e, point_se=point_se, angle_residuals=angles,
                       point_residuals=pres, inlier=inlier, rms_deg=rms_deg, rms=rms,
-                      spin_deg=float(rotation_diversity(Ri).primary_deg))
+                      spin_deg=float(rotation_diversity(Ri).primary_deg), warnings=warn)
 
 
 #: ``format`` of the tool-calibration files ``openemt pivot`` and ``openemt spin`` write.

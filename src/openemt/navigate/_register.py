@@ -38,6 +38,10 @@ __all__ = ["BatchRegistration", "Registration", "predicted_tre", "register_point
 
 #: Fewest paired points of a registration.
 MIN_POINTS = 3
+#: Largest coordinate accepted (m): beyond it the squares of the fit lose all precision.
+MAX_COORDINATE = 1e4
+#: Default FRE RMS (mm) above which a registration is flagged.
+MAX_FRE_MM = 2.0
 
 
 def rigid_fit(fixed, moving, weights=None, *, scale: bool = False):
@@ -142,6 +146,8 @@ class Registration(Result):
         Targets in the moving frame (m).
     tre_rms : ndarray, shape (M,)
         Predicted RMS target registration error at each target (m).
+    warnings : tuple of str
+        An FRE above the expected level, with its figure.
     """
 
     transform: np.ndarray
@@ -155,6 +161,7 @@ class Registration(Result):
     fle_rms: float
     targets: np.ndarray
     tre_rms: np.ndarray
+    warnings: tuple = ()
     _not_in_dict: ClassVar[tuple] = ("residuals",)
 
     @property
@@ -180,7 +187,7 @@ class Registration(Result):
                 "rotation_se_deg": np.rad2deg(self.rotation_se),
                 "translation_se_mm": 1e3 * self.translation_se,
                 "fle_rms_mm": 1e3 * self.fle_rms, "targets_mm": 1e3 * self.targets,
-                "predicted_tre_mm": 1e3 * self.tre_rms}
+                "predicted_tre_mm": 1e3 * self.tre_rms, "warnings": list(self.warnings)}
 
 
 def _check_pair(fixed, moving):
@@ -193,7 +200,7 @@ def _check_pair(fixed, moving):
 
 
 def register_points(fixed, moving, weights=None, *, scale: bool = False, targets=None,
-                    fle_rms=None) -> Registration:
+                    fle_rms=None, max_fre_mm=MAX_FRE_MM) -> Registration:
     """Register paired points: the transform mapping ``moving`` onto ``fixed``.
 
     Parameters
@@ -209,6 +216,9 @@ def register_points(fixed, moving, weights=None, *, scale: bool = False, targets
         Points of the moving frame where the TRE is predicted.
     fle_rms : float, optional
         RMS fiducial localisation error (m); default: estimated from the FRE (needs K > 3).
+    max_fre_mm : float or None
+        Flag (``warnings``) an FRE RMS above this (mm), and, with ``fle_rms`` given, above
+        twice its expectation ``FLE sqrt(1 - 2/K)``.
 
     Returns
     -------
@@ -229,6 +239,10 @@ def register_points(fixed, moving, weights=None, *, scale: bool = False, targets
         raise InputError(f"expected at least {MIN_POINTS} point pairs, got {K}")
     if not (np.all(np.isfinite(F)) and np.all(np.isfinite(M))):
         raise InputError("expected finite points, got NaN or infinite coordinates")
+    big = max(np.abs(F).max(), np.abs(M).max())
+    if big > MAX_COORDINATE:
+        raise InputError(f"expected coordinates within {MAX_COORDINATE:g} m, got {big:.3g} m: "
+                         f"check the length unit of the points")
     w = np.ones(K) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (K,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not np.sum(w > 0) >= 3:
         raise InputError(f"expected {K} finite weights >= 0, at least 3 of them > 0, got "
@@ -259,12 +273,23 @@ def register_points(fixed, moving, weights=None, *, scale: bool = False, targets
         fle = float(fle_rms)
         if not np.isfinite(fle) or fle < 0:
             raise InputError(f"expected a finite fle_rms >= 0, got {fle_rms!r}")
+    if not (np.all(np.isfinite(T)) and np.isfinite(fre)):
+        raise InputError("expected points that determine a transform, got a degenerate set "
+                         "(the fit is not finite)")
     tg = np.zeros((0, 3)) if targets is None else check_points(targets, "targets").reshape(-1, 3)
     tre = predicted_tre(M, tg, fle) if len(tg) else np.zeros(0)
+    warn = ()
+    limit = None if max_fre_mm is None else float(max_fre_mm)
+    if fle_rms is not None and limit is not None:
+        limit = min(limit, 2e3 * fle * np.sqrt(max(1 - 2 / K, 0.0))) or limit
+    if limit is not None and 1e3 * fre > limit:
+        warn = (f"FRE RMS {1e3 * fre:.3g} mm is above the expected {limit:.3g} mm: a fiducial "
+                f"was touched off its mark or paired with the wrong one; check the residual "
+                f"per point",)
     return Registration(transform=T, scale=s, residuals=res, fre_rms=fre,
                         fre_max=float(dist.max()), rotation_se=se[:3],
                         translation_se=se[3:6], scale_se=float(se[6]) if scale else 0.0,
-                        fle_rms=fle, targets=tg, tre_rms=tre)
+                        fle_rms=fle, targets=tg, tre_rms=tre, warnings=warn)
 
 
 @dataclass(frozen=True, eq=False)
