@@ -34,6 +34,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--writer-rounds", type=int, default=1,
                         help="rounds of hostile output paths for every writing command "
                              "(openemt_fuzz._fuzzhostile_writers; 0 skips them) (1)")
+    parser.add_argument("--correct-cases", type=int, default=400,
+                        help="generated correction cases: far poses, degenerate and oversized "
+                             "correction files, apply workflow (openemt_fuzz._fuzzcorrect) "
+                             "(400)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -78,7 +82,7 @@ def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None
 
 def run(args) -> dict:
     for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases", "writer_rounds",
-                 "hostile_cases"):
+                 "hostile_cases", "correct_cases"):
         if (getattr(args, name) or 0) < 0:
             raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
                              f"got {getattr(args, name)}")
@@ -114,13 +118,20 @@ def run(args) -> dict:
         hostile = run_hostile_readers(limit=limit, time_limit=args.time_limit,
                                       progress=bar.update)
 
+    from ._fuzzcorrect import fuzz_corrections
+
+    n_corr = getattr(args, "correct_cases", 0) or 0
+    with progress(total=n_corr, desc="corrections", args=args, unit="case") as bar:
+        corrections = fuzz_corrections(n_corr, args.seed, time_limit=args.time_limit,
+                                       progress=bar.update)
+
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
         + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
-        + hostile.get("findings", 0)
+        + hostile.get("findings", 0) + corrections["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -137,6 +148,7 @@ def run(args) -> dict:
         "hostile_live": hostile_live,
         "hostile_writers": writers,
         "hostile_readers": hostile,
+        "corrections": corrections,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

@@ -209,13 +209,11 @@ def correct_rows(model, box, xyz, R, margin: float, domain=None):
     """Corrected positions (N, 3), rotations (or None) and status per row (int8, STATUS):
     rows not corrected keep their input values."""
     st = row_status(box, xyz, margin, domain)
+    if R is not None:
+        st[~np.all(np.isfinite(R), axis=(1, 2))] = NONFINITE
     out_xyz = np.array(xyz, dtype=np.float64, copy=True)
     out_R = None if R is None else np.array(R, dtype=np.float64, copy=True)
     todo = np.flatnonzero((st == CORRECTED) | (st == EXTRAPOLATED) | (st == UNCHECKED))
-    if R is not None:
-        bad_R = ~np.all(np.isfinite(R[todo]), axis=(1, 2))
-        st[todo[bad_R]] = NONFINITE
-        todo = todo[~bad_R]
     limit = max_shift(box)
     for start in range(0, len(todo), CHUNK_ROWS):
         rows = todo[start:start + CHUNK_ROWS]
