@@ -18,7 +18,7 @@ import numpy as np
 from .._errors import InputError
 from .._result import Result
 from ..evaluate import error_summary
-from ..geometry import check_points, check_poses
+from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
 from ._bernstein import (
     BOX_MARGIN,
@@ -387,16 +387,29 @@ class Correction:
             out = xyz[0] if m.ndim == 1 else xyz
         return AppliedCorrection(values=out, status=st, counts=status_counts(st))
 
-    def apply(self, measured, *, extrapolate_margin: float = 0.0) -> np.ndarray:
+    def apply(self, measured, *, extrapolate_margin: float | None = None) -> np.ndarray:
         """Correct measured poses ``(N, 4, 4)`` or positions ``(N, 3)``; returns the same shape.
 
-        As :meth:`correct` (``allow_unknown_box`` True), without the statuses: poses outside
-        the fitted box (beyond ``extrapolate_margin`` m) and non-finite rows are returned
-        unchanged. Orientation is corrected only by methods fitted with orientations
+        Without ``extrapolate_margin`` the model is evaluated at every row, as it always was:
+        outside the fitted box that is extrapolation (a polynomial moves a pose 1 m outside a
+        0.1 m box by centimetres); for new data use :meth:`correct`, which also says per row
+        what was corrected. With ``extrapolate_margin`` (m) this is ``correct(...).values``:
+        poses outside the box beyond the margin and non-finite rows come back unchanged.
+        Orientation is corrected only by methods fitted with orientations
         (``corrects_orientation``); otherwise it is passed through.
         """
-        return self.correct(measured, extrapolate_margin=extrapolate_margin,
-                            allow_unknown_box=True).values
+        if extrapolate_margin is not None:
+            return self.correct(measured, extrapolate_margin=extrapolate_margin,
+                                allow_unknown_box=True).values
+        a = np.asarray(measured)
+        if a.ndim == 3:
+            P = check_poses(measured, "measured")
+            xyz, R = self.model.predict(P[:, :3, 3], P[:, :3, :3])
+            return pose_from_rt(R, xyz)
+        m = check_points(measured, "measured")
+        single = m.ndim == 1
+        xyz, _ = self.model.predict(m.reshape(-1, 3), None)
+        return xyz[0] if single else xyz
 
     def to_dict(self) -> dict:
         return {"format": _FORMAT, "version": _VERSION, "method": self.method,
