@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from openemt_fuzz._fuzzcorrect import box_pairs
 
 from openemt._errors import InputError
 from openemt.cli import main
@@ -24,13 +25,7 @@ CODE = {v: k for k, v in STATUS.items()}
 @pytest.fixture(scope="module")
 def pairs():
     """Pairs in a 0.1 m box around (0, 0, 0.2) m with a smooth mm-level distortion."""
-    rng = np.random.default_rng(0)
-    n = 120
-    ref = np.tile(np.eye(4), (n, 1, 1))
-    ref[:, :3, 3] = rng.uniform(-0.05, 0.05, (n, 3)) + [0, 0, 0.2]
-    meas = ref.copy()
-    meas[:, :3, 3] += 1e-3 * np.sin(20 * ref[:, :3, 3]) + 0.05 * ref[:, :3, 3] ** 2
-    return meas, ref
+    return box_pairs(120)
 
 
 @pytest.fixture(scope="module")

@@ -43,15 +43,21 @@ _TRACE = False
 _METHODS = ("poly", "dlt", "rbf", "grid", "bernstein", "none")
 
 
-def _seed_corrections():
-    from openemt.correct import fit_correction
-
-    rng = np.random.default_rng(0)
-    n = 150
+def box_pairs(n: int = 150, seed: int = 0):
+    """(measured, reference) poses in a 0.1 m box around (0, 0, 0.2) m with a smooth
+    mm-level position distortion (identity rotations)."""
+    rng = np.random.default_rng(seed)
     ref = np.tile(np.eye(4), (n, 1, 1))
     ref[:, :3, 3] = rng.uniform(-0.05, 0.05, (n, 3)) + [0, 0, 0.2]
     meas = ref.copy()
     meas[:, :3, 3] += 1e-3 * np.sin(20 * ref[:, :3, 3]) + 0.05 * ref[:, :3, 3] ** 2
+    return meas, ref
+
+
+def _seed_corrections():
+    from openemt.correct import fit_correction
+
+    meas, ref = box_pairs()
     return {m: fit_correction(meas, ref, m, cross_validate=False,
                               **({"degree": 2} if m == "bernstein" else {}))
             for m in _METHODS}
