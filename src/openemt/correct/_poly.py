@@ -67,8 +67,9 @@ def monomials(u, order: int, max_power=None) -> np.ndarray:
     """Monomials of scaled positions ``u`` (N, 3) up to ``order``: shape (N, n_terms)."""
     u = np.asarray(u, dtype=np.float64)
     e = monomial_exponents(order, max_power)
-    k = np.arange(int(order) + 1, dtype=np.float64)
-    pw = [u[:, a, None] ** k for a in range(3)]  # (N, order + 1) powers per axis
+    pw = np.ones((3, len(u), int(order) + 1))  # powers per axis, by repeated products
+    for k in range(1, int(order) + 1):
+        pw[:, :, k] = pw[:, :, k - 1] * u.T
     return pw[0][:, e[:, 0]] * pw[1][:, e[:, 1]] * pw[2][:, e[:, 2]]
 
 
@@ -273,6 +274,21 @@ def _select_order(fits, orders, cols, rot_rms=None) -> tuple[int, dict]:
     return best, scores
 
 
+def _quat(rho) -> np.ndarray:
+    """Unit quaternions (w, x, y, z) of rotation vectors (N, 3)."""
+    theta = np.linalg.norm(rho, axis=1)
+    return np.hstack([np.cos(theta / 2)[:, None],
+                      (0.5 * np.sinc(theta / (2 * np.pi)))[:, None] * rho])
+
+
+def _angle_between(qa, qb) -> np.ndarray:
+    """Rotation angle (rad) of conj(qa) qb per row: the angle between two rotations."""
+    w = np.sum(qa * qb, axis=1)
+    v = (qa[:, :1] * qb[:, 1:] - qb[:, :1] * qa[:, 1:]
+         - np.cross(qa[:, 1:], qb[:, 1:]))
+    return 2 * np.arctan2(np.linalg.norm(v, axis=1), np.abs(w))
+
+
 def predict_offsets(u, xyz, R, basis, order, coef, rot_order, rot_coef):
     """``xyz`` plus the offsets ``basis(u, order) @ coef`` and (with ``R`` and ``rot_coef``)
     ``R`` turned by the rotation offsets, in blocks of :data:`BLOCK_ROWS` rows."""
@@ -320,11 +336,9 @@ def fit_offset_terms(u, off, measured_R, reference_R, order, rot_order, orders, 
     if not has_rot:
         return order, pos_coef, None, None
 
-    # rotation error of a predicted offset rho: the angle of (exp(rho) Rm)^T Rd, the rotation
-    # part of the pose error inv(Pm) Pref (openemt.evaluate.pose_error_magnitudes)
-    from scipy.spatial.transform import Rotation
-
-    qm, qd = Rotation.from_matrix(Rm).as_quat(), Rotation.from_matrix(Rd).as_quat()
+    # rotation error of a predicted offset rho: the angle of (exp(rho) Rm)^T Rd (the rotation
+    # part of the pose error inv(Pm) Pref), equal to the angle of exp(-rho) exp(rho_true)
+    q_true = _quat(Y[:, 3:])
 
     def rot_rms(r, coefs, coef_all):
         fold = np.empty(n, dtype=np.int64)
@@ -338,11 +352,8 @@ def fit_offset_terms(u, off, measured_R, reference_R, order, rot_order, orders, 
             for i, c in enumerate(coefs):
                 m = fold[sl] == i
                 pred[m] = A[m] @ c
-            left = Rotation.from_quat(qm[sl]).inv()
-            right = Rotation.from_quat(qd[sl])
             for rho, which in ((pred, 0), (A @ coef_all, 1)):
-                e2 = float(np.sum((left * Rotation.from_rotvec(rho).inv() * right)
-                                  .magnitude() ** 2))
+                e2 = float(np.sum(_angle_between(_quat(rho), q_true[sl]) ** 2))
                 if which == 0:
                     held += e2
                 else:
