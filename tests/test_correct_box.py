@@ -75,6 +75,11 @@ def test_poses_far_outside_are_flagged_and_passed_through(fitted, method):
     (lambda d: d["params"].__setitem__("matrix", [[0, 0, 0, 1], [0, 1, 0, 0], [0, 0, 1, 0],
                                                   [1, 0, 0, 0]]), "vanishes inside the box"),
     (lambda d: d["params"]["matrix"][3].__setitem__(3, 1e-3), "moves positions of its box"),
+    # w equal to x over a box at x > 0: one sign, but every position is divided by x
+    (lambda d: (d["params"].__setitem__("matrix", [[1, 0, 0, 0.1], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                   [1, 0, 0, 0.0]]),
+                d["box"].__setitem__("lower_m", [0.05, -0.05, 0.15]),
+                d["box"].__setitem__("upper_m", [0.15, 0.05, 0.25])), "moves positions"),
     (lambda d: d["params"]["matrix"][0].__setitem__(0, float("nan")), "finite"),
 ])
 def test_degenerate_dlt_files_are_refused(fitted, tmp_path, change, match):
