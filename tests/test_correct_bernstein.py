@@ -17,7 +17,7 @@ from openemt.correct import (
     read_correction,
     write_correction,
 )
-from openemt.io import write_poses_csv
+from openemt.io import read_poses_csv, write_poses_csv
 
 FLOOR_MM = 1e3 * NOISE_M * np.sqrt(3)
 
@@ -71,9 +71,15 @@ def test_box_refusal_and_file_round_trip(tmp_path, tensor_pairs):
     np.testing.assert_array_equal(back.apply(x), corr.apply(x))
     outside = x.copy()
     outside[3, 0] = hi[0] + 0.01
+    # the model itself refuses positions outside its basis box; a Correction passes them
+    # through, flagged (like every method outside its fitted box), even within a margin
     with pytest.raises(InputError, match="inside the bernstein correction's box.*1 outside.*"
                                          "row 3.*not extrapolated"):
-        corr.apply(outside)
+        corr.model.predict(outside)
+    res = corr.correct(outside, extrapolate_margin=1.0)
+    assert res.status[3] == 2 and np.array_equal(res.values[3], outside[3])
+    np.testing.assert_allclose(np.delete(res.values, 3, 0), np.delete(corr.apply(x), 3, 0),
+                               rtol=0, atol=1e-15)
     doc = json.loads(path.read_text())
     doc["params"]["pos_coef"] = doc["params"]["pos_coef"][:-1]
     path.write_text(json.dumps(doc))
@@ -119,6 +125,11 @@ def test_correct_fit_cli_bernstein(tmp_path, capsys, tensor_pairs):
     far[:, 0, 3] += 1.0
     write_poses_csv(tmp_path / "far.csv", far)
     rc = main(["correct", "apply", str(tmp_path / "c.json"), str(tmp_path / "far.csv"), "-o",
-               str(tmp_path / "out.csv")])
+               str(tmp_path / "out.csv"), "--json"])
     cap = capsys.readouterr()
-    assert rc == 2 and "box" in cap.err and not (tmp_path / "out.csv").exists()
+    # 1 m outside the box: passed through uncorrected and flagged, never extrapolated
+    assert rc == 0 and "outside the correction's fitted box" in cap.err
+    assert json.loads(cap.out)["counts"]["outside_box"] == 5
+    out = read_poses_csv(tmp_path / "out.csv")
+    np.testing.assert_allclose(out.poses, far, atol=1e-12)
+    assert (tmp_path / "out.csv").read_text().count("outside_box") == 5

@@ -190,8 +190,8 @@ def test_mat_reader_dividing_by_a_damaged_size_is_refused(ilemt_dir, monkeypatch
     [("delete", 312776518, 23556280), ("set", 735772479, 672393533),
      ("set", 220097158, 953567227)],
     [("set", 678289926, 954243000), ("delete", 2587732, 432249899)],
-    [("set", 962363379, 559980367)],
-    [("set", 544212377, 634274665)],
+    [("set", 962363403, 559980367)],
+    [("set", 544212379, 634274665)],
 ])
 def test_malformed_correction_values_are_refused(fuzz, tmp_path, jops):
     from openemt.correct import read_correction

@@ -37,6 +37,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--navigate-cases", type=int, default=500,
                         help="generated navigation inputs given to pivot, spin, register, "
                              "assess and points (openemt_fuzz._fuzznavigate) (500)")
+    parser.add_argument("--correct-cases", type=int, default=400,
+                        help="generated correction cases: far poses, degenerate and oversized "
+                             "correction files, apply workflow (openemt_fuzz._fuzzcorrect) "
+                             "(400)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -81,7 +85,7 @@ def _files(args, kind: str, n: int, out: dict, examples: list, progress) -> None
 
 def run(args) -> dict:
     for name in ("reader_cases", "cli_cases", "solver_samples", "live_cases", "writer_rounds",
-                 "hostile_cases", "navigate_cases"):
+                 "hostile_cases", "navigate_cases", "correct_cases"):
         if (getattr(args, name) or 0) < 0:
             raise InputError(f"expected --{name.replace('_', '-')} >= 0, "
                              f"got {getattr(args, name)}")
@@ -122,13 +126,20 @@ def run(args) -> dict:
         hostile = run_hostile_readers(limit=limit, time_limit=args.time_limit,
                                       progress=bar.update)
 
+    from ._fuzzcorrect import fuzz_corrections
+
+    n_corr = getattr(args, "correct_cases", 0) or 0
+    with progress(total=n_corr, desc="corrections", args=args, unit="case") as bar:
+        corrections = fuzz_corrections(n_corr, args.seed, time_limit=args.time_limit,
+                                       progress=bar.update)
+
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
         + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
-        + hostile.get("findings", 0) + navigate["findings"]
+        + hostile.get("findings", 0) + navigate["findings"] + corrections["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -146,6 +157,7 @@ def run(args) -> dict:
         "hostile_writers": writers,
         "hostile_readers": hostile,
         "navigate": navigate,
+        "corrections": corrections,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

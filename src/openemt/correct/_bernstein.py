@@ -27,9 +27,9 @@ from math import comb
 import numpy as np
 
 from .._errors import InputError
-from ._crossval import apply_rotation_offsets, location_kfold
+from ._crossval import location_kfold
 from ._dof import MIN_PAIRS_FACTOR
-from ._poly import fit_offset_terms
+from ._poly import fit_offset_terms, predict_offsets
 
 __all__ = ["BERNSTEIN_DEGREES", "BOX_MARGIN", "MAX_BERNSTEIN_DEGREE", "BernsteinCorrection",
            "bernstein_basis", "data_box", "fit_bernstein"]
@@ -107,12 +107,8 @@ class BernsteinCorrection:
     def predict(self, xyz, R=None):
         """Corrected positions (N, 3) and rotations (``None`` if ``R`` is None); InputError for
         positions outside the box."""
-        u = self._u(xyz)
-        out = xyz + bernstein_basis(u, self.pos_degree) @ self.pos_coef
-        if R is None or self.rot_coef is None:
-            return out, R
-        rho = bernstein_basis(u, self.rot_degree) @ self.rot_coef
-        return out, apply_rotation_offsets(rho, R)
+        return predict_offsets(self._u(xyz), xyz, R, bernstein_basis, self.pos_degree,
+                               self.pos_coef, self.rot_degree, self.rot_coef)
 
     def to_params(self) -> dict:
         return {"lower": self.lower, "upper": self.upper, "pos_degree": self.pos_degree,

@@ -41,8 +41,14 @@ from ._crossval import (
 #: than any realistic set of pose pairs can determine, and memory grows with it
 MAX_GRID_NODES = 100_000
 
+#: most centres of an RBF correction: its fit and its evaluation build a dense matrix of
+#: (centres + 4)^2 numbers (32 MB at 2000); a fit on more pairs uses a random subsample of
+#: this many as centres, a file with more is refused when read
+MAX_RBF_CENTRES = 2000
+
 __all__ = [
     "MAX_GRID_NODES",
+    "MAX_RBF_CENTRES",
     "SMOOTHING_GRID",
     "SMOOTHING_RBF",
     "GridCorrection",
@@ -55,6 +61,8 @@ SMOOTHING_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
 SMOOTHING_RBF = (1e-8, 1e-6, 1e-4, 1e-2, 1.0, 10.0, 100.0)
 #: Fewest pairs of an RBF fit: its linear part has 4 terms per coordinate.
 _RBF_MIN_PAIRS = 5
+#: Rows of one RBF evaluation block.
+_RBF_BLOCK = 4096
 
 
 def _targets(m, d, Rm, Rd):
@@ -288,6 +296,8 @@ class RbfCorrection:
     smoothing: float
     kernel: str = "thin_plate_spline"
     selection: dict = field(default_factory=dict)
+    #: pairs the centres were drawn from when a fit subsampled them (0: all pairs are centres)
+    n_centres_of: int = field(default=0, compare=False)
 
     def _interp(self):
         cache = self.__dict__.get("_cache")
@@ -298,9 +308,13 @@ class RbfCorrection:
         return cache
 
     def predict(self, xyz, R=None):
-        """Corrected positions (N, 3) and rotations (N, 3, 3) (``None`` if ``R`` is None)."""
+        """Corrected positions (N, 3) and rotations (N, 3, 3) (``None`` if ``R`` is None),
+        evaluated in blocks of rows (memory bounded by the block times the centres)."""
         xyz = np.asarray(xyz, dtype=np.float64)
-        vals = self._interp()((xyz - self.center) / self.scale)
+        interp = self._interp()
+        vals = np.empty((len(xyz), self.values.shape[1]))
+        for s in range(0, len(xyz), _RBF_BLOCK):
+            vals[s:s + _RBF_BLOCK] = interp((xyz[s:s + _RBF_BLOCK] - self.center) / self.scale)
         return _apply_offsets(xyz, R, vals)
 
     def to_params(self) -> dict:
@@ -320,16 +334,28 @@ class RbfCorrection:
 
 def fit_rbf(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
             smoothing: float | None = None, kernel: str = "thin_plate_spline", k: int = 5,
-            seed: int = 0) -> RbfCorrection:
+            seed: int = 0, max_centres: int = MAX_RBF_CENTRES) -> RbfCorrection:
     """Fit a scattered-data RBF correction (thin-plate spline by default) to pose pairs.
 
     ``smoothing=None`` selects the smoothing by k-fold cross-validation over
-    :data:`SMOOTHING_RBF`. Other arguments as :func:`fit_grid`.
+    :data:`SMOOTHING_RBF`. With more than ``max_centres`` (at most :data:`MAX_RBF_CENTRES`)
+    pairs, a random subsample (``seed``) of that many is fitted: the centres
+    (``n_centres_of`` records how many pairs there were). Other arguments as :func:`fit_grid`.
     """
     m = np.asarray(measured_xyz, dtype=np.float64)
     d = np.asarray(reference_xyz, dtype=np.float64)
     Rm = None if measured_R is None or reference_R is None else np.asarray(measured_R, float)
     Rd = None if Rm is None else np.asarray(reference_R, float)
+    if not 1 <= int(max_centres) <= MAX_RBF_CENTRES:
+        raise InputError(f"expected max_centres 1..MAX_RBF_CENTRES = {MAX_RBF_CENTRES}, got "
+                         f"{max_centres}")
+    n_all = len(m)
+    if n_all > max_centres:
+        keep = np.sort(np.random.default_rng(seed).choice(n_all, int(max_centres),
+                                                          replace=False))
+        m, d = m[keep], d[keep]
+        Rm = None if Rm is None else Rm[keep]
+        Rd = None if Rd is None else Rd[keep]
     center, scale = normalizer(m)
     pts = (m - center) / scale
     y = _targets(m, d, Rm, Rd)
@@ -345,4 +371,5 @@ def fit_rbf(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
         smoothing, selection = _choose_smoothing(fit_one, m, d, Rm, Rd, SMOOTHING_RBF, k, seed,
                                                  min_train=_RBF_MIN_PAIRS)
     return RbfCorrection(center=center, scale=scale, points=pts, values=y,
-                         smoothing=float(smoothing), kernel=kernel, selection=selection)
+                         smoothing=float(smoothing), kernel=kernel, selection=selection,
+                         n_centres_of=n_all if n_all > len(m) else 0)

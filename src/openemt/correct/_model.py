@@ -10,12 +10,13 @@ in-sample error, so overfitting is visible.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._result import Result
 from ..evaluate import error_summary
 from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
@@ -37,11 +38,20 @@ from ._crossval import (
 from ._dlt import DltFit, fit_dlt
 from ._dof import pair_requirements
 from ._identity import IdentityCorrection, fit_identity
-from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
+from ._lookup import MAX_RBF_CENTRES, GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._poly import PolynomialCorrection, fit_polynomial
+from ._region import (
+    FitBox,
+    check_over_box,
+    correct_rows,
+    read_box,
+    status_counts,
+)
 
 __all__ = [
     "CORRECTION_METHODS",
+    "MAX_RBF_CENTRES",
+    "AppliedCorrection",
     "Correction",
     "evaluate_correction",
     "fit_correction",
@@ -61,7 +71,7 @@ CORRECTION_METHODS = {
 }
 
 _FORMAT = "openemt.correction"
-_VERSION = 1
+_VERSION = 2  # 2: the fitted box (``box``); version-1 files are read, see _v1_box
 
 #: Highest polynomial order a correction file may name (C(order + 3, 3) monomials: 1771 at
 #: order 20, far above the orders a fit selects, ``POLY_ORDERS``). A larger order in a file is
@@ -173,6 +183,12 @@ def _check_params(method: str, p: dict, where: str) -> None:
                              f"{shape[1]}, {shape[2]}, 3 or 6), got {vals.shape}")
         _numbers(p, "smoothing", where, ())
     elif method == "rbf":
+        n_pts = len(p["points"]) if isinstance(p.get("points"), list) else 0
+        if n_pts > MAX_RBF_CENTRES:
+            raise InputError(f"{where}expected at most MAX_RBF_CENTRES = {MAX_RBF_CENTRES} RBF "
+                             f"centres (`params.points`), got {n_pts}: evaluating it would "
+                             f"need a dense {n_pts} x {n_pts} matrix; refit it (a fit uses at "
+                             f"most {MAX_RBF_CENTRES} centres)")
         pts = _numbers(p, "points", where, (None, 3))
         vals = _numbers(p, "values", where)
         if vals.ndim != 2 or vals.shape[0] != len(pts) or vals.shape[1] not in (3, 6):
@@ -251,6 +267,43 @@ def _jsonable(obj):
     return obj
 
 
+def _v1_box(method: str, model) -> FitBox | None:
+    """The fitted box of a version-1 file (which did not store it), where the parameters
+    determine it: an RBF's centres, a grid's or Bernstein basis's own box; None (unknown) for
+    a DLT or polynomial."""
+    if method == "rbf":
+        b = FitBox.of(model.center + model.scale * model.points)
+        return FitBox(b.lower, b.upper, "params")
+    if method in ("grid", "bernstein"):
+        return FitBox(np.asarray(model.lower), np.asarray(model.upper), "params")
+    return None
+
+
+@dataclass(frozen=True)
+class AppliedCorrection(Result):
+    """Poses (or positions) after :meth:`Correction.correct`, with a status per row.
+
+    Attributes
+    ----------
+    values : ndarray
+        Same shape as the input; rows not corrected (outside the box, non-finite, rejected)
+        hold their input values.
+    status : ndarray of int8, shape (N,)
+        Per-row code of :data:`openemt.correct.STATUS`: ``corrected``, ``extrapolated``
+        (outside the box, within the margin, corrected), ``outside_box`` (passed through),
+        ``nonfinite_input``, ``rejected`` (the correction came out non-finite or moved the
+        position by more than the box's diagonal; passed through), ``unchecked`` (corrected,
+        no box known).
+    counts : dict
+        ``{status name: rows}``.
+    """
+
+    values: np.ndarray
+    status: np.ndarray
+    counts: dict
+    _not_in_dict = ("values", "status")
+
+
 @dataclass(frozen=True)
 class Correction:
     """A fitted output correction of positions (and orientations for poly/grid/rbf).
@@ -258,7 +311,7 @@ class Correction:
     Attributes
     ----------
     method : str
-        ``"none"``, ``"dlt"``, ``"poly"``, ``"grid"`` or ``"rbf"``.
+        ``"none"``, ``"dlt"``, ``"poly"``, ``"bernstein"``, ``"grid"`` or ``"rbf"``.
     params : dict
         The fitted parameters (SI units; arrays), as the method's ``to_params`` gives them.
     stats : dict
@@ -266,12 +319,16 @@ class Correction:
         :func:`openemt.evaluate.error_summary`) of the uncorrected and corrected pairs.
     meta : dict
         Free-form provenance (input files, options).
+    box : FitBox or None
+        The bounding box of the measured positions it was fitted on (None: unknown, a
+        version-1 DLT or polynomial file). See :meth:`correct`.
     """
 
     method: str
     params: dict
     stats: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    box: FitBox | None = None
 
     def __post_init__(self):
         if self.method not in CORRECTION_METHODS:
@@ -296,12 +353,54 @@ class Correction:
             return p.get("rot_coef") is not None
         return np.shape(p["values"])[-1] == 6
 
-    def apply(self, measured) -> np.ndarray:
+    def correct(self, measured, *, extrapolate_margin: float = 0.0,
+                allow_unknown_box: bool = False) -> AppliedCorrection:
+        """Correct measured poses ``(N, 4, 4)`` or positions ``(N, 3)`` inside the fitted box.
+
+        Rows inside the box are corrected; rows outside it by at most ``extrapolate_margin``
+        (m, along the worst axis) are corrected and flagged ``extrapolated``; rows further out,
+        non-finite rows and rows whose correction comes out non-finite or moves the position by
+        more than the box's diagonal (at least 50 mm) keep their input values, each with its
+        status (:class:`AppliedCorrection`). Without a known box (a version-1 DLT or polynomial
+        file) this is an InputError unless ``allow_unknown_box``; every finite row is then
+        corrected and flagged ``unchecked``. Work is done in blocks of rows (bounded memory).
+        """
+        margin = check_margin(extrapolate_margin)
+        if self.box is None and not allow_unknown_box and self.method != "none":
+            raise InputError(f"expected a correction that records the box it was fitted on, "
+                             f"got a version-1 {self.method} file without one: refit it with "
+                             f"'openemt correct fit', or allow correcting everywhere as before "
+                             f"(--allow-unknown-box)")
+        domain = (self.model.lower, self.model.upper) if self.method == "bernstein" else None
+        a = np.asarray(measured)
+        if a.ndim == 3:
+            P = check_poses(measured, "measured")
+            xyz, R, st = correct_rows(self.model, self.box, P[:, :3, 3], P[:, :3, :3], margin,
+                                      domain)
+            out = P.copy()
+            out[:, :3, :3] = R
+            out[:, :3, 3] = xyz
+        else:
+            m = check_points(measured, "measured")
+            xyz, _, st = correct_rows(self.model, self.box, m.reshape(-1, 3), None, margin,
+                                      domain)
+            out = xyz[0] if m.ndim == 1 else xyz
+        return AppliedCorrection(values=out, status=st, counts=status_counts(st))
+
+    def apply(self, measured, *, extrapolate_margin: float | None = None) -> np.ndarray:
         """Correct measured poses ``(N, 4, 4)`` or positions ``(N, 3)``; returns the same shape.
 
+        Without ``extrapolate_margin`` the model is evaluated at every row, as it always was:
+        outside the fitted box that is extrapolation (a polynomial moves a pose 1 m outside a
+        0.1 m box by centimetres); for new data use :meth:`correct`, which also says per row
+        what was corrected. With ``extrapolate_margin`` (m) this is ``correct(...).values``:
+        poses outside the box beyond the margin and non-finite rows come back unchanged.
         Orientation is corrected only by methods fitted with orientations
         (``corrects_orientation``); otherwise it is passed through.
         """
+        if extrapolate_margin is not None:
+            return self.correct(measured, extrapolate_margin=extrapolate_margin,
+                                allow_unknown_box=True).values
         a = np.asarray(measured)
         if a.ndim == 3:
             P = check_poses(measured, "measured")
@@ -314,13 +413,15 @@ class Correction:
 
     def to_dict(self) -> dict:
         return {"format": _FORMAT, "version": _VERSION, "method": self.method,
-                "params": _jsonable(self.params), "stats": _jsonable(self.stats),
-                "meta": _jsonable(self.meta)}
+                "params": _jsonable(self.params),
+                "box": None if self.box is None else self.box.to_dict(),
+                "stats": _jsonable(self.stats), "meta": _jsonable(self.meta)}
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "") -> Correction:
         """Validate a correction document (as :func:`write_correction` writes it) and build the
-        correction; ``source`` names the file in error messages."""
+        correction; ``source`` names the file in error messages. The model is checked over its
+        box (:func:`openemt.correct._region.check_over_box`): finite and not degenerate."""
         where = f"correction file {source}: " if source else "correction: "
         if not isinstance(d, dict):
             raise InputError(f"{where}expected a JSON object, got {type(d).__name__}")
@@ -342,13 +443,17 @@ class Correction:
             if d.get(name) is not None and not isinstance(d[name], dict):
                 raise InputError(f"{where}expected `{name}` to be an object, got "
                                  f"{type(d[name]).__name__}")
+        box = read_box(d["box"], where) if d.get("box") is not None else None
         try:
             _check_params(method, params, where)
             obj = cls(method=method, params=dict(params),
                       stats=dict(d.get("stats") or {}), meta=dict(d.get("meta") or {}))
             # normalise params through the model so arrays have their numpy types again
-            return cls(method=obj.method, params=obj.model.to_params(), stats=obj.stats,
-                       meta=obj.meta)
+            obj = cls(method=obj.method, params=obj.model.to_params(), stats=obj.stats,
+                      meta=obj.meta)
+            if box is None and version == 1:
+                box = _v1_box(method, obj.model)
+            obj = replace(obj, box=box)
         except InputError:
             raise
         except (TypeError, KeyError, ValueError) as exc:
@@ -357,6 +462,25 @@ class Correction:
             raise InputError(f"{where}expected the `params` of a {method!r} correction as "
                              f"openemt writes them, got a malformed value "
                              f"({type(exc).__name__}: {exc})") from None
+        check = box
+        if check is None and method == "poly":  # no box: the region its scaling was made for
+            m = obj.model
+            check = FitBox(m.center - abs(m.scale), m.center + abs(m.scale), "params")
+        if check is not None and method != "none":
+            check_over_box(method, obj.model, check, where)
+        return obj
+
+
+def check_margin(margin) -> float:
+    """``extrapolate_margin`` as a finite float >= 0 (m); InputError otherwise."""
+    try:
+        v = float(margin)
+    except (TypeError, ValueError):
+        raise InputError(f"expected an extrapolation margin in m (a number >= 0), got "
+                         f"{margin!r}") from None
+    if not (np.isfinite(v) and v >= 0):
+        raise InputError(f"expected a finite extrapolation margin >= 0 m, got {v}")
+    return v
 
 
 def _fit_model(method, m, Rm, d, Rd, options):
@@ -467,8 +591,16 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
             "uncorrected": _summary(m, Rm, d, Rd),
             "corrected": _summary(xyz_ho, R_ho, d, Rd)}
     warn, worse, req = _warnings(method, len(m), params, stats.get("held_out"))
+    if getattr(model, "n_centres_of", None):
+        warn.append(f"rbf: {model.n_centres_of} pairs exceed MAX_RBF_CENTRES = "
+                    f"{MAX_RBF_CENTRES}: its centres are a random subsample of "
+                    f"{len(model.points)} (seed {seed}); the errors are over all pairs")
     stats.update({"requirements": req, "warnings": warn, "worse_than_none": worse})
-    return Correction(method=method, params=params, stats=stats, meta=dict(meta or {}))
+    box = FitBox.of(m)
+    if method != "none":
+        check_over_box(method, model, box, f"the fitted {method} correction: ")
+    return Correction(method=method, params=params, stats=stats, meta=dict(meta or {}),
+                      box=box)
 
 
 def evaluate_correction(correction: Correction, measured, reference) -> dict:

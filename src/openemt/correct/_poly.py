@@ -29,7 +29,6 @@ from ._crossval import (
     apply_rotation_offsets,
     location_kfold,
     normalizer,
-    pair_errors,
     rotation_offsets,
 )
 
@@ -68,7 +67,10 @@ def monomials(u, order: int, max_power=None) -> np.ndarray:
     """Monomials of scaled positions ``u`` (N, 3) up to ``order``: shape (N, n_terms)."""
     u = np.asarray(u, dtype=np.float64)
     e = monomial_exponents(order, max_power)
-    return np.prod(u[:, None, :] ** e[None, :, :], axis=-1)
+    pw = np.ones((3, len(u), int(order) + 1))  # powers per axis, by repeated products
+    for k in range(1, int(order) + 1):
+        pw[:, :, k] = pw[:, :, k - 1] * u.T
+    return pw[0][:, e[:, 0]] * pw[1][:, e[:, 1]] * pw[2][:, e[:, 2]]
 
 
 def axis_levels(u, *, gap: float = 0.1, min_fraction: float = 0.05, max_levels: int = 6):
@@ -99,10 +101,6 @@ def axis_levels(u, *, gap: float = 0.1, min_fraction: float = 0.05, max_levels: 
         else:
             out.append(len(big))
     return tuple(out)
-
-
-def _lstsq(A, y):
-    return np.linalg.lstsq(A, y, rcond=None)[0]
 
 
 @dataclass(frozen=True)
@@ -140,13 +138,11 @@ class PolynomialCorrection:
         return (np.asarray(xyz, dtype=np.float64) - self.center) / self.scale
 
     def predict(self, xyz, R=None):
-        """Corrected positions (N, 3) and rotations (N, 3, 3) (``None`` if ``R`` is None)."""
-        u = self._u(xyz)
-        out_xyz = xyz + monomials(u, self.pos_order, self.max_power) @ self.pos_coef
-        if R is None or self.rot_coef is None:
-            return out_xyz, R
-        rho = monomials(u, self.rot_order, self.max_power) @ self.rot_coef
-        return out_xyz, apply_rotation_offsets(rho, R)
+        """Corrected positions (N, 3) and rotations (N, 3, 3) (``None`` if ``R`` is None),
+        evaluated in blocks of :data:`BLOCK_ROWS` rows."""
+        return predict_offsets(self._u(xyz), xyz, R,
+                               lambda uu, r: monomials(uu, r, self.max_power),
+                               self.pos_order, self.pos_coef, self.rot_order, self.rot_coef)
 
     def to_params(self) -> dict:
         return {"center": self.center, "scale": self.scale, "pos_order": self.pos_order,
@@ -167,27 +163,110 @@ class PolynomialCorrection:
                    selection=dict(p.get("selection") or {}))
 
 
-def _select_order(u, target, orders, splits, score, max_power, basis=None
-                  ) -> tuple[int, dict]:
-    """Order with the lowest held-out RMS of ``score(prediction, rows)`` (lowest on ties).
+#: Rows of one block of the design matrix: fits and predictions hold at most this many rows of
+#: terms in memory (a 1e6-pair fit of order 5 holds 16384 x 62 numbers, not 1e6 x 56 x 3).
+BLOCK_ROWS = 16384
 
-    ``basis(u, order)`` gives the design matrix (default: the monomials up to ``order``)."""
+
+def _block_gram(u, Y, rows, order, basis):
+    """Normal equations of the least-squares fit of ``Y[rows]`` on ``basis(u[rows], order)``:
+    ``(A^T A, A^T Y, column sums of Y^2)``, accumulated over blocks of :data:`BLOCK_ROWS`
+    rows, so memory does not grow with the rows and parts of the data combine by addition."""
+    p = basis(u[:1], order).shape[1]
+    G, B, yy = np.zeros((p, p)), np.zeros((p, Y.shape[1])), np.zeros(Y.shape[1])
+    for s in range(0, len(rows), BLOCK_ROWS):
+        idx = rows[s:s + BLOCK_ROWS]
+        A, y = basis(u[idx], order), Y[idx]
+        G += A.T @ A
+        B += A.T @ y
+        yy += np.einsum("ij,ij->j", y, y)
+    return G, B, yy
+
+
+def _combine(parts):
+    """The normal equations of the rows of several parts."""
+    return tuple(sum(x) for x in zip(*parts))
+
+
+def _solve(gram, cols) -> np.ndarray:
+    """Least-squares coefficients (p, len(cols)) from the normal equations (minimum norm where
+    the terms are not independent at the data)."""
+    G, B, _ = gram
+    return np.linalg.lstsq(G, B[:, cols], rcond=None)[0]
+
+
+def _ssr(gram, coef, cols) -> float:
+    """Residual sum of squares of the columns ``cols`` fitted by ``coef``, over the rows of
+    ``gram``."""
+    G, B, yy = gram
+    return float(max(np.sum(yy[cols]) - 2 * np.sum(coef * B[:, cols])
+                     + np.sum(coef * (G @ coef)), 0.0))
+
+
+class _OffsetFits:
+    """Least-squares fits of position offsets and rotation offsets (columns 0-2 and 3-5 of
+    ``Y``) on the terms ``basis(u, order)``, per order, from the normal equations of every test
+    part of ``splits`` (a fold's training equations are the sum of the other parts'): one pass
+    over the rows per order, memory independent of the number of rows."""
+
+    def __init__(self, u, Y, splits, basis, nested: int | None = None):
+        self.u, self.Y, self.splits, self.basis = u, Y, splits, basis
+        self._cache = {}
+        #: with nested terms (those of a lower order are the first columns of a higher one's,
+        #: as the monomials by total degree), one pass at this order serves every lower order
+        self.nested = nested
+
+    def factors(self, order):
+        if self.nested is not None and order <= self.nested:
+            parts, full = self._factors(self.nested)
+            p = self.n_terms(order)
+
+            def cut(g):
+                return g[0][:p, :p], g[1][:p], g[2]
+            return [cut(g) for g in parts], cut(full)
+        return self._factors(order)
+
+    def _factors(self, order):
+        if order not in self._cache:
+            rows = [test for _, test in self.splits] if self.splits else [
+                np.arange(len(self.u))]
+            parts = [_block_gram(self.u, self.Y, r, order, self.basis) for r in rows]
+            self._cache[order] = (parts, parts[0] if len(parts) == 1 else _combine(parts))
+        return self._cache[order]
+
+    def n_terms(self, order) -> int:
+        return self.basis(self.u[:1], order).shape[1]
+
+    def coef(self, order, cols):
+        return _solve(self.factors(order)[1], cols)
+
+    def fold_coefs(self, order, cols):
+        parts, _ = self.factors(order)
+        return [_solve(_combine([parts[j] for j in range(len(parts)) if j != i]), cols)
+                for i in range(len(parts))]
+
+
+def _select_order(fits, orders, cols, rot_rms=None) -> tuple[int, dict]:
+    """Order with the lowest held-out RMS (lowest on ties) of the position offsets (``cols``
+    0-2: RMS of the offset error's norm, from the factors) or of the rotations
+    (``rot_rms(order, fold_coefs, coef_all)`` -> (held-out, in-sample) RMS angle)."""
     scores = {}
-    n = len(u)
+    n = len(fits.u)
+    splits = fits.splits
     for r in orders:
-        A = monomials(u, r, max_power) if basis is None else basis(u, r)
-        n_terms = A.shape[1]
-        if n_terms > min(len(tr) for tr, _ in splits):
+        p = fits.n_terms(r)
+        if p > min(len(tr) for tr, _ in splits):
             continue
-        held = np.empty(n)
-        for train, test in splits:
-            coef = _lstsq(A[train], target[train])
-            held[test] = score(A[test] @ coef, test)
-        coef_all = _lstsq(A, target)
-        ins = score(A @ coef_all, np.arange(n))
-        scores[int(r)] = {"held_out_rms": float(np.sqrt(np.mean(held ** 2))),
-                          "in_sample_rms": float(np.sqrt(np.mean(ins ** 2))),
-                          "n_terms": int(n_terms)}
+        coefs = fits.fold_coefs(r, cols)
+        coef_all = fits.coef(r, cols)
+        if rot_rms is None:
+            parts, R_all = fits.factors(r)
+            held = np.sqrt(sum(_ssr(P, c, cols) for P, c in zip(parts, coefs)) / n)
+            ins = np.sqrt(_ssr(R_all, coef_all, cols) / n)
+        else:
+            held, ins = rot_rms(r, coefs, coef_all)
+        scores[int(r)] = {"held_out_rms": float(held), "in_sample_rms": float(ins),
+                          "n_terms": int(p)}
     if not scores:
         raise InputError(f"expected enough pairs for a polynomial of order {min(orders)}, "
                          f"got {n}")
@@ -195,42 +274,99 @@ def _select_order(u, target, orders, splits, score, max_power, basis=None
     return best, scores
 
 
+def _quat(rho) -> np.ndarray:
+    """Unit quaternions (w, x, y, z) of rotation vectors (N, 3)."""
+    theta = np.linalg.norm(rho, axis=1)
+    return np.hstack([np.cos(theta / 2)[:, None],
+                      (0.5 * np.sinc(theta / (2 * np.pi)))[:, None] * rho])
+
+
+def _angle_between(qa, qb) -> np.ndarray:
+    """Rotation angle (rad) of conj(qa) qb per row: the angle between two rotations."""
+    w = np.sum(qa * qb, axis=1)
+    v = (qa[:, :1] * qb[:, 1:] - qb[:, :1] * qa[:, 1:]
+         - np.cross(qa[:, 1:], qb[:, 1:]))
+    return 2 * np.arctan2(np.linalg.norm(v, axis=1), np.abs(w))
+
+
+def predict_offsets(u, xyz, R, basis, order, coef, rot_order, rot_coef):
+    """``xyz`` plus the offsets ``basis(u, order) @ coef`` and (with ``R`` and ``rot_coef``)
+    ``R`` turned by the rotation offsets, in blocks of :data:`BLOCK_ROWS` rows."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    out = np.empty_like(xyz)
+    rot = R is not None and rot_coef is not None
+    out_R = np.empty_like(R) if rot else R
+    for s in range(0, len(xyz), BLOCK_ROWS):
+        sl = slice(s, s + BLOCK_ROWS)
+        out[sl] = xyz[sl] + basis(u[sl], order) @ coef
+        if rot:
+            out_R[sl] = apply_rotation_offsets(basis(u[sl], rot_order) @ rot_coef, R[sl])
+    return out, out_R
+
+
 def fit_offset_terms(u, off, measured_R, reference_R, order, rot_order, orders, splits,
-                     selection: dict, basis, what: str):
+                     selection: dict, basis, what: str, nested: bool = False):
     """Position offsets ``off`` and (with both rotation arrays) rotation offsets fitted as linear
     combinations of the terms ``basis(u, order)``, each order chosen by held-out error when
     None (recorded in ``selection``); shared by the total-degree polynomial and the
-    tensor-product Bernstein corrections.
+    tensor-product Bernstein corrections. Fitted by normal equations accumulated in blocks
+    (:class:`_OffsetFits`): time linear and memory constant in the number of pairs.
 
     Returns ``(order, pos_coef, rot_order, rot_coef)`` (the rotation pair None without
-    rotations)."""
+    rotations). ``nested``: the terms of an order are the first terms of every higher order.
+    """
     n = len(u)
+    has_rot = measured_R is not None and reference_R is not None
+    if has_rot:
+        Rm = np.asarray(measured_R, dtype=np.float64)
+        Rd = np.asarray(reference_R, dtype=np.float64)
+        Y = np.hstack([off, rotation_offsets(Rm, Rd)])
+    else:
+        Y = np.asarray(off, dtype=np.float64)
+    top = max([*orders, order or 0, rot_order or 0]) if nested else None
+    fits = _OffsetFits(u, Y, splits, basis, top)
+    pos, rot = [0, 1, 2], [3, 4, 5]
     if order is None:
-        order, selection["position"] = _select_order(
-            u, off, orders, splits, lambda pred, rows: pair_errors(pred, None, off[rows], None)[0],
-            None, basis)
-    A = basis(u, order)
-    if A.shape[1] > n:
-        raise InputError(f"expected at least {A.shape[1]} pairs for {what} {order}, got {n}")
-    pos_coef = _lstsq(A, off)
-    if measured_R is None or reference_R is None:
+        order, selection["position"] = _select_order(fits, orders, pos)
+    final = _OffsetFits(u, Y, None, basis, top) if splits is None else fits
+    p = final.n_terms(order)
+    if p > n:
+        raise InputError(f"expected at least {p} pairs for {what} {order}, got {n}")
+    pos_coef = final.coef(order, pos)
+    if not has_rot:
         return order, pos_coef, None, None
-    Rm = np.asarray(measured_R, dtype=np.float64)
-    Rd = np.asarray(reference_R, dtype=np.float64)
-    rho = rotation_offsets(Rm, Rd)
 
-    def rot_score(pred, rows):
-        zero = np.zeros((len(rows), 3))
-        return pair_errors(zero, apply_rotation_offsets(pred, Rm[rows]), zero, Rd[rows])[1]
+    # rotation error of a predicted offset rho: the angle of (exp(rho) Rm)^T Rd (the rotation
+    # part of the pose error inv(Pm) Pref), equal to the angle of exp(-rho) exp(rho_true)
+    q_true = _quat(Y[:, 3:])
+
+    def rot_rms(r, coefs, coef_all):
+        fold = np.empty(n, dtype=np.int64)
+        for i, (_, test) in enumerate(splits):
+            fold[test] = i
+        held = ins = 0.0
+        for s in range(0, n, BLOCK_ROWS):
+            sl = slice(s, s + BLOCK_ROWS)
+            A = basis(u[sl], r)
+            pred = np.empty((len(A), 3))
+            for i, c in enumerate(coefs):
+                m = fold[sl] == i
+                pred[m] = A[m] @ c
+            for rho, which in ((pred, 0), (A @ coef_all, 1)):
+                e2 = float(np.sum(_angle_between(_quat(rho), q_true[sl]) ** 2))
+                if which == 0:
+                    held += e2
+                else:
+                    ins += e2
+        return np.sqrt(held / n), np.sqrt(ins / n)
 
     if rot_order is None:
-        rot_order, selection["orientation"] = _select_order(u, rho, orders, splits, rot_score,
-                                                            None, basis)
-    A = basis(u, rot_order)
-    if A.shape[1] > n:
-        raise InputError(f"expected at least {A.shape[1]} pairs for {what} {rot_order} of the "
+        rot_order, selection["orientation"] = _select_order(fits, orders, rot, rot_rms)
+    p = final.n_terms(rot_order)
+    if p > n:
+        raise InputError(f"expected at least {p} pairs for {what} {rot_order} of the "
                          f"rotations, got {n}")
-    return order, pos_coef, rot_order, _lstsq(A, rho)
+    return order, pos_coef, rot_order, final.coef(rot_order, rot)
 
 
 def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
@@ -283,7 +419,8 @@ def fit_polynomial(measured_xyz, reference_xyz, measured_R=None, reference_R=Non
 
     order, pos_coef, rot_order, rot_coef = fit_offset_terms(
         u, d - m, measured_R, reference_R, order, rot_order, orders, splits, selection,
-        lambda uu, r: monomials(uu, r, max_power), "a polynomial correction of order")
+        lambda uu, r: monomials(uu, r, max_power), "a polynomial correction of order",
+        nested=True)
     return PolynomialCorrection(center=center, scale=scale, pos_order=int(order),
                                 pos_coef=pos_coef,
                                 rot_order=None if rot_order is None else int(rot_order),

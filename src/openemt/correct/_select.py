@@ -63,5 +63,5 @@ def fit_auto_correction(measured, reference, *, methods=AUTO_METHODS, k: int = 5
     stats = dict(best.stats)
     stats["auto"] = {"score": "held-out trans_rms_mm + rot_rms (rad) x 100 mm",
                      "chosen": best.method, "candidates": table}
-    return Correction(method=best.method, params=best.params, stats=stats,
+    return Correction(method=best.method, params=best.params, stats=stats, box=best.box,
                       meta={**best.meta, "method_requested": "auto"})

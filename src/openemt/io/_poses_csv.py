@@ -316,11 +316,13 @@ _ALL_POSE_NAMES = {f"{p}{n}{s}" for p in ("", "ref_") for n in
                    for s in ("", "_m", "_mm", "_rad", "_deg")} | {"time", "t"}
 
 
-def write_poses_csv(path, poses, reference=None, group=None, time=None, frame=None) -> Path:
+def write_poses_csv(path, poses, reference=None, group=None, time=None, frame=None,
+                    columns=None) -> Path:
     """Write poses (and reference poses) as CSV in metres and rotation vectors (rad), atomically.
 
     Columns: ``[pose_id,][frame,][time,]x_m,y_m,z_m,rx_rad,ry_rad,rz_rad[,ref_x_m,...,
-    ref_rz_rad]``; numbers use shortest round-trip precision. Returns the path.
+    ref_rz_rad]`` and then ``columns`` (name -> one value per row, written with ``str``);
+    numbers use shortest round-trip precision. Returns the path.
     """
     P = check_poses(poses, "poses")
     if P.ndim != 3:
@@ -347,16 +349,21 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None, frame=No
         g = np.asarray(group).astype(str)
         if g.shape != (len(P),):
             raise InputError(f"expected `group` of shape ({len(P)},), got {g.shape}")
+    post = {str(k): np.asarray(v).reshape(-1) for k, v in (columns or {}).items()}
+    for k, v in post.items():
+        if v.shape != (len(P),):
+            raise InputError(f"expected column `{k}` of shape ({len(P)},), got {v.shape}")
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow((["pose_id"] if group is not None else [])
-                   + (["frame"] if frame is not None else []) + pre_h + header)
+                   + (["frame"] if frame is not None else []) + pre_h + header + list(post))
         for k in range(len(P)):
             row = [str(g[k])] if group is not None else []
             row += [str(int(fr[k]))] if frame is not None else []
             row += [repr(float(c[k])) for c in pre]
             row += [repr(float(v)) for v in num[k]]
+            row += [str(v[k]) for v in post.values()]
             w.writerow(row)
     return path
 
