@@ -15,7 +15,8 @@ from .._errors import InputError
 from ..field import DipoleModel, OctupoleModel
 from ..geometry import pose_from_vector
 
-__all__ = ["MAX_CORRECTION_CONDITION", "Calibration", "check_correction_matrix",
+__all__ = ["COUPLING_SCALE_RANGE", "MAX_COIL_POSITION_M", "MAX_CORRECTION_CONDITION",
+           "Calibration", "check_correction_matrix",
            "check_model_moments"]
 
 #: The ``schema`` of every openemt calibration file (docs/calibration-format.md).
@@ -25,6 +26,13 @@ CALIBRATION_SCHEMA = "openemt.calibration"
 #: close to the identity (condition ~1); a matrix beyond this is singular in practice (an
 #: all-zero matrix, a zero row) and would turn every corrected position into NaN or garbage.
 MAX_CORRECTION_CONDITION = 1e12
+
+#: range of a dipole model's coupling scale ``|gain| * max|M_so| * max|M_se|`` (the coupling of
+#: two coils 1 m apart): within it every distance from 1 um to 1 km gives finite, normal
+#: couplings; outside it a file is damaged (a gain of 1e300 overflows every coupling)
+COUPLING_SCALE_RANGE = (1e-100, 1e100)
+#: largest coil position of a model, and fixture translation (m)
+MAX_COIL_POSITION_M = 10.0
 
 
 def check_correction_matrix(L, name: str = "linear_correction", where: str = "") -> np.ndarray:
@@ -47,13 +55,26 @@ def check_correction_matrix(L, name: str = "linear_correction", where: str = "")
 
 
 def check_model_moments(model, where: str = "") -> None:
-    """Every coil of a loaded model must have a non-zero moment (a zero moment couples to
-    nothing: a damaged or placeholder calibration)."""
+    """Every coil of a loaded dipole model must have a non-zero moment (a zero moment couples
+    to nothing: a damaged or placeholder calibration), its coupling scale must lie in
+    :data:`COUPLING_SCALE_RANGE` and its coil positions within :data:`MAX_COIL_POSITION_M`."""
     for name in ("M_so", "M_se"):
         zero = np.flatnonzero(~np.any(getattr(model, name) != 0, axis=0))
         if zero.size:
             raise InputError(f"{where}expected non-zero coil moments in `{name}`, got all-zero "
                              f"column(s) {zero.tolist()}")
+    for key in ("L_so", "L_se"):
+        far = np.abs(getattr(model, key)).max(initial=0.0)
+        if not far <= MAX_COIL_POSITION_M:
+            raise InputError(f"{where}expected coil positions `{key}` within "
+                             f"{MAX_COIL_POSITION_M:g} m of the origin, got {far:.3g} m")
+    scale = abs(float(model.gain)) * np.abs(model.M_so).max(initial=0.0) \
+        * np.abs(model.M_se).max(initial=0.0)
+    lo, hi = COUPLING_SCALE_RANGE
+    if not lo <= scale <= hi:
+        raise InputError(f"{where}expected the coupling scale |gain| x max|M_so| x max|M_se| "
+                         f"within [{lo:g}, {hi:g}], got {scale:.3g} (gain "
+                         f"{float(model.gain):.3g})")
 
 
 def _vec6(v, name):

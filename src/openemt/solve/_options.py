@@ -106,6 +106,11 @@ class SolveOptions:
         if self.max_iter is not None:
             _positive("max_iter", self.max_iter, integer=True)
         check_validity_options(self.max_relative_residual, self.max_range)
+        for name in ("max_relative_residual", "max_range"):   # None disables; inf means nothing
+            v = getattr(self, name)
+            if v is not None and not np.isfinite(float(v)):
+                raise InputError(f"expected a finite positive `{name}` (None disables the "
+                                 f"test), got {v!r}")
         if self.retry_resnorm is not None:
             try:
                 r = float(self.retry_resnorm)
