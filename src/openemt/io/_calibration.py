@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from .._errors import InputError
-from ..field import DipoleModel, OctupoleModel
+from ..field import CouplingModel, OctupoleModel, check_coupling_model, solver_family
 from ..geometry import pose_from_vector
 
 __all__ = ["COUPLING_SCALE_RANGE", "MAX_COIL_POSITION_M", "MAX_CORRECTION_CONDITION",
@@ -115,7 +115,7 @@ class Calibration:
         Model terms beyond the dipole (e.g. quadrupoles) and anything else, JSON-serialisable.
     """
 
-    model: DipoleModel
+    model: CouplingModel
     source_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
     stage_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
     sensor_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -129,10 +129,7 @@ class Calibration:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
-        if not isinstance(self.model, DipoleModel):
-            from ..field import check_coupling_model
-
-            check_coupling_model(self.model)
+        check_coupling_model(self.model)
         for name in ("source_fixture", "stage_fixture", "sensor_fixture"):
             object.__setattr__(self, name, _vec6(getattr(self, name), name))
         if self.linear_correction is not None:
@@ -140,6 +137,7 @@ class Calibration:
                                check_correction_matrix(self.linear_correction))
         object.__setattr__(self, "free", tuple(self.free))
         object.__setattr__(self, "frozen", tuple(self.frozen))
+        object.__setattr__(self, "_coupling_model", self._build_coupling_model())
 
     @property
     def kind(self) -> str:
@@ -164,10 +162,15 @@ class Calibration:
     def coupling_model(self):
         """The model that predicts this calibration's couplings: ``model`` plus the axial octupole
         terms an improved calibration stores in ``extra['rig']`` (``octupole_k_so``,
-        ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), else ``model`` itself."""
+        ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), else ``model`` itself.
+        Built once, when the calibration is made."""
+        return self._coupling_model
+
+    def _build_coupling_model(self):
         rig = self.extra.get("rig") or {}
-        k_so, k_se = rig.get("octupole_k_so"), rig.get("octupole_k_se")
-        if (k_so is None and k_se is None) or not isinstance(self.model, DipoleModel):
+        k_so, k_se = (rig.get("octupole_k_so"), rig.get("octupole_k_se")) \
+            if isinstance(rig, dict) else (None, None)
+        if (k_so is None and k_se is None) or solver_family(self.model) != "dipole":
             return self.model
         return OctupoleModel(self.model,
                              np.zeros(self.model.n_source) if k_so is None else k_so,
