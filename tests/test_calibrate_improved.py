@@ -16,6 +16,11 @@ FULL = RigOptions(source_code_fix=True, rz_poly=2, octupole_sensor=True,
                   stage_linear=("xy", "rz", "sx_sz", "sy_sz"))
 
 
+
+def _pair(fitted):
+    """(problem, x) of a fit_improved() result."""
+    return fitted.problem, fitted.x
+
 def _random_octupole_model(rng):
     dm = DipoleModel(rng.normal(0, 0.003, (3, 3)), np.eye(3) + rng.normal(0, 0.05, (3, 3)),
                      rng.normal(0, 0.001, (3, 3)), 0.4 * np.eye(3) + rng.normal(0, 0.01, (3, 3)))
@@ -151,8 +156,8 @@ def test_improved_fit_recovers_rig_errors_and_octupoles():
                    sensor_fixture=ds.sensor_fixture, pattern=ds.pattern,
                    file_index=ds.file_index)
     freeze = MODES["XYZ"].freeze + ("z_se_fix",)
-    prob, x, _, _ = fit_improved(data, cal, opts, optimize=MODES["XYZ"].optimize,
-                                      freeze=freeze)
+    prob, x = _pair(fit_improved(data, cal, opts, optimize=MODES["XYZ"].optimize,
+                                      freeze=freeze))
     r = prob.residuals(x)
     assert np.sqrt(r @ r / len(data)) < 1e-9
     for name in ("sensor_fix", "rz_poly", "rz_tilt", "k_so", "k_se", "stage_linear"):
@@ -160,8 +165,8 @@ def test_improved_fit_recovers_rig_errors_and_octupoles():
                                    err_msg=name)
     # the paper's model on the same data leaves a large residue
     paper = RigOptions(sensor_code_fix=False, rz_poly=0, rz_tilt=False, octupole_source=False)
-    p0, x0, _, _ = fit_improved(data, cal, paper, optimize=MODES["XYZ"].optimize,
-                                freeze=MODES["XYZ"].freeze)
+    p0, x0 = _pair(fit_improved(data, cal, paper, optimize=MODES["XYZ"].optimize,
+                                freeze=MODES["XYZ"].freeze))
     r0 = p0.residuals(x0)
     assert np.sqrt(r0 @ r0 / len(data)) > 1e-4
 

@@ -138,3 +138,35 @@ def test_synthetic_mat_import_and_quadrupole_warning(tmp_path):
     scipy.io.savemat(tmp_path / "q.mat", fields)
     with pytest.warns(UserWarning, match="quadrupole"):
         read_ilemt_calibration(tmp_path / "q.mat")
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda d: d["standard_errors"].update(source_fixture=[1e-6, 2e-6]),
+     r"standard_errors.source_fixture` of shape \(6,\)"),
+    (lambda d: d["standard_errors"].update(L_se=[[1e-6]]),
+     r"standard_errors.L_se` of shape \(3, 4\)"),
+    (lambda d: d["standard_errors"].update(gains=[1.0]), r"blocks among .*got `gains`"),
+    (lambda d: d["standard_errors"].update(F_so=[-1e-6, 0, 0, 0, 0, 0]), r">= 0"),
+    (lambda d: d["model"].update(gain=1e300), r"coupling scale .* got \d\.\d+e\+30\d"),
+    (lambda d: d["model"].update(gain=1e-300), r"coupling scale"),
+    (lambda d: d["model"]["L_so"][0].__setitem__(0, 50.0), r"within 10 m"),
+])
+def test_blocks_are_checked_against_each_other_and_their_ranges(tmp_path, edit, match):
+    from openemt._errors import InputError
+
+    path = write_calibration(_random_cal(np.random.default_rng(5)), tmp_path / "c.json")
+    doc = json.loads(path.read_text())
+    edit(doc)
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match=match):
+        read_calibration(path)
+
+
+def test_solve_options_refuse_non_finite_limits():
+    from openemt._errors import InputError
+    from openemt.solve import SolveOptions
+
+    for name in ("max_relative_residual", "max_range"):
+        with pytest.raises(InputError, match=f"finite positive `{name}`"):
+            SolveOptions(**{name: float("inf")})
+        assert getattr(SolveOptions(**{name: None}), name) is None   # None disables

@@ -26,6 +26,11 @@ TERMS_ON = RigOptions(octupole_sensor=True, stage_linear=("xy", "sx_sz"), rz_mot
                       gain_nonlinear=True)
 
 
+
+def _pair(fitted):
+    """(problem, x) of a fit_improved() result."""
+    return fitted.problem, fitted.x
+
 def _cal(rng):
     return Calibration(model=truth_model(rng), source_fixture=F_SO, stage_fixture=F_ST,
                        sensor_fixture=F_SE)
@@ -126,8 +131,8 @@ def test_fit_recovers_error_motions_and_gain_nonlinearity():
     np.testing.assert_allclose(gain_linearise(read, beta), c, rtol=0, atol=1e-13 * np.abs(c).max())
     data = _with_couplings(ds, read)
     freeze = MODES["XYZ"].freeze + ("z_se_fix",)
-    prob, x, _, _ = fit_improved(data, cal, TERMS_ON, optimize=MODES["XYZ"].optimize,
-                                 freeze=freeze)
+    prob, x = _pair(fit_improved(data, cal, TERMS_ON, optimize=MODES["XYZ"].optimize,
+                                 freeze=freeze))
     r = prob.residuals(x)
     assert np.sqrt(r @ r / len(data)) < 1e-9
     np.testing.assert_allclose(x[e["rz_motion"]], x_true[e["rz_motion"]], rtol=1e-5,
@@ -225,14 +230,14 @@ def test_fit_recovers_an_induced_dipole():
     x_true[e["induced"]] = np.r_[0.6, 0.1, -0.05, rng.normal(0, 0.05, 9)]
     data = _with_couplings(ds, pr.model(x_true).coupling(pr.poses(x_true)))
     freeze = MODES["XYZ"].freeze + ("z_se_fix",)
-    prob, x, _, _ = fit_improved(data, cal, opts, optimize=MODES["XYZ"].optimize, freeze=freeze)
+    prob, x = _pair(fit_improved(data, cal, opts, optimize=MODES["XYZ"].optimize, freeze=freeze))
     r = prob.residuals(x)
     assert np.sqrt(r @ r / len(data)) < 1e-9
     np.testing.assert_allclose(x[e["induced"]], x_true[e["induced"]], rtol=1e-5, atol=1e-8)
     d = prob.rig(x).to_dict()["induced_dipole"]
     np.testing.assert_allclose(d["position"], [0.6, 0.1, -0.05], atol=1e-8)
     paper = RigOptions(sensor_code_fix=False, rz_poly=0, rz_tilt=False, octupole_source=False)
-    p0, x0, _, _ = fit_improved(data, cal, paper, optimize=MODES["XYZ"].optimize,
-                                freeze=MODES["XYZ"].freeze)
+    p0, x0 = _pair(fit_improved(data, cal, paper, optimize=MODES["XYZ"].optimize,
+                                freeze=MODES["XYZ"].freeze))
     r0 = p0.residuals(x0)
     assert np.sqrt(r0 @ r0 / len(data)) > 1e-4

@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from openemt._errors import InputError
 from openemt.cli import _solve
 from openemt.field import DipoleModel
 from openemt.geometry import pose_from_vector
@@ -125,3 +126,34 @@ def test_solve_command_on_a_dask_cluster(files, capsys):
     res = read_poses(tmp / "dist.h5")
     ok = np.arange(50) != 3
     np.testing.assert_allclose(res.poses[ok, :3, 3], P[ok, :3, 3] + L[:3, 3], atol=1e-10)
+
+
+def test_solve_file_workflow_is_what_the_command_prints(files, capsys):
+    """The library workflow, called directly, gives the command's JSON and file; the file it
+    writes is described by openemt.report.describe."""
+    from openemt.report import describe
+    from openemt.solve import SolveFileOptions, SolveFileResult, solve_file
+
+    tmp, P, L = files
+    opts = SolveFileOptions(dataset=tmp / "data.h5", calibration=tmp / "cal.json",
+                            output=tmp / "lib.h5", hemisphere="+x", chunk_rows=16)
+    res = solve_file(opts)
+    assert isinstance(res, SolveFileResult)
+    args = _parser().parse_args(["solve", str(tmp / "data.h5"), "-c", str(tmp / "cal.json"),
+                                 "-o", str(tmp / "cli.h5"), "--hemisphere", "+x", "--json",
+                                 "--chunk-rows", "16", "--quiet"])
+    assert args.func(args) == 0
+    cli = json.loads(capsys.readouterr().out)
+    lib = res.to_dict()
+    for key in ("elapsed_s", "poses_per_s", "output"):
+        cli.pop(key), lib.pop(key)
+    assert json.loads(json.dumps(lib)) == cli
+    np.testing.assert_array_equal(read_poses(tmp / "lib.h5").poses,
+                                  read_poses(tmp / "cli.h5").poses)
+    info = describe(tmp / "lib.h5")
+    assert info.kind == "poses" and info.details["n_samples"] == 50
+    assert info.details["status_counts"]["converged"] == 49
+    with pytest.raises(InputError, match="finite positive `max_relative_residual`"):
+        solve_file(SolveFileOptions(dataset=tmp / "data.h5", calibration=tmp / "cal.json",
+                                    output=tmp / "x.h5", max_relative_residual=float("inf")))
+    assert not (tmp / "x.h5").exists()

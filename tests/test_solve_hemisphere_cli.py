@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from openemt.cli import main
-from openemt.cli._solve import RowFixtures, failure_reasons
 from openemt.geometry import pose_from_vector
 from openemt.io import pose_dataset, write_calibration, write_dataset
 from openemt.simulate import simulate, truth_calibration
 from openemt.solve import (
+    RowFixtures,
     Status,
+    failure_reasons,
     hemisphere_from_positions,
     read_poses,
     rig_hemispheres,

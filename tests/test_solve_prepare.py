@@ -234,7 +234,7 @@ def test_solve_command_builds_its_solvers_with_the_factory(dipole, board, tmp_pa
                   file_index=np.zeros(len(BP), int), files=("sim",), poses=BP)
     write_dataset(bds, tmp_path / "b.h5")
     write_calibration(Calibration(bmodel, mode="planar"), tmp_path / "bcal.json")
-    calls = _spy(monkeypatch, openemt.solve)
+    calls = _spy(monkeypatch, openemt.solve._runner)     # the one block runner, any model
     argv = ["solve", str(tmp_path / "b.h5"), "-c", str(tmp_path / "bcal.json"), "-o",
             str(tmp_path / "bp.h5"), "--json"]
     assert cli.main(argv) == 0, capsys.readouterr().err

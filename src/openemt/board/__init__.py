@@ -12,7 +12,7 @@ from ._geometry import (
     board_from_dict,
     builtin_board,
 )
-from ._model import BoardModel
+from ._model import BoardModel, DipoleOnlyError
 
 __all__ = ["BUILTIN_BOARDS", "SENSOR_KINDS", "SHAPES", "Board", "BoardModel", "CoilSpec",
-           "SensorCoils", "as_board", "board_coils", "board_from_dict", "builtin_board"]
+           "DipoleOnlyError", "SensorCoils", "as_board", "board_coils", "board_from_dict", "builtin_board"]

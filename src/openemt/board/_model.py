@@ -84,8 +84,20 @@ class BoardModel:
         object.__setattr__(self, "segment_offsets", o)
 
     def __getattr__(self, name):
-        # only reached for attributes a board model lacks: those of a dipole model
-        raise dipole_only(name)
+        # only reached for attributes a board model lacks: a dipole model's attribute is bad
+        # input for the use that asked (DipoleOnlyError), anything else a plain AttributeError
+        from ..field import DipoleModel
+
+        if not name.startswith("_") and hasattr(DipoleModel, name) or name in (
+                "L_so", "M_so", "L_se", "M_se", "gain"):
+            raise dipole_only(name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def solver_family(self) -> str:
+        """``'planar'`` (the compiled 5-DOF solver) for a single-coil sensor, else ``'model'``
+        (docs/field-models.md#the-model-interface)."""
+        return "planar" if self.n_sensor == 1 else "model"
 
     @classmethod
     def from_board(cls, board=None, gains=1.0, offsets=None, tilts=None,

@@ -26,7 +26,14 @@ from ._heldout import (
     select_terms,
 )
 from ._identifiability import Identifiability, IdentifiabilityWarning, analyse_identifiability
-from ._improved import STAGE_LINEAR_BASIS, ImprovedProblem, RigModel, RigOptions, fit_improved
+from ._improved import (
+    STAGE_LINEAR_BASIS,
+    ImprovedFit,
+    ImprovedProblem,
+    RigModel,
+    RigOptions,
+    fit_improved,
+)
 from ._layout import FIELD_NAMES, ParameterLayout
 from ._modes import DEFAULT_FREEZE, DEFAULT_OPTIMIZE, MODES, CalibrationMode, get_mode, select_rows
 from ._objective import CalibrationProblem, build_problem, fixture_twist_map
@@ -62,8 +69,14 @@ from ._sequence import (
     run_sequence,
 )
 from ._split import HOLDOUT_SCHEMES, checkerboard_split, holdout_split, location_split
+from ._workflow import CalibrateOptions, CalibrateResult, calibrate_dataset, load_dataset
 
 __all__ = [
+    "ImprovedFit",
+    "CalibrateOptions",
+    "CalibrateResult",
+    "calibrate_dataset",
+    "load_dataset",
     "CANDIDATES",
     "Calibration",
     "CalibrationFit",

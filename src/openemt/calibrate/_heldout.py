@@ -244,7 +244,8 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
     trans, rot = [], []
     for k in range(folds):
         train, test = md.select(fold != k), md.select(fold == k)
-        prob, x, _, _ = _fit(train, start, options)
+        f = _fit(train, start, options)
+        prob, x = f.problem, f.x
         tp, xt = transfer(prob, x, test)
         s = solve_and_score(tp, xt, test, concentric_model)
         trans.append(s.trans)
@@ -297,7 +298,8 @@ def _flat(v) -> np.ndarray:
 
 def _identify(md, start, options):
     """Fit on every md row; ``(prob, x, free, ident, se)``."""
-    prob, x, free, _ = _fit(md, start, options)
+    f = _fit(md, start, options)
+    prob, x, free = f.problem, f.x, f.free
     r, J = prob.residuals_and_jacobian(x)
     ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
     se = np.zeros(prob.size)
@@ -328,7 +330,8 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
     options = base
     cv = cross_validate(md, start, options, concentric_model, folds=folds)
     base_cv, decisions = cv, []
-    fits = {"base": _fit(md, start, options)[:2]}
+    base_fit = _fit(md, start, options)
+    fits = {"base": (base_fit.problem, base_fit.x)}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
         cv_t = cross_validate(md, start, trial, concentric_model, folds=folds)

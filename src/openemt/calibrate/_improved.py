@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._errors import InputError
+from .._result import Result
 from ..field import ModelJacobians, OctupoleModel, coupling_jacobians
 from ..field._dipole import param_jacobian
 from ..geometry import (
@@ -56,7 +57,8 @@ from ._rig import (
     gain_linearise_gradient,
 )
 
-__all__ = ["STAGE_LINEAR_BASIS", "ImprovedProblem", "RigModel", "RigOptions", "fit_improved"]
+__all__ = ["STAGE_LINEAR_BASIS", "ImprovedFit", "ImprovedProblem", "RigModel", "RigOptions",
+           "fit_improved"]
 
 
 #: Start of the induced dipole's position: this far beyond the centroid of the fitted rows,
@@ -370,11 +372,41 @@ class ImprovedProblem:
         return r.ravel(), J.reshape(r.size, self.size)
 
 
-def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize, freeze,
-                 max_nfev: int = 200, tol: float = 1e-12):
-    """Fit the improved model to every row of ``dataset`` from the calibration ``start``.
+@dataclass(frozen=True, eq=False)
+class ImprovedFit(Result):
+    """The improved model fitted by :func:`fit_improved`: the ``problem`` (its rows and
+    layout), the full parameter vector ``x`` (layout + extras), the ``free`` indices and the
+    least-squares ``result``. ``to_dict()`` gives the sizes and the solver's status.
 
-    Returns ``(problem, x, result)`` with the full parameter vector ``x`` (layout + extras).
+    Unpacking it as the 4-tuple ``(problem, x, free, result)`` it was before still works for
+    one deprecation period, with a DeprecationWarning.
+    """
+
+    _not_in_dict = ("problem", "x", "free", "result")
+
+    problem: object
+    x: np.ndarray
+    free: np.ndarray
+    result: object
+
+    def _items(self) -> dict:
+        return {"n_params": int(np.size(self.x)), "n_free": int(np.size(self.free)),
+                "status": int(getattr(self.result, "status", 0)),
+                "nfev": int(getattr(self.result, "nfev", 0))}
+
+    def __iter__(self):
+        import warnings
+
+        warnings.warn("unpacking fit_improved() as a tuple is deprecated; use its attributes "
+                      "problem, x, free, result", DeprecationWarning, stacklevel=2)
+        return iter((self.problem, self.x, self.free, self.result))
+
+
+def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize, freeze,
+                 max_nfev: int = 200, tol: float = 1e-12) -> ImprovedFit:
+    """Fit the improved model to every row of ``dataset`` from the calibration ``start``:
+    an :class:`ImprovedFit` (``problem``, the full parameter vector ``x`` (layout + extras),
+    ``free``, ``result``).
     """
     layout = ParameterLayout.for_model(start.model)
     prob = ImprovedProblem(dataset, layout, start.model.gain, options)
@@ -397,4 +429,4 @@ def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize
         x0, _ = fit_free_parameters(prob, x0, np.setdiff1d(free, np.arange(s0, s0 + 3)),
                                     tol=tol, max_nfev=max_nfev)
     x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
-    return prob, x, free, res
+    return ImprovedFit(prob, x, free, res)

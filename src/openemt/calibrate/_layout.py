@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._errors import InputError
-from ..field import DipoleModel
+from ..field import DipoleModel, solver_family
 
 __all__ = ["FIELD_NAMES", "ParameterLayout"]
 
@@ -103,7 +103,7 @@ class ParameterLayout:
 
     @property
     def is_dipole(self) -> bool:
-        return isinstance(self.template, DipoleModel)
+        return solver_family(self.template) == "dipole"
 
     # -- sizes -----------------------------------------------------------------------------
     @property
@@ -115,7 +115,7 @@ class ParameterLayout:
     @classmethod
     def for_model(cls, model) -> ParameterLayout:
         """The layout of ``model``'s parameters and the three fixtures."""
-        if isinstance(model, DipoleModel):
+        if solver_family(model) == "dipole":
             return cls(model.n_source, model.n_sensor, model)
         from ..field import check_coupling_model
 

@@ -16,13 +16,20 @@ from ._dipole import (
     ILEMT_GAIN,
     CouplingJacobians,
     DipoleModel,
+    check_dipole_model,
     coupling,
     coupling_jacobian_pose,
     coupling_jacobians,
 )
 from ._finite import FiniteCoilModel
 from ._octupole import OctupoleModel, octupole_coupling
-from ._protocol import CouplingModel, ModelJacobians, check_coupling_model, numeric_jacobians
+from ._protocol import (
+    CouplingModel,
+    ModelJacobians,
+    check_coupling_model,
+    numeric_jacobians,
+    solver_family,
+)
 
 __all__ = [
     "ANSER_COIL_CENTERS",
@@ -38,6 +45,7 @@ __all__ = [
     "OctupoleModel",
     "anser_field_generator",
     "check_coupling_model",
+    "check_dipole_model",
     "circular_coil",
     "coil_fields",
     "coupling",
@@ -45,6 +53,7 @@ __all__ = [
     "coupling_jacobians",
     "numeric_jacobians",
     "octupole_coupling",
+    "solver_family",
     "square_coil",
     "square_spiral_coil",
 ]

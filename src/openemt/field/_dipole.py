@@ -150,6 +150,7 @@ class DipoleModel:
         return ("d_so_z_gain", "d_so_y_co", "d_se_y_co")
 
     cold_start = "kim18"
+    solver_family = "dipole"
 
     def with_params(self, x) -> DipoleModel:
         x = np.asarray(x, dtype=np.float64)
@@ -334,3 +335,11 @@ def coupling_jacobian_pose(model: DipoleModel, pose_vectors) -> tuple[np.ndarray
         raise InputError(f"expected `pose_vectors` to have shape (N, 6), got {v.shape}")
     jac = coupling_jacobians(model, pose_from_vector(v))
     return jac.C, jac.pose_vector(v[:, 3:])
+
+
+def check_dipole_model(model, what: str = "model"):
+    """``model`` if it is a :class:`~openemt.field.DipoleModel` (what the dipole kernels take),
+    else a TypeError naming ``what``."""
+    if not isinstance(model, DipoleModel):
+        raise TypeError(f"expected `{what}` to be a DipoleModel, got {type(model).__name__}")
+    return model

@@ -196,6 +196,7 @@ class OctupoleModel:
         return self.dipole.fixed_groups
 
     cold_start = "kim18"
+    solver_family = "dipole-refined"
 
     def with_params(self, x) -> OctupoleModel:
         x = np.asarray(x, dtype=np.float64)

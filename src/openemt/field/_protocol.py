@@ -17,6 +17,13 @@ coils, dipole plus octupole terms, the finite coils of a planar board):
   ``fit_groups`` / ``fixed_groups`` (the groups a calibration fits / holds by default) and
   ``parameter_label(i)`` / ``parameter_unit(i)`` (name, and report unit with its scale);
 * ``cold_start``: the start name of its solver from no prior pose (``kim18``, ``grid``, ...);
+* ``solver_family`` (optional, default ``'model'``): which solver
+  :func:`openemt.solve.prepare` builds for it, through its registry
+  (:data:`openemt.solve.SOLVER_FAMILIES`): ``'dipole'`` (the compiled dipole LM and the closed
+  forms; the model has the dipole arrays ``L_so``, ``M_so``, ``L_se``, ``M_se``, ``gain``),
+  ``'dipole-refined'`` (a dipole model with further terms: its ``dipole`` is solved, then the
+  solution refined under the whole model), ``'planar'`` (the compiled 5-DOF board solver) or
+  ``'model'`` (the interface-level LM, any model);
 * ``packed()``: the model's arrays as the compiled kernels take them.
 
 Compiled kernels stay specialised per model family (the dipole kernel, the segment kernel);
@@ -34,7 +41,8 @@ import numpy as np
 from .._errors import InputError
 from ..geometry import left_jacobian_so3
 
-__all__ = ["CouplingModel", "ModelJacobians", "check_coupling_model", "numeric_jacobians"]
+__all__ = ["CouplingModel", "ModelJacobians", "check_coupling_model", "numeric_jacobians",
+           "solver_family"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,6 +129,11 @@ def check_coupling_model(model, what: str = "model"):
         raise TypeError(f"expected `{what}` to be a coupling model (openemt.field.CouplingModel"
                         f"), got {type(model).__name__} without {missing}")
     return model
+
+
+def solver_family(model) -> str:
+    """The solver family ``model`` declares (``'model'`` when it declares none)."""
+    return getattr(model, "solver_family", "model")
 
 
 def numeric_jacobians(model, poses, *, step: float = 1e-6) -> ModelJacobians:

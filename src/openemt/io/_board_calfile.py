@@ -51,6 +51,17 @@ def board_model_from_block(m: dict, where: str = ""):
             raise InputError(f"{where}expected model.{key} of shape {shape} (finite numbers), "
                              f"got {json.dumps(v)[:60]}")
         arrays[key] = a
+    from ._calibration import COUPLING_SCALE_RANGE, MAX_COIL_POSITION_M
+
+    lo, hi = COUPLING_SCALE_RANGE       # as a dipole model's coupling scale
+    g = np.abs(np.concatenate([arrays["gains"], arrays["sensor_gains"]]))
+    if not (np.all(g >= lo) and np.all(g <= hi)):
+        raise InputError(f"{where}expected |model.gains| and |model.sensor_gains| within "
+                         f"[{lo:g}, {hi:g}], got {g.min():.3g} .. {g.max():.3g}")
+    if np.abs(arrays["offsets"]).max(initial=0.0) > MAX_COIL_POSITION_M:
+        raise InputError(f"{where}expected coil `model.offsets` within "
+                         f"{MAX_COIL_POSITION_M:g} m, got "
+                         f"{np.abs(arrays['offsets']).max():.3g} m")
     for key, want in (("n_source", n), ("n_sensor", ne)):
         if key in m and m[key] != want:
             raise InputError(f"{where}expected model.{key} = {want} (from model.board), got "

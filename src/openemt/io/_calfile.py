@@ -190,11 +190,20 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
                          f"got {_describe(se_doc)}")
     std = {str(k): _array(v, f"standard_errors.{k}", None, src, allow_nan=True)
            for k, v in se_doc.items()}
+    blocks = {**arrays, **{name: np.zeros(6) for name in (
+        "source_fixture", "stage_fixture", "sensor_fixture", "F_so", "F_st", "F_se")}}
     for k, v in std.items():
-        ref = arrays.get(k)
-        if ref is not None and v.shape != ref.shape:
+        ref = blocks.get(k)
+        if ref is None:
+            raise InputError(f"{_where(src)}expected `standard_errors` blocks among "
+                             f"{', '.join(blocks)}, got `{k}`")
+        if v.shape != np.shape(ref):
             raise InputError(f"{_where(src)}expected `standard_errors.{k}` of shape "
-                             f"{np.shape(ref)} (as model.{k}), got shape {v.shape}")
+                             f"{np.shape(ref)} (as {'model.' + k if k in arrays else 'a fixture'}"
+                             f"), got shape {v.shape}")
+        if np.any(v < 0):
+            raise InputError(f"{_where(src)}expected standard errors >= 0 (or null) in "
+                             f"`standard_errors.{k}`, got {v[v < 0].min():g}")
     for name in ("free", "frozen"):
         v = doc.get(name) or []
         if not isinstance(v, list) or not all(isinstance(x, str) for x in v):

@@ -12,10 +12,11 @@ from typing import Any
 import numpy as np
 
 from .._errors import InputError
-from ..field import DipoleModel, OctupoleModel
+from ..field import CouplingModel, OctupoleModel, check_coupling_model, solver_family
 from ..geometry import pose_from_vector
 
-__all__ = ["MAX_CORRECTION_CONDITION", "Calibration", "check_correction_matrix",
+__all__ = ["COUPLING_SCALE_RANGE", "MAX_COIL_POSITION_M", "MAX_CORRECTION_CONDITION",
+           "Calibration", "check_correction_matrix",
            "check_model_moments"]
 
 #: The ``schema`` of every openemt calibration file (docs/calibration-format.md).
@@ -25,6 +26,13 @@ CALIBRATION_SCHEMA = "openemt.calibration"
 #: close to the identity (condition ~1); a matrix beyond this is singular in practice (an
 #: all-zero matrix, a zero row) and would turn every corrected position into NaN or garbage.
 MAX_CORRECTION_CONDITION = 1e12
+
+#: range of a dipole model's coupling scale ``|gain| * max|M_so| * max|M_se|`` (the coupling of
+#: two coils 1 m apart): within it every distance from 1 um to 1 km gives finite, normal
+#: couplings; outside it a file is damaged (a gain of 1e300 overflows every coupling)
+COUPLING_SCALE_RANGE = (1e-100, 1e100)
+#: largest coil position of a model, and fixture translation (m)
+MAX_COIL_POSITION_M = 10.0
 
 
 def check_correction_matrix(L, name: str = "linear_correction", where: str = "") -> np.ndarray:
@@ -47,13 +55,26 @@ def check_correction_matrix(L, name: str = "linear_correction", where: str = "")
 
 
 def check_model_moments(model, where: str = "") -> None:
-    """Every coil of a loaded model must have a non-zero moment (a zero moment couples to
-    nothing: a damaged or placeholder calibration)."""
+    """Every coil of a loaded dipole model must have a non-zero moment (a zero moment couples
+    to nothing: a damaged or placeholder calibration), its coupling scale must lie in
+    :data:`COUPLING_SCALE_RANGE` and its coil positions within :data:`MAX_COIL_POSITION_M`."""
     for name in ("M_so", "M_se"):
         zero = np.flatnonzero(~np.any(getattr(model, name) != 0, axis=0))
         if zero.size:
             raise InputError(f"{where}expected non-zero coil moments in `{name}`, got all-zero "
                              f"column(s) {zero.tolist()}")
+    for key in ("L_so", "L_se"):
+        far = np.abs(getattr(model, key)).max(initial=0.0)
+        if not far <= MAX_COIL_POSITION_M:
+            raise InputError(f"{where}expected coil positions `{key}` within "
+                             f"{MAX_COIL_POSITION_M:g} m of the origin, got {far:.3g} m")
+    scale = abs(float(model.gain)) * np.abs(model.M_so).max(initial=0.0) \
+        * np.abs(model.M_se).max(initial=0.0)
+    lo, hi = COUPLING_SCALE_RANGE
+    if not lo <= scale <= hi:
+        raise InputError(f"{where}expected the coupling scale |gain| x max|M_so| x max|M_se| "
+                         f"within [{lo:g}, {hi:g}], got {scale:.3g} (gain "
+                         f"{float(model.gain):.3g})")
 
 
 def _vec6(v, name):
@@ -94,7 +115,7 @@ class Calibration:
         Model terms beyond the dipole (e.g. quadrupoles) and anything else, JSON-serialisable.
     """
 
-    model: DipoleModel
+    model: CouplingModel
     source_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
     stage_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
     sensor_fixture: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -108,10 +129,7 @@ class Calibration:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
-        if not isinstance(self.model, DipoleModel):
-            from ..field import check_coupling_model
-
-            check_coupling_model(self.model)
+        check_coupling_model(self.model)
         for name in ("source_fixture", "stage_fixture", "sensor_fixture"):
             object.__setattr__(self, name, _vec6(getattr(self, name), name))
         if self.linear_correction is not None:
@@ -119,6 +137,7 @@ class Calibration:
                                check_correction_matrix(self.linear_correction))
         object.__setattr__(self, "free", tuple(self.free))
         object.__setattr__(self, "frozen", tuple(self.frozen))
+        object.__setattr__(self, "_coupling_model", self._build_coupling_model())
 
     @property
     def kind(self) -> str:
@@ -143,10 +162,15 @@ class Calibration:
     def coupling_model(self):
         """The model that predicts this calibration's couplings: ``model`` plus the axial octupole
         terms an improved calibration stores in ``extra['rig']`` (``octupole_k_so``,
-        ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), else ``model`` itself."""
+        ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), else ``model`` itself.
+        Built once, when the calibration is made."""
+        return self._coupling_model
+
+    def _build_coupling_model(self):
         rig = self.extra.get("rig") or {}
-        k_so, k_se = rig.get("octupole_k_so"), rig.get("octupole_k_se")
-        if (k_so is None and k_se is None) or not isinstance(self.model, DipoleModel):
+        k_so, k_se = (rig.get("octupole_k_so"), rig.get("octupole_k_se")) \
+            if isinstance(rig, dict) else (None, None)
+        if (k_so is None and k_se is None) or solver_family(self.model) != "dipole":
             return self.model
         return OctupoleModel(self.model,
                              np.zeros(self.model.n_source) if k_so is None else k_so,

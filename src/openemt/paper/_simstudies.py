@@ -171,9 +171,9 @@ def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -
     f = fit(md, start, "XYZ_all", warn=False)
     opts = RigOptions(sensor_code_fix=False, rz_poly=0, rz_tilt=False, octupole_source=True,
                       octupole_sensor=True)
-    prob, x, _, _ = fit_improved(md, f.calibration, opts,
-                                    optimize=MODES["XYZ_all"].optimize,
-                                    freeze=MODES["XYZ_all"].freeze)
+    fitted = fit_improved(md, f.calibration, opts, optimize=MODES["XYZ_all"].optimize,
+                          freeze=MODES["XYZ_all"].freeze)
+    prob, x = fitted.problem, fitted.x
     r = prob.residuals(x)
     oct_model = prob.model(x)
     F = prob.layout.fixtures(x)

@@ -2,6 +2,7 @@
 imports this package; its functions lay out results computed elsewhere."""
 
 from ._built import BuiltReport, characterization_report, paper_report
+from ._describe import FileInfo, describe
 from ._figures import error_histogram_figure, error_map_figure, error_vector_figure, sweep_figure
 from ._glossary import GLOSSARY, glossary_section
 from ._html import Report, figure_png
@@ -23,12 +24,14 @@ from ._sections import (
 __all__ = [
     "GLOSSARY",
     "BuiltReport",
+    "FileInfo",
     "Report",
     "accuracy_section",
     "assessment_document",
     "by_fixture_table",
     "characterization_report",
     "characterization_document",
+    "describe",
     "distance_error_figure",
     "error_figures",
     "error_histogram_figure",

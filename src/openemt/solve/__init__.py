@@ -8,35 +8,53 @@ See docs/solve.md for the algorithms, status codes, SNR definition and benchmark
 
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd, spectral_norms
 from ._crb import cramer_rao, solver_covariance
-from ._factory import prepare
+from ._factory import SOLVER_FAMILIES, prepare
+from ._grid import GridData, PlanarErrors, planar_accuracy, planar_errors
 from ._hemisphere import hemisphere_from_positions, hemisphere_vectors, rig_hemispheres
 from ._lm_solver import solve_lm
 from ._options import SolveOptions
 from ._output import POSES_SCHEMA, PoseWriter, read_poses
 from ._planar import solve_planar
 from ._refine import refine_poses
-from ._result import SolveResult, Status
+from ._result import SolveResult, Status, status_count_names
 from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
 from ._series import solve_series
 from ._tofile import solve_to_file
+from ._workflow import (
+    RowFixtures,
+    SolveFileOptions,
+    SolveFileResult,
+    failure_reasons,
+    solve_file,
+)
 
 __all__ = [
+    "GridData",
     "POSES_SCHEMA",
+    "PlanarErrors",
     "SOLVERS",
+    "SOLVER_FAMILIES",
+    "RowFixtures",
+    "SolveFileOptions",
+    "SolveFileResult",
     "SolveOptions",
     "PoseWriter",
     "SolveResult",
     "Status",
     "apply_position_correction",
     "cramer_rao",
+    "failure_reasons",
     "hemisphere_from_positions",
     "hemisphere_vectors",
+    "planar_accuracy",
+    "planar_errors",
     "prepare",
     "read_poses",
     "refine_poses",
     "rig_hemispheres",
     "solve",
     "solve_chunks",
+    "solve_file",
     "solve_kim18",
     "solve_kuipers",
     "solve_lm",
@@ -45,5 +63,6 @@ __all__ = [
     "solve_svd",
     "solve_to_file",
     "solver_covariance",
+    "status_count_names",
     "spectral_norms",
 ]

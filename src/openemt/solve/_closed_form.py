@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 
 from .._errors import InputError
-from ..field import DipoleModel
+from ..field import DipoleModel, check_dipole_model
 from ..field._dipole_kernel import concentric_eval, dipole_eval
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._linalg import (
@@ -543,8 +543,7 @@ def result_from_outputs(out, solver: str) -> SolveResult:
 def _concentric_model(model, name) -> DipoleModel:
     if model is None:
         return DipoleModel.concentric()
-    if not isinstance(model, DipoleModel):
-        raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
+    check_dipole_model(model)
     if model.n_source != 3 or model.n_sensor != 3:
         raise InputError(f"expected a 3x3-coil model for the {name} closed form, got "
                          f"{model.n_source}x{model.n_sensor}")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import InputError
-from ..field import DipoleModel, coupling_jacobians
+from ..field import DipoleModel, check_dipole_model, coupling_jacobians
 from ..geometry import check_poses, left_jacobian_so3, vector_from_pose
 
 __all__ = ["cramer_rao", "solver_covariance"]
@@ -56,8 +56,7 @@ def cramer_rao(model: DipoleModel, poses, noise_sigma, *, parametrization: str =
         bound is then the pseudo-inverse of the Fisher information (the roll direction carries
         zero variance and must not be read as known).
     """
-    if not isinstance(model, DipoleModel):
-        raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
+    check_dipole_model(model)
     if parametrization not in ("vector", "local"):
         raise InputError(f"expected parametrization 'vector' or 'local', got {parametrization!r}")
     P = check_poses(poses)

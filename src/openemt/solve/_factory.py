@@ -14,12 +14,12 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import InputError
-from ..field import DipoleModel
+from ..field import check_dipole_model, solver_family
 from ._hemisphere import DEFAULT_HEMISPHERE
 from ._options import DEFAULT, SolveOptions
 from ._result import SolveResult, Status
 
-__all__ = ["SOLVERS", "apply_position_correction", "prepare"]
+__all__ = ["SOLVERS", "SOLVER_FAMILIES", "apply_position_correction", "prepare"]
 
 #: Solver names accepted by :func:`prepare`, :func:`openemt.solve.solve` and
 #: ``openemt solve --solver``.
@@ -63,14 +63,17 @@ class ClosedFormSolver(_Shape):
     def __init__(self, model, method, options: SolveOptions):
         from ._closed_form import solve_kim18, solve_kuipers, solve_svd
 
-        if not isinstance(model, DipoleModel):
+        try:
+            check_dipole_model(model)
+        except TypeError:
             raise InputError(f"expected a DipoleModel for the {method!r} closed form, got "
-                             f"{type(model).__name__}")
+                             f"{type(model).__name__}") from None
         extra = options.changed(_LM_ONLY)
         if extra:
             raise InputError(f"expected no {', '.join(extra)} with the {method!r} closed form "
                              f"(options of the LM solver), got them set")
         self._f = {"kim18": solve_kim18, "svd": solve_svd, "kuipers": solve_kuipers}[method]
+        self.cold_start = None                  # every sample is solved from no prior
         self.model = model
         self.method = method
         self.options = options
@@ -117,6 +120,7 @@ class PlanarSolver(_Shape):
         self.model = model
         self.options = options
         self._initial = "track" if options.initial is None else options.initial
+        self.cold_start = model.cold_start
         self._shape_of(model.n_coils, 1)
 
     def __call__(self, couplings, initial=None) -> SolveResult:
@@ -165,6 +169,7 @@ class CalibrationSolver:
         self.correction = correction
         self.options = inner.options
         self.n_source, self.n_sensor, self.dof = inner.n_source, inner.n_sensor, inner.dof
+        self.cold_start = getattr(inner, "cold_start", None)
 
     def __call__(self, couplings, initial=None) -> SolveResult:
         result = self.inner(couplings, initial)
@@ -204,7 +209,10 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
     solver
         ``solver(couplings, initial=None) -> SolveResult`` (``initial``: a start name or start
         pose vectors (N, 6); None: ``options.initial``, else the solver's default) with the
-        attributes ``options``, ``n_source``, ``n_sensor`` and ``dof``. The dipole LM solver
+        attributes ``options``, ``n_source``, ``n_sensor``, ``dof`` and ``cold_start`` (the
+        start name of a sample with no prior pose, e.g. the first of a tracked series; None
+        for a closed form). The solver is built by the registry entry
+        (:data:`SOLVER_FAMILIES`) of the model's declared ``solver_family``. The dipole LM solver
         is a :class:`~openemt.solve._prepared.PreparedLM`.
 
     Examples
@@ -220,7 +228,6 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
     >>> solver.dof, result.status, np.round(result.pose_vectors, 6)
     (6, array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
     """
-    from ..board import BoardModel
     from ..field import check_coupling_model
     from ..io import Calibration
 
@@ -228,30 +235,21 @@ def prepare(calibration_or_model, options: SolveOptions | dict | None = None, *,
     if solver not in SOLVERS:
         raise InputError(f"expected solver in {SOLVERS}, got {solver!r}")
     cal = calibration_or_model if isinstance(calibration_or_model, Calibration) else None
-    if cal is None and not isinstance(calibration_or_model, DipoleModel):
+    if cal is None:
         try:
             check_coupling_model(calibration_or_model, "calibration_or_model")
         except TypeError:
             raise TypeError(f"expected a Calibration or a coupling model, got "
                             f"{type(calibration_or_model).__name__}") from None
-    model = calibration_or_model if cal is None else cal.model
-    refine = None                      # a fuller model that refines the inner solution
-    if isinstance(model, DipoleModel):
-        inner = _dipole(model, solver, opts)
-        if cal is not None and cal.coupling_model is not model:
-            refine = cal.coupling_model
-    elif isinstance(getattr(model, "dipole", None), DipoleModel):
-        # a dipole model with further terms (octupoles): the dipole kernel, then refined
-        inner, refine = _dipole(model.dipole, solver, opts), model
-    elif solver != "lm":
+    model = calibration_or_model if cal is None else cal.coupling_model
+    family = solver_family(model)
+    if family not in SOLVER_FAMILIES:
+        raise InputError(f"expected a model of a solver family in {sorted(SOLVER_FAMILIES)}, "
+                         f"got {family!r} ({model.kind!r} model)")
+    if solver != "lm" and not family.startswith("dipole"):
         raise InputError(f"expected solver 'lm' for a {model.kind!r} model (the closed forms "
                          f"need a concentric 3x3 dipole model), got {solver!r}")
-    elif isinstance(model, BoardModel) and model.n_sensor == 1:
-        inner = PlanarSolver(model, opts)                  # the compiled 5-DOF board solver
-    else:
-        from ._model_lm import ModelSolver
-
-        inner = ModelSolver(model, opts)
+    inner, refine = SOLVER_FAMILIES[family](model, solver, opts)
     corr = cal.linear_correction if cal is not None and apply_correction else None
     if refine is None and corr is None:
         return inner
@@ -264,3 +262,21 @@ def _dipole(model, solver, opts):
 
         return PreparedLM(model, opts)
     return ClosedFormSolver(model, solver, opts)
+
+
+def _model_lm(model, solver, opts):
+    from ._model_lm import ModelSolver
+
+    return ModelSolver(model, opts), None
+
+
+#: The solver registry: a model's declared ``solver_family`` (docs/field-models.md) -> the
+#: builder ``(model, solver name, SolveOptions) -> (inner solver, model refining its solution
+#: or None)`` that :func:`prepare` calls. Register a new family here.
+SOLVER_FAMILIES = {
+    "dipole": lambda m, s, o: (_dipole(m, s, o), None),
+    # a dipole model with further terms (octupoles): the dipole kernel, then refined
+    "dipole-refined": lambda m, s, o: (_dipole(m.dipole, s, o), m),
+    "planar": lambda m, s, o: (PlanarSolver(m, o), None),   # the compiled 5-DOF board solver
+    "model": _model_lm,
+}

@@ -4,22 +4,21 @@ and solves."""
 
 from __future__ import annotations
 
-from ..field import DipoleModel
-from ._hemisphere import DEFAULT_HEMISPHERE
+from ..field import check_dipole_model
 from ._options import SolveOptions
 from ._prepared import PreparedLM
 from ._result import SolveResult
-from ._validity import EXPLORE_RELATIVE_RESIDUAL, MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 
 __all__ = ["solve_lm"]
 
 
-def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="kim18",
-             max_iter=100, max_relative_residual=MAX_RELATIVE_RESIDUAL, max_range=MAX_RANGE_M,
-             retries=True, retry_resnorm=None, explore_above=EXPLORE_RELATIVE_RESIDUAL,
-             concentric_model=None, bounds=None, xtol=1e-8, ambiguity_tol=1e-9,
-             covariance=False, fallback=None) -> SolveResult:
+def solve_lm(couplings, model=None, options: SolveOptions | dict | None = None,
+             **overrides) -> SolveResult:
     """Levenberg-Marquardt pose solution for any dipole model, compiled and batched.
+
+    The options are the fields of :class:`~openemt.solve.SolveOptions` (a record, or single
+    fields as keywords); their defaults are written there once, and the dipole LM's values of
+    the fields left at None are resolved in one place (``SolveOptions.lm_kwargs``).
 
     Parameters
     ----------
@@ -115,14 +114,10 @@ def solve_lm(couplings, model=None, *, hemisphere=DEFAULT_HEMISPHERE, initial="k
     >>> result.status, np.round(result.pose_vectors, 6)
     (array([0], dtype=int8), array([[ 0.3 ,  0.1 , -0.05,  0.2 , -0.4 ,  1.  ]]))
     """
-    if model is not None and not isinstance(model, DipoleModel):
-        raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
-    options = SolveOptions(hemisphere=hemisphere, initial=initial, max_iter=max_iter,
-                           max_relative_residual=max_relative_residual, max_range=max_range,
-                           retries=retries, retry_resnorm=retry_resnorm,
-                           explore_above=explore_above, concentric_model=concentric_model,
-                           bounds=bounds, xtol=xtol, ambiguity_tol=ambiguity_tol,
-                           covariance=covariance, fallback=fallback)
+    if model is not None:
+        check_dipole_model(model)
+    opts = SolveOptions.of(options, overrides)
     # the solver prepare(model, options) makes for a dipole model
-    solver = PreparedLM(model, options)
-    return solver.solve(couplings, initial, covariance=covariance, fallback=fallback)
+    solver = PreparedLM(model, opts)
+    return solver.solve(couplings, "kim18" if opts.initial is None else opts.initial,
+                        covariance=opts.covariance, fallback=opts.fallback)

@@ -8,7 +8,7 @@ import numba
 import numpy as np
 
 from .._errors import InputError
-from ..field import DipoleModel
+from ..field import DipoleModel, check_dipole_model
 from ..geometry import pose_from_vector, vector_from_pose
 from ._closed_form import (
     check_couplings,
@@ -30,8 +30,7 @@ _CLOSED = {"kim18": solve_kim18, "svd": solve_svd, "kuipers": solve_kuipers}
 
 
 def _check_model(model) -> DipoleModel:
-    if not isinstance(model, DipoleModel):
-        raise TypeError(f"expected `model` to be a DipoleModel, got {type(model).__name__}")
+    check_dipole_model(model)
     n_so, n_se = model.n_source, model.n_sensor
     need = 5 if n_se == 1 else 6
     if n_so * n_se < need or (n_se > 1 and n_so < 2):
@@ -43,9 +42,7 @@ def _check_model(model) -> DipoleModel:
 def _concentric_for(model, concentric_model):
     """The concentric model used for closed-form starts, or None when none applies."""
     if concentric_model is not None:
-        if not isinstance(concentric_model, DipoleModel):
-            raise TypeError(f"expected `concentric_model` to be a DipoleModel, got "
-                            f"{type(concentric_model).__name__}")
+        check_dipole_model(concentric_model, "concentric_model")
         return concentric_model
     if model.n_source == 3 and model.n_sensor == 3:
         if model.is_concentric:

@@ -163,6 +163,7 @@ class ModelSolver:
         self.rule = _rule_options(tol, max_rel, max_rng)   # the board solver's rule
         self.retry_resnorm = options.retry_resnorm
         self._initial = "track" if options.initial is None else options.initial
+        self.cold_start = model.cold_start
         if isinstance(self._initial, str) and self._initial not in ("track", "cold"):
             raise InputError(f"expected initial 'track', 'cold' or start poses for a "
                              f"{model.kind!r} model, got {self._initial!r}")

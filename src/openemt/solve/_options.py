@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import InputError
-from ..field import DipoleModel
+from ..field import solver_family
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._lm_starts import _bounds
 from ._validity import (
@@ -106,6 +106,11 @@ class SolveOptions:
         if self.max_iter is not None:
             _positive("max_iter", self.max_iter, integer=True)
         check_validity_options(self.max_relative_residual, self.max_range)
+        for name in ("max_relative_residual", "max_range"):   # None disables; inf means nothing
+            v = getattr(self, name)
+            if v is not None and not np.isfinite(float(v)):
+                raise InputError(f"expected a finite positive `{name}` (None disables the "
+                                 f"test), got {v!r}")
         if self.retry_resnorm is not None:
             try:
                 r = float(self.retry_resnorm)
@@ -116,8 +121,8 @@ class SolveOptions:
                                  f"{self.retry_resnorm!r}")
         if self.explore_above is not None:
             _positive("explore_above", self.explore_above, finite=False)
-        if self.concentric_model is not None and not isinstance(self.concentric_model,
-                                                                DipoleModel):
+        if self.concentric_model is not None and \
+                solver_family(self.concentric_model) != "dipole":
             raise InputError(f"expected `concentric_model` to be a DipoleModel, got "
                              f"{type(self.concentric_model).__name__}")
         _bounds(self.bounds)
@@ -164,7 +169,7 @@ class SolveOptions:
         out = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, DipoleModel):
+            if f.name == "concentric_model" and v is not None:
                 v = {"model": "dipole", "n_source": v.n_source, "n_sensor": v.n_sensor}
             elif isinstance(v, np.ndarray):
                 v = v.tolist()

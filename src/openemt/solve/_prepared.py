@@ -158,6 +158,14 @@ class PreparedLM:
         self._neg = np.empty(0)
         self._hrows = np.empty((0, 3))
 
+    @property
+    def cold_start(self) -> str:
+        """The start of a sample with no prior pose (the first one tracked, one after a
+        failure): ``'kim18'`` where a concentric start model exists, else ``'multistart'``."""
+        from ._series import cold_start_name
+
+        return cold_start_name(self)
+
     def _use_table(self) -> bool:
         """The Kim18 start is the cold start of the invariant table (``_table_solve``): a 3x3
         model with coil offsets, no concentric model given, and not the paper's procedure

@@ -86,17 +86,6 @@ def _prepared(calibration, solver, hemisphere, apply_correction, concentric_cali
                    apply_correction=apply_correction)
 
 
-def _solve_block(reader, start, stop, calibration, solver, hemisphere, apply_correction,
-                 options, prepared=None):
-    C = reader[start:stop]
-    if prepared is None:  # a per-row hemisphere: this block's rows
-        prepared = _prepared(calibration, solver, hemisphere, apply_correction, None, options)
-    if _is_series(solver, options):
-        return solve_series(prepared, C, for_rows=_subsets(
-            calibration, solver, hemisphere, apply_correction, None, options))[0]
-    return prepared(C)
-
-
 def _per_row(hemisphere, n: int):
     """The row-sliceable ``(n, 3)`` hemisphere directions, or None for one spec for all rows
     (the shape is read from ``.shape``, so a lazy object is never iterated)."""
@@ -112,6 +101,64 @@ def _per_row(hemisphere, n: int):
         raise InputError(f"expected one hemisphere for all rows or one per row, shape ({n}, 3), "
                          f"got {tuple(shape)}")
     return hemisphere
+
+
+class BlockPlan:
+    """What both block runners (:func:`solve_chunks`, :func:`openemt.solve.solve_to_file`)
+    share: the inputs checked once, the blocks, each block's hemispheres, and the solver of a
+    block, prepared once per run in each process (or per block for per-row hemispheres)."""
+
+    def __init__(self, n, calibration, chunk_rows, solver, hemisphere, apply_correction,
+                 options):
+        import uuid
+
+        self.n, self.rows = int(n), int(chunk_rows)
+        if self.rows < 1:
+            raise InputError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
+        self.per_row = _per_row(hemisphere, self.n)
+        self.hemisphere = hemisphere
+        opts = SolveOptions.of(None, options)              # checked once, before any block
+        # one solver for all blocks (also checks the calibration and solver before any block)
+        whole = _prepared(calibration, solver, hemisphere if self.per_row is None else None,
+                          apply_correction, None, opts)
+        self.whole = whole if self.per_row is None else None
+        self.spec = (calibration, solver, apply_correction, opts)
+        self.series = _is_series(solver, opts)
+        self.token = uuid.uuid4().hex
+        self.starts = list(range(0, self.n, self.rows))
+
+    def block(self, s: int):
+        """(start, stop, hemisphere of the block's rows) of the block starting at ``s``."""
+        e = min(self.n, s + self.rows)
+        hemi = self.hemisphere if self.per_row is None else \
+            np.asarray(self.per_row[s:e], dtype=np.float64)
+        return s, e, hemi
+
+
+#: per process: the prepared solver of the current run (token -> solver)
+_SOLVERS: dict = {}
+
+
+def solve_rows(C, spec, hemi, series: bool, token, prepared=None):
+    """``(SolveResult, cold retries)`` of the rows ``C`` of one block (``spec`` and ``token``
+    of a :class:`BlockPlan`; ``prepared`` skips the solver lookup, in the planning process)."""
+    calibration, name, apply_correction, options = spec
+    if prepared is None:
+        per_row = isinstance(hemi, np.ndarray) and hemi.ndim == 2
+        prepared = None if per_row else _SOLVERS.get(token)
+        if prepared is None:
+            prepared = _prepared(calibration, name, hemi, apply_correction, None, options)
+            if not per_row:
+                _SOLVERS.clear()
+                _SOLVERS[token] = prepared
+    if series:
+        return solve_series(prepared, C, for_rows=_subsets(
+            calibration, name, hemi, apply_correction, None, options))
+    return prepared(C), 0
+
+
+def _chunk(couplings, s, e, spec, hemi, series, token, prepared=None):
+    return solve_rows(couplings[s:e], spec, hemi, series, token, prepared)[0]
 
 
 def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 262144,
@@ -146,49 +193,24 @@ def solve_chunks(couplings, calibration: Calibration, *, chunk_rows: int = 26214
         with that ``shape`` whose ``[start:stop]`` gives the rows' directions (read block by
         block, like the couplings).
     """
-    import dask
-
-    n = len(couplings)
-    rows = int(chunk_rows)
-    if rows < 1:
-        raise InputError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
     if max_in_flight < 1:
         raise InputError(f"expected `max_in_flight` >= 1, got {max_in_flight!r}")
-    per_row = _per_row(hemisphere, n)
-    options = SolveOptions.of(None, options)               # checked once, before any block
-    # one solver for all blocks (prepared once), or one per block for per-row hemispheres
-    whole = _prepared(calibration, solver, hemisphere if per_row is None else None,
-                      apply_correction, None, options)
-    if per_row is not None:
-        whole = None
-    starts = list(range(0, n, rows))
-
-    def args(s):  # each block gets only its rows' hemispheres
-        hemi = hemisphere if per_row is None else \
-            np.asarray(per_row[s:min(n, s + rows)], dtype=np.float64)
-        return (calibration, solver, hemi, apply_correction, options, whole)
-
+    plan = BlockPlan(len(couplings), calibration, chunk_rows, solver, hemisphere,
+                     apply_correction, options)
     if scheduler is None:
-        for s in starts:
-            task = dask.delayed(_solve_block)(couplings, s, min(n, s + rows), *args(s))
-            (res,) = dask.compute(task, scheduler="synchronous")
-            yield s, res
+        for s in plan.starts:
+            s, e, hemi = plan.block(s)
+            yield s, _chunk(couplings, s, e, plan.spec, hemi, plan.series, plan.token,
+                            plan.whole)
         return
-    from dask.distributed import Client
+    from ._dask import cluster, run_blocks
 
-    own = not isinstance(scheduler, Client)
-    client = Client(scheduler) if own else scheduler
-    try:
-        pending = []
-        it = iter(starts)
-        for s in it:
-            pending.append((s, client.submit(_solve_block, couplings, s, min(n, s + rows),
-                                             *args(s), pure=False)))
-            if len(pending) >= max_in_flight:
-                s0, fut = pending.pop(0)
-                yield s0, fut.result()
-        for s0, fut in pending:
-            yield s0, fut.result()
-    finally:
-        if own:
-            client.close()
+    def submit(k):
+        s, e, hemi = plan.block(plan.starts[k])
+        return client.submit(_chunk, couplings, s, e, plan.spec, hemi, plan.series,
+                             plan.token, pure=False)
+
+    with cluster(scheduler) as client:
+        for k, res in run_blocks(client, submit, len(plan.starts),
+                                 max_in_flight=max_in_flight):
+            yield plan.starts[k], res

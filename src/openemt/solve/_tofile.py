@@ -16,14 +16,11 @@ from __future__ import annotations
 
 import os
 import time
-import uuid
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._errors import InputError
 from ._hemisphere import DEFAULT_HEMISPHERE
-from ._options import SolveOptions
 from ._result import Status
 
 __all__ = ["FileSolveSummary", "solve_to_file"]
@@ -63,10 +60,9 @@ class FileSolveSummary:
         self.block_wall_s += part["wall_s"]
 
 
-# per process: open readers (path, real, size, mtime) -> CouplingReader, and prepared solvers
-# of the current run (token -> solver); a worker opens and checks the input once
+# per process: open readers (path, real, size, mtime) -> CouplingReader; a worker opens and
+# checks the input once
 _READERS: dict = {}
-_SOLVERS: dict = {}
 
 
 def _peak_rss_mb() -> float:
@@ -96,40 +92,15 @@ def _reader(source):
     return reader
 
 
-def _solver(spec, hemi, token):
-    """The prepared solver of ``spec`` for one hemisphere spec (cached per run) or for the
-    block's per-row hemispheres (``hemi`` an array: prepared for the block)."""
-    from ._runner import _prepared
-
-    calibration, solver, apply_correction, options = spec
-    per_row = isinstance(hemi, np.ndarray) and hemi.ndim == 2
-    if not per_row and token in _SOLVERS:
-        return _SOLVERS[token]
-    prepared = _prepared(calibration, solver, hemi, apply_correction, None, options)
-    if not per_row:
-        _SOLVERS.clear()
-        _SOLVERS[token] = prepared
-    return prepared
-
-
 def solve_block(source, start: int, stop: int, spec, hemi, series: bool, token,
                 tmp, layout, groups, n_groups: int, prepared=None) -> dict:
     """Solve rows ``start:stop`` and write them into the laid-out file ``tmp``; return the
     block's tallies (counts per status and per row group). ``prepared`` skips the solver
     lookup (the in-process path)."""
-    from ._runner import _subsets
-    from ._series import solve_series
+    from ._runner import solve_rows
 
     c0, w0 = time.process_time(), time.perf_counter()
-    C = _reader(source)[start:stop]
-    solver = prepared if prepared is not None else _solver(spec, hemi, token)
-    cold = 0
-    if series:
-        calibration, name, apply_correction, options = spec
-        res, cold = solve_series(solver, C, for_rows=_subsets(
-            calibration, name, hemi, apply_correction, None, options))
-    else:
-        res = solver(C)
+    res, cold = solve_rows(_reader(source)[start:stop], spec, hemi, series, token, prepared)
     layout.write(tmp, start, res)
     n_status = len(Status)
     st = res.status.astype(np.int64)
@@ -152,7 +123,8 @@ def solve_block(source, start: int, stop: int, spec, hemi, series: bool, token,
 def solve_to_file(couplings, calibration, output, *, chunk_rows: int = 262144,
                   scheduler=None, solver: str = "lm", hemisphere=DEFAULT_HEMISPHERE,
                   apply_correction: bool = True, meta: dict | None = None, groups=None,
-                  on_block=None, **options) -> FileSolveSummary:
+                  on_block=None, solver_name: str | None = None,
+                  **options) -> FileSolveSummary:
     """Solve every row of ``couplings`` and write the poses file ``output`` (the layout of
     :class:`~openemt.solve._output.PoseWriter`, docs/solve.md#command-line), block by block.
 
@@ -182,77 +154,50 @@ def solve_to_file(couplings, calibration, output, *, chunk_rows: int = 262144,
     on_block : callable, optional
         ``on_block(rows, summary)`` after each finished block (in completion order), e.g. a
         progress line.
+    solver_name : str, optional
+        The solver's name in the file (default ``solver``).
     """
     from ..io import CouplingReader
     from ..io._h5write import atomic_h5_layout
     from ._output import PoseLayout
-    from ._runner import _per_row, _prepared
+    from ._runner import BlockPlan
 
     n = len(couplings)
-    rows = int(chunk_rows)
-    if rows < 1:
-        raise InputError(f"expected a positive `chunk_rows`, got {chunk_rows!r}")
-    per_row = _per_row(hemisphere, n)
-    opts = SolveOptions.of(None, options)                   # checked once, before any block
-    whole = None
-    if per_row is None:
-        whole = _prepared(calibration, solver, hemisphere, apply_correction, None, opts)
-    series = solver == "lm" and isinstance(opts.initial, str) and opts.initial == "track"
-    spec = (calibration, solver, apply_correction, opts)
+    plan = BlockPlan(n, calibration, chunk_rows, solver, hemisphere, apply_correction,
+                     options)
     index, n_groups = (None, 1) if groups is None else groups
     source = ("file", os.path.abspath(couplings.path), couplings.real) \
         if isinstance(couplings, CouplingReader) else couplings
-    token = uuid.uuid4().hex
     summary = FileSolveSummary(n, np.zeros(len(Status), np.int64),
                                np.zeros((n_groups, len(Status)), np.int64),
                                np.zeros((n_groups, len(Status))),
                                np.zeros((n_groups, len(Status)), np.int64))
-    starts = list(range(0, n, rows))
 
-    def block_args(s):
-        e = min(n, s + rows)
-        hemi = hemisphere if per_row is None else \
-            np.asarray(per_row[s:e], dtype=np.float64)
+    def block_args(k):
+        s, e, hemi = plan.block(plan.starts[k])
         g = None if index is None else np.asarray(index[s:e])
-        return s, e, spec, hemi, series, token, g
+        return s, e, plan.spec, hemi, plan.series, plan.token, tmp, layout, g, n_groups
+
+    def done(part):
+        summary.add(part)
+        if on_block is not None:
+            on_block(part["rows"], summary)
 
     t0 = time.perf_counter()
-    with atomic_h5_layout(output, PoseLayout.build(n, solver, meta)) as (tmp, layout):
+    with atomic_h5_layout(output, PoseLayout.build(n, solver_name or solver, meta)) \
+            as (tmp, layout):
         tmp = os.path.abspath(tmp)           # workers may run in another folder
         if scheduler is None:
-            for s in starts:
-                s, e, spec_, hemi, ser, tok, g = block_args(s)
-                part = solve_block(couplings, s, e, spec_, hemi, ser, tok, tmp, layout, g,
-                                   n_groups, prepared=whole)
-                summary.add(part)
-                if on_block is not None:
-                    on_block(part["rows"], summary)
+            for k in range(len(plan.starts)):
+                done(solve_block(couplings, *block_args(k), prepared=plan.whole))
         else:
-            _run_on_cluster(scheduler, starts, block_args, source, tmp, layout, n_groups,
-                            summary, on_block)
+            from ._dask import cluster, run_blocks
+
+            with cluster(scheduler) as client:
+                for _, part in run_blocks(
+                        client, lambda k: client.submit(solve_block, source, *block_args(k),
+                                                        pure=False),
+                        len(plan.starts), ordered=False):
+                    done(part)
         summary.elapsed_s = time.perf_counter() - t0
     return summary
-
-
-def _run_on_cluster(scheduler, starts, block_args, source, tmp, layout, n_groups, summary,
-                    on_block) -> None:
-    from dask.distributed import Client, as_completed
-
-    own = not isinstance(scheduler, Client)
-    client = Client(scheduler) if own else scheduler
-    futures = []
-    try:
-        for s in starts:
-            s, e, spec, hemi, series, token, g = block_args(s)
-            futures.append(client.submit(solve_block, source, s, e, spec, hemi, series, token,
-                                         tmp, layout, g, n_groups, pure=False))
-        for fut in as_completed(futures):
-            part = fut.result()
-            summary.add(part)
-            if on_block is not None:
-                on_block(part["rows"], summary)
-    finally:
-        if futures:
-            client.cancel(futures)
-        if own:
-            client.close()
