@@ -20,6 +20,7 @@ import numpy as np
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
+from .._result import Result
 from ..signal import Demodulator
 from ..solve import Status
 from ..solve._result import status_count_names
@@ -130,8 +131,9 @@ class TrackStep:
 
 
 @dataclass(frozen=True)
-class TrackSummary:
-    """What a run did (JSON-ready via :meth:`to_dict`)."""
+class TrackSummary(Result):
+    """What a run did (JSON-ready via :meth:`to_dict`: the fields, with ``extra``'s keys at the
+    top level)."""
 
     n_samples: int
     signal_seconds: float
@@ -144,7 +146,7 @@ class TrackSummary:
     truth: dict | None = None
     extra: dict = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
+    def _items(self) -> dict:
         d = {"n_samples": self.n_samples, "signal_seconds": self.signal_seconds,
              "wall_seconds": self.wall_seconds, "status_counts": self.status_counts,
              "distorted_fraction": self.distorted_fraction,

@@ -381,14 +381,15 @@ class TrackingSession:
     SIGTERM once tracking runs) and commits the files; leaving closes the server and the
     source, and on an error aborts the files (none is left half-written).
 
-    ``sensors`` replaces the tracker's sensor setups (e.g. another solver) and ``chunk`` the
-    backend's samples per read; ``say`` receives the start-up lines (default: stderr unless
-    ``options.quiet``).
+    ``sensors`` replaces the tracker's sensor setups (e.g. another solver), ``backend`` the
+    source of ``options.source`` (any :class:`~openemt.live.Backend`, e.g. samples held in
+    memory) and ``chunk`` the backend's samples per read; ``say`` receives the start-up lines
+    (default: stderr unless ``options.quiet``).
     """
 
     def __init__(self, spec: TrackerSpec, options: TrackOptions | None = None, *,
-                 sensors=None, chunk: int = 640, say=None, max_queue: int | None = None,
-                 match_layout: bool = True):
+                 sensors=None, backend=None, chunk: int = 640, say=None,
+                 max_queue: int | None = None, match_layout: bool = True):
         options = TrackOptions() if options is None else options
         options.check()
         self.spec = spec
@@ -396,6 +397,7 @@ class TrackingSession:
         self.console = _Console(options.quiet)
         self._say = say or self.console.say
         self._sensors = sensors
+        self._backend = backend
         self._chunk = int(chunk)
         self._max_queue = max_queue
         self._match_layout = bool(match_layout)
@@ -458,7 +460,7 @@ class TrackingSession:
             if o.log is not None:
                 self.log = TrackLogWriter(o.log, [s.name for s in sensors])
             try:
-                self.backend = tracker_backend(
+                self.backend = self._backend or tracker_backend(
                     spec, o.source, file=o.file, device=device, realtime=not o.fast,
                     duration=o.duration, seed=o.seed, noise_rms=o.noise, eddy_strength=o.eddy,
                     match_layout=self._match_layout, chunk=self._chunk)
