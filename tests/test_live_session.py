@@ -171,6 +171,10 @@ def test_registration_key_of_the_tracker_file(tmp_path):
     # a device name the file gives stays; the default one follows the frame
     assert [s.device for s in spec.streams()] == ["Needle", "ReferenceToImage",
                                                   "ProbeToReference"]
+    # so does a given <X>ToTracker (the shipped file's ProbeToTracker): it would name the
+    # wrong frame
+    given = read_tracker(example_tracker("simulated-2")).with_registration(tmp_path / "reg.json")
+    assert [s.device_name for s in given.sensors] == ["ProbeToImage", "ReferenceToImage"]
     scaled = REG.copy()
     scaled[:3, :3] *= 1.5                                     # a similarity registration
     _registration(tmp_path, scaled, "scaled.json")

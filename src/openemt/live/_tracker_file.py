@@ -348,11 +348,20 @@ class TrackerSpec:
     def with_registration(self, path) -> TrackerSpec:
         """A copy that streams in the image frame of the registration file ``path``
         (``openemt register -o``): its image-from-tracker transform is applied to every
-        sensor's pose, and default device names become ``<name>ToImage``."""
+        sensor's pose; default device names become ``<name>ToImage``, and so does a given
+        ``<X>ToTracker`` (``<X>ToImage``: the name would state the wrong frame); other given
+        names stay."""
         T = read_registration_transform(path)
-        sensors = tuple(s if s.device_given else
-                        replace(s, device_name=sensor_device_name(s.name, "Image"))
-                        for s in self.sensors)
+
+        def in_image(s):
+            if not s.device_given:
+                return sensor_device_name(s.name, "Image")
+            parts = _split_from_to(s.device_name)
+            if parts is not None and parts[1] == "Tracker":
+                return sensor_device_name(parts[0], "Image")
+            return s.device_name
+
+        sensors = tuple(replace(s, device_name=in_image(s)) for s in self.sensors)
         out = replace(self, registration=T, registration_path=Path(path), sensors=sensors)
         out.streams()                              # the new names fit
         return out
