@@ -258,3 +258,14 @@ def test_igtl_options_reach_the_server_only_when_given(monkeypatch, tmp_path):
         session.run()
     assert seen == [{}, {"header_version": 1, "rate": 30.0},
                     {"header_version": "auto", "rate": 20.0}]
+
+
+def test_a_session_left_without_running_leaves_no_file(tmp_path):
+    opts = TrackOptions(duration=0.05, log=tmp_path / "log.csv", **QUIET)
+    with TrackingSession.from_tracker(None, opts) as session:
+        assert session.pipeline is not None and session.streams[0].device == "SensorToTracker"
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(RuntimeError, match="boom"):
+        with TrackingSession.from_tracker(None, opts) as session:
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []

@@ -1,11 +1,13 @@
 """The real-time chain: backend -> demodulation -> warm-started LM solve -> optional correction
--> OpenIGTLink, log, per-sample status and distortion flag.
+-> filter -> registration -> tool tip -> OpenIGTLink, log, per-sample status and distortion
+flag.
 
 The solver is injected: any callable ``solver(couplings (N, n_so, n_se) real, initial)``
 returning an object with ``poses (N, 4, 4)``, ``pose_vectors (N, 6)``, ``status (N,)`` and
 ``residual (N,)`` (the :class:`openemt.solve.SolveResult` fields). ``initial`` is either
-``(N, 6)`` pose vectors (warm start from the last valid pose) or the string ``"kim18"`` when no
-valid pose is known yet. The default is :func:`openemt.solve.prepare`'s solver of the model.
+``(N, 6)`` pose vectors (warm start from the last valid pose) or a start name when no valid
+pose is known yet: the model's ``cold_start`` (``"kim18"`` for the dipole family; ``"kim18"``
+for an injected solver). The default is :func:`openemt.solve.prepare`'s solver of the model.
 """
 
 from __future__ import annotations
@@ -293,6 +295,9 @@ class _SensorState:
         self.setup = setup
         self.index = index
         self.solver = solver
+        # the start name while acquiring: the model's (the coupling-model protocol)
+        self.cold_start = (getattr(setup.model, "cold_start", "kim18") if setup.solver is None
+                           else "kim18")
         self.set_columns(setup.columns)
         corr = setup.correction
         if corr is not None:
@@ -514,10 +519,12 @@ class TrackingPipeline:
                     self._extra.append((st, relative_device_name(st.setup.name + "Tip",
                                                                  reference), True, True))
         self._relative = [(st, d) for st, d, _, rel in self._extra if rel]
-        devices = [self._device(st) for st in self.sensors] + [d for _, d, _, _ in self._extra]
-        if igtl is not None:
-            devices += [state_device_name(self._device(st)) for st in self.sensors]
-            devices += [status_device_name(self._device(st)) for st in self.sensors]
+        if igtl is not None:       # every device that goes on the wire
+            devices = self.devices + [f(self._device(st)) for f in (state_device_name,
+                                                                    status_device_name)
+                                      for st in self.sensors]
+        else:                      # the names the pipeline makes (a log needs no device)
+            devices = [d for _, d, _, _ in self._extra]
         check_device_names(devices + ([self.tdata_device] if self.tdata else []),
                            "OpenIGTLink device names (sensors, tips, relative streams "
                            "<sensor>To<reference>, their state and status devices, "
@@ -575,7 +582,7 @@ class TrackingPipeline:
 
     def _solve(self, st: _SensorState, C, quick=None):
         n = C.shape[0]
-        initial = "kim18" if st.last is None else np.repeat(st.last[None], n, axis=0)
+        initial = st.cold_start if st.last is None else np.repeat(st.last[None], n, axis=0)
         out = self._call(st.solver, C, initial, quick)
         self._remember(st, out[1], out[2])
         return out

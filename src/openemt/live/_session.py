@@ -60,7 +60,8 @@ class TrackOptions:
                                      "(image from tracker): stream, log and score every "
                                      "sensor and tip in the image frame, devices "
                                      "<name>ToImage (default: the tracker file's "
-                                     "[navigation] registration, else none)")
+                                     "[navigation] registration, else none)",
+                                     metavar="FILE")
     filter: str | None = _opt(None, "tracking filter per sensor: constant-velocity Kalman "
                               "filter, reset on loss (default: the tracker file's [filter], "
                               "else none)", choices=("none", "kalman"))
@@ -403,6 +404,7 @@ class TrackingSession:
         self._match_layout = bool(match_layout)
         self.streams = spec.streams()
         self.log = self.raw = self.backend = self.server = self.source = self.pipeline = None
+        self._ran = False
 
     @classmethod
     def from_tracker(cls, tracker=None, options: TrackOptions | None = None, **kw):
@@ -489,7 +491,7 @@ class TrackingSession:
     def __exit__(self, kind, exc, tb) -> None:
         self.console.end_line()
         self.console.disarm()
-        if kind is not None:
+        if kind is not None or not self._ran:      # an error, or never run: no file
             for w in (self.log, self.raw and self.raw.stream):
                 if w is not None:
                     w.abort()
@@ -528,6 +530,7 @@ class TrackingSession:
             return console.stop() or (stop is not None and stop())
 
         summary = pipe.run(o.duration, stop=stopping, monitor=monitor or console)
+        self._ran = True
         console.end_line()
         stopped = console.signal
         if stopped is None and pipe.interrupted is not None:   # during start-up
