@@ -530,8 +530,13 @@ def _packing(k: int) -> dict:
 
 def _filter_report(model, noise_log, ok, noise_um, seed) -> dict:
     """Noise with/without the Kalman filter (static run), lag at a 2 Hz sine, step settling."""
-    from ..live import FilterSpec, SimulatedBackend, TrackingPipeline, TrackLog
-    from ..live._filter import kalman_filter_poses
+    from ..live import (
+        FilterSpec,
+        SimulatedBackend,
+        TrackingPipeline,
+        TrackLog,
+        kalman_filter_poses,
+    )
 
     f = FilterSpec(kind="kalman")
     kw = {k: getattr(f, k) for k in ("process_noise", "measurement_noise",

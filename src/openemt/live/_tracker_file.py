@@ -622,8 +622,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     if window not in ("hann", "rect"):
         raise r.fail("demodulation.window", "'hann' or 'rect'", repr(window))
     thr = r.get(dem, "demodulation", "distortion_threshold", "number", 1e-3)
-    if not thr > 0:
-        raise r.fail("demodulation.distortion_threshold", "a positive number", thr)
+    if not 0 < thr < math.inf:
+        raise r.fail("demodulation.distortion_threshold", "a positive finite number", thr)
 
     sensors = []
     tables = r.get(doc, "", "sensors", "list of tables")
@@ -660,8 +660,9 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         if hemi not in ("+x", "-x", "+y", "-y", "+z", "-z"):
             raise r.fail(f"{pre}.hemisphere", "one of +x, -x, +y, -y, +z, -z", repr(hemi))
         off = r.get(t, pre, "simulation_offset", "list of numbers", [0.0, 0.0, 0.0])
-        if len(off) != 3:
-            raise r.fail(f"{pre}.simulation_offset", "3 numbers (m)", f"{len(off)} numbers")
+        if len(off) != 3 or not all(abs(v) <= 10.0 for v in off):
+            raise r.fail(f"{pre}.simulation_offset", "3 finite numbers (m) within 10 m",
+                         f"{off}")
         tip = r.get(t, pre, "tip", "string", None)
         if tip is not None:
             from ..navigate import read_tip_transform
@@ -712,8 +713,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     for k in ("noise_rms", "eddy_strength"):
         if k in sim:
             v = r.get(sim, "simulation", k, "number")
-            if not v >= 0:
-                raise r.fail(f"simulation.{k}", "a non-negative number", v)
+            if not 0 <= v < math.inf:
+                raise r.fail(f"simulation.{k}", "a finite non-negative number", v)
             simd[k] = v
     simd["seed"] = r.get(sim, "simulation", "seed", "integer", 0)
     if not 0 <= simd["seed"] < 2**63:
@@ -721,6 +722,9 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     if "mains_amplitudes" in sim:
         simd["mains_amplitudes"] = tuple(r.get(sim, "simulation", "mains_amplitudes",
                                                "list of numbers"))
+        if not all(math.isfinite(v) for v in simd["mains_amplitudes"]):
+            raise r.fail("simulation.mains_amplitudes", "finite numbers (V)",
+                         list(simd["mains_amplitudes"]))
 
     ig = r.get(doc, "", "igtl", "table", {})
     _unknown_keys(r, ig, "igtl", ("metadata", "reference", "stale_after", "tdata",
