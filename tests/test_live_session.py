@@ -269,3 +269,17 @@ def test_a_session_left_without_running_leaves_no_file(tmp_path):
         with TrackingSession.from_tracker(None, opts) as session:
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_documented_example_runs(tmp_path, monkeypatch, capsys):
+    """docs/live.md's TrackingSession example, verbatim."""
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "live.md").read_text()
+    start = text.index("```python\n  from openemt.live import TrackingSession")
+    block = text[start + len("```python\n"):text.index("  ```", start + 10)]
+    code = "\n".join(line[2:] for line in block.splitlines())
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "docs/live.md", "exec"), {})
+    assert "'device': 'ProbeToTracker'" in capsys.readouterr().out
+    assert (tmp_path / "probe.h5").is_file()

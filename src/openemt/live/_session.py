@@ -125,6 +125,12 @@ class TrackOptions:
                                               "tracker file's, else 1e-3)")
     quiet: bool = field(default=False, metadata={"cli": False})
 
+    def __post_init__(self):
+        for name in ("tracker", "file", "calibration", "registration", "log", "save_raw"):
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, Path):
+                object.__setattr__(self, name, Path(v))        # a str or os.PathLike
+
     def check(self) -> None:
         """Refuse values no session can use (one line naming the option)."""
         def positive(name, v):
