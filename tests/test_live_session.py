@@ -283,3 +283,22 @@ def test_the_documented_example_runs(tmp_path, monkeypatch, capsys):
     exec(compile(code, "docs/live.md", "exec"), {})
     assert "'device': 'ProbeToTracker'" in capsys.readouterr().out
     assert (tmp_path / "probe.h5").is_file()
+
+
+def test_every_corner_of_the_filter_ranges_gives_finite_poses():
+    """The accepted filter ranges (openemt.live._tracker_file.FILTER_LIMITS) are ones the
+    filter handles: at each corner of the box every converged pose is finite and none is
+    lost to the overflow guard."""
+    import itertools
+
+    from openemt.live._tracker_file import FILTER_LIMITS
+
+    keys = ("process_noise", "measurement_noise", "rotation_process_noise",
+            "rotation_measurement_noise")
+    for corner in itertools.product(*[FILTER_LIMITS[k][:2] for k in keys]):
+        b = SimulatedBackend(duration=0.05, seed=1)
+        log = TrackLog()
+        f = FilterSpec(kind="kalman", **dict(zip(keys, corner)))
+        s = TrackingPipeline(b, SensorSetup(model=b.model, filter=f), log=log).run()
+        assert s.status_counts["converged"] == 74, corner
+        assert np.all(np.isfinite(log.arrays()["pose_vectors"])), corner
