@@ -20,6 +20,7 @@ from pathlib import Path
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
+from .._result import Result
 
 __all__ = [
     "MAX_ADC_CHANNELS",
@@ -120,7 +121,7 @@ def check_device_names(names, what: str = "OpenIGTLink device names") -> None:
 
 
 @dataclass(frozen=True)
-class StreamSpec:
+class StreamSpec(Result):
     """One OpenIGTLink device a tracking session streams.
 
     Attributes
@@ -148,11 +149,6 @@ class StreamSpec:
     units: str = "mm"
     state_device: str | None = None
     status_device: str | None = None
-
-    def to_dict(self) -> dict:
-        return {"device": self.device, "sensor": self.sensor, "kind": self.kind,
-                "frame": self.frame, "units": self.units, "state_device": self.state_device,
-                "status_device": self.status_device}
 
 
 def stream_specs(sensors, reference: str | None = None, frame: str = "Tracker") -> list:
