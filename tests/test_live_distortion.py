@@ -88,7 +88,7 @@ def test_clean_and_threshold(multistarts):
 
 
 def test_status_line_on_a_terminal_and_not(monkeypatch):
-    from openemt.cli._track import _Session
+    from openemt.live._session import _Console
 
     b = SimulatedBackend(duration=0.05)
     pipe = TrackingPipeline(b, b.model)
@@ -97,7 +97,7 @@ def test_status_line_on_a_terminal_and_not(monkeypatch):
         err = io.StringIO()
         err.isatty = lambda tty=tty: tty
         monkeypatch.setattr("sys.stderr", err)
-        sess = _Session(types.SimpleNamespace(quiet=False))
+        sess = _Console(quiet=False)
         assert sess.period == (1.0 if tty else 5.0)
         sess._previous = {"armed": None}                   # no signal handlers in a test
         sess(pipe)                                          # starts the clock

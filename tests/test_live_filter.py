@@ -11,6 +11,7 @@ import pytest
 from openemt.geometry import pose_from_vector, vector_from_pose
 from openemt.live import (
     FilterSpec,
+    SensorSetup,
     SimulatedBackend,
     TrackingPipeline,
     TrackLog,
@@ -141,8 +142,8 @@ def test_pipeline_filter_reduces_static_noise_and_restarts_after_dropout():
     sds = []
     for flt in (None, F):
         log = TrackLog()
-        p = TrackingPipeline(Dropout(model, pose, seed=4, duration=0.4), model, filter=flt,
-                             log=log)
+        p = TrackingPipeline(Dropout(model, pose, seed=4, duration=0.4),
+                             SensorSetup(model=model, filter=flt), log=log)
         s = p.run()
         a = log.arrays()
         ok = a["status"] == 0

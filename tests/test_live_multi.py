@@ -20,7 +20,7 @@ def test_two_sensors_streamed_to_two_clients():
     devices = [s.device_name for s in spec.sensors]
     backend = tracker_backend(spec, "sim", realtime=True, duration=0.5)
     with IgtlServer(port=0, device_name=devices[0], send_timeout=2.0) as srv:
-        listeners = [Listener(srv.port, devices + ["ProbeToTrackerStatus"]) for _ in range(2)]
+        listeners = [Listener(srv.port, devices + ["ProbeStatus"]) for _ in range(2)]
         try:
             assert srv.wait_for_client(5.0, count=2)
             backend.restart_clock()
@@ -42,8 +42,8 @@ def test_two_sensors_streamed_to_two_clients():
             truth = backend.truth_poses(t)[:, k]
             np.testing.assert_allclose(M[:, :3, 3], 1000 * truth[:, :3, 3], atol=0.05)  # mm
         # each sensor's own status on <device name>Status
-        assert li.got["ProbeToTrackerStatus"]
-        assert li.got["ProbeToTrackerStatus"][-1][1].startswith("CONVERGED distorted=0")
+        assert li.got["ProbeStatus"]                 # <From>Status of ProbeToTracker
+        assert li.got["ProbeStatus"][-1][1].startswith("CONVERGED distorted=0")
     # the sensors are 30 mm apart in x and 50 mm in z (the file's simulation_offset)
     a, b = (np.stack([g[1] for g in listeners[0].got[d]])[-1] for d in devices)
     assert abs((b[2, 3] - a[2, 3]) - 50.0) < 0.5

@@ -15,6 +15,7 @@ from openemt.geometry import vector_from_pose
 from openemt.live import (
     IgtlServer,
     ReplayBackend,
+    SensorSetup,
     SimulatedBackend,
     TrackingPipeline,
     TrackLog,
@@ -26,9 +27,10 @@ from openemt.signal import RawSignalConfig, simulate_raw, write_raw
 MODEL = default_model()
 
 
-def _pipeline(duration=0.2, config=None, seed=0, **kw):
+def _pipeline(duration=0.2, config=None, seed=0, solver=None, correction=None, **kw):
     b = SimulatedBackend(MODEL, config=config, seed=seed, duration=duration)
-    return b, TrackingPipeline(b, MODEL, **kw)
+    sensor = SensorSetup(model=MODEL, solver=solver, correction=correction)
+    return b, TrackingPipeline(b, sensor, **kw)
 
 
 def test_simulated_run_tracks_truth():

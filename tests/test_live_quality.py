@@ -112,7 +112,7 @@ def test_track_sim_stream_carries_metadata_and_relative_poses(tmp_path, capsys):
             assert m.metadata["Status"] == "OK"
             assert 0 <= float(m.metadata["RelativeResidual"]) < 1e-3
             assert 0 <= float(m.metadata["Distortion"]) < 1e-3      # the default threshold
-    state = viewer.got["ProbeToTrackerState"]
+    state = viewer.got["ProbeState"]            # <From>State: whole names within 20 bytes
     assert [m.string for m in state] == ["TRACKING ProbeToTracker"]   # once, not per frame
 
 
@@ -327,9 +327,10 @@ def test_tracker_file_igtl_table(tmp_path):
                       ({"refrence": "Ref"}, "unknown key `igtl.refrence`")):
         with pytest.raises(InputError, match=msg):
             tracker_from_dict(dict(base, igtl=igtl))
-    long = dict(base, sensors=[{"name": "AVeryLongToolName", "channels": [0, 1, 2]},
+    long = dict(base, sensors=[{"name": "AVeryLongToolName", "channels": [0, 1, 2],
+                                "device_name": "ToolToTracker"},
                                {"name": "Ref", "channels": [3, 4, 5]}], igtl={"reference": "Ref"})
-    with pytest.raises(InputError, match="AVeryLongToolNameToReference"):
+    with pytest.raises(InputError, match="AVeryLongToolNameToRef"):
         tracker_from_dict(long)
     with pytest.raises(InputError, match="reference"):
         TrackingPipeline(tracker_backend(spec, "sim", duration=0.01),
@@ -365,7 +366,7 @@ def test_cli_tdata_and_stale_after_options(capsys):
     assert d["reference"] is None and d["events"]["tracking"] == 1
     assert d["metadata"] is False                       # TDATA carries no metadata
     port = _free_port()
-    viewer = Listener(port, ["openemt"], whole=True)
+    viewer = Listener(port, ["SensorToTracker"], whole=True)   # the default device name
     try:
         code = cli_mod.main(["track", "--source", "sim", "--duration", "0.5", "--no-metadata",
                              "--igtl-port", str(port), "--json", "--quiet"])
@@ -373,7 +374,7 @@ def test_cli_tdata_and_stale_after_options(capsys):
     finally:
         viewer.stop()
     d = json.loads(capsys.readouterr().out)
-    got = viewer.got["openemt"]
+    got = viewer.got["SensorToTracker"]
     assert code == 0 and d["metadata"] is False and got
     assert all(m.header_version == 1 and not m.metadata for m in got)
     assert cli_mod.main(["track", "--source", "sim", "--stale-after", "0", "--no-igtl"]) == 2

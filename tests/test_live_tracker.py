@@ -42,7 +42,7 @@ def _write(folder, text, name="t.toml"):
 def test_shipped_tracker_files_are_valid():
     one = read_tracker(example_tracker("simulated"))
     two = read_tracker(example_tracker("simulated-2"))
-    assert one.sensor_names == ("openemt",) and one.sample_rate == 96000.0
+    assert one.sensor_names == ("Sensor",) and one.sample_rate == 96000.0
     assert two.sensor_names == ("Probe", "Reference")
     assert [s.device_name for s in two.sensors] == ["ProbeToTracker", "ReferenceToTracker"]
     assert two.layout().sensor_channels == (0, 1, 2, 3, 4, 5)
@@ -111,7 +111,31 @@ def test_relative_calibration_path_and_values(tracker_dir):
      (r"`filter.sensors.Needle` to be the name of a sensor in \['Probe', 'Reference'\], "
       r"got unknown sensor 'Needle'")),
     (lambda s: s + '\n[filter.sensors.Probe]\nprocess_noise = -1.0\n',
-     r"`filter.sensors.Probe.process_noise` to be a positive number"),
+     r"`filter.sensors.Probe.process_noise` in \[1e-09, 10000\] m/s\^2/sqrt\(Hz\), got -1.0"),
+    # finite but far beyond any tracker: the filter's covariances would overflow
+    (lambda s: s.replace("[filter]", "[filter]\nprocess_noise = 1e308"),
+     r"`filter.process_noise` in \[1e-09, 10000\].*got 1e\+308"),
+    (lambda s: s.replace("[filter]", "[filter]\nmeasurement_noise = 1e-300"),
+     r"`filter.measurement_noise` in \[1e-12, 1\] m, got 1e-300"),
+    (lambda s: s.replace("[igtl]", "[igtl]\nrate = inf"), r"`igtl.rate`.*stream rate"),
+    (lambda s: s.replace("seed = 0", "seed = 0\nnoise_rms = inf"),
+     r"`simulation.noise_rms` to be a finite non-negative number, got inf"),
+    (lambda s: s.replace("seed = 0", "seed = 0\nmains_amplitudes = [0.01, nan]"),
+     r"`simulation.mains_amplitudes` to be finite numbers"),
+    (lambda s: s.replace('window = "hann"', 'window = "hann"\ndistortion_threshold = inf'),
+     r"`demodulation.distortion_threshold` to be a positive finite number, got inf"),
+    (lambda s: s.replace("simulation_offset = [0.03, 0.0, 0.05]",
+                         "simulation_offset = [0.03, 0.0, inf]"),
+     r"`sensors\[1\]\.simulation_offset` to be 3 finite numbers"),
+    (lambda s: s.replace("[igtl]", "[igtl]\nrate = 0"), r"`igtl.rate`.*stream rate"),
+    (lambda s: s.replace("[igtl]", "[igtl]\nheader_version = 3"),
+     r"`igtl.header_version`.*'auto', 1 or 2, got 3"),
+    (lambda s: s + '\n[navigation]\nregistration = "nowhere.json"\n',
+     r"`navigation.registration`.*missing"),
+    # a sensor name too long for its default device <name>ToTracker
+    (lambda s: s.replace('name = "Probe"\ndevice_name = "ProbeToTracker"',
+                         'name = "AVeryLongProbe"'),
+     r"`sensors\[0\]\.name`.*1-20 characters.*'AVeryLongProbeToTracker'"),
     (lambda s: s.replace('format = "openemt-tracker"', 'format = "other"'), r"`format`"),
     (lambda s: s.replace("[adc]", "[adc\n"), r"valid TOML"),
 ])

@@ -129,8 +129,9 @@ def test_board_sensor_streams_to_a_pyigtl_client(board_cal):
     # a second of signal: the viewer polls every 10 ms and keeps only new messages, so a loaded
     # machine that delays its thread still sees more than 10
     backend = tracker_backend(spec, "sim", realtime=True, duration=1.0)
-    with IgtlServer(port=0, device_name="Needle") as srv:
-        viewer = Listener(srv.port, ["Needle"])
+    assert spec.sensors[0].device_name == "NeedleToTracker"       # <sensor>ToTracker
+    with IgtlServer(port=0, device_name="Other") as srv:
+        viewer = Listener(srv.port, ["NeedleToTracker"])
         try:
             assert srv.wait_for_client(3.0)
             backend.restart_clock()
@@ -139,7 +140,7 @@ def test_board_sensor_streams_to_a_pyigtl_client(board_cal):
             time.sleep(0.1)
         finally:
             viewer.stop()
-        received = viewer.got["Needle"]
+        received = viewer.got["NeedleToTracker"]
         assert s.igtl["sent"] > 0
     assert len(received) >= 10
     t = np.array([r[0] for r in received]) - backend.t0_epoch

@@ -157,40 +157,45 @@ def _unprepared(setup):
     return replace(setup, solver=solve)
 
 
+def _session(spec, seconds, seed, *, chunk=640, sensors=None, max_queue=None, **options):
+    """The tracking session of ``openemt track`` for ``spec`` (simulated, real time, an
+    OpenIGTLink server on a free port), as the command assembles it."""
+    from ..live import TrackingSession, TrackOptions
+
+    opts = TrackOptions(duration=seconds, seed=seed, igtl_port=0, quiet=True, **options)
+    return TrackingSession(spec, opts, sensors=sensors, chunk=chunk, max_queue=max_queue)
+
+
 def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
     import subprocess
     import sys
 
-    from ..live import IgtlServer, TrackingPipeline
-    from ..live._session import tracker_backend, tracker_sensors
+    from ..live import tracker_sensors
 
-    backend = tracker_backend(spec, "sim", realtime=True, duration=seconds, chunk=chunk,
-                              seed=seed)
-    names = [s.device_name for s in spec.sensors]
-    srv = IgtlServer(port=0, device_name=names[0], max_queue=64)
-    client = subprocess.Popen([sys.executable, "-c", _CLIENT, str(srv.port),
-                               str(seconds * 20 + 30), ",".join(names)],
-                              stdout=subprocess.DEVNULL)
-    try:
-        if not srv.wait_for_client(30.0):
-            raise OSError("expected a loopback OpenIGTLink client to connect, got none in 30 s")
-        sensors = tracker_sensors(spec)
-        if not prepared:
-            sensors = [_unprepared(st) for st in sensors]
-        pipe = TrackingPipeline(backend, sensors=sensors, igtl=srv, igtl_metadata=metadata)
-        backend.restart_clock()
-        t0 = time.perf_counter()
-        s = pipe.run()
-        wall = time.perf_counter() - t0
-        time.sleep(0.05)
-    finally:
-        client.terminate()
+    names = [st.device for st in spec.streams()]
+    sensors = None if prepared else [_unprepared(st) for st in tracker_sensors(spec)]
+    with _session(spec, seconds, seed, chunk=chunk, sensors=sensors, max_queue=64,
+                  metadata=metadata) as session:
+        srv = session.server
+        client = subprocess.Popen([sys.executable, "-c", _CLIENT, str(srv.port),
+                                   str(seconds * 20 + 30), ",".join(names)],
+                                  stdout=subprocess.DEVNULL)
         try:
-            client.wait(timeout=5.0)
-        except subprocess.TimeoutExpired:  # pragma: no cover
-            client.kill()
-            client.wait(timeout=5.0)
-        srv.close()
+            if not srv.wait_for_client(30.0):
+                raise OSError("expected a loopback OpenIGTLink client to connect, got none in "
+                              "30 s")
+            session.backend.restart_clock()
+            t0 = time.perf_counter()
+            s = session.run().summary
+            wall = time.perf_counter() - t0
+            time.sleep(0.05)
+        finally:
+            client.terminate()
+            try:
+                client.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:  # pragma: no cover
+                client.kill()
+                client.wait(timeout=5.0)
     send = srv.latencies() * 1e3
     return s, send, wall, srv.stats()
 
@@ -234,8 +239,8 @@ def run(args) -> dict:
                              "checks and packing on every call, one call per sensor)",
                      "latency_ms_p50": pct(sendb, 50), "latency_ms_p99": pct(sendb, 99)},
         "without_metadata": {
-            "what": "the first run's blocks sent as version-1 TRANSFORMs, without the Status, "
-                    "RelativeResidual and Distortion metadata (TrackingPipeline(igtl_metadata=False))",
+            "what": "the first run's blocks sent as version-1 TRANSFORMs, without the "
+                    "per-pose metadata (openemt track --no-metadata)",
             "latency_ms_p50": pct(sendv1, 50), "latency_ms_p99": pct(sendv1, 99)},
         "one_frame_reads": {
             "chunk_samples": 64, "latency_ms_p50": pct(send1, 50),
@@ -331,42 +336,38 @@ def _many_tools(preset, k: int, seconds: float, seed: int) -> dict:
     import subprocess
     import sys
 
-    from ..live import IgtlServer, TrackingPipeline
-    from ..live._session import tracker_backend, tracker_sensors
-
     spec = _spec(preset, k)
-    names = [s.device_name for s in spec.sensors]
+    names = [st.device for st in spec.streams()]
     out = {"tools": k, "seconds": seconds, "output_rate": spec.output_rate}
-    ways = (("transform", {}), ("transform_v1", {"igtl_metadata": False}),
+    ways = (("transform", {}), ("transform_v1", {"metadata": False}),
             ("tdata", {"tdata": True}))
     for way, kw in ways:
-        backend = tracker_backend(spec, "sim", realtime=True, duration=seconds, seed=seed)
-        srv = IgtlServer(port=0, device_name=names[0])
-        client = subprocess.Popen([sys.executable, "-c", _COUNTER, str(srv.port),
-                                   str(seconds + 60)], stdout=subprocess.PIPE, text=True)
-        try:
-            if not srv.wait_for_client(30.0):
-                raise OSError("expected a loopback OpenIGTLink client to connect, got none "
-                              "in 30 s")
-            pipe = TrackingPipeline(backend, sensors=tracker_sensors(spec), igtl=srv, **kw)
-            backend.restart_clock()
-            t0 = time.perf_counter()
-            s = pipe.run()
-            wall = time.perf_counter() - t0
-            stats = srv.stats()
-            import pyigtl
-
-            srv.send_message(pyigtl.StringMessage("end", device_name="benchEnd"))
-            end = time.monotonic() + 30.0        # the client reads what its socket holds
-            while client.poll() is None and time.monotonic() < end:
-                time.sleep(0.02)
-        finally:
-            srv.close()
+        with _session(spec, seconds, seed, **kw) as session:
+            srv = session.server
+            client = subprocess.Popen([sys.executable, "-c", _COUNTER, str(srv.port),
+                                       str(seconds + 60)], stdout=subprocess.PIPE, text=True)
             try:
-                got, _ = client.communicate(timeout=30.0)
-            except subprocess.TimeoutExpired:  # pragma: no cover
-                client.kill()
-                got, _ = client.communicate()
+                if not srv.wait_for_client(30.0):
+                    raise OSError("expected a loopback OpenIGTLink client to connect, got "
+                                  "none in 30 s")
+                session.backend.restart_clock()
+                t0 = time.perf_counter()
+                s = session.run().summary
+                wall = time.perf_counter() - t0
+                stats = srv.stats()
+                import pyigtl
+
+                srv.send_message(pyigtl.StringMessage("end", device_name="benchEnd"))
+                end = time.monotonic() + 30.0        # the client reads what its socket holds
+                while client.poll() is None and time.monotonic() < end:
+                    time.sleep(0.02)
+            finally:
+                srv.close()
+                try:
+                    got, _ = client.communicate(timeout=30.0)
+                except subprocess.TimeoutExpired:  # pragma: no cover
+                    client.kill()
+                    got, _ = client.communicate()
         rep = json.loads(got)
         counts = {(t, d): n for t, d, n in rep["counts"]}
         sig = s.signal_seconds
@@ -452,8 +453,7 @@ class _Memory:
 
 
 def _realtime_factor(spec, seconds, chunk, seed) -> dict:
-    from ..live import TrackingPipeline
-    from ..live._session import tracker_backend, tracker_sensors
+    from ..live import TrackingSession, TrackOptions, tracker_backend, tracker_sensors
 
     sim = tracker_backend(spec, "sim", realtime=False, duration=seconds, chunk=96000,
                           seed=seed)
@@ -469,12 +469,17 @@ def _realtime_factor(spec, seconds, chunk, seed) -> dict:
     # sensor), so each is solved in its own call
     separate = [replace(st, model=copy.deepcopy(st.model)) for st in shared]
 
+    opts = TrackOptions(igtl=False, quiet=True)
+
     def timed(sensors):
-        TrackingPipeline(_Memory(raw[:6400], sim.layout, chunk), sensors=sensors).run()
-        pipe = TrackingPipeline(_Memory(raw, sim.layout, chunk), sensors=sensors)
-        c0, t0 = time.process_time(), time.perf_counter()
-        s = pipe.run()
-        return s, time.perf_counter() - t0, time.process_time() - c0
+        with TrackingSession(spec, opts, sensors=sensors,
+                             backend=_Memory(raw[:6400], sim.layout, chunk)) as warm:
+            warm.run()
+        with TrackingSession(spec, opts, sensors=sensors,
+                             backend=_Memory(raw, sim.layout, chunk)) as session:
+            c0, t0 = time.process_time(), time.perf_counter()
+            s = session.run().summary
+            return s, time.perf_counter() - t0, time.process_time() - c0
 
     s, wall, cpu = timed(shared)
     sb, wallb, cpub = timed(separate)
@@ -525,8 +530,13 @@ def _packing(k: int) -> dict:
 
 def _filter_report(model, noise_log, ok, noise_um, seed) -> dict:
     """Noise with/without the Kalman filter (static run), lag at a 2 Hz sine, step settling."""
-    from ..live import FilterSpec, SimulatedBackend, TrackingPipeline, TrackLog
-    from ..live._filter import kalman_filter_poses
+    from ..live import (
+        FilterSpec,
+        SimulatedBackend,
+        TrackingPipeline,
+        TrackLog,
+        kalman_filter_poses,
+    )
 
     f = FilterSpec(kind="kalman")
     kw = {k: getattr(f, k) for k in ("process_noise", "measurement_noise",

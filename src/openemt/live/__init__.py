@@ -14,6 +14,7 @@ from ._backends import (
 from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
 from ._pipeline import (
+    PipelineConfig,
     SensorSetup,
     TrackingPipeline,
     TrackLog,
@@ -28,11 +29,20 @@ from ._record import (
     read_track_log,
     track_log_dataset,
 )
+from ._session import (
+    TrackingSession,
+    TrackOptions,
+    TrackResult,
+    tracker_backend,
+    tracker_sensors,
+)
 from ._tracker_file import (
     FilterSpec,
     SensorSpec,
+    StreamSpec,
     TrackerSpec,
     example_tracker,
+    read_registration_transform,
     read_tracker,
     tracker_from_dict,
 )
@@ -42,6 +52,7 @@ __all__ = [
     "Backend",
     "FilterSpec",
     "IgtlServer",
+    "PipelineConfig",
     "RawRecorder",
     "ReplayBackend",
     "SensorSetup",
@@ -50,13 +61,17 @@ __all__ = [
     "SoundDeviceBackend",
     "SourceStalled",
     "StallWatch",
+    "StreamSpec",
     "TrackLog",
     "TrackLogData",
     "TrackLogWriter",
+    "TrackOptions",
+    "TrackResult",
     "TrackStep",
     "TrackSummary",
     "TrackerSpec",
     "TrackingPipeline",
+    "TrackingSession",
     "default_model",
     "default_trajectory",
     "example_tracker",
@@ -64,8 +79,11 @@ __all__ = [
     "kalman_filter_poses",
     "lm_solver",
     "new_filter_state",
+    "read_registration_transform",
     "read_track_log",
-    "track_log_dataset",
     "read_tracker",
+    "track_log_dataset",
+    "tracker_backend",
     "tracker_from_dict",
+    "tracker_sensors",
 ]

@@ -100,17 +100,18 @@ def board_solver(model, **options):
     return solve
 
 
-def board_default_spec(calibration, device_name: str = "openemt", *, preset=None):
+def board_default_spec(calibration, name: str = "Sensor", device_name: str | None = None, *,
+                       preset=None):
     """The tracker of ``openemt track --calibration CAL`` without a tracker file when ``CAL``
     is a board calibration (else None): the shipped ``anser`` tracker (one sensor channel,
-    one carrier and reference channel per coil) with that calibration, the device name, and a
-    sensor gain that puts the simulated path's largest coupling at
-    :data:`BOARD_PEAK_VOLTS`."""
+    one carrier and reference channel per coil) with that calibration, the sensor ``name``
+    and device name (default ``<name>ToTracker``), and a sensor gain that puts the simulated
+    path's largest coupling at :data:`BOARD_PEAK_VOLTS`."""
     from dataclasses import replace
     from pathlib import Path
 
     from ..io import read_calibration
-    from ._tracker_file import SensorSpec, example_tracker, read_tracker
+    from ._tracker_file import SensorSpec, example_tracker, read_tracker, sensor_device_name
 
     try:
         cal = read_calibration(calibration)
@@ -127,8 +128,9 @@ def board_default_spec(calibration, device_name: str = "openemt", *, preset=None
                          f"carrier each below 48 kHz), got {n}: describe it in a tracker file")
     spec = read_tracker(example_tracker("anser"))
     freqs = board_frequencies(n)
-    sensor = SensorSpec(name=device_name, channels=(0,), calibration=Path(calibration),
-                        device_name=device_name)
+    sensor = SensorSpec(name=name, channels=(0,), calibration=Path(calibration),
+                        device_name=device_name or sensor_device_name(name),
+                        device_given=device_name is not None)
     return replace(spec, n_channels=n + 1, frequencies=freqs,
                    reference_channels=tuple(range(1, n + 1)), sensors=(sensor,),
                    sensor_gain=fit_sensor_gain(cal.model), path=None)

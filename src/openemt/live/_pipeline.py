@@ -1,11 +1,13 @@
 """The real-time chain: backend -> demodulation -> warm-started LM solve -> optional correction
--> OpenIGTLink, log, per-sample status and distortion flag.
+-> filter -> registration -> tool tip -> OpenIGTLink, log, per-sample status and distortion
+flag.
 
 The solver is injected: any callable ``solver(couplings (N, n_so, n_se) real, initial)``
 returning an object with ``poses (N, 4, 4)``, ``pose_vectors (N, 6)``, ``status (N,)`` and
 ``residual (N,)`` (the :class:`openemt.solve.SolveResult` fields). ``initial`` is either
-``(N, 6)`` pose vectors (warm start from the last valid pose) or the string ``"kim18"`` when no
-valid pose is known yet. The default is :func:`openemt.solve.prepare`'s solver of the model.
+``(N, 6)`` pose vectors (warm start from the last valid pose) or a start name when no valid
+pose is known yet: the model's ``cold_start`` (``"kim18"`` for the dipole family; ``"kim18"``
+for an injected solver). The default is :func:`openemt.solve.prepare`'s solver of the model.
 """
 
 from __future__ import annotations
@@ -14,22 +16,30 @@ import collections
 import contextlib
 import itertools
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
+from .._result import Result
 from ..signal import Demodulator
 from ..solve import Status
 from ..solve._result import status_count_names
 from ._filter import filter_restarts
-from ._tracker_file import relative_device_name
+from ._tracker_file import (
+    check_device_names,
+    relative_device_name,
+    state_device_name,
+    status_device_name,
+    tip_device_name,
+)
 
-__all__ = ["STREAM_EVENTS", "SensorSetup", "TrackLog", "TrackStep", "TrackSummary",
-           "TrackingPipeline", "lm_solver", "state_device_name"]
+__all__ = ["STREAM_EVENTS", "PipelineConfig", "SensorSetup", "TrackLog", "TrackStep",
+           "TrackSummary", "TrackingPipeline", "lm_solver", "state_device_name"]
 
 _CONVERGED = int(Status.CONVERGED)
+_OUT_OF_VOLUME = int(Status.OUT_OF_VOLUME)
 
 #: The stream states a sensor's ``<device>State`` STRING message reports on change.
 STREAM_EVENTS = ("tracking", "lost", "distorted", "stale", "recovered")
@@ -102,6 +112,8 @@ class TrackStep:
     relative_residual : ndarray, shape (N,), optional
         ``||C_pred - C_meas||_F / ||C_meas||_F`` of the solve (NaN where the solver reports
         none); sent as the ``RelativeResidual`` metadata.
+    tool_poses : ndarray, shape (N, 4, 4), optional
+        The sensor's own poses when ``poses`` are its tool tip's (a sensor with a ``tip``).
     """
 
     times: np.ndarray
@@ -114,14 +126,16 @@ class TrackStep:
     distorted: np.ndarray
     t_ready: float = 0.0
     relative_residual: np.ndarray | None = None
+    tool_poses: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.times.shape[0]
 
 
 @dataclass(frozen=True)
-class TrackSummary:
-    """What a run did (JSON-ready via :meth:`to_dict`)."""
+class TrackSummary(Result):
+    """What a run did (JSON-ready via :meth:`to_dict`: the fields, with ``extra``'s keys at the
+    top level)."""
 
     n_samples: int
     signal_seconds: float
@@ -134,7 +148,7 @@ class TrackSummary:
     truth: dict | None = None
     extra: dict = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
+    def _items(self) -> dict:
         d = {"n_samples": self.n_samples, "signal_seconds": self.signal_seconds,
              "wall_seconds": self.wall_seconds, "status_counts": self.status_counts,
              "distorted_fraction": self.distorted_fraction,
@@ -156,12 +170,6 @@ def _takes_metadata(igtl) -> bool:
     except (TypeError, ValueError):  # pragma: no cover - not introspectable
         return True
     return any(p.name == "metadata" or p.kind is p.VAR_KEYWORD for p in params)
-
-
-def state_device_name(device: str) -> str:
-    """The device of a sensor's stream-state STRING messages: ``<device>State``, the device
-    name cut to 15 characters (OpenIGTLink names have at most 20)."""
-    return device[:15] + "State"
 
 
 class TrackLog:
@@ -246,8 +254,9 @@ class SensorSetup:
     filter : FilterSpec, optional
         Tracking filter (None or kind "none" = off).
     tip : ndarray (4, 4), optional
-        Tool-tip transform (``openemt pivot``): poses are streamed, logged and scored as
-        ``pose @ tip``.
+        Tool-tip transform (``openemt pivot``): poses are logged and scored as ``pose @ tip``
+        and the tip is streamed as its own device (:func:`~openemt.live._tracker_file.
+        tip_device_name`) beside the sensor's.
     """
 
     name: str = "openemt"
@@ -286,6 +295,9 @@ class _SensorState:
         self.setup = setup
         self.index = index
         self.solver = solver
+        # the start name while acquiring: the model's (the coupling-model protocol)
+        self.cold_start = (getattr(setup.model, "cold_start", "kim18") if setup.solver is None
+                           else "kim18")
         self.set_columns(setup.columns)
         corr = setup.correction
         if corr is not None:
@@ -311,31 +323,13 @@ class _SensorState:
         self.events = dict.fromkeys(STREAM_EVENTS, 0)
 
 
-class TrackingPipeline:
-    """Raw samples to poses, live, for one or several sensors.
+@dataclass(frozen=True)
+class PipelineConfig:
+    """The settings of a :class:`TrackingPipeline` (one record; its fields may also be given
+    as keywords of the pipeline, which override the record's).
 
-    Every chunk is demodulated once for all sensor channels; each sensor's couplings (its
-    columns of the coupling matrix) are then solved, corrected, filtered, logged and streamed
-    as its own OpenIGTLink TRANSFORM device in the same pass.
-
-    Parameters
+    Attributes
     ----------
-    backend : Backend
-        Source of raw chunks (:mod:`openemt.live`).
-    model : DipoleModel
-        Model for the default solver of a single sensor (ignored when ``sensors`` is given).
-    solver : callable, optional
-        See the module docstring; default :func:`lm_solver` (``model``, ``hemisphere``).
-    hemisphere : str
-        Hemisphere for (re)acquisition with the closed-form start.
-    correction : ndarray, shape (4, 4), optional
-        Linear position correction (docs/paper-procedure.md#applying-correction) applied to
-        valid poses.
-    sensors : sequence of SensorSetup, optional
-        Several sensors (each with its columns, model or solver, correction, device name and
-        filter); replaces ``model``, ``solver``, ``hemisphere``, ``correction`` and ``filter``.
-    filter : FilterSpec, optional
-        Tracking filter of the single sensor (docs/live.md#filter).
     output_rate, window, phase
         Demodulator settings (:class:`openemt.signal.Demodulator`).
     distortion_threshold : float
@@ -345,58 +339,103 @@ class TrackingPipeline:
         sample); it is logged with its flag and counted in ``not_sent_distorted``.
     send_distorted : bool
         Send converged distorted samples too (they stay flagged).
-    igtl : IgtlServer, optional
-        Receives every ``igtl_every``-th valid, undistorted pose of each sensor (device name:
-        the sensor's ``device_name``, else the server's), and every ``status_every`` samples a STRING
-        message per sensor on device ``<device name>Status`` (cut to 20 characters) such as
-        ``"CONVERGED distorted=0 quadrature=1.2e-05"`` (the latest sample), which Slicer shows
-        as a text node.
-    log : TrackLog or TrackLogWriter, optional
-        Gets the sensor names of the pipeline and every chunk of every sensor
-        (:class:`~openemt.live.TrackLogWriter` streams them to a file).
+    reference : str, optional
+        Name of the reference sensor: every other sensor (and tip) is also streamed relative
+        to it, ``inv(reference) @ sensor``, on device ``<sensor name>To<reference name>``, for
+        the samples where both are valid (docs/live.md#reference-relative-output).
+    stale_after : float
+        Watchdog: a sensor without a valid pose for this many seconds of wall-clock time
+        (also when no samples arrive) is reported ``STALE`` on its state device.
+    tdata : bool
+        Send all streams of one sample in one OpenIGTLink TDATA message on device
+        ``tdata_device`` instead of one TRANSFORM per stream
+        (:func:`openemt.live._tdata.pack_tdata`).
+    tdata_device : str
+    igtl_metadata : bool
+        Give every TRANSFORM the OpenIGTLink version-2 metadata (docs/live.md); False sends
+        version-1 TRANSFORMs without metadata (so does a stand-in server whose ``send_poses``
+        takes no ``metadata``).
+    igtl_every : int
+        Send every ``igtl_every``-th valid pose.
+    status_every : int
+        Every ``status_every`` samples a STRING per sensor on its status device
+        (``<From>Status``, :func:`~openemt.live._tracker_file.status_device_name`) such as
+        ``"CONVERGED distorted=0 quadrature=1.2e-05"`` (the latest sample).
     serial_small_batches : bool
         Solve chunks of fewer than 256 samples with numba's parallel regions limited to this
         thread (see ``openemt bench track``'s baseline for why).
-    reference : str, optional
-        Name of the reference sensor: every other sensor is also streamed relative to it,
-        ``inv(reference) @ sensor``, on device ``<sensor name>ToReference``, for the samples
-        where both are valid (docs/live.md#reference-relative-output).
-    stale_after : float
-        Watchdog: a sensor without a valid pose for this many seconds of wall-clock time
-        (also when no samples arrive) is reported ``STALE`` on its ``<device>State`` message.
-    tdata : bool
-        Send all sensors (and relative streams) of one sample in one OpenIGTLink TDATA message
-        on device ``tdata_device`` instead of one TRANSFORM per sensor
-        (:func:`openemt.live._tdata.pack_tdata`).
-    igtl_metadata : bool
-        Give every TRANSFORM the OpenIGTLink version-2 metadata ``Status`` (``OK`` or
-        ``DISTORTED``), ``RelativeResidual`` and ``Distortion`` (header version 2); False
-        sends version-1 TRANSFORMs without metadata (so does a stand-in server whose
-        ``send_poses`` takes no ``metadata``).
+    registration : ndarray (4, 4), optional
+        Image-from-tracker transform (``openemt register``) applied to every sensor's pose
+        (and so its tip): the sensors stream, log and score in the image frame. Relative
+        streams are unchanged by it.
+    """
+
+    output_rate: float = OUTPUT_RATE_HZ
+    window: str = "hann"
+    phase: object = None
+    distortion_threshold: float = 1e-3
+    send_distorted: bool = False
+    reference: str | None = None
+    stale_after: float = 0.5
+    tdata: bool = False
+    tdata_device: str = "openemt"
+    igtl_metadata: bool = True
+    igtl_every: int = 1
+    status_every: int = 150
+    serial_small_batches: bool = True
+    registration: object = None
+
+
+class TrackingPipeline:
+    """Raw samples to poses, live, for one or several sensors.
+
+    Every chunk is demodulated once for all sensor channels; each sensor's couplings (its
+    columns of the coupling matrix) are then solved, corrected, filtered, registered, logged
+    and streamed as its own OpenIGTLink TRANSFORM device (and its tip's, when it has one) in
+    the same pass.
+
+    Parameters
+    ----------
+    backend : Backend
+        Source of raw chunks (:mod:`openemt.live`).
+    sensors : sequence of SensorSetup, a SensorSetup, or a model
+        The sensors (each with its columns, model or solver, correction, device name, filter
+        and tip); a bare model is one sensor with the default solver of that model, named
+        after the server's device.
+    config : PipelineConfig, optional
+        The settings; keywords named like its fields override them.
+    igtl : IgtlServer, optional
+        Receives every ``igtl_every``-th valid, undistorted pose of each stream (device name:
+        the sensor's ``device_name``, else the server's) and the state and status STRINGs.
+    log : TrackLog or TrackLogWriter, optional
+        Gets the sensor names of the pipeline and every chunk of every sensor
+        (:class:`~openemt.live.TrackLogWriter` streams them to a file).
 
     Stream states: after every chunk each sensor's state is that of its last sample (``OK``,
     ``DISTORTED``: converged with a quadrature ratio above the threshold, ``LOST``: not
     converged) or ``STALE`` (no valid pose for ``stale_after`` seconds); a change is sent once
-    as a STRING on device ``<device name>State`` (:func:`state_device_name`: the device name
-    cut to 15 characters so that the suffix stays), e.g.
-    ``"LOST ProbeToTracker: status OUT_OF_VOLUME"`` or
+    as a STRING on the sensor's state device (:func:`state_device_name`, ``ProbeState`` for
+    ``ProbeToTracker``), e.g. ``"LOST ProbeToTracker: status OUT_OF_VOLUME"`` or
     ``"RECOVERED ProbeToTracker after 0.21 s"``, and counted in the summary (``events``).
+
+    A pose that is not finite after the filter (a filter driven beyond its range) is marked
+    ``OUT_OF_VOLUME``, never sent or logged as converged.
     """
 
-    def __init__(self, backend, model=None, *, solver=None, hemisphere="+x", correction=None,
-                 sensors=None, filter=None, output_rate: float = OUTPUT_RATE_HZ,
-                 window: str = "hann", phase=None, distortion_threshold: float = 1e-3,
-                 igtl=None, log: TrackLog | None = None, igtl_every: int = 1,
-                 status_every: int = 150, serial_small_batches: bool = True,
-                 send_distorted: bool = False, reference: str | None = None,
-                 stale_after: float = 0.5, tdata: bool = False,
-                 tdata_device: str = "openemt", igtl_metadata: bool = True):
-        if sensors is None:
-            if solver is None and model is None:
-                raise InputError("expected a `model` or a `solver`, got neither")
+    def __init__(self, backend, sensors, config: PipelineConfig | None = None, *, igtl=None,
+                 log=None, **settings):
+        cfg = config if config is not None else PipelineConfig()
+        if settings:
+            cfg = replace(cfg, **settings)
+        self.config = cfg
+        if isinstance(sensors, SensorSetup):
+            sensors = [sensors]
+        elif not isinstance(sensors, (list, tuple)):
+            if sensors is None:
+                raise InputError("expected `sensors` (SensorSetup records) or a model, got "
+                                 "None")
             name = igtl.device_name if igtl is not None else "openemt"
-            sensors = [SensorSetup(name=name, model=model, solver=solver, correction=correction,
-                                   hemisphere=hemisphere, filter=filter)]
+            sensors = [SensorSetup(name=name, model=sensors)]
         sensors = list(sensors)
         if not sensors:
             raise InputError("expected at least one sensor, got none")
@@ -434,41 +473,65 @@ class TrackingPipeline:
             st.columns == list(range(i * w, (i + 1) * w)) for i, st in enumerate(self.sensors))
         self.solver = self.sensors[0].solver
         self.correction = self.sensors[0].correction
-        self.demod = Demodulator(backend.layout, output_rate=output_rate, window=window,
-                                 phase=phase)
-        self.distortion_threshold = check_nonnegative(distortion_threshold,
+        self.demod = Demodulator(backend.layout, output_rate=cfg.output_rate,
+                                 window=cfg.window, phase=cfg.phase)
+        self.distortion_threshold = check_nonnegative(cfg.distortion_threshold,
                                                       "`distortion_threshold`")
         self.igtl = igtl
-        self.send_distorted = bool(send_distorted)
+        self.send_distorted = bool(cfg.send_distorted)
         self.interrupted = None
         self.log = log
         if log is not None:
             log.set_sensors(names)
-        self.igtl_every = max(1, int(igtl_every))
-        self.status_every = max(1, int(status_every))
-        self.stale_after = float(stale_after)
+        self.igtl_every = max(1, int(cfg.igtl_every))
+        self.status_every = max(1, int(cfg.status_every))
+        self.stale_after = float(cfg.stale_after)
         if not self.stale_after > 0:
-            raise InputError(f"expected a positive `stale_after` in seconds, got {stale_after!r}")
-        self.tdata = bool(tdata)
-        self.tdata_device = tdata_device
-        self.igtl_metadata = bool(igtl_metadata) and _takes_metadata(igtl)
+            raise InputError(f"expected a positive `stale_after` in seconds, got "
+                             f"{cfg.stale_after!r}")
+        self.tdata = bool(cfg.tdata)
+        self.tdata_device = cfg.tdata_device
+        self.igtl_metadata = bool(cfg.igtl_metadata) and _takes_metadata(igtl)
+        self.registration = None
+        if cfg.registration is not None:
+            T = np.asarray(cfg.registration, dtype=np.float64)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise InputError(f"expected a finite (4, 4) `registration`, got shape "
+                                 f"{T.shape}")
+            self.registration = T
         self.reference = None
-        self._relative: list = []      # (sensor state, device name) streamed relative to it
+        reference = cfg.reference
         if reference is not None:
             if reference not in names:
                 raise InputError(f"expected `reference` to name a sensor in {names}, got "
                                  f"{reference!r}")
             self.reference = self.sensors[names.index(reference)]
-            self._relative = [(st, relative_device_name(st.setup.name)) for st in self.sensors
-                              if st is not self.reference]
-        for dev in [d for _, d in self._relative] + ([tdata_device] if self.tdata else []):
-            if not (isinstance(dev, str) and 1 <= len(dev) <= 20 and dev.isascii()):
-                raise InputError(f"expected OpenIGTLink device names of 1-20 ASCII characters "
-                                 f"(relative streams <sensor>ToReference, `tdata_device`), got "
-                                 f"{dev!r}")
+        # every stream after the sensors' own: (sensor state, device, tip?, relative?)
+        self._extra: list = [(st, tip_device_name(self._device(st)), True, False)
+                             for st in self.sensors if st.tip is not None]
+        if self.reference is not None:
+            for st in self.sensors:
+                if st is self.reference:
+                    continue
+                self._extra.append((st, relative_device_name(st.setup.name, reference),
+                                    False, True))
+                if st.tip is not None:
+                    self._extra.append((st, relative_device_name(st.setup.name + "Tip",
+                                                                 reference), True, True))
+        self._relative = [(st, d) for st, d, _, rel in self._extra if rel]
+        if igtl is not None:       # every device that goes on the wire
+            devices = self.devices + [f(self._device(st)) for f in (state_device_name,
+                                                                    status_device_name)
+                                      for st in self.sensors]
+        else:                      # the names the pipeline makes (a log needs no device)
+            devices = [d for _, d, _, _ in self._extra]
+        check_device_names(devices + ([self.tdata_device] if self.tdata else []),
+                           "OpenIGTLink device names (sensors, tips, relative streams "
+                           "<sensor>To<reference>, their state and status devices, "
+                           "`tdata_device`)")
         self.events: collections.deque = collections.deque(maxlen=1000)
         # confining numba's threads only matters for solvers that may start parallel regions
-        self.serial_small_batches = bool(serial_small_batches) and not all(
+        self.serial_small_batches = bool(cfg.serial_small_batches) and not all(
             getattr(st.solver, "serial", False) for st in self.sensors)
         self._n_out = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
@@ -519,7 +582,7 @@ class TrackingPipeline:
 
     def _solve(self, st: _SensorState, C, quick=None):
         n = C.shape[0]
-        initial = "kim18" if st.last is None else np.repeat(st.last[None], n, axis=0)
+        initial = st.cold_start if st.last is None else np.repeat(st.last[None], n, axis=0)
         out = self._call(st.solver, C, initial, quick)
         self._remember(st, out[1], out[2])
         return out
@@ -640,18 +703,28 @@ class TrackingPipeline:
         for st, couplings, (poses, vecs, status, resid, rel), ratio, flag in zip(
                 self.sensors, parts, solved, ratios, flags):
             poses, vecs = self._correct(st, poses, vecs, status)
-            poses, vecs = self._filter(st, d.times, poses, vecs, status)
-            if st.tip is not None:              # the tool tip instead of the sensor
+            if st.filter is not None:
+                poses, vecs = self._filter(st, d.times, poses, vecs, status)
+                # a filter driven beyond its range gives no pose: never a converged NaN
+                bad = ~np.isfinite(vecs).all(axis=1) & (status == _CONVERGED)
+                if bad.any():
+                    status = status.copy()
+                    status[bad] = _OUT_OF_VOLUME
+            tool = None
+            if self.registration is not None or st.tip is not None:
                 from ..geometry import vector_from_pose
 
-                poses = poses @ st.tip
+                if self.registration is not None:      # into the image frame
+                    poses = self.registration @ poses
+                if st.tip is not None:                 # the tool tip, streamed beside it
+                    tool, poses = poses, poses @ st.tip
                 vecs = vector_from_pose(poses)
             ok = status == _CONVERGED
             oks.append(ok)
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
-                                   t_ready, rel))
+                                   t_ready, rel, tool))
         stamps = epoch + d.times
         if self.igtl is not None:
             self._send(steps, valids, stamps, t_ready)
@@ -670,30 +743,47 @@ class TrackingPipeline:
         return steps[0] if len(steps) == 1 else tuple(steps)
 
     def _device(self, st: _SensorState) -> str:
-        return st.setup.device_name or self.igtl.device_name
+        return st.setup.device_name or (self.igtl.device_name if self.igtl is not None
+                                        else st.setup.name)
+
+    @property
+    def devices(self) -> list:
+        """The device of every stream, in the order they are sent: the sensors', the tips',
+        then the relative streams'."""
+        return [self._device(st) for st in self.sensors] + [d for _, d, _, _ in self._extra]
 
     def _streams(self, steps, picks):
-        """The streams of one chunk: per sensor, then per sensor relative to the reference,
-        ``(device, poses, pick, distorted, relative residual, distortion)``; a relative
-        stream's pose is ``inv(reference) @ sensor`` where both are picked (elsewhere the
-        sensor's own, never sent), flagged distorted where either is, with the larger relative residual and
-        quadrature ratio of the two."""
-        out = [(self._device(st), step.poses, pick, step.distorted, step.relative_residual,
-                step.distortion) for st, step, pick in zip(self.sensors, steps, picks)]
-        if self.reference is not None:
-            from ..geometry import invert
+        """The streams of one chunk: per sensor (its own pose), per tool tip, then per sensor
+        (and tip) relative to the reference, ``(device, poses, pick, distorted, relative
+        residual, distortion)``; a relative stream's pose is ``inv(reference) @ sensor`` where
+        both are picked (elsewhere the sensor's own, never sent), flagged distorted where
+        either is, with the larger relative residual and quadrature ratio of the two."""
+        def own(step):
+            return step.poses if step.tool_poses is None else step.tool_poses
 
+        out = [(self._device(st), own(step), pick, step.distorted, step.relative_residual,
+                step.distortion) for st, step, pick in zip(self.sensors, steps, picks)]
+        if not self._extra:
+            return out
+        if self.reference is not None:
             r = self.reference.index
             ref, rpick = steps[r], picks[r]
-            for st, device in self._relative:
-                tool = steps[st.index]
-                pick = picks[st.index] & rpick
-                poses = tool.poses.copy()
-                if pick.any():
-                    poses[pick] = invert(ref.poses[pick]) @ tool.poses[pick]
-                out.append((device, poses, pick, tool.distorted | ref.distorted,
-                            np.fmax(tool.relative_residual, ref.relative_residual),
-                            np.maximum(tool.distortion, ref.distortion)))
+        for st, device, tip, relative in self._extra:
+            step = steps[st.index]
+            poses = step.poses if tip else own(step)
+            if not relative:
+                out.append((device, poses, picks[st.index], step.distorted,
+                            step.relative_residual, step.distortion))
+                continue
+            from ..geometry import invert
+
+            pick = picks[st.index] & rpick
+            poses = poses.copy()
+            if pick.any():
+                poses[pick] = invert(own(ref)[pick]) @ poses[pick]
+            out.append((device, poses, pick, step.distorted | ref.distorted,
+                        np.fmax(step.relative_residual, ref.relative_residual),
+                        np.maximum(step.distortion, ref.distortion)))
         return out
 
     def _send(self, steps, valids, stamps, t_ready) -> None:
@@ -710,7 +800,8 @@ class TrackingPipeline:
             else:
                 rp = picks[self.reference.index] if self.reference is not None else None
                 count = sum(int(p.sum()) for p in picks) + sum(
-                    int((picks[st.index] & rp).sum()) for st, _ in self._relative)
+                    int((picks[st.index] & rp).sum() if rel else picks[st.index].sum())
+                    for st, _, _, rel in self._extra)
             self.igtl.send_packed(b"", count)
             return
         streams = self._streams(steps, picks)
@@ -768,8 +859,7 @@ class TrackingPipeline:
         if new == st.state:
             return
         old, st.state = st.state, new
-        device = st.setup.device_name or (self.igtl.device_name if self.igtl is not None
-                                          else st.setup.name)
+        device = self._device(st)
         if new == "OK":
             event = "tracking" if old is None else "recovered"
             detail = "" if old is None else f" after {now - st.bad_since:.2f} s"
@@ -810,7 +900,7 @@ class TrackingPipeline:
             name = str(code)
         self.igtl.send_message(pyigtl.StringMessage(
             f"{name} distorted={int(distorted)} quadrature={ratio:.2e}", timestamp=timestamp,
-            device_name=(device + "Status")[:20]))
+            device_name=status_device_name(device)))
 
     def _account(self, st: _SensorState, step: TrackStep, ok):
         n_ok = int(np.count_nonzero(ok))
@@ -847,6 +937,8 @@ class TrackingPipeline:
         truth = np.asarray(truth)
         if truth.ndim == 4:                # (N, n_sensors, 4, 4): one pose per sensor
             truth = truth[:, st.index]
+        if self.registration is not None:
+            truth = self.registration @ truth
         if st.tip is not None:
             truth = truth @ st.tip
         err = np.linalg.norm(xyz - truth[:, :3, 3], axis=1)

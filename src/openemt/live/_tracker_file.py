@@ -20,6 +20,7 @@ from pathlib import Path
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
+from .._result import Result
 
 __all__ = [
     "MAX_ADC_CHANNELS",
@@ -33,9 +34,16 @@ __all__ = [
     "FilterSpec",
     "SensorSpec",
     "TrackerSpec",
+    "StreamSpec",
+    "device_from",
     "example_tracker",
+    "read_registration_transform",
     "read_tracker",
     "relative_device_name",
+    "sensor_device_name",
+    "state_device_name",
+    "status_device_name",
+    "tip_device_name",
     "tracker_from_dict",
 ]
 
@@ -48,10 +56,154 @@ _FILTER_KINDS = ("none", "kalman")
 DEFAULT_STALE_AFTER = 0.5
 
 
-def relative_device_name(sensor_name: str) -> str:
+#: The most characters of an OpenIGTLink device name (the header's 20-byte field).
+MAX_DEVICE_NAME = 20
+
+
+def _split_from_to(device: str):
+    """``("Probe", "Tracker")`` of ``"ProbeToTracker"`` (the last ``To`` between two names),
+    else None."""
+    k = device.rfind("To")
+    if 0 < k < len(device) - 2:
+        return device[:k], device[k + 2:]
+    return None
+
+
+def sensor_device_name(sensor_name: str, frame: str = "Tracker") -> str:
+    """The default OpenIGTLink device name of a sensor: ``<sensor name>To<frame>``
+    (``ProbeToTracker``; ``ProbeToImage`` with a registration), the ``FromTo`` form PLUS and
+    3D Slicer read as a transform from the sensor to the frame."""
+    return f"{sensor_name}To{frame}"
+
+
+def device_from(device: str) -> str:
+    """The ``From`` part of a ``FromTo`` device name (``Probe`` of ``ProbeToTracker``), else
+    the whole name."""
+    parts = _split_from_to(device)
+    return device if parts is None else parts[0]
+
+
+def tip_device_name(device: str) -> str:
+    """The device of a tool's tip: ``<Tool>TipTo<frame>`` for a ``FromTo`` tool device
+    (``ProbeTipToTracker``), else ``<device>Tip``."""
+    parts = _split_from_to(device)
+    return f"{device}Tip" if parts is None else f"{parts[0]}TipTo{parts[1]}"
+
+
+def relative_device_name(sensor_name: str, reference: str = "Reference") -> str:
     """The OpenIGTLink device name of a sensor streamed relative to the reference sensor:
-    ``<sensor name>ToReference``."""
-    return f"{sensor_name}ToReference"
+    ``<sensor name>To<reference sensor name>``."""
+    return f"{sensor_name}To{reference}"
+
+
+def state_device_name(device: str) -> str:
+    """The device of a stream's state STRING messages: ``<From>State`` of a ``FromTo`` device
+    (``ProbeState`` for ``ProbeToTracker``), else ``<device>State``; whole names, never cut
+    (a name too long for 20 bytes is refused where the streams are set up)."""
+    return device_from(device) + "State"
+
+
+def status_device_name(device: str) -> str:
+    """The device of a stream's periodic status STRING: ``<From>Status`` (``ProbeStatus``)."""
+    return device_from(device) + "Status"
+
+
+def check_device_names(names, what: str = "OpenIGTLink device names") -> None:
+    """Refuse names that do not fit the protocol (1-20 ASCII characters) or collide."""
+    seen: set = set()
+    for dev in names:
+        if not (isinstance(dev, str) and 1 <= len(dev) <= MAX_DEVICE_NAME and dev.isascii()):
+            raise InputError(f"expected {what} of 1-{MAX_DEVICE_NAME} ASCII characters, got "
+                             f"{dev!r} (shorten the sensor name or set its device_name)")
+        if dev in seen:
+            raise InputError(f"expected distinct {what}, got {dev!r} twice")
+        seen.add(dev)
+
+
+@dataclass(frozen=True)
+class StreamSpec(Result):
+    """One OpenIGTLink device a tracking session streams.
+
+    Attributes
+    ----------
+    device : str
+        Device name (the Slicer transform node).
+    sensor : str
+        The sensor it comes from.
+    kind : str
+        ``"tool"`` (the sensor's pose), ``"tip"`` (the tool tip, ``pose @ tip``),
+        ``"relative"`` or ``"tip-relative"`` (the same relative to the reference sensor).
+    frame : str
+        The frame the pose is given in: ``"Tracker"`` (the source), ``"Image"`` (through the
+        registration) or the reference sensor's name.
+    units : str
+        Translation units on the wire (``"mm"``; rotations are unit-free matrices).
+    state_device, status_device : str
+        Devices of its state changes and periodic status STRINGs (tool streams only).
+    """
+
+    device: str
+    sensor: str
+    kind: str
+    frame: str
+    units: str = "mm"
+    state_device: str | None = None
+    status_device: str | None = None
+
+
+def stream_specs(sensors, reference: str | None = None, frame: str = "Tracker") -> list:
+    """The streams of ``sensors`` (objects with ``name``, ``device_name`` and ``tip``), in the
+    order a pipeline sends them: every sensor's tool, the tips, then (with a ``reference``)
+    every other sensor's tool and tip relative to it. Names are checked
+    (:func:`check_device_names`)."""
+    out = []
+    for s in sensors:
+        out.append(StreamSpec(s.device_name, s.name, "tool", frame,
+                              state_device=state_device_name(s.device_name),
+                              status_device=status_device_name(s.device_name)))
+    for s in sensors:
+        if s.tip is not None:
+            out.append(StreamSpec(tip_device_name(s.device_name), s.name, "tip", frame))
+    if reference is not None:
+        for s in sensors:
+            if s.name == reference:
+                continue
+            out.append(StreamSpec(relative_device_name(s.name, reference), s.name, "relative",
+                                  reference))
+            if s.tip is not None:
+                out.append(StreamSpec(relative_device_name(s.name + "Tip", reference), s.name,
+                                      "tip-relative", reference))
+    check_device_names([d for st in out for d in (st.device, st.state_device,
+                                                  st.status_device) if d is not None])
+    return out
+
+
+def read_registration_transform(path):
+    """The image-from-tracker transform (4x4, m) of a registration written by
+    ``openemt register -o`` (its ``transform``: the moving points - tracker - into the fixed
+    frame - image), checked to be a finite rigid transform."""
+    import numpy as np
+
+    from ..io._jsontext import load_json_file
+
+    path = Path(path)
+    d = load_json_file(path, "a registration file from 'openemt register -o'")
+    if not isinstance(d, dict) or d.get("format") != "openemt.registration":
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        raise InputError(f"expected a registration (format 'openemt.registration') from "
+                         f"'openemt register -o' in {path}, got {got!r}")
+    try:
+        T = np.asarray(d.get("transform"), dtype=np.float64)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    ok = T.shape == (4, 4) and bool(np.all(np.isfinite(T))) and np.allclose(T[3], [0, 0, 0, 1])
+    if ok:
+        R = T[:3, :3]
+        ok = np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
+    if not ok:
+        raise InputError(f"expected `transform` a finite rigid 4x4 (rotation and translation "
+                         f"in m) in {path}, got {str(d.get('transform'))[:80]}")
+    return T
 
 # Limits of a tracker file (docs/robustness.md, "Bounded work"): far above any real tracker,
 # low enough that a careless or hostile value is an error instead of an exhausted memory.
@@ -110,14 +262,16 @@ class SensorSpec:
     Attributes
     ----------
     name : str
-        Sensor name, also its OpenIGTLink device name unless ``device_name`` differs
-        (1-20 characters).
+        Sensor name (log, summary; the ``From`` of its default device name).
     channels : tuple of int
         ADC channel of each sensor coil (X, Y, Z order of the calibration's model).
     calibration : Path or None
         Calibration file (JSON or ILEMT .mat), absolute; None = the simulated preset's model.
     device_name : str
-        OpenIGTLink device name (Slicer transform node name).
+        OpenIGTLink device name (Slicer transform node name): the file's ``device_name``,
+        else ``<name>ToTracker`` (``<name>ToImage`` with a registration).
+    device_given : bool
+        Whether ``device_name`` was given (a registration then leaves it as it is).
     hemisphere : str
         Hemisphere for acquisition with the closed-form start.
     simulation_offset : tuple of 3 float
@@ -140,6 +294,7 @@ class SensorSpec:
     simulation_offset: tuple = (0.0, 0.0, 0.0)
     filter: FilterSpec | None = None
     tip: object = None
+    device_given: bool = False
 
     def filter_or(self, default: FilterSpec) -> FilterSpec:
         return default if self.filter is None else self.filter
@@ -166,10 +321,46 @@ class TrackerSpec:
     stale_after: float = DEFAULT_STALE_AFTER
     tdata: bool = False
     metadata: bool = True
+    header_version: object = None
+    rate: float | None = None
+    registration: object = None
+    registration_path: Path | None = None
 
     @property
     def sensor_names(self) -> tuple:
         return tuple(s.name for s in self.sensors)
+
+    @property
+    def frame(self) -> str:
+        """The frame the sensors stream in: ``"Image"`` with a registration, else
+        ``"Tracker"``."""
+        return "Tracker" if self.registration is None else "Image"
+
+    def streams(self) -> list:
+        """The :class:`StreamSpec` of every device the tracker streams (tools, tips,
+        reference-relative), in the order the pipeline sends them."""
+        return stream_specs(self.sensors, self.reference, self.frame)
+
+    def with_registration(self, path) -> TrackerSpec:
+        """A copy that streams in the image frame of the registration file ``path``
+        (``openemt register -o``): its image-from-tracker transform is applied to every
+        sensor's pose; default device names become ``<name>ToImage``, and so does a given
+        ``<X>ToTracker`` (``<X>ToImage``: the name would state the wrong frame); other given
+        names stay."""
+        T = read_registration_transform(path)
+
+        def in_image(s):
+            if not s.device_given:
+                return sensor_device_name(s.name, "Image")
+            parts = _split_from_to(s.device_name)
+            if parts is not None and parts[1] == "Tracker":
+                return sensor_device_name(parts[0], "Image")
+            return s.device_name
+
+        sensors = tuple(replace(s, device_name=in_image(s)) for s in self.sensors)
+        out = replace(self, registration=T, registration_path=Path(path), sensors=sensors)
+        out.streams()                              # the new names fit
+        return out
 
     def layout(self):
         """The :class:`~openemt.signal.ChannelLayout` of the whole ADC: the sensor channels of
@@ -312,12 +503,43 @@ def _check_filter(f: FilterSpec, where: str, prefix: str = "filter") -> None:
     if f.kind not in _FILTER_KINDS:
         raise InputError(f"{where}: expected `{prefix}.kind` in {list(_FILTER_KINDS)}, got "
                          f"{f.kind!r}")
-    for key in ("process_noise", "measurement_noise", "rotation_process_noise",
-                "rotation_measurement_noise", "max_gap"):
+    for key, (lo, hi, unit) in FILTER_LIMITS.items():
         v = float(getattr(f, key))
-        if not (v > 0 and v < float("inf")):
-            raise InputError(f"{where}: expected `{prefix}.{key}` to be a positive number, "
+        if not lo <= v <= hi:
+            raise InputError(f"{where}: expected `{prefix}.{key}` in [{lo:g}, {hi:g}] {unit}, "
                              f"got {v!r}")
+
+
+#: The range of each filter setting (beyond them the filter's covariances under- or overflow
+#: and no physical tracker needs them): key -> (lowest, highest, unit).
+FILTER_LIMITS = {
+    "process_noise": (1e-9, 1e4, "m/s^2/sqrt(Hz)"),
+    "measurement_noise": (1e-12, 1.0, "m"),
+    "rotation_process_noise": (1e-9, 1e5, "rad/s^2/sqrt(Hz)"),
+    "rotation_measurement_noise": (1e-12, 3.2, "rad"),
+    "max_gap": (1e-6, 3600.0, "s"),
+}
+#: The highest OpenIGTLink stream rate per client (``[igtl] rate``, ``--rate``), Hz.
+MAX_IGTL_RATE_HZ = 1e5
+
+
+def check_header_version(v, where: str):
+    """``"auto"``, 1 or 2 (``[igtl] header_version``, ``--header-version``)."""
+    if isinstance(v, str) and v.isdigit():
+        v = int(v)
+    if v not in ("auto", 1, 2) or isinstance(v, bool):
+        raise InputError(f"{where}: expected the OpenIGTLink header version 'auto', 1 or 2, "
+                         f"got {v!r}")
+    return v
+
+
+def check_rate(v, where: str) -> float:
+    """A stream rate in (0, MAX_IGTL_RATE_HZ] Hz."""
+    v = float(v)
+    if not 0 < v <= MAX_IGTL_RATE_HZ:
+        raise InputError(f"{where}: expected a stream rate in (0, {MAX_IGTL_RATE_HZ:g}] Hz, "
+                         f"got {v!r}")
+    return v
 
 
 def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
@@ -327,7 +549,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     base = path.parent if path is not None else Path(".")
     r = _Reader(where)
     _unknown_keys(r, doc, "", ("format", "version", "adc", "source", "demodulation", "sensors",
-                               "filter", "simulation", "igtl"))
+                               "filter", "simulation", "igtl", "navigation"))
     fmt = r.get(doc, "", "format", "string")
     if fmt != TRACKER_FORMAT:
         raise r.fail("format", repr(TRACKER_FORMAT), repr(fmt))
@@ -396,8 +618,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     if window not in ("hann", "rect"):
         raise r.fail("demodulation.window", "'hann' or 'rect'", repr(window))
     thr = r.get(dem, "demodulation", "distortion_threshold", "number", 1e-3)
-    if not thr > 0:
-        raise r.fail("demodulation.distortion_threshold", "a positive number", thr)
+    if not 0 < thr < math.inf:
+        raise r.fail("demodulation.distortion_threshold", "a positive finite number", thr)
 
     sensors = []
     tables = r.get(doc, "", "sensors", "list of tables")
@@ -413,10 +635,11 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         chans = r.get(t, pre, "channels", "list of integers")
         for ch in chans:
             claim(ch, f"{pre}.channels", f"sensor {name!r}")
-        device = r.get(t, pre, "device_name", "string", name)
+        device = r.get(t, pre, "device_name", "string", sensor_device_name(name))
         if not 1 <= len(device) <= 20 or not device.isascii():
             raise r.fail(f"{pre}.device_name" if "device_name" in t else f"{pre}.name",
-                         "an ASCII OpenIGTLink device name of 1-20 characters", repr(device))
+                         "an ASCII OpenIGTLink device name of 1-20 characters (a name "
+                         "without device_name streams as <name>ToTracker)", repr(device))
         if any(s.device_name == device for s in sensors):
             raise r.fail(f"{pre}.device_name", "a device name no other sensor uses",
                          repr(device))
@@ -433,8 +656,9 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         if hemi not in ("+x", "-x", "+y", "-y", "+z", "-z"):
             raise r.fail(f"{pre}.hemisphere", "one of +x, -x, +y, -y, +z, -z", repr(hemi))
         off = r.get(t, pre, "simulation_offset", "list of numbers", [0.0, 0.0, 0.0])
-        if len(off) != 3:
-            raise r.fail(f"{pre}.simulation_offset", "3 numbers (m)", f"{len(off)} numbers")
+        if len(off) != 3 or not all(abs(v) <= 10.0 for v in off):
+            raise r.fail(f"{pre}.simulation_offset", "3 finite numbers (m) within 10 m",
+                         f"{off}")
         tip = r.get(t, pre, "tip", "string", None)
         if tip is not None:
             from ..navigate import read_tip_transform
@@ -446,7 +670,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
             tip = read_tip_transform(tip_path)
         sensors.append(SensorSpec(name=name, channels=tuple(chans), calibration=cal_path,
                                   device_name=device, hemisphere=hemi,
-                                  simulation_offset=tuple(off), tip=tip))
+                                  simulation_offset=tuple(off), tip=tip,
+                                  device_given="device_name" in t))
 
     flt = r.get(doc, "", "filter", "table", {})
     keys = ("kind", "process_noise", "measurement_noise", "rotation_process_noise",
@@ -484,8 +709,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     for k in ("noise_rms", "eddy_strength"):
         if k in sim:
             v = r.get(sim, "simulation", k, "number")
-            if not v >= 0:
-                raise r.fail(f"simulation.{k}", "a non-negative number", v)
+            if not 0 <= v < math.inf:
+                raise r.fail(f"simulation.{k}", "a finite non-negative number", v)
             simd[k] = v
     simd["seed"] = r.get(sim, "simulation", "seed", "integer", 0)
     if not 0 <= simd["seed"] < 2**63:
@@ -493,9 +718,13 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     if "mains_amplitudes" in sim:
         simd["mains_amplitudes"] = tuple(r.get(sim, "simulation", "mains_amplitudes",
                                                "list of numbers"))
+        if not all(math.isfinite(v) for v in simd["mains_amplitudes"]):
+            raise r.fail("simulation.mains_amplitudes", "finite numbers (V)",
+                         list(simd["mains_amplitudes"]))
 
     ig = r.get(doc, "", "igtl", "table", {})
-    _unknown_keys(r, ig, "igtl", ("metadata", "reference", "stale_after", "tdata"))
+    _unknown_keys(r, ig, "igtl", ("metadata", "reference", "stale_after", "tdata",
+                                  "header_version", "rate"))
     reference = r.get(ig, "igtl", "reference", "string", None)
     if reference is not None:
         if reference not in names:
@@ -504,30 +733,43 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         if len(names) < 2:
             raise r.fail("igtl.reference", "a sensor of a tracker with at least two sensors",
                          f"{reference!r}, the only sensor")
-        devices = {s.device_name for s in sensors}
-        for s in sensors:
-            rel = relative_device_name(s.name)
-            if s.name == reference:
-                continue
-            if not (len(rel) <= 20 and rel.isascii()):
-                raise r.fail("igtl.reference", "sensors whose relative device names "
-                             "<name>ToReference have 1-20 ASCII characters",
-                             f"{rel!r} for sensor {s.name!r} (shorten its name)")
-            if rel in devices:
-                raise r.fail("igtl.reference", "relative device names no sensor uses",
-                             f"{rel!r} already the device name of a sensor")
     stale = r.get(ig, "igtl", "stale_after", "number", DEFAULT_STALE_AFTER)
     if not (stale > 0 and stale < float("inf")):
         raise r.fail("igtl.stale_after", "a positive number of seconds", stale)
     tdata = r.get(ig, "igtl", "tdata", "boolean", False)
     metadata = r.get(ig, "igtl", "metadata", "boolean", True)
+    header_version = None
+    if "header_version" in ig:
+        header_version = check_header_version(ig["header_version"],
+                                              f"{where}: `igtl.header_version`")
+    igtl_rate = None
+    if "rate" in ig:
+        igtl_rate = check_rate(r.get(ig, "igtl", "rate", "number"), f"{where}: `igtl.rate`")
+    nav = r.get(doc, "", "navigation", "table", {})
+    _unknown_keys(r, nav, "navigation", ("registration",))
+    registration = r.get(nav, "navigation", "registration", "string", None)
+    if registration is not None:
+        registration = Path(registration)
+        if not registration.is_absolute():
+            registration = base / registration
+        if not registration.is_file():
+            raise r.fail("navigation.registration", "an existing registration file from "
+                         "'openemt register -o' (relative to the tracker file)",
+                         f"missing {str(registration)!r}")
 
     spec = TrackerSpec(sample_rate=fs, n_channels=n_ch, frequencies=tuple(freqs),
                        reference_channels=tuple(refs), sensors=tuple(sensors),
                        sensor_gain=gains["sensor_gain"], reference_gain=gains["reference_gain"],
                        output_rate=rate, window=window, distortion_threshold=thr,
                        filter=fspec, simulation=simd, path=path, reference=reference,
-                       stale_after=stale, tdata=tdata, metadata=metadata)
+                       stale_after=stale, tdata=tdata, metadata=metadata,
+                       header_version=header_version, rate=igtl_rate)
+    try:
+        if registration is not None:
+            spec = spec.with_registration(registration)
+        spec.streams()
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
     try:                                       # the carrier plan must suit the demodulator
         from ..signal import frame_length
 
