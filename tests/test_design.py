@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from openemt.board import builtin_board
 from openemt.cli import main
 from openemt.design import (
     bound_map,
@@ -16,6 +17,8 @@ from openemt.design import (
 )
 from openemt.field import numeric_jacobians
 from openemt.geometry import pose_from_vector
+from openemt.io import read_board, write_board
+from openemt.live import example_tracker
 from openemt.solve import cramer_rao
 
 
@@ -102,11 +105,7 @@ def test_cli_map_json_html_and_bad_input(tmp_path, capsys):
 
 
 def test_targets_files_and_rig(tmp_path):
-    """A board file, a board calibration and a tracker file map as the board does."""
-    from openemt.board import builtin_board
-    from openemt.io import write_board
-    from openemt.live import example_tracker
-
+    """A board file and a tracker file map as the board does; the rig has its volume."""
     write_board(builtin_board("anser"), tmp_path / "b.toml")
     kw = dict(grid=(2, 2, 2), orientations="down", montecarlo=0, noise_sigma=1e-9)
     ref = design_map(target="anser", **kw).position_mm["median"]
@@ -116,3 +115,63 @@ def test_targets_files_and_rig(tmp_path):
     assert t.kind == "tracker" and t.model.n_source == 8
     r = resolve_target("dipole-approx")
     assert r.kind == "rig" and r.model.dof == 6 and r.volume.x[0] < r.volume.x[1]
+
+
+def test_tracker_noise_from_its_adc_figures_matches_the_demodulated_noise():
+    """A tracker file's coupling noise comes from its ADC figures; the raw-signal Monte Carlo
+    (simulated samples through the demodulator) agrees with the bound for that noise."""
+    m = design_map(target=str(example_tracker("anser")), grid=(3, 3, 2), montecarlo=6,
+                   trials=150, seed=5)
+    assert "ADC figures" in m.noise and "raw ADC samples" in m.montecarlo["noise"]
+    # 1.5e-5 V rms, gain 5e4 V per coupling x A, Hann frame of 128 samples:
+    # sigma sqrt(2 sum w^2) / sum w / gain = 1.5e-5 * sqrt(2 * 48) / 64 / 5e4
+    assert m.noise_sigma == pytest.approx(1.5e-5 * np.sqrt(96.0) / 64 / 5e4, rel=1e-12)
+    assert abs(m.montecarlo_ratio_median - 1) < 0.1, m.montecarlo
+
+
+def test_optimize_lowers_the_bound_within_the_constraints(tmp_path, capsys):
+    out = tmp_path / "opt.toml"
+    page = tmp_path / "opt.html"
+    rc = main(["design", "optimize", "anser", "--grid", "3", "3", "2", "--orientations",
+               "down", "--max-evaluations", "80", "--montecarlo", "4", "--trials", "40",
+               "-o", str(out), "--html", str(page), "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    d = json.loads(cap.out)
+    assert d["optimized"]["position_mm"]["p95"] <= d["start"]["position_mm"]["p95"]
+    assert d["improvement_p95"] == pytest.approx(
+        1 - d["optimized"]["position_mm"]["p95"] / d["start"]["position_mm"]["p95"])
+    assert d["evaluations"] <= 81 and page.read_text().count("data:image/png") == 5
+    b = read_board(out)
+    start = builtin_board("anser")
+    assert b.n_coils == start.n_coils and b.sensor.to_dict() == start.sensor.to_dict()
+    assert all(c.outer_size == s.outer_size and c.turns_per_layer == s.turns_per_layer
+               for c, s in zip(b.coils, start.coils))
+    # outlines inside the start footprint and at least 2 mm apart (dense samples of each
+    # outline: their distances are at least the outlines' distance)
+    def outline(c):
+        h = c.outer_size[0] / 2
+        R = c.rotation[:2, :2]
+        t = np.linspace(-h, h, 200)
+        sides = [np.column_stack([t, np.full_like(t, s)]) for s in (-h, h)] + \
+            [np.column_stack([np.full_like(t, s), t]) for s in (-h, h)]
+        return np.concatenate(sides) @ R.T + c.center[:2]
+
+    lines = [outline(c) for c in b.coils]
+    box = np.concatenate([outline(c) for c in start.coils])
+    for k, p in enumerate(lines):
+        assert np.all(p >= box.min(0) - 1e-9) and np.all(p <= box.max(0) + 1e-9)
+        for q in lines[k + 1:]:
+            dist = np.linalg.norm(p[:, None] - q[None], axis=-1).min()
+            assert dist >= 2e-3 - 1e-9
+    # every command that takes a board reads it
+    m = design_map(target=str(out), grid=(3, 3, 2), orientations="down", montecarlo=0,
+                   noise_sigma=d["noise_sigma"])
+    assert m.position_mm["p95"] == pytest.approx(d["optimized"]["position_mm"]["p95"])
+
+
+def test_optimize_refuses_what_it_cannot_change(capsys):
+    rc = main(["design", "optimize", "concentric", "--json"])
+    assert rc == 2 and "expected a board" in capsys.readouterr().err
+    rc = main(["design", "optimize", "anser", "--min-spacing-mm", "30", "--json"])
+    assert rc == 2 and "30 mm spacing" in capsys.readouterr().err

@@ -48,6 +48,9 @@ class MapOptions:
         "help": "report the fraction of the volume whose position bound is below this (mm)"})
     montecarlo: int = field(default=20, metadata={
         "help": "sampled (point, orientation) pairs solved in Monte Carlo (0: none)"})
+    montecarlo_noise: str = field(default="raw", metadata={
+        "choices": ("raw", "coupling"), "help": "Monte Carlo on raw ADC samples through the "
+        "signal simulator and demodulator, or white noise added to the couplings"})
     trials: int = field(default=200, metadata={"help": "noise draws per Monte Carlo point"})
     seed: int = field(default=0, metadata={"help": "seed of the Monte Carlo draws"})
     output: str | None = field(default=None, metadata={
@@ -160,6 +163,17 @@ def map_of(target, options: MapOptions, noise_sigma=None, rng_seed=None):
         sigma, note = float(options.noise_sigma), "noise_sigma"
         if not (np.isfinite(sigma) and sigma > 0):
             raise InputError(f"expected a positive --noise-sigma, got {options.noise_sigma}")
+    elif target.tracker is not None and options.snr_db is None:
+        from ..signal import RawSignalConfig
+        from ._montecarlo import coupling_noise_rms
+        from ._targets import carrier_plan
+
+        layout, rate, window = carrier_plan(target)
+        v = float(target.tracker.simulation.get("noise_rms", RawSignalConfig().noise_rms))
+        sigma = coupling_noise_rms(layout, rate, window, v)
+        note = (f"the tracker's ADC figures: {v:g} V rms sensor-channel noise, sensor gain "
+                f"{layout.sensor_gain:g} V per coupling x A, 1 A drive, {rate:g} outputs/s "
+                f"{window} window")
     else:
         snr = 80.0 if options.snr_db is None else float(options.snr_db)
         if not np.isfinite(snr):
@@ -167,6 +181,24 @@ def map_of(target, options: MapOptions, noise_sigma=None, rng_seed=None):
         sigma = noise_from_snr(target.model, points, rotations, snr)
         note = f"snr_db {snr:g} (RMS noise-free coupling over the volume)"
     return bound_map(target.model, points, rotations, sigma), volume, sigma, note
+
+
+def montecarlo_plan(target, options):
+    """The carrier plan of a raw-signal Monte Carlo (None: coupling-level noise)."""
+    if options.montecarlo_noise not in ("raw", "coupling"):
+        raise InputError(f"expected --montecarlo-noise raw or coupling, got "
+                         f"{options.montecarlo_noise!r}")
+    if options.montecarlo_noise == "coupling" or options.montecarlo <= 0:
+        return None
+    from ._targets import carrier_plan
+
+    plan = carrier_plan(target)
+    if plan is None:
+        raise InputError(f"expected a target with a carrier plan for a raw-signal Monte Carlo "
+                         f"(a tracker file, or {target.model.n_source} source and "
+                         f"{target.model.n_sensor} sensor coils as a shipped tracker), got "
+                         f"none: use --montecarlo-noise coupling")
+    return plan
 
 
 def design_map(options: MapOptions | None = None, **overrides) -> DesignMap:
@@ -187,7 +219,7 @@ def design_map(options: MapOptions | None = None, **overrides) -> DesignMap:
     target = resolve_target(opts.target)
     bm, volume, sigma, note = map_of(target, opts)
     mc = montecarlo(target.model, bm, sigma, n_points=opts.montecarlo, trials=opts.trials,
-                    seed=opts.seed)
+                    seed=opts.seed, plan=montecarlo_plan(target, opts))
     result = DesignMap(
         target=str(opts.target), kind=target.kind, dof=int(target.model.dof),
         n_source=int(target.model.n_source), n_sensor=int(target.model.n_sensor),

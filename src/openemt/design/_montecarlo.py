@@ -1,11 +1,19 @@
 """Monte Carlo solves beside the bound (docs/design.md#monte-carlo).
 
-At sampled (point, orientation) pairs of a map, the model's noise-free couplings get white
-Gaussian noise of the map's standard deviation on every coupling (coupling-level noise: no raw
-signal is simulated), and each draw is solved by the solver of :func:`openemt.solve.prepare`
-for the model, started at the true pose (the bound describes the error of the estimate in the
-true pose's basin; a cold start's choice of basin is another question). The RMS position and
-rotation errors over the draws that converged are set beside the bounds.
+At sampled (point, orientation) pairs of a map, noisy couplings are made in one of two ways:
+
+* ``raw`` (the default): raw ADC samples of the sensor at that fixed pose from
+  :class:`openemt.signal.RawSimulator` (the target's carrier plan: its tracker file, or the
+  shipped tracker file of the same source; white sensor-channel noise set so the demodulated
+  coupling noise is the map's sigma, noise-free current references, no mains), demodulated by
+  :func:`openemt.signal.demodulate`; every second frame is kept (the Hann frames overlap by
+  half, so the kept ones are independent) and its in-phase part is the coupling;
+* ``coupling``: the model's noise-free couplings plus white Gaussian noise of the map's sigma.
+
+Each draw is solved by the solver of :func:`openemt.solve.prepare` for the model, started at
+the true pose (the bound describes the error of the estimate in the true pose's basin; a cold
+start's choice of basin is another question). The RMS position and rotation errors over the
+draws that converged are set beside the bounds.
 """
 
 from __future__ import annotations
@@ -14,7 +22,7 @@ import numpy as np
 
 from ._orient import map_poses
 
-__all__ = ["montecarlo", "rotation_errors"]
+__all__ = ["coupling_noise_rms", "montecarlo", "rotation_errors"]
 
 
 def _sensor_axis(model) -> np.ndarray:
@@ -37,11 +45,52 @@ def rotation_errors(model, R_est, R_true) -> np.ndarray:
     return np.arccos(c)
 
 
+class _Fixed:
+    """A model that gives one pose's couplings whatever it is asked (the raw simulator of a
+    sensor held still evaluates its model at many times)."""
+
+    def __init__(self, C):
+        self.C = C
+        self.n_source, self.n_sensor = C.shape
+
+    def coupling(self, poses):
+        return np.broadcast_to(self.C, (len(poses),) + self.C.shape).copy()
+
+
+def coupling_noise_rms(layout, output_rate: float, window: str, noise_rms: float,
+                       drive_amplitude: float = 1.0) -> float:
+    """The demodulated coupling noise (per real component) of white sensor-channel noise
+    ``noise_rms`` (V rms): ``noise_rms sqrt(2 sum w^2) / sum w / (drive sensor_gain)``."""
+    from ..signal import frame_length, frame_window
+
+    _, L = frame_length(layout, output_rate, window)
+    w = frame_window(window, L)
+    return float(noise_rms * np.sqrt(2 * np.sum(w ** 2)) / np.sum(w)
+                 / (drive_amplitude * abs(layout.sensor_gain)))
+
+
+def _raw_couplings(plan, C, trials, sigma, rng):
+    """``trials`` demodulated couplings ``(trials, n_so, n_se)`` of a sensor held still."""
+    from ..signal import RawSignalConfig, RawSimulator, demodulate, frame_length
+
+    layout, rate, window = plan
+    hop, L = frame_length(layout, rate, window)
+    step = L // hop
+    noise = sigma / coupling_noise_rms(layout, rate, window, 1.0)
+    cfg = RawSignalConfig(layout=layout, noise_rms=noise, reference_noise_rms=0.0)
+    sim = RawSimulator(_Fixed(C), np.eye(4), cfg, seed=int(rng.integers(2 ** 31)),
+                       coupling_stride=hop)
+    n = L + (trials * step - 1) * hop
+    out = demodulate(sim.read(n), layout, output_rate=rate, window=window)
+    return out.couplings[::step][:trials].real
+
+
 def montecarlo(model, bound_map, noise_sigma: float, *, n_points: int = 20,
-               trials: int = 200, seed: int = 0, pick=None) -> dict:
+               trials: int = 200, seed: int = 0, pick=None, plan=None) -> dict:
     """Monte Carlo RMS errors at ``n_points`` (point, orientation) pairs of ``bound_map``
     drawn at random (seeded; or the flat indices ``pick``), ``trials`` noise draws each;
-    ratios MC RMS / bound."""
+    ratios MC RMS / bound. ``plan`` ``(ChannelLayout, output_rate, window)``: raw signals
+    demodulated with this carrier plan; None: coupling-level noise."""
     from ..geometry import vector_from_pose
     from ..solve import Status, prepare
 
@@ -62,8 +111,11 @@ def montecarlo(model, bound_map, noise_sigma: float, *, n_points: int = 20,
     pick = np.asarray(pick, dtype=np.int64)
     P = P_all[pick]
     C = model.coupling(P)
-    Cn = np.repeat(C, trials, axis=0)
-    Cn = Cn + noise_sigma * rng.standard_normal(Cn.shape)
+    if plan is None:
+        Cn = np.repeat(C, trials, axis=0)
+        Cn = Cn + noise_sigma * rng.standard_normal(Cn.shape)
+    else:
+        Cn = np.concatenate([_raw_couplings(plan, c, trials, noise_sigma, rng) for c in C])
     Pt = np.repeat(P, trials, axis=0)
     opts = {} if hasattr(model, "board") else {"hemisphere": None}
     solver = prepare(model, **opts)
@@ -79,7 +131,12 @@ def montecarlo(model, bound_map, noise_sigma: float, *, n_points: int = 20,
         ratio_rot = rms_rot / rot[pick]
     good = n_ok >= 2
     return {
-        "noise": "coupling-level (white Gaussian on each coupling; no raw signal)",
+        "noise": ("coupling-level (white Gaussian on each coupling; no raw signal)"
+                  if plan is None else
+                  f"raw ADC samples (openemt.signal.RawSimulator, carriers "
+                  f"{list(plan[0].frequencies)} Hz at {plan[0].sample_rate:g} S/s, "
+                  f"{plan[1]:g} outputs/s, {plan[2]} window) demodulated by "
+                  f"openemt.signal.demodulate"),
         "solver": f"openemt.solve.prepare({type(model).__name__}), started at the true pose",
         "n_points": int(len(pick)), "indices": pick.tolist(), "trials": trials, "seed": int(seed),
         "n_failed": int(ok.size - ok.sum()),

@@ -44,7 +44,7 @@ class OptimizeOptions(MapOptions):
         "help": "least gap between two coils' outlines (mm)"})
     max_evaluations: int = field(default=3000, metadata={
         "help": "objective evaluations of the search in all"})
-    starts: int = field(default=2, metadata={
+    starts: int = field(default=1, metadata={
         "help": "searches: from the start layout and from perturbed copies of it"})
     output: str | None = field(default=None, metadata={
         "flag": ("-o", "--output"), "help": "write the optimised board file here (.toml, or "
@@ -297,12 +297,15 @@ def optimize_layout(options: OptimizeOptions | None = None, **overrides) -> Opti
                description=f"{target.board.name} with coil centres and angles optimised for "
                f"the {opts.statistic} position bound (openemt design optimize)")
     opt_map = bound_map(lay.model_of(board), start_map.points, rotations, sigma)
+    from ._map import montecarlo_plan
+
+    plan = montecarlo_plan(target, opts)
     mc_start = montecarlo(target.model, start_map, sigma, n_points=opts.montecarlo,
-                          trials=opts.trials, seed=opts.seed)
+                          trials=opts.trials, seed=opts.seed, plan=plan)
     from ..board import BoardModel
 
     mc_opt = montecarlo(BoardModel.from_board(board), opt_map, sigma, trials=opts.trials,
-                        seed=opts.seed + 1, pick=mc_start.get("indices"))
+                        seed=opts.seed + 1, pick=mc_start.get("indices"), plan=plan)
     s0 = lay.stat(start_map.position_std)
     s1 = lay.stat(opt_map.position_std)
     p0 = float(np.percentile(start_map.position_std, 95))
@@ -326,8 +329,8 @@ def optimize_layout(options: OptimizeOptions | None = None, **overrides) -> Opti
         orientations=opts.orientations, noise_sigma=sigma,
         constraints=(f"{len(board.coils)} coils of the start board (same shape, size, turns, "
                      f"drive current), planar, inside the start footprint x "
-                     f"{[round(v * 1e3, 2) for v in (lay.lo[0], lay.hi[0])]} mm, y "
-                     f"{[round(v * 1e3, 2) for v in (lay.lo[1], lay.hi[1])]} mm, outlines at "
+                     f"{[round(float(v) * 1e3, 2) for v in (lay.lo[0], lay.hi[0])]} mm, y "
+                     f"{[round(float(v) * 1e3, 2) for v in (lay.lo[1], lay.hi[1])]} mm, outlines at "
                      f"least {opts.min_spacing_mm:g} mm apart"),
         evaluations=lay.evaluations, seconds=seconds,
         start=_map_block(start_map, mc_start, opts.target_mm),

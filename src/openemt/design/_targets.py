@@ -17,7 +17,12 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["RIG_PRESETS", "Target", "Volume", "board_volume", "resolve_target", "rig_volume"]
+__all__ = ["RIG_PRESETS", "Target", "Volume", "board_volume", "carrier_plan", "resolve_target",
+           "rig_volume"]
+
+#: Shipped tracker files whose carrier plan a target without its own tracker file borrows
+#: (the first with the target's source count and sensor coil count).
+PLAN_TRACKERS = ("anser", "anser-6dof", "simulated")
 
 #: Simulator presets whose rig source and sensor ``design`` maps.
 RIG_PRESETS = ("concentric", "dipole-approx")
@@ -91,6 +96,29 @@ class Target:
     volume: Volume
     board: object = None
     tracker: object = None
+
+
+def carrier_plan(target):
+    """``(ChannelLayout, output_rate, window)`` of the target's first sensor: its own tracker
+    file's, else the first of :data:`PLAN_TRACKERS` with as many carriers as the model has
+    source coils and as many channels in its first sensor as the model has sensor coils;
+    None when none fits."""
+    from ..live import example_tracker, read_tracker
+    from ..signal import ChannelLayout
+
+    model = target.model
+    specs = [target.tracker] if target.tracker is not None else \
+        [read_tracker(example_tracker(n)) for n in PLAN_TRACKERS]
+    for spec in specs:
+        s0 = spec.sensors[0]
+        if len(spec.frequencies) == model.n_source and len(s0.channels) == model.n_sensor:
+            layout = ChannelLayout(frequencies=spec.frequencies, sample_rate=spec.sample_rate,
+                                   sensor_channels=s0.channels,
+                                   reference_channels=spec.reference_channels,
+                                   sensor_gain=spec.sensor_gain,
+                                   reference_gain=spec.reference_gain)
+            return layout, spec.output_rate, spec.window
+    return None
 
 
 def _looks_like_tracker(path: Path) -> bool:
