@@ -51,6 +51,9 @@ class MapOptions:
     montecarlo_noise: str = field(default="raw", metadata={
         "choices": ("raw", "coupling"), "help": "Monte Carlo on raw ADC samples through the "
         "signal simulator and demodulator, or white noise added to the couplings"})
+    montecarlo_start: str = field(default="truth", metadata={
+        "choices": ("truth", "cold"), "help": "solve each Monte Carlo draw from the true pose, "
+        "or cold (the solver's start with no prior pose)"})
     trials: int = field(default=200, metadata={"help": "noise draws per Monte Carlo point"})
     seed: int = field(default=0, metadata={"help": "seed of the Monte Carlo draws"})
     output: str | None = field(default=None, metadata={
@@ -219,7 +222,8 @@ def design_map(options: MapOptions | None = None, **overrides) -> DesignMap:
     target = resolve_target(opts.target)
     bm, volume, sigma, note = map_of(target, opts)
     mc = montecarlo(target.model, bm, sigma, n_points=opts.montecarlo, trials=opts.trials,
-                    seed=opts.seed, plan=montecarlo_plan(target, opts))
+                    seed=opts.seed, plan=montecarlo_plan(target, opts),
+                    start=opts.montecarlo_start)
     result = DesignMap(
         target=str(opts.target), kind=target.kind, dof=int(target.model.dof),
         n_source=int(target.model.n_source), n_sensor=int(target.model.n_sensor),

@@ -86,11 +86,14 @@ def _raw_couplings(plan, C, trials, sigma, rng):
 
 
 def montecarlo(model, bound_map, noise_sigma: float, *, n_points: int = 20,
-               trials: int = 200, seed: int = 0, pick=None, plan=None) -> dict:
+               trials: int = 200, seed: int = 0, pick=None, plan=None,
+               start: str = "truth") -> dict:
     """Monte Carlo RMS errors at ``n_points`` (point, orientation) pairs of ``bound_map``
     drawn at random (seeded; or the flat indices ``pick``), ``trials`` noise draws each;
     ratios MC RMS / bound. ``plan`` ``(ChannelLayout, output_rate, window)``: raw signals
-    demodulated with this carrier plan; None: coupling-level noise."""
+    demodulated with this carrier plan; None: coupling-level noise. ``start``: ``truth``
+    (each draw solved from the true pose) or ``cold`` (from the model's cold start, as with
+    no prior pose: ``model.cold_start``)."""
     from ..geometry import vector_from_pose
     from ..solve import Status, prepare
 
@@ -119,7 +122,11 @@ def montecarlo(model, bound_map, noise_sigma: float, *, n_points: int = 20,
     Pt = np.repeat(P, trials, axis=0)
     opts = {} if hasattr(model, "board") else {"hemisphere": None}
     solver = prepare(model, **opts)
-    res = solver(Cn, initial=vector_from_pose(Pt))
+    if start not in ("truth", "cold"):
+        from .._errors import InputError
+
+        raise InputError(f"expected a Monte Carlo start 'truth' or 'cold', got {start!r}")
+    res = solver(Cn, initial=vector_from_pose(Pt) if start == "truth" else model.cold_start)
     ok = (np.asarray(res.status) == int(Status.CONVERGED)).reshape(len(pick), trials)
     dpos = np.linalg.norm(res.poses[:, :3, 3] - Pt[:, :3, 3], axis=1).reshape(len(pick), trials)
     drot = rotation_errors(model, res.poses[:, :3, :3], Pt[:, :3, :3]).reshape(len(pick), trials)
@@ -137,7 +144,9 @@ def montecarlo(model, bound_map, noise_sigma: float, *, n_points: int = 20,
                   f"{list(plan[0].frequencies)} Hz at {plan[0].sample_rate:g} S/s, "
                   f"{plan[1]:g} outputs/s, {plan[2]} window) demodulated by "
                   f"openemt.signal.demodulate"),
-        "solver": f"openemt.solve.prepare({type(model).__name__}), started at the true pose",
+        "solver": f"openemt.solve.prepare({type(model).__name__}), started "
+                  + ("at the true pose" if start == "truth" else
+                     f"cold ({model.cold_start!r}: no prior pose)"),
         "n_points": int(len(pick)), "indices": pick.tolist(), "trials": trials, "seed": int(seed),
         "n_failed": int(ok.size - ok.sum()),
         "ratio_median": float(np.median(ratio_pos[good])) if good.any() else None,

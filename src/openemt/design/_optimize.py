@@ -106,6 +106,7 @@ class _Layout:
         self.hi = corners.reshape(-1, 2).max(0)
         self.model_of = lambda b: BoardModel.from_board(b)
         self.evaluations = 0
+        self.best = (None, np.inf)
         self._cache = {}
         self.poses = map_poses(points, rotations)
         self.basis = None
@@ -201,9 +202,13 @@ class _Layout:
         return float(np.mean(v[v >= q]))
 
     def objective(self, x) -> float:
+        """The smooth statistic, raised by the constraint penalty; the best layout that meets
+        the constraints is kept as the search goes (``best``)."""
         self.evaluations += 1
         pen = self.penalty(x)
         f = self.smooth(self.position_std(x))
+        if pen == 0 and f < self.best[1]:
+            self.best = (np.array(x, dtype=np.float64), f)
         return f * (1.0 + 100.0 * pen / 0.01)
 
 
@@ -278,17 +283,27 @@ def optimize_layout(options: OptimizeOptions | None = None, **overrides) -> Opti
                          f"{opts.min_spacing_mm:g} mm spacing, got coils closer than that")
     t0 = time.perf_counter()
     rng = np.random.default_rng(opts.seed)
-    best_x, best_f = x0, lay.objective(x0)
+    lay.objective(x0)
     per_start = max(1, (opts.max_evaluations - 1) // opts.starts)
+    n_coils = len(target.board.coils)
     for k in range(opts.starts):
         xs = x0 if k == 0 else x0 + np.tile([0.01, 0.01, 0.2], len(target.board.coils)) * \
             rng.standard_normal(x0.size)
         if k and lay.penalty(xs) > 0:
             xs = x0
-        res = minimize(lay.objective, xs, method="Powell",
-                       options={"maxfev": per_start, "xtol": 1e-4, "ftol": 1e-4})
-        if res.fun < best_f and lay.penalty(res.x) == 0:
-            best_x, best_f = res.x, float(res.fun)
+        # search in units of 10 mm and 0.1 rad, each centre within the footprint and each
+        # angle within a quarter turn of its start (a square's angles repeat every quarter)
+        scale = np.tile([0.01, 0.01, 0.1], n_coils)
+        half = np.repeat([c.outer_size[0] / 2 for c in target.board.coils], 3)
+        lo = np.where(np.arange(x0.size) % 3 == 2, x0 - np.pi / 4,
+                      np.tile([*lay.lo, 0.0], n_coils) + half)
+        hi = np.where(np.arange(x0.size) % 3 == 2, x0 + np.pi / 4,
+                      np.tile([*lay.hi, 0.0], n_coils) - half)
+        u0 = np.clip((xs - x0) / scale, (lo - x0) / scale, (hi - x0) / scale)
+        minimize(lambda u: lay.objective(x0 + u * scale), u0, method="Powell",
+                 bounds=list(zip((lo - x0) / scale, (hi - x0) / scale)),
+                 options={"maxfev": per_start, "xtol": 1e-3, "ftol": 1e-4})
+    best_x = lay.best[0]
     seconds = time.perf_counter() - t0
     board = lay.board_of(best_x)
     from dataclasses import replace as _r
@@ -301,11 +316,13 @@ def optimize_layout(options: OptimizeOptions | None = None, **overrides) -> Opti
 
     plan = montecarlo_plan(target, opts)
     mc_start = montecarlo(target.model, start_map, sigma, n_points=opts.montecarlo,
-                          trials=opts.trials, seed=opts.seed, plan=plan)
+                          trials=opts.trials, seed=opts.seed, plan=plan,
+                          start=opts.montecarlo_start)
     from ..board import BoardModel
 
     mc_opt = montecarlo(BoardModel.from_board(board), opt_map, sigma, trials=opts.trials,
-                        seed=opts.seed + 1, pick=mc_start.get("indices"), plan=plan)
+                        seed=opts.seed + 1, pick=mc_start.get("indices"), plan=plan,
+                        start=opts.montecarlo_start)
     s0 = lay.stat(start_map.position_std)
     s1 = lay.stat(opt_map.position_std)
     p0 = float(np.percentile(start_map.position_std, 95))
