@@ -45,6 +45,7 @@ COMMANDS = {
               "live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)"),
     "collect": ("collect", "collect couplings at reference poses (robot, optical tracker)"),
     "devices": ("devices", "list audio input devices for sound-card tracking"),
+    "design": ("design", "design a tracker: accuracy maps and board layout optimisation"),
     "bench": ("bench", "run a benchmark and print its JSON summary"),
     "datasets": ("datasets", "list (and verify) the bundled data sets"),
 }

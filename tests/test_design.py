@@ -1,0 +1,177 @@
+"""openemt.design: the Cramer-Rao map of a tracker (the bound from any model's analytic pose
+Jacobian), Monte Carlo solves against it, and the command line."""
+
+import json
+
+import numpy as np
+import pytest
+
+from openemt.board import builtin_board
+from openemt.cli import main
+from openemt.design import (
+    bound_map,
+    design_map,
+    orientation_set,
+    pose_bound,
+    resolve_target,
+)
+from openemt.field import numeric_jacobians
+from openemt.geometry import pose_from_vector
+from openemt.io import read_board, write_board
+from openemt.live import example_tracker
+from openemt.solve import cramer_rao
+
+
+def test_bound_matches_solve_cramer_rao_for_the_dipole_model():
+    """One bound: the design map's (any model, local rotation) equals openemt.solve's for
+    the dipole model of the rig."""
+    model = resolve_target("concentric").model
+    P = pose_from_vector(np.array([[0.25, 0.02, -0.03, 0.3, -0.2, 1.1],
+                                   [0.21, -0.05, 0.04, 2.0, 0.5, -0.4]]))
+    ref = cramer_rao(model, P, 1e-4, parametrization="local")
+    b = pose_bound(model, P, 1e-4)
+    np.testing.assert_allclose(b.position_std, np.sqrt(np.trace(ref[:, :3, :3], axis1=1,
+                                                                axis2=2)), rtol=1e-9)
+    np.testing.assert_allclose(b.rotation_std, np.sqrt(np.trace(ref[:, 3:, 3:], axis1=1,
+                                                                axis2=2)), rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["anser", "anser-6dof"])
+def test_board_bound_from_the_analytic_jacobian_matches_finite_differences(name):
+    """The board's bound (5-DOF: rotation normal to the sensor axis only) from the model's
+    analytic pose Jacobian equals the bound from central differences of its couplings."""
+    model = resolve_target(name).model
+    P = pose_from_vector(np.array([[0.03, -0.05, 0.09, 2.8, 0.3, 0.2],
+                                   [-0.1, 0.08, 0.15, 1.5, 1.0, -0.5]]))
+    a = pose_bound(model, P, 1e-9)
+    n = pose_bound(model, P, 1e-9, jacobians=numeric_jacobians(model, P, step=1e-6))
+    np.testing.assert_allclose(a.position_std, n.position_std, rtol=1e-4)
+    np.testing.assert_allclose(a.rotation_std, n.rotation_std, rtol=1e-4)
+    assert np.all(a.ok) and np.all(a.position_std > 0)
+
+
+def test_bound_scales_with_the_noise_and_is_worse_far_from_the_board():
+    model = resolve_target("anser").model
+    pts = np.array([[0.0, 0.0, 0.06], [0.0, 0.0, 0.16]])
+    b1 = bound_map(model, pts, orientation_set("down"), 1e-9)
+    b2 = bound_map(model, pts, orientation_set("down"), 3e-9)
+    np.testing.assert_allclose(b2.position_std, 3 * b1.position_std, rtol=1e-9)
+    assert b1.position_std[1, 0] > 2 * b1.position_std[0, 0]
+
+
+@pytest.mark.parametrize("name", ["concentric", "anser", "anser-6dof"])
+def test_montecarlo_error_agrees_with_the_bound(name):
+    """The solver's Monte Carlo RMS position error (coupling-level noise, started at the
+    truth) is within 10 % of the bound, median over sampled points (the rig source, the board
+    with a 5-DOF and with a 6-DOF sensor)."""
+    m = design_map(target=name, grid=(3, 3, 2), montecarlo=8, trials=150, seed=3)
+    mc = m.montecarlo
+    assert mc["n_points"] == 8 and mc["n_failed"] == 0
+    assert abs(m.montecarlo_ratio_median - 1) < 0.1, mc
+    assert abs(mc["ratio_rotation_median"] - 1) < 0.1, mc
+
+
+def test_map_summary_and_volume_fraction():
+    m = design_map(target="anser", grid=(3, 3, 3), orientations="axes", montecarlo=0,
+                   target_mm=0.1, snr_db=80)
+    std = m.bounds.position_std
+    assert std.shape == (27, 6) and m.n_points == 27 and m.dof == 5
+    assert m.position_mm["median"] == pytest.approx(np.median(std) * 1e3)
+    assert m.position_mm["p95"] <= m.position_mm["max"]
+    assert m.position_mm["fraction_below_target"] == pytest.approx(np.mean(std <= 1e-4))
+    assert m.volume["z_mm"] == [60.0, 160.0]
+
+
+def test_cli_map_json_html_and_bad_input(tmp_path, capsys):
+    out = tmp_path / "map.html"
+    rc = main(["design", "map", "anser", "--grid", "3", "3", "2", "--orientations", "down",
+               "--montecarlo", "3", "--trials", "20", "--noise-sigma", "1e-9", "-o", str(out),
+               "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    d = json.loads(cap.out)
+    assert d["noise_sigma"] == 1e-9 and d["n_points"] == 18 and d["n_orientations"] == 1
+    assert d["montecarlo"]["n_points"] == 3 and d["montecarlo_ratio_median"] > 0
+    text = out.read_text()
+    assert text.count("data:image/png;base64,") == 3 and "Design map: anser" in text
+    bad = tmp_path / "bad.html"
+    rc = main(["design", "map", "anser", "--x-mm", "1", "--json", "-o", str(bad)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("error: expected two values") and not bad.exists()
+    rc = main(["design", "map", "nonesuch", "--json"])
+    assert rc == 2 and "expected a built-in board" in capsys.readouterr().err
+    rc = main(["design", "map", "anser", "--noise-sigma", "1e-9", "--snr-db", "60"])
+    assert rc == 2 and "got both" in capsys.readouterr().err
+
+
+def test_targets_files_and_rig(tmp_path):
+    """A board file and a tracker file map as the board does; the rig has its volume."""
+    write_board(builtin_board("anser"), tmp_path / "b.toml")
+    kw = dict(grid=(2, 2, 2), orientations="down", montecarlo=0, noise_sigma=1e-9)
+    ref = design_map(target="anser", **kw).position_mm["median"]
+    assert design_map(target=str(tmp_path / "b.toml"), **kw).position_mm["median"] == \
+        pytest.approx(ref)
+    t = resolve_target(str(example_tracker("anser")))
+    assert t.kind == "tracker" and t.model.n_source == 8
+    r = resolve_target("dipole-approx")
+    assert r.kind == "rig" and r.model.dof == 6 and r.volume.x[0] < r.volume.x[1]
+
+
+def test_tracker_noise_from_its_adc_figures_matches_the_demodulated_noise():
+    """A tracker file's coupling noise comes from its ADC figures; the raw-signal Monte Carlo
+    (simulated samples through the demodulator) agrees with the bound for that noise."""
+    m = design_map(target=str(example_tracker("anser")), grid=(3, 3, 2), montecarlo=6,
+                   trials=150, seed=5)
+    assert "ADC figures" in m.noise and "raw ADC samples" in m.montecarlo["noise"]
+    # 1.5e-5 V rms, gain 5e4 V per coupling x A, Hann frame of 128 samples:
+    # sigma sqrt(2 sum w^2) / sum w / gain = 1.5e-5 * sqrt(2 * 48) / 64 / 5e4
+    assert m.noise_sigma == pytest.approx(1.5e-5 * np.sqrt(96.0) / 64 / 5e4, rel=1e-12)
+    assert abs(m.montecarlo_ratio_median - 1) < 0.1, m.montecarlo
+
+
+def test_optimize_lowers_the_bound_within_the_constraints(tmp_path, capsys):
+    out = tmp_path / "opt.toml"
+    page = tmp_path / "opt.html"
+    rc = main(["design", "optimize", "anser", "--grid", "3", "3", "2", "--orientations",
+               "down", "--max-evaluations", "80", "--montecarlo", "4", "--trials", "40",
+               "-o", str(out), "--html", str(page), "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    d = json.loads(cap.out)
+    assert d["optimized"]["position_mm"]["p95"] <= d["start"]["position_mm"]["p95"]
+    assert d["improvement_p95"] == pytest.approx(
+        1 - d["optimized"]["position_mm"]["p95"] / d["start"]["position_mm"]["p95"])
+    assert d["evaluations"] <= 81 and page.read_text().count("data:image/png") == 5
+    b = read_board(out)
+    start = builtin_board("anser")
+    assert b.n_coils == start.n_coils and b.sensor.to_dict() == start.sensor.to_dict()
+    assert all(c.outer_size == s.outer_size and c.turns_per_layer == s.turns_per_layer
+               for c, s in zip(b.coils, start.coils))
+    # outlines inside the start footprint and at least 2 mm apart (dense samples of each
+    # outline: their distances are at least the outlines' distance)
+    def outline(c):
+        h = c.outer_size[0] / 2
+        R = c.rotation[:2, :2]
+        t = np.linspace(-h, h, 200)
+        sides = [np.column_stack([t, np.full_like(t, s)]) for s in (-h, h)] + \
+            [np.column_stack([np.full_like(t, s), t]) for s in (-h, h)]
+        return np.concatenate(sides) @ R.T + c.center[:2]
+
+    lines = [outline(c) for c in b.coils]
+    box = np.concatenate([outline(c) for c in start.coils])
+    for k, p in enumerate(lines):
+        assert np.all(p >= box.min(0) - 1e-9) and np.all(p <= box.max(0) + 1e-9)
+        for q in lines[k + 1:]:
+            dist = np.linalg.norm(p[:, None] - q[None], axis=-1).min()
+            assert dist >= 2e-3 - 1e-9
+    # every command that takes a board reads it
+    m = design_map(target=str(out), grid=(3, 3, 2), orientations="down", montecarlo=0,
+                   noise_sigma=d["noise_sigma"])
+    assert m.position_mm["p95"] == pytest.approx(d["optimized"]["position_mm"]["p95"])
+
+
+def test_optimize_refuses_what_it_cannot_change(capsys):
+    rc = main(["design", "optimize", "concentric", "--json"])
+    assert rc == 2 and "expected a board" in capsys.readouterr().err
+    rc = main(["design", "optimize", "anser", "--min-spacing-mm", "30", "--json"])
+    assert rc == 2 and "30 mm spacing" in capsys.readouterr().err
