@@ -323,6 +323,22 @@ class _Console:
             self._width = 0
 
 
+def announce_compile_for(out, sensors) -> None:
+    """Say so (on stderr unless ``out.quiet``) before the solver kernels of ``sensors``
+    (:class:`~openemt.live.SensorSetup`) compile: the first run after installation."""
+    from .._compile_notice import (
+        LIVE_KERNELS,
+        PLANAR_KERNELS,
+        SOLVER_KERNELS,
+        announce_compile,
+    )
+
+    kernels = SOLVER_KERNELS + LIVE_KERNELS
+    if any(s.solver is not None for s in sensors):      # a board sensor
+        kernels += PLANAR_KERNELS
+    announce_compile(out, "solver kernels", kernels=kernels)
+
+
 def default_tracker(options: TrackOptions) -> TrackerSpec:
     """The tracker without a tracker file: the shipped simulated one-sensor tracker with the
     preset's carriers and model (or ``calibration``; a board calibration gets the board
@@ -506,20 +522,6 @@ class TrackingSession:
         if self.backend is not None:
             self.backend.close()
 
-    def _announce_compile(self) -> None:
-        """Say so before the solver kernels compile (first run after installation)."""
-        from .._compile_notice import (
-            LIVE_KERNELS,
-            PLANAR_KERNELS,
-            SOLVER_KERNELS,
-            announce_compile,
-        )
-
-        kernels = SOLVER_KERNELS + LIVE_KERNELS
-        if any(st.setup.solver is not None for st in self.pipeline.sensors):   # a board
-            kernels += PLANAR_KERNELS
-        announce_compile(self.options, "solver kernels", kernels=kernels)
-
     def run(self, *, stop=None, monitor=None) -> TrackResult:
         """Track until the duration, the end of the data, ``stop()`` or SIGINT / SIGTERM;
         commit the files; the :class:`TrackResult`. ``monitor(pipeline)`` is called after
@@ -527,7 +529,7 @@ class TrackingSession:
         import signal
 
         o, spec, pipe = self.options, self.spec, self.pipeline
-        self._announce_compile()
+        announce_compile_for(self.options, [st.setup for st in pipe.sensors])
         self._say(f"tracking {len(spec.sensors)} sensor(s) from --source {o.source}"
                   f"{'' if o.duration is None else f' for {o.duration:g} s'}; Ctrl-C to stop")
         console = self.console
