@@ -13,7 +13,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..live._backends import list_audio_inputs
+    from ..live import list_audio_inputs
 
     try:
         devices = list_audio_inputs()
