@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Iterable
 from typing import Any
-
-import numpy as np
 
 __all__ = ["add_command", "add_common", "add_options", "emit", "options_from", "progress",
            "run_workflow", "say", "stage", "to_jsonable", "write_solved"]
@@ -36,14 +35,10 @@ class _Say:
         self.args = args
 
     def __call__(self, text: str) -> None:
-        stage(self.args, text)
-
-    def write(self, text: str) -> None:
         if text.strip():
             stage(self.args, text.rstrip("\n"))
 
-    def flush(self) -> None:
-        pass
+    write, flush = __call__, lambda self: None
 
 
 def say(args):
@@ -86,13 +81,10 @@ def add_options(parser, options_cls, *, only=None, skip=(), **help_overrides) ->
     """Add one command-line option per field of the dataclass ``options_cls`` (a workflow's
     options record), so that the defaults and help texts are written once, in the library.
 
-    A field ``max_rms_mm`` becomes ``--max-rms-mm``. Field metadata: ``help`` (or a keyword
-    of the same name here), ``choices``, ``metavar``, ``required``, ``action`` and ``flag``
-    (another name, or names such as ``("-o", "--output")``) are passed on; ``positional``
-    makes a positional argument (``optional`` one that may be left out); ``cli=False`` leaves
-    the field out. A ``bool`` defaulting to False is a switch, one defaulting to True gets
-    ``--no-...``. ``only`` / ``skip`` pick fields by name; :func:`options_from` builds the
-    record (tests/test_cli_common.py shows both).
+    A field ``max_rms_mm`` becomes ``--max-rms-mm``; metadata ``help``, ``choices``,
+    ``metavar``, ``required``, ``action`` and ``flag`` (other names) are passed on,
+    ``positional`` (``optional``) makes a positional argument, ``cli=False`` leaves it out. A
+    ``bool`` defaulting to True gets ``--no-...``. tests/test_cli_common.py shows it.
     """
     import dataclasses
     import typing
@@ -148,20 +140,18 @@ def options_from(options_cls, args, **values):
 
 
 def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays and paths inside ``obj`` to plain JSON types."""
+    """``obj`` in plain JSON types (:func:`openemt._result.plain`), with paths as strings and
+    non-finite floats as null."""
+    from .._result import plain
+
+    obj = plain(obj)
     if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
+        return {k: to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list):
         return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
         return None
-    if hasattr(obj, "__fspath__"):
-        return str(obj)
-    return obj
+    return str(obj) if hasattr(obj, "__fspath__") else obj
 
 
 def emit(args, summary: dict, human: Iterable[str] = ()) -> None:

@@ -17,10 +17,11 @@ True
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 
 __all__ = ["DatasetInfo", "DatasetsOptions", "DatasetsResult", "check_datasets", "info", "names",
@@ -143,10 +144,10 @@ def verify(name: str) -> dict[str, str]:
 class DatasetsOptions:
     """Which data sets ``openemt datasets`` lists (field metadata: the command-line help)."""
 
-    name: str | None = field(default=None, metadata={
-        "help": "one data set (default: all)", "positional": True, "optional": True})
-    verify: bool = field(default=False, metadata={
-        "help": "check every file against its recorded SHA-256 (exit 1 on a mismatch)"})
+    name: str | None = option(None, "one data set (default: all)", positional=True,
+                              optional=True)
+    verify: bool = option(False, "check every file against its recorded SHA-256 (exit 1 on a "
+                          "mismatch)")
 
 
 @dataclass(frozen=True)

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import field
 from pathlib import Path
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 
 __all__ = ["IMPORT_FORMATS", "ImportOptions", "ImportResult", "import_files", "parse_sign_arg"]
@@ -32,41 +32,37 @@ IMPORT_FORMATS = {
 }
 
 
-def _opt(default, help_, **meta):
-    return field(default=default, metadata={"help": help_, **meta})
-
-
 @dataclasses.dataclass(frozen=True)
 class ImportOptions:
     """What to import (field metadata: the command-line help)."""
 
-    format: str = _opt("ilemt", "input format", choices=tuple(IMPORT_FORMATS), cli=False)
-    folder: str | None = _opt(None, "ILEMT data folder", positional=True)
-    files: tuple[str, ...] | None = _opt(None, "export files (.tsv/.txt for ndi, .csv for "
-                                         "poses)", positional=True)
-    output: str = _opt(None, "output dataset file (.h5)", flag=("-o", "--output"),
-                       required=True)
-    source_signs: tuple[str, ...] | None = _opt(
+    format: str = option("ilemt", "input format", choices=tuple(IMPORT_FORMATS), cli=False)
+    folder: str | None = option(None, "ILEMT data folder", positional=True)
+    files: tuple[str, ...] | None = option(None, "export files (.tsv/.txt for ndi, .csv for "
+                                           "poses)", positional=True)
+    output: str = option(None, "output dataset file (.h5)", flag=("-o", "--output"),
+                         required=True)
+    source_signs: tuple[str, ...] | None = option(
         None, "source sign rule (repeatable; the first regex found in a file name applies); "
         "replaces options.source_signs of local_cal_options.m", action="append",
         metavar="REGEX=sx,sy,sz")
-    sensor_signs: tuple[str, ...] | None = _opt(
+    sensor_signs: tuple[str, ...] | None = option(
         None, "sensor sign rule (repeatable); replaces options.sensor_signs", action="append",
         metavar="REGEX=sx,sy,sz")
-    sign_options: bool = _opt(True, "ignore local_cal_options.m: no flips except the rules "
-                              "given here")
-    compensate: bool = _opt(True, "do not apply the stage-error compensation")
-    patterns: str | None = _opt(None, "only these data patterns (e.g. md,ld)", metavar="P1,P2")
-    tool: str | None = _opt(None, "port number (e.g. 10) or full port label of the tool; needed "
-                            "when a file holds several tools", metavar="PORT_OR_LABEL")
-    average_static: bool = _opt(False, "ndi: each file is one static pose, written as its mean "
-                                "(one row per file, in the order given) with its jitter; "
-                                "poses: the samples of each pose_id (or of each file without "
-                                "one) averaged")
-    length_unit: str = _opt("m", "unit of position columns without a _m/_mm suffix",
-                            choices=("m", "mm"))
-    angle_unit: str = _opt("rad", "unit of rotation-vector columns without a _rad/_deg suffix",
-                           choices=("rad", "deg"))
+    sign_options: bool = option(True, "ignore local_cal_options.m: no flips except the rules "
+                                "given here")
+    compensate: bool = option(True, "do not apply the stage-error compensation")
+    patterns: str | None = option(None, "only these data patterns (e.g. md,ld)", metavar="P1,P2")
+    tool: str | None = option(None, "port number (e.g. 10) or full port label of the tool; needed "
+                              "when a file holds several tools", metavar="PORT_OR_LABEL")
+    average_static: bool = option(False, "ndi: each file is one static pose, written as its mean "
+                                  "(one row per file, in the order given) with its jitter; "
+                                  "poses: the samples of each pose_id (or of each file without "
+                                  "one) averaged")
+    length_unit: str = option("m", "unit of position columns without a _m/_mm suffix",
+                              choices=("m", "mm"))
+    angle_unit: str = option("rad", "unit of rotation-vector columns without a _rad/_deg suffix",
+                             choices=("rad", "deg"))
 
 
 @dataclasses.dataclass(frozen=True)

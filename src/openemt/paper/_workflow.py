@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import field
 
+from .._options import option
 from .._result import Result
 
 __all__ = ["TABLES", "ReproduceOptions", "Reproduction", "improved_lines", "reproduce"]
@@ -34,24 +34,20 @@ TABLES = {
 }
 
 
-def _opt(default, help_, **meta):
-    return field(default=default, metadata={"help": help_, **meta})
-
-
 @dataclasses.dataclass(frozen=True)
 class ReproduceOptions:
     """A reproduction (field metadata: the command-line help)."""
 
-    table: str = _opt("table2", "the table", choices=tuple(TABLES), cli=False)
-    folder: str | None = _opt(None, "ILEMT data folder", positional=True, metavar="ILEMT_DIR")
-    improved: bool = _opt(False, "also run openemt's improved calibration (fitted on md data "
-                          "only) and report rows 'improved' and 'improved_corrected'")
-    cv: bool = _opt(False, "with --improved: also cross-validate every model variant on the "
-                    "md rows (slower)")
-    uncorrected: bool = _opt(False, "report the uncorrected solutions as the main rows "
-                             "(default: with the output correction, the paper's condition)")
-    preset: str = _opt("concentric", "simulation preset (default concentric)")
-    seed: int = _opt(0, "simulation seed")
+    table: str = option("table2", "the table", choices=tuple(TABLES), cli=False)
+    folder: str | None = option(None, "ILEMT data folder", positional=True, metavar="ILEMT_DIR")
+    improved: bool = option(False, "also run openemt's improved calibration (fitted on md data "
+                            "only) and report rows 'improved' and 'improved_corrected'")
+    cv: bool = option(False, "with --improved: also cross-validate every model variant on the "
+                      "md rows (slower)")
+    uncorrected: bool = option(False, "report the uncorrected solutions as the main rows "
+                               "(default: with the output correction, the paper's condition)")
+    preset: str = option("concentric", "simulation preset (default concentric)")
+    seed: int = option(0, "simulation seed")
 
 
 @dataclasses.dataclass(frozen=True)

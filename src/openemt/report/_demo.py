@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import field
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 
 __all__ = ["DemoOptions", "DemoResult", "run_demo"]
@@ -38,22 +38,18 @@ the whole path, README.md lists every command, each explains itself with --help)
       live poses served to 3D Slicer over OpenIGTLink (docs/live.md)"""
 
 
-def _opt(default, help_, **meta):
-    return field(default=default, metadata={"help": help_, **meta})
-
-
 @dataclasses.dataclass(frozen=True)
 class DemoOptions:
     """The simulated tracker of the demo (field metadata: the command-line help)."""
 
-    preset: str = _opt("dipole-approx", "simulated source (default: dipole-approx, MacLachlan "
-                       "et al. 2025's 3-coil source)", choices=("dipole-approx", "concentric"))
-    output_dir: str = _opt("openemt-demo", "folder for the datasets, calibrations and report "
-                           "(default: openemt-demo)", flag=("-o", "--output-dir"))
-    snr_db: float = _opt(80.0, "measurement SNR in dB (default 80)")
-    stage_error_um: float = _opt(107.0, "3-D RMS stage position error in um (default 107, the "
-                                 "paper's stage uncertainty); per axis it is this / sqrt(3)")
-    seed: int = _opt(1, "random seed (default 1)")
+    preset: str = option("dipole-approx", "simulated source (default: dipole-approx, MacLachlan "
+                         "et al. 2025's 3-coil source)", choices=("dipole-approx", "concentric"))
+    output_dir: str = option("openemt-demo", "folder for the datasets, calibrations and report "
+                             "(default: openemt-demo)", flag=("-o", "--output-dir"))
+    snr_db: float = option(80.0, "measurement SNR in dB (default 80)")
+    stage_error_um: float = option(107.0, "3-D RMS stage position error in um (default 107, the "
+                                   "paper's stage uncertainty); per axis it is this / sqrt(3)")
+    seed: int = option(1, "random seed (default 1)")
 
 
 @dataclasses.dataclass(frozen=True)

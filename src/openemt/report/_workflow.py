@@ -4,41 +4,37 @@ summary out."""
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import field
 from pathlib import Path
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 
 __all__ = ["ReportOptions", "ReportResult", "write_report"]
-
-
-def _opt(default, help_, **meta):
-    return field(default=default, metadata={"help": help_, **meta})
 
 
 @dataclasses.dataclass(frozen=True)
 class ReportOptions:
     """What ``openemt report`` reports on (field metadata: the command-line help)."""
 
-    output: str = _opt(None, "output HTML file", flag=("-o", "--output"), required=True,
-                       metavar="REPORT.html")
-    source: str | None = _opt(None, "an ILEMT data folder, or a dataset file (.h5/.csv; needs "
-                              "--calibration)", positional=True, optional=True,
-                              metavar="ILEMT_DIR_OR_DATASET")
-    dataset: str | None = _opt(None, "test dataset file (alternative to the positional "
-                               "argument)")
-    calibration: str | None = _opt(None, "calibration to characterise (.json or ILEMT .mat)")
-    concentric: str | None = _opt(None, "concentric calibration whose Kim18 closed form starts "
-                                  "the pose solver (also reported with Kim18 alone)")
-    reference: str = _opt("kinematics", "ground truth of a dataset: rig kinematics with the "
-                          "calibration's fixtures (default) or the dataset's reference poses",
-                          choices=("kinematics", "poses"))
-    holdout: str | None = _opt(None, "board calibrations: also score the grid's checkerboard "
-                               "halves as calibrate --mode planar --holdout checkerboard splits "
-                               "them (insample: fit points, holdout: the others)",
-                               choices=("checkerboard",))
-    title: str | None = _opt(None, "report title")
+    output: str = option(None, "output HTML file", flag=("-o", "--output"), required=True,
+                         metavar="REPORT.html")
+    source: str | None = option(None, "an ILEMT data folder, or a dataset file (.h5/.csv; needs "
+                                "--calibration)", positional=True, optional=True,
+                                metavar="ILEMT_DIR_OR_DATASET")
+    dataset: str | None = option(None, "test dataset file (alternative to the positional "
+                                 "argument)")
+    calibration: str | None = option(None, "calibration to characterise (.json or ILEMT .mat)")
+    concentric: str | None = option(None, "concentric calibration whose Kim18 closed form starts "
+                                    "the pose solver (also reported with Kim18 alone)")
+    reference: str = option("kinematics", "ground truth of a dataset: rig kinematics with the "
+                            "calibration's fixtures (default) or the dataset's reference poses",
+                            choices=("kinematics", "poses"))
+    holdout: str | None = option(None, "board calibrations: also score the grid's checkerboard "
+                                 "halves as calibrate --mode planar --holdout checkerboard splits "
+                                 "them (insample: fit points, holdout: the others)",
+                                 choices=("checkerboard",))
+    title: str | None = option(None, "report title")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,7 +131,7 @@ def write_report(o: ReportOptions, say=None) -> ReportResult:
 
 
 class _Silent:
-    """A ``say`` that says nothing (``--quiet``)."""
+    """A ``say`` that says nothing (``--quiet``): no stage lines, no compile notice."""
 
     def __call__(self, text: str) -> None:
         pass

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import field
 from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 from ._apparatus import STAGE_SIGMA
 from ._patterns import PATTERNS
@@ -18,61 +18,57 @@ from ._presets import PRESETS
 __all__ = ["SimulateOptions", "SimulateResult", "parse_distortion", "write_simulation"]
 
 
-def _opt(default, help_, **meta):
-    return field(default=default, metadata={"help": help_, **meta})
-
-
 @dataclasses.dataclass(frozen=True)
 class SimulateOptions:
     """What ``openemt simulate`` writes (field metadata: the command-line help)."""
 
-    output: Path = _opt(None, "output dataset (.h5), or export (.tsv) with --format ndi",
-                        flag=("-o", "--output"), required=True)
-    preset: str = _opt("concentric", "simulated tracker (default: concentric)", choices=PRESETS)
-    board: str | None = _opt(None, "--preset anser: board geometry file (.toml/.json) of the "
-                             "source coils (default: the built-in anser board; docs/planar.md)",
-                             metavar="BOARD")
-    pattern: str | None = _opt(None, f"stage pattern(s), comma-separated, from "
-                               f"{', '.join(PATTERNS)} (default: md; grid for anser)")
-    source_fixtures: str = _opt("all", "'all' or comma-separated source-fixture codes (e.g. "
-                                "YoutZup,XoutZup)")
-    sensor_fixtures: str = _opt("all", "'all' or comma-separated sensor-fixture codes (e.g. "
-                                "YoutZup,ZinYup)")
-    combinations: str = _opt("paper", "paper: every source fixture with the home sensor "
-                             "fixture plus the home source fixture with every sensor fixture; "
-                             "cross: all pairs", choices=("paper", "cross"))
-    snr_db: float | None = _opt(None, "noise by SNR (dB): per-sample sigma = rms|C| / "
-                                "10^(snr/20)")
-    noise_abs: float | None = _opt(None, "noise with a fixed sigma (coupling units)")
-    stage_sigma: float = _opt(STAGE_SIGMA, f"stage position error sigma per axis, m (default "
-                              f"{STAGE_SIGMA:g}: 0.107 mm 3-D RMS)")
-    drift: str | None = _opt(None, "relative source gain drift over the run: one value or one "
-                             "per source coil, comma-separated (e.g. 3e-4)")
-    distortion: tuple[str, ...] | None = _opt(
+    output: Path = option(None, "output dataset (.h5), or export (.tsv) with --format ndi",
+                          flag=("-o", "--output"), required=True)
+    preset: str = option("concentric", "simulated tracker (default: concentric)", choices=PRESETS)
+    board: str | None = option(None, "--preset anser: board geometry file (.toml/.json) of the "
+                               "source coils (default: the built-in anser board; docs/planar.md)",
+                               metavar="BOARD")
+    pattern: str | None = option(None, f"stage pattern(s), comma-separated, from "
+                                 f"{', '.join(PATTERNS)} (default: md; grid for anser)")
+    source_fixtures: str = option("all", "'all' or comma-separated source-fixture codes (e.g. "
+                                  "YoutZup,XoutZup)")
+    sensor_fixtures: str = option("all", "'all' or comma-separated sensor-fixture codes (e.g. "
+                                  "YoutZup,ZinYup)")
+    combinations: str = option("paper", "paper: every source fixture with the home sensor "
+                               "fixture plus the home source fixture with every sensor fixture; "
+                               "cross: all pairs", choices=("paper", "cross"))
+    snr_db: float | None = option(None, "noise by SNR (dB): per-sample sigma = rms|C| / "
+                                  "10^(snr/20)")
+    noise_abs: float | None = option(None, "noise with a fixed sigma (coupling units)")
+    stage_sigma: float = option(STAGE_SIGMA, f"stage position error sigma per axis, m (default "
+                                f"{STAGE_SIGMA:g}: 0.107 mm 3-D RMS)")
+    drift: str | None = option(None, "relative source gain drift over the run: one value or one "
+                               "per source coil, comma-separated (e.g. 3e-4)")
+    distortion: tuple[str, ...] | None = option(
         None, "field-distorting object 'KIND,X,Y,Z,RADIUS[,conductivity=S][,mu_r=M]' with KIND "
         "conductive or ferromagnetic, centre X,Y,Z (m, bench frame) and sphere RADIUS (m); "
         "repeatable", metavar="SPEC", action="append")
-    clip_z: bool = _opt(True, "log Z = -50 mm as commanded instead of the stage limit -46.2 mm")
-    reference: str | None = _opt(None, "simulate a reference-pose collection instead: the sensor "
-                                 "on a robot flange or optical marker (unknown X, Y), couplings "
-                                 "at --n-poses random poses in the tracker's volume "
-                                 "(docs/reference-calibration.md)", choices=("robot", "optical"))
-    n_poses: int = _opt(300, "reference collection: number of poses (default 300)")
-    reference_noise_mm: float | None = _opt(None, "reference collection: pose noise of the "
-                                            "reference, 3-D RMS in mm (default robot 0.05, "
-                                            "optical 0.25)", metavar="MM")
-    reference_noise_deg: float | None = _opt(None, "reference collection: rotation noise of the "
-                                             "reference, RMS angle in degrees (default robot "
-                                             "0.02, optical 0.1)", metavar="DEG")
-    format: str = _opt("h5", "h5: an openemt dataset (default); ndi (with --reference "
-                       "optical): the NDI Toolbox TSV export of one session, an EM sensor's "
-                       "poses (port 10, a smooth field distortion of about 3 mm) beside the "
-                       "optical marker fixed to it (port 1), --n-poses rows "
-                       "(docs/alignment.md)", choices=("h5", "ndi"))
-    seed: int = _opt(0, "random seed (default 0)")
-    truth_calibration: Path | None = _opt(None, "also write the preset's true "
-                                          "dipole-equivalent calibration (JSON)",
-                                          metavar="CAL.json")
+    clip_z: bool = option(True, "log Z = -50 mm as commanded instead of the stage limit -46.2 mm")
+    reference: str | None = option(None, "simulate a reference-pose collection instead: the sensor "
+                                   "on a robot flange or optical marker (unknown X, Y), couplings "
+                                   "at --n-poses random poses in the tracker's volume "
+                                   "(docs/reference-calibration.md)", choices=("robot", "optical"))
+    n_poses: int = option(300, "reference collection: number of poses (default 300)")
+    reference_noise_mm: float | None = option(None, "reference collection: pose noise of the "
+                                              "reference, 3-D RMS in mm (default robot 0.05, "
+                                              "optical 0.25)", metavar="MM")
+    reference_noise_deg: float | None = option(None, "reference collection: rotation noise of the "
+                                               "reference, RMS angle in degrees (default robot "
+                                               "0.02, optical 0.1)", metavar="DEG")
+    format: str = option("h5", "h5: an openemt dataset (default); ndi (with --reference "
+                         "optical): the NDI Toolbox TSV export of one session, an EM sensor's "
+                         "poses (port 10, a smooth field distortion of about 3 mm) beside the "
+                         "optical marker fixed to it (port 1), --n-poses rows "
+                         "(docs/alignment.md)", choices=("h5", "ndi"))
+    seed: int = option(0, "random seed (default 0)")
+    truth_calibration: Path | None = option(None, "also write the preset's true "
+                                            "dipole-equivalent calibration (JSON)",
+                                            metavar="CAL.json")
 
 
 @dataclasses.dataclass(frozen=True)
