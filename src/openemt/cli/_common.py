@@ -38,7 +38,7 @@ class _Say:
         if text.strip():
             stage(self.args, text.rstrip("\n"))
 
-    write, flush = __call__, lambda self: None
+    write, flush = __call__, lambda self: None  # a stream too, for the compile notice
 
 
 def say(args):

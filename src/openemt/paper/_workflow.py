@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .._options import option
+from .._options import SILENT, option
 from .._result import Result
 
 __all__ = ["TABLES", "ReproduceOptions", "Reproduction", "improved_lines", "reproduce"]
@@ -70,10 +70,10 @@ def reproduce(o: ReproduceOptions, say=None) -> Reproduction:
     from .._compile_notice import announce_compile
     from . import _simstudies, _table2, _table3, _table4
 
+    say = say or SILENT
     if o.table in ("dipole-cost", "recovery"):
-        if say:
-            announce_compile(say, "solver kernels")
-            say(f"simulating preset {o.preset} and calibrating it ({o.table}) ...")
+        announce_compile(say, "solver kernels")
+        say(f"simulating preset {o.preset} and calibrating it ({o.table}) ...")
         fn = _simstudies.dipole_cost if o.table == "dipole-cost" else \
             _simstudies.parameter_recovery
         return Reproduction(o, fn(o.preset, seed=o.seed))
@@ -82,15 +82,14 @@ def reproduce(o: ReproduceOptions, say=None) -> Reproduction:
 
     check_paper_folder(o.folder)
     dataset = import_ilemt_folder(o.folder)
-    if say:
-        announce_compile(say, "solver kernels")
-        say({"table2": f"reproducing Table II on {o.folder}: the paper's calibration "
-                       "sequence, output correction and test solves"
-                       + (", then the improved calibration" if o.improved else "") + " ...",
-             "table3": f"reproducing Table III on {o.folder}: three calibrations and their "
-                       "tests ...",
-             "table4": f"reproducing Table IV on {o.folder}: calibration, sweep solves and "
-                       "fixture re-optimisation ..."}[o.table])
+    announce_compile(say, "solver kernels")
+    say({"table2": f"reproducing Table II on {o.folder}: the paper's calibration "
+                   "sequence, output correction and test solves"
+                   + (", then the improved calibration" if o.improved else "") + " ...",
+         "table3": f"reproducing Table III on {o.folder}: three calibrations and their "
+                   "tests ...",
+         "table4": f"reproducing Table IV on {o.folder}: calibration, sweep solves and "
+                   "fixture re-optimisation ..."}[o.table])
     if o.table == "table2":
         out = _table2.reproduce_table2(load_paper_run(o.folder, dataset=dataset),
                                        improved=o.improved, cross_validation=o.cv)

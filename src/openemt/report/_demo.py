@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from .._errors import InputError
-from .._options import option
+from .._options import SILENT, option
 from .._result import Result
 
 __all__ = ["DemoOptions", "DemoResult", "run_demo"]
@@ -95,13 +95,12 @@ def run_demo(o: DemoOptions, say=None) -> DemoResult:
         raise InputError(f"expected --snr-db > 0, got {o.snr_db}")
     if not np.isfinite(o.stage_error_um) or o.stage_error_um < 0:
         raise InputError(f"expected --stage-error-um >= 0, got {o.stage_error_um}")
-    say = say or (lambda text: None)
+    say = say or SILENT
     out = Path(o.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     # the first line comes before any heavy import, the compile notice before any compiling
     say(f"openemt demo: simulated '{o.preset}' tracker -> {out}/")
-    if hasattr(say, "write"):
-        announce_compile(say, "solver kernels", kernels=SOLVER_KERNELS)
+    announce_compile(say, "solver kernels", kernels=SOLVER_KERNELS)
 
     from ..calibrate import (
         fit,

@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from .._errors import InputError
-from .._options import option
+from .._options import SILENT, option
 from .._result import Result
 
 __all__ = ["ReportOptions", "ReportResult", "write_report"]
@@ -85,7 +85,7 @@ def write_report(o: ReportOptions, say=None) -> ReportResult:
     from ..paper._run import check_paper_folder
     from ._built import characterization_report, paper_report
 
-    say = say or _Silent()
+    say = say or SILENT
     if o.source and o.dataset:
         raise InputError(f"expected one input (positional or --dataset), got {o.source!r} "
                          f"and {o.dataset!r}")
@@ -128,18 +128,6 @@ def write_report(o: ReportOptions, say=None) -> ReportResult:
                                             title=o.title)
     say(f"writing {o.output} ...")
     return ReportResult(built.write(Path(o.output)))
-
-
-class _Silent:
-    """A ``say`` that says nothing (``--quiet``): no stage lines, no compile notice."""
-
-    def __call__(self, text: str) -> None:
-        pass
-
-    write = __call__
-
-    def flush(self) -> None:
-        pass
 
 
 def _read_dataset(path: Path):
