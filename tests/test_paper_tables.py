@@ -193,8 +193,9 @@ def test_reproduce_table_commands_json(paper_run, ilemt_dir, capsys, monkeypatch
             return real(paper_run, **kw)
         return f
 
-    monkeypatch.setattr(paper, "reproduce_table3", use_run(paper.reproduce_table3))
-    monkeypatch.setattr(paper, "reproduce_table4", use_run(paper.reproduce_table4))
+    # where the reproduce workflow (openemt.paper.reproduce) finds the tables
+    monkeypatch.setattr(paper._table3, "reproduce_table3", use_run(paper.reproduce_table3))
+    monkeypatch.setattr(paper._table4, "reproduce_table4", use_run(paper.reproduce_table4))
     p = _parser()
     args = p.parse_args(["reproduce", "table3", str(ilemt_dir), "--json"])
     assert args.func(args) == 0

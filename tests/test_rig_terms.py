@@ -17,10 +17,10 @@ from openemt.calibrate import (
     repeat_pairs,
 )
 from openemt.calibrate._rig import error_motion_basis, gain_linearise
-from openemt.cli._reproduce import _improved_lines
 from openemt.evaluate import error_breakdown, repeat_scatter
 from openemt.geometry import SOURCE_FIXTURES, pose_from_vector
 from openemt.io import Calibration, Dataset
+from openemt.paper import improved_lines as _improved_lines
 
 TERMS_ON = RigOptions(octupole_sensor=True, stage_linear=("xy", "sx_sz"), rz_motion=1,
                       gain_nonlinear=True)

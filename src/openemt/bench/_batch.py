@@ -167,8 +167,7 @@ def _scaling(data, cal, ks, args, tmp) -> dict:
     import distributed
 
     from ..io import open_dataset_couplings
-    from ..solve import solve_to_file
-    from ..solve._result import status_count_names
+    from ..solve import solve_to_file, status_count_names
 
     out: dict = {"initial": args.workers_initial, "chunk_rows": args.chunk_rows,
                  "poses_per_s": {}, "scaling_efficiency": {}, "worker_peak_rss_mb": {},

@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 from .._errors import InputError
-from ..simulate._hybrid import (
+from ..simulate import (
     DISTORTION_SCALE,
     EM_NOISE,
     OPTICAL_NOISE,

@@ -156,8 +156,7 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
     from ..evaluate import error_summary, pose_error_magnitudes
     from ..geometry import pose_from_vector
     from ..simulate import add_noise, noise_sigma
-    from ..solve import prepare
-    from ..solve._planar import pose_from_axis
+    from ..solve import pose_from_axis, prepare
 
     n = int(samples)
     threads = numba.get_num_threads()
@@ -191,8 +190,7 @@ def planar_live_speed(seconds: float = 3.0, seed: int = 0) -> dict:
     """Realtime factor and latency of the live pipeline with the shipped board tracker."""
     import os
 
-    from ..live import TrackingPipeline, example_tracker, read_tracker
-    from ..live._backends import Backend
+    from ..live import Backend, TrackingPipeline, example_tracker, read_tracker
     from ..live._session import tracker_backend, tracker_sensors
 
     spec = read_tracker(example_tracker("anser"))

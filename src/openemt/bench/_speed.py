@@ -168,7 +168,7 @@ def cold_ilemt(summary, repeats) -> None:
     import warnings
 
     from .. import datasets
-    from ..paper._run import load_paper_run
+    from ..paper import load_paper_run
     from ..solve import prepare
     from ..solve._lm_starts import _closed_form_start
 

@@ -1,10 +1,7 @@
 """The ``openemt`` command: a thin layer that parses, calls the library and prints.
 
-Each command lives in its own module exposing ``register(subparsers)``; the parser it adds
-sets ``func(args) -> int``. Bad input raises ``InputError`` (a ``ValueError``) or ``OSError``
-inside the library; ``main`` turns that into one ``error:`` line and exit 2. Before a command
-runs, its outputs are checked against every existing path on its command line (no input is
-ever overwritten).
+Each command module exposes ``register(subparsers)``, whose parser sets ``func(args) -> int``;
+:func:`main` turns bad input (``ValueError``/``OSError``) into one ``error:`` line and exit 2.
 """
 
 from __future__ import annotations
@@ -13,6 +10,7 @@ import argparse
 import difflib
 import importlib
 import os
+import re
 import signal
 import sys
 import threading
@@ -22,33 +20,53 @@ from .. import __version__
 
 __all__ = ["build_parser", "main"]
 
-#: Commands in the order of ``openemt --help``: name -> (module ``openemt.cli._<module>``, one-line
-#: help). The help is defined here once (command modules read it through :func:`command_help`)
-#: so that ``openemt --help`` and ``--version`` list the commands without importing any of them.
+#: Commands in the order of ``openemt --help``: name -> (module ``openemt.cli._<module>``,
+#: one-line help), here once, so that ``--help`` lists them without importing any.
 COMMANDS = {
     "demo": ("demo", "simulate, calibrate, solve, correct and report (no hardware)"),
     "simulate": ("simulate", "simulate a calibration/test data collection with known truth"),
     "import": ("import_", "import acquisition files into an openemt dataset (.h5)"),
-    "info": ("info", "summarise any file openemt writes (dataset, poses, calibration, ...)"),
-    "solve": ("solve", "solve sensor poses from a dataset's couplings"),
     "calibrate": ("calibrate", "fit a dipole-model and fixture calibration to a dataset"),
-    "align": ("align", "solve AX = YB between two pose recordings and write pose pairs"),
+    "solve": ("solve", "solve sensor poses from a dataset's couplings"),
     "correct": ("correct", "fit or apply an output correction of poses"),
+    "align": ("align", "solve AX = YB between two pose recordings and write pose pairs"),
     "pivot": ("pivot", "pivot calibration: a tracked tool's tip offset and pivot point"),
     "spin": ("spin", "spin calibration: a tracked tool's axis"),
     "register": ("register", "paired-point registration with FRE and predicted TRE"),
     "assess": ("assess", "accuracy assessment on a machined grid (Hummel et al. 2005)"),
     "points": ("points", "points from the dwells of a recorded log, as 3D Slicer markups"),
-    "reproduce": ("reproduce", "reproduce a table of MacLachlan et al. 2025 from raw data"),
-    "report": ("report", "write a self-contained HTML calibration and characterization report"),
     "track": ("track",
               "live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)"),
     "collect": ("collect", "collect couplings at reference poses (robot, optical tracker)"),
+    "info": ("info", "summarise any file openemt writes (dataset, poses, calibration, ...)"),
+    "report": ("report", "write a self-contained HTML calibration and characterization report"),
+    "reproduce": ("reproduce", "reproduce a table of MacLachlan et al. 2025 from raw data"),
     "devices": ("devices", "list audio input devices for sound-card tracking"),
     "design": ("design", "design a tracker: accuracy maps and board layout optimisation"),
-    "bench": ("bench", "run a benchmark and print its JSON summary"),
     "datasets": ("datasets", "list (and verify) the bundled data sets"),
+    "bench": ("bench", "run a benchmark and print its JSON summary"),
 }
+
+#: The path a new user follows, and where each step is documented (``openemt --help``).
+WORKFLOW = """\
+the workflow (docs/workflow.md runs it end to end on the simulator; openemt demo shows it in
+one command):
+  1. simulate | import   couplings at known poses          docs/simulator.md, docs/data-format.md
+  2. calibrate           fit the tracker's model           docs/calibration.md
+  3. solve               poses from couplings              docs/solve.md
+  4. correct             output correction of poses        docs/correction.md
+  5. pivot | register    tool tip and image registration   docs/navigation.md
+  6. track               live poses to 3D Slicer           docs/live.md
+Every command explains itself with --help; README.md lists all of them and the docs.
+"""
+
+_MARKUP = re.compile(r":\w+:`~?([^`]*)`|``([^`]*)``|`([^`]*)`")
+
+
+def plain_text(text: str) -> str:
+    """``text`` without reST markup: ``:func:`x``` and ````x```` become ``x``."""
+    return _MARKUP.sub(lambda m: next(g for g in m.groups() if g is not None), text)
+
 
 def command_help(name: str) -> str:
     """The one-line help of command ``name`` (see :data:`COMMANDS`)."""
@@ -66,6 +84,9 @@ class _UsageError(Exception):
 class _Parser(argparse.ArgumentParser):
     def error(self, message):
         raise _UsageError(self, message)
+
+    def format_help(self):
+        return plain_text(super().format_help())
 
 
 def _command_parsers(parser, argv):
@@ -118,26 +139,37 @@ def _friendly(exc: _UsageError, parser, argv) -> tuple[argparse.ArgumentParser, 
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The ``openemt`` argument parser.
-
-    Parameters
-    ----------
-    command : str, optional
-        Import and configure only this command's module; the others are listed by name and
-        help alone. ``None`` configures every command; ``""`` none (enough for ``--help`` and
-        ``--version``).
-    """
-    parser = _Parser(prog="openemt",
-                     description="Open software stack for electromagnetic trackers.")
+    """The ``openemt`` argument parser, with only ``command``'s module configured (every
+    command's with ``None``, none with ``""``: enough for ``--help`` and ``--version``)."""
+    parser = _Parser(prog="openemt", description="Open software stack for electromagnetic "
+                     "trackers.", epilog=WORKFLOW, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"openemt {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name, (module, help_) in COMMANDS.items():
         if command is None or command == name:
-            importlib.import_module(f"openemt.cli._{module}").register(sub)
+            mod = importlib.import_module(f"openemt.cli._{module}")
+            mod.register(sub)
+            # the description: the module docstring's whole first paragraph (a shorter one
+            # given is a line of it cut short)
+            first = (mod.__doc__ or "").split("\n\n")[0]
+            if (sub.choices[name].description or "") in first:
+                sub.choices[name].description = " ".join(first.split())
+            _describe(sub.choices[name])
         else:
             sub.add_parser(name, help=help_, add_help=False)
     return parser
+
+
+def _describe(parser) -> None:
+    """Give every sub-command of ``parser`` without a description its one-line help as one."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for choice in action._choices_actions:
+                sub = action.choices[choice.dest]
+                if not sub.description and choice.help:
+                    sub.description = choice.help[0].upper() + choice.help[1:] + "."
+                _describe(sub)
 
 
 def _command_of(argv) -> str:
@@ -172,10 +204,8 @@ def _paths(value):
 
 
 def check_outputs(args) -> None:
-    """Refuse, before the command runs, outputs that would overwrite an input (every other
-    existing path named on the command line counts as an input), that are not a regular file
-    or a new name (a device, FIFO, socket, folder, symbolic-link loop), whose folder is missing
-    or read-only, or two options naming the same file (:func:`openemt._atomic.check_outputs`)."""
+    """Refuse, before the command runs, outputs that would overwrite an input (any other
+    existing path on the command line) or that :func:`openemt._atomic.check_outputs` refuses."""
     from .._atomic import check_outputs as check
 
     named = {("-o" if d == "output" else "--" + d.replace("_", "-"))
@@ -189,13 +219,9 @@ def check_outputs(args) -> None:
 
 
 def main(argv=None) -> int:
-    """Run the CLI; returns the exit status (0 ok, 2 bad input, 1 other failure, 130/143
-    interrupted/terminated).
-
-    Bad input (:class:`~openemt._errors.InputError` and other ``ValueError``, ``OSError``) is one
-    ``error:`` line and status 2. ``KeyError``, ``TypeError``, ``IndexError`` and the like are bugs:
-    they print their traceback and an invitation to report them.
-    """
+    """Run the CLI; returns the exit status: 0 ok, 2 bad input (``ValueError``, ``OSError``:
+    one ``error:`` line), 1 a bug (its traceback and an invitation to report it), 130/143
+    interrupted/terminated."""
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     command = _command_of(argv)
     if not command and argv and not argv[0].startswith("-"):

@@ -3,14 +3,56 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Iterable
 from typing import Any
 
-import numpy as np
+__all__ = ["add_command", "add_common", "add_options", "emit", "options_from", "progress",
+           "run_workflow", "say", "stage", "to_jsonable", "write_solved"]
 
-__all__ = ["add_common", "add_options", "emit", "options_from", "progress", "stage", "to_jsonable",
-           "write_solved"]
+
+def add_command(sub, name: str, func=None, options=None, only=None, **kwargs):
+    """Add command (or sub-command) ``name`` to ``sub`` with its one-line help, the options of
+    the dataclass ``options`` (:func:`add_options`; ``only`` these fields), ``--json`` /
+    ``--quiet`` and ``func``."""
+    from . import COMMANDS
+
+    kwargs.setdefault("help", COMMANDS[name][1] if name in COMMANDS else None)
+    p = sub.add_parser(name, **kwargs)
+    if options is not None:
+        add_options(p, options, only=only)
+    if func is not None:
+        add_common(p)
+        p.set_defaults(func=func)
+    return p
+
+
+class _Say:
+    """What a workflow says while it runs (stage lines, the compile notice), on stderr."""
+
+    def __init__(self, args):
+        self.args = args
+
+    def __call__(self, text: str) -> None:
+        if text.strip():
+            stage(self.args, text.rstrip("\n"))
+
+    write, flush = __call__, lambda self: None  # a stream too, for the compile notice
+
+
+def say(args):
+    """The ``say`` callable a workflow reports its stages to: None with ``--quiet``."""
+    return None if getattr(args, "quiet", False) else _Say(args)
+
+
+def run_workflow(args, workflow, options_cls, **values) -> int:
+    """Call ``workflow(options, say=...)`` with the options record built from ``args`` and print
+    its result: ``to_dict()`` with ``--json``, its ``lines()`` on stderr. Returns the result's
+    ``exit_status`` (default 0)."""
+    result = workflow(options_from(options_cls, args, **values), say=say(args))
+    emit(args, result.to_dict(), result.lines())
+    return getattr(result, "exit_status", 0)
 
 
 def add_common(parser) -> None:
@@ -39,24 +81,10 @@ def add_options(parser, options_cls, *, only=None, skip=(), **help_overrides) ->
     """Add one command-line option per field of the dataclass ``options_cls`` (a workflow's
     options record), so that the defaults and help texts are written once, in the library.
 
-    A field ``max_rms_mm`` becomes ``--max-rms-mm``; its help is ``metadata["help"]`` (or a
-    keyword of the same name here), ``metadata["choices"]``, ``["metavar"]`` and ``["flag"]``
-    (another option name, or a tuple of names such as ``("-o", "--output")``) are passed on, ``metadata["positional"]`` makes it a positional
-    argument, and ``metadata["cli"] = False`` leaves it out. A ``bool`` field defaulting to
-    False is a switch; one defaulting to True gets ``--no-...``. The default shown is the
-    field's. ``only`` / ``skip`` pick fields by name. :func:`options_from` builds the record.
-
-    Examples
-    --------
-    >>> import argparse, dataclasses
-    >>> @dataclasses.dataclass(frozen=True)
-    ... class Opts:
-    ...     max_rms_mm: float = dataclasses.field(default=2.0, metadata={"help": "limit"})
-    ...     robust: bool = False
-    >>> p = argparse.ArgumentParser()
-    >>> add_options(p, Opts)
-    >>> options_from(Opts, p.parse_args(["--max-rms-mm", "3", "--robust"]))
-    Opts(max_rms_mm=3.0, robust=True)
+    A field ``max_rms_mm`` becomes ``--max-rms-mm``; metadata ``help``, ``choices``,
+    ``metavar``, ``required``, ``action`` and ``flag`` (other names) are passed on,
+    ``positional`` (``optional``) makes a positional argument, ``cli=False`` leaves it out. A
+    ``bool`` defaulting to True gets ``--no-...``. tests/test_cli_common.py shows it.
     """
     import dataclasses
     import typing
@@ -84,9 +112,9 @@ def add_options(parser, options_cls, *, only=None, skip=(), **help_overrides) ->
         kw.update(type=kind if callable(kind) and kind is not typing.Any else None)
         if kw["type"] is None:
             del kw["type"]
-        if nargs:
+        if nargs and "action" not in meta:
             kw["nargs"] = nargs
-        for key in ("choices", "metavar"):
+        for key in ("choices", "metavar", "required", "action"):
             if key in meta:
                 kw[key] = meta[key]
         if meta.get("positional"):
@@ -112,20 +140,18 @@ def options_from(options_cls, args, **values):
 
 
 def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays and paths inside ``obj`` to plain JSON types."""
+    """``obj`` in plain JSON types (:func:`openemt._result.plain`), with paths as strings and
+    non-finite floats as null."""
+    from .._result import plain
+
+    obj = plain(obj)
     if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
+        return {k: to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list):
         return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
         return None
-    if hasattr(obj, "__fspath__"):
-        return str(obj)
-    return obj
+    return str(obj) if hasattr(obj, "__fspath__") else obj
 
 
 def emit(args, summary: dict, human: Iterable[str] = ()) -> None:
@@ -166,7 +192,7 @@ def write_solved(args, n: int, solver: str, meta: dict, chunks):
     (atomically, with a progress bar); returns the :class:`~openemt.solve._output.PoseWriter`,
     whose status counts outlive the file. Used by ``solve`` for every kind of calibration."""
     from ..io import atomic_h5
-    from ..solve._output import PoseWriter
+    from ..solve import PoseWriter
 
     with atomic_h5(args.output) as f:
         writer = PoseWriter(f, n, solver, meta)

@@ -21,8 +21,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._errors import InputError
+from .._options import option
+from .._result import Result
 
-__all__ = ["DatasetInfo", "info", "names", "path", "verify"]
+__all__ = ["DatasetInfo", "DatasetsOptions", "DatasetsResult", "check_datasets", "info", "names",
+           "path", "verify"]
 
 _HERE = Path(__file__).resolve().parent
 
@@ -135,3 +138,49 @@ def verify(name: str) -> dict[str, str]:
         if f.is_file() and rel not in result:
             result[rel] = "unrecorded"
     return result
+
+
+@dataclass(frozen=True)
+class DatasetsOptions:
+    """Which data sets ``openemt datasets`` lists (field metadata: the command-line help)."""
+
+    name: str | None = option(None, "one data set (default: all)", positional=True,
+                              optional=True)
+    verify: bool = option(False, "check every file against its recorded SHA-256 (exit 1 on a "
+                          "mismatch)")
+
+
+@dataclass(frozen=True)
+class DatasetsResult(Result):
+    """The data sets listed and, when verified, their files' problems (``ok``: none)."""
+
+    datasets: list
+    ok: bool
+
+    @property
+    def exit_status(self) -> int:
+        return 0 if self.ok else 1
+
+    def lines(self) -> list[str]:
+        """Two lines per data set, a third with the verification."""
+        human = []
+        for e in self.datasets:
+            human += [f"{e['name']}: {e['path']}",
+                      f"  {e['description']} ({e['license']}; cite {e['citation']})"]
+            if "problems" in e:
+                state = "all files match" if not e["problems"] else f"PROBLEMS: {e['problems']}"
+                human.append(f"  {e['files_checked']} files checked: {state}")
+        return human
+
+
+def check_datasets(o: DatasetsOptions, say=None) -> DatasetsResult:
+    """List the data sets ``o`` names, verifying their checksums with ``o.verify``."""
+    entries = []
+    for name in [o.name] if o.name else names():
+        entry = info(name).to_dict()
+        if o.verify:
+            checks = verify(name)
+            entry["files_checked"] = len(checks)
+            entry["problems"] = {k: v for k, v in checks.items() if v != "ok"}
+        entries.append(entry)
+    return DatasetsResult(entries, not any(e.get("problems") for e in entries))

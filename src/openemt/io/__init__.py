@@ -16,6 +16,13 @@ from ._ilemt import (
                      read_ilemt_dat,
 )
 from ._ilemt_mat import read_ilemt_calibration
+from ._import_workflow import (
+                     IMPORT_FORMATS,
+                     ImportOptions,
+                     ImportResult,
+                     import_files,
+                     parse_sign_arg,
+)
 from ._ndi import NdiRecording, NdiTool, import_ndi, read_ndi_tsv, write_ndi_tsv
 from ._pose_dataset import pose_dataset, read_pose_dataset
 from ._poses_csv import (
@@ -39,3 +46,4 @@ __all__ += ["CouplingReader", "export_csv", "import_csv", "open_dataset_coupling
 __all__ += ["NdiRecording", "NdiTool", "PoseTable", "StaticAverage", "average_static",
             "import_ndi", "import_poses_csv", "pose_dataset", "read_ndi_tsv", "read_pose_dataset",
             "read_poses_csv", "write_ndi_tsv", "write_poses_csv"]
+__all__ += ["IMPORT_FORMATS", "ImportOptions", "ImportResult", "import_files", "parse_sign_arg"]

@@ -10,6 +10,7 @@ from ._backends import (
     StallWatch,
     default_model,
     default_trajectory,
+    list_audio_inputs,
 )
 from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
@@ -77,6 +78,7 @@ __all__ = [
     "example_tracker",
     "filter_restarts",
     "kalman_filter_poses",
+    "list_audio_inputs",
     "lm_solver",
     "new_filter_state",
     "read_registration_transform",

@@ -46,8 +46,14 @@ from ._table4 import (
     reproduce_table4,
     sweep_test,
 )
+from ._workflow import TABLES, ReproduceOptions, Reproduction, improved_lines, reproduce
 
 __all__ = [
+    "TABLES",
+    "ReproduceOptions",
+    "Reproduction",
+    "improved_lines",
+    "reproduce",
     "DipoleCost",
     "ParameterRecovery",
     "dipole_cost",

@@ -2,6 +2,7 @@
 imports this package; its functions lay out results computed elsewhere."""
 
 from ._built import BuiltReport, characterization_report, paper_report
+from ._demo import DemoOptions, DemoResult, run_demo
 from ._describe import FileInfo, describe
 from ._figures import error_histogram_figure, error_map_figure, error_vector_figure, sweep_figure
 from ._glossary import GLOSSARY, glossary_section
@@ -20,12 +21,17 @@ from ._sections import (
     table3_section,
     uncertainty_paragraph,
 )
+from ._workflow import ReportOptions, ReportResult, write_report
 
 __all__ = [
     "GLOSSARY",
     "BuiltReport",
+    "DemoOptions",
+    "DemoResult",
     "FileInfo",
     "Report",
+    "ReportOptions",
+    "ReportResult",
     "accuracy_section",
     "assessment_document",
     "by_fixture_table",
@@ -44,9 +50,11 @@ __all__ = [
     "planar_document",
     "planar_report",
     "reason_notes",
+    "run_demo",
     "simulation_section",
     "sweep_figure",
     "sweep_section",
     "table3_section",
     "uncertainty_paragraph",
+    "write_report",
 ]

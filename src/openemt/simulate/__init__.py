@@ -13,7 +13,15 @@ from ._errors import (
     noise_sigma,
     polarizability,
 )
-from ._hybrid import field_distortion, simulate_hybrid, simulate_ndi_session
+from ._hybrid import (
+    DISTORTION_SCALE,
+    EM_NOISE,
+    OPTICAL_NOISE,
+    draw_xy,
+    field_distortion,
+    simulate_hybrid,
+    simulate_ndi_session,
+)
 from ._patterns import GRID_PITCH, PATTERNS, STAGE_Z_LIMIT, stage_pattern
 from ._presets import PRESETS, Preset, get_preset
 from ._reference import (
@@ -23,8 +31,13 @@ from ._reference import (
     reference_truth_calibration,
     simulate_reference,
 )
+from ._workflow import SimulateOptions, SimulateResult, parse_distortion, write_simulation
 
 __all__ = [
+    "DISTORTION_SCALE",
+    "EM_NOISE",
+    "OPTICAL_NOISE",
+    "draw_xy",
     "GRID_PITCH",
     "PATTERNS",
     "PRESETS",
@@ -34,6 +47,8 @@ __all__ = [
     "Distortion",
     "Preset",
     "ReferenceKind",
+    "SimulateOptions",
+    "SimulateResult",
     "add_noise",
     "distortion_coupling",
     "drift_factors",
@@ -42,6 +57,7 @@ __all__ = [
     "get_preset",
     "noise_sigma",
     "nominal_calibration",
+    "parse_distortion",
     "polarizability",
     "reference_truth_calibration",
     "simulate",
@@ -50,4 +66,5 @@ __all__ = [
     "simulate_reference",
     "stage_pattern",
     "truth_calibration",
+    "write_simulation",
 ]

@@ -14,7 +14,7 @@ from ._hemisphere import hemisphere_from_positions, hemisphere_vectors, rig_hemi
 from ._lm_solver import solve_lm
 from ._options import SolveOptions
 from ._output import POSES_SCHEMA, PoseWriter, read_poses
-from ._planar import solve_planar
+from ._planar import pose_from_axis, solve_planar
 from ._refine import refine_poses
 from ._result import SolveResult, Status, status_count_names
 from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
@@ -50,6 +50,7 @@ __all__ = [
     "planar_errors",
     "prepare",
     "read_poses",
+    "pose_from_axis",
     "refine_poses",
     "rig_hemispheres",
     "solve",
@@ -59,6 +60,7 @@ __all__ = [
     "solve_kuipers",
     "solve_lm",
     "solve_planar",
+    "status_count_names",
     "solve_series",
     "solve_svd",
     "solve_to_file",
