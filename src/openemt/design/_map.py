@@ -152,6 +152,14 @@ class DesignMap(Result):
     bounds: BoundMap = None
     _not_in_dict = ("bounds",)
 
+    def lines(self) -> list:
+        """The human summary (``openemt design map`` on stderr)."""
+        s, mc = self.position_mm, self.montecarlo
+        return [f"{self.target}: position bound median {s['median']:.4f} mm, p95 "
+                f"{s['p95']:.4f} mm, max {s['max']:.4f} mm (noise {self.noise_sigma:.3g})"] + (
+            [f"Monte Carlo RMS / bound, median over {mc['n_points']} points: "
+             f"{mc['ratio_median']:.3f}"] if mc else [])
+
 
 def map_of(target, options: MapOptions, noise_sigma=None, rng_seed=None):
     """The map of a resolved target: (:class:`BoundMap`, volume, noise sigma, noise note)."""

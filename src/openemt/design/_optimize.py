@@ -239,6 +239,12 @@ class OptimizedLayout(Result):
     start_board: object = None
     _not_in_dict = ("bounds", "start_bounds", "board", "start_board")
 
+    def lines(self) -> list:
+        """The human summary (``openemt design optimize`` on stderr)."""
+        a, b = self.start["position_mm"]["p95"], self.optimized["position_mm"]["p95"]
+        return [f"{self.target}: p95 position bound {a:.4f} -> {b:.4f} mm "
+                f"({100 * self.improvement_p95:.1f} % lower)"]
+
 
 def _map_block(bm, mc, target_mm) -> dict:
     return {"position_mm": _scaled(map_summary(bm.position_std, target_mm * 1e-3), 1e3),
@@ -347,8 +353,8 @@ def optimize_layout(options: OptimizeOptions | None = None, **overrides) -> Opti
         constraints=(f"{len(board.coils)} coils of the start board (same shape, size, turns, "
                      f"drive current), planar, inside the start footprint x "
                      f"{[round(float(v) * 1e3, 2) for v in (lay.lo[0], lay.hi[0])]} mm, y "
-                     f"{[round(float(v) * 1e3, 2) for v in (lay.lo[1], lay.hi[1])]} mm, outlines at "
-                     f"least {opts.min_spacing_mm:g} mm apart"),
+                     f"{[round(float(v) * 1e3, 2) for v in (lay.lo[1], lay.hi[1])]} mm, "
+                     f"outlines at least {opts.min_spacing_mm:g} mm apart"),
         evaluations=lay.evaluations, seconds=seconds,
         start=_map_block(start_map, mc_start, opts.target_mm),
         optimized=_map_block(opt_map, mc_opt, opts.target_mm),
