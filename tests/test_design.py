@@ -203,3 +203,18 @@ def test_carrier_plans_reported_and_chosen_below_the_level(capsys):
     assert near["mains_db"] > -20
     rc = main(["design", "carriers", "--n-carriers", "40", "--json"])
     assert rc == 2 and "expected room for 40 carriers" in capsys.readouterr().err
+
+
+def test_a_dipole_calibration_maps_over_a_given_volume(tmp_path, capsys):
+    from openemt.io import write_calibration
+    from openemt.simulate import truth_calibration
+
+    path = write_calibration(truth_calibration("concentric"), tmp_path / "cal.json")
+    rc = main(["design", "map", str(path), "--json", "--montecarlo", "0"])
+    assert rc == 2 and "expected a volume" in capsys.readouterr().err
+    m = design_map(target=str(path), x_mm=(200, 280), y_mm=(-40, 40), z_mm=(-40, 40),
+                   grid=(2, 2, 2), montecarlo=0, noise_sigma=1e-5)
+    ref = design_map(target="concentric", x_mm=(200, 280), y_mm=(-40, 40), z_mm=(-40, 40),
+                     grid=(2, 2, 2), montecarlo=0, noise_sigma=1e-5)
+    assert m.kind == "calibration" and m.n_points == 8
+    assert m.position_mm["p95"] == pytest.approx(ref.position_mm["p95"], rel=1e-12)
