@@ -218,3 +218,22 @@ def test_a_dipole_calibration_maps_over_a_given_volume(tmp_path, capsys):
                      grid=(2, 2, 2), montecarlo=0, noise_sigma=1e-5)
     assert m.kind == "calibration" and m.n_points == 8
     assert m.position_mm["p95"] == pytest.approx(ref.position_mm["p95"], rel=1e-12)
+
+
+def test_map_page_renders_in_chromium(tmp_path):
+    from chromium_render import render
+
+    path = tmp_path / "map.html"
+    design_map(target="anser", grid=(3, 3, 2), montecarlo=3, trials=20,
+               montecarlo_noise="coupling", output=str(path))
+    n_images, n_decoded, dom = render(path, tmp_path)
+    assert (n_images, n_decoded) == (3, 3), f"images total/decoded = {n_images}/{n_decoded}"
+    assert "Design map: anser" in dom and "Monte Carlo against the bound" in dom
+    from openemt.design import optimize_layout
+
+    page = tmp_path / "opt.html"
+    optimize_layout(target="anser", grid=(3, 3, 2), orientations="down", max_evaluations=30,
+                    montecarlo=3, trials=20, montecarlo_noise="coupling", html=str(page))
+    n_images, n_decoded, dom = render(page, tmp_path)
+    assert (n_images, n_decoded) == (5, 5), f"images total/decoded = {n_images}/{n_decoded}"
+    assert "Layout optimisation: anser" in dom
