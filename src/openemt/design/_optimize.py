@@ -98,7 +98,6 @@ class _Layout:
             raise InputError(f"expected square or circular coils to optimise, got {shapes}")
         self.spacing = spacing
         self.half = np.array([c.outer_size[0] / 2 for c in board.coils]) + spacing / 2
-        self.round = np.array([c.shape == "circular" for c in board.coils])
         x0 = self.vector(board)
         corners = _corners(x0.reshape(-1, 3)[:, :2], x0.reshape(-1, 3)[:, 2],
                            self.half - spacing / 2)
@@ -142,10 +141,6 @@ class _Layout:
         out = np.maximum(self.lo - inner.reshape(-1, 2), 0).sum() + \
             np.maximum(inner.reshape(-1, 2) - self.hi, 0).sum()
         return float(_overlap(c) + out)
-
-    def bounds(self, x):
-        return bound_map(self.model_of(self.board_of(x)), self.points, self.rotations,
-                         self.sigma)
 
     def _coil_fisher(self, i, coil) -> np.ndarray:
         """``J_i^T J_i`` ``(N, 6, 6)`` of coil ``i`` alone (cached by its placement): the
