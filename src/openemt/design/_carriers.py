@@ -66,15 +66,6 @@ def _db(x: float) -> float:
     return float(20 * np.log10(max(float(x), 1e-300)))
 
 
-class _Fixed:
-    def __init__(self, C):
-        self.C = np.asarray(C, dtype=np.float64)
-        self.n_source, self.n_sensor = self.C.shape
-
-    def coupling(self, poses):
-        return np.broadcast_to(self.C, (len(poses),) + self.C.shape).copy()
-
-
 def _layout(frequencies, sample_rate):
     from ..signal import ChannelLayout
 
@@ -85,11 +76,13 @@ def _layout(frequencies, sample_rate):
 
 def _run(layout, rate, window, C, *, mains=(), frames=24, front=None, seed=0):
     from ..signal import RawSignalConfig, RawSimulator, demodulate, frame_length
+    from ._montecarlo import FixedCoupling
 
     hop, L = frame_length(layout, rate, window)
     cfg = RawSignalConfig(layout=layout, noise_rms=0.0, reference_noise_rms=0.0,
                           mains_amplitudes=tuple(mains))
-    sim = RawSimulator(_Fixed(C), np.eye(4), cfg, seed=seed, coupling_stride=hop)
+    sim = RawSimulator(FixedCoupling(np.asarray(C, dtype=np.float64)), np.eye(4), cfg,
+                       seed=seed, coupling_stride=hop)
     x = sim.read(L + (frames - 1) * hop)
     if front is not None:
         x[:, 0] = front(x[:, 0])
