@@ -175,3 +175,65 @@ def test_optimize_refuses_what_it_cannot_change(capsys):
     assert rc == 2 and "expected a board" in capsys.readouterr().err
     rc = main(["design", "optimize", "anser", "--min-spacing-mm", "30", "--json"])
     assert rc == 2 and "30 mm spacing" in capsys.readouterr().err
+
+
+def test_carrier_plans_reported_and_chosen_below_the_level(capsys):
+    """The shipped plans' leakages are measured in the raw-signal simulator and demodulator;
+    the chosen plan keeps crosstalk, mains and intermodulation below the stated level there,
+    and a front end with more distortion shows in the intermodulation level."""
+    from openemt.design import carrier_plan, plan_leakage
+
+    rc = main(["design", "carriers", str(example_tracker("anser")), "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    d = json.loads(cap.out)
+    (anser,) = d["existing"]
+    assert anser["frequencies_hz"][0] == 7500.0 and len(anser["frequencies_hz"]) == 8
+    assert anser["crosstalk_db"] < -200          # on-bin carriers: orthogonal in a Hann frame
+    assert d["chosen_below_level"] and len(d["chosen"]["frequencies_hz"]) == 8
+    for key in ("crosstalk_db", "mains_db", "intermod_db"):
+        assert d["chosen"][key] < d["max_level_db"]
+    assert d["chosen"]["im2_collisions"] == 0
+    # the measurement sees what it measures: 40 dB more distortion, about 40 dB more leakage
+    r = carrier_plan(trackers=(str(example_tracker("anser")),), distortion_db=-60.0)
+    lvl = r.existing[0]["intermod_db"]
+    assert abs(lvl - (anser["intermod_db"] + 40)) < 3
+    # and a carrier next to a mains harmonic leaks
+    near = plan_leakage([2250.0, 7500.0], 96000.0, 1500.0, "hann")   # 250 Hz from 2 kHz
+    assert near["mains_db"] > -20
+    rc = main(["design", "carriers", "--n-carriers", "40", "--json"])
+    assert rc == 2 and "expected room for 40 carriers" in capsys.readouterr().err
+
+
+def test_a_dipole_calibration_maps_over_a_given_volume(tmp_path, capsys):
+    from openemt.io import write_calibration
+    from openemt.simulate import truth_calibration
+
+    path = write_calibration(truth_calibration("concentric"), tmp_path / "cal.json")
+    rc = main(["design", "map", str(path), "--json", "--montecarlo", "0"])
+    assert rc == 2 and "expected a volume" in capsys.readouterr().err
+    m = design_map(target=str(path), x_mm=(200, 280), y_mm=(-40, 40), z_mm=(-40, 40),
+                   grid=(2, 2, 2), montecarlo=0, noise_sigma=1e-5)
+    ref = design_map(target="concentric", x_mm=(200, 280), y_mm=(-40, 40), z_mm=(-40, 40),
+                     grid=(2, 2, 2), montecarlo=0, noise_sigma=1e-5)
+    assert m.kind == "calibration" and m.n_points == 8
+    assert m.position_mm["p95"] == pytest.approx(ref.position_mm["p95"], rel=1e-12)
+
+
+def test_map_page_renders_in_chromium(tmp_path):
+    from chromium_render import render
+
+    path = tmp_path / "map.html"
+    design_map(target="anser", grid=(3, 3, 2), montecarlo=3, trials=20,
+               montecarlo_noise="coupling", output=str(path))
+    n_images, n_decoded, dom = render(path, tmp_path)
+    assert (n_images, n_decoded) == (3, 3), f"images total/decoded = {n_images}/{n_decoded}"
+    assert "Design map: anser" in dom and "Monte Carlo against the bound" in dom
+    from openemt.design import optimize_layout
+
+    page = tmp_path / "opt.html"
+    optimize_layout(target="anser", grid=(3, 3, 2), orientations="down", max_evaluations=30,
+                    montecarlo=3, trials=20, montecarlo_noise="coupling", html=str(page))
+    n_images, n_decoded, dom = render(page, tmp_path)
+    assert (n_images, n_decoded) == (5, 5), f"images total/decoded = {n_images}/{n_decoded}"
+    assert "Layout optimisation: anser" in dom

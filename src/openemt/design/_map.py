@@ -59,10 +59,13 @@ class MapOptions:
     output: str | None = field(default=None, metadata={
         "flag": ("-o", "--output"), "help": "write a self-contained HTML page here"})
 
-    def volume(self, default: Volume) -> Volume:
+    def volume(self, default: Volume | None) -> Volume:
         ranges = []
         for name in ("x_mm", "y_mm", "z_mm"):
             v = getattr(self, name)
+            if v is None and default is None:
+                raise InputError("expected a volume (--x-mm, --y-mm, --z-mm) for this target "
+                                 "(boards and the rig presets have a default one), got none")
             if v is None:
                 ranges.append(getattr(default, name[0]))
                 continue
@@ -70,7 +73,8 @@ class MapOptions:
                 raise InputError(f"expected two values (low high, mm) for --"
                                  f"{name.replace('_', '-')}, got {len(v)}")
             ranges.append((v[0] * 1e-3, v[1] * 1e-3))
-        n = default.n if self.grid is None else tuple(int(k) for k in self.grid)
+        n = (default.n if default is not None else (5, 5, 5)) if self.grid is None else \
+            tuple(int(k) for k in self.grid)
         if len(n) != 3:
             raise InputError(f"expected three grid sizes (nx ny nz), got {len(n)}")
         return Volume(*ranges, n)
@@ -151,6 +155,14 @@ class DesignMap(Result):
     output: str | None
     bounds: BoundMap = None
     _not_in_dict = ("bounds",)
+
+    def lines(self) -> list:
+        """The human summary (``openemt design map`` on stderr)."""
+        s, mc = self.position_mm, self.montecarlo
+        return [f"{self.target}: position bound median {s['median']:.4f} mm, p95 "
+                f"{s['p95']:.4f} mm, max {s['max']:.4f} mm (noise {self.noise_sigma:.3g})"] + (
+            [f"Monte Carlo RMS / bound, median over {mc['n_points']} points: "
+             f"{mc['ratio_median']:.3f}"] if mc else [])
 
 
 def map_of(target, options: MapOptions, noise_sigma=None, rng_seed=None):

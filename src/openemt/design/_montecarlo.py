@@ -22,7 +22,7 @@ import numpy as np
 
 from ._orient import map_poses
 
-__all__ = ["coupling_noise_rms", "montecarlo", "rotation_errors"]
+__all__ = ["FixedCoupling", "coupling_noise_rms", "montecarlo", "rotation_errors"]
 
 
 def _sensor_axis(model) -> np.ndarray:
@@ -45,7 +45,7 @@ def rotation_errors(model, R_est, R_true) -> np.ndarray:
     return np.arccos(c)
 
 
-class _Fixed:
+class FixedCoupling:
     """A model that gives one pose's couplings whatever it is asked (the raw simulator of a
     sensor held still evaluates its model at many times)."""
 
@@ -78,7 +78,7 @@ def _raw_couplings(plan, C, trials, sigma, rng):
     step = L // hop
     noise = sigma / coupling_noise_rms(layout, rate, window, 1.0)
     cfg = RawSignalConfig(layout=layout, noise_rms=noise, reference_noise_rms=0.0)
-    sim = RawSimulator(_Fixed(C), np.eye(4), cfg, seed=int(rng.integers(2 ** 31)),
+    sim = RawSimulator(FixedCoupling(C), np.eye(4), cfg, seed=int(rng.integers(2 ** 31)),
                        coupling_stride=hop)
     n = L + (trials * step - 1) * hop
     out = demodulate(sim.read(n), layout, output_rate=rate, window=window)

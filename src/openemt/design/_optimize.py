@@ -98,7 +98,6 @@ class _Layout:
             raise InputError(f"expected square or circular coils to optimise, got {shapes}")
         self.spacing = spacing
         self.half = np.array([c.outer_size[0] / 2 for c in board.coils]) + spacing / 2
-        self.round = np.array([c.shape == "circular" for c in board.coils])
         x0 = self.vector(board)
         corners = _corners(x0.reshape(-1, 3)[:, :2], x0.reshape(-1, 3)[:, 2],
                            self.half - spacing / 2)
@@ -142,10 +141,6 @@ class _Layout:
         out = np.maximum(self.lo - inner.reshape(-1, 2), 0).sum() + \
             np.maximum(inner.reshape(-1, 2) - self.hi, 0).sum()
         return float(_overlap(c) + out)
-
-    def bounds(self, x):
-        return bound_map(self.model_of(self.board_of(x)), self.points, self.rotations,
-                         self.sigma)
 
     def _coil_fisher(self, i, coil) -> np.ndarray:
         """``J_i^T J_i`` ``(N, 6, 6)`` of coil ``i`` alone (cached by its placement): the
@@ -238,6 +233,12 @@ class OptimizedLayout(Result):
     board: object = None
     start_board: object = None
     _not_in_dict = ("bounds", "start_bounds", "board", "start_board")
+
+    def lines(self) -> list:
+        """The human summary (``openemt design optimize`` on stderr)."""
+        a, b = self.start["position_mm"]["p95"], self.optimized["position_mm"]["p95"]
+        return [f"{self.target}: p95 position bound {a:.4f} -> {b:.4f} mm "
+                f"({100 * self.improvement_p95:.1f} % lower)"]
 
 
 def _map_block(bm, mc, target_mm) -> dict:
@@ -347,8 +348,8 @@ def optimize_layout(options: OptimizeOptions | None = None, **overrides) -> Opti
         constraints=(f"{len(board.coils)} coils of the start board (same shape, size, turns, "
                      f"drive current), planar, inside the start footprint x "
                      f"{[round(float(v) * 1e3, 2) for v in (lay.lo[0], lay.hi[0])]} mm, y "
-                     f"{[round(float(v) * 1e3, 2) for v in (lay.lo[1], lay.hi[1])]} mm, outlines at "
-                     f"least {opts.min_spacing_mm:g} mm apart"),
+                     f"{[round(float(v) * 1e3, 2) for v in (lay.lo[1], lay.hi[1])]} mm, "
+                     f"outlines at least {opts.min_spacing_mm:g} mm apart"),
         evaluations=lay.evaluations, seconds=seconds,
         start=_map_block(start_map, mc_start, opts.target_mm),
         optimized=_map_block(opt_map, mc_opt, opts.target_mm),

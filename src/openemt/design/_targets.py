@@ -145,11 +145,9 @@ def _looks_like_board(path: Path) -> bool:
     return isinstance(doc, dict) and "coils" in doc
 
 
-def _default_volume(model) -> Volume:
-    if hasattr(model, "board"):
-        return board_volume()
-    raise InputError("expected a volume (--x-mm, --y-mm, --z-mm) for a dipole calibration "
-                     "(only boards and the rig presets have a default volume), got none")
+def _default_volume(model) -> Volume | None:
+    """A board's default volume; None for other models (the map asks for one)."""
+    return board_volume() if hasattr(model, "board") else None
 
 
 def resolve_target(target) -> Target:
