@@ -62,6 +62,10 @@ class TrackOptions:
                                      "<name>ToImage (default: the tracker file's "
                                      "[navigation] registration, else none)",
                                      metavar="FILE")
+    tip: Path | None = _opt(None, "pivot calibration file from 'openemt pivot -o': stream the "
+                            "tool tip too, device <name>TipTo<frame> (one-sensor trackers; "
+                            "default: the tracker file's per-sensor tip, else none)",
+                            metavar="FILE")
     filter: str | None = _opt(None, "tracking filter per sensor: constant-velocity Kalman "
                               "filter, reset on loss (default: the tracker file's [filter], "
                               "else none)", choices=("none", "kalman"))
@@ -126,7 +130,7 @@ class TrackOptions:
     quiet: bool = field(default=False, metadata={"cli": False})
 
     def __post_init__(self):
-        for name in ("tracker", "file", "calibration", "registration", "log", "save_raw"):
+        for name in ("tracker", "file", "calibration", "registration", "tip", "log", "save_raw"):
             v = getattr(self, name)
             if v is not None and not isinstance(v, Path):
                 object.__setattr__(self, name, Path(v))        # a str or os.PathLike
@@ -389,6 +393,8 @@ def resolve_tracker(tracker, options: TrackOptions) -> TrackerSpec:
                             measurement_noise=options.measurement_noise,
                             rotation_process_noise=options.rotation_process_noise,
                             rotation_measurement_noise=options.rotation_measurement_noise)
+    if options.tip is not None:
+        spec = spec.with_tip(options.tip)
     if options.registration is not None:
         spec = spec.with_registration(options.registration)
     return spec

@@ -341,6 +341,17 @@ class TrackerSpec:
         reference-relative), in the order the pipeline sends them."""
         return stream_specs(self.sensors, self.reference, self.frame)
 
+    def with_tip(self, path) -> TrackerSpec:
+        """A copy whose one sensor carries the tool tip of the pivot calibration file ``path``
+        (``openemt pivot -o``); a tracker of several sensors names each tip in its file."""
+        from ..navigate import read_tip_transform
+
+        if len(self.sensors) != 1:
+            raise InputError(f"expected a one-sensor tracker for --tip (name each tool's tip "
+                             f"in the tracker file, [sensors.NAME] tip), got "
+                             f"{len(self.sensors)} sensors")
+        return replace(self, sensors=(replace(self.sensors[0], tip=read_tip_transform(path)),))
+
     def with_registration(self, path) -> TrackerSpec:
         """A copy that streams in the image frame of the registration file ``path``
         (``openemt register -o``): its image-from-tracker transform is applied to every
