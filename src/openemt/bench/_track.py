@@ -110,9 +110,19 @@ def add_arguments(parser) -> None:
 
 # The viewer: a pyigtl client in its own process (as 3D Slicer would be), so that its polling
 # thread does not compete with the pipeline for this interpreter.
+# a client that reads version-2 messages says so with a version-2 message (here GET_STATUS)
+_HELLO = """
+class Hello(pyigtl.messages.MessageBase):
+    def __init__(self):
+        super().__init__(device_name="bench")
+        self._message_type, self._valid_message, self.header_version = "GET_STATUS", True, 2
+c.send_message(Hello(), wait=False)
+"""
+
 _CLIENT = """
 import sys, time, pyigtl
 c = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=int(sys.argv[1]))
+""" + _HELLO + """
 end, seen = time.time() + float(sys.argv[2]), 0
 names = sys.argv[3].split(",")
 while time.time() < end:
@@ -172,8 +182,9 @@ def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
                                str(seconds * 20 + 30), ",".join(names)],
                               stdout=subprocess.DEVNULL)
     try:
-        if not srv.wait_for_client(30.0):
-            raise OSError("expected a loopback OpenIGTLink client to connect, got none in 30 s")
+        if not srv.wait_for_client(30.0, header_version=2):
+            raise OSError("expected a loopback OpenIGTLink client to connect and announce "
+                          "header version 2, got none in 30 s")
         sensors = tracker_sensors(spec)
         if not prepared:
             sensors = [_unprepared(st) for st in sensors]
@@ -316,6 +327,7 @@ for name, cls in (("TRANSFORM", M.TransformMessage), ("STRING", M.StringMessage)
                   ("TDATA", TData)):
     M.message_type_to_class_constructor[name] = counted(cls)
 c = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=int(sys.argv[1]))
+""" + _HELLO + """
 end = time.time() + float(sys.argv[2])
 while time.time() < end and ("STRING", "benchEnd") not in counts:
     time.sleep(0.02)
@@ -345,9 +357,9 @@ def _many_tools(preset, k: int, seconds: float, seed: int) -> dict:
         client = subprocess.Popen([sys.executable, "-c", _COUNTER, str(srv.port),
                                    str(seconds + 60)], stdout=subprocess.PIPE, text=True)
         try:
-            if not srv.wait_for_client(30.0):
-                raise OSError("expected a loopback OpenIGTLink client to connect, got none "
-                              "in 30 s")
+            if not srv.wait_for_client(30.0, header_version=2):
+                raise OSError("expected a loopback OpenIGTLink client to connect and announce "
+                              "header version 2, got none in 30 s")
             pipe = TrackingPipeline(backend, sensors=tracker_sensors(spec), igtl=srv, **kw)
             backend.restart_clock()
             t0 = time.perf_counter()

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import InputError
-from ._igtl import frame_messages
+from ._igtl_wire import frame_messages
 
 __all__ = ["TDATA_6D", "TDATA_ELEMENT", "pack_tdata"]
 

@@ -1,0 +1,70 @@
+"""The quality of each sent pose as OpenIGTLink version-2 metadata of its TRANSFORM, in the keys
+PLUS reads (``TransformStatus``, ``TransformValid``) and openemt's own (``RelativeResidual``,
+``QuadratureRatio``, ``DistortionLevel``); the table is in docs/live.md."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..solve import Status
+from ..solve._validity import MAX_RELATIVE_RESIDUAL
+
+__all__ = ["TRANSFORM_STATUS", "distortion_level", "transform_metadata", "transform_status"]
+
+#: PLUS's tool status (``TransformStatus``) of each solver status of a sample.
+TRANSFORM_STATUS = {Status.CONVERGED: "OK", Status.INVALID_INPUT: "MISSING",
+                    Status.OUT_OF_VOLUME: "OUT_OF_VIEW", Status.MAX_ITERATIONS: "INVALID",
+                    Status.AMBIGUOUS: "INVALID", Status.NOT_CONVERGED: "INVALID"}
+
+# "000".."255": a fixed width, so a block's values have one length (packed as arrays)
+_LEVELS = np.array([b"%03d" % i for i in range(256)], dtype="S3")
+
+
+def transform_status(status, distorted) -> np.ndarray:
+    """``TransformStatus`` per sample: the solver status through :data:`TRANSFORM_STATUS`,
+    and ``INVALID`` for a converged pose flagged distorted."""
+    st = np.asarray(status, dtype=np.int64)
+    out = np.full(st.shape, "INVALID", dtype="U11")
+    for code, name in TRANSFORM_STATUS.items():
+        out[st == int(code)] = name
+    out[(st == int(Status.CONVERGED)) & np.asarray(distorted, bool)] = "INVALID"
+    return out
+
+
+def distortion_level(quadrature, relative_residual, distortion_threshold: float,
+                     residual_threshold: float) -> np.ndarray:
+    """A 0-255 distortion level per sample (as Polhemus VIPER reports one per sensor), from
+    what the sample itself shows: ``round(128 * max(q / q_max, r / r_max))`` clipped to 255,
+    with q the quadrature ratio against the distortion threshold and r the solve's relative
+    residual against the solver's validity threshold (a NaN residual counts as 0). 0: clean;
+    128: at a threshold (the sample is flagged distorted or invalid from there); 255: twice a
+    threshold or more."""
+    q = np.asarray(quadrature, dtype=np.float64) / float(distortion_threshold)
+    r = np.nan_to_num(np.asarray(relative_residual, dtype=np.float64), nan=0.0)
+    x = np.fmax(q, r / float(residual_threshold))
+    return np.clip(np.rint(128.0 * np.nan_to_num(x, nan=2.0, posinf=2.0)), 0, 255).astype(
+        np.uint8)
+
+
+def transform_metadata(distorted, relative_residual, quadrature, *,
+                       distortion_threshold: float,
+                       residual_threshold: float = MAX_RELATIVE_RESIDUAL,
+                       status=None) -> dict:
+    """The metadata of N TRANSFORMs (key -> N values, as :meth:`IgtlServer.send_poses` takes
+    them). ``status``: the solver status per sample (default: all converged, as the sent
+    poses are); ``distorted``: the quadrature flag per sample; ``residual_threshold``: the
+    solver's validity threshold on the relative residual (default the solver's, 1 %)."""
+    dist = np.asarray(distorted, dtype=bool)
+    n = dist.shape[0]
+    if status is None and not dist.any():       # the usual block: every pose good
+        ts, valid = ["OK"] * n, ["true"] * n
+    else:
+        names = transform_status(np.zeros(n, np.int64) if status is None else status, dist)
+        ts = names.tolist()
+        valid = np.where(names == "OK", "true", "false").tolist()
+    level = distortion_level(quadrature, relative_residual, distortion_threshold,
+                             residual_threshold)
+    return {"TransformStatus": ts, "TransformValid": valid,
+            "RelativeResidual": np.asarray(relative_residual, dtype=np.float64),
+            "QuadratureRatio": np.asarray(quadrature, dtype=np.float64),
+            "DistortionLevel": _LEVELS[level]}
