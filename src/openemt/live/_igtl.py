@@ -583,7 +583,10 @@ class IgtlServer:
         parts, count, t_ready = [], 0, None
         for d in due:
             m, k, t = c.pending.pop(d)
-            c.due[d] = now + c.interval
+            # on a grid of the interval: a late release does not delay the next one (the
+            # rate asked is kept on average), a device idle for longer starts a new grid
+            last = c.due.get(d, 0.0)
+            c.due[d] = last + c.interval if now - last < c.interval else now + c.interval
             parts.append(m)
             count += k
             t_ready = t if t_ready is None or (t is not None and t < t_ready) else t_ready
