@@ -245,8 +245,9 @@ def run(args) -> dict:
                              "checks and packing on every call, one call per sensor)",
                      "latency_ms_p50": pct(sendb, 50), "latency_ms_p99": pct(sendb, 99)},
         "without_metadata": {
-            "what": "the first run's blocks sent as version-1 TRANSFORMs, without the Status, "
-                    "RelativeResidual and Distortion metadata (TrackingPipeline(igtl_metadata=False))",
+            "what": "the first run's blocks sent as version-1 TRANSFORMs, without the "
+                    "TransformStatus, TransformValid, RelativeResidual, QuadratureRatio and "
+                    "DistortionLevel metadata (TrackingPipeline(igtl_metadata=False))",
             "latency_ms_p50": pct(sendv1, 50), "latency_ms_p99": pct(sendv1, 99)},
         "one_frame_reads": {
             "chunk_samples": 64, "latency_ms_p50": pct(send1, 50),
@@ -408,8 +409,9 @@ def _pack_per_sample(k: int) -> dict:
     M = np.repeat(np.eye(4)[None], 10, axis=0)
     M[:, :3, 3] = [200.0, 10.0, -5.0]
     ts = time.time() + np.arange(10) / OUTPUT_RATE_HZ
-    meta = {"Status": ["OK"] * 10, "RelativeResidual": np.full(10, 1.234e-9),
-            "Distortion": np.full(10, 5.6e-6)}
+    meta = {"TransformStatus": ["OK"] * 10, "TransformValid": ["true"] * 10,
+            "RelativeResidual": np.full(10, 1.234e-9), "QuadratureRatio": np.full(10, 5.6e-6),
+            "DistortionLevel": np.full(10, b"001", dtype="S3")}
     MK = np.repeat(M[:, None], k, axis=1)
     valid = np.ones((10, k), bool)
     names = [f"S{j}" for j in range(k)]

@@ -3,7 +3,8 @@
 Poses are metres inside openemt; OpenIGTLink transforms for Slicer are in **millimetres**
 (Slicer's convention), so :meth:`IgtlServer.send_poses` scales the translation by 1000 at this
 edge and nowhere else. The message transports the 4x4 pose as float32 (about 1e-5 mm and
-1e-7 rad of rounding at 200 mm). Messages are packed by pyigtl.
+1e-7 rad of rounding at 200 mm). Messages are packed by :mod:`._igtl_wire`, byte for byte
+what pyigtl packs.
 
 The server serves any number of clients at once (several Slicer instances, a recorder) and
 
@@ -19,7 +20,15 @@ The server serves any number of clients at once (several Slicer instances, a rec
   and logged (one warning per burst, ``clients_refused``), so a connect flood cannot take the
   descriptors or the time of the clients being served;
 - drops a client whose socket has taken no byte for ``send_timeout`` seconds while data was
-  waiting (``clients_dropped``); the others are not delayed by it at all;
+  waiting (``clients_dropped``), unless a rate applies to it; the others are not delayed by
+  it at all;
+- sends each client the header version it reads: version 1 until the client sends a
+  version-2 message (``header_version="auto"``, as PLUS does), the version-1 copy of a block
+  made only when such a client is connected;
+- reads what clients send: ``GET_STATUS`` is answered with STATUS, ``STT_TDATA`` switches the
+  client to TDATA at its resolution (answered with ``RTS_TDATA``), ``STP_TDATA`` stops its
+  tracking data; with a rate (the client's or the server's ``rate``) a client gets the
+  newest message per device, never a backlog;
 - queues nothing while no client is connected, and shuts down within about ``poll`` seconds,
   leaving no thread behind.
 """
