@@ -409,7 +409,8 @@ def _pack_per_sample(k: int) -> dict:
     M = np.repeat(np.eye(4)[None], 10, axis=0)
     M[:, :3, 3] = [200.0, 10.0, -5.0]
     ts = time.time() + np.arange(10) / OUTPUT_RATE_HZ
-    meta = {"TransformStatus": ["OK"] * 10, "TransformValid": ["true"] * 10,
+    meta = {"TransformStatus": np.full(10, b"OK", "S2"),        # as the pipeline gives them
+            "TransformValid": np.full(10, b"true", "S4"),
             "RelativeResidual": np.full(10, 1.234e-9), "QuadratureRatio": np.full(10, 5.6e-6),
             "DistortionLevel": np.full(10, b"001", dtype="S3")}
     MK = np.repeat(M[:, None], k, axis=1)

@@ -56,8 +56,8 @@ def transform_metadata(distorted, relative_residual, quadrature, *,
     solver's validity threshold on the relative residual (default the solver's, 1 %)."""
     dist = np.asarray(distorted, dtype=bool)
     n = dist.shape[0]
-    if status is None and not dist.any():       # the usual block: every pose good
-        ts, valid = ["OK"] * n, ["true"] * n
+    if status is None and not dist.any():       # the usual block: every pose good, as bytes
+        ts, valid = np.full(n, b"OK", "S2"), np.full(n, b"true", "S4")   # (no encoding)
     else:
         names = transform_status(np.zeros(n, np.int64) if status is None else status, dist)
         ts = names.tolist()
