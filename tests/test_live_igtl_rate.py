@@ -205,3 +205,52 @@ def test_a_client_with_a_rate_is_not_dropped_for_not_reading():
 if __name__ == "__main__":                   # the long run: python tests/test_live_igtl_rate.py 60
     print(json.dumps(tdata_reader(float(sys.argv[1]) if len(sys.argv) > 1 else 60.0),
                      indent=1))
+
+
+def test_stt_tdata_version_2_every_sample_then_stp_tdata_stops():
+    """STT_TDATA with header version 2 and resolution 0: every sample as one TDATA (both
+    devices of a time stamp in it), the answer RTS_TDATA in version 2; STP_TDATA: answered,
+    then no tracking data, while STRING messages still arrive."""
+    class Stp(pyigtl.messages.MessageBase):
+        def __init__(self):
+            super().__init__(device_name="Tracker")
+            self._message_type, self._valid_message, self.header_version = "STP_TDATA", True, 2
+
+    def drain(sock, want):
+        data, end = b"", time.monotonic() + 5.0
+        while time.monotonic() < end and not want(decode(data)):
+            try:
+                data += sock.recv(1 << 16)
+            except TimeoutError:
+                pass
+        return decode(data)
+
+    P = np.repeat(np.eye(4)[None], 6, axis=0)
+    P[:, 1, 3] = np.arange(6) * 1e-3
+    stamps = np.array([1.0, 2.0, 3.0] * 2)
+    names = ["AToTracker"] * 3 + ["BToTracker"] * 3
+    with IgtlServer(port=0) as srv:
+        sock = socket.create_connection(("127.0.0.1", srv.port), timeout=0.2)
+        try:
+            stt = SttTdata(0)
+            stt.header_version = 2
+            sock.sendall(stt.pack())
+            (rts,) = drain(sock, lambda m: m)
+            assert (rts["type"], rts["version"]) == ("RTS_TDATA", 2)
+            assert srv.clients()[0]["stream"] == "tdata" and srv.clients()[0]["interval"] == 0
+            srv.send_poses(P, stamps, device_name=names)
+            got = drain(sock, lambda m: len(m) == 3)
+            assert [m["type"] for m in got] == ["TDATA"] * 3
+            assert [m["timestamp"] for m in got] == [1.0, 2.0, 3.0]
+            for k, m in enumerate(got):
+                assert [e[0] for e in m["tools"]] == names[::3]
+                assert [e[2][1, 3] for e in m["tools"]] == pytest.approx([k, k + 3], abs=1e-4)
+            sock.sendall(Stp().pack())
+            (rts,) = drain(sock, lambda m: m)
+            assert rts["type"] == "RTS_TDATA" and srv.clients()[0]["stream"] == "stopped"
+            srv.send_poses(P, stamps + 10, device_name=names)
+            srv.send_message(pyigtl.StringMessage("still here", device_name="Note"))
+            (note,) = drain(sock, lambda m: m)
+            assert (note["type"], note["text"]) == ("STRING", "still here")
+        finally:
+            sock.close()

@@ -418,10 +418,12 @@ class IgtlServer:
             See :meth:`send_pose`; a sequence names each message's device (the poses of
             several sensors in one call, written to each client in one piece).
         metadata : dict, optional
-            OpenIGTLink version-2 metadata of each message: key -> N values (str, or numbers
-            written as ``format(x, ".3e")``), e.g. ``{"Status": [...], "Distortion": [...]}``;
-            the messages then have header version 2 (3D Slicer shows the metadata as
-            attributes of the transform node). Without it, header version 1.
+            OpenIGTLink version-2 metadata of each message: key -> N values (str, bytes
+            arrays, or numbers written as ``format(x, ".3e")``), e.g.
+            ``{"TransformStatus": [...], "QuadratureRatio": [...]}``; the messages then have
+            header version 2 for the clients that read it (3D Slicer shows the metadata as
+            attributes of the transform node), version 1 without metadata for the others.
+            Without it, header version 1.
         """
         P = np.asarray(poses, dtype=np.float64)
         if P.ndim != 3 or P.shape[1:] != (4, 4):
