@@ -36,14 +36,15 @@ def distortion_level(quadrature, relative_residual, distortion_threshold: float,
     """A 0-255 distortion level per sample (as Polhemus VIPER reports one per sensor), from
     what the sample itself shows: ``round(128 * max(q / q_max, r / r_max))`` clipped to 255,
     with q the quadrature ratio against the distortion threshold and r the solve's relative
-    residual against the solver's validity threshold (a NaN residual counts as 0). 0: clean;
+    residual against the solver's validity threshold (a NaN residual counts as 0, a NaN
+    quadrature ratio as the worst). 0: clean;
     128: at a threshold (the sample is flagged distorted or invalid from there); 255: twice a
     threshold or more."""
-    q = np.asarray(quadrature, dtype=np.float64) / float(distortion_threshold)
+    q = np.nan_to_num(np.asarray(quadrature, dtype=np.float64), nan=np.inf,
+                      posinf=np.inf) / float(distortion_threshold)
     r = np.nan_to_num(np.asarray(relative_residual, dtype=np.float64), nan=0.0)
-    x = np.fmax(q, r / float(residual_threshold))
-    return np.clip(np.rint(128.0 * np.nan_to_num(x, nan=2.0, posinf=2.0)), 0, 255).astype(
-        np.uint8)
+    x = np.maximum(q, r / float(residual_threshold))
+    return np.clip(np.rint(128.0 * np.minimum(x, 2.0)), 0, 255).astype(np.uint8)
 
 
 def transform_metadata(distorted, relative_residual, quadrature, *,
