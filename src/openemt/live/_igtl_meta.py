@@ -4,6 +4,8 @@ PLUS reads (``TransformStatus``, ``TransformValid``) and openemt's own (``Relati
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..solve import Status
@@ -34,17 +36,25 @@ def transform_status(status, distorted) -> np.ndarray:
 def distortion_level(quadrature, relative_residual, distortion_threshold: float,
                      residual_threshold: float) -> np.ndarray:
     """A 0-255 distortion level per sample (as Polhemus VIPER reports one per sensor), from
-    what the sample itself shows: ``round(128 * max(q / q_max, r / r_max))`` clipped to 255,
-    with q the quadrature ratio against the distortion threshold and r the solve's relative
-    residual against the solver's validity threshold (a NaN residual counts as 0, a NaN
-    quadrature ratio as the worst). 0: clean;
-    128: at a threshold (the sample is flagged distorted or invalid from there); 255: twice a
-    threshold or more."""
-    q = np.nan_to_num(np.asarray(quadrature, dtype=np.float64), nan=np.inf,
-                      posinf=np.inf) / float(distortion_threshold)
-    r = np.nan_to_num(np.asarray(relative_residual, dtype=np.float64), nan=0.0)
-    x = np.maximum(q, r / float(residual_threshold))
-    return np.clip(np.rint(128.0 * np.minimum(x, 2.0)), 0, 255).astype(np.uint8)
+    what the sample itself shows: ``128 * max(q / q_max, r / r_max)`` rounded (half up) and
+    clipped to 255, with q the quadrature ratio against the distortion threshold and r the
+    solve's relative residual against the solver's validity threshold (a NaN residual counts
+    as 0, a NaN quadrature ratio as the worst). 0: clean; 128: at a threshold (the sample is
+    flagged distorted or invalid from there); 255: twice a threshold or more."""
+    # (a few whole-array operations: this runs for every block the pipeline sends)
+    q = np.asarray(quadrature, dtype=np.float64) * (1.0 / float(distortion_threshold))
+    r = np.asarray(relative_residual, dtype=np.float64) * (1.0 / float(residual_threshold))
+    x = np.maximum(q, np.fmax(r, 0.0))          # NaN where q is NaN; a NaN r counts as 0
+    return np.fmin(x * 128.0 + 0.5, 255.0).astype(np.uint8)   # NaN -> fmin -> 255
+
+
+@functools.lru_cache(maxsize=64)
+def _all_ok(n: int) -> tuple:
+    """``TransformStatus`` and ``TransformValid`` of n good poses, as read-only bytes arrays
+    (no encoding per value when packed)."""
+    ok, true = np.full(n, b"OK", "S2"), np.full(n, b"true", "S4")
+    ok.flags.writeable = true.flags.writeable = False
+    return ok, true
 
 
 def transform_metadata(distorted, relative_residual, quadrature, *,
@@ -58,7 +68,7 @@ def transform_metadata(distorted, relative_residual, quadrature, *,
     dist = np.asarray(distorted, dtype=bool)
     n = dist.shape[0]
     if status is None and not dist.any():       # the usual block: every pose good, as bytes
-        ts, valid = np.full(n, b"OK", "S2"), np.full(n, b"true", "S4")   # (no encoding)
+        ts, valid = _all_ok(n)
     else:
         names = transform_status(np.zeros(n, np.int64) if status is None else status, dist)
         ts = names.tolist()
