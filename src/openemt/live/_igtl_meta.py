@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+from numba import njit
 
 from ..solve import Status
 from ..solve._validity import MAX_RELATIVE_RESIDUAL
@@ -41,11 +42,25 @@ def distortion_level(quadrature, relative_residual, distortion_threshold: float,
     solve's relative residual against the solver's validity threshold (a NaN residual counts
     as 0, a NaN quadrature ratio as the worst). 0: clean; 128: at a threshold (the sample is
     flagged distorted or invalid from there); 255: twice a threshold or more."""
-    # (a few whole-array operations: this runs for every block the pipeline sends)
-    q = np.asarray(quadrature, dtype=np.float64) * (1.0 / float(distortion_threshold))
-    r = np.asarray(relative_residual, dtype=np.float64) * (1.0 / float(residual_threshold))
-    x = np.maximum(q, np.fmax(r, 0.0))          # NaN where q is NaN; a NaN r counts as 0
-    return np.fmin(x * 128.0 + 0.5, 255.0).astype(np.uint8)   # NaN -> fmin -> 255
+    q = np.ascontiguousarray(quadrature, dtype=np.float64)
+    r = np.ascontiguousarray(relative_residual, dtype=np.float64)
+    out = np.empty(q.shape[0], np.uint8)
+    _levels(q, r, 128.0 / float(distortion_threshold), 128.0 / float(residual_threshold), out)
+    return out
+
+
+@njit(cache=True)
+def _levels(q, r, qs, rs, out):
+    """The level of each sample in one compiled loop (this runs for every block sent)."""
+    for i in range(q.shape[0]):
+        x = q[i] * qs
+        y = r[i] * rs
+        if y > x:                      # a NaN residual never wins: it counts as 0
+            x = y
+        if not x < 255.0:              # also a NaN quadrature ratio: the worst
+            out[i] = 255
+        else:
+            out[i] = np.uint8(x + 0.5) if x > 0.0 else 0
 
 
 @functools.lru_cache(maxsize=64)
