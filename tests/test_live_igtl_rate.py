@@ -76,10 +76,10 @@ def tdata_reader(seconds: float, rate_hz: float = 20.0) -> dict:
         sock = socket.create_connection(("127.0.0.1", srv.port), timeout=5.0)
         try:
             assert srv.wait_for_client(5.0)
-            feed.start()
             sock.sendall(SttTdata(round(1000 / rate_hz)).pack())
             first = _read_one(sock)
             assert first["type"] == "RTS_TDATA", first
+            feed.start()                                   # after: no TRANSFORM before it
             assert _read_one(sock)["type"] == "TDATA"      # the first (after any warm-up)
             ages, backlog, n_tools = [], [], set()
             start = time.monotonic()
