@@ -9,6 +9,7 @@ import struct
 import threading
 
 import numpy as np
+import pyigtl
 
 HEADER = struct.Struct(">H12s20sIIQQ")
 
@@ -66,12 +67,48 @@ def tdata_tools(content: bytes) -> list:
     return tools
 
 
-class RawReader:
-    """A TCP client that keeps every byte a server sends (decoded by :func:`decode`)."""
+class GetStatus(pyigtl.messages.MessageBase):
+    """A GET_STATUS message (empty content), packed by pyigtl: with header version 2, what a
+    client sends to announce that it reads version-2 messages (the server answers STATUS)."""
 
-    def __init__(self, port):
+    def __init__(self, header_version=2):
+        super().__init__(device_name="Hello")
+        self._message_type = "GET_STATUS"
+        self._valid_message = True
+        self.header_version = header_version
+
+
+def get_status(header_version: int = 2) -> bytes:
+    return GetStatus(header_version).pack()
+
+
+class RawReader:
+    """A TCP client that keeps every byte a server sends (decoded by :func:`decode`).
+
+    ``announce=True``: it first sends a version-2 GET_STATUS and waits for the STATUS answer;
+    ``data`` then holds only what came after the answer (all sent as to a version-2 client)."""
+
+    def __init__(self, port, announce=False):
         self.sock = socket.create_connection(("127.0.0.1", port), timeout=5.0)
         self.data = bytearray()
+        if announce:
+            self.sock.sendall(get_status(2))
+            buf = b""
+            while True:
+                b = self.sock.recv(1 << 16)
+                assert b, "the server closed the connection before answering GET_STATUS"
+                buf += b
+                msgs, o = [], 0
+                while o + 58 <= len(buf):
+                    size = HEADER.unpack_from(buf, o)[5]
+                    if o + 58 + size > len(buf):
+                        break
+                    msgs.append((buf[o + 2:o + 14].rstrip(b"\0"), o + 58 + size))
+                    o += 58 + size
+                ends = [e for t, e in msgs if t == b"STATUS"]
+                if ends:
+                    self.data += buf[ends[0]:]
+                    break
         self._done = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()

@@ -1,7 +1,9 @@
 """A pyigtl client polling some devices on its own thread, as a viewer such as 3D Slicer would,
 keeping every new message: ``got[device]`` lists ``(timestamp, matrix)`` for TRANSFORMs and
 ``(timestamp, text)`` for STRING messages, or with ``whole=True`` every message object as it
-arrived (metadata included)."""
+arrived (metadata included). ``announce=True``: it sends a version-2 GET_STATUS first, as a
+client that reads version-2 messages does (the server answers with STATUS, which pyigtl does
+not decode, and sends version 2 from then on)."""
 
 from __future__ import annotations
 
@@ -12,8 +14,12 @@ import pyigtl
 
 
 class Listener:
-    def __init__(self, port, devices, whole=False):
+    def __init__(self, port, devices, whole=False, announce=False):
         self.client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port)
+        if announce:
+            from _igtl_decode import GetStatus
+
+            self.client.send_message(GetStatus(2), wait=False)
         self.devices = devices
         self.whole = whole
         self.got = {d: [] for d in devices}

@@ -233,3 +233,73 @@ def test_block_packing_equals_pyigtl_byte_for_byte():
                         for m, t in zip(P, ts))
         assert pack_transforms(P, ts, name) == want
     assert pack_transforms(np.empty((0, 4, 4)), [], "S") == b""
+
+
+def test_client_messages_negotiate_and_bad_input_is_survived(server):
+    """A version-1 client gets version-1 TRANSFORMs (no metadata) until it sends a version-2
+    message; a wrong CRC is ignored and counted, an oversized body skipped unread, and the
+    client is still served."""
+    import struct
+
+    from _igtl_decode import HEADER, decode, get_status
+
+    sock = socket.create_connection(("127.0.0.1", server.port))
+    try:
+        assert server.wait_for_client(3.0)
+        meta = {"TransformStatus": ["OK"], "QuadratureRatio": np.array([1e-5])}
+        got = b""
+        sock.settimeout(3.0)
+        server.send_poses(np.eye(4)[None], [5.0], metadata=meta)
+        while len(got) < 106:
+            got += sock.recv(1 << 16)
+        (m,) = decode(got)
+        assert m["version"] == 1 and m["metadata"] == {} and m["timestamp"] == 5.0
+        bad = bytearray(get_status(2))
+        bad[50] ^= 0xFF                                   # the CRC
+        huge = HEADER.pack(2, b"GET_STATUS", b"x", 0, 0, 2 ** 62, 0)
+        sock.sendall(bytes(bad) + huge + b"\0" * 1000)    # the body never comes
+        assert _wait(lambda: server.stats()["bad_crc"] == 1)
+        assert server.clients()[0]["header_version"] == 1
+        server.send_poses(np.eye(4)[None], [6.0], metadata=meta)
+        got = b""
+        while len(got) < 106:
+            got += sock.recv(1 << 16)
+        assert decode(got)[0]["version"] == 1
+    finally:
+        sock.close()
+    sock = socket.create_connection(("127.0.0.1", server.port))   # a fresh client announces
+    try:
+        sock.sendall(get_status(2))
+        sock.settimeout(3.0)
+        got = b""
+        while not any(m["type"] == "STATUS" for m in decode(got)):
+            got += sock.recv(1 << 16)
+        (status,) = decode(got)
+        assert status["version"] == 2
+        code, subcode = struct.unpack_from(">Hq", got, 58 + 12)
+        assert (code, subcode) == (1, 0)
+        assert server.clients()[-1]["header_version"] == 2
+        server.send_poses(np.eye(4)[None], [7.0], metadata=meta)
+        got = b""
+        while not decode(got):
+            got += sock.recv(1 << 16)
+        (m,) = decode(got)
+        assert m["version"] == 2 and m["metadata"]["TransformStatus"] == "OK"
+    finally:
+        sock.close()
+
+
+def test_header_version_and_rate_arguments():
+    with pytest.raises(ValueError, match="header_version"):
+        IgtlServer(port=0, header_version=3)
+    for bad in (0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="rate"):
+            IgtlServer(port=0, rate=bad)
+    with IgtlServer(port=0, header_version="2", rate=50) as srv:
+        assert srv.header_version == 2 and srv.rate == 50.0
+        sock = socket.create_connection(("127.0.0.1", srv.port))
+        try:
+            assert srv.wait_for_client(3.0, header_version=2)
+            assert srv.clients()[0]["interval"] == pytest.approx(0.02)
+        finally:
+            sock.close()

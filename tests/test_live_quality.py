@@ -92,7 +92,8 @@ def test_track_sim_stream_carries_metadata_and_relative_poses(tmp_path, capsys):
 
     port = _free_port()
     devices = ["ProbeToTracker", "ReferenceToTracker", "ProbeToReference"]
-    viewer = Listener(port, devices + [state_device_name("ProbeToTracker")], whole=True)
+    viewer = Listener(port, devices + [state_device_name("ProbeToTracker")], whole=True,
+                      announce=True)
     try:
         code = cli_mod.main(["track", "--tracker", str(example_tracker("simulated-2")),
                              "--source", "sim", "--duration", "1.0", "--igtl-port", str(port),
@@ -106,12 +107,24 @@ def test_track_sim_stream_carries_metadata_and_relative_poses(tmp_path, capsys):
     assert d["events"]["tracking"] == 2 and d["events"]["lost"] == 0
     for dev in devices:
         got = viewer.got[dev]
+        # the viewer announced version 2 on connect; the server may have sent a block before
+        # it read the announcement (version 1, no metadata), never after
+        first = [m.header_version for m in got].index(2)
+        assert all(m.header_version == 1 and not m.metadata for m in got[:first])
+        got = got[first:]
         assert len(got) >= 5, (dev, len(got))
         for m in got:
             assert m.header_version == 2
-            assert m.metadata["Status"] == "OK"
+            assert m.metadata["TransformStatus"] == "OK"
+            assert m.metadata["TransformValid"] == "true"
             assert 0 <= float(m.metadata["RelativeResidual"]) < 1e-3
-            assert 0 <= float(m.metadata["Distortion"]) < 1e-3      # the default threshold
+            assert 0 <= float(m.metadata["QuadratureRatio"]) < 1e-3      # the default threshold
+            level = int(m.metadata["DistortionLevel"])
+            assert level == min(255, round(128 * max(
+                float(m.metadata["QuadratureRatio"]) / 1e-3,
+                float(m.metadata["RelativeResidual"]) / 1e-2))) or abs(level - round(128 * max(
+                    float(m.metadata["QuadratureRatio"]) / 1e-3,
+                    float(m.metadata["RelativeResidual"]) / 1e-2))) <= 1   # values to 4 digits
     state = viewer.got["ProbeState"]            # <From>State: whole names within 20 bytes
     assert [m.string for m in state] == ["TRACKING ProbeToTracker"]   # once, not per frame
 
@@ -121,7 +134,7 @@ def _two_sensor_run(tdata, duration=0.2, **kw):
     backend = tracker_backend(spec, "sim", realtime=False, duration=duration)
     log = TrackLog()
     with IgtlServer(port=0, max_queue=4096) as srv:
-        reader = RawReader(srv.port)
+        reader = RawReader(srv.port, announce=not tdata)    # a version-2 client for metadata
         try:
             assert srv.wait_for_client(5.0)
             s = TrackingPipeline(backend, sensors=tracker_sensors(spec), igtl=srv, log=log,
@@ -147,7 +160,7 @@ def test_tool_to_reference_is_inv_reference_at_tool():
         np.testing.assert_allclose(rel[t][:3, :3], want[:3, :3], atol=1e-5)
         np.testing.assert_allclose(rel[t][:3, 3], want[:3, 3], atol=1e-3)       # mm, float32
     # RelativeResidual is ||C_model(pose) - C||_F / ||C||_F of the sent pose; a relative
-    # stream carries the larger of its two sensors' (and so does its Distortion)
+    # stream carries the larger of its two sensors' (and so does its QuadratureRatio)
     spec = read_tracker(example_tracker("simulated-2"))
     model = tracker_sensors(spec)[0].model
     meta = {m["device"]: {} for m in msgs}
@@ -162,11 +175,11 @@ def test_tool_to_reference_is_inv_reference_at_tool():
     np.testing.assert_allclose(got, want, rtol=2e-3)
     for k, t in enumerate(common):
         r = meta["ProbeToReference"][t]
-        assert r["Status"] == "OK"
+        assert r["TransformStatus"] == "OK" and r["TransformValid"] == "true"
         assert float(r["RelativeResidual"]) == max(
             float(meta["ProbeToTracker"][t]["RelativeResidual"]),
             float(meta["ReferenceToTracker"][t]["RelativeResidual"]))
-        assert float(r["Distortion"]) == pytest.approx(max(a["distortion"][k],
+        assert float(r["QuadratureRatio"]) == pytest.approx(max(a["distortion"][k],
                                                            b["distortion"][k]), rel=1e-3)
     # and against the simulated truth: the probe rides 30 mm in x and 50 mm in z below it
     t = np.array(common) - backend.t0_epoch

@@ -48,7 +48,9 @@ PLANAR_KERNELS = (
 LIVE_KERNELS = (
     "openemt.solve._lm:lm_track",
     "openemt.live._filter:_kalman_kernel",
-    "openemt.live._igtl:_pack_kernel",
+    "openemt.live._igtl_wire:_pack_kernel",
+    "openemt.live._igtl_wire:_frame_kernel",
+    "openemt.live._igtl_meta:_levels",
 )
 
 

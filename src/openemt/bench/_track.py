@@ -110,9 +110,19 @@ def add_arguments(parser) -> None:
 
 # The viewer: a pyigtl client in its own process (as 3D Slicer would be), so that its polling
 # thread does not compete with the pipeline for this interpreter.
+# a client that reads version-2 messages says so with a version-2 message (here GET_STATUS)
+_HELLO = """
+class Hello(pyigtl.messages.MessageBase):
+    def __init__(self):
+        super().__init__(device_name="bench")
+        self._message_type, self._valid_message, self.header_version = "GET_STATUS", True, 2
+c.send_message(Hello(), wait=False)
+"""
+
 _CLIENT = """
 import sys, time, pyigtl
 c = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=int(sys.argv[1]))
+""" + _HELLO + """
 end, seen = time.time() + float(sys.argv[2]), 0
 names = sys.argv[3].split(",")
 while time.time() < end:
@@ -181,9 +191,9 @@ def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
                                    str(seconds * 20 + 30), ",".join(names)],
                                   stdout=subprocess.DEVNULL)
         try:
-            if not srv.wait_for_client(30.0):
-                raise OSError("expected a loopback OpenIGTLink client to connect, got none in "
-                              "30 s")
+            if not srv.wait_for_client(30.0, header_version=2):
+                raise OSError("expected a loopback OpenIGTLink client to connect and announce "
+                              "header version 2, got none in 30 s")
             session.backend.restart_clock()
             t0 = time.perf_counter()
             s = session.run().summary
@@ -240,7 +250,8 @@ def run(args) -> dict:
                      "latency_ms_p50": pct(sendb, 50), "latency_ms_p99": pct(sendb, 99)},
         "without_metadata": {
             "what": "the first run's blocks sent as version-1 TRANSFORMs, without the "
-                    "per-pose metadata (openemt track --no-metadata)",
+                    "TransformStatus, TransformValid, RelativeResidual, QuadratureRatio and "
+                    "DistortionLevel metadata (openemt track --no-metadata)",
             "latency_ms_p50": pct(sendv1, 50), "latency_ms_p99": pct(sendv1, 99)},
         "one_frame_reads": {
             "chunk_samples": 64, "latency_ms_p50": pct(send1, 50),
@@ -321,6 +332,7 @@ for name, cls in (("TRANSFORM", M.TransformMessage), ("STRING", M.StringMessage)
                   ("TDATA", TData)):
     M.message_type_to_class_constructor[name] = counted(cls)
 c = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=int(sys.argv[1]))
+""" + _HELLO + """
 end = time.time() + float(sys.argv[2])
 while time.time() < end and ("STRING", "benchEnd") not in counts:
     time.sleep(0.02)
@@ -347,9 +359,9 @@ def _many_tools(preset, k: int, seconds: float, seed: int) -> dict:
             client = subprocess.Popen([sys.executable, "-c", _COUNTER, str(srv.port),
                                        str(seconds + 60)], stdout=subprocess.PIPE, text=True)
             try:
-                if not srv.wait_for_client(30.0):
-                    raise OSError("expected a loopback OpenIGTLink client to connect, got "
-                                  "none in 30 s")
+                if not srv.wait_for_client(30.0, header_version=2):
+                    raise OSError("expected a loopback OpenIGTLink client to connect and "
+                                  "announce header version 2, got none in 30 s")
                 session.backend.restart_clock()
                 t0 = time.perf_counter()
                 s = session.run().summary
@@ -397,8 +409,10 @@ def _pack_per_sample(k: int) -> dict:
     M = np.repeat(np.eye(4)[None], 10, axis=0)
     M[:, :3, 3] = [200.0, 10.0, -5.0]
     ts = time.time() + np.arange(10) / OUTPUT_RATE_HZ
-    meta = {"Status": ["OK"] * 10, "RelativeResidual": np.full(10, 1.234e-9),
-            "Distortion": np.full(10, 5.6e-6)}
+    meta = {"TransformStatus": np.full(10, b"OK", "S2"),        # as the pipeline gives them
+            "TransformValid": np.full(10, b"true", "S4"),
+            "RelativeResidual": np.full(10, 1.234e-9), "QuadratureRatio": np.full(10, 5.6e-6),
+            "DistortionLevel": np.full(10, b"001", dtype="S3")}
     MK = np.repeat(M[:, None], k, axis=1)
     valid = np.ones((10, k), bool)
     names = [f"S{j}" for j in range(k)]

@@ -3,7 +3,8 @@
 Poses are metres inside openemt; OpenIGTLink transforms for Slicer are in **millimetres**
 (Slicer's convention), so :meth:`IgtlServer.send_poses` scales the translation by 1000 at this
 edge and nowhere else. The message transports the 4x4 pose as float32 (about 1e-5 mm and
-1e-7 rad of rounding at 200 mm). Messages are packed by pyigtl.
+1e-7 rad of rounding at 200 mm). Messages are packed by :mod:`._igtl_wire`, byte for byte
+what pyigtl packs.
 
 The server serves any number of clients at once (several Slicer instances, a recorder) and
 
@@ -19,7 +20,15 @@ The server serves any number of clients at once (several Slicer instances, a rec
   and logged (one warning per burst, ``clients_refused``), so a connect flood cannot take the
   descriptors or the time of the clients being served;
 - drops a client whose socket has taken no byte for ``send_timeout`` seconds while data was
-  waiting (``clients_dropped``); the others are not delayed by it at all;
+  waiting (``clients_dropped``), unless a rate applies to it; the others are not delayed by
+  it at all;
+- sends each client the header version it reads: version 1 until the client sends a
+  version-2 message (``header_version="auto"``, as PLUS does), the version-1 copy of a block
+  made only when such a client is connected;
+- reads what clients send: ``GET_STATUS`` is answered with STATUS, ``STT_TDATA`` switches the
+  client to TDATA at its resolution (answered with ``RTS_TDATA``), ``STP_TDATA`` stops its
+  tracking data; with a rate (the client's or the server's ``rate``) a client gets the
+  newest message per device, never a backlog;
 - queues nothing while no client is connected, and shuts down within about ``poll`` seconds,
   leaving no thread behind.
 """
@@ -27,7 +36,6 @@ The server serves any number of clients at once (several Slicer instances, a rec
 from __future__ import annotations
 
 import collections
-import functools
 import logging
 import selectors
 import socket
@@ -37,284 +45,30 @@ import time
 
 import numpy as np
 import pyigtl
-from numba import njit
 
 from .._errors import InputError
+from ._igtl_wire import (  # noqa: F401 - _VECTOR_BODIES, _metadata_columns: used by the tests
+    _EXT_HEADER,
+    _HEADER,
+    _VECTOR_BODIES,
+    _crc64_small,
+    _metadata_columns,
+    _split,
+    frame_messages,
+    pack_message,
+    pack_transforms,
+    status_content,
+    to_version_1,
+    transform_bodies,
+)
 
-__all__ = ["DEFAULT_IGTL_PORT", "IgtlServer", "frame_messages", "pack_transforms",
-           "transform_bodies"]
+__all__ = ["DEFAULT_IGTL_PORT", "IgtlServer", "frame_messages", "pack_message",
+           "pack_transforms", "status_content", "to_version_1", "transform_bodies"]
 
 #: The OpenIGTLink port 3D Slicer's client connector uses by default.
 DEFAULT_IGTL_PORT = 18944
 
 logger = logging.getLogger(__name__)
-
-
-# An OpenIGTLink version-1 TRANSFORM message: a 58-byte header (version, type, device name,
-# timestamp as seconds and 2^-32 fractions, body size, CRC-64 of the body) and a 48-byte body
-# (the upper 3x4 of the matrix column by column, big-endian float32) -- the bytes pyigtl packs.
-_MSG = 58 + 48
-
-
-def _crc64_table() -> np.ndarray:
-    """Table of the CRC-64 of OpenIGTLink (ECMA-182 polynomial, MSB first, no reflection)."""
-    poly, top, mask = 0x42F0E1EBA9EA3693, 1 << 63, (1 << 64) - 1
-    table = np.zeros(256, np.uint64)
-    for i in range(256):
-        c = i << 56
-        for _ in range(8):
-            c = ((c << 1) ^ poly) & mask if c & top else (c << 1) & mask
-        table[i] = c
-    return table
-
-
-_CRC_TABLE = _crc64_table()
-
-
-def _fraction_bases() -> np.ndarray:
-    """The halving bases of OpenIGTLink's nanoseconds -> 2^-32 fraction conversion."""
-    out, base = [], 1_000_000_000
-    for _ in range(32):
-        base = (base + 1) >> 1
-        out.append(base)
-    return np.array(out, dtype=np.int64)
-
-
-_FRAC_BASES = _fraction_bases()
-
-
-@njit(cache=True, inline="always")
-def _put_stamp(out, o, sec, ns, bases):
-    """The header's time stamp at ``out[o + 34:o + 42]``: seconds and 2^-32 fractions."""
-    frac = np.uint64(0)
-    for b in range(32):
-        if ns >= bases[b]:
-            frac |= np.uint64(1) << np.uint64(31 - b)
-            ns -= bases[b]
-    s = np.uint64(sec)
-    for i in range(4):
-        out[o + 34 + i] = (s >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
-        out[o + 38 + i] = (frac >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
-
-
-@njit(cache=True)
-def _pack_kernel(M, sec, nanosec, device, table, bases, out):
-    f = np.empty(12, np.float32)
-    u = f.view(np.uint32)
-    for k in range(M.shape[0]):
-        o = k * 106
-        out[o] = 0
-        out[o + 1] = 1                                   # version 1
-        name = "TRANSFORM"
-        for i in range(12):
-            out[o + 2 + i] = ord(name[i]) if i < 9 else 0
-        for i in range(20):
-            out[o + 14 + i] = device[i]
-        _put_stamp(out, o, sec[k], nanosec[k], bases)
-        for i in range(8):
-            out[o + 42 + i] = 48 if i == 7 else 0          # body size
-        for c in range(4):
-            for r in range(3):
-                f[3 * c + r] = M[k, r, c]
-        crc = np.uint64(0)
-        for i in range(12):
-            w = u[i]
-            for j in range(4):
-                byte = (w >> np.uint32(8 * (3 - j))) & np.uint32(0xFF)
-                out[o + 58 + 4 * i + j] = byte
-                idx = ((crc >> np.uint64(56)) ^ np.uint64(byte)) & np.uint64(0xFF)
-                crc = table[idx] ^ (crc << np.uint64(8))
-        for i in range(8):
-            out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
-
-
-@njit(cache=True)
-def _frame_kernel(body, offsets, version, tname, devices, sec, nanosec, table, bases, out):
-    """Frame message bodies: message k is ``body[offsets[k]:offsets[k + 1]]`` behind a
-    58-byte header (``version``, type ``tname``, device ``devices[k]`` or ``devices[0]``,
-    time stamp, body size, CRC-64 of the body)."""
-    o = 0
-    for k in range(offsets.shape[0] - 1):
-        b0, b1 = offsets[k], offsets[k + 1]
-        out[o] = (version >> 8) & 0xFF
-        out[o + 1] = version & 0xFF
-        for i in range(12):
-            out[o + 2 + i] = tname[i]
-        d = k if devices.shape[0] > 1 else 0
-        for i in range(20):
-            out[o + 14 + i] = devices[d, i]
-        _put_stamp(out, o, sec[k], nanosec[k], bases)
-        size = np.uint64(b1 - b0)
-        for i in range(8):
-            out[o + 42 + i] = (size >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
-        crc = np.uint64(0)
-        for j in range(b1 - b0):
-            byte = body[b0 + j]
-            out[o + 58 + j] = byte
-            idx = ((crc >> np.uint64(56)) ^ np.uint64(byte)) & np.uint64(0xFF)
-            crc = table[idx] ^ (crc << np.uint64(8))
-        for i in range(8):
-            out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
-        o += 58 + (b1 - b0)
-
-
-@functools.lru_cache(maxsize=1024)
-def _name_bytes(name: str, size: int) -> np.ndarray:
-    out = np.zeros(size, np.uint8)
-    raw = name.encode("ascii")[:size]
-    out[:len(raw)] = np.frombuffer(raw, np.uint8)
-    return out
-
-
-def frame_messages(bodies, offsets, message_type: str, device_names, timestamps, *,
-                   header_version: int = 1) -> bytes:
-    """Put OpenIGTLink headers in front of N message bodies, byte for byte what pyigtl's
-    ``pack`` writes (a compiled loop: header, time stamp, CRC-64 of each body).
-
-    Parameters
-    ----------
-    bodies : bytes
-        The N bodies one after the other (with a version-2 header: extended header, content,
-        metadata).
-    offsets : array of N + 1 ints
-        Body k is ``bodies[offsets[k]:offsets[k + 1]]``.
-    message_type : str
-        E.g. ``"TRANSFORM"`` or ``"TDATA"`` (at most 12 ASCII characters).
-    device_names : str or sequence of N str
-        One device name (1-20 ASCII characters) for all messages, or one per message.
-    timestamps : array of N floats
-        Seconds since the epoch, in [0, 2**32).
-    header_version : int
-        1 (OpenIGTLink 1 and 2) or 2 (OpenIGTLink 3: extended header and metadata in the body).
-    """
-    off = np.asarray(offsets, dtype=np.int64)
-    ts = np.asarray(timestamps, dtype=np.float64)
-    if ts.shape != (off.size - 1,):
-        raise InputError(f"expected {off.size - 1} timestamps, got {ts.shape}")
-    if isinstance(device_names, str):
-        dev = _name_bytes(device_names, 20)[None]
-    else:
-        names = list(device_names)
-        dev = (np.frombuffer(b"".join([_name_bytes(n, 20).tobytes() for n in names]),
-                             np.uint8).reshape(len(names), 20) if names
-               else np.zeros((1, 20), np.uint8))
-    sec = np.trunc(ts)
-    body = np.frombuffer(bodies, np.uint8) if len(bodies) else np.zeros(1, np.uint8)
-    out = np.empty(58 * ts.size + int(off[-1] - off[0]) if ts.size else 0, np.uint8)
-    _frame_kernel(body, off - off[0], int(header_version), _name_bytes(message_type, 12), dev,
-                  sec.astype(np.int64), ((ts - sec) * 1e9).astype(np.int64), _CRC_TABLE,
-                  _FRAC_BASES, out)
-    return out.tobytes()
-
-
-_EXT_HEADER = struct.Struct(">HHII")          # extended header: size, metadata sizes, id
-_META_ENTRY = struct.Struct(">HHI")           # metadata index: key size, encoding, value size
-_ASCII = 3                                    # IANA US-ASCII, the encoding pyigtl writes
-
-
-def _metadata_columns(metadata, n: int) -> tuple:
-    """``metadata`` (key -> N values) as ASCII keys and, per key, N ASCII values; numbers are
-    written as ``format(x, ".3e")``."""
-    keys, cols = [], []
-    for key, values in metadata.items():
-        vals = values.tolist() if isinstance(values, np.ndarray) else list(values)
-        if len(vals) != n:
-            raise InputError(f"expected {n} values of metadata {key!r}, got {len(vals)}")
-        keys.append(key.encode("ascii"))
-        if isinstance(values, np.ndarray) and values.dtype.kind in "fiu":
-            cols.append([b"%.3e" % v for v in vals])           # one kind: no test per value
-        else:
-            cols.append([(v if isinstance(v, str) else format(v, ".3e")).encode("ascii")
-                         for v in vals])
-    return keys, cols
-
-
-@functools.lru_cache(maxsize=256)
-def _v2_head(key_sizes: tuple, lens: tuple) -> tuple:
-    """Extended header, metadata index and body size of a version-2 TRANSFORM whose metadata
-    keys and values have these byte lengths."""
-    index = struct.pack(">H", len(key_sizes)) + b"".join(
-        _META_ENTRY.pack(k, _ASCII, v) for k, v in zip(key_sizes, lens))
-    ext = _EXT_HEADER.pack(12, len(index), sum(key_sizes) + sum(lens), 0)
-    return ext, index, 60 + len(index) + sum(key_sizes) + sum(lens)
-
-
-#: Fewest messages whose version-2 bodies are built with array operations (measured: 1 message
-#: 17 us as arrays, 8 us joined; about equal at 6).
-_VECTOR_BODIES = 6
-
-
-def transform_bodies(matrices, metadata=None) -> tuple:
-    """TRANSFORM message bodies and their offsets (see :func:`frame_messages`): the 3x4 matrix
-    as big-endian float32 column by column; with ``metadata`` (key -> one value per message,
-    str or number) in the version-2 layout: extended header, matrix, metadata index, keys and
-    values."""
-    M = np.asarray(matrices, dtype=np.float64)
-    n = len(M)
-    content = np.ascontiguousarray(M[:, :3, :].transpose(0, 2, 1)).reshape(n, 12)
-    content = content.astype(">f4").tobytes()
-    if metadata is None:
-        return content, 48 * np.arange(n + 1)
-    keys, cols = _metadata_columns(metadata, n)
-    key_sizes = tuple(len(k) for k in keys)
-
-    lens0 = tuple(len(c[0]) for c in cols) if n else ()
-    if n >= _VECTOR_BODIES and all(len(v) == w for c, w in zip(cols, lens0) for v in c):
-        # the usual case of a block, every value of a key as long (e.g. all "OK"): one array
-        # operation per part of the body instead of a loop over the messages (below a few
-        # messages, the loop's byte joins cost less than the arrays: one sample per read)
-        ext, index, size = _v2_head(key_sizes, lens0)
-        body = np.empty((n, size), np.uint8)
-        body[:, :12] = np.frombuffer(ext, np.uint8)
-        body[:, 12:60] = np.frombuffer(content, np.uint8).reshape(n, 48)
-        o = 60 + len(index)
-        body[:, 60:o] = np.frombuffer(index, np.uint8)
-        for k, c, w in zip(keys, cols, lens0):
-            body[:, o:o + len(k)] = np.frombuffer(k, np.uint8)
-            o += len(k)
-            body[:, o:o + w] = np.frombuffer(b"".join(c), np.uint8).reshape(n, w)
-            o += w
-        return body.tobytes(), size * np.arange(n + 1)
-    parts, offsets = [], [0]
-    for i, vals in enumerate(zip(*cols)):
-        h = _v2_head(key_sizes, tuple(map(len, vals)))
-        parts += [h[0], content[48 * i:48 * i + 48], h[1]]
-        for k, v in zip(keys, vals):
-            parts += [k, v]
-        offsets.append(offsets[-1] + h[2])
-    return b"".join(parts), offsets
-
-
-def pack_transforms(matrices, timestamps, device_name: str, metadata=None) -> bytes:
-    """Pack N TRANSFORM messages at once, byte for byte what pyigtl's
-    ``TransformMessage.pack`` gives, in a compiled loop (a block of poses costs about as much
-    as one pyigtl message).
-
-    Parameters
-    ----------
-    matrices : ndarray, shape (N, 4, 4)
-        Transforms as sent (the caller scales metres to millimetres).
-    timestamps : array of N floats
-        Seconds since the epoch, in [0, 2**32).
-    device_name : str
-        1-20 ASCII characters.
-    metadata : dict, optional
-        OpenIGTLink version-2 metadata, key -> N values (str, or numbers written as
-        ``format(x, ".3e")``): the messages then have header version 2 (as pyigtl's with
-        ``header_version = 2`` and the same ``metadata`` dict); without it, version 1.
-    """
-    if metadata is not None:
-        body, off = transform_bodies(matrices, metadata)
-        return frame_messages(body, off, "TRANSFORM", device_name, timestamps,
-                              header_version=2)
-    M = np.ascontiguousarray(matrices, dtype=np.float64)
-    ts = np.asarray(timestamps, dtype=np.float64)
-    sec = np.trunc(ts)
-    dev = _name_bytes(device_name, 20)
-    out = np.empty(M.shape[0] * _MSG, np.uint8)
-    _pack_kernel(M, sec.astype(np.int64), ((ts - sec) * 1e9).astype(np.int64), dev,
-                 _CRC_TABLE, _FRAC_BASES, out)
-    return out.tobytes()
 
 
 def _check_device_name(name) -> str:
@@ -323,12 +77,105 @@ def _check_device_name(name) -> str:
     return name
 
 
+#: Largest body of a client's message that is read (larger ones are skipped unread).
+_MAX_CLIENT_BODY = 1 << 16
+
+
+class _Block:
+    """What one send call queues: ``data`` (the messages as packed), their ``count``, whether
+    they are tracking data (``stream``: TRANSFORM / TDATA, thinned by a rate) and the header
+    version of the newest message in them; the version-1 copy, the per-device split and the
+    TDATA form are made on demand (only for a client that needs them) and kept."""
+
+    __slots__ = ("_parts", "_tdata", "_v1", "count", "data", "poses", "stream", "t_ready",
+                 "version")
+
+    def __init__(self, data, count, t_ready, *, stream, version=1, poses=None):
+        self.data, self.count, self.t_ready = data, count, t_ready
+        self.stream, self.version, self.poses = stream, version, poses
+        self._v1 = self._parts = self._tdata = None
+
+    def encoded(self, version: int) -> bytes:
+        if version >= self.version:
+            return self.data
+        if self._v1 is None:
+            M, stamps, names = self.poses if self.poses is not None else (None,) * 3
+            if M is not None and np.all(np.isfinite(M)) and np.all(stamps >= 0) and \
+                    np.all(stamps < 2.0 ** 32):
+                # packed again from the poses, by the kernel the version-2 block used
+                body, off = transform_bodies(M)
+                self._v1 = frame_messages(body, off, "TRANSFORM", names, stamps)
+            else:
+                self._v1 = to_version_1(self.data)
+        return self._v1
+
+    def newest(self, version: int) -> dict:
+        """device name -> (its newest message in this block, messages of it in the block)."""
+        if self._parts is None:
+            self._parts = {}
+        parts = self._parts.get(version)
+        if parts is None:
+            data = self.encoded(version)
+            buf, starts, n = _split(data)
+            parts = {}
+            for k in range(n):
+                s, e = int(starts[k]), int(starts[k + 1])
+                dev = data[s + 14:s + 34]
+                got = parts.get(dev)
+                parts[dev] = (data[s:e], 1 if got is None else got[1] + 1)
+            self._parts[version] = parts
+        return parts
+
+    def tdata(self, device: str, newest: bool) -> list:
+        """The block as TDATA messages on ``device`` (one per time stamp, every device of that
+        time stamp as a tool), or only the newest one: ``[(bytes, count)]``."""
+        key = (device, newest)
+        if self._tdata is None:
+            self._tdata = {}
+        if key in self._tdata:
+            return self._tdata[key]
+        out = []
+        if self.poses is None:                   # already TDATA (or not tracking data)
+            buf, starts, n = _split(self.data)
+            msgs = [(int(starts[k]), int(starts[k + 1])) for k in range(n)
+                    if self.data[int(starts[k]) + 2:int(starts[k]) + 14].rstrip(b"\0")
+                    == b"TDATA"]
+            if newest:
+                out = [(self.data[a:b], 1) for a, b in msgs[-1:]]
+            elif msgs:
+                out = [(self.data if len(msgs) == n else
+                        b"".join(self.data[a:b] for a, b in msgs), len(msgs))]
+        else:
+            from ._tdata import pack_tdata
+
+            M, stamps, names = self.poses
+            if isinstance(names, str):
+                names = [names] * len(M)
+            order = list(dict.fromkeys(names))
+            t, inv = np.unique(stamps, return_inverse=True)
+            col = np.array([order.index(x) for x in names]) if len(order) > 1 else \
+                np.zeros(len(M), int)
+            rows = slice(len(t) - 1, len(t)) if newest else slice(None)
+            A = np.repeat(np.repeat(np.eye(4)[None, None], len(t), 0), len(order), 1)
+            valid = np.zeros((len(t), len(order)), bool)
+            A[inv, col] = M
+            valid[inv, col] = True
+            data, count = pack_tdata(A[rows], valid[rows], order, t[rows], device)
+            out = [(data, count)] if count else []
+        self._tdata[key] = out
+        return out
+
+
 class _Client:
-    """One connected client: its non-blocking socket and its queue of unsent items."""
+    """One connected client: its non-blocking socket, its queue of unsent items, the header
+    version it is sent, the stream it asked for and, when a rate applies to it, the newest
+    waiting message per device."""
 
-    __slots__ = ("addr", "last_progress", "n_sent", "n_skipped", "partial", "queue", "sock")
+    __slots__ = ("addr", "due", "inbuf", "interval", "last_progress", "mode", "n_sent",
+                 "n_skipped", "partial", "pending", "queue", "skip", "sock", "tdata_device",
+                 "version")
 
-    def __init__(self, sock, addr):
+    def __init__(self, sock, addr, version=1, interval=0.0):
         self.sock = sock
         self.addr = addr
         self.n_sent = 0
@@ -336,6 +183,19 @@ class _Client:
         self.queue: collections.deque = collections.deque()
         self.partial = False              # the head item is partly sent: it must go out next
         self.last_progress = time.monotonic()
+        self.version = version            # header version of what it is sent
+        self.mode = "default"             # "default" stream, "tdata" (STT_TDATA) or "stopped"
+        self.interval = interval          # least seconds between two messages of a device
+        self.tdata_device = ""
+        self.pending: dict = {}           # device -> (newest message, count, t_ready)
+        self.due: dict = {}               # device -> monotonic time it may be sent again
+        self.inbuf = bytearray()          # bytes received, not yet a whole message
+        self.skip = 0                     # bytes of an oversized body still to discard
+
+    @property
+    def special(self) -> bool:
+        """Whether tracking data reaches it otherwise than as queued (a rate or a request)."""
+        return self.interval > 0 or self.mode != "default"
 
 
 class IgtlServer:
@@ -362,6 +222,22 @@ class IgtlServer:
         (``clients_refused``).
     backlog : int
         Listen backlog (connections the kernel holds until accepted).
+    header_version : "auto", 1 or 2
+        OpenIGTLink header version of what each client is sent. ``"auto"`` (as PLUS does):
+        version 1 -- no extended header, no metadata -- until that client sends a version-2
+        message (3D Slicer's connector, or any message with header version 2, e.g.
+        ``GET_STATUS``), version 2 from then on; 1 or 2 fixes it for every client.
+    rate : float, optional
+        Most tracking-data messages (TRANSFORM, TDATA) per second and device sent to each
+        client; each client then gets the newest message of a device at most every
+        ``1 / rate`` s (older ones waiting for it are replaced, never queued), and is never
+        dropped for reading slowly. A client's own STT_TDATA resolution, if longer, applies
+        to it instead.
+
+    A client may also send ``STT_TDATA`` (resolution in ms: TDATA, every tracked device of
+    one time stamp in one message, at most once per resolution, instead of its default
+    stream; answered by ``RTS_TDATA``), ``STP_TDATA`` (no more tracking data to it; answered
+    by ``RTS_TDATA``) and ``GET_STATUS`` (answered by a STATUS message, code 1 = OK).
 
     Examples
     --------
@@ -371,8 +247,16 @@ class IgtlServer:
 
     def __init__(self, port: int = DEFAULT_IGTL_PORT, *, host: str = "127.0.0.1",
                  device_name: str = "openemt", max_queue: int = 16, send_timeout: float = 1.0,
-                 poll: float = 0.02, max_clients: int = 64, backlog: int = 128):
+                 poll: float = 0.02, max_clients: int = 64, backlog: int = 128,
+                 header_version="auto", rate: float | None = None):
         self.device_name = _check_device_name(device_name)
+        if str(header_version) not in ("auto", "1", "2"):
+            raise InputError(f"expected `header_version` \"auto\", 1 or 2, got "
+                             f"{header_version!r}")
+        self.header_version = "auto" if str(header_version) == "auto" else int(header_version)
+        if rate is not None and not (np.isfinite(float(rate)) and float(rate) > 0):
+            raise InputError(f"expected a positive, finite `rate` in Hz, got {rate!r}")
+        self.rate = None if rate is None else float(rate)
         if int(max_queue) < 1:
             raise InputError(f"expected `max_queue` >= 1, got {max_queue!r}")
         port = int(port)
@@ -397,6 +281,8 @@ class IgtlServer:
         self.n_no_client = 0
         self.n_connections = 0
         self.n_clients_dropped = 0
+        self.n_thinned = 0
+        self.n_bad_crc = 0
         self.clients_max = 0
         self._latency = collections.deque(maxlen=200_000)
         self._closed = False
@@ -460,10 +346,13 @@ class IgtlServer:
         client's full queue), ``no_client`` (nobody listening); and ``connections`` (accepted
         so far), ``clients`` (now), ``clients_max`` (most at once), ``clients_dropped`` (cut off
         after ``send_timeout`` without progress), ``clients_refused`` (connections closed at
-        once because ``max_clients`` were connected)."""
+        once because ``max_clients`` were connected), ``messages_thinned`` (replaced by a newer
+        message of the same device while a rate held it back), ``bad_crc`` (client messages
+        ignored for a wrong CRC)."""
         with self._lock:
             return {"queued": self.n_queued, "sent": self.n_sent, "dropped": self.n_skipped,
                     "messages_skipped": self.n_skipped, "no_client": self.n_no_client,
+                    "messages_thinned": self.n_thinned, "bad_crc": self.n_bad_crc,
                     "connections": self.n_connections, "clients": len(self._clients),
                     "clients_max": self.clients_max,
                     "clients_dropped": self.n_clients_dropped,
@@ -471,10 +360,13 @@ class IgtlServer:
 
     def clients(self) -> list:
         """The connected clients now: ``address`` (host, port), ``sent`` and ``skipped``
-        messages, ``waiting`` (items in its queue)."""
+        messages, ``waiting`` (items in its queue), ``header_version`` (of what it is sent),
+        ``stream`` (``"default"``, ``"tdata"`` after STT_TDATA, ``"stopped"`` after STP_TDATA)
+        and ``interval`` (least seconds between two messages of a device; 0: every one)."""
         with self._lock:
             return [{"address": c.addr, "sent": c.n_sent, "skipped": c.n_skipped,
-                     "waiting": len(c.queue)} for c in self._clients]
+                     "waiting": len(c.queue), "header_version": c.version, "stream": c.mode,
+                     "interval": c.interval} for c in self._clients]
 
     def _count_sent(self, c, count, t_ready):
         c.n_sent += count
@@ -526,10 +418,12 @@ class IgtlServer:
             See :meth:`send_pose`; a sequence names each message's device (the poses of
             several sensors in one call, written to each client in one piece).
         metadata : dict, optional
-            OpenIGTLink version-2 metadata of each message: key -> N values (str, or numbers
-            written as ``format(x, ".3e")``), e.g. ``{"Status": [...], "Distortion": [...]}``;
-            the messages then have header version 2 (3D Slicer shows the metadata as
-            attributes of the transform node). Without it, header version 1.
+            OpenIGTLink version-2 metadata of each message: key -> N values (str, bytes
+            arrays, or numbers written as ``format(x, ".3e")``), e.g.
+            ``{"TransformStatus": [...], "QuadratureRatio": [...]}``; the messages then have
+            header version 2 for the clients that read it (3D Slicer shows the metadata as
+            attributes of the transform node), version 1 without metadata for the others.
+            Without it, header version 1.
         """
         P = np.asarray(poses, dtype=np.float64)
         if P.ndim != 3 or P.shape[1:] != (4, 4):
@@ -577,33 +471,41 @@ class IgtlServer:
                     msg.metadata = {k.decode(): c[i].decode() for k, c in zip(keys, cols)}
                 msgs.append(msg.pack())
             data = b"".join(msgs)
-        return self._enqueue(data, len(P), t_ready)
+        return self._enqueue(_Block(data, len(P), t_ready, stream=True,
+                                    version=1 if metadata is None else 2,
+                                    poses=(M, stamps, name)))
 
     def send_message(self, message, t_ready: float | None = None, *, retain=None) -> bool:
-        """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status).
+        """Queue any pyigtl message (e.g. a ``StringMessage`` with the tracking status); a
+        version-2 message reaches a version-1 client without its metadata.
 
         ``retain`` (a key, e.g. the message's device name): the message is also kept as that
         key's current one, and a client that connects later receives every kept message
         first -- a viewer that joins a running stream learns each sensor's state at once, not
         at its next change."""
-        data = message.pack()
+        block = _Block(message.pack(), 1, t_ready, stream=False,
+                       version=2 if getattr(message, "header_version", 1) >= 2 else 1)
         if retain is not None:
             with self._lock:            # kept and sent under one lock: a client gets it once
-                self._retained[retain] = data
-                return self._enqueue(data, 1, t_ready)
-        return self._enqueue(data, 1, t_ready)
+                self._retained[retain] = block
+                return self._enqueue(block)
+        return self._enqueue(block)
 
     def send_packed(self, data: bytes, count: int = 1, t_ready: float | None = None) -> bool:
-        """Queue ``count`` messages already packed into ``data`` (e.g. TDATA messages from
-        :func:`openemt.live._tdata.pack_tdata`), written to each client in one piece."""
+        """Queue ``count`` tracking-data messages already packed into ``data`` (e.g. TDATA
+        messages from :func:`openemt.live._tdata.pack_tdata`), written to each client in one
+        piece."""
         if not self._clients:
             with self._lock:
                 self.n_no_client += count
             return False
-        return self._enqueue(bytes(data), int(count), t_ready)
+        data = bytes(data)
+        return self._enqueue(_Block(data, int(count), t_ready, stream=True,
+                                    version=2 if data[:2] == b"\0\2" else 1))
 
-    def _enqueue(self, data: bytes, count: int, t_ready) -> bool:
+    def _enqueue(self, block: _Block) -> bool:
         wake = False
+        count, t_ready = block.count, block.t_ready
         with self._lock:                # re-entrant: send_message(retain=) holds it already
             if self._closed:
                 return False
@@ -611,7 +513,11 @@ class IgtlServer:
                 self.n_no_client += count
                 return False
             for c in self._clients:
+                if block.stream and c.special:
+                    wake |= self._offer(c, block)
+                    continue
                 self.n_queued += count
+                data = block.data if c.version >= block.version else block.encoded(c.version)
                 if not c.queue:
                     # fast path: nothing waiting -> non-blocking send right here (no thread
                     # hand-over); a client that cannot take it never blocks the others
@@ -644,18 +550,84 @@ class IgtlServer:
             self._wake()
         return True
 
+    def _offer(self, c: _Client, block: _Block) -> bool:
+        """Tracking data for a client with a rate or its own request (lock held): the newest
+        message per device waits until the device is due; returns whether the I/O thread must
+        look at the client."""
+        if c.mode == "stopped":
+            return False
+        if c.mode == "tdata":
+            device = c.tdata_device or self.device_name
+            msgs = [(device.encode("ascii")[:20].ljust(20, b"\0"), m, k)
+                    for m, k in block.tdata(device, c.interval > 0)]
+        else:
+            msgs = [(d, m, k) for d, (m, k) in block.newest(c.version).items()]
+        if c.interval <= 0:                      # every message, queued as usual
+            for _, m, k in msgs:
+                if len(c.queue) >= self._max_queue and not c.partial:
+                    skip = c.queue.popleft()[1]
+                    c.n_skipped += skip
+                    self.n_skipped += skip
+                c.queue.append((m, k, block.t_ready))
+                self.n_queued += k
+            return bool(msgs)
+        fresh = False                            # a device waits anew: the I/O thread must
+        for dev, m, k in msgs:                   # time its release
+            old = c.pending.get(dev)
+            if old is not None:
+                self.n_thinned += old[1]
+            fresh |= old is None
+            c.pending[dev] = (m, 1, block.t_ready)
+            self.n_thinned += k - 1              # the older ones of this block
+            self.n_queued += k
+        return self._release(c, time.monotonic()) or fresh
+
+    def _release(self, c: _Client, now: float) -> bool:
+        """Move the due newest messages of ``c`` into its queue (lock held) once the queue is
+        empty (what its socket has not taken yet goes first: no backlog builds up behind a
+        slow reader) and send what the socket takes now; returns whether data still waits."""
+        if not c.pending or c.queue:
+            return bool(c.queue)
+        due = [d for d in c.pending if c.due.get(d, 0.0) <= now]
+        if not due:
+            return False
+        parts, count, t_ready = [], 0, None
+        for d in due:
+            m, k, t = c.pending.pop(d)
+            # on a grid of the interval: a late release does not delay the next one (the
+            # rate asked is kept on average), a device idle for longer starts a new grid
+            last = c.due.get(d, 0.0)
+            c.due[d] = last + c.interval if now - last < c.interval else now + c.interval
+            parts.append(m)
+            count += k
+            t_ready = t if t_ready is None or (t is not None and t < t_ready) else t_ready
+        c.queue.append((b"".join(parts), count, t_ready))
+        try:
+            self._flush(c)
+        except OSError:
+            pass
+        return bool(c.queue)
+
     def _wake(self):
         try:
             self._wake_w.send(b"\0")
         except OSError:                             # full: the I/O thread is awake anyway
             pass
 
-    def wait_for_client(self, timeout: float, count: int = 1) -> bool:
-        """Block until at least ``count`` clients are connected or ``timeout`` seconds pass."""
+    def wait_for_client(self, timeout: float, count: int = 1,
+                        header_version: int | None = None) -> bool:
+        """Block until at least ``count`` clients are connected (with ``header_version``: that
+        many are sent at least that header version) or ``timeout`` seconds pass."""
         end = time.monotonic() + float(timeout)
-        while len(self._clients) < count and time.monotonic() < end:
+
+        def ready():
+            if header_version is None:
+                return len(self._clients) >= count
+            return sum(c.version >= header_version for c in list(self._clients)) >= count
+
+        while not ready() and time.monotonic() < end:
             time.sleep(0.005)
-        return len(self._clients) >= count
+        return ready()
 
     # ------------------------------------------------------------------ I/O thread
     def _flush(self, c: _Client) -> None:
@@ -676,6 +648,72 @@ class IgtlServer:
                 c.queue[0] = (memoryview(data)[n:], count, t_ready)
                 c.partial = True
                 return
+
+    def _receive(self, c: _Client, data: bytes) -> None:
+        """Parse what a client sent (I/O thread): a version-2 message raises the header
+        version it is sent (``header_version="auto"``); STT_TDATA, STP_TDATA and GET_STATUS
+        are answered; anything else is ignored. A body larger than 64 KiB is skipped unread
+        and a message with a wrong CRC is ignored (``bad_crc``)."""
+        if c.skip:
+            n = min(c.skip, len(data))
+            c.skip -= n
+            data = data[n:]
+        buf = c.inbuf
+        buf += data
+        replies = []
+        while len(buf) >= 58:
+            version, mtype, device, _s, _f, size, crc = _HEADER.unpack_from(buf)
+            if size > _MAX_CLIENT_BODY:
+                drop = min(len(buf), 58 + size)
+                c.skip = 58 + size - drop
+                del buf[:drop]
+                continue
+            if len(buf) < 58 + size:
+                break
+            body = bytes(buf[58:58 + size])
+            del buf[:58 + size]
+            if _crc64_small(body) != crc:
+                with self._lock:
+                    self.n_bad_crc += 1
+                continue
+            if version >= 2 and self.header_version == "auto" and c.version < 2:
+                c.version = 2
+                logger.info("OpenIGTLink client %s sent header version %d: sent version 2 "
+                            "from now on", c.addr, version)
+            if version >= 2 and size >= 12:            # the content of a version-2 body
+                ext, mh, mb, _id = _EXT_HEADER.unpack_from(body)
+                if 12 <= ext and ext + mh + mb <= size:
+                    body = body[ext:size - mh - mb]
+            mtype = mtype.rstrip(b"\0")
+            device = device.rstrip(b"\0").decode("ascii", "replace")
+            if mtype == b"STT_TDATA":
+                res = struct.unpack_from(">i", body)[0] if len(body) >= 4 else 0
+                with self._lock:
+                    c.mode = "tdata"
+                    c.tdata_device = device
+                    c.interval = max(max(res, 0) / 1000.0,
+                                     0.0 if self.rate is None else 1.0 / self.rate)
+                    c.pending.clear()
+                replies.append(("RTS_TDATA", device, b"\0"))
+                logger.info("OpenIGTLink client %s: TDATA every %g s", c.addr, c.interval)
+            elif mtype == b"STP_TDATA":
+                with self._lock:
+                    c.mode = "stopped"
+                    c.pending.clear()
+                replies.append(("RTS_TDATA", device, b"\0"))
+            elif mtype == b"GET_STATUS":
+                replies.append(("STATUS", device or self.device_name,
+                                status_content(1, "openemt streaming")))
+        if replies:
+            with self._lock:
+                for mtype, device, content in replies:
+                    c.queue.append((pack_message(mtype, device or self.device_name, content,
+                                                 header_version=c.version), 1, None))
+                    self.n_queued += 1
+                try:
+                    self._flush(c)
+                except OSError:
+                    pass
 
     def _remove(self, c: _Client, why: str) -> None:
         with self._lock:
@@ -715,10 +753,11 @@ class IgtlServer:
             self._refusing = False
             sock.setblocking(False)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            c = _Client(sock, addr)
+            c = _Client(sock, addr, version=2 if self.header_version == 2 else 1,
+                        interval=0.0 if self.rate is None else 1.0 / self.rate)
             with self._lock:
-                for data in self._retained.values():   # the current states first
-                    c.queue.append((data, 1, None))
+                for block in self._retained.values():  # the current states first
+                    c.queue.append((block.encoded(c.version), 1, None))
                     self.n_queued += 1
                 self._clients.append(c)
                 self.n_connections += 1
@@ -740,8 +779,15 @@ class IgtlServer:
                 except (KeyError, ValueError, OSError):
                     pass
             watching_write = want
+            timeout = self.poll
+            if any(c.pending for c in clients):        # wake when a held message is due
+                with self._lock:
+                    due = [min((c.due.get(d, 0.0) for d in c.pending), default=np.inf)
+                           for c in clients if c.pending and not c.queue]
+                if due:
+                    timeout = min(timeout, max(0.0, min(due) - time.monotonic()))
             try:
-                events = self._sel.select(self.poll)
+                events = self._sel.select(timeout)
             except (OSError, ValueError):          # a socket closed under us: look again
                 continue
             if self._stop:
@@ -763,16 +809,19 @@ class IgtlServer:
                         w.add(key.fileobj)
             now = time.monotonic()
             for c in clients:
-                if c.sock in r:                    # a client message (ignored) or leaving
+                if c.sock in r:                    # a client message, or the client leaving
                     try:
-                        gone = not c.sock.recv(65536)
+                        got = c.sock.recv(65536)
+                        gone = not got
                     except BlockingIOError:
-                        gone = False
+                        got, gone = b"", False
                     except OSError:
-                        gone = True
+                        got, gone = b"", True
                     if gone:
                         self._remove(c, "disconnected")
                         continue
+                    if got:
+                        self._receive(c, got)
                 stalled = gone = False
                 with self._lock:
                     if c.sock in w:
@@ -780,7 +829,12 @@ class IgtlServer:
                             self._flush(c)
                         except OSError:                # reset by the peer: it left
                             gone = True
-                    if c.queue and now - c.last_progress > self.send_timeout:
+                    if c.pending and not gone:
+                        self._release(c, now)
+                    # a client with a rate holds one message per device at most: never
+                    # dropped for reading slowly
+                    if (c.queue and not c.interval > 0
+                            and now - c.last_progress > self.send_timeout):
                         stalled = True
                 if gone:
                     self._remove(c, "disconnected")

@@ -352,9 +352,11 @@ class PipelineConfig:
         (:func:`openemt.live._tdata.pack_tdata`).
     tdata_device : str
     igtl_metadata : bool
-        Give every TRANSFORM the OpenIGTLink version-2 metadata (docs/live.md); False sends
-        version-1 TRANSFORMs without metadata (so does a stand-in server whose ``send_poses``
-        takes no ``metadata``).
+        Give every TRANSFORM the OpenIGTLink version-2 metadata ``TransformStatus``,
+        ``TransformValid``, ``RelativeResidual``, ``QuadratureRatio`` and ``DistortionLevel``
+        (:func:`openemt.live._igtl_meta.transform_metadata`; a version-1 client gets the
+        TRANSFORMs without it); False sends version-1 TRANSFORMs without metadata (so does a
+        stand-in server whose ``send_poses`` takes no ``metadata``).
     igtl_every : int
         Send every ``igtl_every``-th valid pose.
     status_every : int
@@ -830,11 +832,13 @@ class TrackingPipeline:
                    for d in [s[0]] * (n if isinstance(k, slice) else int(k.sum()))]
         meta = None
         if self.igtl_metadata:
+            from ._igtl_meta import transform_metadata
+
             distorted = np.concatenate([s[3][k] for s, k in zip(streams, sel)])
-            meta = {"Status": (["OK"] * len(poses) if not distorted.any()
-                               else np.where(distorted, "DISTORTED", "OK").tolist()),
-                    "RelativeResidual": np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
-                    "Distortion": np.concatenate([s[5][k] for s, k in zip(streams, sel)])}
+            meta = transform_metadata(
+                distorted, np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
+                np.concatenate([s[5][k] for s, k in zip(streams, sel)]),
+                distortion_threshold=self.distortion_threshold)
         kw = {} if meta is None else {"metadata": meta}
         self.igtl.send_poses(poses, np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
                              device_name=devices[0] if len(streams) == 1 else devices, **kw)

@@ -14,7 +14,7 @@ bytes      type       field
                       R32 R13 R23 R33 TX TY TZ), big-endian, translation in millimetres
 =========  =========  ===================================================================
 
-behind the usual 58-byte header (version 1, type ``TDATA``; :func:`openemt.live._igtl.
+behind the usual 58-byte header (version 1, type ``TDATA``; :func:`openemt.live._igtl_wire.
 frame_messages`). A 1500 samples/s stream of K tools is then 1500 messages per second instead
 of 1500 K TRANSFORMs, which is what viewers that spend a fixed time per message need.
 """
@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import InputError
-from ._igtl import frame_messages
+from ._igtl_wire import frame_messages
 
 __all__ = ["TDATA_6D", "TDATA_ELEMENT", "pack_tdata"]
 

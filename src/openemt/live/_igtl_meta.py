@@ -1,0 +1,96 @@
+"""The quality of each sent pose as OpenIGTLink version-2 metadata of its TRANSFORM, in the keys
+PLUS reads (``TransformStatus``, ``TransformValid``) and openemt's own (``RelativeResidual``,
+``QuadratureRatio``, ``DistortionLevel``); the table is in docs/live.md."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from numba import njit
+
+from ..solve import Status
+from ..solve._validity import MAX_RELATIVE_RESIDUAL
+
+__all__ = ["TRANSFORM_STATUS", "distortion_level", "transform_metadata", "transform_status"]
+
+#: PLUS's tool status (``TransformStatus``) of each solver status of a sample.
+TRANSFORM_STATUS = {Status.CONVERGED: "OK", Status.INVALID_INPUT: "MISSING",
+                    Status.OUT_OF_VOLUME: "OUT_OF_VIEW", Status.MAX_ITERATIONS: "INVALID",
+                    Status.AMBIGUOUS: "INVALID", Status.NOT_CONVERGED: "INVALID"}
+
+# "000".."255": a fixed width, so a block's values have one length (packed as arrays)
+_LEVELS = np.array([b"%03d" % i for i in range(256)], dtype="S3")
+
+
+def transform_status(status, distorted) -> np.ndarray:
+    """``TransformStatus`` per sample: the solver status through :data:`TRANSFORM_STATUS`,
+    and ``INVALID`` for a converged pose flagged distorted."""
+    st = np.asarray(status, dtype=np.int64)
+    out = np.full(st.shape, "INVALID", dtype="U11")
+    for code, name in TRANSFORM_STATUS.items():
+        out[st == int(code)] = name
+    out[(st == int(Status.CONVERGED)) & np.asarray(distorted, bool)] = "INVALID"
+    return out
+
+
+def distortion_level(quadrature, relative_residual, distortion_threshold: float,
+                     residual_threshold: float) -> np.ndarray:
+    """A 0-255 distortion level per sample (as Polhemus VIPER reports one per sensor), from
+    what the sample itself shows: ``128 * max(q / q_max, r / r_max)`` rounded (half up) and
+    clipped to 255, with q the quadrature ratio against the distortion threshold and r the
+    solve's relative residual against the solver's validity threshold (a NaN residual counts
+    as 0, a NaN quadrature ratio as the worst). 0: clean; 128: at a threshold (the sample is
+    flagged distorted or invalid from there); 255: twice a threshold or more."""
+    q = np.ascontiguousarray(quadrature, dtype=np.float64)
+    r = np.ascontiguousarray(relative_residual, dtype=np.float64)
+    out = np.empty(q.shape[0], np.uint8)
+    _levels(q, r, 128.0 / float(distortion_threshold), 128.0 / float(residual_threshold), out)
+    return out
+
+
+@njit(cache=True)
+def _levels(q, r, qs, rs, out):
+    """The level of each sample in one compiled loop (this runs for every block sent)."""
+    for i in range(q.shape[0]):
+        x = q[i] * qs
+        y = r[i] * rs
+        if y > x:                      # a NaN residual never wins: it counts as 0
+            x = y
+        if not x < 255.0:              # also a NaN quadrature ratio: the worst
+            out[i] = 255
+        else:
+            out[i] = np.uint8(x + 0.5) if x > 0.0 else 0
+
+
+@functools.lru_cache(maxsize=64)
+def _all_ok(n: int) -> tuple:
+    """``TransformStatus`` and ``TransformValid`` of n good poses, as read-only bytes arrays
+    (no encoding per value when packed)."""
+    ok, true = np.full(n, b"OK", "S2"), np.full(n, b"true", "S4")
+    ok.flags.writeable = true.flags.writeable = False
+    return ok, true
+
+
+def transform_metadata(distorted, relative_residual, quadrature, *,
+                       distortion_threshold: float,
+                       residual_threshold: float = MAX_RELATIVE_RESIDUAL,
+                       status=None) -> dict:
+    """The metadata of N TRANSFORMs (key -> N values, as :meth:`IgtlServer.send_poses` takes
+    them). ``status``: the solver status per sample (default: all converged, as the sent
+    poses are); ``distorted``: the quadrature flag per sample; ``residual_threshold``: the
+    solver's validity threshold on the relative residual (default the solver's, 1 %)."""
+    dist = np.asarray(distorted, dtype=bool)
+    n = dist.shape[0]
+    if status is None and not dist.any():       # the usual block: every pose good, as bytes
+        ts, valid = _all_ok(n)
+    else:
+        names = transform_status(np.zeros(n, np.int64) if status is None else status, dist)
+        ts = names.tolist()
+        valid = np.where(names == "OK", "true", "false").tolist()
+    level = distortion_level(quadrature, relative_residual, distortion_threshold,
+                             residual_threshold)
+    return {"TransformStatus": ts, "TransformValid": valid,
+            "RelativeResidual": np.asarray(relative_residual, dtype=np.float64),
+            "QuadratureRatio": np.asarray(quadrature, dtype=np.float64),
+            "DistortionLevel": _LEVELS[level]}
