@@ -170,3 +170,7 @@ def test_solve_options_refuse_non_finite_limits():
         with pytest.raises(InputError, match=f"finite positive `{name}`"):
             SolveOptions(**{name: float("inf")})
         assert getattr(SolveOptions(**{name: None}), name) is None   # None disables
+    with pytest.raises(InputError, match="max_iter` <= 10000"):
+        SolveOptions(max_iter=10**9)
+    with pytest.raises(InputError, match="finite positive `retry_resnorm`"):
+        SolveOptions(retry_resnorm=float("inf"))

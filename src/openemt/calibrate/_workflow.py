@@ -237,6 +237,9 @@ def _planar(o, say, compile_) -> CalibrateResult:
         warns.append(f"the planar fit ended with status {fit.status!r} after {fit.iterations} "
                      f"iterations (condition {fit.condition:.3g}): its parameters are not a "
                      f"converged least-squares solution")
+    if holdout is None:
+        warns.append("no held-out score: give --holdout checkerboard (or location) to score "
+                     "the board on grid points it did not fit")
     cal = fit.to_calibration(
         insample=insample, holdout=holdout,
         provenance={"grid_file": str(o.dataset), "start_file": _path(o.start),

@@ -80,6 +80,16 @@ def probe_scheduler(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
                          f"protocol")
 
 
+def _result(future, k: int):
+    from distributed import KilledWorker
+
+    try:
+        return future.result()
+    except KilledWorker:
+        raise InputError(f"expected the Dask workers to stay up, got every worker that ran "
+                         f"block {k} killed (the scheduler gave it up)") from None
+
+
 def _workers(client) -> int:
     return len(client.nthreads())
 
@@ -145,7 +155,7 @@ def run_blocks(client, submit, n_blocks: int, *, max_in_flight: int | None = Non
                     pass
             done = [k for k, f in pending.items() if f.done()]
             for k in done:
-                seen[k] = pending.pop(k).result()
+                seen[k] = _result(pending.pop(k), k)
             ready = ([k_out] if k_out in seen else []) if ordered else sorted(seen)
             while ready:
                 k = ready.pop(0)

@@ -25,6 +25,10 @@ __all__ = ["DEFAULT", "SolveOptions"]
 #: dipole source, the board's front side (its coils' normal) for a finite-coil board.
 DEFAULT = "default"
 
+#: most iterations per sample (the solvers converge in 2-20; a limit beyond this only lets a
+#: sample that does not converge run for minutes)
+MAX_ITER_LIMIT = 10_000
+
 #: start names: the dipole LM's and the board solver's
 _STARTS = ("kim18", "svd", "kuipers", "track", "multistart", "grid", "cold")
 
@@ -105,6 +109,9 @@ class SolveOptions:
                              f"vectors (N, 6), got {init!r}")
         if self.max_iter is not None:
             _positive("max_iter", self.max_iter, integer=True)
+            if self.max_iter > MAX_ITER_LIMIT:         # a non-converging sample would hang
+                raise InputError(f"expected `max_iter` <= {MAX_ITER_LIMIT}, got "
+                                 f"{self.max_iter!r}")
         check_validity_options(self.max_relative_residual, self.max_range)
         for name in ("max_relative_residual", "max_range"):   # None disables; inf means nothing
             v = getattr(self, name)
@@ -116,8 +123,8 @@ class SolveOptions:
                 r = float(self.retry_resnorm)
             except (TypeError, ValueError):
                 r = np.nan
-            if not r > 0:
-                raise InputError(f"expected a positive `retry_resnorm`, got "
+            if not (r > 0 and np.isfinite(r)):
+                raise InputError(f"expected a finite positive `retry_resnorm`, got "
                                  f"{self.retry_resnorm!r}")
         if self.explore_above is not None:
             _positive("explore_above", self.explore_above, finite=False)

@@ -68,9 +68,11 @@ class SolveFileOptions:
         "must see both")
 
     def __post_init__(self):
-        for name in ("dataset", "calibration", "output"):
+        for name, what in (("dataset", "a dataset file"),
+                           ("calibration", "--calibration CAL (a calibration file)"),
+                           ("output", "-o POSES.h5 (the output file)")):
             if getattr(self, name) is None:
-                raise InputError(f"expected a {name} file, got none")
+                raise InputError(f"expected {what}, got none")
             object.__setattr__(self, name, Path(getattr(self, name)))
         if isinstance(self.chunk_rows, bool) or not isinstance(self.chunk_rows, int) \
                 or self.chunk_rows < 1:
