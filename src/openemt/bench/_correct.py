@@ -44,7 +44,7 @@ def distortion(p, scale: float = 1.0):
     """The smooth distortion at true positions ``p`` (N, 3): position offsets (m) and rotation
     offsets (rotation vectors, rad), about 1 mm and 0.25 deg RMS at ``scale`` 1 over the
     volume described above (:func:`openemt.simulate.field_distortion`)."""
-    from ..simulate._hybrid import field_distortion
+    from ..simulate import field_distortion
 
     return field_distortion(p, scale)
 

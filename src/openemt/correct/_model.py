@@ -364,6 +364,22 @@ class Correction:
         status (:class:`AppliedCorrection`). Without a known box (a version-1 DLT or polynomial
         file) this is an InputError unless ``allow_unknown_box``; every finite row is then
         corrected and flagged ``unchecked``. Work is done in blocks of rows (bounded memory).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from openemt.bench._correct import distorted_poses
+        >>> from openemt.correct import fit_correction
+        >>> measured, reference = distorted_poses(100, np.random.default_rng(0))
+        >>> corr = fit_correction(measured, reference, "poly", order=2, rot_order=1,
+        ...                       cross_validate=False)
+        >>> far = measured[:3].copy()
+        >>> far[1, 0, 3] += 1.0  # 1 m outside the fitted box
+        >>> res = corr.correct(far)
+        >>> res.status.tolist(), res.counts["outside_box"]
+        ([0, 2, 0], 1)
+        >>> bool(np.array_equal(res.values[1], far[1]))  # passed through as read
+        True
         """
         margin = check_margin(extrapolate_margin)
         if self.box is None and not allow_unknown_box and self.method != "none":

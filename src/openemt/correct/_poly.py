@@ -348,11 +348,9 @@ def fit_offset_terms(u, off, measured_R, reference_R, order, rot_order, orders, 
         for s in range(0, n, BLOCK_ROWS):
             sl = slice(s, s + BLOCK_ROWS)
             A = basis(u[sl], r)
-            pred = np.empty((len(A), 3))
-            for i, c in enumerate(coefs):
-                m = fold[sl] == i
-                pred[m] = A[m] @ c
-            for rho, which in ((pred, 0), (A @ coef_all, 1)):
+            every = (A @ np.hstack([*coefs, coef_all])).reshape(len(A), -1, 3)
+            pred = every[np.arange(len(A)), fold[sl]]  # each row by its fold's model
+            for rho, which in ((pred, 0), (every[:, -1], 1)):
                 e2 = float(np.sum(_angle_between(_quat(rho), q_true[sl]) ** 2))
                 if which == 0:
                     held += e2

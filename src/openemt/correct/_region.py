@@ -200,7 +200,7 @@ def row_status(box: FitBox | None, xyz, margin: float, domain=None) -> np.ndarra
         lo, hi = domain
         with np.errstate(invalid="ignore"):
             out = np.any((xyz < lo) | (xyz > hi), axis=1)
-        st[out & (st == EXTRAPOLATED)] = OUTSIDE
+        st[out] = OUTSIDE
     st[~finite] = NONFINITE
     return st
 
