@@ -19,14 +19,14 @@ from openemt.align import (
     find_dwells,
 )
 from openemt.calibrate import reference_poses
-from openemt.geometry import pose_from_vector
-from openemt.io import read_dataset, write_poses_csv
-from openemt.live._refclient import (
+from openemt.collect import (
     ReferenceClient,
     SimulatedReferenceServer,
     parse_reference_url,
     simulated_motion,
 )
+from openemt.geometry import pose_from_vector
+from openemt.io import read_dataset, write_poses_csv
 
 
 def _bumps(t, starts, width=0.5):
@@ -208,7 +208,7 @@ def test_collect_reference_at_another_rate(run_cli, tmp_path):
 
 def test_collect_reference_that_stops_keeps_the_data(run_cli, tmp_path):
     code, s, err, out = _collect(run_cli, tmp_path, "--simulate-reference", "robot",
-                                 "--sim-stop-after", 6, n=50)
+                                 "--sim-stop-after", 20, n=50)
     assert code == 0, err
     assert s["ended_by"] == "reference lost"
     assert "warning: the reference" in err and "stopped" in err
@@ -259,7 +259,7 @@ def test_collect_external_reference_server_unreachable_writes_nothing(run_cli, t
 def test_collect_against_an_external_pyigtl_reference(run_cli, tmp_path):
     """The reference runs as its own OpenIGTLink server (as PLUS or a robot bridge would):
     the same simulated motion, started on its own clock; collect connects as a client."""
-    from openemt.cli._collect import spare_poses
+    from openemt.collect import spare_poses
 
     m = simulated_motion("robot", 4, spare=spare_poses(4), seed=2)
     server = SimulatedReferenceServer(m, t0=time.time() + 0.3, speed=4.0, clock_offset=0.8)
@@ -290,7 +290,7 @@ def test_collect_ctrl_c_writes_what_it_has(tmp_path):
             assert proc.poll() is None, proc.communicate()
             assert time.monotonic() < end
             line = proc.stderr.readline()
-        time.sleep(4.0)                         # about 16 s of simulated motion
+        time.sleep(8.0)                         # about 30 s of simulated motion
         proc.send_signal(signal.SIGINT)
         stdout, err = proc.communicate(timeout=30)
     finally:

@@ -25,7 +25,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 
 #: Subpackages, in pipeline order.
 SUBPACKAGES = ("geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate",
-               "correct", "align", "evaluate", "navigate", "paper", "report", "live", "bench",
+               "correct", "align", "evaluate", "navigate", "paper", "report", "live", "collect", "bench",
                "datasets")
 
 #: Top-level name -> (subpackage, name there).

@@ -28,6 +28,7 @@ from ._record import (
     read_track_log,
     track_log_dataset,
 )
+from ._session import tracker_backend, tracker_sensors
 from ._tracker_file import (
     FilterSpec,
     SensorSpec,
@@ -66,6 +67,8 @@ __all__ = [
     "new_filter_state",
     "read_track_log",
     "track_log_dataset",
+    "tracker_backend",
+    "tracker_sensors",
     "read_tracker",
     "tracker_from_dict",
 ]
