@@ -301,3 +301,35 @@ def test_collect_ctrl_c_writes_what_it_has(tmp_path):
     assert s["stopped_by"] == "SIGINT" and s["ended_by"] == "signal"
     assert 1 <= s["n_poses"] < 500
     assert read_dataset(out).n_samples == s["n_poses"]
+
+
+def test_follow_reference_end_to_end_against_an_external_server(tmp_path):
+    """An external OpenIGTLink server replays a robot's motion; the simulated tracker follows
+    the poses it reports (``--follow-reference``, P = Y B X^-1 with the simulated X and Y);
+    the collection calibrates with a held-out error within 1.25 times that of the simulated
+    path (lower: the followed tracker sees the reported poses, so the reference's own error
+    does not reach the fit)."""
+    import warnings
+
+    from openemt.calibrate import fit_reference
+    from openemt.collect import CollectOptions, collect, spare_poses
+    from openemt.simulate import nominal_calibration, simulate_reference
+
+    n, seed = 16, 2
+    m = simulated_motion("robot", n, spare=spare_poses(n) + 20, seed=seed)
+    server = SimulatedReferenceServer(m, t0=time.time() + 1.0, speed=4.0, clock_offset=0.8)
+    try:
+        r = collect(CollectOptions(output=tmp_path / "f.h5", follow_reference=True,
+                                   reference=server.url, n_poses=n, seed=seed, sim_speed=4,
+                                   duration=120))
+    finally:
+        server.close()
+    assert r.n_poses == n and r.ended_by == "n_poses"
+    assert r.pairing["ok"] and r.pairing["angle_diff_deg_median"] < 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        f = fit_reference(read_dataset(tmp_path / "f.h5"), nominal_calibration("concentric"),
+                          holdout=0.25, seed=0)
+        b = fit_reference(simulate_reference("concentric", "robot", n, seed=seed),
+                          nominal_calibration("concentric"), holdout=0.25, seed=0)
+    assert f.holdout["trans_rms_mm"] <= 1.25 * b.holdout["trans_rms_mm"]

@@ -161,6 +161,7 @@ class ReferenceClient:
         self._lock = threading.Lock()
         self._t: list = []
         self._M: list = []
+        self._r: list = []
         self._stop = False
         self._thread = threading.Thread(target=self._run, name="openemt-reference", daemon=True)
         self._thread.start()
@@ -264,16 +265,19 @@ class ReferenceClient:
             with self._lock:
                 self._t.append(stamp)
                 self._M.append(M)
+                self._r.append(now)
                 self.n_messages += 1
                 self.last_receipt = now
 
-    def take(self) -> tuple[np.ndarray, np.ndarray]:
-        """The time stamps (s) and poses (m) received since the last call."""
+    def take(self, *, receipts: bool = False):
+        """The time stamps (s) and poses (m) received since the last call (and the wall-clock
+        times of their receipt with ``receipts``)."""
         with self._lock:
-            t, M = self._t, self._M
-            self._t, self._M = [], []
-        return (np.array(t, dtype=np.float64),
-                np.array(M, dtype=np.float64).reshape(len(M), 4, 4))
+            t, M, r = self._t, self._M, self._r
+            self._t, self._M, self._r = [], [], []
+        out = (np.array(t, dtype=np.float64),
+               np.array(M, dtype=np.float64).reshape(len(M), 4, 4))
+        return (*out, np.array(r, dtype=np.float64)) if receipts else out
 
     def close(self) -> None:
         self._stop = True

@@ -318,7 +318,7 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
             if o.follow_reference:
                 from ._follow import Follower
 
-                follower = Follower(motion)
+                follower = Follower(motion.X, motion.Y, motion.poses[0], speed=o.sim_speed)
                 client = ReferenceClient(*url)
                 follower.client = client
                 backend = tracker_backend(spec, "sim", realtime=False, seed=o.seed,
@@ -363,8 +363,6 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
                 if stop.signal is not None:
                     stopped, end = stop.signal, "signal"
                     break
-                if follower is not None:
-                    follower.pull()
                 chunk = backend.read()
                 if chunk is None:
                     end = "end of source"
@@ -399,6 +397,8 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
                             coll.tracker_time + coll.offset.offset > csv[0][-1] + 1.0:
                         end = "end of reference CSV"
                         break
+            if follower is not None:
+                follower.pull()
             if client is not None:
                 coll.add_reference(*(follower or client).take())
         finally:
