@@ -34,6 +34,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--writer-rounds", type=int, default=1,
                         help="rounds of hostile output paths for every writing command "
                              "(openemt_fuzz._fuzzhostile_writers; 0 skips them) (1)")
+    parser.add_argument("--reference-cases", type=int, nargs=3, default=(100, 100, 31),
+                        metavar=("CLIENT", "CSV", "COLLECT"),
+                        help="hostile references (openemt_fuzz._fuzzreference): servers read "
+                             "by the reference client, reference CSVs, and collections against "
+                             "either (100 100 31)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -114,13 +119,20 @@ def run(args) -> dict:
         hostile = run_hostile_readers(limit=limit, time_limit=args.time_limit,
                                       progress=bar.update)
 
+    from ._fuzzreference import fuzz_reference
+
+    n_ref = tuple(args.reference_cases)
+    with progress(total=sum(n_ref), desc="hostile references", args=args, unit="case") as bar:
+        reference = fuzz_reference(*n_ref, seed=args.seed, time_limit=max(args.time_limit, 90),
+                                   progress=bar.update)
+
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
         + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
-        + hostile.get("findings", 0)
+        + hostile.get("findings", 0) + reference["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -137,6 +149,7 @@ def run(args) -> dict:
         "hostile_live": hostile_live,
         "hostile_writers": writers,
         "hostile_readers": hostile,
+        "hostile_references": reference,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

@@ -12,9 +12,12 @@ import numpy as np
 from .._errors import InputError
 from .._result import Result
 
-__all__ = ["SIM_CLOCK_OFFSET_S", "SIM_LATENCY_S", "SIM_RATE_HZ", "CollectOptions",
+__all__ = ["GIVE_UP_S", "SIM_CLOCK_OFFSET_S", "SIM_LATENCY_S", "SIM_RATE_HZ", "CollectOptions",
            "CollectResult", "collect", "spare_poses"]
 
+#: Seconds of tracker signal after which a reference that is frozen, or whose motion does not
+#: match the tracker's well enough to give a time offset, ends the collection (refused).
+GIVE_UP_S = 60.0
 #: Simulated reference defaults: messages per second, latency and clock offset (s).
 SIM_RATE_HZ = 250.0
 SIM_LATENCY_S = 0.030
@@ -389,6 +392,9 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
                         coll.add_reference(*follower.take())
                     coll.update()
                     if coll.n_dwells >= o.n_poses:
+                        break
+                    if tau >= GIVE_UP_S and (coll.reference_frozen() or not coll.locked):
+                        end = "reference does not match"       # refused below
                         break
                     if time.monotonic() - shown >= period:
                         shown = time.monotonic()
