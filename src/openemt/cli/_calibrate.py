@@ -54,6 +54,9 @@ def register(sub) -> None:
                         "weights every coupling alike (the paper's residual); default 'auto': "
                         "errors-in-variables when the dataset states its reference noise "
                         "(docs/reference-calibration.md#errors-in-variables)")
+    p.add_argument("--accept-reference-residual", action="store_true",
+                   help="reference mode: keep a fit whose reference residual exceeds the "
+                        "stated reference noise more than 10 times (refused otherwise)")
     p.add_argument("--hemisphere", default=None,
                    help="reference mode: hemisphere of the sensor for the start solve (+x, "
                         "-x, ...; default: the dataset's, else +x)")
@@ -225,22 +228,20 @@ def _reference_start(args, dataset):
 
 
 def _reference(args) -> int:
-    from ..calibrate import fit_reference, stage_reference
+    from ..calibrate import fit_reference, reference_poses
     from ..io import atomic_path, write_calibration
 
     t0 = time.perf_counter()
     dataset = load_dataset(args.dataset)
     note = None
-    if "reference_poses" not in dataset.extra:
-        dataset = stage_reference(dataset)
-        note = ("no reference poses in the dataset: the stage motion of the home fixture "
-                "combination's md rows is the reference")
+    reference_poses(dataset)                  # none: one error line, exit 2
     start, start_path = _reference_start(args, dataset)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = fit_reference(dataset, start, hemisphere=args.hemisphere,
                           freeze=_groups(args.freeze) or (), holdout=_fraction(args.holdout),
-                          seed=args.seed, weighting=args.weighting)
+                          seed=args.seed, weighting=args.weighting,
+                          accept_residual=args.accept_reference_residual)
     cal = f.calibration
     stats = {**cal.stats, "seconds": time.perf_counter() - t0}
     cal = cal.replace(stats=stats, provenance={**cal.provenance, "start_file": start_path})
