@@ -215,9 +215,9 @@ class OffsetEstimate(NamedTuple):
 
 
 def _pearson(x, y) -> float:
-    x, y = x - x.mean(), y - y.mean()
-    d = np.sqrt((x @ x) * (y @ y))
-    return float(np.clip((x @ y) / d, -1.0, 1.0)) if d > 0 else -1.0
+    x, y = x - x.mean(), y - y.mean()          # (sums, not BLAS dots: no thread start-up)
+    d = np.sqrt(np.sum(x * x) * np.sum(y * y))
+    return float(np.clip(np.sum(x * y) / d, -1.0, 1.0)) if d > 0 else -1.0
 
 
 def time_offset_scan(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0.5,

@@ -580,7 +580,8 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
         the X/Y block is ill-conditioned (e.g. too little rotation diversity).
     accept_residual : bool
         Return the fit even when its reference residual exceeds the stated reference noise
-        more than :data:`REFERENCE_RESIDUAL_FACTOR` times (else :class:`InputError`).
+        more than :data:`REFERENCE_RESIDUAL_FACTOR` times (else :class:`InputError`; not
+        checked when X or Y is undetermined, which the warning says).
 
     Returns
     -------
@@ -680,8 +681,8 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     t, a = np.linalg.norm(d[:, :3], axis=1), np.linalg.norm(d[:, 3:], axis=1)
     weighting_out["reference_residual_trans_m"] = float(np.sqrt(np.mean(t ** 2)))
     weighting_out["reference_residual_rot_rad"] = float(np.sqrt(np.mean(a ** 2)))
-    if not accept_residual:
-        _check_residual(weighting_out, info)
+    if not accept_residual and not xy["undetermined"]:    # (undetermined: warned above;
+        _check_residual(weighting_out, info)            # its residual has no meaning)
     rms = plain["rms_residue"]
     stats = {**f.stats, **plain, "weighting": weighting_out, "fit_seconds": seconds,
              "xy_condition": xy["xy_condition"],

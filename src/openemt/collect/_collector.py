@@ -35,10 +35,12 @@ MIN_CONFIDENCE = 0.25
 #: ... over at least this many seconds of overlap.
 MIN_OVERLAP_S = 10.0
 #: The offset is estimated on the last this-many seconds of the tracker's motion (bounded work),
-#: and refined within +-REFINE_S every REFINE_EVERY_S seconds of signal once taken.
+#: and refined within +-REFINE_S every REFINE_EVERY_S seconds of signal once taken ...
 OFFSET_WINDOW_S = 120.0
 REFINE_S = 0.25
 REFINE_EVERY_S = 10.0
+#: ... on the last this-many seconds of it.
+REFINE_WINDOW_S = 30.0
 #: Samples beyond the profiled grid needed by its box average and difference (s).
 _PAD = 2.5 * BASELINE_S
 #: Profiles are computed in pieces of at most this many seconds.
@@ -270,7 +272,7 @@ class Collector:
         na, nb = len(pa.motion), len(pb.motion)
         if na < 64 or nb < 64:
             return None
-        ia = max(0, na - int(OFFSET_WINDOW_S / STEP))
+        ia = max(0, na - int((REFINE_WINDOW_S if refine else OFFSET_WINDOW_S) / STEP))
         ga, a = pa.times(ia), log_profile(pa.motion.v[ia:])
         if refine:
             c = self.offset.offset
