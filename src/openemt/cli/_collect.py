@@ -38,5 +38,8 @@ def run(args) -> int:
     human = [f"collected {res.n_poses} poses of sensor {res.sensor!r} -> {res.path} (time "
              f"offset {res.time_offset_ms:.1f} ms, {res.dwells['tracker_dwells']} tracker and "
              f"{res.dwells['reference_dwells']} reference dwells; ended by {res.ended_by})"]
+    if res.reference_dropped:
+        human.append("reference poses dropped, by reason: " + ", ".join(
+            f"{k} {v}" for k, v in res.reference_dropped.items()))
     emit(args, res.to_dict(), human)
     return res.exit_code
