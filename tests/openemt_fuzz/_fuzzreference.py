@@ -266,11 +266,13 @@ def csv_case(kind: str, folder: Path, seed: int, *, motion=None, seconds: float 
     return path
 
 
-_CHILD = ("import resource, sys\nfrom openemt.collect import read_reference_csv\n"
+_CHILD = ("import sys\nfrom openemt.collect import read_reference_csv\n"
           "from openemt.collect import rigid_rows\nfrom openemt._errors import InputError\n"
           "try:\n    t, P = read_reference_csv(sys.argv[1])\n"
           "    ok = bool(rigid_rows(P).all()) and bool(__import__('numpy').isfinite(t).all())\n"
-          "    print(len(t), int(ok), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
+          "    hwm = [ln.split()[1] for ln in open('/proc/self/status') if "
+          "ln.startswith('VmHWM')]\n"
+          "    print(len(t), int(ok), hwm[0])\n"
           "except InputError as e:\n    print('refused', e)\n")
 
 

@@ -34,6 +34,16 @@ class ReferenceTable(tuple):
         return self
 
 
+def _fast(lines, delim, header_len):
+    """The block as a float array when every row is ``header_len`` numbers (numpy's C parser),
+    else None."""
+    try:
+        out = np.loadtxt(lines, delimiter=delim, ndmin=2, dtype=np.float64, comments=None)
+    except ValueError:
+        return None
+    return out if out.shape == (len(lines), header_len) else None
+
+
 def _numbers(rows, header_len, drops):
     """Parse a block of CSV rows into a float array (rows that cannot be numbers: NaN rows
     with the reason counted)."""
@@ -96,9 +106,10 @@ def read_reference_csv(path) -> ReferenceTable:
             if not lines:
                 break
             delim = "\t" if "\t" in lines[0] else ","
-            rows = list(csv.reader(lines, delimiter=delim))
             if header is None:
-                header = [h.strip().lower() for h in rows.pop(0)]
+                header = [h.strip().lower() for h in next(csv.reader(lines[:1],
+                                                                     delimiter=delim))]
+                lines = lines[1:]
                 while header and not header[-1]:
                     header.pop()
                 cols = {h: i for i, h in enumerate(header)}
@@ -112,7 +123,12 @@ def read_reference_csv(path) -> ReferenceTable:
                     raise InputError(f"expected x, y, z and an orientation (qw, qx, qy, qz or "
                                      f"rx, ry, rz) in the reference CSV {str(path)!r}, got "
                                      f"columns {', '.join(header)}")
-            data, good = _numbers(rows, len(header), drops)
+            data = _fast(lines, delim, len(header)) if lines else np.empty((0, len(header)))
+            if data is not None:
+                good = np.ones(len(data), dtype=bool)
+            else:
+                data, good = _numbers(list(csv.reader(lines, delimiter=delim)), len(header),
+                                      drops)
             P, _ = _poses_from_columns(cols, data, "", "m", "rad", path)
             t = data[:, tcol]
             fin = good & np.isfinite(t) & np.all(np.isfinite(data), axis=1)
