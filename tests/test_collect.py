@@ -333,3 +333,32 @@ def test_follow_reference_end_to_end_against_an_external_server(tmp_path):
         b = fit_reference(simulate_reference("concentric", "robot", n, seed=seed),
                           nominal_calibration("concentric"), holdout=0.25, seed=0)
     assert f.holdout["trans_rms_mm"] <= 1.25 * b.holdout["trans_rms_mm"]
+
+
+def test_incremental_collector_keeps_what_the_batch_analysis_keeps():
+    """Fed one second at a time, the collector keeps the dwells of collect_dwells (the last
+    hold, which the streams end within, by neither) with the same averages, and its work per
+    second does not grow with the length of the collection."""
+    from openemt.collect import Collector
+
+    m = simulated_motion("robot", 14, seed=3)
+    seconds = m.hold_ends[13] + 0.2
+    tt, C, tr, B = _streams(m, 0.21, seconds)
+    batch = collect_dwells(tt, C, tr, B)
+    coll = Collector(None, t0=50.0)
+    cost = []
+    for s in np.arange(0, seconds, 1.0):
+        i = slice(*np.searchsorted(tt - 50, [s, s + 1]))
+        j = slice(*np.searchsorted(tr - 50.21, [s, s + 1]))
+        coll.add_couplings(tt[i], C[i])
+        coll.add_reference(tr[j], B[j])
+        t0 = time.perf_counter()
+        coll.update()
+        cost.append(time.perf_counter() - t0)
+    coll.update(final=True)
+    d = coll.result()
+    assert coll.locked and abs(d.time_offset - 0.21) < 5e-3
+    assert len(d) == len(batch) == 13
+    assert np.abs(d.reference_poses - m.reported[:13]).max() < 1e-9
+    assert np.abs(d.couplings - batch.couplings[:13]).max() < 1e-3 * np.abs(C).max()
+    assert np.median(cost[-8:]) < 5 * np.median(cost[12:20]) + 0.01

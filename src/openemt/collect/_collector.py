@@ -157,7 +157,8 @@ class Collector:
 
     Parameters
     ----------
-    layout : ChannelLayout
+    layout : ChannelLayout or None
+        None: no raw chunks, couplings are given demodulated (:meth:`add_couplings`).
     columns : sequence of int or None
         Columns of the demodulated coupling matrix that hold the sensor's coils.
     output_rate, window : demodulator settings
@@ -175,7 +176,8 @@ class Collector:
                  max_offset: float | None = None, reference_complete: bool = False):
         from ..signal import Demodulator
 
-        self.demod = Demodulator(layout, output_rate=output_rate, window=window, t0=t0)
+        self.demod = (None if layout is None else
+                      Demodulator(layout, output_rate=output_rate, window=window, t0=t0))
         self.columns = None if columns is None else list(columns)
         self.decimate = max(1, int(decimate))
         self.t0 = float(t0)
@@ -213,11 +215,17 @@ class Collector:
         m = len(t) // self.decimate * self.decimate
         if m:
             k = self.decimate
-            if self._C is None:
-                self._C = _Grow(C.shape[1:], C.dtype)
-            self._t.extend(t[:m].reshape(-1, k).mean(axis=1))
-            self._C.extend(C[:m].reshape(-1, k, *C.shape[1:]).mean(axis=1))
+            self.add_couplings(t[:m].reshape(-1, k).mean(axis=1),
+                               C[:m].reshape(-1, k, *C.shape[1:]).mean(axis=1))
         self._rest_t, self._rest_C = t[m:], C[m:]
+
+    def add_couplings(self, times, couplings) -> None:
+        """Couplings already demodulated (and averaged), with their times (s, increasing)."""
+        C = np.asarray(couplings)
+        if self._C is None:
+            self._C = _Grow(C.shape[1:], C.dtype)
+        self._t.extend(np.asarray(times, dtype=np.float64))
+        self._C.extend(C)
 
     def add_reference(self, times, poses) -> None:
         """Reference poses (m) with their time stamps (s, increasing; a stamp not after the
