@@ -82,3 +82,14 @@ def test_pairing_refuses_shifted_dwells_and_another_unit():
 def test_collect_refuses_a_mismatched_reference(tmp_path, source, kind):
     out = F._collect_case(kind, 1, source, tmp_path, 120)
     assert out["finding"] is None and out["outcome"] == "refused", out
+
+
+def test_transform_bodies_of_the_wrong_size_are_not_read():
+    from openemt.collect import parse_transform_body
+
+    assert parse_transform_body(1, b"\0" * 10) == (None, "transform_body_size")
+    assert parse_transform_body(2, b"\0" * 10) == (None, "transform_body_size")
+    good = F.transform_message(np.eye(4), 5.0, version=2, meta={"TransformStatus": "OK"})[58:]
+    M, meta = parse_transform_body(2, good)
+    assert np.allclose(M, np.eye(4)) and meta == {"TransformStatus": "OK"}
+    assert parse_transform_body(2, good[:-1])[0] is None            # sizes do not add up
