@@ -104,9 +104,9 @@ def serve(kind: str, motion, *, seed: int, speed: float = 4.0, rate: float = 250
             clock = 1.7e9 + rng.uniform(0, 1e4)
             jump_at = rng.randint(50, 350) if n_messages else rng.randint(200, 2000)
             while not stop.is_set() and time.monotonic() < end:
-                due = t0 + k / (rate * speed)
-                if due > time.time():
-                    time.sleep(min(due - time.time(), 0.01))
+                wait = t0 + k / (rate * speed) - time.time()
+                if wait > 0:
+                    time.sleep(min(wait, 0.01))
                     continue
                 tau = (time.time() - t0) * speed
                 src = other if kind == "other_motion" else motion

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._gate import Drops, TimeGate, rigid_rows
+from ._gate import MAX_STEP_S, Drops, TimeGate, rigid_rows
 
 __all__ = ["MAX_MEDIAN_STEP_S", "ReferenceTable", "read_reference_csv"]
 
@@ -145,6 +145,14 @@ def read_reference_csv(path) -> ReferenceTable:
                         f"expected reference times in seconds (a step of at most "
                         f"{MAX_MEDIAN_STEP_S:g} s), got a median step of {np.median(pos):g} "
                         f"in {str(path)!r} (milliseconds? divide the time column by 1000)")
+            if gate.last is None and len(t) >= 3:
+                # the first rows are not taken on trust: one far from the median of the first
+                # nine is a glitch (it would otherwise set the clock that the rest must follow)
+                med = np.median(t[:9])
+                lead = np.abs(t[:9] - med) > MAX_STEP_S
+                first = int(np.argmin(lead)) if not lead.all() else 0
+                drops["time_glitch"] += first
+                t, P = t[first:], P[first:]
             keep = np.fromiter((gate.take(float(v)) for v in t), dtype=bool, count=len(t))
             ts.append(t[keep])
             Ps.append(P[keep])
