@@ -19,14 +19,14 @@ from openemt.align import (
     find_dwells,
 )
 from openemt.calibrate import reference_poses
-from openemt.geometry import pose_from_vector
-from openemt.io import read_dataset, write_poses_csv
-from openemt.live._refclient import (
+from openemt.collect import (
     ReferenceClient,
     SimulatedReferenceServer,
     parse_reference_url,
     simulated_motion,
 )
+from openemt.geometry import pose_from_vector
+from openemt.io import read_dataset, write_poses_csv
 
 
 def _bumps(t, starts, width=0.5):
@@ -208,7 +208,7 @@ def test_collect_reference_at_another_rate(run_cli, tmp_path):
 
 def test_collect_reference_that_stops_keeps_the_data(run_cli, tmp_path):
     code, s, err, out = _collect(run_cli, tmp_path, "--simulate-reference", "robot",
-                                 "--sim-stop-after", 6, n=50)
+                                 "--sim-stop-after", 20, n=50)
     assert code == 0, err
     assert s["ended_by"] == "reference lost"
     assert "warning: the reference" in err and "stopped" in err
@@ -259,7 +259,7 @@ def test_collect_external_reference_server_unreachable_writes_nothing(run_cli, t
 def test_collect_against_an_external_pyigtl_reference(run_cli, tmp_path):
     """The reference runs as its own OpenIGTLink server (as PLUS or a robot bridge would):
     the same simulated motion, started on its own clock; collect connects as a client."""
-    from openemt.cli._collect import spare_poses
+    from openemt.collect import spare_poses
 
     m = simulated_motion("robot", 4, spare=spare_poses(4), seed=2)
     server = SimulatedReferenceServer(m, t0=time.time() + 0.3, speed=4.0, clock_offset=0.8)
@@ -290,7 +290,7 @@ def test_collect_ctrl_c_writes_what_it_has(tmp_path):
             assert proc.poll() is None, proc.communicate()
             assert time.monotonic() < end
             line = proc.stderr.readline()
-        time.sleep(4.0)                         # about 16 s of simulated motion
+        time.sleep(8.0)                         # about 30 s of simulated motion
         proc.send_signal(signal.SIGINT)
         stdout, err = proc.communicate(timeout=30)
     finally:
@@ -301,3 +301,64 @@ def test_collect_ctrl_c_writes_what_it_has(tmp_path):
     assert s["stopped_by"] == "SIGINT" and s["ended_by"] == "signal"
     assert 1 <= s["n_poses"] < 500
     assert read_dataset(out).n_samples == s["n_poses"]
+
+
+def test_follow_reference_end_to_end_against_an_external_server(tmp_path):
+    """An external OpenIGTLink server replays a robot's motion; the simulated tracker follows
+    the poses it reports (``--follow-reference``, P = Y B X^-1 with the simulated X and Y);
+    the collection calibrates with a held-out error within 1.25 times that of the simulated
+    path (lower: the followed tracker sees the reported poses, so the reference's own error
+    does not reach the fit)."""
+    import warnings
+
+    from openemt.calibrate import fit_reference
+    from openemt.collect import CollectOptions, collect, spare_poses
+    from openemt.simulate import nominal_calibration, simulate_reference
+
+    n, seed = 16, 2
+    m = simulated_motion("robot", n, spare=spare_poses(n) + 20, seed=seed)
+    server = SimulatedReferenceServer(m, t0=time.time() + 1.0, speed=4.0, clock_offset=0.8)
+    try:
+        r = collect(CollectOptions(output=tmp_path / "f.h5", follow_reference=True,
+                                   reference=server.url, n_poses=n, seed=seed, sim_speed=4,
+                                   duration=120))
+    finally:
+        server.close()
+    assert r.n_poses == n and r.ended_by == "n_poses"
+    assert r.pairing["ok"] and r.pairing["angle_diff_deg_median"] < 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        f = fit_reference(read_dataset(tmp_path / "f.h5"), nominal_calibration("concentric"),
+                          holdout=0.25, seed=0)
+        b = fit_reference(simulate_reference("concentric", "robot", n, seed=seed),
+                          nominal_calibration("concentric"), holdout=0.25, seed=0)
+    assert f.holdout["trans_rms_mm"] <= 1.25 * b.holdout["trans_rms_mm"]
+
+
+def test_incremental_collector_keeps_what_the_batch_analysis_keeps():
+    """Fed one second at a time, the collector keeps the dwells of collect_dwells (the last
+    hold, which the streams end within, by neither) with the same averages, and its work per
+    second does not grow with the length of the collection."""
+    from openemt.collect import Collector
+
+    m = simulated_motion("robot", 14, seed=3)
+    seconds = m.hold_ends[13] + 0.2
+    tt, C, tr, B = _streams(m, 0.21, seconds)
+    batch = collect_dwells(tt, C, tr, B)
+    coll = Collector(None, t0=50.0)
+    cost = []
+    for s in np.arange(0, seconds, 1.0):
+        i = slice(*np.searchsorted(tt - 50, [s, s + 1]))
+        j = slice(*np.searchsorted(tr - 50.21, [s, s + 1]))
+        coll.add_couplings(tt[i], C[i])
+        coll.add_reference(tr[j], B[j])
+        t0 = time.perf_counter()
+        coll.update()
+        cost.append(time.perf_counter() - t0)
+    coll.update(final=True)
+    d = coll.result()
+    assert coll.locked and abs(d.time_offset - 0.21) < 5e-3
+    assert len(d) == len(batch) == 13
+    assert np.abs(d.reference_poses - m.reported[:13]).max() < 1e-9
+    assert np.abs(d.couplings - batch.couplings[:13]).max() < 1e-3 * np.abs(C).max()
+    assert np.median(cost[-8:]) < 5 * np.median(cost[12:20]) + 0.01

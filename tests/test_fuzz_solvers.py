@@ -38,7 +38,8 @@ def test_no_crash_and_no_wrong_converged_pose():
 def test_bench_fuzz_command(tmp_path, capsys):
     code = main(["bench", "fuzz", "--reader-cases", "18", "--cli-cases", "7",
                  "--solver-samples", "400", "--live-cases", "0", "--writer-rounds", "0",
-                 "--hostile-cases", "2", "--navigate-cases", "3", "--json", "--quiet"])
+                 "--hostile-cases", "2", "--navigate-cases", "3", "--reference-cases", "1", "1",
+                 "0", "--json", "--quiet"])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert out["reader_cases"] == 18 and out["cli_cases"] == 7 and out["solver_samples"] == 400

@@ -41,6 +41,11 @@ def add_arguments(parser) -> None:
                         help="generated correction cases: far poses, degenerate and oversized "
                              "correction files, apply workflow (openemt_fuzz._fuzzcorrect) "
                              "(400)")
+    parser.add_argument("--reference-cases", type=int, nargs=3, default=(100, 100, 31),
+                        metavar=("CLIENT", "CSV", "COLLECT"),
+                        help="hostile references (openemt_fuzz._fuzzreference): servers read "
+                             "by the reference client, reference CSVs, and collections against "
+                             "either (100 100 31)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -132,6 +137,12 @@ def run(args) -> dict:
     with progress(total=n_corr, desc="corrections", args=args, unit="case") as bar:
         corrections = fuzz_corrections(n_corr, args.seed, time_limit=args.time_limit,
                                        progress=bar.update)
+    from ._fuzzreference import fuzz_reference
+
+    n_ref = tuple(args.reference_cases)
+    with progress(total=sum(n_ref), desc="hostile references", args=args, unit="case") as bar:
+        reference = fuzz_reference(*n_ref, seed=args.seed, time_limit=max(args.time_limit, 90),
+                                   progress=bar.update)
 
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
@@ -139,7 +150,8 @@ def run(args) -> dict:
     files_bad = {k: bad(readers)[k] + bad(cli)[k] for k in _BAD}
     findings = sum(files_bad.values()) + solvers.get("wrong_converged", 0) \
         + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
-        + hostile.get("findings", 0) + navigate["findings"] + corrections["findings"]
+        + hostile.get("findings", 0) + navigate["findings"] + corrections["findings"] \
+        + reference["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -158,6 +170,7 @@ def run(args) -> dict:
         "hostile_readers": hostile,
         "navigate": navigate,
         "corrections": corrections,
+        "hostile_references": reference,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

@@ -3,10 +3,17 @@
 (docs/alignment.md, docs/reference-calibration.md#collecting)."""
 
 from ._dwells import (
+    BASELINE_S,
     COUPLING_RATE_STATIC,
+    GRID_S,
+    LEVER_M,
+    MARGIN_S,
+    MIN_DWELL_S,
     ROTATION_SPEED_STATIC,
     SPEED_STATIC,
     DwellSet,
+    OffsetEstimate,
+    average_dwell,
     collect_dwells,
     coupling_motion,
     coverage,
@@ -16,6 +23,7 @@ from ._dwells import (
     mean_pose,
     pose_motion,
     thresholds,
+    time_offset_scan,
 )
 from ._handeye import (
     MIN_PAIRS,
@@ -28,10 +36,17 @@ from ._handeye import (
 from ._pairs import MATCH_MODES, pair_rows
 
 __all__ = [
+    "BASELINE_S",
     "COUPLING_RATE_STATIC",
+    "GRID_S",
+    "LEVER_M",
+    "MARGIN_S",
+    "MIN_DWELL_S",
     "ROTATION_SPEED_STATIC",
     "SPEED_STATIC",
     "DwellSet",
+    "OffsetEstimate",
+    "average_dwell",
     "collect_dwells",
     "coupling_motion",
     "coverage",
@@ -41,6 +56,7 @@ __all__ = [
     "mean_pose",
     "pose_motion",
     "thresholds",
+    "time_offset_scan",
     "MATCH_MODES",
     "MIN_PAIRS",
     "OUTLIER_P",

@@ -22,6 +22,7 @@ keyword arguments.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -30,11 +31,18 @@ from .._errors import InputError
 from ..geometry import pose_from_rt, rotation_diversity
 
 __all__ = [
+    "BASELINE_S",
     "COUPLING_RATE_STATIC",
+    "GRID_S",
+    "LEVER_M",
+    "MARGIN_S",
+    "MIN_DWELL_S",
     "DwellSet",
+    "OffsetEstimate",
     "ROTATION_SPEED_STATIC",
     "SPEED_STATIC",
     "collect_dwells",
+    "average_dwell",
     "coupling_motion",
     "coverage",
     "estimate_time_offset",
@@ -42,6 +50,7 @@ __all__ = [
     "log_profile",
     "mean_pose",
     "pose_motion",
+    "time_offset_scan",
 ]
 
 #: A tracker sample is static when its couplings change by less than this fraction of their
@@ -72,11 +81,18 @@ TRANS_DRIFT_M = 0.2e-3
 ROT_DRIFT_RAD = np.deg2rad(0.1)
 
 
-def _uniform(times, values, step):
-    """Linear interpolation of ``values`` (N, ...) onto a uniform grid from times[0]."""
+def _uniform(times, values, step, grid_start=None):
+    """Linear interpolation of ``values`` (N, ...) onto a uniform grid from times[0] (or on the
+    grid ``grid_start + k * step`` within the times, so that pieces of a stream line up)."""
     t = np.asarray(times, dtype=np.float64)
-    n = int(np.floor((t[-1] - t[0]) / step)) + 1
-    g = t[0] + step * np.arange(n)
+    if grid_start is None:
+        n = int(np.floor((t[-1] - t[0]) / step)) + 1
+        g = t[0] + step * np.arange(n)
+    else:
+        k0 = int(np.ceil((t[0] - grid_start) / step - 1e-9))
+        k1 = int(np.floor((t[-1] - grid_start) / step + 1e-9))
+        g = grid_start + step * np.arange(k0, max(k1 + 1, k0))
+        n = len(g)
     flat = np.asarray(values, dtype=np.float64).reshape(len(t), -1)
     out = np.empty((n, flat.shape[1]))
     for k in range(flat.shape[1]):
@@ -111,18 +127,21 @@ def _check_times(times, name):
     return t
 
 
-def coupling_motion(times, couplings, *, step: float = GRID_S, baseline: float = BASELINE_S):
+def coupling_motion(times, couplings, *, step: float = GRID_S, baseline: float = BASELINE_S,
+                    grid_start: float | None = None):
     """Motion of the tracker's sensor from its couplings alone: ``||dC/dt|| / ||C||`` (1/s).
 
-    The couplings are put on a uniform grid of ``step`` seconds, averaged over ``baseline`` and
-    differenced over ``baseline``; no calibration is needed. Returns ``(grid_times, rate)``.
+    The couplings are put on a uniform grid of ``step`` seconds (from the first time, or
+    ``grid_start + k * step``), averaged over ``baseline`` and differenced over ``baseline``;
+    no calibration is needed. Returns ``(grid_times, rate)``. A value depends on the samples
+    within ``baseline`` of its time only, so a stream can be profiled piece by piece.
     """
     t = _check_times(times, "times")
     C = np.asarray(couplings)
     if C.ndim < 2 or len(C) != len(t):
         raise InputError(f"expected couplings (N, ...) with N = {len(t)} time stamps, got shape "
                          f"{C.shape}")
-    g, x = _uniform(t, np.real(C).reshape(len(t), -1), step)
+    g, x = _uniform(t, np.real(C).reshape(len(t), -1), step, grid_start)
     k = max(1, int(round(baseline / step)))
     xs = _box(x, k)
     d = np.linalg.norm(_diff(xs, (k + 1) // 2), axis=1)
@@ -130,8 +149,10 @@ def coupling_motion(times, couplings, *, step: float = GRID_S, baseline: float =
     return g, d / span / np.maximum(np.linalg.norm(xs, axis=1), np.finfo(float).tiny)
 
 
-def pose_motion(times, poses, *, step: float = GRID_S, baseline: float = BASELINE_S):
-    """Translation speed (m/s) and rotation speed (rad/s) of a pose stream on a uniform grid.
+def pose_motion(times, poses, *, step: float = GRID_S, baseline: float = BASELINE_S,
+                grid_start: float | None = None):
+    """Translation speed (m/s) and rotation speed (rad/s) of a pose stream on a uniform grid
+    (as :func:`coupling_motion`).
 
     Returns ``(grid_times, speed, rotation_speed)``.
     """
@@ -140,7 +161,7 @@ def pose_motion(times, poses, *, step: float = GRID_S, baseline: float = BASELIN
     if P.shape != (len(t), 4, 4):
         raise InputError(f"expected poses ({len(t)}, 4, 4), got shape {P.shape}")
     g, x = _uniform(t, np.concatenate([P[:, :3, 3], P[:, :3, :3].reshape(len(t), 9)], axis=1),
-                    step)
+                    step, grid_start)
     k = max(1, int(round(baseline / step)))
     xs = _box(x, k)
     h = (k + 1) // 2
@@ -163,8 +184,45 @@ def _standardise(x):
     return (x - x.mean()) / (s if s > 0 else 1.0)
 
 
-def estimate_time_offset(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0.5,
-                         max_offset: float | None = None) -> tuple[float, float]:
+class OffsetEstimate(NamedTuple):
+    """:func:`time_offset_scan`'s answer.
+
+    Attributes
+    ----------
+    offset : float
+        Seconds to add to a time of stream a to get the time of stream b.
+    correlation : float
+        Pearson correlation of the two profiles over their overlap at that offset, in [-1, 1].
+    runner_up : float
+        The best correlation at offsets at least ``separation`` seconds from it (-1 when there
+        is none): a correlation that stands out from every other alignment makes the offset
+        trustworthy, one that another alignment nearly matches does not.
+    overlap_s : float
+        Seconds of overlap at that offset.
+    """
+
+    offset: float
+    correlation: float
+    runner_up: float
+    overlap_s: float
+
+    @property
+    def confidence(self) -> float:
+        """``(correlation - runner_up) / (1 - runner_up)`` in [0, 1]: 0 when another alignment
+        is as good, 1 when the match is perfect and unique."""
+        return float(np.clip((self.correlation - self.runner_up)
+                             / max(1.0 - self.runner_up, 1e-12), 0.0, 1.0))
+
+
+def _pearson(x, y) -> float:
+    x, y = x - x.mean(), y - y.mean()          # (sums, not BLAS dots: no thread start-up)
+    d = np.sqrt(np.sum(x * x) * np.sum(y * y))
+    return float(np.clip(np.sum(x * y) / d, -1.0, 1.0)) if d > 0 else -1.0
+
+
+def time_offset_scan(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0.5,
+                     max_offset: float | None = None, center: float = 0.0,
+                     separation: float = 0.5) -> OffsetEstimate:
     """The offset ``d`` with ``b(t + d) ~ a(t)`` by cross-correlation of two motion profiles.
 
     Parameters
@@ -175,16 +233,13 @@ def estimate_time_offset(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0
     min_overlap : float
         Only lags where the profiles overlap by this fraction of the shorter one count.
     max_offset : float, optional
-        Only offsets within +-max_offset seconds count.
+        Only offsets within ``center`` +- ``max_offset`` seconds count.
+    separation : float
+        Offsets at least this far from the best one give :attr:`OffsetEstimate.runner_up`.
 
-    Returns
-    -------
-    offset : float
-        Seconds to add to a time of stream a to get the time of stream b (parabolic
-        interpolation of the correlation peak, finer than the grid).
-    correlation : float
-        Normalised correlation at the peak (1 = identical shapes; below about 0.5 the offset
-        is doubtful).
+    The correlation at each lag is Pearson's over the overlap, from sums computed by FFT;
+    lags whose overlap has (numerically) no variance are left out, and the best lag's
+    correlation is recomputed directly, so it lies in [-1, 1].
     """
     from scipy.signal import correlate
 
@@ -194,8 +249,6 @@ def estimate_time_offset(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0
         raise InputError(f"expected motion profiles of at least 4 samples, got {len(a)} and "
                          f"{len(b)}")
     step = ta[1] - ta[0]
-    # Pearson correlation over the overlap of b shifted by k grid steps against a, for every
-    # lag k, from sums over the overlap (each one correlation by FFT)
     ones_a, ones_b = np.ones(len(a)), np.ones(len(b))
 
     def corr(x, y):
@@ -208,22 +261,49 @@ def estimate_time_offset(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0
     ok = n >= max(4, min_overlap * min(len(a), len(b)))
     offsets = tb[0] - ta[0] + lags * step
     if max_offset is not None:
-        ok &= np.abs(offsets) <= max_offset
+        ok &= np.abs(offsets - center) <= max_offset
     if not ok.any():
         raise InputError("expected the two streams to overlap in time, got no lag with enough "
                          "overlap")
     m = np.maximum(n, 1)
-    var = np.maximum(s_aa - s_a ** 2 / m, 0) * np.maximum(s_bb - s_b ** 2 / m, 0)
+    va = np.maximum(s_aa - s_a ** 2 / m, 0)
+    vb = np.maximum(s_bb - s_b ** 2 / m, 0)
+    # the sums carry FFT round-off of about 1e-12 of the totals: an overlap whose variance is
+    # not well above that has no correlation to speak of
+    floor = 1e-6 * np.maximum(m, 1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        r = (s_ab - s_a * s_b / m) / np.sqrt(var)
-    r = np.where(ok & (var > 0), r, -np.inf)
+        r = (s_ab - s_a * s_b / m) / np.sqrt(va * vb)
+    r = np.where(ok & (va > floor) & (vb > floor), np.clip(r, -1.0, 1.0), -np.inf)
     k = int(np.argmax(r))
+    if not np.isfinite(r[k]):
+        return OffsetEstimate(float(offsets[k]), -1.0, -1.0, float(n[k] * step))
+
+    def exact(j):
+        lag = int(lags[j])
+        i0, i1 = max(0, -lag), min(len(a), len(b) - lag)
+        return _pearson(a[i0:i1], b[i0 + lag:i1 + lag])
+
+    rk = exact(k)
     frac = 0.0
     if 0 < k < len(r) - 1 and np.isfinite(r[k - 1]) and np.isfinite(r[k + 1]):
-        den = r[k - 1] - 2 * r[k] + r[k + 1]
+        lo, hi = exact(k - 1), exact(k + 1)
+        den = lo - 2 * rk + hi
         if den < 0:
-            frac = 0.5 * (r[k - 1] - r[k + 1]) / den
-    return float(offsets[k] + frac * step), float(r[k])
+            frac = float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5))
+    far = np.abs(lags - lags[k]) * step >= separation
+    rr = r[far & np.isfinite(r)]
+    runner = float(rr.max()) if rr.size else -1.0
+    return OffsetEstimate(float(offsets[k] + frac * step), rk, runner, float(n[k] * step))
+
+
+def estimate_time_offset(t_a, motion_a, t_b, motion_b, *, min_overlap: float = 0.5,
+                         max_offset: float | None = None) -> tuple[float, float]:
+    """``(offset, correlation)`` of :func:`time_offset_scan`: the offset ``d`` with
+    ``b(t + d) ~ a(t)`` (s, finer than the grid by parabolic interpolation) and the Pearson
+    correlation at it, in [-1, 1] (below about 0.5 the offset is doubtful)."""
+    e = time_offset_scan(t_a, motion_a, t_b, motion_b, min_overlap=min_overlap,
+                         max_offset=max_offset)
+    return e.offset, e.correlation
 
 
 def log_profile(motion, floor: float = PROFILE_FLOOR):
@@ -269,6 +349,31 @@ def mean_pose(poses) -> np.ndarray:
     P = np.asarray(poses, dtype=np.float64)
     R = Rotation.from_matrix(P[:, :3, :3]).mean().as_matrix()
     return pose_from_rt(R, P[:, :3, 3].mean(axis=0))
+
+
+def average_dwell(t_tracker, couplings, t_reference, reference_poses, a, b, time_offset):
+    """Both streams averaged over the dwell ``[a, b]`` (tracker clock, s): ``(couplings,
+    reference pose, tracker samples, reference samples)``, or None when either stream has
+    fewer than 3 samples there or drifts within it (the means of its halves differ by more
+    than ``COUPLING_DRIFT`` of the couplings' norm, ``TRANS_DRIFT_M`` or ``ROT_DRIFT_RAD``).
+    The time stamps must be sorted."""
+    tt, tr = t_tracker, t_reference
+    i0, i1 = np.searchsorted(tt, a, "left"), np.searchsorted(tt, b, "right")
+    j0 = np.searchsorted(tr, a + time_offset, "left")
+    j1 = np.searchsorted(tr, b + time_offset, "right")
+    if i1 - i0 < 3 or j1 - j0 < 3:
+        return None
+    Ci = np.asarray(couplings[i0:i1])
+    Bj = np.asarray(reference_poses[j0:j1], dtype=np.float64)
+    Cm = Ci.mean(axis=0)
+    if _drift(Ci) > COUPLING_DRIFT * np.linalg.norm(Cm):
+        return None
+    h = len(Bj) // 2
+    B1, B2 = mean_pose(Bj[:h]), mean_pose(Bj[h:])
+    if np.linalg.norm(B1[:3, 3] - B2[:3, 3]) > TRANS_DRIFT_M or \
+            Rotation.from_matrix(B1[:3, :3].T @ B2[:3, :3]).magnitude() > ROT_DRIFT_RAD:
+        return None
+    return Cm, mean_pose(Bj), int(i1 - i0), int(j1 - j0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -376,24 +481,14 @@ def collect_dwells(t_tracker, couplings, t_reference, reference_poses, *,
     out_C, out_B, keep, n_ca, n_ba = [], [], [], [], []
     moved = 0
     for a, b in both:                   # (a dwell failing a drift test counts below)
-        ia = (tt >= a) & (tt <= b)
-        ib = (tr >= a + time_offset) & (tr <= b + time_offset)
-        if ia.sum() < 3 or ib.sum() < 3:
+        got = average_dwell(tt, C, tr, B, a, b, time_offset)
+        if got is None:
             continue
-        Cm = C[ia].mean(axis=0)
-        Bm = mean_pose(B[ib])
-        if _drift(C[ia]) > COUPLING_DRIFT * np.linalg.norm(Cm):
-            continue
-        h = ib.sum() // 2
-        B1, B2 = mean_pose(B[ib][:h]), mean_pose(B[ib][h:])
-        if np.linalg.norm(B1[:3, 3] - B2[:3, 3]) > TRANS_DRIFT_M or \
-                Rotation.from_matrix(B1[:3, :3].T @ B2[:3, :3]).magnitude() > ROT_DRIFT_RAD:
-            continue
-        out_C.append(Cm)
-        out_B.append(Bm)
+        out_C.append(got[0])
+        out_B.append(got[1])
         keep.append((a, b))
-        n_ca.append(int(ia.sum()))
-        n_ba.append(int(ib.sum()))
+        n_ca.append(got[2])
+        n_ba.append(got[3])
     # every dwell of the tracker is kept, or dropped because the reference moved in it (or
     # within the kept part), or because the reference has no poses there
     kept = np.array(keep, dtype=np.float64).reshape(len(keep), 2)

@@ -43,6 +43,7 @@ from ._split import holdout_split
 __all__ = [
     "EIV_NOISE_FLOOR",
     "MIN_REFERENCE_POSES",
+    "REFERENCE_RESIDUAL_FACTOR",
     "WEIGHTINGS",
     "XY_CONDITION_LIMIT",
     "ReferenceFit",
@@ -59,6 +60,12 @@ __all__ = [
 
 #: Fewest training poses of a reference calibration.
 MIN_REFERENCE_POSES = 12
+#: The fit is refused (``accept_residual=False``) when the fitted reference residual (3-D RMS
+#: translation or RMS angle of the reference poses' misfit) exceeds the stated reference noise
+#: by more than this factor: a good fit comes out near 1 (0.8-1.2 on simulated robot and optical
+#: data); a reference that does not belong to the couplings (another motion, mispaired dwells,
+#: another unit) comes out thousands of times over.
+REFERENCE_RESIDUAL_FACTOR = 10.0
 #: Condition number of the X/Y block of the column-scaled Jacobian, with the coil parameters
 #: projected out, above which X and Y count as ill-determined (docs/reference-calibration.md#identifiability).
 XY_CONDITION_LIMIT = 1e3
@@ -96,7 +103,8 @@ def reference_poses(dataset) -> tuple[np.ndarray, dict]:
     B = dataset.extra.get("reference_poses")
     if B is None:
         raise InputError("expected a dataset with reference poses (extra/reference_poses, "
-                         "from 'openemt simulate --reference' or stage_reference), got none")
+                         "from 'openemt collect', 'openemt simulate --reference' or "
+                         "openemt.calibrate.stage_reference for rig data), got none")
     B = np.asarray(B, dtype=np.float64)
     if B.shape != (dataset.n_samples, 4, 4):
         raise InputError(f"expected reference poses of shape ({dataset.n_samples}, 4, 4), got "
@@ -539,7 +547,8 @@ def _split(B, holdout, seed):
 
 def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float = 0.0,
                   seed: int = 0, weighting: str = "auto", max_nfev: int = 200,
-                  tol: float = 1e-12, warn: bool = True) -> ReferenceFit:
+                  tol: float = 1e-12, warn: bool = True,
+                  accept_residual: bool = False) -> ReferenceFit:
     """Fit the coil model, X and Y to couplings measured at reference poses.
 
     Parameters
@@ -569,6 +578,10 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     warn : bool
         Warn (:class:`IdentifiabilityWarning`) when X, Y or a coil group is undetermined or
         the X/Y block is ill-conditioned (e.g. too little rotation diversity).
+    accept_residual : bool
+        Return the fit even when its reference residual exceeds the stated reference noise
+        more than :data:`REFERENCE_RESIDUAL_FACTOR` times (else :class:`InputError`; not
+        checked when X or Y is undetermined, which the warning says).
 
     Returns
     -------
@@ -668,6 +681,8 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     t, a = np.linalg.norm(d[:, :3], axis=1), np.linalg.norm(d[:, 3:], axis=1)
     weighting_out["reference_residual_trans_m"] = float(np.sqrt(np.mean(t ** 2)))
     weighting_out["reference_residual_rot_rad"] = float(np.sqrt(np.mean(a ** 2)))
+    if not accept_residual and not xy["undetermined"]:    # (undetermined: warned above;
+        _check_residual(weighting_out, info)            # its residual has no meaning)
     rms = plain["rms_residue"]
     stats = {**f.stats, **plain, "weighting": weighting_out, "fit_seconds": seconds,
              "xy_condition": xy["xy_condition"],
@@ -694,6 +709,21 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
                         warnings=messages, start=start_info, holdout=holdout_out, train=train,
                         test=test, x=x, free=free, layout=layout, weighting=weighting_out,
                         seconds=time.perf_counter() - t0)
+
+
+def _check_residual(w, info) -> None:
+    """InputError when the fitted reference residual is many times the stated noise."""
+    for key, stated, unit, scale in (("reference_residual_trans_m", "noise_trans_m", "mm", 1e3),
+                                     ("reference_residual_rot_rad", "noise_rot_rad", "deg",
+                                      float(np.rad2deg(1.0)))):
+        s = info.get(stated)
+        if s is not None and s > 0 and not w[key] <= REFERENCE_RESIDUAL_FACTOR * s:
+            raise InputError(
+                f"expected a fitted reference residual within {REFERENCE_RESIDUAL_FACTOR:g} "
+                f"times the stated reference noise ({scale * s:.4g} {unit}), got "
+                f"{scale * w[key]:.4g} {unit} RMS: reference poses that do not belong to the "
+                f"couplings (another motion, mispaired dwells, another unit) or a noise stated "
+                f"too low (--accept-reference-residual keeps the fit)")
 
 
 def _reference_block(X, Y, info, X_se, Y_se) -> dict:

@@ -56,6 +56,9 @@ class CalibrateOptions:
         "alike (the paper's residual); default 'auto': errors-in-variables when the dataset "
         "states its reference noise (docs/reference-calibration.md#errors-in-variables)",
         choices=("auto", "errors-in-variables", "ordinary"))
+    accept_reference_residual: bool = _opt(
+        False, "reference mode: keep a fit whose reference residual exceeds the stated "
+        "reference noise more than 10 times (refused otherwise)")
     hemisphere: str | None = _opt(None, "reference mode: hemisphere of the sensor for the start "
                                   "solve (+x, -x, ...; default: the dataset's, else +x)")
     sensor_length: float | None = _opt(
@@ -378,20 +381,18 @@ def _reference_start(o, dataset, nominal):
 
 
 def _reference(o, nominal) -> CalibrateResult:
-    from ._reference import fit_reference, stage_reference
+    from ._reference import fit_reference, reference_poses
 
     dataset = load_dataset(o.dataset)
     note = None
-    if "reference_poses" not in dataset.extra:
-        dataset = stage_reference(dataset)
-        note = ("no reference poses in the dataset: the stage motion of the home fixture "
-                "combination's md rows is the reference")
+    reference_poses(dataset)                  # none: one error line, exit 2
     start, start_path = _reference_start(o, dataset, nominal)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         f = fit_reference(dataset, start, hemisphere=o.hemisphere,
                           freeze=_groups(o.freeze) or (), holdout=_fraction(o.holdout),
-                          seed=o.seed, weighting=o.weighting)
+                          seed=o.seed, weighting=o.weighting,
+                          accept_residual=o.accept_reference_residual)
     cal = f.calibration
     cal = cal.replace(provenance={**cal.provenance, "start_file": start_path})
     ident = f.identifiability

@@ -45,15 +45,3 @@ def run(args) -> int:
     emit(args, result.to_dict(), result.human())
     return result.exit_code
 
-
-# kept for `openemt collect` (cli/_collect.py) until it calls its own workflow
-def _announce_compile(args, sensors) -> None:
-    from ..live._session import announce_compile_for
-
-    announce_compile_for(args, sensors)
-
-
-def _Session(args):
-    from ..live._session import _Console
-
-    return _Console(args.quiet)

@@ -4,10 +4,9 @@ robot or optical tracker served by a real OpenIGTLink server.
 - :func:`parse_reference_url` reads ``igtl://HOST:PORT/DEVICE``;
 - :class:`ReferenceClient` connects to an OpenIGTLink server (PLUS, 3D Slicer, a robot's
   bridge) and keeps **every** TRANSFORM of one device with its time stamp (pyigtl's own client
-  keeps only the latest message per device); translations arrive in millimetres (the
+  keeps only the latest message per device), each checked (sizes, CRC, rotation, status, time
+  stamp) and counted by reason when dropped; translations arrive in millimetres (the
   OpenIGTLink convention of Slicer and PLUS) and are kept in metres;
-- :func:`read_reference_csv` reads reference poses with time stamps from a pose CSV
-  (:func:`openemt.io.read_poses_csv`; the ``time`` column is required);
 - :class:`DwellMotion` is a robot-like motion through the poses of
   :func:`openemt.simulate.simulate_reference` (hold, move with a minimum-jerk profile, hold);
 - :class:`SimulatedReferenceServer` serves the reference poses of a :class:`DwellMotion`
@@ -29,13 +28,14 @@ from scipy.spatial.transform import Rotation
 
 from .._errors import InputError
 from ..geometry import invert, pose_from_rt, pose_from_vector
+from ._gate import Drops, TimeGate, rigid_rows
 
 __all__ = [
     "DwellMotion",
     "ReferenceClient",
     "SimulatedReferenceServer",
     "parse_reference_url",
-    "read_reference_csv",
+    "parse_transform_body",
     "simulated_motion",
 ]
 
@@ -58,15 +58,81 @@ def parse_reference_url(url: str) -> tuple[str, int, str]:
     return u.hostname, int(port), device
 
 
+#: The largest body of a message of the reference device read into memory (a TRANSFORM with
+#: metadata is a few hundred bytes); larger bodies of other messages are skipped unread up to
+#: :data:`MAX_SKIP_BODY`, beyond which the stream is not taken for OpenIGTLink.
+MAX_BODY = 1 << 16
+MAX_SKIP_BODY = 1 << 26
+_STATUS_OK = {"OK"}
+
+
+def _crc64():
+    import crcmod
+
+    return crcmod.mkCrcFun(0x142F0E1EBA9EA3693, rev=False, initCrc=0, xorOut=0)
+
+
+def parse_transform_body(version: int, body: bytes):
+    """The matrix (4, 4, float64, translation as sent) and metadata of a TRANSFORM body, or
+    ``(None, reason)`` when the body is not one: a version-1 body is 48 bytes; a version-2 body
+    is a 12-byte extended header, 48 bytes of content, a metadata header and the metadata,
+    every size checked against the body's."""
+    import struct
+
+    meta = {}
+    if version == 1:
+        if len(body) != 48:
+            return None, "transform_body_size"
+        content = body
+    else:
+        if len(body) < 12 + 48:
+            return None, "transform_body_size"
+        ext, mh, ms, _ = struct.unpack(">HHII", body[:12])
+        if ext < 12 or ext + 48 + mh + ms != len(body):
+            return None, "extended_header_sizes"
+        content = body[ext:ext + 48]
+        if mh:
+            if mh < 2:
+                return None, "metadata_sizes"
+            (count,) = struct.unpack(">H", body[ext + 48:ext + 50])
+            if 2 + 8 * count != mh:
+                return None, "metadata_sizes"
+            heads = [struct.unpack(">HHI", body[ext + 50 + 8 * i:ext + 58 + 8 * i])
+                     for i in range(count)]
+            if sum(k + v for k, _, v in heads) != ms:
+                return None, "metadata_sizes"
+            o = ext + 48 + mh
+            for k, _, v in heads:
+                key = body[o:o + k].decode("utf-8", "replace")
+                meta[key] = body[o + k:o + k + v].decode("utf-8", "replace").strip("\0 ")
+                o += k + v
+        elif ms:
+            return None, "metadata_sizes"
+    v = np.frombuffer(content, dtype=">f4").astype(np.float64)
+    M = np.eye(4)
+    M[:3, :4] = v.reshape(4, 3).T
+    return M, meta
+
+
 class ReferenceClient:
-    """An OpenIGTLink client that keeps every TRANSFORM of one device.
+    """An OpenIGTLink client that keeps every TRANSFORM of one device, checked.
+
+    Each message's header is read (58 bytes), its body size bounded before anything is
+    allocated (:data:`MAX_BODY` for the device's TRANSFORMs; other messages are skipped unread
+    up to :data:`MAX_SKIP_BODY`), and its CRC-64 (ECMA-182, as the protocol states) checked. A
+    TRANSFORM is kept when its body parses (:func:`parse_transform_body`), its metadata does
+    not mark it invalid (``TransformStatus`` other than ``OK``, ``TransformValid`` false), its
+    rotation block is a rotation (:func:`~openemt.collect.rigid_rows`, never projected) and its
+    time stamp continues the stream (:class:`~openemt.collect.TimeGate`). Everything turned
+    away is counted by reason in :attr:`drops`. Translations arrive in millimetres (the
+    OpenIGTLink convention of Slicer and PLUS) and are kept in metres.
 
     Parameters
     ----------
     host, port : str, int
     device : str
         Device name of the reference transform (e.g. ``RobotToBase``); other devices and
-        message types are counted and ignored.
+        message types are counted (``n_other``) and skipped.
     connect_timeout : float
         Seconds to keep trying to connect before :attr:`error` says so.
 
@@ -75,9 +141,10 @@ class ReferenceClient:
     closed : bool
         The server ended the connection (or it failed: :attr:`error`).
     n_messages : int
-        Transforms of ``device`` received.
+        Transforms of ``device`` kept.
     last_receipt : float or None
         Wall-clock time of the latest one.
+    drops : Drops
     """
 
     def __init__(self, host: str, port: int, device: str, *, connect_timeout: float = 5.0):
@@ -89,11 +156,13 @@ class ReferenceClient:
         self.n_messages = 0
         self.n_other = 0
         self.last_receipt: float | None = None
+        self.drops = Drops()
+        self.gate = TimeGate(self.drops)
         self._lock = threading.Lock()
         self._t: list = []
         self._M: list = []
+        self._r: list = []
         self._stop = False
-        self._sock = None
         self._thread = threading.Thread(target=self._run, name="openemt-reference", daemon=True)
         self._thread.start()
 
@@ -109,98 +178,111 @@ class ReferenceClient:
                     return None
                 time.sleep(0.05)
 
-    def _recv(self, sock, n):
-        buf = b""
-        while len(buf) < n and not self._stop:
+    def _recv(self, sock, n, keep=True):
+        buf, got = bytearray(), 0
+        while got < n and not self._stop:
             try:
-                part = sock.recv(n - len(buf))
+                part = sock.recv(min(n - got, 1 << 16))
             except TimeoutError:
                 continue
             if not part:
                 return None
-            buf += part
-        return buf if len(buf) == n else None
+            got += len(part)
+            if keep:
+                buf += part
+        return bytes(buf) if got == n else None
 
     def _run(self):
-        import pyigtl
-
-        sock = self._connect()
-        if sock is None:
-            self.closed = True
-            return
-        self._sock = sock
-        sock.settimeout(0.2)
-        self.connected = True
         try:
-            while not self._stop:
-                head = self._recv(sock, _HEADER)
-                if head is None:
-                    break
-                fields = pyigtl.MessageBase.parse_header(head)
-                body = self._recv(sock, fields["body_size"])
-                if body is None:
-                    break
-                now = time.time()
-                if fields["message_type"] != "TRANSFORM" or fields["device_name"] != self.device:
-                    self.n_other += 1
-                    continue
-                msg = pyigtl.MessageBase.create_message("TRANSFORM")
-                msg.unpack(fields, body)
-                M = np.array(msg.matrix, dtype=np.float64)
-                M[:3, 3] *= 1e-3                       # OpenIGTLink mm -> m
-                stamp = float(fields["timestamp"]) or now   # no time stamp: time of receipt
-                with self._lock:
-                    self._t.append(stamp)
-                    self._M.append(M)
-                    self.n_messages += 1
-                    self.last_receipt = now
-        except (OSError, ValueError, KeyError) as exc:     # a broken connection or message
+            sock = self._connect()
+            if sock is None:
+                return
+            try:
+                sock.settimeout(0.2)
+                self.connected = True
+                self._read(sock)
+            finally:
+                sock.close()
+        except Exception as exc:                # noqa: BLE001 - said once, never a traceback
             if not self._stop:
                 self.error = f"reference stream {self.host}:{self.port} failed: {exc}"
         finally:
             self.closed = True
-            sock.close()
 
-    def take(self) -> tuple[np.ndarray, np.ndarray]:
-        """The time stamps (s) and poses (m) received since the last call."""
+    def _read(self, sock):
+        import struct
+
+        crc64 = _crc64()
+        while not self._stop:
+            head = self._recv(sock, _HEADER)
+            if head is None:
+                return
+            version, mtype, dev, sec, frac, size, crc = struct.unpack(">H12s20sIIQQ", head)
+            mtype = mtype.rstrip(b"\0").decode("ascii", "replace")
+            dev = dev.rstrip(b"\0").decode("ascii", "replace")
+            if version not in (1, 2, 3):
+                self.error = (f"expected OpenIGTLink header version 1, 2 or 3 from "
+                              f"{self.host}:{self.port}, got {version}: not an OpenIGTLink "
+                              f"stream, or out of step")
+                return
+            ours = mtype == "TRANSFORM" and dev == self.device
+            if size > (MAX_BODY if ours else MAX_SKIP_BODY):
+                self.error = (f"expected an OpenIGTLink {mtype or 'message'} body of at most "
+                              f"{MAX_BODY if ours else MAX_SKIP_BODY} bytes from "
+                              f"{self.host}:{self.port}, got a size of {size}")
+                return
+            body = self._recv(sock, size, keep=ours)
+            if body is None:
+                if not self._stop:
+                    self.drops["truncated"] += 1
+                return
+            now = time.time()
+            if not ours:
+                self.n_other += 1
+                continue
+            if crc64(body) != crc:
+                self.drops["crc"] += 1
+                continue
+            M, meta = parse_transform_body(version, body)
+            if M is None:
+                self.drops[meta] += 1
+                continue
+            status = meta.get("TransformStatus")
+            if status is not None and status.upper() not in _STATUS_OK:
+                self.drops["transform_status_" + "".join(
+                    c for c in status.lower() if c.isalnum() or c == "_")[:20]] += 1
+                continue
+            if meta.get("TransformValid", "true").strip().lower() in ("false", "0", "no"):
+                self.drops["transform_not_valid"] += 1
+                continue
+            M[:3, 3] *= 1e-3                       # OpenIGTLink mm -> m
+            if not rigid_rows(M)[0]:
+                self.drops["not_a_rotation" if np.all(np.isfinite(M)) else "not_finite"] += 1
+                continue
+            stamp = sec + frac / 2.0 ** 32 if (sec or frac) else now   # none: time of receipt
+            if not self.gate.take(stamp):
+                continue
+            with self._lock:
+                self._t.append(stamp)
+                self._M.append(M)
+                self._r.append(now)
+                self.n_messages += 1
+                self.last_receipt = now
+
+    def take(self, *, receipts: bool = False):
+        """The time stamps (s) and poses (m) received since the last call (and the wall-clock
+        times of their receipt with ``receipts``)."""
         with self._lock:
-            t, M = self._t, self._M
-            self._t, self._M = [], []
-        return (np.array(t, dtype=np.float64),
-                np.array(M, dtype=np.float64).reshape(len(M), 4, 4))
+            t, M, r = self._t, self._M, self._r
+            self._t, self._M, self._r = [], [], []
+        out = (np.array(t, dtype=np.float64),
+               np.array(M, dtype=np.float64).reshape(len(M), 4, 4))
+        return (*out, np.array(r, dtype=np.float64)) if receipts else out
 
     def close(self) -> None:
         self._stop = True
         self._thread.join(timeout=2.0)
-
-
-def read_reference_csv(path) -> tuple[np.ndarray, np.ndarray]:
-    """Reference poses with time stamps from a pose CSV: ``(times (N,), poses (N, 4, 4))``.
-
-    The columns are those of :func:`openemt.io.read_poses_csv` (``time`` in seconds of the
-    reference's clock, a position and an orientation per row); rows with missing values are
-    dropped, and the rows are sorted by time.
-    """
-    from ..io import read_poses_csv
-
-    table = read_poses_csv(path)
-    if table.time is None:
-        raise InputError(f"expected a `time` column (s) in the reference CSV {str(path)!r}, "
-                         f"got columns without one")
-    if not table.has_orientation:
-        raise InputError(f"expected orientations (qw, qx, qy, qz or rx, ry, rz) in the "
-                         f"reference CSV {str(path)!r}, got positions only")
-    t = np.asarray(table.time, dtype=np.float64)
-    P = np.asarray(table.poses, dtype=np.float64)
-    ok = np.isfinite(t) & np.all(np.isfinite(P), axis=(1, 2))
-    t, P = t[ok], P[ok]
-    order = np.argsort(t, kind="stable")
-    t, P = t[order], P[order]
-    keep = np.concatenate([[True], np.diff(t) > 0])
-    if keep.sum() < 2:
-        raise InputError(f"expected at least two rows with distinct times in the reference CSV "
-                         f"{str(path)!r}, got {int(keep.sum())}")
-    return t[keep], P[keep]
+        self.gate.finish()
 
 
 def _min_jerk(u):
