@@ -186,7 +186,7 @@ def test_version_1_cpp_and_version_2_clients_read_every_transform_and_string(cpp
     strings_c = [(m["device"], m["text"]) for m in cpp if m["type"] == "STRING"]
     strings_2 = [(m["device"], m["text"]) for m in v2 if m["type"] == "STRING"]
     assert strings_c == strings_2 and len(strings_c) >= 2
-    assert ("ProbeToTrackerState", "TRACKING ProbeToTracker") in strings_c
+    assert ("ProbeState", "TRACKING ProbeToTracker") in strings_c
 
 
 def test_both_clients_read_every_tdata(cpp_client, tmp_path):
