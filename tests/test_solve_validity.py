@@ -238,3 +238,17 @@ def test_wrong_local_minima_below_the_threshold_are_not_converged():
     ok = plain.status == Status.CONVERGED
     trans, rot = pose_error_magnitudes(plain.poses[ok], P[ok])
     assert np.max(trans) > 1e-3
+
+
+@pytest.mark.parametrize("name", ["svd", "kuipers", "kim18"])
+def test_three_samples_with_one_hemisphere_name_each(name):
+    """Three samples with a hemisphere name each (an array of 3 strings) are three
+    hemispheres, not one direction of 3 numbers (a 3-pose held-out set of a reference
+    calibration crashed on this)."""
+    rng = np.random.default_rng(8)
+    model = DipoleModel.concentric()
+    P = _poses(rng, 3, 0.2, 0.5)
+    hemi = hemisphere_from_positions(P[:, :3, 3])
+    assert np.shape(hemi) == (3,)
+    res = _solve(name, model.coupling(P), model, hemi)
+    assert np.all(res.status == Status.CONVERGED)

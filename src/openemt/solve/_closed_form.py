@@ -569,7 +569,9 @@ def _solve_closed_form(method, couplings, model, hemisphere, rank_tol, ambiguity
     C, cnorm = check_couplings(couplings, 3, 3)
     n = C.shape[0]
     # one hemisphere for all samples: pass a single row (the kernel broadcasts it)
-    uniform = isinstance(hemisphere, str) or np.shape(hemisphere) == (3,)
+    # (a vector of 3 numbers is one direction; 3 strings are one hemisphere per sample)
+    uniform = isinstance(hemisphere, str) or (
+        np.shape(hemisphere) == (3,) and np.asarray(hemisphere).dtype.kind in "iuf")
     nvec = hemisphere_vectors(hemisphere, 1 if uniform else n, allow_none=False)
     opts = pack_options(rank_tol=rank_tol, ambiguity_tol=ambiguity_tol,
                         max_relative_residual=max_rel, max_range=max_range)
