@@ -1,4 +1,4 @@
-"""``openemt design``: accuracy maps, board layout optimisation, carrier plans (docs/design.md)."""
+"""``openemt design``: accuracy maps, board and rig-source optimisation, carrier plans (docs/design.md)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ def register(sub) -> None:
     actions = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     for name, cls, run, text in (
             ("map", design.MapOptions, design.design_map, "CRB of the pose over a volume"),
-            ("optimize", design.OptimizeOptions, design.optimize_layout, "optimise a board"),
+            ("optimize", design.OptimizeOptions, design.optimize_layout,
+             "optimise a board or a rig source"),
             ("carriers", design.CarrierOptions, design.carrier_plan, "carrier plans")):
         a = actions.add_parser(name, help=text, description=text)
         add_options(a, cls)
