@@ -226,6 +226,15 @@ def test_optimize_rig_source_positions_axes_and_moments(tmp_path):
     again = design_map(target=str(out), x_mm=v["x_mm"], y_mm=v["y_mm"], z_mm=v["z_mm"],
                        grid=(3, 3, 3), montecarlo=0, noise_sigma=r.noise_sigma)
     assert again.position_mm["p95"] == pytest.approx(r.optimized["position_mm"]["p95"])
+    # the solver reads it: noise-free couplings of the written model give back the poses
+    from openemt.geometry import vector_from_pose
+    from openemt.solve import prepare
+
+    P = pose_from_vector(np.array([[0.24, -0.02, 0.03, 0.3, -0.2, 0.1],
+                                   [0.27, 0.02, -0.04, -1.0, 0.5, 2.0]]))
+    start = vector_from_pose(P) + np.array([0.004, -0.003, 0.002, 0.05, -0.04, 0.03])
+    res = prepare(m, hemisphere=None)(m.coupling(P), initial=start)
+    assert np.abs(res.poses[:, :3, 3] - P[:, :3, 3]).max() < 1e-7
     # no room to move: the positions stay
     fixed = optimize_layout(target="dipole-approx", grid=(2, 2, 2), max_evaluations=40,
                             montecarlo=0, offset_mm=0.0)
