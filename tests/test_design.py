@@ -248,6 +248,8 @@ def test_optimize_refuses_what_it_cannot_change(capsys):
     assert rc == 2 and "--min-size-mm" in capsys.readouterr().err
     rc = main(["design", "optimize", "concentric", "--offset-mm", "-1", "--json"])
     assert rc == 2 and "--offset-mm" in capsys.readouterr().err
+    rc = main(["design", "optimize", "concentric", "-o", "rig.toml", "--json"])
+    assert rc == 2 and "expected a .json output" in capsys.readouterr().err
     rc = main(["design", "optimize", "anser", "--min-spacing-mm", "30", "--json"])
     assert rc == 2 and "30 mm spacing" in capsys.readouterr().err
 

@@ -369,6 +369,9 @@ def optimize_layout(options: OptimizeOptions | None = None, **overrides) -> Opti
         raise InputError(f"expected a board (a built-in board, a board file or a board "
                          f"calibration) or a dipole rig source (a rig preset or a dipole "
                          f"calibration) to optimise, got {target.kind} {opts.target!r}")
+    if rig and opts.output and not str(opts.output).lower().endswith(".json"):
+        raise InputError(f"expected a .json output for a rig source (a calibration file), "
+                         f"got {opts.output!r}")
     start_map, volume, sigma, _ = map_of(target, opts)
     rotations = orientation_set(opts.orientations, opts.n_orientations)
     t0 = time.perf_counter()
