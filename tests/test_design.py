@@ -147,32 +147,109 @@ def test_optimize_lowers_the_bound_within_the_constraints(tmp_path, capsys):
     assert b.n_coils == start.n_coils and b.sensor.to_dict() == start.sensor.to_dict()
     assert all(c.outer_size == s.outer_size and c.turns_per_layer == s.turns_per_layer
                for c, s in zip(b.coils, start.coils))
-    # outlines inside the start footprint and at least 2 mm apart (dense samples of each
-    # outline: their distances are at least the outlines' distance)
-    def outline(c):
-        h = c.outer_size[0] / 2
-        R = c.rotation[:2, :2]
-        t = np.linspace(-h, h, 200)
-        sides = [np.column_stack([t, np.full_like(t, s)]) for s in (-h, h)] + \
-            [np.column_stack([np.full_like(t, s), t]) for s in (-h, h)]
-        return np.concatenate(sides) @ R.T + c.center[:2]
-
-    lines = [outline(c) for c in b.coils]
-    box = np.concatenate([outline(c) for c in start.coils])
-    for k, p in enumerate(lines):
-        assert np.all(p >= box.min(0) - 1e-9) and np.all(p <= box.max(0) + 1e-9)
-        for q in lines[k + 1:]:
-            dist = np.linalg.norm(p[:, None] - q[None], axis=-1).min()
-            assert dist >= 2e-3 - 1e-9
+    _assert_inside_and_apart(b, start, 2e-3)
     # every command that takes a board reads it
     m = design_map(target=str(out), grid=(3, 3, 2), orientations="down", montecarlo=0,
                    noise_sigma=d["noise_sigma"])
     assert m.position_mm["p95"] == pytest.approx(d["optimized"]["position_mm"]["p95"])
 
 
+def _outline(c):
+    """Dense samples of a square coil outline (board plane)."""
+    h = c.outer_size[0] / 2
+    R = c.rotation[:2, :2]
+    t = np.linspace(-h, h, 200)
+    sides = [np.column_stack([t, np.full_like(t, s)]) for s in (-h, h)] + \
+        [np.column_stack([np.full_like(t, s), t]) for s in (-h, h)]
+    return np.concatenate(sides) @ R.T + c.center[:2]
+
+
+def _assert_inside_and_apart(board, start, spacing):
+    """Outlines inside the start footprint and at least ``spacing`` apart (dense samples of
+    each outline: their distances are at least the outlines' distance)."""
+    lines = [_outline(c) for c in board.coils]
+    box = np.concatenate([_outline(c) for c in start.coils])
+    for k, p in enumerate(lines):
+        assert np.all(p >= box.min(0) - 1e-9) and np.all(p <= box.max(0) + 1e-9)
+        for q in lines[k + 1:]:
+            dist = np.linalg.norm(p[:, None] - q[None], axis=-1).min()
+            assert dist >= spacing - 1e-9
+
+
+def _trace_lengths(board):
+    return np.array([np.linalg.norm(np.diff(c.segments(), axis=1)[:, 0], axis=1).sum()
+                     for c in board.coils])
+
+
+def test_optimize_sizes_and_turns_within_the_drive_power(tmp_path):
+    from openemt.design import optimize_layout
+
+    out = tmp_path / "all.toml"
+    r = optimize_layout(target="anser", vary="all", grid=(3, 3, 2), orientations="down",
+                        max_evaluations=300, montecarlo=0, output=str(out))
+    b, start = read_board(out), builtin_board("anser")
+    _assert_inside_and_apart(b, start, 2e-3)
+    # the drive power at a common current (sum of trace resistances, one trace width) is at
+    # most the start's, and the JSON says what the file holds
+    L, L0 = _trace_lengths(b), _trace_lengths(start)
+    assert L.sum() <= L0.sum() * (1 + 1e-9)
+    assert r.power["ratio"] == pytest.approx(L.sum() / L0.sum(), rel=1e-9)
+    assert [c["turns_per_layer"] for c in r.coils] == [c.turns_per_layer for c in b.coils]
+    sizes = np.array([c.outer_size[0] for c in b.coils])
+    turns = np.array([c.turns_per_layer for c in b.coils])
+    assert np.all(sizes >= 0.020 - 1e-12) and np.all(4 * turns == np.round(4 * turns))
+    # sizes and turns moved (the search changed them), and the bound did not get worse
+    assert np.any(np.abs(sizes - 0.070) > 1e-6) or np.any(turns != 12.5)
+    assert r.optimized["position_mm"]["p95"] <= r.start["position_mm"]["p95"]
+    m = design_map(target=str(out), grid=(3, 3, 2), orientations="down", montecarlo=0,
+                   noise_sigma=r.noise_sigma)
+    assert m.position_mm["p95"] == pytest.approx(r.optimized["position_mm"]["p95"])
+
+
+def test_optimize_rig_source_positions_axes_and_moments(tmp_path):
+    from openemt.design import optimize_layout
+    from openemt.io import read_calibration
+    from openemt.simulate import truth_calibration
+
+    out = tmp_path / "rig.json"
+    r = optimize_layout(target="concentric", grid=(3, 3, 3), max_evaluations=200,
+                        montecarlo=3, trials=30, montecarlo_noise="coupling", output=str(out))
+    m0, m = truth_calibration("concentric").model, read_calibration(out).model
+    # total drive power (sum of squared moments) the start's, positions within the box, the
+    # sensor unchanged
+    assert np.sum(m.M_so ** 2) == pytest.approx(np.sum(m0.M_so ** 2), rel=1e-12)
+    assert np.all(np.abs(m.L_so - m0.L_so) <= 0.020 + 1e-12)
+    assert np.array_equal(m.L_se, m0.L_se) and np.array_equal(m.M_se, m0.M_se)
+    assert not np.allclose(m.M_so, m0.M_so)
+    assert 0 < r.improvement_p95 and r.montecarlo_improvement_p95 is not None
+    v = r.volume
+    again = design_map(target=str(out), x_mm=v["x_mm"], y_mm=v["y_mm"], z_mm=v["z_mm"],
+                       grid=(3, 3, 3), montecarlo=0, noise_sigma=r.noise_sigma)
+    assert again.position_mm["p95"] == pytest.approx(r.optimized["position_mm"]["p95"])
+    # the solver reads it: noise-free couplings of the written model give back the poses
+    from openemt.geometry import vector_from_pose
+    from openemt.solve import prepare
+
+    P = pose_from_vector(np.array([[0.24, -0.02, 0.03, 0.3, -0.2, 0.1],
+                                   [0.27, 0.02, -0.04, -1.0, 0.5, 2.0]]))
+    start = vector_from_pose(P) + np.array([0.004, -0.003, 0.002, 0.05, -0.04, 0.03])
+    res = prepare(m, hemisphere=None)(m.coupling(P), initial=start)
+    assert np.abs(res.poses[:, :3, 3] - P[:, :3, 3]).max() < 1e-7
+    # no room to move: the positions stay
+    fixed = optimize_layout(target="dipole-approx", grid=(2, 2, 2), max_evaluations=40,
+                            montecarlo=0, offset_mm=0.0)
+    m1 = truth_calibration("dipole-approx").model
+    assert np.allclose([c["position"] for c in fixed.coils], m1.L_so.T, atol=0)
+
+
 def test_optimize_refuses_what_it_cannot_change(capsys):
-    rc = main(["design", "optimize", "concentric", "--json"])
-    assert rc == 2 and "expected a board" in capsys.readouterr().err
+    rc = main(["design", "optimize", "anser", "--vary", "all", "--min-size-mm", "80",
+               "--json"])
+    assert rc == 2 and "--min-size-mm" in capsys.readouterr().err
+    rc = main(["design", "optimize", "concentric", "--offset-mm", "-1", "--json"])
+    assert rc == 2 and "--offset-mm" in capsys.readouterr().err
+    rc = main(["design", "optimize", "concentric", "-o", "rig.toml", "--json"])
+    assert rc == 2 and "expected a .json output" in capsys.readouterr().err
     rc = main(["design", "optimize", "anser", "--min-spacing-mm", "30", "--json"])
     assert rc == 2 and "30 mm spacing" in capsys.readouterr().err
 
@@ -237,3 +314,10 @@ def test_map_page_renders_in_chromium(tmp_path):
     n_images, n_decoded, dom = render(page, tmp_path)
     assert (n_images, n_decoded) == (5, 5), f"images total/decoded = {n_images}/{n_decoded}"
     assert "Layout optimisation: anser" in dom
+    # a rig source: both maps, the distributions and the source coils' table (no outlines)
+    page = tmp_path / "rig.html"
+    optimize_layout(target="concentric", grid=(2, 2, 2), max_evaluations=30, montecarlo=3,
+                    trials=20, montecarlo_noise="coupling", html=str(page))
+    n_images, n_decoded, dom = render(page, tmp_path)
+    assert (n_images, n_decoded) == (4, 4), f"images total/decoded = {n_images}/{n_decoded}"
+    assert "Optimised source coils" in dom

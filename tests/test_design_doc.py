@@ -27,7 +27,7 @@ def test_worked_example_runs_as_written(tmp_path, monkeypatch, capsys):
         cap = capsys.readouterr()
         assert rc == 0, f"{' '.join(argv)}\n{cap.err}"
         out.append(json.loads(cap.out))
-    start, opt, again, sim = out
+    start, opt, again, sim, every, rig, rig_map = out
     # the Monte Carlo agrees with the bound (raw signals, demodulated, solved)
     for m in (start, again):
         assert abs(m["montecarlo_ratio_median"] - 1) < 0.1, m["montecarlo"]
@@ -40,3 +40,8 @@ def test_worked_example_runs_as_written(tmp_path, monkeypatch, capsys):
     assert sim["n_samples"] == 49
     assert (tmp_path / "anser-map.html").stat().st_size > 10_000
     assert (tmp_path / "anser-opt.html").stat().st_size > 10_000
+    # sizes and turns within the start's drive power; the rig source's calibration file
+    assert every["power"]["ratio"] <= 1 + 1e-9 and every["improvement_p95"] > 0.05
+    assert abs(rig["power"]["ratio"] - 1) < 1e-9 and rig["improvement_p95"] > 0.05
+    assert abs(rig_map["position_mm"]["p95"] - rig["optimized"]["position_mm"]["p95"]) < 1e-9
+    assert rig_map["kind"] == "calibration" and abs(rig_map["montecarlo_ratio_median"] - 1) < 0.1

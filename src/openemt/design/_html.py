@@ -143,13 +143,22 @@ def optimize_document(result):
         rows.append({"layout": label, "median (mm)": s["median"], "p95 (mm)": s["p95"],
                      "max (mm)": s["max"]})
     rep.table(rows, caption="Position bound over every point and orientation")
-    rep.table([{"coil": c["name"], "x (mm)": c["center"][0] * 1e3,
-                "y (mm)": c["center"][1] * 1e3, "angle (deg)": np.degrees(c["angle"])}
-               for c in d["coils"]], caption="Optimised coil centres and angles")
+    if result.board is not None:
+        rep.table([{"coil": c["name"], "x (mm)": c["center"][0] * 1e3,
+                    "y (mm)": c["center"][1] * 1e3, "angle (deg)": np.degrees(c["angle"]),
+                    "size (mm)": c["outer_size"] * 1e3, "turns/layer": c["turns_per_layer"]}
+                   for c in d["coils"]], caption="Optimised coils")
+    else:
+        rep.table([{"coil": c["name"], **{f"{a} (mm)": v * 1e3 for a, v in
+                                          zip("xyz", c["position"])},
+                    **{f"axis {a}": v for a, v in zip("xyz", c["axis"])},
+                    "|m| / start": c["moment_ratio"]} for c in d["coils"]],
+                  caption="Optimised source coils (dipoles)")
     maps = {"start": result.start_bounds, "optimized": result.bounds}
     rep.figure(slices_figure(maps, "Position bound: start and optimised layouts"),
                "Top views at several heights (same colour scale)")
-    rep.figure(layout_figure(result), "Coil outlines: start (grey) and optimised (blue)")
+    if result.board is not None:
+        rep.figure(layout_figure(result), "Coil outlines: start (grey) and optimised (blue)")
     rep.figure(distribution_figure(maps), "Distributions of the bounds")
     for label in ("start", "optimized"):
         _montecarlo_section(rep, d[label]["montecarlo"], f" ({label} layout)")

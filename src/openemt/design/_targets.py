@@ -96,6 +96,7 @@ class Target:
     volume: Volume
     board: object = None
     tracker: object = None
+    calibration: object = None
 
 
 def carrier_plan(target):
@@ -163,7 +164,8 @@ def resolve_target(target) -> Target:
     if name in RIG_PRESETS:
         from ..simulate import truth_calibration
 
-        return Target(name, "rig", truth_calibration(name).model, rig_volume(name))
+        cal = truth_calibration(name)
+        return Target(name, "rig", cal.model, rig_volume(name), calibration=cal)
     path = Path(name)
     if not path.exists():
         raise InputError(f"expected a built-in board {list(BUILTIN_BOARDS)}, a rig preset "
@@ -183,9 +185,9 @@ def resolve_target(target) -> Target:
     if path.suffix.lower() in (".json", ".mat") and not _looks_like_board(path):
         from ..io import read_calibration
 
-        model = read_calibration(path).model
-        return Target(name, "calibration", model, _default_volume(model),
-                      board=getattr(model, "board", None))
+        cal = read_calibration(path)
+        return Target(name, "calibration", cal.model, _default_volume(cal.model),
+                      board=getattr(cal.model, "board", None), calibration=cal)
     from ..io import read_board
 
     b = read_board(path)
