@@ -7,9 +7,8 @@ import pytest
 from openemt.bench._speed import cold_quality, compare_cold, random_poses
 from openemt.geometry import pose_from_vector
 from openemt.simulate import get_preset
-from openemt.solve import Status, prepare, solve_lm
+from openemt.solve import Status, closed_form_start, prepare, solve_lm
 from openemt.solve._cold_start import table_for
-from openemt.solve._lm_starts import _closed_form_start
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +20,7 @@ def random_set():
     new = solve_lm(C, model, hemisphere="+x")
     # the previous default: the offset-corrected Kim18 start, then the same solve
     old = solve_lm(C, model, hemisphere="+x",
-                   initial=_closed_form_start(C, model, conc, "kim18", "+x", False))
+                   initial=closed_form_start(C, model, conc, "kim18", "+x", False))
     return model, truth, C, new, old
 
 

@@ -190,8 +190,14 @@ def planar_live_speed(seconds: float = 3.0, seed: int = 0) -> dict:
     """Realtime factor and latency of the live pipeline with the shipped board tracker."""
     import os
 
-    from ..live import Backend, TrackingPipeline, example_tracker, read_tracker
-    from ..live._session import tracker_backend, tracker_sensors
+    from ..live import (
+        Backend,
+        TrackingPipeline,
+        example_tracker,
+        read_tracker,
+        tracker_backend,
+        tracker_sensors,
+    )
 
     spec = read_tracker(example_tracker("anser"))
     sim = tracker_backend(spec, "sim", realtime=False, duration=float(seconds), seed=seed)

@@ -124,10 +124,9 @@ def cold_runs(solver, C, starts_previous, repeats):
 def cold_quality(model, n, repeats, seed) -> dict:
     """The ``lm_cold_*`` and ``cold_*`` keys: cold solves of ``n`` noise-free random poses of
     ``model`` (:func:`random_poses`), the default start against the previous one (the
-    offset-corrected Kim18 closed form, ``_closed_form_start``) in the same process."""
+    offset-corrected Kim18 closed form, ``closed_form_start``) in the same process."""
     from ..geometry import pose_from_vector
-    from ..solve import prepare
-    from ..solve._lm_starts import _closed_form_start
+    from ..solve import closed_form_start, prepare
 
     if n < 10:
         raise InputError(f"expected --cold-samples >= 10, got {n}")
@@ -136,7 +135,7 @@ def cold_quality(model, n, repeats, seed) -> dict:
     solver = prepare(model, hemisphere="+x")
     conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
     (new, cpu, wall), (old, cpu_o, wall_o) = cold_runs(
-        solver, C, lambda c: _closed_form_start(c, model, conc, "kim18", "+x", False), repeats)
+        solver, C, lambda c: closed_form_start(c, model, conc, "kim18", "+x", False), repeats)
     out = {"cold_samples": n,
            "cold_set": "noise-free couplings of the preset's dipole model at random poses: "
                        "80-380 mm, direction uniform over the +x hemisphere, rotation uniform; "
@@ -169,8 +168,7 @@ def cold_ilemt(summary, repeats) -> None:
 
     from .. import datasets
     from ..paper import load_paper_run
-    from ..solve import prepare
-    from ..solve._lm_starts import _closed_form_start
+    from ..solve import closed_form_start, prepare
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -182,7 +180,7 @@ def cold_ilemt(summary, repeats) -> None:
     conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
     (new, cpu, wall), (old, cpu_o, _) = cold_runs(
         prepare(model, hemisphere="+x"), C,
-        lambda c: _closed_form_start(c, model, conc, "kim18", "+x", False), repeats)
+        lambda c: closed_form_start(c, model, conc, "kim18", "+x", False), repeats)
     n = C.shape[0]
     summary.update({
         "lm_cold_ilemt_samples": n,

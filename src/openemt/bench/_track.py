@@ -403,8 +403,7 @@ def _pack_per_sample(k: int) -> dict:
     """CPU time to pack the K tools of one sample, in blocks of 10 samples (one 640-sample
     read) as the pipeline packs them: the 10 K TRANSFORMs in one call (with and without
     metadata), or 10 TDATA messages."""
-    from ..live._igtl import frame_messages, transform_bodies
-    from ..live._tdata import pack_tdata
+    from ..live import frame_messages, pack_tdata, transform_bodies
 
     M = np.repeat(np.eye(4)[None], 10, axis=0)
     M[:, :3, 3] = [200.0, 10.0, -5.0]
@@ -520,7 +519,7 @@ def _packing(k: int) -> dict:
     packer against pyigtl's one-message-at-a-time packing."""
     import pyigtl
 
-    from ..live._igtl import pack_transforms
+    from ..live import pack_transforms
 
     M = np.repeat(np.eye(4)[None], 10, axis=0)
     M[:, :3, 3] = [200.0, 10.0, -5.0]

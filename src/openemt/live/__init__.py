@@ -14,6 +14,7 @@ from ._backends import (
 )
 from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
+from ._igtl_wire import frame_messages, pack_transforms, transform_bodies
 from ._pipeline import (
     PipelineConfig,
     SensorSetup,
@@ -37,6 +38,7 @@ from ._session import (
     tracker_backend,
     tracker_sensors,
 )
+from ._tdata import pack_tdata
 from ._tracker_file import (
     FilterSpec,
     SensorSpec,
@@ -49,6 +51,10 @@ from ._tracker_file import (
 )
 
 __all__ = [
+    "frame_messages",
+    "pack_tdata",
+    "pack_transforms",
+    "transform_bodies",
     "DEFAULT_IGTL_PORT",
     "Backend",
     "FilterSpec",

@@ -12,6 +12,7 @@ from ._factory import SOLVER_FAMILIES, prepare
 from ._grid import GridData, PlanarErrors, planar_accuracy, planar_errors
 from ._hemisphere import hemisphere_from_positions, hemisphere_vectors, rig_hemispheres
 from ._lm_solver import solve_lm
+from ._lm_starts import closed_form_start
 from ._options import SolveOptions
 from ._output import POSES_SCHEMA, PoseWriter, read_poses
 from ._planar import pose_from_axis, solve_planar
@@ -42,6 +43,7 @@ __all__ = [
     "SolveResult",
     "Status",
     "apply_position_correction",
+    "closed_form_start",
     "cramer_rao",
     "failure_reasons",
     "hemisphere_from_positions",
@@ -60,7 +62,6 @@ __all__ = [
     "solve_kuipers",
     "solve_lm",
     "solve_planar",
-    "status_count_names",
     "solve_series",
     "solve_svd",
     "solve_to_file",

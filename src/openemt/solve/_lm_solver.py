@@ -36,7 +36,7 @@ def solve_lm(couplings, model=None, options: SolveOptions | dict | None = None,
     initial : {'kim18', 'svd', 'kuipers', 'track', 'multistart'} or array (N, 6) / (6,)
         Closed-form start (needs a 3x3 model; uses ``concentric_model`` as is, or else the
         model's moments with the coil offsets dropped and a fixed-point correction of the offset
-        effect, see ``_closed_form_start``; ``'kim18'`` on a model with coil offsets and no
+        effect, see ``closed_form_start``; ``'kim18'`` on a model with coil offsets and no
         ``concentric_model``: the cold start of docs/solve.md#cold-start, candidates from a
         table of rotation-invariant couplings and the closed form, restarts only for samples
         whose residual is above ``explore_above``), tracking (each sample starts from the previous valid

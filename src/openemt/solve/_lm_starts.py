@@ -52,7 +52,7 @@ def _concentric_for(model, concentric_model):
     return None
 
 
-def _closed_form_start(couplings, model, conc, method, hemi, explicit, n_correct=4):
+def closed_form_start(couplings, model, conc, method, hemi, explicit, n_correct=4):
     """Closed-form start under the concentric model ``conc``. When ``conc`` only drops the
     model's coil offsets (no concentric model given), the measured couplings are corrected by
     the offset effect at the current estimate, ``C - (C_model(P) - C_conc(P))``, and the closed
@@ -145,7 +145,7 @@ def _table_solve(C, cnorm, couplings, model, conc, hemi, mdl, nvec, box, opts, t
         # closed form): an independent start; where it finds the same minimum, that minimum
         # is settled; then the other candidates
         v = np.full(cands[0].shape, np.nan)
-        v[redo] = _closed_form_start(couplings[redo], model, conc, "kim18",
+        v[redo] = closed_form_start(couplings[redo], model, conc, "kim18",
                                      _row_hemispheres(nvec[redo]), False)
         starts = [(cands[1], False), (v, True)] + [(c, False) for c in cands[2:]]
     else:
@@ -190,7 +190,7 @@ def _table_solve(C, cnorm, couplings, model, conc, hemi, mdl, nvec, box, opts, t
                                                         again.pose_vectors[lower], mdl,
                                                         nvec[sub], box, plain))
     if redo.size and opts[O_RETRIES] != 0.0:
-        init = _closed_form_start(couplings[redo], model, conc, "kim18",
+        init = closed_form_start(couplings[redo], model, conc, "kim18",
                                   _row_hemispheres(nvec[redo]), False)
         result = _merge(result, redo, _run_batch(C[redo], cnorm[redo], init, mdl, nvec[redo],
                                                  box, opts))

@@ -30,7 +30,6 @@ from ._lm_starts import (
     _CLOSED,
     _bounds,
     _check_model,
-    _closed_form_start,
     _concentric_for,
     _first_start,
     _keep_better,
@@ -38,6 +37,7 @@ from ._lm_starts import (
     _run_batch,
     _table_solve,
     canonical_5dof,
+    closed_form_start,
 )
 from ._options import SolveOptions
 from ._packing import (
@@ -254,7 +254,7 @@ class PreparedLM:
                                                        self._table, self._table_level())
                         return self._finish(result, C, cnorm, nvec, fallback, explore,
                                             covariance, settled)
-                    init = _closed_form_start(couplings, model, conc, initial, cf_hemi,
+                    init = closed_form_start(couplings, model, conc, initial, cf_hemi,
                                               self.concentric_given)
                 elif initial == "multistart":
                     init = _multistart_init(C, cnorm, mdl, model, nvec, box, opts)
