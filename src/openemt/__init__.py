@@ -69,7 +69,8 @@ _ATTRIBUTES = {
 __all__ = [  # noqa: RUF022 - version, then the subpackages in pipeline order, then the names
     "__version__",
     "geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate", "correct",
-    "align", "evaluate", "navigate", "paper", "report", "live", "bench", "datasets", "design",
+    "align", "evaluate", "navigate", "paper", "report", "live", "collect", "bench", "datasets",
+    "design",
     "Calibration", "CalibrationFit", "Dataset", "DipoleModel", "ErrorSummary", "SolveResult",
     "Status", "assess_grid", "error_summary",
     "fit_calibration", "fit_correction", "import_ilemt_folder", "pose_errors",

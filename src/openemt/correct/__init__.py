@@ -19,6 +19,7 @@ from ._identity import IdentityCorrection
 from ._lookup import GridCorrection, RbfCorrection, fit_grid, fit_rbf
 from ._model import (
     CORRECTION_METHODS,
+    MAX_FIT_PAIRS,
     MAX_RBF_CENTRES,
     AppliedCorrection,
     Correction,
@@ -52,6 +53,7 @@ __all__ = [
     "BERNSTEIN_DEGREES",
     "CORRECTION_METHODS",
     "MAX_FOLDS",
+    "MAX_FIT_PAIRS",
     "MAX_RBF_CENTRES",
     "MAX_SHIFT_FLOOR_M",
     "MIN_PAIRS_FACTOR",

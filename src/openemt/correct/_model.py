@@ -48,8 +48,15 @@ from ._region import (
     status_counts,
 )
 
+#: Pairs a fit (and its cross-validation) uses at most: beyond, a seeded random subsample of
+#: this many (a warning says so). Every method's parameters (at most a few hundred) are
+#: determined many times over by 10^5 spread pairs, and it keeps a fit of 10^6 or more pairs
+#: to seconds and bounded memory (docs/correction.md#the-fitted-box).
+MAX_FIT_PAIRS = 100_000
+
 __all__ = [
     "CORRECTION_METHODS",
+    "MAX_FIT_PAIRS",
     "MAX_RBF_CENTRES",
     "AppliedCorrection",
     "Correction",
@@ -569,6 +576,13 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
         Rm = None if Rm is None else Rm[ok]
         Rd = None if Rd is None else Rd[ok]
         groups = None if groups is None else np.asarray(groups)[ok]
+    n_pairs = len(m)
+    if n_pairs > MAX_FIT_PAIRS:
+        keep = np.sort(np.random.default_rng(seed).choice(n_pairs, MAX_FIT_PAIRS, replace=False))
+        m, d = m[keep], d[keep]
+        Rm = None if Rm is None else Rm[keep]
+        Rd = None if Rd is None else Rd[keep]
+        groups = None if groups is None else np.asarray(groups)[keep]
     if method != "dlt":  # inner selection (order / smoothing) uses the same folds setting
         options = {"k": k, "seed": seed, **options}
     if method == "bernstein" and options.get("box") is None:
@@ -607,6 +621,10 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
             "uncorrected": _summary(m, Rm, d, Rd),
             "corrected": _summary(xyz_ho, R_ho, d, Rd)}
     warn, worse, req = _warnings(method, len(m), params, stats.get("held_out"))
+    if n_pairs > MAX_FIT_PAIRS:
+        stats["n_pairs_given"] = n_pairs
+        warn.append(f"{n_pairs} pairs exceed MAX_FIT_PAIRS = {MAX_FIT_PAIRS}: fitted and "
+                    f"cross-validated on a random subsample of {MAX_FIT_PAIRS} (seed {seed})")
     if getattr(model, "n_centres_of", None):
         warn.append(f"rbf: {model.n_centres_of} pairs exceed MAX_RBF_CENTRES = "
                     f"{MAX_RBF_CENTRES}: its centres are a random subsample of "
