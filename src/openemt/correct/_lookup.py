@@ -203,8 +203,14 @@ class GridCorrection:
                    smoothing=float(p["smoothing"]), selection=dict(p.get("selection") or {}))
 
 
+#: Nodes per axis of the default grid at most (16^3 = 4096 nodes, reached at about 33,000
+#: pairs): one sparse solve of the smoothing selection then takes a fraction of a second, where
+#: 30^3 nodes took seconds each (hundreds per fit with its cross-validation).
+MAX_DEFAULT_GRID_AXIS = 16
+
+
 def _default_shape(n: int) -> tuple:
-    k = int(np.clip(round((n / 8.0) ** (1.0 / 3.0)), 2, 30))
+    k = int(np.clip(round((n / 8.0) ** (1.0 / 3.0)), 2, MAX_DEFAULT_GRID_AXIS))
     return (k, k, k)
 
 
@@ -232,7 +238,8 @@ def fit_grid(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *, 
     measured_R, reference_R : ndarray, shape (N, 3, 3), optional
         Rotations; if given the table also corrects orientation.
     shape : tuple of 3 int, optional
-        Nodes per axis; default ``round((N / 8) ** (1/3))`` per axis (at least 2).
+        Nodes per axis; default ``round((N / 8) ** (1/3))`` per axis (at least 2, at most
+        ``MAX_DEFAULT_GRID_AXIS`` = 16; a larger grid is given explicitly).
     smoothing : float, optional
         Second-difference penalty weight; ``None`` selects it by k-fold cross-validation.
     padding : float
