@@ -16,10 +16,9 @@ import pyigtl
 class Listener:
     def __init__(self, port, devices, whole=False, announce=False):
         self.client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port)
-        if announce:
-            from _igtl_decode import GetStatus
-
-            self.client.send_message(GetStatus(2), wait=False)
+        # announced once connected: pyigtl drops what was queued before a failed connect (the
+        # server may start after the viewer, as Slicer's connector waits for it)
+        self._announce = announce
         self.devices = devices
         self.whole = whole
         self.got = {d: [] for d in devices}
@@ -29,6 +28,11 @@ class Listener:
 
     def _run(self):
         while not self._done.is_set():
+            if self._announce and self.client.is_connected():
+                from _igtl_decode import GetStatus
+
+                self.client.send_message(GetStatus(2), wait=False)
+                self._announce = False
             for d in self.devices:
                 m = self.client.wait_for_message(d, timeout=0.005 if self.whole else 0.01)
                 if m is not None and self.whole:
