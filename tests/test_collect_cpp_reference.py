@@ -9,38 +9,24 @@ Skipped, with the reason, where no C++ compiler or no OpenIGTLink library is fou
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _igtl_cpp import build_cpp
 
 from openemt.cli import main
 from openemt.collect import simulated_motion, spare_poses
 from openemt.geometry import pose_from_vector
 from openemt.io import read_dataset
 
-SOURCE = Path(__file__).parent / "cpp" / "igtl_reference_server.cxx"
-INCLUDE_DIRS = [Path("/usr/include/openigtlink"), Path("/usr/local/include/openigtlink")]
 N, SEED, SPEED, RATE, LATENCY = 16, 2, 4.0, 250.0, 0.03
 
 
 @pytest.fixture(scope="module")
 def cpp_server(tmp_path_factory):
     """The C++ reference server, compiled against the OpenIGTLink library found here."""
-    cxx = shutil.which("g++") or shutil.which("c++")
-    if cxx is None:
-        pytest.skip("no C++ compiler (g++ / c++) found: the OpenIGTLink C++ server is not built")
-    inc = next((d for d in INCLUDE_DIRS if (d / "igtlServerSocket.h").exists()), None)
-    if inc is None:
-        pytest.skip("no OpenIGTLink C++ library found (apt-get install libopenigtlink-dev)")
-    exe = tmp_path_factory.mktemp("cpp") / "igtl_reference_server"
-    r = subprocess.run([cxx, "-O1", f"-I{inc}", "-o", str(exe), str(SOURCE), "-lOpenIGTLink"],
-                       capture_output=True, text=True, timeout=300)
-    if r.returncode != 0:
-        pytest.skip(f"the OpenIGTLink C++ server did not build: {r.stderr.strip()[-300:]}")
-    return exe
+    return build_cpp("igtl_reference_server", tmp_path_factory.mktemp("cpp"))
 
 
 def _motion_file(path, motion, rng):

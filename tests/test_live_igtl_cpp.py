@@ -10,37 +10,22 @@ Skipped, with the reason, where no C++ compiler or no OpenIGTLink library is fou
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _igtl_cpp import build_cpp
 from _igtl_decode import RawReader
 
 from openemt.live import IgtlServer, TrackingPipeline, TrackLog, example_tracker, read_tracker
 from openemt.live._session import tracker_backend, tracker_sensors
 
-SOURCE = Path(__file__).parent / "cpp" / "igtl_client.cxx"
-INCLUDE_DIRS = [Path("/usr/include/openigtlink"), Path("/usr/local/include/openigtlink")]
-
 
 @pytest.fixture(scope="module")
 def cpp_client(tmp_path_factory):
     """The C++ client, compiled against the OpenIGTLink library found on this machine."""
-    cxx = shutil.which("g++") or shutil.which("c++")
-    if cxx is None:
-        pytest.skip("no C++ compiler (g++ / c++) found: the OpenIGTLink C++ client is not built")
-    inc = next((d for d in INCLUDE_DIRS if (d / "igtlClientSocket.h").exists()), None)
-    if inc is None:
-        pytest.skip("no OpenIGTLink C++ library found (apt-get install libopenigtlink-dev)")
-    exe = tmp_path_factory.mktemp("cpp") / "igtl_client"
-    r = subprocess.run([cxx, "-O1", f"-I{inc}", "-o", str(exe), str(SOURCE), "-lOpenIGTLink"],
-                       capture_output=True, text=True, timeout=300)
-    if r.returncode != 0:
-        pytest.skip(f"the OpenIGTLink C++ client did not build: {r.stderr.strip()[-300:]}")
-    return exe
+    return build_cpp("igtl_client", tmp_path_factory.mktemp("cpp"))
 
 
 class CppClient:
