@@ -180,30 +180,19 @@ def stream_specs(sensors, reference: str | None = None, frame: str = "Tracker") 
 
 def read_registration_transform(path):
     """The image-from-tracker transform (4x4, m) of a registration written by
-    ``openemt register -o`` (its ``transform``: the moving points - tracker - into the fixed
-    frame - image), checked to be a finite rigid transform."""
+    ``openemt register -o`` (or its ITK transform; :func:`openemt.navigate.read_registration`),
+    checked to be rigid: a similarity registration (``--scale``) would scale the tool."""
     import numpy as np
 
-    from ..io._jsontext import load_json_file
+    from ..navigate import read_registration
 
-    path = Path(path)
-    d = load_json_file(path, "a registration file from 'openemt register -o'")
-    if not isinstance(d, dict) or d.get("format") != "openemt.registration":
-        got = d.get("format") if isinstance(d, dict) else type(d).__name__
-        raise InputError(f"expected a registration (format 'openemt.registration') from "
-                         f"'openemt register -o' in {path}, got {got!r}")
-    try:
-        T = np.asarray(d.get("transform"), dtype=np.float64)
-    except (TypeError, ValueError):
-        T = np.zeros(0)
-    ok = T.shape == (4, 4) and bool(np.all(np.isfinite(T))) and np.allclose(T[3], [0, 0, 0, 1])
-    if ok:
-        R = T[:3, :3]
-        ok = np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
-    if not ok:
-        raise InputError(f"expected `transform` a finite rigid 4x4 (rotation and translation "
-                         f"in m) in {path}, got {str(d.get('transform'))[:80]}")
+    T, _ = read_registration(path)
+    R = T[:3, :3]
+    if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
+        raise InputError(f"expected a rigid 4x4 registration (rotation and translation in m) in "
+                         f"{path}, got a transform with scale {np.cbrt(np.linalg.det(R)):.6g}")
     return T
+
 
 # Limits of a tracker file (docs/robustness.md, "Bounded work"): far above any real tracker,
 # low enough that a careless or hostile value is an error instead of an exhausted memory.
