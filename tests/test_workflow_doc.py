@@ -8,6 +8,7 @@ import json
 import os
 import re
 import shlex
+import socket
 import subprocess
 import sys
 import time
@@ -19,6 +20,12 @@ from _igtl_listener import Listener
 from openemt.cli import main
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "workflow.md"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def _block() -> list[str]:
@@ -59,8 +66,11 @@ def test_the_workflow_runs_verbatim(tmp_path, monkeypatch, capsys):
     assert out["register"]["paired_by"] == "label" and out["register"]["fre_rms_mm"] < 1.0
     files = sorted(p.name for p in tmp_path.iterdir())
 
-    # the last step in its own process, as a user runs it, with a viewer connected
-    argv = shlex.split(track)
+    # the last step in its own process, as a user runs it, with a viewer connected; on a free
+    # port instead of Slicer's 18944 (a later --igtl-port wins), which a running Slicer or
+    # another test run may hold
+    port = _free_port()
+    argv = shlex.split(track) + ["--igtl-port", str(port)]
     code = "import sys; from openemt.cli import main; sys.exit(main(sys.argv[1:]))"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     proc = subprocess.Popen([sys.executable, "-c", code, *argv[1:]], cwd=tmp_path, env=env,
@@ -71,7 +81,7 @@ def test_the_workflow_runs_verbatim(tmp_path, monkeypatch, capsys):
         deadline = time.monotonic() + 60
         while viewer is None and time.monotonic() < deadline and proc.poll() is None:
             try:
-                viewer = Listener(18944, devices)
+                viewer = Listener(port, devices)
             except OSError:
                 time.sleep(0.2)
         stdout, stderr = proc.communicate(timeout=120)
