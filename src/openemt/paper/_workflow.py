@@ -68,14 +68,14 @@ class Reproduction(Result):
 def reproduce(o: ReproduceOptions, say=None) -> Reproduction:
     """Reproduce table ``o.table`` (bad input refused before any work is announced)."""
     from .._compile_notice import announce_compile
-    from . import _simstudies, _table2, _table3, _table4
 
     say = say or SILENT
     if o.table in ("dipole-cost", "recovery"):
+        from ._simstudies import dipole_cost, parameter_recovery
+
         announce_compile(say, "solver kernels")
         say(f"simulating preset {o.preset} and calibrating it ({o.table}) ...")
-        fn = _simstudies.dipole_cost if o.table == "dipole-cost" else \
-            _simstudies.parameter_recovery
+        fn = dipole_cost if o.table == "dipole-cost" else parameter_recovery
         return Reproduction(o, fn(o.preset, seed=o.seed))
     from ..io import import_ilemt_folder
     from ._run import check_paper_folder, load_paper_run
@@ -90,13 +90,20 @@ def reproduce(o: ReproduceOptions, say=None) -> Reproduction:
                    "tests ...",
          "table4": f"reproducing Table IV on {o.folder}: calibration, sweep solves and "
                    "fixture re-optimisation ..."}[o.table])
+    # imported here, at call time, so a test may stand in for a table's function
     if o.table == "table2":
-        out = _table2.reproduce_table2(load_paper_run(o.folder, dataset=dataset),
-                                       improved=o.improved, cross_validation=o.cv)
+        from ._table2 import reproduce_table2
+
+        out = reproduce_table2(load_paper_run(o.folder, dataset=dataset),
+                               improved=o.improved, cross_validation=o.cv)
     elif o.table == "table3":
-        out = _table3.reproduce_table3(o.folder, dataset=dataset)
+        from ._table3 import reproduce_table3
+
+        out = reproduce_table3(o.folder, dataset=dataset)
     else:
-        out = _table4.reproduce_table4(o.folder, correction=not o.uncorrected, dataset=dataset)
+        from ._table4 import reproduce_table4
+
+        out = reproduce_table4(o.folder, correction=not o.uncorrected, dataset=dataset)
     return Reproduction(o, out)
 
 
