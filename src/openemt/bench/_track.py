@@ -176,6 +176,18 @@ def _session(spec, seconds, seed, *, chunk=640, sensors=None, max_queue=None, **
     return TrackingSession(spec, opts, sensors=sensors, chunk=chunk, max_queue=max_queue)
 
 
+def _run_with_client(session):
+    """Run ``session`` once its loopback client has connected and announced version 2 (the
+    clock restarted then): ``(summary, wall seconds)``."""
+    if not session.server.wait_for_client(30.0, header_version=2):
+        raise OSError("expected a loopback OpenIGTLink client to connect and announce header "
+                      "version 2, got none in 30 s")
+    session.backend.restart_clock()
+    t0 = time.perf_counter()
+    s = session.run().summary
+    return s, time.perf_counter() - t0
+
+
 def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
     import subprocess
     import sys
@@ -191,13 +203,7 @@ def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
                                    str(seconds * 20 + 30), ",".join(names)],
                                   stdout=subprocess.DEVNULL)
         try:
-            if not srv.wait_for_client(30.0, header_version=2):
-                raise OSError("expected a loopback OpenIGTLink client to connect and announce "
-                              "header version 2, got none in 30 s")
-            session.backend.restart_clock()
-            t0 = time.perf_counter()
-            s = session.run().summary
-            wall = time.perf_counter() - t0
+            s, wall = _run_with_client(session)
             time.sleep(0.05)
         finally:
             client.terminate()
@@ -359,13 +365,7 @@ def _many_tools(preset, k: int, seconds: float, seed: int) -> dict:
             client = subprocess.Popen([sys.executable, "-c", _COUNTER, str(srv.port),
                                        str(seconds + 60)], stdout=subprocess.PIPE, text=True)
             try:
-                if not srv.wait_for_client(30.0, header_version=2):
-                    raise OSError("expected a loopback OpenIGTLink client to connect and "
-                                  "announce header version 2, got none in 30 s")
-                session.backend.restart_clock()
-                t0 = time.perf_counter()
-                s = session.run().summary
-                wall = time.perf_counter() - t0
+                s, wall = _run_with_client(session)
                 stats = srv.stats()
                 import pyigtl
 
