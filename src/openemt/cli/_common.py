@@ -9,7 +9,7 @@ from collections.abc import Iterable
 from typing import Any
 
 __all__ = ["add_command", "add_common", "add_options", "emit", "options_from", "progress",
-           "run_workflow", "say", "stage", "to_jsonable", "write_solved"]
+           "run_workflow", "say", "stage", "to_jsonable"]
 
 
 def add_command(sub, name: str, func=None, options=None, only=None, **kwargs):
@@ -185,19 +185,3 @@ def progress(iterable=None, *, total=None, desc: str = "", args=None, unit: str 
     disable = bool(getattr(args, "quiet", False)) or not sys.stderr.isatty()
     return tqdm(iterable, total=total, desc=desc, file=sys.stderr, disable=disable, unit=unit,
                 leave=False)
-
-
-def write_solved(args, n: int, solver: str, meta: dict, chunks):
-    """Write the ``(start, SolveResult)`` blocks of ``chunks`` to the poses file ``args.output``
-    (atomically, with a progress bar); returns the :class:`~openemt.solve._output.PoseWriter`,
-    whose status counts outlive the file. Used by ``solve`` for every kind of calibration."""
-    from ..io import atomic_h5
-    from ..solve import PoseWriter
-
-    with atomic_h5(args.output) as f:
-        writer = PoseWriter(f, n, solver, meta)
-        with progress(total=n, desc="solve", args=args, unit="pose") as bar:
-            for start, res in chunks:
-                writer.write(start, res)
-                bar.update(len(res))
-    return writer
