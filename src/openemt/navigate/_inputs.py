@@ -263,3 +263,23 @@ def read_points_csv(path, *, length_unit: str = "m") -> np.ndarray:
         raise InputError(f"expected finite x, y, z on every row of {path}, got missing or "
                          f"non-finite values on lines {', '.join(map(str, sorted(bad)[:10]))}")
     return t.poses[:, :3, 3].copy()
+
+
+def read_transform_file(path, what: str, fmt: str, key: str, *, kind: str | None = None):
+    """``(T, d)``: the 4x4 matrix under ``key`` (not checked further) and the whole dict of a
+    JSON file openemt writes with ``"format": fmt`` (and ``"kind": kind``), ``what`` naming it
+    in the one-line error for another file."""
+    from ..io._jsontext import load_json_file
+
+    path = Path(path)
+    d = load_json_file(path, what)
+    if not isinstance(d, dict) or d.get("format") != fmt or \
+            (kind is not None and d.get("kind") != kind):
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        expected = f"format {fmt!r}" + ("" if kind is None else f", kind {kind!r}")
+        raise InputError(f"expected {what} ({expected}) in {path}, got {got!r}")
+    try:
+        T = np.asarray(d.get(key), dtype=np.float64)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    return T, d

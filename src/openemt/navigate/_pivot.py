@@ -481,20 +481,10 @@ TOOL_FORMAT = "openemt.tool-calibration"
 def read_tip_transform(path) -> np.ndarray:
     """The tip transform (4x4, m) of a pivot calibration written by ``openemt pivot``:
     ``pose @ T`` is the pose of the tool tip (translation ``tip``, no rotation)."""
-    from pathlib import Path
+    from ._inputs import read_transform_file
 
-    from ..io._jsontext import load_json_file
-
-    path = Path(path)
-    d = load_json_file(path, "a tool-calibration file from 'openemt pivot'")
-    if not isinstance(d, dict) or d.get("format") != TOOL_FORMAT or d.get("kind") != "pivot":
-        got = d.get("format") if isinstance(d, dict) else type(d).__name__
-        raise InputError(f"expected a pivot calibration (format {TOOL_FORMAT!r}, kind 'pivot') "
-                         f"from 'openemt pivot' in {path}, got {got!r}")
-    try:
-        T = np.asarray(d.get("tip_transform"), dtype=np.float64)
-    except (TypeError, ValueError):
-        T = np.zeros(0)
+    T, d = read_transform_file(path, "a pivot calibration from 'openemt pivot'", TOOL_FORMAT,
+                               "tip_transform", kind="pivot")
     if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(
             T[3], [0, 0, 0, 1]) or not np.allclose(T[:3, :3], np.eye(3)):
         raise InputError(f"expected `tip_transform` a finite 4x4 translation in {path}, got "

@@ -348,17 +348,10 @@ def read_registration(path) -> tuple[np.ndarray, dict]:
     if raw.startswith(b"#Insight Transform File"):
         T, meta = _read_itk(raw.decode("utf-8", "replace"), path), {"format": "itk"}
     else:
-        from ..io._jsontext import load_json_file
+        from ._inputs import read_transform_file
 
-        d = load_json_file(path, "a registration file from 'openemt register -o'")
-        if not isinstance(d, dict) or d.get("format") != REGISTRATION_FORMAT:
-            got = d.get("format") if isinstance(d, dict) else type(d).__name__
-            raise InputError(f"expected a registration (format {REGISTRATION_FORMAT!r}) from "
-                             f"'openemt register -o' in {path}, got {got!r}")
-        try:
-            T = np.asarray(d.get("transform"), dtype=np.float64)
-        except (TypeError, ValueError):
-            T = np.zeros(0)
+        T, d = read_transform_file(path, "a registration from 'openemt register -o'",
+                                   REGISTRATION_FORMAT, "transform")
         meta = {k: v for k, v in d.items() if k != "transform"}
     ok = T.shape == (4, 4) and np.all(np.isfinite(T)) and np.allclose(T[3], [0, 0, 0, 1])
     if ok:
