@@ -428,31 +428,31 @@ class IgtlServer:
         P = np.asarray(poses, dtype=np.float64)
         if P.ndim != 3 or P.shape[1:] != (4, 4):
             raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
-        ts = [None] * len(P) if timestamps is None else [float(t) for t in timestamps]
-        if len(ts) != len(P):
-            raise InputError(f"expected {len(P)} timestamps, got {len(ts)}")
+        n = P.shape[0]
+        if timestamps is not None:
+            stamps = np.asarray(timestamps, dtype=np.float64)
+            if stamps.shape != (n,):
+                raise InputError(f"expected {n} timestamps, got {stamps.size}")
         if device_name is None or isinstance(device_name, str):
             name = self.device_name if device_name is None else _check_device_name(device_name)
             names = None
         else:                                    # one device name per message
             name = names = list(device_name)
-            if len(names) != len(P):
-                raise InputError(f"expected {len(P)} device names, got {len(names)}")
+            if len(names) != n:
+                raise InputError(f"expected {n} device names, got {len(names)}")
             for d in set(names):
                 _check_device_name(d)
-        if len(P) == 0:
+        if n == 0:
             return False
         if not self._clients:                    # cheap exit before packing
             with self._lock:
-                self.n_no_client += len(P)
+                self.n_no_client += n
             return False
         M = P.copy()
         M[:, :3, 3] *= 1000.0                    # metres -> millimetres (Slicer convention)
         if timestamps is None:
-            stamps = np.full(len(P), time.time())
-        else:
-            stamps = np.asarray(ts, dtype=np.float64)
-        if np.all(np.isfinite(M)) and np.all(stamps >= 0) and np.all(stamps < 2.0 ** 32):
+            stamps = np.full(n, time.time())
+        if np.isfinite(M).all() and (stamps >= 0).all() and (stamps < 2.0 ** 32).all():
             if names is None:
                 data = pack_transforms(M, stamps, name, metadata)
             else:

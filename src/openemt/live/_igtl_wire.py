@@ -64,8 +64,16 @@ def _put_stamp(out, o, sec, ns, bases):
         out[o + 38 + i] = (frac >> np.uint64(8 * (3 - i))) & np.uint64(0xFF)
 
 
+@njit(cache=True, inline="always")
+def _split_stamp(t):
+    """Seconds and nanoseconds of a time stamp t >= 0, as ``np.trunc`` and ``astype(int64)``
+    of ``(t - trunc(t)) * 1e9`` give them (pyigtl's conversion)."""
+    sec = np.int64(t)
+    return sec, np.int64((t - np.float64(sec)) * 1e9)
+
+
 @njit(cache=True)
-def _pack_kernel(M, sec, nanosec, device, table, bases, out):
+def _pack_kernel(M, ts, device, table, bases, out):
     f = np.empty(12, np.float32)
     u = f.view(np.uint32)
     for k in range(M.shape[0]):
@@ -77,7 +85,8 @@ def _pack_kernel(M, sec, nanosec, device, table, bases, out):
             out[o + 2 + i] = ord(name[i]) if i < 9 else 0
         for i in range(20):
             out[o + 14 + i] = device[i]
-        _put_stamp(out, o, sec[k], nanosec[k], bases)
+        sec, ns = _split_stamp(ts[k])
+        _put_stamp(out, o, sec, ns, bases)
         for i in range(8):
             out[o + 42 + i] = 48 if i == 7 else 0          # body size
         for c in range(4):
@@ -96,7 +105,7 @@ def _pack_kernel(M, sec, nanosec, device, table, bases, out):
 
 
 @njit(cache=True)
-def _frame_kernel(body, offsets, version, tname, devices, sec, nanosec, table, bases, out):
+def _frame_kernel(body, offsets, version, tname, devices, ts, table, bases, out):
     """Frame message bodies: message k is ``body[offsets[k]:offsets[k + 1]]`` behind a
     58-byte header (``version``, type ``tname``, device ``devices[k]`` or ``devices[0]``,
     time stamp, body size, CRC-64 of the body)."""
@@ -110,7 +119,8 @@ def _frame_kernel(body, offsets, version, tname, devices, sec, nanosec, table, b
         d = k if devices.shape[0] > 1 else 0
         for i in range(20):
             out[o + 14 + i] = devices[d, i]
-        _put_stamp(out, o, sec[k], nanosec[k], bases)
+        sec, ns = _split_stamp(ts[k])
+        _put_stamp(out, o, sec, ns, bases)
         size = np.uint64(b1 - b0)
         for i in range(8):
             out[o + 42 + i] = (size >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
@@ -165,12 +175,10 @@ def frame_messages(bodies, offsets, message_type: str, device_names, timestamps,
         dev = (np.frombuffer(b"".join([_name_bytes(n, 20).tobytes() for n in names]),
                              np.uint8).reshape(len(names), 20) if names
                else np.zeros((1, 20), np.uint8))
-    sec = np.trunc(ts)
     body = np.frombuffer(bodies, np.uint8) if len(bodies) else np.zeros(1, np.uint8)
     out = np.empty(58 * ts.size + int(off[-1] - off[0]) if ts.size else 0, np.uint8)
-    _frame_kernel(body, off - off[0], int(header_version), _name_bytes(message_type, 12), dev,
-                  sec.astype(np.int64), ((ts - sec) * 1e9).astype(np.int64), _CRC_TABLE,
-                  _FRAC_BASES, out)
+    _frame_kernel(body, off - off[0] if off[0] else off, int(header_version),
+                  _name_bytes(message_type, 12), dev, ts, _CRC_TABLE, _FRAC_BASES, out)
     return out.tobytes()
 
 
@@ -185,18 +193,25 @@ def _metadata_columns(metadata, n: int) -> tuple:
     written as ``format(x, ".3e")``, a bytes array (dtype ``S``) as it is."""
     keys, cols = [], []
     for key, values in metadata.items():
-        vals = values.tolist() if isinstance(values, np.ndarray) else list(values)
+        array = type(values) is np.ndarray
+        vals = values.tolist() if array else list(values)
         if len(vals) != n:
             raise InputError(f"expected {n} values of metadata {key!r}, got {len(vals)}")
-        keys.append(key.encode("ascii"))
-        if isinstance(values, np.ndarray) and values.dtype.kind in "fiu":
-            cols.append([b"%.3e" % v for v in vals])           # one kind: no test per value
-        elif isinstance(values, np.ndarray) and values.dtype.kind == "S":
+        keys.append(_key_bytes(key))
+        kind = values.dtype.kind if array else ""
+        if kind == "S":
             cols.append(vals)                                   # already ASCII bytes
+        elif kind in ("f", "i", "u"):
+            cols.append([b"%.3e" % v for v in vals])           # one kind: no test per value
         else:
             cols.append([(v if isinstance(v, str) else format(v, ".3e")).encode("ascii")
                          for v in vals])
     return keys, cols
+
+
+@functools.lru_cache(maxsize=256)
+def _key_bytes(key: str) -> bytes:
+    return key.encode("ascii")
 
 
 @functools.lru_cache(maxsize=256)
@@ -221,8 +236,7 @@ def transform_bodies(matrices, metadata=None) -> tuple:
     values."""
     M = np.asarray(matrices, dtype=np.float64)
     n = len(M)
-    content = np.ascontiguousarray(M[:, :3, :].transpose(0, 2, 1)).reshape(n, 12)
-    content = content.astype(">f4").tobytes()
+    content = M[:, :3, :].transpose(0, 2, 1).astype(">f4").tobytes()   # C order: by column
     if metadata is None:
         return content, 48 * np.arange(n + 1)
     keys, cols = _metadata_columns(metadata, n)
@@ -278,12 +292,9 @@ def pack_transforms(matrices, timestamps, device_name: str, metadata=None) -> by
         return frame_messages(body, off, "TRANSFORM", device_name, timestamps,
                               header_version=2)
     M = np.ascontiguousarray(matrices, dtype=np.float64)
-    ts = np.asarray(timestamps, dtype=np.float64)
-    sec = np.trunc(ts)
-    dev = _name_bytes(device_name, 20)
+    ts = np.ascontiguousarray(timestamps, dtype=np.float64)
     out = np.empty(M.shape[0] * _MSG, np.uint8)
-    _pack_kernel(M, sec.astype(np.int64), ((ts - sec) * 1e9).astype(np.int64), dev,
-                 _CRC_TABLE, _FRAC_BASES, out)
+    _pack_kernel(M, ts, _name_bytes(device_name, 20), _CRC_TABLE, _FRAC_BASES, out)
     return out.tobytes()
 
 

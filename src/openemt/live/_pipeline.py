@@ -27,6 +27,7 @@ from ..signal import Demodulator
 from ..solve import Status
 from ..solve._result import status_count_names
 from ._filter import filter_restarts
+from ._igtl_meta import transform_metadata
 from ._tracker_file import (
     check_device_names,
     relative_device_name,
@@ -819,6 +820,21 @@ class TrackingPipeline:
             if count:
                 self.igtl.send_packed(data, count, t_ready)
             return
+        if len(streams) == 1:                   # one stream: its arrays as they are
+            device, poses, pick, distorted, relative, distortion = streams[0]
+            if not pick.all():
+                poses, stamps = poses[pick], stamps[pick]
+                distorted, relative, distortion = distorted[pick], relative[pick], \
+                    distortion[pick]
+            if not len(poses):
+                return
+            kw = {}
+            if self.igtl_metadata:
+                kw["metadata"] = transform_metadata(
+                    distorted, relative, distortion,
+                    distortion_threshold=self.distortion_threshold)
+            self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device, **kw)
+            return
         # every stream's poses in one call (one packing pass, one write per client): the
         # samples of the first stream, then those of the next, ...
         if all(s[2].all() for s in streams):
@@ -832,8 +848,6 @@ class TrackingPipeline:
                    for d in [s[0]] * (n if isinstance(k, slice) else int(k.sum()))]
         meta = None
         if self.igtl_metadata:
-            from ._igtl_meta import transform_metadata
-
             distorted = np.concatenate([s[3][k] for s, k in zip(streams, sel)])
             meta = transform_metadata(
                 distorted, np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
