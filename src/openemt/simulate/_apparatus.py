@@ -24,10 +24,12 @@ from ._errors import (
     noise_sigma,
     polarizability,
 )
+from ._metal import load_scene
 from ._patterns import STAGE_Z_LIMIT, stage_pattern
 from ._presets import Preset, get_preset
 
-__all__ = ["STAGE_SIGMA", "fixture_combinations", "simulate", "truth_calibration"]
+__all__ = ["STAGE_SIGMA", "fixture_combinations", "scene_model", "simulate",
+           "truth_calibration"]
 
 #: Default stage position error sigma per axis (m): MacLachlan et al. 2025 (§VIII-C) quote a stage uncertainty of
 #: 0.107 mm after compensation and adds it to the RMS of the 3-D error magnitude (eq. 10), so it
@@ -92,8 +94,8 @@ def _distortions(distortion) -> list[Distortion]:
 
 def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="all",
              combinations: str = "paper", snr_db=None, noise_abs=None,
-             stage_sigma=STAGE_SIGMA, drift=None, distortion=None, clip_z: bool = True,
-             seed=0) -> Dataset:
+             stage_sigma=STAGE_SIGMA, drift=None, distortion=None, metal=None,
+             clip_z: bool = True, seed=0) -> Dataset:
     """Simulate an ILEMT-style calibration/test data collection with known ground truth.
 
     Parameters
@@ -121,6 +123,11 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     distortion : Distortion, dict or list of them, optional
         Objects that distort the field (induced dipoles, see :class:`Distortion`). Couplings are
         complex when a conductive object is present, else real.
+    metal : MetalScene, str, dict, optional
+        A metal scene (:class:`openemt.simulate.MetalScene`, a scene name such as
+        ``"aluminium_sheet"``, a TOML scene file or a table) in the bench frame, the
+        source-fixture base frame (docs/simulator.md#metal-scenes). Row ``k`` is at time
+        ``k * sample_period_s`` for moving objects. Couplings are complex with a scene.
     clip_z : bool, default True
         Log commanded Z below -46.2 mm as -46.2 mm, like the real stage (:func:`stage_pattern`).
     seed : int or None
@@ -165,6 +172,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     if noise_abs is not None:
         check_nonnegative(noise_abs, "noise_abs")
     objects = _distortions(distortion)
+    scene = load_scene(metal)
 
     blocks, files, so_codes, se_codes, pats, file_index = [], [], [], [], [], []
     for s, e in combos:
@@ -187,18 +195,26 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
                                stage_true, se_codes)
 
     C = p.model.coupling(poses)
-    if objects:
+    if objects or scene is not None:
         C = C.astype(np.complex128)
         F_so = pose_from_vector(p.source_fixture)
         so_J = {c: source_fixture_rotation(c) for c in set(so_codes)}
         # bench (source-fixture base) frame -> source frame: F_so . so_J
         M = np.stack([so_J[c] for c in so_codes])                   # (N, 3, 3)
         A = np.einsum("ab,kbc->kac", F_so[:3, :3], M)                # rotation of F_so so_J
+    if scene is not None:
+        frame = np.zeros((n_rows, 4, 4))
+        frame[:, :3, :3] = A
+        frame[:, :3, 3] = F_so[:3, 3]
+        frame[:, 3, 3] = 1.0
+        C += scene.induced_couplings(scene_model(p), poses, p.frequencies,
+                                     t=scene.times(n_rows), frame=frame)
+    if objects:
         for d in objects:
             q = np.einsum("kab,b->ka", A, np.asarray(d.position)) + F_so[:3, 3]
             C += distortion_coupling(p.dipole, poses, q, polarizability(d, p.frequencies),
                                      d.radius)
-        if not any(d.kind == "conductive" for d in objects):
+        if scene is None and not any(d.kind == "conductive" for d in objects):
             C = C.real.copy()
     if drift is not None:
         C = C * drift_factors(drift, n_rows, p.n_source)[:, :, None]
@@ -228,6 +244,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
             "stage_sigma_m": stage_sigma,
             "drift": None if drift is None else np.atleast_1d(drift).astype(float).tolist(),
             "distortion": [d.to_dict() for d in objects],
+            "metal": None if scene is None else scene.to_dict(),
         },
         "truth": {
             "finite_coils": bool(p.finite),
@@ -244,6 +261,15 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
                    file_index=np.concatenate(file_index), files=tuple(files),
                    stage_logged=stage.copy(), poses=poses,
                    extra={"stage_true": stage_true, "noise_sigma": sigma}, meta=meta)
+
+
+def scene_model(preset):
+    """The coil geometry a metal scene sees for ``preset``: its board model (finite coil
+    traces) where the truth is one, else its dipole-equivalent model."""
+    from ..board import BoardModel
+
+    p = get_preset(preset)
+    return p.model if isinstance(p.model, BoardModel) else p.dipole
 
 
 def truth_calibration(preset) -> Calibration:
