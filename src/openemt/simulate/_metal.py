@@ -211,8 +211,10 @@ class _Coils:
         """Source fields ``(n_source, P, 3)`` at points ``(P, 3)``."""
         pts = np.ascontiguousarray(pts, dtype=np.float64).reshape(-1, 3)
         if self.kind == "dipole":
-            return np.concatenate([dipole_fields(self.L[i], self.M[i][None, None, :], pts)
-                                   for i in range(self.n_source)])
+            from ..field import DipoleModel, coupling
+
+            src = DipoleModel(self.L.T, self.M.T, np.zeros((3, 3)), np.eye(3), 1.0)
+            return coupling(src, _at_points(pts)).transpose(1, 0, 2)
         from ..field._segments import segment_fields
 
         return segment_fields(self.S, self.off, pts) * self.gains[:, None, None]
@@ -255,22 +257,32 @@ class _Coils:
         return pts, w, u
 
 
-def dipole_fields(pos, mom, pts, chunk: int = 4096) -> np.ndarray:
+def _at_points(pts) -> np.ndarray:
+    P = np.zeros((len(pts), 4, 4))
+    P[:, :3, :3] = np.eye(3)
+    P[:, :3, 3] = pts
+    P[:, 3, 3] = 1.0
+    return P
+
+
+def dipole_fields(pos, mom, pts, chunk: int = 1_000_000) -> np.ndarray:
     """Fields ``(n_src, P, 3)`` of point dipoles at ``pos (C, 3)`` with moments
-    ``mom (n_src, C, 3)`` (real or complex), summed over the dipoles:
-    ``(3 (m.u) u - m) / d^3`` (the dipole model's convention, no mu0 / 4 pi)."""
+    ``mom (n_src, C, 3)`` (real or complex), summed over the dipoles, in the dipole model's
+    convention ``(3 (m.u) u - m) / d^3`` (no mu0 / 4 pi): the dipole kernel of
+    :mod:`openemt.field` with unit coils at the dipoles and at the points."""
+    from ..field import DipoleModel, coupling
+
     pos = np.asarray(pos, dtype=np.float64).reshape(-1, 3)
     mom = np.asarray(mom)
     pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+    C = len(pos)
+    unit = DipoleModel(np.repeat(pos.T, 3, axis=1), np.tile(np.eye(3), C), np.zeros((3, 3)),
+                       np.eye(3), 1.0)
     out = np.zeros((mom.shape[0], len(pts), 3), dtype=np.result_type(mom.dtype, np.float64))
-    step = max(1, chunk // max(1, len(pos)))
+    step = max(1, chunk // (9 * C))
     for a in range(0, len(pts), step):
-        d = pts[a:a + step, None, :] - pos[None, :, :]             # (p, C, 3)
-        r = np.linalg.norm(d, axis=2)
-        u = d / r[..., None]
-        mu = np.einsum("ica,pca->ipc", mom, u)                       # (n, p, C)
-        f = (3 * mu[..., None] * u[None] - mom[:, None, :, :]) / r[None, ..., None] ** 3
-        out[:, a:a + step] = f.sum(axis=2)
+        D = coupling(unit, _at_points(pts[a:a + step])).reshape(-1, C, 3, 3)   # (p, C, a, b)
+        out[:, a:a + step] = np.einsum("pcab,nca->npb", D, mom)
     return out
 
 

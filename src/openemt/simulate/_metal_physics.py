@@ -18,6 +18,7 @@ import numpy as np
 from scipy import special
 
 from .._errors import InputError
+from ._errors import MU0
 
 __all__ = [
     "MATERIALS",
@@ -33,9 +34,6 @@ __all__ = [
     "sphere_polarizability",
     "wire_impedance",
 ]
-
-MU0 = 4e-7 * np.pi  # vacuum permeability (H/m), as the rest of the simulator
-
 
 @dataclass(frozen=True)
 class Material:
