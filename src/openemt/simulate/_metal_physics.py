@@ -18,7 +18,6 @@ import numpy as np
 from scipy import special
 
 from .._errors import InputError
-from ._errors import MU0
 
 __all__ = [
     "MATERIALS",
@@ -34,6 +33,9 @@ __all__ = [
     "sphere_polarizability",
     "wire_impedance",
 ]
+
+MU0 = 4e-7 * np.pi  # vacuum permeability (H/m)
+
 
 @dataclass(frozen=True)
 class Material:
