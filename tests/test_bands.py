@@ -99,3 +99,45 @@ def test_raw_signal_bands_with_metal_demodulate_to_the_truth():
     assert np.abs(true.imag).max() > 1e-3 * np.abs(true).max()
     with pytest.raises(InputError, match="one frequency per source"):
         ChannelLayout(bands=((1500.0, 3000.0),))
+
+
+def test_tracker_file_bands_and_metal(tmp_path):
+    """A tracker file names each coil's carriers (band 0 first) and a metal scene for its
+    simulated source; the simulated session's raw signal carries both bands."""
+    import shutil
+    from importlib import resources
+
+    from openemt.live import read_tracker, tracker_backend
+    from openemt.signal import demodulate
+
+    folder = resources.files("openemt.live") / "trackers"
+    text = (folder / "simulated.toml").read_text()
+    text = text.replace("frequencies = [7500.0, 10500.0, 13500.0]",
+                        "frequencies = [[7500.0, 1500.0], [10500.0, 3000.0], [13500.0, 4500.0]]")
+    text = text.replace('preset = "concentric"',
+                        'preset = "concentric"\nmetal = "sphere.toml"')
+    (tmp_path / "t.toml").write_text(text)
+    shutil.copy(folder / "concentric.json", tmp_path / "concentric.json")
+    (tmp_path / "sphere.toml").write_text(
+        '[[object]]\nkind = "sphere"\nmaterial = "copper"\nposition = [0.1, 0.0, 0.0]\n'
+        'radius = 0.03\n')
+    spec = read_tracker(tmp_path / "t.toml")
+    assert spec.frequencies == (7500.0, 10500.0, 13500.0)
+    assert spec.bands == ((1500.0, 3000.0, 4500.0),)
+    assert spec.layout().n_bands == 2
+    assert spec.simulation["metal"].objects[0].kind == "sphere"
+    b = tracker_backend(spec, "sim", realtime=False, duration=0.02, noise_rms=0.0)
+    chunks = []
+    while (c := b.read()) is not None:
+        chunks.append(c)
+    raw = np.concatenate(chunks)
+    out = demodulate(raw, spec.layout())
+    assert out.bands.shape[1:] == (2, 3, 3)
+    assert np.abs(out.bands[:, 1] - out.bands[:, 0]).max() > 1e-4 * np.abs(out.bands).max()
+    bad = text.replace("[13500.0, 4500.0]", "[13500.0]")
+    (tmp_path / "bad.toml").write_text(bad)
+    with pytest.raises(InputError, match="same number of carrier bands"):
+        read_tracker(tmp_path / "bad.toml")
+    (tmp_path / "bad2.toml").write_text(text.replace("sphere.toml", "nothing.toml"))
+    with pytest.raises(InputError, match="simulation.metal"):
+        read_tracker(tmp_path / "bad2.toml")

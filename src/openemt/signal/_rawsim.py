@@ -338,7 +338,9 @@ class RawSimulator:
         step = max(1e-3, 1.0 / lay.sample_rate)
         knots = t if len(t) < 2 else np.arange(t[0], t[-1] + step, step)
         P = np.ascontiguousarray(self.poses(knots))
-        parts = [self.metal.induced_couplings(self.model, P, f, t=knots)
+        own = getattr(self.model, "metal_couplings", None)   # a model of several sensors
+        parts = [own(self.metal, P, f, knots) if own is not None else
+                 self.metal.induced_couplings(self.model, P, f, t=knots)
                  for f in lay.band_frequencies]
         Mk = np.concatenate(parts, axis=1)                          # (k, n_carr, n_se)
         if len(knots) == len(t) and np.array_equal(knots, t):
