@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -41,13 +43,27 @@ def test_simulated_bands_and_the_stainless_sheet():
     B = data.extra["couplings_bands"]
     assert B.shape == (len(data), 2, 3, 3)
     np.testing.assert_array_equal(data.couplings, B[:, 0])
-    assert data.meta["truth"]["band_frequencies_hz"] == BANDS
+    np.testing.assert_array_equal(data.band_frequencies, BANDS)
+    np.testing.assert_array_equal(data.band_couplings, B)
     # the slow band sees less eddy current than the fast one, the extrapolation far less
     err = [np.abs(C - clean.couplings).max() for C in (B[:, 1].real, B[:, 0].real,
                                                         eddy_free_couplings(B, BANDS))]
     assert err[1] < err[0] / 3 and err[2] < err[0] / 50, err
     one = simulate("dipole-approx", "md", **kw)
-    assert "couplings_bands" not in one.extra
+    assert one.band_couplings is None and one.band_frequencies is None
+
+
+def test_band_couplings_survive_the_dataset_file(tmp_path):
+    from openemt.io import read_dataset, write_dataset
+
+    data = simulate("dipole-approx", "md", source_fixtures="YoutZup", sensor_fixtures="YoutZup",
+                    metal=SHEET, bands=BANDS)
+    write_dataset(data, tmp_path / "d.h5")
+    back = read_dataset(tmp_path / "d.h5")
+    np.testing.assert_array_equal(back.band_couplings, data.band_couplings)
+    np.testing.assert_array_equal(back.band_frequencies, BANDS)
+    with pytest.raises(InputError, match="couplings_bands"):
+        dataclasses.replace(data, extra={"couplings_bands": data.couplings})
 
 
 def test_fuse_bands_follows_fast_and_settles_on_slow():

@@ -132,7 +132,8 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
         Carrier bands: every source coil driven at one frequency per band (Hz), e.g. ILEMT's
         ``[[274, 334, 370], [7500, 10500, 13500]]``. ``couplings`` are band 0's and
         ``extra["couplings_bands"]`` (N, n_bands, n_source, n_sensor) holds all of them (each
-        with its own metal response and noise); default: the preset's frequencies, one band.
+        with its own metal response and noise; ``meta["band_frequencies_hz"]`` their
+        carriers); default: the preset's frequencies, one band.
     clip_z : bool, default True
         Log commanded Z below -46.2 mm as -46.2 mm, like the real stage (:func:`stage_pattern`).
     seed : int or None
@@ -264,9 +265,9 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
             "stage_fixture": p.stage_fixture.tolist(),
             "sensor_fixture": p.sensor_fixture.tolist(),
             "frequencies_hz": p.frequencies.tolist(),
-            **({} if bands is None else {"band_frequencies_hz": band_f.tolist()}),
         },
         "units": {"stage": "m, rad", "couplings": "dimensionless (gain 1/250 convention)"},
+        **({} if bands is None else {"band_frequencies_hz": band_f.tolist()}),
         "provenance": {"openemt_version": __version__, "simulated": True},
     }
     return Dataset(couplings=C, stage=stage, source_fixture=np.array(so_codes),
