@@ -225,6 +225,13 @@ radius = 0.01
     with pytest.raises(InputError, match="radius"):
         MetalScene.from_dict({"object": [{"kind": "disk", "material": "copper",
                                           "thickness": 0.01}]})
+    (tmp_path / "bin.toml").write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(InputError, match="binary data"):
+        MetalScene.from_toml(tmp_path / "bin.toml")
+    (tmp_path / "bad.toml").write_text('[[object]]\nkind = "sheet"\nmaterial = "copper"\n'
+                                       'thickness = -1\n')
+    with pytest.raises(InputError, match=r"bad\.toml: .*thickness"):
+        MetalScene.from_toml(tmp_path / "bad.toml")
 
 
 @pytest.mark.parametrize("name", METAL_SCENES)

@@ -14,7 +14,6 @@ Units are SI (Hz, V, m, s, rad). Calibration paths are relative to the TOML file
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -832,19 +831,10 @@ def read_tracker(path) -> TrackerSpec:
     InputError
         One line naming the file, the key, what was expected and what arrived.
     """
-    from ..io._safefile import MAX_CONFIG_BYTES, check_text_nesting, read_limited
+    from ..io._safefile import read_toml
 
     path = Path(path)
-    what = "a tracker description file (TOML)"
-    data = read_limited(path, what, MAX_CONFIG_BYTES)
-    try:
-        text = data.decode("utf-8")
-        check_text_nesting(text, "a tracker description", str(path))
-        doc = tomllib.loads(text)
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: expected a TOML text file, got binary data") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: expected valid TOML, got {exc}") from None
+    doc = read_toml(path, "a tracker description file (TOML)", "a tracker description")
     return tracker_from_dict(doc, path)
 
 

@@ -44,7 +44,6 @@ Objects do not interact with each other (each responds to the source field alone
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -584,15 +583,17 @@ class MetalScene:
     @classmethod
     def from_toml(cls, path) -> MetalScene:
         """A scene from a TOML file: ``[[object]]`` tables (docs/simulator.md#metal-scenes)."""
+        from ..io._safefile import read_toml
+
         p = Path(path)
         try:
-            with open(p, "rb") as fh:
-                d = tomllib.load(fh)
+            d = read_toml(p, "a metal scene file (TOML)", "a metal scene")
         except FileNotFoundError:
             raise InputError(f"expected an existing metal scene file, got {str(p)!r}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"expected a TOML metal scene in {str(p)!r}, got: {exc}") from None
-        return cls.from_dict(d, name=p.stem)
+        try:
+            return cls.from_dict(d, name=p.stem)
+        except InputError as exc:
+            raise InputError(f"{p}: {exc}") from None
 
     def to_dict(self) -> dict:
         return {"name": self.name, "sample_period_s": self.sample_period_s,
