@@ -78,7 +78,10 @@ _GAUSS_T = np.polynomial.legendre.leggauss(2)
 
 
 def _vec(v, name: str, n: int = 3) -> tuple:
-    a = np.asarray(v, dtype=np.float64)
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = np.full(0, np.nan)
     if a.shape != (n,) or not np.all(np.isfinite(a)):
         raise InputError(f"expected `{name}` as {n} finite numbers, got {v!r}")
     return tuple(float(x) for x in a)
@@ -122,10 +125,13 @@ class Motion:
         object.__setattr__(self, "velocity", _vec(self.velocity, "motion.velocity"))
         object.__setattr__(self, "amplitude", _vec(self.amplitude, "motion.amplitude"))
         object.__setattr__(self, "period_s", _positive(self.period_s, "motion.period_s"))
-        object.__setattr__(self, "phase", float(self.phase))
+        object.__setattr__(self, "phase", _vec([self.phase], "motion.phase", 1)[0])
         if self.kind == "waypoints":
-            t = np.asarray(self.times, dtype=np.float64)
-            p = np.asarray(self.positions, dtype=np.float64)
+            try:
+                t = np.asarray(self.times, dtype=np.float64)
+                p = np.asarray(self.positions, dtype=np.float64)
+            except (TypeError, ValueError):
+                t, p = np.zeros((0, 0)), np.zeros(0)
             if t.ndim != 1 or len(t) < 1 or p.shape != (len(t), 3) or np.any(np.diff(t) <= 0) \
                     or not (np.all(np.isfinite(t)) and np.all(np.isfinite(p))):
                 raise InputError(f"expected motion waypoints as increasing `times` (n,) and "
