@@ -126,7 +126,8 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     metal : MetalScene, str, dict, optional
         A metal scene (:class:`openemt.simulate.MetalScene`, a scene name such as
         ``"aluminium_sheet"``, a TOML scene file or a table) in the bench frame, the
-        source-fixture base frame (docs/simulator.md#metal-scenes). Row ``k`` is at time
+        source-fixture base frame (docs/simulator.md#metal-scenes); a named scene is placed
+        about the box of the simulated sensor positions in that frame. Row ``k`` is at time
         ``k * sample_period_s`` for moving objects. Couplings are complex with a scene.
     bands : array (n_bands, n_source), optional
         Carrier bands: every source coil driven at one frequency per band (Hz), e.g. ILEMT's
@@ -178,7 +179,6 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     if noise_abs is not None:
         check_nonnegative(noise_abs, "noise_abs")
     objects = _distortions(distortion)
-    scene = load_scene(metal)
 
     blocks, files, so_codes, se_codes, pats, file_index = [], [], [], [], [], []
     for s, e in combos:
@@ -202,7 +202,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
 
     C0 = p.model.coupling(poses)
     band_f = _bands(bands, p)
-    if objects or scene is not None:
+    if objects or metal is not None:
         F_so = pose_from_vector(p.source_fixture)
         so_J = {c: source_fixture_rotation(c) for c in set(so_codes)}
         # bench (source-fixture base) frame -> source frame: F_so . so_J
@@ -212,6 +212,10 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
         frame[:, :3, :3] = A
         frame[:, :3, 3] = F_so[:3, 3]
         frame[:, 3, 3] = 1.0
+    scene = None
+    if metal is not None:           # a named scene is placed about the simulated volume
+        bench = np.einsum("kba,kb->ka", A, poses[:, :3, 3] - F_so[:3, 3])
+        scene = load_scene(metal, volume=(bench.min(axis=0), bench.max(axis=0)))
     Cb = []
     for freqs in band_f:                          # each carrier band sees its own response
         C = C0
