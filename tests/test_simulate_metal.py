@@ -324,3 +324,17 @@ def test_simulate_command_metal_and_bands(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: expected an existing metal scene file")
     assert not bad.exists()
+
+
+def test_anser_preset_metal_sees_the_board_traces():
+    """The Anser preset's scene model is its board (traces) with the couplings of its
+    finite-coil truth."""
+    from openemt.board import BoardModel
+    from openemt.simulate import get_preset, scene_model
+
+    p = get_preset("anser")
+    m = scene_model(p)
+    assert isinstance(m, BoardModel) and m.n_sensor == 1
+    data = simulate("anser", "grid", stage_sigma=0)
+    P = data.poses[::25]
+    np.testing.assert_allclose(m.coupling(P), p.model.coupling(P), rtol=1e-9, atol=1e-15)

@@ -294,11 +294,14 @@ def _bands(bands, p: Preset) -> np.ndarray:
 
 
 def scene_model(preset):
-    """The coil geometry a metal scene sees for ``preset``: its board model (finite coil
-    traces) where the truth is one, else its dipole-equivalent model."""
+    """The coil geometry a metal scene sees for ``preset``: its ``metal_model`` (the Anser
+    board's traces), its board model where the truth is one, else its dipole-equivalent
+    model (the rig presets' coils are small against their distances to the metal)."""
     from ..board import BoardModel
 
     p = get_preset(preset)
+    if p.metal_model is not None:
+        return p.metal_model
     return p.model if isinstance(p.model, BoardModel) else p.dipole
 
 
