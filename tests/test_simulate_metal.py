@@ -105,6 +105,36 @@ def test_perfect_sheet_cancels_the_normal_field_on_its_surface():
                                tang.coupling(P)[0, 0, 0], rtol=1e-4)
 
 
+@pytest.mark.parametrize("material, f", [("aluminium", 274.0), ("aluminium", 7500.0),
+                                         ("stainless_steel", 274.0), ("carbon_steel", 274.0)])
+def test_sheet_against_the_sommerfeld_integral(material, f):
+    """A vertical source dipole at h_s above a 2 mm slab, a vertical sensor at h_r and
+    horizontal distance rho: the reflected B_z is
+    (mu0 m / 4 pi) int R(lam) lam^2 exp(-lam (h_s + h_r)) J0(lam rho) dlam."""
+    from scipy.integrate import quad
+    from scipy.special import j0
+
+    from openemt.simulate import get_material
+
+    mat = get_material(material)
+    hs, hr = 0.13, 0.15
+    scene = MetalScene((MetalObject("sheet", mat, (0, 0, -hs), thickness=0.002),))
+    model = _axial_model()
+    H = hs + hr
+    for rho in (0.0, 0.5 * H, H, 2 * H):
+        P = _pose([rho, 0.0, hr - hs])
+        got = scene.induced_couplings(model, P, f)[0, 0, 0]
+
+        def part(lam, which):
+            R = sheet_reflection(lam, f, mat.conductivity, mat.mu_r, 0.002)
+            return (R.real if which == 0 else R.imag) * lam**2 * np.exp(-lam * H) * j0(lam * rho)
+
+        exact = GAIN * (quad(part, 0, 60 / H, args=(0,), limit=400)[0]
+                        + 1j * quad(part, 0, 60 / H, args=(1,), limit=400)[0])
+        direct = abs(model.coupling(P)[0, 0, 0])
+        assert abs(got - exact) < 1e-5 * abs(exact) + 1e-9 * direct, (rho, got, exact)
+
+
 def test_sheet_needs_the_tracker_on_its_front():
     scene = MetalScene((MetalObject("sheet", "aluminium", (0, 0, 0.1), thickness=0.002),))
     with pytest.raises(InputError, match="tracker's side"):

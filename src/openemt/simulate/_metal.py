@@ -14,12 +14,12 @@ quasi-static and linear in the source field ``B_i`` of source coil ``i``):
 - ``sphere``: the induced dipole of a conducting permeable sphere in a uniform field (Wait),
   valid for sources far from the sphere compared with its radius.
 - ``sheet``: an infinite slab (thin sheet or thick plate, conducting and/or permeable), by the
-  image method: the field of the source coil mirrored in the sheet's surface, times the slab's
-  reflection factor ``R`` evaluated at one transverse wavenumber per source/sensor pair,
-  ``lam = 2 / (h_source + h_sensor)`` (the heights above the surface). That choice makes the
-  first-order (low-frequency) response exact for a sensor above the source's image, and
-  ``R -> -1`` (perfect conductor) and ``(mu_r - 1) / (mu_r + 1)`` (static permeable) are exact
-  everywhere; elsewhere it is an approximation of the full Sommerfeld integral.
+  image method: every spectral component of the source coils' mirror image is scaled by the
+  slab's reflection factor ``R(lam)``, which is a series of real images (the mirror image and
+  copies moved further from the surface, with complex weights fitted to ``R(lam)`` over the
+  wavenumbers the geometry needs: :func:`~openemt.simulate._metal_physics.image_series`), a
+  discrete form of the Sommerfeld integral of an infinite slab (no edges); tested against
+  that integral itself.
 - ``disk`` / ``plate`` (finite, thin): an eddy-current loop network. The body is cut into
   ``filaments`` concentric strips (circles for a disk, rectangles for a plate); each is a
   circuit with the strip's resistance and internal inductance (sheet impedance with skin
@@ -54,10 +54,10 @@ from ._metal_physics import (
     Material,
     coaxial_mutual_inductance,
     get_material,
+    image_series,
     loop_self_inductance,
     magnetised_susceptibility,
     sheet_impedance,
-    sheet_reflection,
     sphere_polarizability,
     wire_impedance,
 )
@@ -711,12 +711,18 @@ class _Response:
         if np.any(hr <= 0):
             raise InputError(f"expected every sensor on the tracker's side (+z) of the sheet "
                              f"{obj.name or ''!s}, got a sensor {-hr.min():.4g} m behind it")
-        image = coils.mirrored(c, nrm)
-        Bi = image.field(X)                                              # (n_so, P, 3)
-        lam = 2.0 / (hs[:, None] + hr[None, :])
-        Rf = np.stack([sheet_reflection(lam[i], self.f[i], m.conductivity, m.mu_r,
-                                        obj.thickness) for i in range(coils.n_source)])
-        return Rf[..., None] * Bi
+        h_min = float(hs.min() + hr.min())
+        h_max = float(hs.max() + hr.max())
+        out = np.zeros((coils.n_source, len(X), 3), dtype=np.complex128)
+        series = {fi: image_series(fi, m.conductivity, m.mu_r, obj.thickness, h_min, h_max)
+                  for fi in np.unique(self.f)}
+        depths = series[self.f[0]][0]                  # the same depths for every carrier
+        weights = np.stack([series[fi][1] for fi in self.f])             # (n_so, K)
+        for k, s in enumerate(depths):
+            # the mirror image moved s further from the surface: mirror in a plane s/2 deeper
+            Bk = coils.mirrored(c - 0.5 * s * nrm, nrm).field(X)          # (n_so, P, 3)
+            out += weights[:, k, None, None] * Bk
+        return out
 
 
 # --------------------------------------------------------------------------------------------

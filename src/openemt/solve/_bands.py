@@ -92,7 +92,7 @@ def eddy_free_couplings(band_couplings, band_frequencies, *, slow=None, fast=Non
     >>> def err(C):
     ...     return float(np.abs(C - clean.couplings).max() / np.abs(clean.couplings).max())
     >>> fast = data.extra["couplings_bands"][:, 1].real
-    >>> err(fast) > 20 * err(C0)
+    >>> err(fast) > 8 * err(C0)
     True
     """
     C, f = _bands(band_couplings, band_frequencies)
