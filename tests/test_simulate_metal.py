@@ -368,3 +368,24 @@ def test_anser_preset_metal_sees_the_board_traces():
     data = simulate("anser", "grid", stage_sigma=0)
     P = data.poses[::25]
     np.testing.assert_allclose(m.coupling(P), p.model.coupling(P), rtol=1e-9, atol=1e-15)
+
+
+def test_permeable_plate_is_magnetised_and_screened():
+    """A ferrite disk (insulating) is magnetised in phase whatever the frequency, pulling the
+    field in (the coupling grows); a thick steel plate's magnetisation is screened by its eddy
+    currents as the frequency rises (the slab's mu_eff ~ mu_r delta / d), its in-phase
+    response falling and turning negative (diamagnetic) once mu_r delta < d, with a
+    quadrature part."""
+    model = DipoleModel(np.zeros((3, 1)), np.array([[1.0], [0.0], [0.0]]), np.zeros((3, 1)),
+                        np.array([[1.0], [0.0], [0.0]]), GAIN)
+    P = _pose([0.3, 0.0, 0.0])
+    C0 = model.coupling(P)[0, 0, 0]
+    ferrite = MetalScene((MetalObject("disk", "ferrite", (0.15, 0.0, -0.03), radius=0.02,
+                                      thickness=0.003),))
+    lo, hi = (ferrite.induced_couplings(model, P, f)[0, 0, 0] for f in (10.0, 1e4))
+    assert lo.real > 1e-4 * abs(C0) and abs(lo.imag) < 1e-3 * abs(lo)
+    assert abs(hi - lo) < 1e-3 * abs(lo)
+    steel = MetalScene((MetalObject("plate", "carbon_steel", (0.15, 0.0, -0.03),
+                                    size=(0.05, 0.05), thickness=0.005),))
+    lo, mid, hi = (steel.induced_couplings(model, P, f)[0, 0, 0] for f in (0.1, 1e4, 1e6))
+    assert lo.real > mid.real > 0 > hi.real and abs(mid.imag) > 0.1 * abs(mid)
