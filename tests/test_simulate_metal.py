@@ -255,6 +255,9 @@ radius = 0.01
     with pytest.raises(InputError, match="radius"):
         MetalScene.from_dict({"object": [{"kind": "disk", "material": "copper",
                                           "thickness": 0.01}]})
+    with pytest.raises(InputError, match="at most 100 objects"):
+        MetalScene.from_dict({"object": [{"kind": "sphere", "material": "copper",
+                                          "radius": 0.01}] * 101})
     (tmp_path / "bin.toml").write_bytes(b"\xff\xfe\x00")
     with pytest.raises(InputError, match="binary data"):
         MetalScene.from_toml(tmp_path / "bin.toml")

@@ -70,6 +70,8 @@ METAL_KINDS = ("sphere", "disk", "plate", "sheet", "ring")
 #: Named scenes (:func:`metal_scene`), the metal benchmark's scenes.
 METAL_SCENES = ("clean", "aluminium_sheet", "steel_plate", "moving_ring")
 MOTION_KINDS = ("fixed", "linear", "periodic", "waypoints")
+#: Most objects of one scene (bounded work: each object is evaluated on every sample).
+MAX_SCENE_OBJECTS = 100
 
 _CIRCLE_VERTICES = 64
 _RECT_VERTICES_PER_SIDE = 16
@@ -557,6 +559,9 @@ class MetalScene:
     name: str = ""
 
     def __post_init__(self):
+        if len(self.objects) > MAX_SCENE_OBJECTS:
+            raise InputError(f"expected at most {MAX_SCENE_OBJECTS} objects in a metal scene, "
+                             f"got {len(self.objects)}")
         objs = tuple(o if isinstance(o, MetalObject) else MetalObject.from_dict(o)
                      for o in self.objects)
         object.__setattr__(self, "objects", objs)
@@ -583,6 +588,12 @@ class MetalScene:
         objs = d.get("object", d.get("objects", []))
         if isinstance(objs, dict):
             objs = [objs]
+        if not isinstance(objs, list):
+            raise InputError(f"expected `object` as an array of tables, got "
+                             f"{type(objs).__name__}")
+        if len(objs) > MAX_SCENE_OBJECTS:
+            raise InputError(f"expected at most {MAX_SCENE_OBJECTS} objects in a metal scene, "
+                             f"got {len(objs)}")
         return cls(tuple(MetalObject.from_dict(o) for o in objs),
                    d.get("sample_period_s", 0.1), str(d.get("name", name)))
 
