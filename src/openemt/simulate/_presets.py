@@ -53,6 +53,10 @@ class Preset:
         Drive frequency of each source coil (Hz); sets the response of conductive objects.
     source, sensor : dict
         JSON-serialisable descriptions of the coils (geometry, gains).
+    metal_model : object, optional
+        The coupling model whose coil geometry metal scenes see (a board model with the
+        traces of the source coils, equal to ``model``'s couplings); None: ``model`` when it
+        is a board model, else ``dipole`` (:func:`openemt.simulate.scene_model`).
     """
 
     name: str
@@ -68,6 +72,7 @@ class Preset:
     frequencies: np.ndarray
     source: dict = field(default_factory=dict)
     sensor: dict = field(default_factory=dict)
+    metal_model: Any = None
 
     def __post_init__(self):
         # presets are cached and shared: callers must not modify these arrays in place (they
@@ -200,10 +205,11 @@ _ANSER_FREQUENCIES = tuple(np.linspace(2500.0, 20000.0, 8))
 def anser_preset(board=None) -> Preset:
     """The ``anser`` preset with the source coils of ``board`` (a board file or built-in name,
     default the built-in ``anser``; docs/planar.md#board-file)."""
-    from ..board import board_coils
+    from ..board import BoardModel, board_coils
     from ..io import load_board
 
-    sources = board_coils(load_board(board))
+    b = load_board(board)
+    sources = board_coils(b)
     if len(sources) != 8:
         raise InputError(f"expected a board of 8 source coils for the anser preset, got "
                          f"{len(sources)}")
@@ -223,7 +229,9 @@ def anser_preset(board=None) -> Preset:
                 "positions_m": np.round(dipole.L_so, 9).tolist(),
                 "moments": np.round(dipole.M_so, 9).tolist()},
         sensor={"kind": "single coil (5-DOF)", "side_m": side, "length_m": length,
-                "gain": gain_se})
+                "gain": gain_se},
+        # the same couplings from the board's traces (tests/test_simulate_metal.py)
+        metal_model=BoardModel.from_board(b, gains=board_gain_scale(b)))
 
 
 def _anser_rig() -> dict:
