@@ -4,7 +4,13 @@
 ``truth_calibration(preset)`` gives the matching dipole-equivalent calibration.
 """
 
-from ._apparatus import STAGE_SIGMA, fixture_combinations, simulate, truth_calibration
+from ._apparatus import (
+    STAGE_SIGMA,
+    fixture_combinations,
+    scene_model,
+    simulate,
+    truth_calibration,
+)
 from ._errors import (
     Distortion,
     add_noise,
@@ -22,6 +28,24 @@ from ._hybrid import (
     simulate_hybrid,
     simulate_ndi_session,
 )
+from ._metal import (
+    METAL_KINDS,
+    METAL_SCENES,
+    MetalObject,
+    MetalScene,
+    Motion,
+    load_scene,
+    metal_scene,
+    rig_volume,
+)
+from ._metal_physics import (
+    MATERIALS,
+    Material,
+    get_material,
+    sheet_reflection,
+    skin_depth,
+    sphere_polarizability,
+)
 from ._patterns import GRID_PITCH, PATTERNS, STAGE_Z_LIMIT, stage_pattern
 from ._presets import PRESETS, Preset, get_preset
 from ._reference import (
@@ -34,6 +58,21 @@ from ._reference import (
 from ._workflow import SimulateOptions, SimulateResult, parse_distortion, write_simulation
 
 __all__ = [
+    "MATERIALS",
+    "METAL_KINDS",
+    "METAL_SCENES",
+    "Material",
+    "MetalObject",
+    "MetalScene",
+    "Motion",
+    "get_material",
+    "load_scene",
+    "metal_scene",
+    "rig_volume",
+    "scene_model",
+    "sheet_reflection",
+    "skin_depth",
+    "sphere_polarizability",
     "DISTORTION_SCALE",
     "EM_NOISE",
     "OPTICAL_NOISE",

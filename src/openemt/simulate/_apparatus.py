@@ -24,10 +24,12 @@ from ._errors import (
     noise_sigma,
     polarizability,
 )
+from ._metal import load_scene
 from ._patterns import STAGE_Z_LIMIT, stage_pattern
 from ._presets import Preset, get_preset
 
-__all__ = ["STAGE_SIGMA", "fixture_combinations", "simulate", "truth_calibration"]
+__all__ = ["STAGE_SIGMA", "fixture_combinations", "scene_model", "simulate",
+           "truth_calibration"]
 
 #: Default stage position error sigma per axis (m): MacLachlan et al. 2025 (§VIII-C) quote a stage uncertainty of
 #: 0.107 mm after compensation and adds it to the RMS of the 3-D error magnitude (eq. 10), so it
@@ -92,8 +94,8 @@ def _distortions(distortion) -> list[Distortion]:
 
 def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="all",
              combinations: str = "paper", snr_db=None, noise_abs=None,
-             stage_sigma=STAGE_SIGMA, drift=None, distortion=None, clip_z: bool = True,
-             seed=0) -> Dataset:
+             stage_sigma=STAGE_SIGMA, drift=None, distortion=None, metal=None, bands=None,
+             clip_z: bool = True, seed=0) -> Dataset:
     """Simulate an ILEMT-style calibration/test data collection with known ground truth.
 
     Parameters
@@ -121,6 +123,16 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     distortion : Distortion, dict or list of them, optional
         Objects that distort the field (induced dipoles, see :class:`Distortion`). Couplings are
         complex when a conductive object is present, else real.
+    metal : MetalScene, str, dict, optional
+        A metal scene (:class:`openemt.simulate.MetalScene`, a scene name such as
+        ``"aluminium_sheet"``, a TOML scene file or a table) in the bench frame, the
+        source-fixture base frame (docs/simulator.md#metal-scenes). Row ``k`` is at time
+        ``k * sample_period_s`` for moving objects. Couplings are complex with a scene.
+    bands : array (n_bands, n_source), optional
+        Carrier bands: every source coil driven at one frequency per band (Hz), e.g. ILEMT's
+        ``[[274, 334, 370], [7500, 10500, 13500]]``. ``couplings`` are band 0's and
+        ``extra["couplings_bands"]`` (N, n_bands, n_source, n_sensor) holds all of them (each
+        with its own metal response and noise); default: the preset's frequencies, one band.
     clip_z : bool, default True
         Log commanded Z below -46.2 mm as -46.2 mm, like the real stage (:func:`stage_pattern`).
     seed : int or None
@@ -165,6 +177,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     if noise_abs is not None:
         check_nonnegative(noise_abs, "noise_abs")
     objects = _distortions(distortion)
+    scene = load_scene(metal)
 
     blocks, files, so_codes, se_codes, pats, file_index = [], [], [], [], [], []
     for s, e in combos:
@@ -186,27 +199,42 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     poses = ground_truth_poses(p.source_fixture, p.stage_fixture, p.sensor_fixture, so_codes,
                                stage_true, se_codes)
 
-    C = p.model.coupling(poses)
-    if objects:
-        C = C.astype(np.complex128)
+    C0 = p.model.coupling(poses)
+    band_f = _bands(bands, p)
+    if objects or scene is not None:
         F_so = pose_from_vector(p.source_fixture)
         so_J = {c: source_fixture_rotation(c) for c in set(so_codes)}
         # bench (source-fixture base) frame -> source frame: F_so . so_J
         M = np.stack([so_J[c] for c in so_codes])                   # (N, 3, 3)
         A = np.einsum("ab,kbc->kac", F_so[:3, :3], M)                # rotation of F_so so_J
+        frame = np.zeros((n_rows, 4, 4))
+        frame[:, :3, :3] = A
+        frame[:, :3, 3] = F_so[:3, 3]
+        frame[:, 3, 3] = 1.0
+    Cb = []
+    for freqs in band_f:                          # each carrier band sees its own response
+        C = C0
+        if scene is not None:
+            C = C + scene.induced_couplings(scene_model(p), poses, freqs,
+                                            t=scene.times(n_rows), frame=frame)
         for d in objects:
-            q = np.einsum("kab,b->ka", A, np.asarray(d.position)) + F_so[:3, 3]
-            C += distortion_coupling(p.dipole, poses, q, polarizability(d, p.frequencies),
-                                     d.radius)
-        if not any(d.kind == "conductive" for d in objects):
-            C = C.real.copy()
-    if drift is not None:
-        C = C * drift_factors(drift, n_rows, p.n_source)[:, :, None]
-    if snr_db is not None or noise_abs is not None:
-        sigma = noise_sigma(C, snr_db=snr_db, noise_abs=noise_abs)
-        C = add_noise(C, sigma, noise_rng)
-    else:
-        sigma = np.zeros(n_rows)
+            q = frame[:, :3, 3] + np.einsum("kab,b->ka", A, np.asarray(d.position))
+            C = C + distortion_coupling(p.dipole, poses, q, polarizability(d, freqs), d.radius)
+        if scene is None and not any(d.kind == "conductive" for d in objects):
+            C = np.real(C).copy()
+        Cb.append(C)
+    sigma = np.zeros(n_rows)
+    for b, C in enumerate(Cb):
+        if drift is not None:
+            C = C * drift_factors(drift, n_rows, p.n_source)[:, :, None]
+        if snr_db is not None or noise_abs is not None:
+            sigma = noise_sigma(C, snr_db=snr_db, noise_abs=noise_abs) if b == 0 else sigma
+            C = add_noise(C, noise_sigma(C, snr_db=snr_db, noise_abs=noise_abs), noise_rng)
+        Cb[b] = C
+    C = Cb[0]
+    extra = {"stage_true": stage_true, "noise_sigma": sigma}
+    if bands is not None:
+        extra["couplings_bands"] = np.stack(Cb, axis=1)
 
     meta = {
         "generator": "openemt.simulate",
@@ -228,6 +256,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
             "stage_sigma_m": stage_sigma,
             "drift": None if drift is None else np.atleast_1d(drift).astype(float).tolist(),
             "distortion": [d.to_dict() for d in objects],
+            "metal": None if scene is None else scene.to_dict(),
         },
         "truth": {
             "finite_coils": bool(p.finite),
@@ -235,6 +264,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
             "stage_fixture": p.stage_fixture.tolist(),
             "sensor_fixture": p.sensor_fixture.tolist(),
             "frequencies_hz": p.frequencies.tolist(),
+            **({} if bands is None else {"band_frequencies_hz": band_f.tolist()}),
         },
         "units": {"stage": "m, rad", "couplings": "dimensionless (gain 1/250 convention)"},
         "provenance": {"openemt_version": __version__, "simulated": True},
@@ -243,7 +273,28 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
                    sensor_fixture=np.array(se_codes), pattern=np.array(pats),
                    file_index=np.concatenate(file_index), files=tuple(files),
                    stage_logged=stage.copy(), poses=poses,
-                   extra={"stage_true": stage_true, "noise_sigma": sigma}, meta=meta)
+                   extra=extra, meta=meta)
+
+
+def _bands(bands, p: Preset) -> np.ndarray:
+    if bands is None:
+        return p.frequencies[None, :]
+    f = np.asarray(bands, dtype=np.float64)
+    if f.ndim == 1:
+        f = f[None, :]
+    if f.ndim != 2 or f.shape[1] != p.n_source or not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise InputError(f"expected carrier bands of shape (n_bands, {p.n_source}) with "
+                         f"positive frequencies, got {np.asarray(bands).tolist()}")
+    return f
+
+
+def scene_model(preset):
+    """The coil geometry a metal scene sees for ``preset``: its board model (finite coil
+    traces) where the truth is one, else its dipole-equivalent model."""
+    from ..board import BoardModel
+
+    p = get_preset(preset)
+    return p.model if isinstance(p.model, BoardModel) else p.dipole
 
 
 def truth_calibration(preset) -> Calibration:

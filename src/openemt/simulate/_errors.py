@@ -160,20 +160,12 @@ def polarizability(d: Distortion, frequency) -> np.ndarray:
     J. D. Jackson, *Classical Electrodynamics*, 3rd ed., problems 5.34/8.x (eddy-current sphere);
     L. D. Landau and E. M. Lifshitz, *Electrodynamics of Continuous Media*, §59.
     """
+    from ._metal_physics import sphere_polarizability
+
     f = np.asarray(frequency, dtype=np.float64)
     if d.kind == "ferromagnetic":
         return np.full(f.shape, (d.mu_r - 1.0) / (d.mu_r + 2.0), dtype=np.complex128)
-    w = 2.0 * np.pi * f
-    delta = np.sqrt(2.0 / (w * MU0 * d.conductivity))
-    x = (1.0 - 1.0j) * d.radius / delta
-    small = np.abs(x) < 1e-2
-    large = np.abs(x.imag) > 30.0  # cot(x) = i to double precision (Im x < 0)
-    xs = np.where(small | large, 1.0, x)
-    cot = np.where(large, 1.0j, 1.0 / np.tan(xs))
-    xs = np.where(small, 1.0, x)
-    exact = -0.5 * (1.0 - 3.0 / xs**2 + 3.0 * cot / xs)
-    series = x**2 / 30.0 + 2.0 * x**4 / 630.0  # -(1/2)(-x^2/15 - 2 x^4/315)
-    return np.where(small, series, exact)
+    return sphere_polarizability(d.radius, d.conductivity, 1.0, f)
 
 
 def distortion_coupling(model: DipoleModel, poses, position, kappa, radius) -> np.ndarray:

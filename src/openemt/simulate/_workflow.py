@@ -48,6 +48,10 @@ class SimulateOptions:
         None, "field-distorting object 'KIND,X,Y,Z,RADIUS[,conductivity=S][,mu_r=M]' with KIND "
         "conductive or ferromagnetic, centre X,Y,Z (m, bench frame) and sphere RADIUS (m); "
         "repeatable", metavar="SPEC", action="append")
+    metal: str | None = option(None, "metal scene: a name (clean, aluminium_sheet, steel_plate, "
+                               "moving_ring) or a scene file (.toml) in the bench frame "
+                               "(docs/simulator.md#metal-scenes); couplings become complex",
+                               metavar="SCENE")
     clip_z: bool = option(True, "log Z = -50 mm as commanded instead of the stage limit -46.2 mm")
     reference: str | None = option(None, "simulate a reference-pose collection instead: the sensor "
                                    "on a robot flange or optical marker (unknown X, Y), couplings "
@@ -170,9 +174,10 @@ def write_simulation(o: SimulateOptions, say=None) -> SimulateResult:
     if o.format == "ndi":
         return _write_ndi(o)
     if o.reference is not None:
-        if o.pattern is not None or o.distortion or o.drift is not None:
-            raise InputError("expected no --pattern, --distortion or --drift with --reference "
-                             "(a reference collection draws its own poses), got some")
+        if o.pattern is not None or o.distortion or o.drift is not None or o.metal:
+            raise InputError("expected no --pattern, --distortion, --metal or --drift with "
+                             "--reference (a reference collection draws its own poses), got "
+                             "some")
         mm, deg = o.reference_noise_mm, o.reference_noise_deg
         ds = simulate_reference(o.preset, o.reference, o.n_poses,
                                 noise_trans=None if mm is None else mm * 1e-3,
@@ -188,7 +193,8 @@ def write_simulation(o: SimulateOptions, say=None) -> SimulateResult:
         ds = simulate(preset, o.pattern, source_fixtures=_codes(o.source_fixtures),
                       sensor_fixtures=_codes(o.sensor_fixtures), combinations=o.combinations,
                       snr_db=o.snr_db, noise_abs=o.noise_abs, stage_sigma=o.stage_sigma,
-                      drift=drift, distortion=distortion or None, clip_z=o.clip_z, seed=o.seed)
+                      drift=drift, distortion=distortion or None, metal=o.metal,
+                      clip_z=o.clip_z, seed=o.seed)
         cal = truth_calibration(preset) if o.truth_calibration is not None else None
     existed = o.output.exists()
     write_dataset(ds, o.output)
@@ -217,7 +223,7 @@ def _write_ndi(o: SimulateOptions) -> SimulateResult:
 
     given = [opt for opt, value in (("--truth-calibration", o.truth_calibration),
                                     ("--pattern", o.pattern), ("--drift", o.drift),
-                                    ("--distortion", o.distortion),
+                                    ("--distortion", o.distortion), ("--metal", o.metal),
                                     ("--snr-db", o.snr_db), ("--noise-abs", o.noise_abs),
                                     ("--reference-noise-mm", o.reference_noise_mm),
                                     ("--reference-noise-deg", o.reference_noise_deg))

@@ -6,6 +6,7 @@ calibration or a model and one options record (:class:`SolveOptions`).
 See docs/solve.md for the algorithms, status codes, SNR definition and benchmarks.
 """
 
+from ._bands import eddy_free_couplings, fuse_bands
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd, spectral_norms
 from ._crb import cramer_rao, solver_covariance
 from ._factory import SOLVER_FAMILIES, prepare
@@ -45,7 +46,9 @@ __all__ = [
     "apply_position_correction",
     "closed_form_start",
     "cramer_rao",
+    "eddy_free_couplings",
     "failure_reasons",
+    "fuse_bands",
     "hemisphere_from_positions",
     "hemisphere_vectors",
     "planar_accuracy",
