@@ -205,3 +205,37 @@ def test_planar_environment_auto_is_as_good_held_out_as_the_best_hand_picked(tmp
         assert held[chosen] <= best, held
     else:
         assert held[chosen] <= 1.02 * best, held
+
+
+def test_fit_environment_recovers_an_induced_dipole_and_refits_from_witnesses():
+    from openemt.calibrate import fit_environment
+
+    rng = np.random.default_rng(5)
+    base = truth_model(rng)
+    truth = EnvironmentTerms([[0.1, 0.35, -0.1]], rng.normal(0, 0.05, (1, 3, 3)))
+    env = EnvironmentModel(base, truth)
+    P = _poses(rng, 60, centre=(0.0, 0.25, 0.0), spread=0.05)
+    C = env.coupling(P)
+    f = fit_environment(base, P, C, dipoles=1)
+    np.testing.assert_allclose(f.terms.positions, truth.positions, atol=1e-6)
+    np.testing.assert_allclose(f.terms.moments, truth.moments, atol=1e-6 * 0.05)
+    assert f.rms < 1e-6 * f.rms_base
+    # the object moves: a few known poses (witnesses) re-estimate the terms from the last ones
+    moved = EnvironmentModel(base, EnvironmentTerms([[0.12, 0.33, -0.08]], truth.moments * 1.1))
+    W = P[:6]
+    g = fit_environment(base, W, moved.coupling(W), start=f.terms, max_nfev=30)
+    Q = _poses(rng, 10, centre=(0.0, 0.25, 0.0), spread=0.05)
+    np.testing.assert_allclose(g.model.coupling(Q), moved.coupling(Q), rtol=0,
+                               atol=1e-6 * np.abs(moved.coupling(Q)).max())
+
+
+def test_distortion_level_takes_the_band_and_witness_figures():
+    from openemt.live import distortion_level
+
+    q = np.array([0.0, 0.0, 0.0, 5e-4])
+    r = np.array([0.0, 0.0, 0.0, np.nan])
+    plain = distortion_level(q, r, 1e-3, 0.01)
+    assert plain.tolist() == [0, 0, 0, 64]
+    lv = distortion_level(q, r, 1e-3, 0.01, band=np.array([0.01, 0.0, np.nan, 0.0]),
+                          witness_m=np.array([0.0, 2e-3, 0.0, 0.25e-3]))
+    assert lv.tolist() == [128, 255, 0, 64]

@@ -23,8 +23,8 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "EnvironmentChoice",
-           "improved_environment", "parse_environment", "planar_environment_cv"]
+__all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "EnvironmentChoice", "EnvironmentFit",
+           "fit_environment", "improved_environment", "parse_environment", "planar_environment_cv"]
 
 #: The names an explicit ``--environment`` list takes.
 ENVIRONMENT_NAMES = ("dipoles", "gain", "offset", "tilt")
@@ -169,3 +169,136 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
     best = min(finite.values())
     chosen = next(k for k in cands if k in finite and finite[k] <= best * (1 + 1e-9))
     return chosen, scores
+
+
+@dataclass(frozen=True, eq=False)
+class EnvironmentFit:
+    """Environment terms fitted to couplings at known poses (:func:`fit_environment`):
+    ``terms``, ``model`` (the base with them), ``rms`` (RMS coupling residual, the couplings'
+    units), ``rms_base`` (the base model's alone), ``nfev`` and ``status`` (of the last
+    least-squares run)."""
+
+    terms: object
+    model: object
+    rms: float
+    rms_base: float
+    nfev: int
+    status: int
+
+
+#: Directions of the start positions of a new induced dipole (unit vectors: the 6 axes and the
+#: 8 diagonals) and their distances from the centre of the collection's positions (m).
+_START_DIRECTIONS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1],
+                              [0, 0, -1]] + [[a, b, c] for a in (-1, 1) for b in (-1, 1)
+                                             for c in (-1, 1)], dtype=np.float64)
+_START_DIRECTIONS /= np.linalg.norm(_START_DIRECTIONS, axis=1, keepdims=True)
+_START_DISTANCES_M = (0.15, 0.3)
+
+
+def _signed(C) -> np.ndarray:
+    from ..io import signed_real
+
+    C = np.asarray(C)
+    return signed_real(C) if np.iscomplexobj(C) else np.asarray(C, dtype=np.float64)
+
+
+def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
+    """Least squares of the environment terms alone (the base model held)."""
+    from scipy.optimize import least_squares
+
+    from ..field import EnvironmentModel
+
+    nb = np.size(base.params)
+    v0 = terms.vector()
+    free = np.ones(v0.size, bool) if free_mask is None else free_mask
+    scale = np.sqrt(np.mean(target ** 2)) or 1.0
+
+    def fun(v):
+        full = v0.copy()
+        full[free] = v
+        m = EnvironmentModel(base, terms.with_vector(full))
+        return ((target - m.coupling(P)) / scale).ravel()
+
+    def jac(v):
+        full = v0.copy()
+        full[free] = v
+        m = EnvironmentModel(base, terms.with_vector(full))
+        J = m.jacobians(P, params=True).d_params[..., nb:][..., free]
+        return -(J / scale).reshape(-1, int(free.sum()))
+
+    res = least_squares(fun, v0[free], jac=jac, method="lm", max_nfev=max_nfev * (1 + v0.size),
+                        x_scale="jac")
+    full = v0.copy()
+    full[free] = res.x
+    return terms.with_vector(full), res
+
+
+def _moments_for(base, q, P, target, n_source):
+    """The best moments of one dipole at ``q`` for the residual ``target`` (linear), and the
+    residual's sum of squares after them."""
+    from ..field import DipoleModel, coupling_jacobians
+    from ..field._environment import sensor_dipoles
+
+    gain, L, M = sensor_dipoles(base)
+    d = DipoleModel(gain=gain, L_so=np.repeat(np.asarray(q, float)[:, None], n_source, axis=1),
+                    M_so=np.ones((3, n_source)), L_se=L, M_se=M)
+    dM = coupling_jacobians(d, P).d_M_so                       # (N, n_so, n_se, 3)
+    mu = np.zeros((n_source, 3))
+    ss = 0.0
+    for i in range(n_source):
+        A = dM[:, i].reshape(-1, 3)
+        b = target[:, i].ravel()
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+        mu[i] = sol
+        ss += float(np.sum((b - A @ sol) ** 2))
+    return mu, ss
+
+
+def fit_environment(model, poses, couplings, *, dipoles: int = 1, gain: bool = False,
+                    offset: bool = False, start=None, max_nfev: int = 100) -> EnvironmentFit:
+    """Fit environment terms (:class:`openemt.field.EnvironmentTerms`) to ``couplings``
+    ``(N, n_source, n_sensor)`` (complex: their signed real part) measured at known ``poses``
+    with the metal in place, the base ``model`` held (it is the tracker's clean calibration).
+
+    Induced dipoles are added one at a time: the new one starts from the best of 28 positions
+    around the collection (the 6 axes and 8 diagonals at 0.15 and 0.3 m from the centre of its
+    positions; at each the moments are linear, solved exactly), then every term is refined by
+    Levenberg-Marquardt. ``start`` (terms) instead refines those terms from where they are
+    (an online re-estimate, e.g. from witness sensors).
+    """
+    from ..field import EnvironmentModel, EnvironmentTerms
+
+    P = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    target = _signed(couplings)
+    base_rms = float(np.sqrt(np.mean((target - model.coupling(P)) ** 2)))
+    ns, ne = model.n_source, model.n_sensor
+    if start is not None:
+        terms, res = _lsq(model, start, P, target, max_nfev=max_nfev)
+    else:
+        terms = EnvironmentTerms(np.zeros((0, 3)), np.zeros((0, ns, 3)),
+                                 np.zeros(ne) if gain else None,
+                                 np.zeros((ns, ne)) if offset else None)
+        res = None
+        if gain or offset:
+            terms, res = _lsq(model, terms, P, target, max_nfev=max_nfev)
+        centre = P[:, :3, 3].mean(axis=0)
+        for _ in range(int(dipoles)):
+            resid = target - EnvironmentModel(model, terms).coupling(P) if not terms.empty \
+                else target - model.coupling(P)
+            best = None
+            for dist in _START_DISTANCES_M:
+                for u in _START_DIRECTIONS:
+                    q = centre + dist * u
+                    mu, ss = _moments_for(model, q, P, resid, ns)
+                    if best is None or ss < best[0]:
+                        best = (ss, q, mu)
+            _, q, mu = best
+            terms = EnvironmentTerms(np.r_[terms.positions, q[None]],
+                                     np.concatenate([terms.moments.reshape(-1, ns, 3),
+                                                     mu[None]]),
+                                     terms.gain_beta, terms.offset)
+            terms, res = _lsq(model, terms, P, target, max_nfev=max_nfev)
+    fitted = EnvironmentModel(model, terms) if not terms.empty else model
+    rms = float(np.sqrt(np.mean((target - fitted.coupling(P)) ** 2)))
+    return EnvironmentFit(terms, fitted, rms, base_rms, int(getattr(res, "nfev", 0)),
+                          int(getattr(res, "status", 0)))
