@@ -239,3 +239,22 @@ def test_distortion_level_takes_the_band_and_witness_figures():
     lv = distortion_level(q, r, 1e-3, 0.01, band=np.array([0.01, 0.0, np.nan, 0.0]),
                           witness_m=np.array([0.0, 2e-3, 0.0, 0.25e-3]))
     assert lv.tolist() == [128, 255, 0, 64]
+
+
+def test_witness_estimator_follows_a_moving_object():
+    from openemt.calibrate import WitnessEstimator
+
+    rng = np.random.default_rng(6)
+    base = truth_model(rng)
+    W = _poses(rng, 4, centre=(0.0, 0.25, 0.0), spread=0.07)
+    with pytest.raises(InputError, match="witness"):
+        WitnessEstimator(base, W[:1])
+    est = WitnessEstimator(base, W)
+    mu = rng.normal(0, 0.05, (1, 3, 3))
+    Q = _poses(rng, 8, centre=(0.0, 0.25, 0.0), spread=0.04)
+    for k, y in enumerate((0.30, 0.32, 0.34)):            # the object moves along y
+        moved = EnvironmentModel(base, EnvironmentTerms([[0.15, y, -0.05]], mu))
+        m = est.update(moved.coupling(W))
+        assert est.last.rms < 1e-6 * est.last.rms_base, k
+        np.testing.assert_allclose(m.coupling(Q), moved.coupling(Q), rtol=0,
+                                   atol=1e-5 * np.abs(moved.coupling(Q)).max())

@@ -9,7 +9,13 @@ paper's staged sequence of such fits; :func:`improved_calibration` the improved 
 
 from ..io import Calibration, Dataset
 from ._check import HeldOutTest, held_out_rows, solve_held_out
-from ._environment import EnvironmentChoice, EnvironmentFit, fit_environment, parse_environment
+from ._environment import (
+    EnvironmentChoice,
+    EnvironmentFit,
+    WitnessEstimator,
+    fit_environment,
+    parse_environment,
+)
 from ._fit import CalibrationFit, ResidueStats, fit, residue_stats
 from ._heldout import (
     CANDIDATES,
@@ -115,6 +121,7 @@ __all__ = [
     "TERM_MAX_CONDITION",
     "TERM_MIN_GAIN",
     "TermDecision",
+    "WitnessEstimator",
     "WEIGHTINGS",
     "XY_CONDITION_LIMIT",
     "analyse_identifiability",

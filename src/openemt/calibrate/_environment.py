@@ -24,7 +24,7 @@ import numpy as np
 from .._errors import InputError
 
 __all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "EnvironmentChoice", "EnvironmentFit",
-           "fit_environment", "improved_environment", "parse_environment", "planar_environment_cv"]
+           "WitnessEstimator", "fit_environment", "improved_environment", "parse_environment", "planar_environment_cv"]
 
 #: The names an explicit ``--environment`` list takes.
 ENVIRONMENT_NAMES = ("dipoles", "gain", "offset", "tilt")
@@ -302,3 +302,41 @@ def fit_environment(model, poses, couplings, *, dipoles: int = 1, gain: bool = F
     rms = float(np.sqrt(np.mean((target - fitted.coupling(P)) ** 2)))
     return EnvironmentFit(terms, fitted, rms, base_rms, int(getattr(res, "nfev", 0)),
                           int(getattr(res, "status", 0)))
+
+
+class WitnessEstimator:
+    """Environment terms re-estimated online from fixed witness sensors at known poses (for a
+    moving object: a C-arm, a tray carried through the workspace).
+
+    ``update(couplings)`` takes the witnesses' couplings of one moment ``(n_witness, n_source,
+    n_sensor)`` and returns the model to solve the tracked sensors with at that moment: the
+    base ``model`` with ``dipoles`` induced dipoles refitted from the last moment's terms
+    (:func:`fit_environment` with ``start``, ``max_nfev`` evaluations per parameter), or fitted
+    afresh where the warm start does not bring the witnesses' residual below ``gain`` times
+    the clean model's (the first moment, a jump). ``last`` is the last :class:`EnvironmentFit`.
+    With ``n_witness * n_source * n_sensor`` equations for ``dipoles * (3 + 3 n_source)``
+    unknowns, a 3 x 3 tracker needs two witnesses per dipole at least; four or more around the
+    volume make it well posed.
+    """
+
+    def __init__(self, model, witness_poses, *, dipoles: int = 1, max_nfev: int = 20,
+                 gain: float = 0.5):
+        self.model = model
+        self.poses = np.asarray(witness_poses, dtype=np.float64).reshape(-1, 4, 4)
+        self.dipoles, self.max_nfev, self.gain = int(dipoles), int(max_nfev), float(gain)
+        need = self.dipoles * (3 + 3 * model.n_source)
+        if len(self.poses) * model.n_source * model.n_sensor < need:
+            raise InputError(f"expected at least {need} witness couplings for {self.dipoles} "
+                             f"induced dipole(s), got {len(self.poses)} witness(es) of "
+                             f"{model.n_source * model.n_sensor}")
+        self.last = None
+
+    def update(self, couplings):
+        f = None
+        if self.last is not None and not self.last.terms.empty:
+            f = fit_environment(self.model, self.poses, couplings, start=self.last.terms,
+                                max_nfev=self.max_nfev)
+        if f is None or not f.rms < self.gain * f.rms_base:
+            f = fit_environment(self.model, self.poses, couplings, dipoles=self.dipoles)
+        self.last = f
+        return f.model
