@@ -132,3 +132,30 @@ def test_track_announces_the_compile_before_tracking(monkeypatch, capsys):
     i = err.index("compiling solver kernels (first run only, about 30 s)")
     assert err[i + 1].startswith("tracking 1 sensor(s)")
     assert err[i + 2].startswith("tracked 74 samples")
+
+
+def test_distortion_level_is_logged_and_summarised(tmp_path):
+    """The 0-255 level of every sample: in the log (memory, .h5 and .csv) and the summary;
+    a distorted session sits at or above 128, a clean one below; a CSV log written before the
+    level (without its column) still reads."""
+    from openemt.live import read_track_log
+
+    s, _, log = _run(0.05)
+    lv = log.arrays()["distortion_level"]
+    assert lv.dtype == np.uint8 and len(lv) == s.n_samples and (lv >= 128).all()
+    d = s.to_dict()["distortion_level"]                  # the --json summary
+    assert d["fraction_at_or_above_128"] == 1.0 and d["max"] == int(lv.max())
+    assert d["median"] == int(np.median(lv))
+    clean, _, clog = _run(0.0)
+    assert (clog.arrays()["distortion_level"] < 128).all()
+    assert clean.to_dict()["distortion_level"]["fraction_at_or_above_128"] == 0.0
+    for suffix in (".h5", ".csv"):
+        path = tmp_path / f"log{suffix}"
+        log.write(path)
+        back = read_track_log(path).arrays["openemt"]
+        np.testing.assert_array_equal(back["distortion_level"], lv)
+    text = (tmp_path / "log.csv").read_text().splitlines()
+    old = [text[0].rsplit(",", 1)[0]] + [ln.rsplit(",", 1)[0] for ln in text[1:]]
+    (tmp_path / "old.csv").write_text("\n".join(old) + "\n")
+    back = read_track_log(tmp_path / "old.csv").arrays["openemt"]
+    assert len(back["times"]) == len(lv) and back["distortion_level"].size == 0

@@ -45,6 +45,29 @@ _OUT_OF_VOLUME = int(Status.OUT_OF_VOLUME)
 STREAM_EVENTS = ("tracking", "lost", "distorted", "stale", "recovered")
 
 
+def _distortion_level(quadrature, relative_residual, threshold) -> np.ndarray:
+    """The 0-255 level of each sample (:func:`openemt.live.distortion_level` against the
+    quadrature threshold and the solver's validity threshold, as the stream's metadata)."""
+    from ..solve._validity import MAX_RELATIVE_RESIDUAL
+    from ._igtl_meta import distortion_level
+
+    return distortion_level(quadrature, relative_residual, threshold, MAX_RELATIVE_RESIDUAL)
+
+
+def _level_summary(counts) -> dict:
+    """``max``, ``median``, ``p95`` of the distortion levels counted per level (None before
+    any sample) and ``fraction_at_or_above_128`` (at or beyond a threshold)."""
+    c = np.asarray(counts)
+    n = int(c.sum())
+    if not n:
+        return {"max": None, "median": None, "p95": None, "fraction_at_or_above_128": 0.0}
+    cum = np.cumsum(c)
+    return {"max": int(np.flatnonzero(c)[-1]),
+            "median": int(np.searchsorted(cum, 0.5 * n)),
+            "p95": int(np.searchsorted(cum, 0.95 * n)),
+            "fraction_at_or_above_128": float(c[128:].sum() / n)}
+
+
 def lm_solver(model, *, hemisphere="+x", **kwargs):
     """The default solver callable: :func:`openemt.solve.prepare` of ``model`` (a
     :class:`openemt.solve._prepared.PreparedLM`: the model, options, concentric start model
@@ -114,6 +137,9 @@ class TrackStep:
         none); sent as the ``RelativeResidual`` metadata.
     tool_poses : ndarray, shape (N, 4, 4), optional
         The sensor's own poses when ``poses`` are its tool tip's (a sensor with a ``tip``).
+    distortion_level : ndarray, shape (N,), uint8, optional
+        The 0-255 distortion level of each sample (:func:`openemt.live.distortion_level`, from
+        the quadrature ratio and the relative residual; the ``DistortionLevel`` metadata).
     """
 
     times: np.ndarray
@@ -127,6 +153,7 @@ class TrackStep:
     t_ready: float = 0.0
     relative_residual: np.ndarray | None = None
     tool_poses: np.ndarray | None = None
+    distortion_level: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.times.shape[0]
@@ -188,7 +215,7 @@ class TrackLog:
     """
 
     _KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
-             "distorted", "couplings")
+             "distorted", "couplings", "distortion_level")
 
     def __init__(self, sensor_names=None):
         self.sensor_names = tuple(sensor_names) if sensor_names is not None else ("openemt",)
@@ -313,6 +340,7 @@ class _SensorState:
         self.last = None             # last valid pose vector
         self.status_counts = np.zeros(len(Status), dtype=np.int64)   # per Status code
         self.n_distorted = 0
+        self.level_counts = np.zeros(256, dtype=np.int64)   # samples per distortion level
         self.n_not_sent = 0          # converged but distorted, not sent
         self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
         self.pending: list = []
@@ -668,7 +696,8 @@ class TrackingPipeline:
             for _ in self.sensors:
                 steps.append(TrackStep(d.times, d.couplings, np.empty((0, 4, 4)),
                                        np.empty((0, 6)), np.empty(0, np.int8), e, e,
-                                       np.empty(0, bool), t_ready))
+                                       np.empty(0, bool), t_ready,
+                                       distortion_level=np.empty(0, np.uint8)))
             now = time.monotonic()
             for st, step in zip(self.sensors, steps):   # the watchdog runs without samples too
                 self._watch(st, step, step.distorted, now, None)
@@ -725,8 +754,11 @@ class TrackingPipeline:
             oks.append(ok)
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
+            level = _distortion_level(ratio, np.full(n, np.nan) if rel is None else rel,
+                                      self.distortion_threshold)
+            st.level_counts += np.bincount(level, minlength=256)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
-                                   t_ready, rel, tool))
+                                   t_ready, rel, tool, level))
         stamps = epoch + d.times
         if self.igtl is not None:
             self._send(steps, valids, stamps, t_ready)
@@ -998,6 +1030,7 @@ class TrackingPipeline:
         n = self._n_out
         out = {"status_counts": counts,
                "distorted_fraction": (st.n_distorted / n) if n else 0.0,
+               "distortion_level": _level_summary(st.level_counts),
                "not_sent_distorted": st.n_not_sent,
                "device_name": (st.setup.device_name or self.igtl.device_name)
                if self.igtl is not None else None,
@@ -1044,7 +1077,9 @@ class TrackingPipeline:
                  "stale_after": self.stale_after,
                  "reference": None if self.reference is None else self.reference.setup.name,
                  "relative_devices": [d for _, d in self._relative] or None,
-                 "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata}
+                 "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata,
+                 "distortion_level": _level_summary(sum(st.level_counts
+                                                        for st in self.sensors))}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:
