@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -41,13 +43,27 @@ def test_simulated_bands_and_the_stainless_sheet():
     B = data.extra["couplings_bands"]
     assert B.shape == (len(data), 2, 3, 3)
     np.testing.assert_array_equal(data.couplings, B[:, 0])
-    assert data.meta["truth"]["band_frequencies_hz"] == BANDS
+    np.testing.assert_array_equal(data.band_frequencies, BANDS)
+    np.testing.assert_array_equal(data.band_couplings, B)
     # the slow band sees less eddy current than the fast one, the extrapolation far less
     err = [np.abs(C - clean.couplings).max() for C in (B[:, 1].real, B[:, 0].real,
                                                         eddy_free_couplings(B, BANDS))]
     assert err[1] < err[0] / 3 and err[2] < err[0] / 50, err
     one = simulate("dipole-approx", "md", **kw)
-    assert "couplings_bands" not in one.extra
+    assert one.band_couplings is None and one.band_frequencies is None
+
+
+def test_band_couplings_survive_the_dataset_file(tmp_path):
+    from openemt.io import read_dataset, write_dataset
+
+    data = simulate("dipole-approx", "md", source_fixtures="YoutZup", sensor_fixtures="YoutZup",
+                    metal=SHEET, bands=BANDS)
+    write_dataset(data, tmp_path / "d.h5")
+    back = read_dataset(tmp_path / "d.h5")
+    np.testing.assert_array_equal(back.band_couplings, data.band_couplings)
+    np.testing.assert_array_equal(back.band_frequencies, BANDS)
+    with pytest.raises(InputError, match="couplings_bands"):
+        dataclasses.replace(data, extra={"couplings_bands": data.couplings})
 
 
 def test_fuse_bands_follows_fast_and_settles_on_slow():
@@ -66,3 +82,78 @@ def test_fuse_bands_follows_fast_and_settles_on_slow():
     assert d[-1] == pytest.approx(1 - np.exp(-(n - 100) / (tc * rate)), rel=1e-9)
     with pytest.raises(InputError, match="one shape"):
         fuse_bands(fast, slow[:, :1], time_constant=tc, rate=rate)
+
+
+def test_raw_signal_bands_with_metal_demodulate_to_the_truth():
+    """Two carriers per coil through one current reference each; a copper sphere near the
+    tracker responds differently per band; the demodulator returns every band's coupling."""
+    from openemt.field import DipoleModel
+    from openemt.geometry import pose_from_vector
+    from openemt.signal import ChannelLayout, RawSignalConfig, demodulate, simulate_raw
+    from openemt.simulate import MetalObject, MetalScene
+
+    layout = ChannelLayout(frequencies=(7500.0, 10500.0, 13500.0),
+                           bands=((1500.0, 3000.0, 4500.0),))
+    assert layout.n_bands == 2 and layout.band_frequencies.shape == (2, 3)
+    scene = MetalScene((MetalObject("sphere", "copper", (0.1, 0.05, 0.0), radius=0.03),))
+    pose = pose_from_vector(np.array([0.15, 0.05, 0.02, 0.3, -0.2, 0.5]))
+    raw = simulate_raw(DipoleModel.concentric(), pose, 0.02,
+                       RawSignalConfig(layout=layout, noise_rms=0.0, reference_noise_rms=0.0),
+                       metal=scene)
+    out = demodulate(raw.samples, raw.layout)
+    assert out.bands.shape == (len(out), 2, 3, 3)
+    np.testing.assert_array_equal(out.couplings, out.bands[:, 0])
+    from openemt.signal import RawSimulator
+
+    sim = RawSimulator(DipoleModel.concentric(), pose,
+                       RawSignalConfig(layout=layout, noise_rms=0.0, reference_noise_rms=0.0),
+                       metal=scene)
+    true = sim.true_couplings(out.times, bands=True)
+    np.testing.assert_allclose(out.bands, true, rtol=0, atol=1e-9 * np.abs(true).max())
+    # the sphere's response differs between the bands, and shows in the quadrature
+    assert np.abs(true[:, 1] - true[:, 0]).max() > 1e-3 * np.abs(true).max()
+    assert np.abs(true.imag).max() > 1e-3 * np.abs(true).max()
+    with pytest.raises(InputError, match="one frequency per source"):
+        ChannelLayout(bands=((1500.0, 3000.0),))
+
+
+def test_tracker_file_bands_and_metal(tmp_path):
+    """A tracker file names each coil's carriers (band 0 first) and a metal scene for its
+    simulated source; the simulated session's raw signal carries both bands."""
+    import shutil
+    from importlib import resources
+
+    from openemt.live import read_tracker, tracker_backend
+    from openemt.signal import demodulate
+
+    folder = resources.files("openemt.live") / "trackers"
+    text = (folder / "simulated.toml").read_text()
+    text = text.replace("frequencies = [7500.0, 10500.0, 13500.0]",
+                        "frequencies = [[7500.0, 1500.0], [10500.0, 3000.0], [13500.0, 4500.0]]")
+    text = text.replace('preset = "concentric"',
+                        'preset = "concentric"\nmetal = "sphere.toml"')
+    (tmp_path / "t.toml").write_text(text)
+    shutil.copy(folder / "concentric.json", tmp_path / "concentric.json")
+    (tmp_path / "sphere.toml").write_text(
+        '[[object]]\nkind = "sphere"\nmaterial = "copper"\nposition = [0.1, 0.0, 0.0]\n'
+        'radius = 0.03\n')
+    spec = read_tracker(tmp_path / "t.toml")
+    assert spec.frequencies == (7500.0, 10500.0, 13500.0)
+    assert spec.bands == ((1500.0, 3000.0, 4500.0),)
+    assert spec.layout().n_bands == 2
+    assert spec.simulation["metal"].objects[0].kind == "sphere"
+    b = tracker_backend(spec, "sim", realtime=False, duration=0.02, noise_rms=0.0)
+    chunks = []
+    while (c := b.read()) is not None:
+        chunks.append(c)
+    raw = np.concatenate(chunks)
+    out = demodulate(raw, spec.layout())
+    assert out.bands.shape[1:] == (2, 3, 3)
+    assert np.abs(out.bands[:, 1] - out.bands[:, 0]).max() > 1e-4 * np.abs(out.bands).max()
+    bad = text.replace("[13500.0, 4500.0]", "[13500.0]")
+    (tmp_path / "bad.toml").write_text(bad)
+    with pytest.raises(InputError, match="same number of carrier bands"):
+        read_tracker(tmp_path / "bad.toml")
+    (tmp_path / "bad2.toml").write_text(text.replace("sphere.toml", "nothing.toml"))
+    with pytest.raises(InputError, match="simulation.metal"):
+        read_tracker(tmp_path / "bad2.toml")

@@ -39,12 +39,13 @@ def test_bench_fuzz_command(tmp_path, capsys):
     code = main(["bench", "fuzz", "--reader-cases", "18", "--cli-cases", "7",
                  "--solver-samples", "400", "--live-cases", "0", "--writer-rounds", "0",
                  "--hostile-cases", "2", "--navigate-cases", "3", "--reference-cases", "1", "1",
-                 "0", "--json", "--quiet"])
+                 "0", "--metal-cases", "4", "--json", "--quiet"])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert out["reader_cases"] == 18 and out["cli_cases"] == 7 and out["solver_samples"] == 400
     assert out["hostile_live"]["cases"] == 0     # tests/test_live_fuzz.py runs live cases
     assert out["hostile_readers"]["runs"] == out["hostile_readers"]["held"] == 2
     assert out["navigate"]["cases"] == 3      # tests/test_fuzz_navigate.py runs more
+    assert out["metal"]["cases"] == 4         # tests/test_fuzz_metal.py runs more
     assert out["findings"] == 0, out["examples"]
     assert sum(sum(c.values()) for c in out["readers"].values()) == 18

@@ -225,6 +225,13 @@ radius = 0.01
     with pytest.raises(InputError, match="radius"):
         MetalScene.from_dict({"object": [{"kind": "disk", "material": "copper",
                                           "thickness": 0.01}]})
+    (tmp_path / "bin.toml").write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(InputError, match="binary data"):
+        MetalScene.from_toml(tmp_path / "bin.toml")
+    (tmp_path / "bad.toml").write_text('[[object]]\nkind = "sheet"\nmaterial = "copper"\n'
+                                       'thickness = -1\n')
+    with pytest.raises(InputError, match=r"bad\.toml: .*thickness"):
+        MetalScene.from_toml(tmp_path / "bad.toml")
 
 
 @pytest.mark.parametrize("name", METAL_SCENES)
@@ -288,3 +295,32 @@ def test_named_scenes_follow_the_volume():
     assert ring.motion.moving
     with pytest.raises(InputError, match="scene name"):
         metal_scene("brass_tray")
+
+
+def test_simulate_command_metal_and_bands(tmp_path, capsys):
+    import json
+
+    from openemt.cli import main
+    from openemt.io import read_dataset
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text('[[object]]\nkind = "disk"\nmaterial = "titanium"\n'
+                     'position = [0.0, 0.244, -0.134]\nradius = 0.1\nthickness = 0.002\n')
+    out = tmp_path / "sim.h5"
+    code = main(["simulate", "--preset", "dipole-approx", "--pattern", "md",
+                 "--source-fixtures", "YoutZup", "--sensor-fixtures", "YoutZup",
+                 "--metal", str(scene), "--bands", "274,334,370;7500,10500,13500",
+                 "-o", str(out), "--json"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["complex"] and summary["errors"]["metal"]["object"][0]["kind"] == "disk"
+    data = read_dataset(out)
+    assert data.band_couplings.shape == (142, 2, 3, 3)
+    np.testing.assert_array_equal(data.band_frequencies,
+                                  [[274, 334, 370], [7500, 10500, 13500]])
+    bad = tmp_path / "bad.h5"
+    code = main(["simulate", "--preset", "dipole-approx", "--metal", str(tmp_path / "no.toml"),
+                 "-o", str(bad)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: expected an existing metal scene file")
+    assert not bad.exists()

@@ -5,7 +5,7 @@ from ._board_file import load_board, read_board, write_board
 from ._calfile import read_calibration, write_calibration
 from ._calibration import Calibration
 from ._csv import export_csv, import_csv
-from ._dataset import Dataset, is_recording, recording_meta, signed_real
+from ._dataset import BAND_COUPLINGS, Dataset, is_recording, recording_meta, signed_real
 from ._h5write import atomic_h5
 from ._hdf5 import CouplingReader, open_dataset_couplings, read_dataset, write_dataset
 from ._ilemt import (
@@ -34,7 +34,7 @@ from ._poses_csv import (
                      write_poses_csv,
 )
 
-__all__ = ["Calibration", "Dataset", "atomic_h5", "atomic_path", "is_recording",
+__all__ = ["BAND_COUPLINGS", "Calibration", "Dataset", "atomic_h5", "atomic_path", "is_recording",
            "recording_meta", "signed_real"]
 __all__ += ["load_board", "read_board", "write_board"]
 

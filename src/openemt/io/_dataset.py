@@ -20,6 +20,10 @@ __all__ = ["RECORDING_KEY", "Dataset", "is_recording", "recording_meta", "signed
 RECORDING_KEY = "recording"
 
 
+#: The ``extra`` key of the couplings of every carrier band.
+BAND_COUPLINGS = "couplings_bands"
+
+
 def recording_meta(sample_rate_hz: float | None = None, source: str = "") -> dict:
     """The ``meta[RECORDING_KEY]`` value a writer of a recording sets:
     ``{"sample_rate_hz": rate or None, "source": what recorded it}``."""
@@ -136,6 +140,10 @@ class Dataset:
             v = np.asarray(v)
             if v.ndim < 1 or v.shape[0] != n:
                 raise InputError(f"expected extra array {k!r} to have first axis {n}, got {v.shape}")
+        bands = self.extra.get(BAND_COUPLINGS)
+        if bands is not None and (np.ndim(bands) != 4 or np.shape(bands)[2:] != C.shape[1:]):
+            raise InputError(f"expected extra {BAND_COUPLINGS!r} of shape ({n}, n_bands, "
+                             f"{C.shape[1]}, {C.shape[2]}), got {np.shape(bands)}")
 
     # -- shape -------------------------------------------------------------------------------
     @property
@@ -152,6 +160,21 @@ class Dataset:
 
     def __len__(self) -> int:
         return self.n_samples
+
+    # -- carrier bands -------------------------------------------------------------------
+    @property
+    def band_couplings(self) -> np.ndarray | None:
+        """Couplings of every carrier band ``(N, n_bands, n_source, n_sensor)`` (``extra``
+        :data:`BAND_COUPLINGS`; ``couplings`` is band 0), or None for one band
+        (docs/data-format.md#carrier-bands)."""
+        return self.extra.get(BAND_COUPLINGS)
+
+    @property
+    def band_frequencies(self) -> np.ndarray | None:
+        """``(n_bands, n_source)`` carriers (Hz) of :attr:`band_couplings` (``meta
+        ["band_frequencies_hz"]``), or None."""
+        f = self.meta.get("band_frequencies_hz")
+        return None if f is None else np.asarray(f, dtype=np.float64)
 
     # -- views -------------------------------------------------------------------------------
     def signed_real(self) -> np.ndarray:

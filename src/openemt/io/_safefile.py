@@ -24,7 +24,7 @@ from pathlib import Path
 from .._errors import InputError
 
 __all__ = ["MAX_CONFIG_BYTES", "MAX_JSON_BYTES", "MAX_TEXT_BYTES", "MAX_TOML_DEPTH",
-           "check_regular", "check_text_nesting", "read_limited"]
+           "check_regular", "check_text_nesting", "read_limited", "read_toml"]
 
 #: largest tracker description or board file (TOML/JSON) read (a shipped one is ~2 KB)
 MAX_CONFIG_BYTES = 1 << 20
@@ -141,3 +141,20 @@ def check_text_nesting(text: str, what: str, where: str, limit: int = MAX_TOML_D
         elif ch in "]}":
             depth = max(depth - 1, 0)
         i += 1
+
+
+def read_toml(path, what: str, label: str) -> dict:
+    """The table of the TOML configuration file ``path`` (a regular file of at most
+    :data:`MAX_CONFIG_BYTES`, nesting bounded): ``what`` names the file kind in a refusal of
+    the file, ``label`` in a refusal of its nesting; bad text is one line naming the file."""
+    import tomllib
+
+    data = read_limited(path, what, MAX_CONFIG_BYTES)
+    try:
+        text = data.decode("utf-8")
+        check_text_nesting(text, label, str(path))
+        return tomllib.loads(text)
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: expected a TOML text file, got binary data") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: expected valid TOML, got {exc}") from None

@@ -84,6 +84,15 @@ class _StackedModel:
         so, se = C.shape[1:]
         return C.reshape(n, self.k, so, se).transpose(0, 2, 1, 3).reshape(n, so, self.k * se)
 
+    def metal_couplings(self, scene, poses, frequency_hz, t):
+        """A metal scene's coupling change, laid out as :meth:`coupling`."""
+        P = np.asarray(poses, dtype=np.float64)
+        n = P.shape[0]
+        C = scene.induced_couplings(self.model, P.reshape(n * self.k, 4, 4), frequency_hz,
+                                    t=np.repeat(np.asarray(t, dtype=np.float64), self.k))
+        so, se = C.shape[1:]
+        return C.reshape(n, self.k, so, se).transpose(0, 2, 1, 3).reshape(n, so, self.k * se)
+
 
 def _offset_trajectory(trajectory, offsets):
     """``trajectory`` shifted by each of ``offsets`` (K, 3) m: ``times -> (N, K, 4, 4)``."""
@@ -144,11 +153,14 @@ class SimulatedBackend(Backend):
         Several sensors of the same model: sensor k follows ``trajectory`` shifted by
         ``offsets[k]`` (m); the layout of ``config`` must list K times the model's sensor
         channels (sensor 0's first). :meth:`truth_poses` is then ``(N, K, 4, 4)``.
+    metal : MetalScene, optional
+        Metal near the tracker (source frame), its response added per carrier
+        (:class:`openemt.signal.RawSimulator`).
     """
 
     def __init__(self, model=None, trajectory=None, config: RawSignalConfig | None = None, *,
                  seed: int = 0, chunk: int = 640, realtime: bool = False,
-                 duration: float | None = None, offsets=None):
+                 duration: float | None = None, offsets=None, metal=None):
         self.model = default_model() if model is None else model
         if config is None:
             config = RawSignalConfig(mains_amplitudes=SIMULATED_MAINS_AMPLITUDES_V)
@@ -165,7 +177,7 @@ class SimulatedBackend(Backend):
                     return np.broadcast_to(fixed, (len(t), 4, 4))
             traj = _offset_trajectory(traj, off)
             sim_model = _StackedModel(self.model, len(off))
-        self._sim = RawSimulator(sim_model, traj, config, seed=seed)
+        self._sim = RawSimulator(sim_model, traj, config, seed=seed, metal=metal)
         self.layout = config.layout
         self.chunk = int(chunk)
         if self.chunk < 1:

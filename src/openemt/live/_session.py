@@ -694,4 +694,4 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
     return SimulatedBackend(model, path if trajectory is None else trajectory, config=cfg,
                             seed=sim.get("seed", 0)
                             if seed is None else seed, realtime=realtime, duration=duration,
-                            offsets=offsets, chunk=chunk)
+                            offsets=offsets, chunk=chunk, metal=sim.get("metal"))

@@ -14,7 +14,6 @@ Units are SI (Hz, V, m, s, rad). Calibration paths are relative to the TOML file
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -314,6 +313,7 @@ class TrackerSpec:
     rate: float | None = None
     registration: object = None
     registration_path: Path | None = None
+    bands: tuple = ()
 
     @property
     def sensor_names(self) -> tuple:
@@ -370,7 +370,8 @@ class TrackerSpec:
         chans = tuple(c for s in self.sensors for c in s.channels)
         return ChannelLayout(frequencies=self.frequencies, sample_rate=self.sample_rate,
                              sensor_channels=chans, reference_channels=self.reference_channels,
-                             sensor_gain=self.sensor_gain, reference_gain=self.reference_gain)
+                             sensor_gain=self.sensor_gain, reference_gain=self.reference_gain,
+                             bands=self.bands)
 
     def sensor_columns(self) -> list:
         """Per sensor, the columns of the layout's coupling matrix that hold its coils."""
@@ -581,16 +582,17 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
 
     src = r.get(doc, "", "source", "table")
     _unknown_keys(r, src, "source", ("frequencies", "reference_channels"))
-    freqs = r.get(src, "source", "frequencies", "list of numbers")
-    if len(freqs) > MAX_CARRIERS:
+    freqs, bands = _carriers(r, src)
+    every = freqs + [f for b in bands for f in b]
+    if len(every) > MAX_CARRIERS:
         raise r.fail("source.frequencies", f"at most {MAX_CARRIERS} carriers",
-                     f"{len(freqs)} carriers")
-    for f in freqs:
+                     f"{len(every)} carriers")
+    for f in every:
         if not 0 < f < fs / 2:
             raise r.fail("source.frequencies", f"carriers in (0, {fs / 2:g}) Hz (below the "
                          f"Nyquist frequency of adc.sample_rate = {fs:g} Hz)", f)
-    if len(set(freqs)) != len(freqs):
-        raise r.fail("source.frequencies", "distinct carriers", freqs)
+    if len(set(every)) != len(every):
+        raise r.fail("source.frequencies", "distinct carriers", every)
     refs = r.get(src, "source", "reference_channels", "list of integers")
     if len(refs) != len(freqs):
         raise r.fail("source.reference_channels", f"one channel per carrier ({len(freqs)})",
@@ -704,7 +706,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
 
     sim = r.get(doc, "", "simulation", "table", {})
     _unknown_keys(r, sim, "simulation", ("preset", "noise_rms", "eddy_strength", "seed",
-                                         "mains_amplitudes"))
+                                         "mains_amplitudes", "metal"))
     simd = {"preset": r.get(sim, "simulation", "preset", "string", "concentric")}
     for k in ("noise_rms", "eddy_strength"):
         if k in sim:
@@ -721,6 +723,9 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         if not all(math.isfinite(v) for v in simd["mains_amplitudes"]):
             raise r.fail("simulation.mains_amplitudes", "finite numbers (V)",
                          list(simd["mains_amplitudes"]))
+
+    if "metal" in sim:
+        simd["metal"] = _metal_scene(r, sim["metal"], base)
 
     ig = r.get(doc, "", "igtl", "table", {})
     _unknown_keys(r, ig, "igtl", ("metadata", "reference", "stale_after", "tdata",
@@ -763,7 +768,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
                        output_rate=rate, window=window, distortion_threshold=thr,
                        filter=fspec, simulation=simd, path=path, reference=reference,
                        stale_after=stale, tdata=tdata, metadata=metadata,
-                       header_version=header_version, rate=igtl_rate)
+                       header_version=header_version, rate=igtl_rate,
+                       bands=tuple(tuple(b) for b in bands))
     try:
         if registration is not None:
             spec = spec.with_registration(registration)
@@ -784,6 +790,37 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     return spec
 
 
+def _carriers(r, src) -> tuple[list, list]:
+    """``source.frequencies``: one carrier per coil (``[7500, 10500, 13500]``), or per coil
+    the carriers of its bands (``[[7500, 274], [10500, 334], [13500, 370]]``: band 0 is the
+    first of each); returns band 0 and the further bands (each one frequency per coil)."""
+    raw = src.get("frequencies")
+    if not (isinstance(raw, list) and raw and all(isinstance(x, list) for x in raw)):
+        return r.get(src, "source", "frequencies", "list of numbers"), []
+    per_coil = [r.get({"frequencies": x}, "source", "frequencies", "list of numbers")
+                for x in raw]
+    n = len(per_coil[0])
+    if any(len(c) != n for c in per_coil):
+        raise r.fail("source.frequencies", "the same number of carrier bands for every coil",
+                     [len(c) for c in per_coil])
+    return [c[0] for c in per_coil], [[c[b] for c in per_coil] for b in range(1, n)]
+
+
+def _metal_scene(r, spec, base: Path):
+    """``simulation.metal``: a scene name, a scene file (relative to the tracker file) or an
+    inline table (docs/simulator.md#metal-scenes), read now so a bad one fails here."""
+    from ..simulate import METAL_SCENES, load_scene
+
+    if isinstance(spec, str) and spec not in METAL_SCENES and not Path(spec).is_absolute():
+        spec = str(base / spec)
+    if not isinstance(spec, (str, dict)):
+        raise r.fail("simulation.metal", "a scene name, a scene file or a table", _show(spec))
+    try:
+        return load_scene(spec)
+    except InputError as exc:
+        raise r.fail("simulation.metal", "a readable metal scene", str(exc)) from None
+
+
 def read_tracker(path) -> TrackerSpec:
     """Read and validate a tracker description file (TOML, docs/live.md#tracker-file).
 
@@ -794,19 +831,10 @@ def read_tracker(path) -> TrackerSpec:
     InputError
         One line naming the file, the key, what was expected and what arrived.
     """
-    from ..io._safefile import MAX_CONFIG_BYTES, check_text_nesting, read_limited
+    from ..io._safefile import read_toml
 
     path = Path(path)
-    what = "a tracker description file (TOML)"
-    data = read_limited(path, what, MAX_CONFIG_BYTES)
-    try:
-        text = data.decode("utf-8")
-        check_text_nesting(text, "a tracker description", str(path))
-        doc = tomllib.loads(text)
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: expected a TOML text file, got binary data") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: expected valid TOML, got {exc}") from None
+    doc = read_toml(path, "a tracker description file (TOML)", "a tracker description")
     return tracker_from_dict(doc, path)
 
 

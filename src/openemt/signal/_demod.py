@@ -53,12 +53,16 @@ class Demodulated:
     times : ndarray, shape (N,)
         Centre time of each output frame (s, same origin as the raw samples).
     reference : ndarray, shape (N, n_source), complex
-        Measured drive-current phasor of each source (A).
+        Measured drive-current phasor of each source (A), band 0.
+    bands : ndarray, shape (N, n_bands, n_source, n_sensor), complex, or None
+        With several carrier bands (:attr:`ChannelLayout.bands`): the couplings of every band,
+        band 0 first (``couplings`` is band 0); None with one band.
     """
 
     couplings: np.ndarray
     times: np.ndarray
     reference: np.ndarray
+    bands: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.couplings.shape[0]
@@ -102,10 +106,10 @@ def frame_length(layout: ChannelLayout, output_rate: float = OUTPUT_RATE_HZ,
                          f"{fs:g} / {rate:g} = {hop:g}")
     hop = round(hop)
     L = _WINDOWS[window] * hop
-    bins = np.asarray(layout.frequencies) * L / fs
+    bins = np.asarray(layout.carriers) * L / fs
     if np.any(np.abs(bins - np.round(bins)) > 1e-6):
         raise InputError(f"expected carriers with whole cycles per {L}-sample frame "
-                         f"(multiples of {fs / L:g} Hz), got {layout.frequencies}")
+                         f"(multiples of {fs / L:g} Hz), got {layout.carriers}")
     k = np.round(bins).astype(int)
     gap = 2 if window == "hann" else 1
     for a in k:
@@ -131,10 +135,10 @@ def frame_window(window: str, L: int) -> np.ndarray:
 
 
 def _basis(layout: ChannelLayout, L: int, window: str) -> np.ndarray:
-    """Real correlation basis ``(L, 2 n_source)``: ``[w cos, -w sin] * 2 / sum(w)``."""
+    """Real correlation basis ``(L, 2 n_carriers)``: ``[w cos, -w sin] * 2 / sum(w)``."""
     n = np.arange(L)
     w = frame_window(window, L)
-    ang = 2 * np.pi * np.outer(n, layout.frequencies) / layout.sample_rate
+    ang = 2 * np.pi * np.outer(n, layout.carriers) / layout.sample_rate
     return np.concatenate([w[:, None] * np.cos(ang), -w[:, None] * np.sin(ang)],
                           axis=1) * (2.0 / w.sum())
 
@@ -149,8 +153,9 @@ class Demodulator:
         Outputs per second (default 1500, as ILEMT); must divide the sample rate.
     window : {"hann", "rect"}
         See the module docstring.
-    phase : ndarray, shape (n_source, n_sensor), optional
-        Sensor-chain phase (rad) removed from every coupling (see :func:`phase_calibration`).
+    phase : ndarray, shape (n_source, n_sensor) or (n_bands, n_source, n_sensor), optional
+        Sensor-chain phase (rad) removed from every coupling (see :func:`phase_calibration`);
+        one per band, or one for all bands.
     t0 : float
         Time of the first sample fed (s).
 
@@ -177,15 +182,15 @@ class Demodulator:
         c0 = self._cols[0]
         self._span = (slice(c0, c0 + len(self._cols))
                       if self._cols == list(range(c0, c0 + len(self._cols))) else None)
-        nso, nse = layout.n_source, layout.n_sensor
+        nso, nse, nb = layout.n_source, layout.n_sensor, layout.n_bands
         if phase is None:
             self._rot = None
         else:
             ph = np.asarray(phase, dtype=np.float64)
-            if ph.shape != (nso, nse) or not np.all(np.isfinite(ph)):
-                raise InputError(f"expected a finite `phase` of shape ({nso}, {nse}), got "
-                                 f"{ph.shape}")
-            self._rot = np.exp(-1j * ph)
+            if ph.shape not in ((nso, nse), (nb, nso, nse)) or not np.all(np.isfinite(ph)):
+                raise InputError(f"expected a finite `phase` of shape ({nso}, {nse}) or ({nb}, "
+                                 f"{nso}, {nse}), got {ph.shape}")
+            self._rot = np.broadcast_to(np.exp(-1j * ph), (nb, nso, nse)).reshape(nb * nso, nse)
         self._scale = layout.reference_gain / layout.sensor_gain
         self._buf = np.empty((len(self._cols), 0))
         self._start = 0  # absolute sample index of self._buf[0]
@@ -219,29 +224,34 @@ class Demodulator:
                 buf[c, tail:] = x[:, col]
         H, L, m = self.hop, self.frame, self._m
         n_out = (buf.shape[1] - L) // H + 1 if buf.shape[1] >= L else 0
-        nso, nse = self.layout.n_source, self.layout.n_sensor
+        nso, nse, n_bands = self.layout.n_source, self.layout.n_sensor, self.layout.n_bands
+        nc = nso * n_bands
         if n_out == 0:
             self._buf = buf
             return Demodulated(np.empty((0, nso, nse), complex), np.empty(0),
-                               np.empty((0, nso), complex))
+                               np.empty((0, nso), complex), None if n_bands == 1 else
+                               np.empty((0, n_bands, nso, nse), complex))
         nb = n_out + m - 1
         XT = buf[:, :nb * H].reshape(len(self._cols), nb, H)
         acc = XT[:, :n_out] @ self._B[0]
         for q in range(1, m):
             acc += XT[:, q:q + n_out] @ self._B[q]          # (n_ch, n_out, 2 n_so)
-        Z = acc[..., :nso] + 1j * acc[..., nso:]            # (n_ch, n_out, n_so)
-        sens = Z[:nse].transpose(1, 2, 0)                   # (n_out, n_so, n_se)
-        ref = Z[nse + np.arange(nso), :, np.arange(nso)].T  # (n_out, n_so): ref i at f_i
+        Z = acc[..., :nc] + 1j * acc[..., nc:]              # (n_ch, n_out, n_carr)
+        sens = Z[:nse].transpose(1, 2, 0)                   # (n_out, n_carr, n_se)
+        # reference of carrier c: its coil's current channel at that carrier
+        ref = Z[nse + np.arange(nc) % nso, :, np.arange(nc)].T   # (n_out, n_carr)
         with np.errstate(divide="ignore", invalid="ignore"):   # drive off -> NaN/inf
             C = sens / ref[:, :, None] * self._scale
         if self._rot is not None:
             C = C * self._rot
+        bands = None if n_bands == 1 else C.reshape(n_out, n_bands, nso, nse)
+        C, ref = C[:, :nso], ref[:, :nso]
         starts = self._start + np.arange(n_out) * H
         times = self.t0 + (starts + (L - 1) / 2) / self.layout.sample_rate
         consumed = n_out * H
         self._buf = buf[:, consumed:].copy()
         self._start += consumed
-        return Demodulated(C, times, ref / self.layout.reference_gain)
+        return Demodulated(C, times, ref / self.layout.reference_gain, bands)
 
 
 def demodulate(samples, layout: ChannelLayout, *, output_rate: float = OUTPUT_RATE_HZ,
@@ -299,7 +309,9 @@ def demodulate(samples, layout: ChannelLayout, *, output_rate: float = OUTPUT_RA
     parts = [dem.process(x[a:a + step]) for a in range(0, x.shape[0], step)]
     return Demodulated(np.concatenate([p.couplings for p in parts]),
                        np.concatenate([p.times for p in parts]),
-                       np.concatenate([p.reference for p in parts]))
+                       np.concatenate([p.reference for p in parts]),
+                       None if layout.n_bands == 1 else
+                       np.concatenate([p.bands for p in parts]))
 
 
 def phase_calibration(couplings) -> np.ndarray:

@@ -64,6 +64,10 @@ class ChannelLayout:
         Volts per (coupling x ampere) of the sensor chain.
     reference_gain : float
         Volts per ampere of the current-sense chain.
+    bands : tuple of tuples, each of length n_source
+        Further carrier bands: every source coil is also driven at ``bands[b][i]`` (ILEMT:
+        274/334/370 Hz beside 7.5/10.5/13.5 kHz), sensed on the same reference channel.
+        ``frequencies`` is band 0. Empty (the default): one carrier per coil.
     """
 
     frequencies: tuple = ILEMT_FREQUENCIES
@@ -72,17 +76,24 @@ class ChannelLayout:
     reference_channels: tuple = (3, 4, 5)
     sensor_gain: float = 1.0
     reference_gain: float = 1.0
+    bands: tuple = ()
 
     def __post_init__(self):
         f = tuple(float(x) for x in np.atleast_1d(self.frequencies))
+        extra = tuple(tuple(float(x) for x in np.atleast_1d(b)) for b in self.bands)
+        if any(len(b) != len(f) for b in extra):
+            raise InputError(f"expected every carrier band to have one frequency per source "
+                             f"coil ({len(f)}), got bands {[list(b) for b in extra]}")
+        object.__setattr__(self, "bands", extra)
         se = tuple(int(x) for x in np.atleast_1d(self.sensor_channels))
         ref = tuple(int(x) for x in np.atleast_1d(self.reference_channels))
         fs = float(self.sample_rate)
         if not (np.isfinite(fs) and fs > 0):
             raise InputError(f"expected a positive `sample_rate`, got {self.sample_rate!r}")
-        if not f or any(not (0 < x < fs / 2) for x in f) or len(set(f)) != len(f):
+        every = f + sum(extra, ())
+        if not f or any(not (0 < x < fs / 2) for x in every) or len(set(every)) != len(every):
             raise InputError(f"expected distinct carrier `frequencies` in (0, {fs / 2:g}) Hz, "
-                             f"got {f}")
+                             f"got {every}")
         if len(ref) != len(f):
             raise InputError(f"expected one reference channel per carrier ({len(f)}), "
                              f"got {len(ref)}")
@@ -105,6 +116,21 @@ class ChannelLayout:
     @property
     def n_source(self) -> int:
         return len(self.frequencies)
+
+    @property
+    def n_bands(self) -> int:
+        return 1 + len(self.bands)
+
+    @property
+    def carriers(self) -> tuple:
+        """Every carrier, band by band: ``frequencies`` then each of ``bands``; carrier ``c``
+        drives source coil ``c % n_source``."""
+        return self.frequencies + sum(self.bands, ())
+
+    @property
+    def band_frequencies(self) -> np.ndarray:
+        """``(n_bands, n_source)`` carrier frequencies (Hz)."""
+        return np.asarray(self.carriers).reshape(self.n_bands, self.n_source)
 
     @property
     def n_sensor(self) -> int:
@@ -243,10 +269,15 @@ class RawSimulator:
     coupling_stride : int
         Couplings are evaluated every ``coupling_stride`` samples and interpolated linearly
         in between (1 = every sample). Motion is slow against the 96 kS/s rate.
+    metal : MetalScene, optional
+        Metal objects near the tracker (:class:`openemt.simulate.MetalScene`, in the
+        source frame, at the samples' times): their response at every carrier (complex, its
+        own per band) is added to the couplings; evaluated every millisecond and
+        interpolated.
     """
 
     def __init__(self, model, trajectory, config: RawSignalConfig | None = None, *, seed=0,
-                 coupling_stride: int = 4):
+                 coupling_stride: int = 4, metal=None):
         self.config = RawSignalConfig() if config is None else config
         if not isinstance(self.config, RawSignalConfig):
             raise TypeError(f"expected `config` to be a RawSignalConfig, got "
@@ -267,10 +298,13 @@ class RawSimulator:
         self.coupling_stride = max(1, int(coupling_stride))
         self._rng = np.random.default_rng(seed)
         c = self.config
-        self._phase = (self._rng.uniform(0, 2 * np.pi, lay.n_source) if c.drive_phase is None
-                       else np.asarray(c.drive_phase, dtype=np.float64))
-        self._omega = 2 * np.pi * np.asarray(lay.frequencies)
-        self._eddy = 1 + eddy_factor(lay.frequencies, c.eddy_strength, c.eddy_time_constant)
+        n_carr = len(lay.carriers)
+        self._phase = (self._rng.uniform(0, 2 * np.pi, n_carr) if c.drive_phase is None
+                       else np.tile(np.asarray(c.drive_phase, dtype=np.float64), lay.n_bands))
+        self._omega = 2 * np.pi * np.asarray(lay.carriers)
+        self._eddy = 1 + eddy_factor(lay.carriers, c.eddy_strength, c.eddy_time_constant)
+        self._coil = np.arange(n_carr) % lay.n_source          # carrier -> source coil
+        self.metal = metal
         self._mains_phase = self._rng.uniform(0, 2 * np.pi, max(1, len(c.mains_amplitudes)))
         self.sample_index = 0
 
@@ -282,10 +316,41 @@ class RawSimulator:
         """Trajectory poses ``(N, 4, 4)`` at ``times`` (s)."""
         return np.asarray(self._trajectory(np.asarray(times, dtype=np.float64)), dtype=np.float64)
 
-    def true_couplings(self, times) -> np.ndarray:
-        """Complex truth couplings ``(N, n_source, n_sensor)`` at ``times`` (with eddy term)."""
-        C = self.model.coupling(np.ascontiguousarray(self.poses(times)))
-        return C * self._eddy[None, :, None]
+    def true_couplings(self, times, *, bands: bool = False) -> np.ndarray:
+        """Complex truth couplings ``(N, n_source, n_sensor)`` at ``times`` (with the eddy
+        term and the metal scene) of band 0; with ``bands``, ``(N, n_bands, n_source,
+        n_sensor)``."""
+        t = np.asarray(times, dtype=np.float64)
+        C = self._carrier_couplings(t, self.model.coupling(np.ascontiguousarray(self.poses(t))))
+        lay = self.layout
+        C = C.reshape(len(t), lay.n_bands, lay.n_source, -1)
+        return C if bands else C[:, 0]
+
+    def _carrier_couplings(self, t, C):
+        """Couplings per carrier ``(N, n_carriers, n_sensor)`` from the model's ``C``."""
+        out = C[:, self._coil] * self._eddy[None, :, None]
+        if self.metal is not None:
+            out = out + self._metal_part(t)
+        return out
+
+    def _metal_part(self, t):
+        lay = self.layout
+        step = max(1e-3, 1.0 / lay.sample_rate)
+        knots = t if len(t) < 2 else np.arange(t[0], t[-1] + step, step)
+        P = np.ascontiguousarray(self.poses(knots))
+        own = getattr(self.model, "metal_couplings", None)   # a model of several sensors
+        parts = [own(self.metal, P, f, knots) if own is not None else
+                 self.metal.induced_couplings(self.model, P, f, t=knots)
+                 for f in lay.band_frequencies]
+        Mk = np.concatenate(parts, axis=1)                          # (k, n_carr, n_se)
+        if len(knots) == len(t) and np.array_equal(knots, t):
+            return Mk
+        flat = Mk.reshape(len(knots), -1)
+        out = np.empty((len(t), flat.shape[1]), dtype=complex)
+        for k in range(flat.shape[1]):
+            out[:, k] = (np.interp(t, knots, flat[:, k].real)
+                         + 1j * np.interp(t, knots, flat[:, k].imag))
+        return out.reshape(len(t), *Mk.shape[1:])
 
     def _couplings_per_sample(self, t):
         s = self.coupling_stride
@@ -307,14 +372,17 @@ class RawSimulator:
         self.sample_index += n
         out = np.zeros((n, lay.n_channels))
         amp = c.drive_amplitude * (1 + c.drift_amplitude * np.sin(2 * np.pi * t / c.drift_period))
-        arg = self._omega[None, :] * t[:, None] + self._phase[None, :]          # (n, n_so)
-        out[:, list(lay.reference_channels)] = (lay.reference_gain * amp[:, None] * np.cos(arg)
+        arg = self._omega[None, :] * t[:, None] + self._phase[None, :]          # (n, n_carr)
+        drive = np.cos(arg)
+        if lay.n_bands > 1:                     # a coil's current: all its bands together
+            drive = drive.reshape(n, lay.n_bands, lay.n_source).sum(axis=1)
+        out[:, list(lay.reference_channels)] = (lay.reference_gain * amp[:, None] * drive
                                                 + c.reference_noise_rms
                                                 * self._rng.standard_normal((n, lay.n_source)))
         # sensor: Re{Ct I(t - delay)}; delay acts on the carrier phase (slow envelopes)
         arg_d = arg - self._omega[None, :] * c.delay
-        cur = amp[:, None] * np.exp(1j * arg_d)                                    # (n, n_so)
-        Ct = self._couplings_per_sample(t) * self._eddy[None, :, None]            # (n, so, se)
+        cur = amp[:, None] * np.exp(1j * arg_d)                                  # (n, n_carr)
+        Ct = self._carrier_couplings(t, self._couplings_per_sample(t))           # (n, carr, se)
         v = lay.sensor_gain * np.einsum("nij,ni->nj", Ct, cur).real
         for h, a in enumerate(c.mains_amplitudes, start=1):
             if a:
@@ -326,12 +394,13 @@ class RawSimulator:
 
 
 def simulate_raw(model, trajectory, duration: float, config: RawSignalConfig | None = None, *,
-                 seed=0, truth_rate: float = OUTPUT_RATE_HZ, coupling_stride: int = 4) -> RawSignal:
+                 seed=0, truth_rate: float = OUTPUT_RATE_HZ, coupling_stride: int = 4,
+                 metal=None) -> RawSignal:
     """Simulate ``duration`` seconds of raw samples along a trajectory.
 
     Parameters
     ----------
-    model, trajectory, config, seed, coupling_stride
+    model, trajectory, config, seed, coupling_stride, metal
         See :class:`RawSimulator`.
     duration : float
         Seconds of signal (rounded down to whole samples).
@@ -342,7 +411,8 @@ def simulate_raw(model, trajectory, duration: float, config: RawSignalConfig | N
     -------
     RawSignal
     """
-    sim = RawSimulator(model, trajectory, config, seed=seed, coupling_stride=coupling_stride)
+    sim = RawSimulator(model, trajectory, config, seed=seed, coupling_stride=coupling_stride,
+                       metal=metal)
     fs = sim.layout.sample_rate
     n = int(np.floor(float(duration) * fs + 1e-9))
     if n < 1:
@@ -362,7 +432,8 @@ def raw_attrs(layout: ChannelLayout, t0: float = 0.0) -> dict:
             "sensor_channels": np.asarray(layout.sensor_channels, dtype=np.int64),
             "reference_channels": np.asarray(layout.reference_channels, dtype=np.int64),
             "sensor_gain": layout.sensor_gain, "reference_gain": layout.reference_gain,
-            "t0": float(t0)}
+            "t0": float(t0),
+            **({"bands": np.asarray(layout.bands)} if layout.bands else {})}
 
 
 def write_raw(raw: RawSignal, path) -> None:
@@ -373,7 +444,8 @@ def write_raw(raw: RawSignal, path) -> None:
         /samples                  float32|float64 (n_samples, n_channels), volts
         attrs: format, version, sample_rate (Hz), frequencies (n_source,) Hz,
                sensor_channels (n_sensor,), reference_channels (n_source,),
-               sensor_gain (V per coupling*A), reference_gain (V/A), t0 (s)
+               sensor_gain (V per coupling*A), reference_gain (V/A), t0 (s),
+               bands (n_bands - 1, n_source) Hz -- only with several carrier bands
         /truth/times              (n_truth,) s            -- optional (simulations)
         /truth/couplings          complex (n_truth, n_source, n_sensor)
         /truth/poses              (n_truth, 4, 4) m, or (n_truth, K, 4, 4) for K sensors
@@ -422,7 +494,9 @@ def read_raw(path) -> RawSignal:
                                    sensor_channels=tuple(f.attrs["sensor_channels"]),
                                    reference_channels=tuple(f.attrs["reference_channels"]),
                                    sensor_gain=float(f.attrs["sensor_gain"]),
-                                   reference_gain=float(f.attrs["reference_gain"]))
+                                   reference_gain=float(f.attrs["reference_gain"]),
+                                   bands=tuple(map(tuple, np.asarray(f.attrs.get(
+                                       "bands", np.empty((0, 0)))).tolist())))
             samples = f["samples"]
             if getattr(samples, "ndim", None) != 2:
                 raise InputError(f"expected `samples` of shape (n, >= {layout.n_channels}), "

@@ -126,13 +126,15 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     metal : MetalScene, str, dict, optional
         A metal scene (:class:`openemt.simulate.MetalScene`, a scene name such as
         ``"aluminium_sheet"``, a TOML scene file or a table) in the bench frame, the
-        source-fixture base frame (docs/simulator.md#metal-scenes). Row ``k`` is at time
+        source-fixture base frame (docs/simulator.md#metal-scenes); a named scene is placed
+        about the box of the simulated sensor positions in that frame. Row ``k`` is at time
         ``k * sample_period_s`` for moving objects. Couplings are complex with a scene.
     bands : array (n_bands, n_source), optional
         Carrier bands: every source coil driven at one frequency per band (Hz), e.g. ILEMT's
         ``[[274, 334, 370], [7500, 10500, 13500]]``. ``couplings`` are band 0's and
         ``extra["couplings_bands"]`` (N, n_bands, n_source, n_sensor) holds all of them (each
-        with its own metal response and noise); default: the preset's frequencies, one band.
+        with its own metal response and noise; ``meta["band_frequencies_hz"]`` their
+        carriers); default: the preset's frequencies, one band.
     clip_z : bool, default True
         Log commanded Z below -46.2 mm as -46.2 mm, like the real stage (:func:`stage_pattern`).
     seed : int or None
@@ -177,7 +179,6 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
     if noise_abs is not None:
         check_nonnegative(noise_abs, "noise_abs")
     objects = _distortions(distortion)
-    scene = load_scene(metal)
 
     blocks, files, so_codes, se_codes, pats, file_index = [], [], [], [], [], []
     for s, e in combos:
@@ -201,7 +202,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
 
     C0 = p.model.coupling(poses)
     band_f = _bands(bands, p)
-    if objects or scene is not None:
+    if objects or metal is not None:
         F_so = pose_from_vector(p.source_fixture)
         so_J = {c: source_fixture_rotation(c) for c in set(so_codes)}
         # bench (source-fixture base) frame -> source frame: F_so . so_J
@@ -211,6 +212,10 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
         frame[:, :3, :3] = A
         frame[:, :3, 3] = F_so[:3, 3]
         frame[:, 3, 3] = 1.0
+    scene = None
+    if metal is not None:           # a named scene is placed about the simulated volume
+        bench = np.einsum("kba,kb->ka", A, poses[:, :3, 3] - F_so[:3, 3])
+        scene = load_scene(metal, volume=(bench.min(axis=0), bench.max(axis=0)))
     Cb = []
     for freqs in band_f:                          # each carrier band sees its own response
         C = C0
@@ -264,9 +269,9 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
             "stage_fixture": p.stage_fixture.tolist(),
             "sensor_fixture": p.sensor_fixture.tolist(),
             "frequencies_hz": p.frequencies.tolist(),
-            **({} if bands is None else {"band_frequencies_hz": band_f.tolist()}),
         },
         "units": {"stage": "m, rad", "couplings": "dimensionless (gain 1/250 convention)"},
+        **({} if bands is None else {"band_frequencies_hz": band_f.tolist()}),
         "provenance": {"openemt_version": __version__, "simulated": True},
     }
     return Dataset(couplings=C, stage=stage, source_fixture=np.array(so_codes),

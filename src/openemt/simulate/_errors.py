@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..field import DipoleModel, coupling
+from ._metal_physics import MU0, sphere_polarizability
 
 __all__ = [
     "MU0",
@@ -23,7 +24,6 @@ __all__ = [
     "polarizability",
 ]
 
-MU0 = 4e-7 * np.pi  # vacuum permeability (H/m)
 
 
 def noise_sigma(C, *, snr_db=None, noise_abs=None) -> np.ndarray:
@@ -160,8 +160,6 @@ def polarizability(d: Distortion, frequency) -> np.ndarray:
     J. D. Jackson, *Classical Electrodynamics*, 3rd ed., problems 5.34/8.x (eddy-current sphere);
     L. D. Landau and E. M. Lifshitz, *Electrodynamics of Continuous Media*, §59.
     """
-    from ._metal_physics import sphere_polarizability
-
     f = np.asarray(frequency, dtype=np.float64)
     if d.kind == "ferromagnetic":
         return np.full(f.shape, (d.mu_r - 1.0) / (d.mu_r + 2.0), dtype=np.complex128)

@@ -44,7 +44,6 @@ Objects do not interact with each other (each responds to the source field alone
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -79,7 +78,10 @@ _GAUSS_T = np.polynomial.legendre.leggauss(2)
 
 
 def _vec(v, name: str, n: int = 3) -> tuple:
-    a = np.asarray(v, dtype=np.float64)
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = np.full(0, np.nan)
     if a.shape != (n,) or not np.all(np.isfinite(a)):
         raise InputError(f"expected `{name}` as {n} finite numbers, got {v!r}")
     return tuple(float(x) for x in a)
@@ -123,10 +125,13 @@ class Motion:
         object.__setattr__(self, "velocity", _vec(self.velocity, "motion.velocity"))
         object.__setattr__(self, "amplitude", _vec(self.amplitude, "motion.amplitude"))
         object.__setattr__(self, "period_s", _positive(self.period_s, "motion.period_s"))
-        object.__setattr__(self, "phase", float(self.phase))
+        object.__setattr__(self, "phase", _vec([self.phase], "motion.phase", 1)[0])
         if self.kind == "waypoints":
-            t = np.asarray(self.times, dtype=np.float64)
-            p = np.asarray(self.positions, dtype=np.float64)
+            try:
+                t = np.asarray(self.times, dtype=np.float64)
+                p = np.asarray(self.positions, dtype=np.float64)
+            except (TypeError, ValueError):
+                t, p = np.zeros((0, 0)), np.zeros(0)
             if t.ndim != 1 or len(t) < 1 or p.shape != (len(t), 3) or np.any(np.diff(t) <= 0) \
                     or not (np.all(np.isfinite(t)) and np.all(np.isfinite(p))):
                 raise InputError(f"expected motion waypoints as increasing `times` (n,) and "
@@ -584,15 +589,17 @@ class MetalScene:
     @classmethod
     def from_toml(cls, path) -> MetalScene:
         """A scene from a TOML file: ``[[object]]`` tables (docs/simulator.md#metal-scenes)."""
+        from ..io._safefile import read_toml
+
         p = Path(path)
         try:
-            with open(p, "rb") as fh:
-                d = tomllib.load(fh)
+            d = read_toml(p, "a metal scene file (TOML)", "a metal scene")
         except FileNotFoundError:
             raise InputError(f"expected an existing metal scene file, got {str(p)!r}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"expected a TOML metal scene in {str(p)!r}, got: {exc}") from None
-        return cls.from_dict(d, name=p.stem)
+        try:
+            return cls.from_dict(d, name=p.stem)
+        except InputError as exc:
+            raise InputError(f"{p}: {exc}") from None
 
     def to_dict(self) -> dict:
         return {"name": self.name, "sample_period_s": self.sample_period_s,

@@ -18,7 +18,6 @@ import numpy as np
 from scipy import special
 
 from .._errors import InputError
-from ._errors import MU0
 
 __all__ = [
     "MATERIALS",
@@ -35,6 +34,18 @@ __all__ = [
     "wire_impedance",
 ]
 
+MU0 = 4e-7 * np.pi  # vacuum permeability (H/m)
+
+
+def _float(v) -> float:
+    if isinstance(v, bool):
+        return float("nan")
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
 @dataclass(frozen=True)
 class Material:
     """A metal (or ferrite): conductivity ``sigma`` (S/m) and relative permeability ``mu_r``."""
@@ -44,7 +55,7 @@ class Material:
     mu_r: float = 1.0
 
     def __post_init__(self):
-        s, m = float(self.conductivity), float(self.mu_r)
+        s, m = _float(self.conductivity), _float(self.mu_r)
         if not (np.isfinite(s) and s >= 0):
             raise InputError(f"expected a finite conductivity >= 0 (S/m) for material "
                              f"{self.name!r}, got {self.conductivity!r}")

@@ -52,6 +52,10 @@ class SimulateOptions:
                                "moving_ring) or a scene file (.toml) in the bench frame "
                                "(docs/simulator.md#metal-scenes); couplings become complex",
                                metavar="SCENE")
+    bands: str | None = option(None, "carrier bands, one per ';', each one carrier per source "
+                               "coil in Hz (e.g. '274,334,370;7500,10500,13500'): couplings "
+                               "of every band in the dataset (band 0 is `couplings`; "
+                               "docs/simulator.md#carrier-bands)", metavar="BANDS")
     clip_z: bool = option(True, "log Z = -50 mm as commanded instead of the stage limit -46.2 mm")
     reference: str | None = option(None, "simulate a reference-pose collection instead: the sensor "
                                    "on a robot flange or optical marker (unknown X, Y), couplings "
@@ -138,6 +142,15 @@ def parse_distortion(spec: str) -> dict:
     return out
 
 
+def parse_bands(text: str) -> list:
+    """``'274,334,370;7500,10500,13500'`` -> one list of carriers (Hz) per band."""
+    rows = [_floats(part, "--bands").tolist() for part in text.split(";") if part.strip()]
+    if not rows or len({len(r) for r in rows}) != 1:
+        raise InputError(f"expected --bands as bands separated by ';', each with one carrier "
+                         f"per source coil, got {text!r}")
+    return rows
+
+
 def _codes(text: str):
     return "all" if text.strip() == "all" else [c.strip() for c in text.split(",") if c.strip()]
 
@@ -174,10 +187,10 @@ def write_simulation(o: SimulateOptions, say=None) -> SimulateResult:
     if o.format == "ndi":
         return _write_ndi(o)
     if o.reference is not None:
-        if o.pattern is not None or o.distortion or o.drift is not None or o.metal:
-            raise InputError("expected no --pattern, --distortion, --metal or --drift with "
-                             "--reference (a reference collection draws its own poses), got "
-                             "some")
+        if o.pattern is not None or o.distortion or o.drift is not None or o.metal or o.bands:
+            raise InputError("expected no --pattern, --distortion, --metal, --bands or --drift "
+                             "with --reference (a reference collection draws its own poses), "
+                             "got some")
         mm, deg = o.reference_noise_mm, o.reference_noise_deg
         ds = simulate_reference(o.preset, o.reference, o.n_poses,
                                 noise_trans=None if mm is None else mm * 1e-3,
@@ -194,6 +207,7 @@ def write_simulation(o: SimulateOptions, say=None) -> SimulateResult:
                       sensor_fixtures=_codes(o.sensor_fixtures), combinations=o.combinations,
                       snr_db=o.snr_db, noise_abs=o.noise_abs, stage_sigma=o.stage_sigma,
                       drift=drift, distortion=distortion or None, metal=o.metal,
+                      bands=None if o.bands is None else parse_bands(o.bands),
                       clip_z=o.clip_z, seed=o.seed)
         cal = truth_calibration(preset) if o.truth_calibration is not None else None
     existed = o.output.exists()
@@ -224,6 +238,7 @@ def _write_ndi(o: SimulateOptions) -> SimulateResult:
     given = [opt for opt, value in (("--truth-calibration", o.truth_calibration),
                                     ("--pattern", o.pattern), ("--drift", o.drift),
                                     ("--distortion", o.distortion), ("--metal", o.metal),
+                                    ("--bands", o.bands),
                                     ("--snr-db", o.snr_db), ("--noise-abs", o.noise_abs),
                                     ("--reference-noise-mm", o.reference_noise_mm),
                                     ("--reference-noise-deg", o.reference_noise_deg))

@@ -1,5 +1,5 @@
 """Several carrier bands per source coil: the eddy-current part taken out of each sample, and
-the fusion of a fast band with a slow one (docs/solve.md#carrier-bands).
+the fusion of a fast band with a slow one (docs/simulator.md#carrier-bands).
 
 Eddy-free couplings from two bands
 ----------------------------------
@@ -72,7 +72,7 @@ def eddy_free_couplings(band_couplings, band_frequencies, *, slow=None, fast=Non
     It works when the slow band is near the low-induction regime (``w_s tau`` of order 1 or
     less: stainless steel, titanium, small or thin parts); a large sheet of a good conductor
     (2 mm aluminium: ``tau`` about 5 ms) is inductive at both of ILEMT's bands and is not
-    corrected (docs/solve.md#carrier-bands gives the measured figures).
+    corrected (docs/simulator.md#carrier-bands gives the measured figures).
 
     Examples
     --------
