@@ -258,3 +258,17 @@ def test_witness_estimator_follows_a_moving_object():
         assert est.last.rms < 1e-6 * est.last.rms_base, k
         np.testing.assert_allclose(m.coupling(Q), moved.coupling(Q), rtol=0,
                                    atol=1e-5 * np.abs(moved.coupling(Q)).max())
+
+
+@pytest.mark.parametrize("mode, env, what", [("planar", "gain", "auto, none or tilt in planar"),
+                                             ("XYZ", "dipoles:1", "auto or none in mode XYZ"),
+                                             ("improved", "dipoles:2", "at most dipoles:1"),
+                                             ("planar", "lead", "auto, none or a list")])
+def test_calibrate_refuses_environment_terms_a_mode_cannot_fit(tmp_path, capsys, mode, env,
+                                                               what):
+    from openemt.cli import main
+
+    path = _board_grid(tmp_path, "g", 0.0, 1)
+    assert main(["calibrate", str(path), "--mode", mode, "--environment", env]) == 2
+    out = capsys.readouterr()
+    assert what in out.out + out.err
