@@ -159,3 +159,50 @@ def test_distortion_level_is_logged_and_summarised(tmp_path):
     (tmp_path / "old.csv").write_text("\n".join(old) + "\n")
     back = read_track_log(tmp_path / "old.csv").arrays["openemt"]
     assert len(back["times"]) == len(lv) and back["distortion_level"].size == 0
+
+
+def test_tracker_file_names_witness_sensors(tmp_path):
+    import re
+    import shutil
+
+    from openemt._errors import InputError
+    from openemt.live import example_tracker, read_tracker
+
+    shutil.copy(example_tracker("simulated").parent / "concentric.json", tmp_path)
+    text = example_tracker("simulated-2").read_text()
+    p = tmp_path / "t.toml"
+    p.write_text(text + '\n[[witness]]\nsensor = "Reference"\n'
+                        'pose = [0.25, 0.05, 0.0, 0.0, 0.1, 0.0]\n')
+    spec = read_tracker(p)
+    assert spec.witnesses == (("Reference", (0.25, 0.05, 0.0, 0.0, 0.1, 0.0)),)
+    for bad, what in (('sensor = "Nobody"\npose = [0, 0, 0, 0, 0, 0]', "witness[0].sensor"),
+                      ('sensor = "Probe"\npose = [0, 0, 0]', "witness[0].pose")):
+        p.write_text(text + f"\n[[witness]]\n{bad}\n")
+        with pytest.raises(InputError, match=re.escape(f"`{what}`")):
+            read_tracker(p)
+
+
+def test_a_witness_pose_error_raises_the_distortion_level():
+    """A sensor held still at a known pose: its error there enters the level of the samples
+    (128 at 1 mm); at the right pose the level stays that of a clean sample."""
+    from openemt.geometry import pose_from_vector
+
+    v = np.array([0.3, 0.05, 0.02, 0.2, -0.1, 0.3])
+    P = pose_from_vector(v)
+
+    def still(times):
+        return np.broadcast_to(P, (len(np.atleast_1d(times)), 4, 4)).copy()
+
+    def run(pose):
+        b = SimulatedBackend(trajectory=still, duration=0.1)
+        log = TrackLog()
+        TrackingPipeline(b, b.model, log=log, witnesses=(("openemt", tuple(pose)),)).run()
+        return log.arrays()["distortion_level"]
+
+    assert (run(v) < 128).all()
+    off = v.copy()
+    off[0] += 0.005                                          # 5 mm from where it is
+    assert (run(off) == 255).all()
+    with pytest.raises(Exception, match="witnesses among the sensors"):
+        b = SimulatedBackend(trajectory=still, duration=0.05)
+        TrackingPipeline(b, b.model, witnesses=(("nobody", tuple(v)),))

@@ -45,13 +45,16 @@ _OUT_OF_VOLUME = int(Status.OUT_OF_VOLUME)
 STREAM_EVENTS = ("tracking", "lost", "distorted", "stale", "recovered")
 
 
-def _distortion_level(quadrature, relative_residual, threshold) -> np.ndarray:
+def _distortion_level(quadrature, relative_residual, threshold, witness_m=None
+                      ) -> np.ndarray:
     """The 0-255 level of each sample (:func:`openemt.live.distortion_level` against the
-    quadrature threshold and the solver's validity threshold, as the stream's metadata)."""
+    quadrature threshold and the solver's validity threshold, as the stream's metadata, and
+    the witnesses' position error where the tracker has witnesses)."""
     from ..solve._validity import MAX_RELATIVE_RESIDUAL
     from ._igtl_meta import distortion_level
 
-    return distortion_level(quadrature, relative_residual, threshold, MAX_RELATIVE_RESIDUAL)
+    return distortion_level(quadrature, relative_residual, threshold, MAX_RELATIVE_RESIDUAL,
+                            witness_m=witness_m)
 
 
 def _level_summary(counts) -> dict:
@@ -398,6 +401,12 @@ class PipelineConfig:
         Image-from-tracker transform (``openemt register``) applied to every sensor's pose
         (and so its tip): the sensors stream, log and score in the image frame. Relative
         streams are unchanged by it.
+    witnesses : tuple of (str, pose vector)
+        Fixed witness sensors (the tracker file's ``[[witness]]``): a sensor's name and its
+        known pose ``[x, y, z, rx, ry, rz]`` (m, rad) in the tracker frame (as solved, before
+        any correction or registration). The largest position error of the witnesses in a
+        sample (infinite where one does not converge) enters the distortion level of every
+        sensor of that sample (128 at 1 mm, :func:`openemt.live.distortion_level`).
     """
 
     output_rate: float = OUTPUT_RATE_HZ
@@ -414,6 +423,7 @@ class PipelineConfig:
     status_every: int = 150
     serial_small_batches: bool = True
     registration: object = None
+    witnesses: tuple = ()
 
 
 class TrackingPipeline:
@@ -474,6 +484,15 @@ class TrackingPipeline:
             raise InputError(f"expected distinct sensor names, got {names}")
         self.backend = backend
         self.sensors = [_SensorState(s, i) for i, s in enumerate(sensors)]
+        from ..geometry import pose_from_vector
+
+        self._witness = []
+        for wname, pose in cfg.witnesses:
+            if wname not in names:
+                raise InputError(f"expected witnesses among the sensors {names}, got "
+                                 f"{wname!r}")
+            self._witness.append((names.index(wname),
+                                  pose_from_vector(np.asarray(pose, dtype=np.float64))[:3, 3]))
         # sensors of one model (e.g. one calibration file) share a solver and are solved in
         # one batched call while all of them are tracking
         self._groups: list = []
@@ -730,6 +749,12 @@ class TrackingPipeline:
                 solved = self._solve_all(Cs, quick)
         else:
             solved = self._solve_all(Cs, quick)
+        witness_m = None
+        if self._witness:                       # the witnesses' error at their known poses
+            errs = [np.where(solved[k][2] == _CONVERGED,
+                             np.linalg.norm(solved[k][0][:, :3, 3] - p, axis=1), np.inf)
+                    for k, p in self._witness]
+            witness_m = np.max(errs, axis=0)
         oks, valids = [], []
         for st, couplings, (poses, vecs, status, resid, rel), ratio, flag in zip(
                 self.sensors, parts, solved, ratios, flags):
@@ -755,7 +780,7 @@ class TrackingPipeline:
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
             level = _distortion_level(ratio, np.full(n, np.nan) if rel is None else rel,
-                                      self.distortion_threshold)
+                                      self.distortion_threshold, witness_m)
             st.level_counts += np.bincount(level, minlength=256)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
                                    t_ready, rel, tool, level))

@@ -474,7 +474,7 @@ class TrackingSession:
             send_distorted=o.send_distorted, reference=spec.reference,
             stale_after=spec.stale_after if o.stale_after is None else o.stale_after,
             tdata=bool(o.tdata or spec.tdata), igtl_metadata=spec.metadata and o.metadata,
-            registration=spec.registration)
+            registration=spec.registration, witnesses=spec.witnesses)
 
     def __enter__(self) -> TrackingSession:
         from ._backends import StallWatch
