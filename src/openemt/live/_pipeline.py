@@ -45,6 +45,25 @@ _OUT_OF_VOLUME = int(Status.OUT_OF_VOLUME)
 STREAM_EVENTS = ("tracking", "lost", "distorted", "stale", "recovered")
 
 
+#: The witnesses' largest position error (m) above which a chunk's environment terms are
+#: re-estimated from them (below it the witnesses see no distortion worth modelling).
+WITNESS_REFIT_M = 0.5e-3
+
+
+def _witness_estimator(models, poses):
+    """A :class:`openemt.calibrate.WitnessEstimator` of the witnesses (one induced dipole)
+    when they share one model and give it enough equations, else None (the witnesses then
+    only enter the distortion level)."""
+    if not models or any(m is None or m is not models[0] for m in models):
+        return None
+    from ..calibrate import WitnessEstimator
+
+    try:
+        return WitnessEstimator(models[0], np.stack(poses))
+    except InputError:
+        return None
+
+
 def _distortion_level(quadrature, relative_residual, threshold, witness_m=None
                       ) -> np.ndarray:
     """The 0-255 level of each sample (:func:`openemt.live.distortion_level` against the
@@ -406,7 +425,12 @@ class PipelineConfig:
         known pose ``[x, y, z, rx, ry, rz]`` (m, rad) in the tracker frame (as solved, before
         any correction or registration). The largest position error of the witnesses in a
         sample (infinite where one does not converge) enters the distortion level of every
-        sensor of that sample (128 at 1 mm, :func:`openemt.live.distortion_level`).
+        sensor of that sample (128 at 1 mm, :func:`openemt.live.distortion_level`). Where
+        the witnesses share one model and give it enough equations (two tri-axial witnesses
+        per induced dipole at least) and a chunk's witness error exceeds
+        :data:`WITNESS_REFIT_M`, an induced dipole is re-estimated from their couplings
+        (:class:`openemt.calibrate.WitnessEstimator`) and the other sensors of that model
+        are refined under it.
     """
 
     output_rate: float = OUTPUT_RATE_HZ
@@ -486,13 +510,15 @@ class TrackingPipeline:
         self.sensors = [_SensorState(s, i) for i, s in enumerate(sensors)]
         from ..geometry import pose_from_vector
 
-        self._witness = []
+        self._witness, wposes = [], []
         for wname, pose in cfg.witnesses:
             if wname not in names:
                 raise InputError(f"expected witnesses among the sensors {names}, got "
                                  f"{wname!r}")
-            self._witness.append((names.index(wname),
-                                  pose_from_vector(np.asarray(pose, dtype=np.float64))[:3, 3]))
+            wposes.append(pose_from_vector(np.asarray(pose, dtype=np.float64)))
+            self._witness.append((names.index(wname), wposes[-1][:3, 3]))
+        self._estimator = _witness_estimator(
+            [self.sensors[k].setup.model for k, _ in self._witness], wposes)
         # sensors of one model (e.g. one calibration file) share a solver and are solved in
         # one batched call while all of them are tracking
         self._groups: list = []
@@ -755,6 +781,8 @@ class TrackingPipeline:
                              np.linalg.norm(solved[k][0][:, :3, 3] - p, axis=1), np.inf)
                     for k, p in self._witness]
             witness_m = np.max(errs, axis=0)
+            if self._estimator is not None and n and np.max(witness_m) > WITNESS_REFIT_M:
+                solved = self._witness_refit(Cs, solved)
         oks, valids = [], []
         for st, couplings, (poses, vecs, status, resid, rel), ratio, flag in zip(
                 self.sensors, parts, solved, ratios, flags):
@@ -800,6 +828,35 @@ class TrackingPipeline:
         self._latency.extend([time.perf_counter() - t_ready] * n)
         self._n_out += n
         return steps[0] if len(steps) == 1 else tuple(steps)
+
+    def _witness_refit(self, Cs, solved) -> list:
+        """The environment terms re-estimated from the witnesses' couplings of this chunk
+        (their mean: the witnesses are still) and the converged poses of every other sensor
+        of the witnesses' model refined under them (:func:`openemt.solve.refine_poses`)."""
+        from ..geometry import pose_from_vector
+        from ..solve import refine_poses
+
+        est = self._estimator
+        env = est.update(np.stack([Cs[k].mean(axis=0) for k, _ in self._witness]))
+        skip = {k for k, _ in self._witness}
+        out = list(solved)
+        for st in self.sensors:
+            k = st.index
+            if k in skip or st.setup.model is not est.model:
+                continue
+            poses, vecs, status, resid, rel = solved[k]
+            ok = status == _CONVERGED
+            if not ok.any():
+                continue
+            poses, vecs = poses.copy(), vecs.copy()
+            resid, rel = np.array(resid, dtype=np.float64), np.array(rel, dtype=np.float64)
+            vecs[ok], resid[ok] = refine_poses(env, Cs[k][ok], vecs[ok])
+            poses[ok] = pose_from_vector(vecs[ok])
+            C = Cs[k][ok]
+            rel[ok] = np.linalg.norm(C - env.coupling(poses[ok]), axis=(1, 2)) / \
+                np.linalg.norm(C, axis=(1, 2))
+            out[k] = (poses, vecs, status, resid, rel)
+        return out
 
     def _device(self, st: _SensorState) -> str:
         return st.setup.device_name or (self.igtl.device_name if self.igtl is not None
