@@ -272,3 +272,29 @@ def test_calibrate_refuses_environment_terms_a_mode_cannot_fit(tmp_path, capsys,
     assert main(["calibrate", str(path), "--mode", mode, "--environment", env]) == 2
     out = capsys.readouterr()
     assert what in out.out + out.err
+
+
+def test_track_solves_with_the_environment_terms_of_its_calibration(tmp_path):
+    """``track``'s sensors get the calibration's coupling model (its environment terms), so
+    they solve the poses ``solve`` solves."""
+    import shutil
+
+    from openemt.live import example_tracker, read_tracker
+    from openemt.live._session import tracker_sensors
+
+    src = example_tracker("simulated-2")
+    shutil.copy(src, tmp_path / "t.toml")
+    base = read_calibration(src.parent / "concentric.json")
+    rng = np.random.default_rng(7)
+    terms = EnvironmentTerms([[0.45, 0.1, 0.0]], rng.normal(0, 0.05, (1, 3, 3)))
+    cal = base.replace(extra={**base.extra, "environment": terms.to_dict()})
+    write_calibration(cal, tmp_path / "concentric.json")
+    spec = read_tracker(tmp_path / "t.toml")
+    setups = tracker_sensors(spec)
+    assert all(isinstance(s.model, EnvironmentModel) for s in setups)
+    P = _poses(rng, 5, centre=(0.25, 0.0, 0.0), spread=0.04)
+    C = setups[0].model.coupling(P)
+    res = prepare(setups[0].model)(C)
+    np.testing.assert_allclose(res.poses[:, :3, 3], P[:, :3, 3], atol=1e-9)
+    np.testing.assert_allclose(prepare(read_calibration(tmp_path / "concentric.json"))(C).poses,
+                               res.poses, atol=1e-12)
