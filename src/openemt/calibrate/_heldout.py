@@ -187,19 +187,20 @@ class ImprovedTest(Result):
 
 
 def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial="kim18",
-                    correction=None) -> ScoredPoses:
+                    correction=None, model=None) -> ScoredPoses:
     """Solve ``rows`` with the improved model and score against its ground truth.
 
     The iterative dipole solution (Kim18 start from ``concentric_model``, hemisphere from the
     ground truth as ILEMT) is refined under the model a calibration file of the fit carries
     (:meth:`ImprovedProblem.full_model`: the octupole and environment terms, which predict
-    the readings themselves), as ``openemt solve`` refines it.
+    the readings themselves), as ``openemt solve`` refines it; ``model`` (e.g. a written
+    calibration's :attr:`~openemt.io.Calibration.coupling_model`) replaces it.
     """
     from ..correct import apply_linear_correction
     from ..solve import hemisphere_from_positions, solve_lm
 
     D = tp.poses(xt)
-    model = tp.full_model(xt)
+    model = tp.full_model(xt) if model is None else model
     dip = getattr(model, "dipole", model)
     hemi = hemisphere_from_positions(D[:, :3, 3])
     init = initial if isinstance(initial, str) else np.asarray(initial)
@@ -476,15 +477,18 @@ class ImprovedCalibration:
         return int(self.n_free - paper.size)
 
     def test(self, rows, concentric_model=None) -> ImprovedTest:
-        """Rows ``improved`` and ``improved_corrected`` on test rows (errors as Table II)."""
+        """Rows ``improved`` and ``improved_corrected`` on test rows (errors as Table II),
+        solved with the model of the calibration :meth:`to_calibration` writes (its
+        ``coupling_model``: octupole and environment terms) and its output correction."""
         cm = self.concentric_model if concentric_model is None else concentric_model
         tp, xt = transfer(self.problem, self.x, rows)
+        cal = self.to_calibration()
         out = {}
-        for name, corr in (("improved", None), ("improved_corrected", self.correction)):
+        for name, corr in (("improved", None), ("improved_corrected", cal.linear_correction)):
             if name == "improved_corrected" and corr is None:
                 out[name] = None
                 continue
-            res = solve_and_score(tp, xt, rows, cm, correction=corr)
+            res = solve_and_score(tp, xt, rows, cm, correction=corr, model=cal.coupling_model)
             s = res.summary
             out[name] = {k: s[k] for k in ACCURACY_KEYS}
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
