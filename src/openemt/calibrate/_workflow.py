@@ -74,7 +74,7 @@ class CalibrateOptions:
         "dipole, gain non-linearity, ... by md cross-validation; 'planar': none or tilt by "
         "grid cross-validation), 'none', or a list of dipoles:K, gain, offset, tilt; the "
         "choice and each candidate's held-out error go to the calibration's provenance "
-        "(docs/calibration.md#environment-terms); the paper's modes fit none",
+        "(docs/calibration.md#environment-terms-environment); the paper's modes fit none",
         metavar="auto|none|dipoles:K,gain,offset,tilt")
     output: Path | None = _opt(None, "write the calibration here", flag=("-o", "--output"),
                                metavar="CAL.json")
