@@ -298,3 +298,22 @@ def test_track_solves_with_the_environment_terms_of_its_calibration(tmp_path):
     np.testing.assert_allclose(res.poses[:, :3, 3], P[:, :3, 3], atol=1e-9)
     np.testing.assert_allclose(prepare(read_calibration(tmp_path / "concentric.json"))(C).poses,
                                res.poses, atol=1e-12)
+
+
+@pytest.mark.parametrize("env", [
+    {"induced_dipoles": "x"}, {"induced_dipoles": [1, 2]},
+    {"induced_dipoles": [{"position": "a", "moments": [[0, 0, 0]] * 3}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0]] * 3}]},
+    {"induced_dipoles": [{"position": [1e6, 0, 0], "moments": [[0, 0, 0]] * 3}]},
+    {"gain_nonlinearity": "abc"}, {"gain_nonlinearity": [1, 2]},
+    {"gain_nonlinearity": [None, None, None]}, {"coupling_offset": [[1]]},
+    {"coupling_offset": {"a": 1}}, "str", [1]])
+def test_damaged_environment_terms_in_a_file_are_one_error_line(tmp_path, env):
+    cal = Calibration(model=truth_model(np.random.default_rng(8)))
+    path = tmp_path / "c.json"
+    write_calibration(cal, path)
+    doc = json.loads(path.read_text())
+    doc["extra"]["environment"] = env
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="expected"):
+        read_calibration(path)

@@ -40,6 +40,11 @@ from .._errors import InputError
 __all__ = ["EnvironmentModel", "EnvironmentTerms", "read_gain", "sensor_dipoles"]
 
 
+#: Farthest induced dipole position a calibration may carry (m): an effective position, often
+#: beyond the workspace (1.4 m on cal_9_15), never kilometres away (a damaged file).
+MAX_DIPOLE_DISTANCE_M = 100.0
+
+
 def read_gain(C, beta):
     """What a channel of gain non-linearity ``beta`` reads for a coupling ``C``: ``h`` with
     ``h (1 + beta |h|) = C`` (NaN where no real reading exists, ``1 + 4 beta |C| < 0``),
@@ -82,8 +87,12 @@ class EnvironmentTerms:
     offset: np.ndarray | None = None
 
     def __post_init__(self):
-        q = np.asarray(self.positions, dtype=np.float64).reshape(-1, 3)
-        mu = np.asarray(self.moments, dtype=np.float64)
+        try:
+            q = np.asarray(self.positions, dtype=np.float64).reshape(-1, 3)
+            mu = np.asarray(self.moments, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError("expected induced dipole positions (K, 3) and moments (K, "
+                             "n_source, 3) as numbers") from None
         if mu.size == 0:
             mu = np.zeros((q.shape[0], 0, 3))
         if mu.ndim != 3 or mu.shape[0] != q.shape[0] or mu.shape[2] != 3:
@@ -94,12 +103,20 @@ class EnvironmentTerms:
                 raise InputError(f"expected finite {name}, got NaN or inf")
         object.__setattr__(self, "positions", q)
         object.__setattr__(self, "moments", mu)
-        for name in ("gain_beta", "offset"):
+        if np.abs(q).max(initial=0.0) > MAX_DIPOLE_DISTANCE_M:
+            raise InputError(f"expected induced dipole positions within "
+                             f"{MAX_DIPOLE_DISTANCE_M:g} m of the source, got "
+                             f"{np.abs(q).max():.3g} m")
+        for name, key in (("gain_beta", "gain_nonlinearity"), ("offset", "coupling_offset")):
             v = getattr(self, name)
             if v is not None:
-                v = np.asarray(v, dtype=np.float64)
+                try:
+                    v = np.asarray(v, dtype=np.float64)
+                except (TypeError, ValueError):
+                    raise InputError(f"expected numbers in the environment's `{key}`, got "
+                                     f"{type(v).__name__}") from None
                 if not np.all(np.isfinite(v)):
-                    raise InputError(f"expected finite environment `{name}`, got NaN or inf")
+                    raise InputError(f"expected finite environment `{key}`, got NaN or inf")
                 object.__setattr__(self, name, v)
 
     @property
