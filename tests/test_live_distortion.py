@@ -132,3 +132,119 @@ def test_track_announces_the_compile_before_tracking(monkeypatch, capsys):
     i = err.index("compiling solver kernels (first run only, about 30 s)")
     assert err[i + 1].startswith("tracking 1 sensor(s)")
     assert err[i + 2].startswith("tracked 74 samples")
+
+
+def test_distortion_level_is_logged_and_summarised(tmp_path):
+    """The 0-255 level of every sample: in the log (memory, .h5 and .csv) and the summary;
+    a distorted session sits at or above 128, a clean one below; a CSV log written before the
+    level (without its column) still reads."""
+    from openemt.live import read_track_log
+
+    s, _, log = _run(0.05)
+    lv = log.arrays()["distortion_level"]
+    assert lv.dtype == np.uint8 and len(lv) == s.n_samples and (lv >= 128).all()
+    d = s.to_dict()["distortion_level"]                  # the --json summary
+    assert d["fraction_at_or_above_128"] == 1.0 and d["max"] == int(lv.max())
+    assert d["median"] == int(np.median(lv))
+    clean, _, clog = _run(0.0)
+    assert (clog.arrays()["distortion_level"] < 128).all()
+    assert clean.to_dict()["distortion_level"]["fraction_at_or_above_128"] == 0.0
+    for suffix in (".h5", ".csv"):
+        path = tmp_path / f"log{suffix}"
+        log.write(path)
+        back = read_track_log(path).arrays["openemt"]
+        np.testing.assert_array_equal(back["distortion_level"], lv)
+    text = (tmp_path / "log.csv").read_text().splitlines()
+    old = [text[0].rsplit(",", 1)[0]] + [ln.rsplit(",", 1)[0] for ln in text[1:]]
+    (tmp_path / "old.csv").write_text("\n".join(old) + "\n")
+    back = read_track_log(tmp_path / "old.csv").arrays["openemt"]
+    assert len(back["times"]) == len(lv) and back["distortion_level"].size == 0
+
+
+def test_tracker_file_names_witness_sensors(tmp_path):
+    import re
+    import shutil
+
+    from openemt._errors import InputError
+    from openemt.live import example_tracker, read_tracker
+
+    shutil.copy(example_tracker("simulated").parent / "concentric.json", tmp_path)
+    text = example_tracker("simulated-2").read_text()
+    p = tmp_path / "t.toml"
+    p.write_text(text + '\n[[witness]]\nsensor = "Reference"\n'
+                        'pose = [0.25, 0.05, 0.0, 0.0, 0.1, 0.0]\n')
+    spec = read_tracker(p)
+    assert spec.witnesses == (("Reference", (0.25, 0.05, 0.0, 0.0, 0.1, 0.0)),)
+    for bad, what in (('sensor = "Nobody"\npose = [0, 0, 0, 0, 0, 0]', "witness[0].sensor"),
+                      ('sensor = "Probe"\npose = [0, 0, 0]', "witness[0].pose")):
+        p.write_text(text + f"\n[[witness]]\n{bad}\n")
+        with pytest.raises(InputError, match=re.escape(f"`{what}`")):
+            read_tracker(p)
+
+
+def test_a_witness_pose_error_raises_the_distortion_level():
+    """A sensor held still at a known pose: its error there enters the level of the samples
+    (128 at 1 mm); at the right pose the level stays that of a clean sample."""
+    from openemt.geometry import pose_from_vector
+
+    v = np.array([0.3, 0.05, 0.02, 0.2, -0.1, 0.3])
+    P = pose_from_vector(v)
+
+    def still(times):
+        return np.broadcast_to(P, (len(np.atleast_1d(times)), 4, 4)).copy()
+
+    def run(pose):
+        b = SimulatedBackend(trajectory=still, duration=0.1)
+        log = TrackLog()
+        TrackingPipeline(b, b.model, log=log, witnesses=(("openemt", tuple(pose)),)).run()
+        return log.arrays()["distortion_level"]
+
+    assert (run(v) < 128).all()
+    off = v.copy()
+    off[0] += 0.005                                          # 5 mm from where it is
+    assert (run(off) == 255).all()
+    with pytest.raises(Exception, match="witnesses among the sensors"):
+        b = SimulatedBackend(trajectory=still, duration=0.05)
+        TrackingPipeline(b, b.model, witnesses=(("nobody", tuple(v)),))
+
+
+def test_witnesses_reestimate_the_metal_while_tracking():
+    """Three witness sensors held still beside a tool near a steel sphere (simulated raw
+    signals): the pipeline re-estimates an induced dipole from them in every chunk and the
+    tool's poses, refined under it, lose the metal's error; the level still reports it."""
+    from openemt.geometry import pose_from_vector
+    from openemt.live import tracker_from_dict
+    from openemt.live._session import tracker_backend, tracker_sensors
+
+    v = np.array([0.25, 0.0, 0.0, 0.2, -0.1, 0.3])
+    P = pose_from_vector(v)
+    offs = [[0, 0, 0], [0.04, 0.05, 0.04], [0.04, -0.05, -0.04], [-0.03, 0.05, -0.04]]
+    spec = tracker_from_dict({
+        "format": "openemt-tracker", "version": 1,
+        "adc": {"sample_rate": 96000.0, "channels": 15},
+        "source": {"frequencies": [7500.0, 10500.0, 13500.0],
+                   "reference_channels": [12, 13, 14]},
+        "demodulation": {"output_rate": 1500.0},
+        "sensors": [{"name": f"S{i}", "channels": [3 * i, 3 * i + 1, 3 * i + 2],
+                     "simulation_offset": o} for i, o in enumerate(offs)],
+        "simulation": {"preset": "concentric", "seed": 0, "metal": {"object": [
+            {"kind": "sphere", "material": "carbon_steel", "position": [0.33, 0.0, 0.1],
+             "radius": 0.05}]}}})
+
+    def still(t):
+        return np.broadcast_to(P, (len(np.atleast_1d(t)), 4, 4)).copy()
+
+    def tool(witnesses):
+        b = tracker_backend(spec, "sim", trajectory=still, duration=0.1)
+        log = TrackLog()
+        TrackingPipeline(b, tracker_sensors(spec), log=log, witnesses=witnesses).run()
+        a = log.arrays("S0")
+        e = np.linalg.norm(a["poses"][:, :3, 3] - P[:3, 3], axis=1)
+        return np.sqrt(np.mean(e ** 2)), a["distortion_level"]
+
+    plain, _ = tool(())
+    known = tuple((f"S{i}", tuple(np.r_[v[:3] + offs[i], v[3:]])) for i in (1, 2, 3))
+    refit, level = tool(known)
+    assert plain > 1e-3                                      # the sphere moves it by mm
+    assert refit < 0.05 * plain
+    assert (level == 255).all()                              # the witnesses see the metal

@@ -17,6 +17,9 @@ BENCHMARKS = {
               "poses/s per solver on one core vs per-pose scipy least_squares"),
     "demod": ("openemt.bench._demod", "demodulator realtime factor, accuracy, mains rejection"),
     "track": ("openemt.bench._track", "live pipeline latency and position noise vs the CRB"),
+    "metal": ("openemt.bench._metal",
+              "metal scenes: held-out pose error with no compensation, environment terms, "
+              "witness sensors and two bands, and the distortion level's ROC area"),
     "correct": ("openemt.bench._correct",
                 "output corrections on a simulated distortion: held-out vs in-sample"),
     "hybrid": ("openemt.bench._hybrid",

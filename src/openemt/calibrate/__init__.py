@@ -9,6 +9,13 @@ paper's staged sequence of such fits; :func:`improved_calibration` the improved 
 
 from ..io import Calibration, Dataset
 from ._check import HeldOutTest, held_out_rows, solve_held_out
+from ._environment import (
+    EnvironmentChoice,
+    EnvironmentFit,
+    WitnessEstimator,
+    fit_environment,
+    parse_environment,
+)
 from ._fit import CalibrationFit, ResidueStats, fit, residue_stats
 from ._heldout import (
     CANDIDATES,
@@ -78,6 +85,8 @@ __all__ = [
     "calibrate_dataset",
     "load_dataset",
     "CANDIDATES",
+    "EnvironmentChoice",
+    "EnvironmentFit",
     "Calibration",
     "CalibrationFit",
     "CalibrationMode",
@@ -112,6 +121,7 @@ __all__ = [
     "TERM_MAX_CONDITION",
     "TERM_MIN_GAIN",
     "TermDecision",
+    "WitnessEstimator",
     "WEIGHTINGS",
     "XY_CONDITION_LIMIT",
     "analyse_identifiability",
@@ -120,6 +130,7 @@ __all__ = [
     "cross_validate",
     "errors_in_variables_whitening",
     "fit",
+    "fit_environment",
     "fit_improved",
     "fit_output_correction",
     "fit_reference",
@@ -129,6 +140,7 @@ __all__ = [
     "holdout_split",
     "improved_calibration",
     "location_split",
+    "parse_environment",
     "perturb_calibration",
     "read_grid_csv",
     "reference_block",

@@ -187,21 +187,24 @@ class ImprovedTest(Result):
 
 
 def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial="kim18",
-                    correction=None) -> ScoredPoses:
+                    correction=None, model=None) -> ScoredPoses:
     """Solve ``rows`` with the improved model and score against its ground truth.
 
     The iterative dipole solution (Kim18 start from ``concentric_model``, hemisphere from the
-    ground truth as ILEMT) is refined with the octupole terms when the model has them.
+    ground truth as ILEMT) is refined under the model a calibration file of the fit carries
+    (:meth:`ImprovedProblem.full_model`: the octupole and environment terms, which predict
+    the readings themselves), as ``openemt solve`` refines it; ``model`` (e.g. a written
+    calibration's :attr:`~openemt.io.Calibration.coupling_model`) replaces it.
     """
     from ..correct import apply_linear_correction
     from ..solve import hemisphere_from_positions, solve_lm
 
     D = tp.poses(xt)
-    model = tp.model(xt)
+    model = tp.full_model(xt) if model is None else model
     dip = getattr(model, "dipole", model)
     hemi = hemisphere_from_positions(D[:, :3, 3])
     init = initial if isinstance(initial, str) else np.asarray(initial)
-    couplings = tp.linearised(rows.couplings, xt)
+    couplings = rows.couplings
     res = solve_lm(couplings, dip, initial=init, hemisphere=hemi,
                    bounds=ILEMT_POSITION_BOX_M, concentric_model=concentric_model,
                    retry_resnorm=ILEMT_VALID_RESNORM)
@@ -474,15 +477,18 @@ class ImprovedCalibration:
         return int(self.n_free - paper.size)
 
     def test(self, rows, concentric_model=None) -> ImprovedTest:
-        """Rows ``improved`` and ``improved_corrected`` on test rows (errors as Table II)."""
+        """Rows ``improved`` and ``improved_corrected`` on test rows (errors as Table II),
+        solved with the model of the calibration :meth:`to_calibration` writes (its
+        ``coupling_model``: octupole and environment terms) and its output correction."""
         cm = self.concentric_model if concentric_model is None else concentric_model
         tp, xt = transfer(self.problem, self.x, rows)
+        cal = self.to_calibration()
         out = {}
-        for name, corr in (("improved", None), ("improved_corrected", self.correction)):
+        for name, corr in (("improved", None), ("improved_corrected", cal.linear_correction)):
             if name == "improved_corrected" and corr is None:
                 out[name] = None
                 continue
-            res = solve_and_score(tp, xt, rows, cm, correction=corr)
+            res = solve_and_score(tp, xt, rows, cm, correction=corr, model=cal.coupling_model)
             s = res.summary
             out[name] = {k: s[k] for k in ACCURACY_KEYS}
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
@@ -506,7 +512,9 @@ class ImprovedCalibration:
         n = self.problem.base.n_rows
         r = self.problem.residuals(self.x)
         prov = {"openemt_version": __version__, "mode": "improved",
-                "start": None if start is None else {"mode": start.mode}}
+                "start": None if start is None else {"mode": start.mode},
+                "environment": self.environment_provenance()}
+        terms = self.problem.rig(self.x).environment()
         return Calibration(
             model=lay.model(self.x, self.problem.base.gain), source_fixture=F[0],
             stage_fixture=F[1], sensor_fixture=F[2], linear_correction=self.correction,
@@ -516,7 +524,20 @@ class ImprovedCalibration:
                        k: v for k, v in self.correction_stats.items()}},
             provenance=prov,
             extra={"rig": self.problem.rig(self.x).to_dict(),
-                   "rig_options": self.to_dict()["options"]})
+                   "rig_options": self.to_dict()["options"],
+                   **({} if terms.empty else {"environment": terms.to_dict()})})
+
+    def environment_provenance(self) -> dict:
+        """How the environment terms were chosen: ``chosen`` (their names), ``method``
+        (``cross-validation`` of the terms tried, or ``given``) and per term tried its md
+        cross-validation before and after and whether it was kept (the held-out evidence)."""
+        terms = self.problem.rig(self.x).environment()
+        return {"chosen": terms.names(),
+                "method": "cross-validation" if self.terms else "given",
+                "candidates": [{"term": d.term, "kept": d.kept,
+                                "cv_trans_rms_mm_before": d.md_cv_before["trans_rms_mm"],
+                                "cv_trans_rms_mm_after": d.md_cv_after["trans_rms_mm"],
+                                "reason": d.reason} for d in self.terms]}
 
     def to_dict(self) -> dict:
         """JSON-ready summary: variant, options, parameter counts, residue, the rig's

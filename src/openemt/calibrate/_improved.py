@@ -32,7 +32,13 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import Result
-from ..field import ModelJacobians, OctupoleModel, coupling_jacobians
+from ..field import (
+    EnvironmentModel,
+    EnvironmentTerms,
+    ModelJacobians,
+    OctupoleModel,
+    coupling_jacobians,
+)
 from ..field._dipole import param_jacobian
 from ..geometry import (
     SENSOR_FIXTURES,
@@ -143,6 +149,15 @@ class RigModel:
     gain_beta: np.ndarray | None = None
     offset: np.ndarray | None = None
     induced: np.ndarray | None = None
+
+    def environment(self) -> EnvironmentTerms:
+        """The induced dipole, gain non-linearity and coupling offset as the environment terms
+        a calibration carries (:class:`openemt.field.EnvironmentTerms`; empty without them)."""
+        q, mu = np.zeros((0, 3)), np.zeros((0, 0, 3))
+        if self.induced is not None:
+            v = np.asarray(self.induced, dtype=np.float64)
+            q, mu = v[None, :3], v[3:].reshape(1, -1, 3)
+        return EnvironmentTerms(q, mu, self.gain_beta, self.offset)
 
     def to_dict(self) -> dict:
         """JSON-ready form (stored in ``Calibration.extra['rig']``)."""
@@ -260,6 +275,15 @@ class ImprovedProblem:
             v = x[self.extra["induced"]]
             return InducedDipoles(base, v[:3], v[3:])
         return base
+
+    def full_model(self, x):
+        """The model that predicts the readings, as a calibration file carries it: the dipole
+        (and octupole) model with the environment terms (:class:`openemt.field.
+        EnvironmentModel`: induced dipole, gain non-linearity, offset), else the base."""
+        base = self.model(x)
+        base = getattr(base, "base", base) if isinstance(base, InducedDipoles) else base
+        terms = self.rig(x).environment()
+        return base if terms.empty else EnvironmentModel(base, terms)
 
     # -- kinematics ---------------------------------------------------------------------------
     def _chain(self, x):

@@ -66,7 +66,16 @@ class CalibrateOptions:
         "file's sensor length)", metavar="M")
     board: str | None = _opt(None, "planar mode: board geometry file (.toml/.json) or built-in "
                              "name (default: anser); see docs/planar.md", metavar="BOARD")
-    tilt: bool = _opt(False, "planar mode: also fit a small tilt of each coil")
+    tilt: bool = _opt(False, "planar mode: also fit a small tilt of each coil (the same as "
+                      "--environment tilt)")
+    environment: str = _opt(
+        "auto", "environment terms (metal near the tracker, the acquisition): 'auto' "
+        "(default) chooses them by cross-validation on the training rows ('improved': induced "
+        "dipole, gain non-linearity, ... by md cross-validation; 'planar': none or tilt by "
+        "grid cross-validation), 'none', or a list of dipoles:K, gain, offset, tilt; the "
+        "choice and each candidate's held-out error go to the calibration's provenance "
+        "(docs/calibration.md#environment-terms-environment); the paper's modes fit none",
+        metavar="auto|none|dipoles:K,gain,offset,tilt")
     output: Path | None = _opt(None, "write the calibration here", flag=("-o", "--output"),
                                metavar="CAL.json")
     all_rows: bool = _opt(False, "fit every row instead of the rows the mode names (then no "
@@ -83,6 +92,21 @@ class CalibrateOptions:
         if self.weighting != "auto" and self.mode != "reference":
             raise InputError(f"expected --weighting with --mode reference only, got --mode "
                              f"{self.mode}")
+        from ._environment import parse_environment
+
+        env = parse_environment(self.environment)
+        if env.mode == "given" and self.mode not in ("improved", "planar"):
+            raise InputError(f"expected --environment auto or none in mode {self.mode} (the "
+                             f"paper's and the reference modes fit no environment terms), got "
+                             f"{self.environment!r}")
+        if self.mode == "planar" and (env.dipoles or env.gain or env.offset):
+            raise InputError(f"expected --environment auto, none or tilt in planar mode, got "
+                             f"{self.environment!r}")
+        if self.mode == "improved" and (env.dipoles > 1 or env.tilt):
+            raise InputError(f"expected --environment with at most dipoles:1 and without tilt "
+                             f"in improved mode (the rig model fits one induced dipole; its "
+                             f"coil moments' directions are fitted anyway), got "
+                             f"{self.environment!r}")
         if self.holdout is not None and self.mode not in ("planar", "reference"):
             raise InputError(f"expected --holdout with --mode planar or reference only (mode "
                              f"{self.mode} scores the paper's test rows), got {self.holdout!r}")
@@ -190,6 +214,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
     from ..board import BoardModel
     from ..io import load_board, read_calibration
     from ..solve import GridData, planar_accuracy
+    from ._environment import parse_environment, planar_environment_cv
     from ._planar import check_grid_units, fit_planar, read_grid
     from ._split import holdout_split
 
@@ -227,9 +252,23 @@ def _planar(o, say, compile_) -> CalibrateResult:
                         data.coil_names)
 
     compile_()
-    say(f"fitting the gains and offsets of {data.couplings.shape[1]} coils on "
-        f"{int(fit_mask.sum())} grid points ...")
-    fit = fit_planar(subset(fit_mask), start_model, fit_tilt=o.tilt)
+    env = parse_environment(o.environment)
+    tilt, env_prov = bool(o.tilt or env.tilt), None
+    if env.mode == "auto" and not o.tilt:
+        say(f"choosing the environment terms by cross-validation on {int(fit_mask.sum())} "
+            f"grid points ...")
+        chosen, scores = planar_environment_cv(
+            subset(fit_mask), start_model,
+            lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt))
+        tilt = chosen == "tilt"
+        env_prov = {"chosen": [] if chosen == "none" else [chosen],
+                    "method": "cross-validation", "candidates": scores}
+    else:
+        env_prov = {"chosen": ["tilt"] if tilt else [], "method": "given",
+                    "candidates": {}}
+    say(f"fitting the gains and offsets{' and tilts' if tilt else ''} of "
+        f"{data.couplings.shape[1]} coils on {int(fit_mask.sum())} grid points ...")
+    fit = fit_planar(subset(fit_mask), start_model, fit_tilt=tilt)
     say("solving the grid points with the fitted board (5-DOF) to score it ...")
     insample = planar_accuracy(fit.model, subset(fit_mask))
     holdout = None
@@ -247,7 +286,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
         insample=insample, holdout=holdout,
         provenance={"grid_file": str(o.dataset), "start_file": _path(o.start),
                     "board": o.board or (None if o.start else "anser"),
-                    "fit_tilt": bool(o.tilt), "holdout": o.holdout})
+                    "fit_tilt": tilt, "holdout": o.holdout, "environment": env_prov})
     human = [(f"planar: {len(fit.model.gains)} coils, fit {fit.status} in {fit.iterations} "
               f"iterations, max |offset| {np.abs(fit.model.offsets).max() * 1e3:.3f} mm, "
               f"in-sample {insample['position_rms_mm']:.3f} mm RMS over {insample['n']} "
@@ -256,9 +295,15 @@ def _planar(o, say, compile_) -> CalibrateResult:
         human.append(f"held out ({o.holdout}): {holdout['position_rms_mm']:.3f} mm RMS, "
                      f"{holdout['position_max_mm']:.3f} mm max, {holdout['axis_rms_deg']:.3f} "
                      f"deg RMS over {holdout['n']} points")
+    if env_prov["method"] == "cross-validation":
+        human.append("environment (auto): " + ", ".join(
+            f"{k} {v['cv_position_rms_mm']:.3f} mm" for k, v in env_prov["candidates"].items()
+            if v["cv_position_rms_mm"] is not None) + " cross-validated on the fitted grid "
+            f"points -> {'tilt' if tilt else 'none'}")
     return CalibrateResult("planar", _path(o.output), _path(o.start),
                            {"board": fit.model.board.name, **fit.to_dict(),
-                            "insample": insample}, holdout, warns, 0.0, cal, tuple(human))
+                            "insample": insample, "environment": env_prov}, holdout, warns,
+                           0.0, cal, tuple(human))
 
 
 def _rig(o, say, compile_) -> CalibrateResult:
@@ -286,15 +331,27 @@ def _rig(o, say, compile_) -> CalibrateResult:
                          f"{o.mode}, got a {what} calibration (--mode planar)")
     test = held_out_rows(dataset)
     if o.mode == "improved":
+        from ._environment import improved_environment, parse_environment
         from ._heldout import improved_calibration
 
         compile_()
-        say(f"fitting the improved rig and octupole model on the md rows of {o.dataset} ...")
-        imp = improved_calibration(dataset, start, None)
+        env = parse_environment(o.environment)
+        say(f"fitting the improved rig and octupole model on the md rows of {o.dataset}"
+            + (", choosing its terms by md cross-validation" if env.mode == "auto" else "")
+            + " ...")
+        imp = improved_calibration(dataset, start, None, **improved_environment(env))
         cal = imp.to_calibration(start)
         details = imp.to_dict()
         human = [(f"improved: rms_residue {imp.rms_residue:.7g}, {imp.n_free} free parameters "
                   f"({imp.extra_parameters()} beyond XYZ)")]
+        ep = imp.environment_provenance()
+        details["environment"] = ep
+        human.append(f"environment ({env.label()}): "
+                     + (", ".join(ep["chosen"]) or "none")
+                     + "".join(f"; {c['term']} {'kept' if c['kept'] else 'not kept'} (md CV "
+                               f"{c['cv_trans_rms_mm_before']:.4f} -> "
+                               f"{c['cv_trans_rms_mm_after']:.4f} mm)"
+                               for c in ep["candidates"]))
         caught, seconds = [], 0.0
         score = (lambda rows: imp.test(rows).to_dict()) if test.any() else None
     else:

@@ -21,6 +21,7 @@ from ._dipole import (
     coupling_jacobian_pose,
     coupling_jacobians,
 )
+from ._environment import EnvironmentModel, EnvironmentTerms
 from ._finite import FiniteCoilModel
 from ._octupole import OctupoleModel, octupole_coupling
 from ._protocol import (
@@ -40,6 +41,8 @@ __all__ = [
     "CouplingJacobians",
     "CouplingModel",
     "DipoleModel",
+    "EnvironmentModel",
+    "EnvironmentTerms",
     "FiniteCoilModel",
     "ModelJacobians",
     "OctupoleModel",

@@ -12,7 +12,14 @@ from typing import Any
 import numpy as np
 
 from .._errors import InputError
-from ..field import CouplingModel, OctupoleModel, check_coupling_model, solver_family
+from ..field import (
+    CouplingModel,
+    EnvironmentModel,
+    EnvironmentTerms,
+    OctupoleModel,
+    check_coupling_model,
+    solver_family,
+)
 from ..geometry import pose_from_vector
 
 __all__ = ["COUPLING_SCALE_RANGE", "MAX_COIL_POSITION_M", "MAX_CORRECTION_CONDITION",
@@ -160,21 +167,36 @@ class Calibration:
 
     @property
     def coupling_model(self):
-        """The model that predicts this calibration's couplings: ``model`` plus the axial octupole
-        terms an improved calibration stores in ``extra['rig']`` (``octupole_k_so``,
-        ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), else ``model`` itself.
-        Built once, when the calibration is made."""
+        """The model that predicts this calibration's couplings: ``model`` plus the axial
+        octupole terms an improved calibration stores in ``extra['rig']`` (``octupole_k_so``,
+        ``octupole_k_se``; an :class:`~openemt.field.OctupoleModel`), plus the environment
+        terms (induced dipoles, gain non-linearity, coupling offset) of
+        ``extra['environment']`` (an :class:`~openemt.field.EnvironmentModel`; files that
+        have none read as before), else ``model`` itself. Built once, when the calibration is
+        made."""
         return self._coupling_model
+
+    @property
+    def environment(self) -> EnvironmentTerms | None:
+        """The environment terms of ``extra['environment']`` (None when there are none)."""
+        env = self.extra.get("environment")
+        if not env:
+            return None
+        terms = EnvironmentTerms.from_dict(env).check(self.model.n_source, self.model.n_sensor,
+                                                       "calibration environment terms: ")
+        return None if terms.empty else terms
 
     def _build_coupling_model(self):
         rig = self.extra.get("rig") or {}
         k_so, k_se = (rig.get("octupole_k_so"), rig.get("octupole_k_se")) \
             if isinstance(rig, dict) else (None, None)
-        if (k_so is None and k_se is None) or solver_family(self.model) != "dipole":
-            return self.model
-        return OctupoleModel(self.model,
-                             np.zeros(self.model.n_source) if k_so is None else k_so,
-                             np.zeros(self.model.n_sensor) if k_se is None else k_se)
+        model = self.model
+        if (k_so is not None or k_se is not None) and solver_family(self.model) == "dipole":
+            model = OctupoleModel(self.model,
+                                  np.zeros(self.model.n_source) if k_so is None else k_so,
+                                  np.zeros(self.model.n_sensor) if k_se is None else k_se)
+        terms = self.environment
+        return model if terms is None else EnvironmentModel(model, terms)
 
     def replace(self, **changes) -> Calibration:
         return replace(self, **changes)

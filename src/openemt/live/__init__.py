@@ -14,6 +14,7 @@ from ._backends import (
 )
 from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
+from ._igtl_meta import distortion_level
 from ._igtl_wire import frame_messages, pack_transforms, transform_bodies
 from ._pipeline import (
     PipelineConfig,
@@ -81,6 +82,7 @@ __all__ = [
     "TrackingSession",
     "default_model",
     "default_trajectory",
+    "distortion_level",
     "example_tracker",
     "filter_restarts",
     "kalman_filter_poses",

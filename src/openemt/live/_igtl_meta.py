@@ -12,7 +12,7 @@ from numba import njit
 from ..solve import Status
 from ..solve._validity import MAX_RELATIVE_RESIDUAL
 
-__all__ = ["TRANSFORM_STATUS", "distortion_level", "transform_metadata", "transform_status"]
+__all__ = ["BAND_THRESHOLD", "TRANSFORM_STATUS", "WITNESS_THRESHOLD_M", "distortion_level", "transform_metadata", "transform_status"]
 
 #: PLUS's tool status (``TransformStatus``) of each solver status of a sample.
 TRANSFORM_STATUS = {Status.CONVERGED: "OK", Status.INVALID_INPUT: "MISSING",
@@ -34,18 +34,39 @@ def transform_status(status, distorted) -> np.ndarray:
     return out
 
 
+#: Thresholds (the level's 128) of the two optional indicators of :func:`distortion_level`:
+#: the relative disagreement between two carrier bands' in-phase couplings, and the position
+#: error of a fixed witness sensor at its known pose (m).
+BAND_THRESHOLD = 0.01
+WITNESS_THRESHOLD_M = 1e-3
+
+
 def distortion_level(quadrature, relative_residual, distortion_threshold: float,
-                     residual_threshold: float) -> np.ndarray:
+                     residual_threshold: float, *, band=None, witness_m=None,
+                     band_threshold: float = BAND_THRESHOLD,
+                     witness_threshold_m: float = WITNESS_THRESHOLD_M) -> np.ndarray:
     """A 0-255 distortion level per sample (as Polhemus VIPER reports one per sensor), from
-    what the sample itself shows: ``128 * max(q / q_max, r / r_max)`` rounded (half up) and
-    clipped to 255, with q the quadrature ratio against the distortion threshold and r the
-    solve's relative residual against the solver's validity threshold (a NaN residual counts
-    as 0, a NaN quadrature ratio as the worst). 0: clean; 128: at a threshold (the sample is
-    flagged distorted or invalid from there); 255: twice a threshold or more."""
+    what the sample itself shows: ``128 * max(q / q_max, r / r_max, b / b_max, w / w_max)``
+    rounded (half up) and clipped to 255, with q the quadrature ratio against the distortion
+    threshold, r the solve's relative residual against the solver's validity threshold and,
+    where the tracker has them, b the relative disagreement between two carrier bands
+    (``||Re C_fast - Re C_slow|| / ||C||``) against :data:`BAND_THRESHOLD` and w the position
+    error of a fixed witness sensor at its known pose against :data:`WITNESS_THRESHOLD_M` (a
+    NaN residual, band or witness figure counts as 0, a NaN quadrature ratio as the worst).
+    0: clean; 128: at a threshold (the sample is flagged distorted or invalid from there);
+    255: twice a threshold or more."""
     q = np.ascontiguousarray(quadrature, dtype=np.float64)
     r = np.ascontiguousarray(relative_residual, dtype=np.float64)
+    rs = 128.0 / float(residual_threshold)
+    if band is not None or witness_m is not None:
+        r = r * rs
+        for v, thr in ((band, band_threshold), (witness_m, witness_threshold_m)):
+            if v is not None:
+                r = np.fmax(r, np.broadcast_to(np.asarray(v, np.float64), r.shape)
+                            * (128.0 / float(thr)))
+        r, rs = np.ascontiguousarray(r), 1.0
     out = np.empty(q.shape[0], np.uint8)
-    _levels(q, r, 128.0 / float(distortion_threshold), 128.0 / float(residual_threshold), out)
+    _levels(q, r, 128.0 / float(distortion_threshold), rs, out)
     return out
 
 

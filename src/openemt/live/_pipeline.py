@@ -46,6 +46,51 @@ _OUT_OF_VOLUME = int(Status.OUT_OF_VOLUME)
 STREAM_EVENTS = ("tracking", "lost", "distorted", "stale", "recovered")
 
 
+#: The witnesses' largest position error (m) above which a chunk's environment terms are
+#: re-estimated from them (below it the witnesses see no distortion worth modelling).
+WITNESS_REFIT_M = 0.5e-3
+
+
+def _witness_estimator(models, poses):
+    """A :class:`openemt.calibrate.WitnessEstimator` of the witnesses (one induced dipole)
+    when they share one model and give it enough equations, else None (the witnesses then
+    only enter the distortion level)."""
+    if not models or any(m is None or m is not models[0] for m in models):
+        return None
+    from ..calibrate import WitnessEstimator
+
+    try:
+        return WitnessEstimator(models[0], np.stack(poses))
+    except InputError:
+        return None
+
+
+def _distortion_level(quadrature, relative_residual, threshold, witness_m=None
+                      ) -> np.ndarray:
+    """The 0-255 level of each sample (:func:`openemt.live.distortion_level` against the
+    quadrature threshold and the solver's validity threshold, as the stream's metadata, and
+    the witnesses' position error where the tracker has witnesses)."""
+    from ..solve._validity import MAX_RELATIVE_RESIDUAL
+    from ._igtl_meta import distortion_level
+
+    return distortion_level(quadrature, relative_residual, threshold, MAX_RELATIVE_RESIDUAL,
+                            witness_m=witness_m)
+
+
+def _level_summary(counts) -> dict:
+    """``max``, ``median``, ``p95`` of the distortion levels counted per level (None before
+    any sample) and ``fraction_at_or_above_128`` (at or beyond a threshold)."""
+    c = np.asarray(counts)
+    n = int(c.sum())
+    if not n:
+        return {"max": None, "median": None, "p95": None, "fraction_at_or_above_128": 0.0}
+    cum = np.cumsum(c)
+    return {"max": int(np.flatnonzero(c)[-1]),
+            "median": int(np.searchsorted(cum, 0.5 * n)),
+            "p95": int(np.searchsorted(cum, 0.95 * n)),
+            "fraction_at_or_above_128": float(c[128:].sum() / n)}
+
+
 def lm_solver(model, *, hemisphere="+x", **kwargs):
     """The default solver callable: :func:`openemt.solve.prepare` of ``model`` (a
     :class:`openemt.solve._prepared.PreparedLM`: the model, options, concentric start model
@@ -115,6 +160,9 @@ class TrackStep:
         none); sent as the ``RelativeResidual`` metadata.
     tool_poses : ndarray, shape (N, 4, 4), optional
         The sensor's own poses when ``poses`` are its tool tip's (a sensor with a ``tip``).
+    distortion_level : ndarray, shape (N,), uint8, optional
+        The 0-255 distortion level of each sample (:func:`openemt.live.distortion_level`, from
+        the quadrature ratio and the relative residual; the ``DistortionLevel`` metadata).
     """
 
     times: np.ndarray
@@ -128,6 +176,7 @@ class TrackStep:
     t_ready: float = 0.0
     relative_residual: np.ndarray | None = None
     tool_poses: np.ndarray | None = None
+    distortion_level: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.times.shape[0]
@@ -189,7 +238,7 @@ class TrackLog:
     """
 
     _KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
-             "distorted", "couplings")
+             "distorted", "couplings", "distortion_level")
 
     def __init__(self, sensor_names=None):
         self.sensor_names = tuple(sensor_names) if sensor_names is not None else ("openemt",)
@@ -314,6 +363,7 @@ class _SensorState:
         self.last = None             # last valid pose vector
         self.status_counts = np.zeros(len(Status), dtype=np.int64)   # per Status code
         self.n_distorted = 0
+        self.level_counts = np.zeros(256, dtype=np.int64)   # samples per distortion level
         self.n_not_sent = 0          # converged but distorted, not sent
         self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
         self.pending: list = []
@@ -371,6 +421,17 @@ class PipelineConfig:
         Image-from-tracker transform (``openemt register``) applied to every sensor's pose
         (and so its tip): the sensors stream, log and score in the image frame. Relative
         streams are unchanged by it.
+    witnesses : tuple of (str, pose vector)
+        Fixed witness sensors (the tracker file's ``[[witness]]``): a sensor's name and its
+        known pose ``[x, y, z, rx, ry, rz]`` (m, rad) in the tracker frame (as solved, before
+        any correction or registration). The largest position error of the witnesses in a
+        sample (infinite where one does not converge) enters the distortion level of every
+        sensor of that sample (128 at 1 mm, :func:`openemt.live.distortion_level`). Where
+        the witnesses share one model and give it enough equations (two tri-axial witnesses
+        per induced dipole at least) and a chunk's witness error exceeds
+        :data:`WITNESS_REFIT_M`, an induced dipole is re-estimated from their couplings
+        (:class:`openemt.calibrate.WitnessEstimator`) and the other sensors of that model
+        are refined under it.
     """
 
     output_rate: float = OUTPUT_RATE_HZ
@@ -387,6 +448,7 @@ class PipelineConfig:
     status_every: int = 150
     serial_small_batches: bool = True
     registration: object = None
+    witnesses: tuple = ()
 
 
 class TrackingPipeline:
@@ -447,6 +509,17 @@ class TrackingPipeline:
             raise InputError(f"expected distinct sensor names, got {names}")
         self.backend = backend
         self.sensors = [_SensorState(s, i) for i, s in enumerate(sensors)]
+        from ..geometry import pose_from_vector
+
+        self._witness, wposes = [], []
+        for wname, pose in cfg.witnesses:
+            if wname not in names:
+                raise InputError(f"expected witnesses among the sensors {names}, got "
+                                 f"{wname!r}")
+            wposes.append(pose_from_vector(np.asarray(pose, dtype=np.float64)))
+            self._witness.append((names.index(wname), wposes[-1][:3, 3]))
+        self._estimator = _witness_estimator(
+            [self.sensors[k].setup.model for k, _ in self._witness], wposes)
         # sensors of one model (e.g. one calibration file) share a solver and are solved in
         # one batched call while all of them are tracking
         self._groups: list = []
@@ -669,7 +742,8 @@ class TrackingPipeline:
             for _ in self.sensors:
                 steps.append(TrackStep(d.times, d.couplings, np.empty((0, 4, 4)),
                                        np.empty((0, 6)), np.empty(0, np.int8), e, e,
-                                       np.empty(0, bool), t_ready))
+                                       np.empty(0, bool), t_ready,
+                                       distortion_level=np.empty(0, np.uint8)))
             now = time.monotonic()
             for st, step in zip(self.sensors, steps):   # the watchdog runs without samples too
                 self._watch(st, step, step.distorted, now, None)
@@ -702,6 +776,14 @@ class TrackingPipeline:
                 solved = self._solve_all(Cs, quick)
         else:
             solved = self._solve_all(Cs, quick)
+        witness_m = None
+        if self._witness:                       # the witnesses' error at their known poses
+            errs = [np.where(solved[k][2] == _CONVERGED,
+                             np.linalg.norm(solved[k][0][:, :3, 3] - p, axis=1), np.inf)
+                    for k, p in self._witness]
+            witness_m = np.max(errs, axis=0)
+            if self._estimator is not None and n and np.max(witness_m) > WITNESS_REFIT_M:
+                solved = self._witness_refit(Cs, solved)
         oks, valids = [], []
         for st, couplings, (poses, vecs, status, resid, rel), ratio, flag in zip(
                 self.sensors, parts, solved, ratios, flags):
@@ -726,8 +808,11 @@ class TrackingPipeline:
             oks.append(ok)
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
+            level = _distortion_level(ratio, np.full(n, np.nan) if rel is None else rel,
+                                      self.distortion_threshold, witness_m)
+            st.level_counts += np.bincount(level, minlength=256)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
-                                   t_ready, rel, tool))
+                                   t_ready, rel, tool, level))
         stamps = epoch + d.times
         if self.igtl is not None:
             self._send(steps, valids, stamps, t_ready)
@@ -744,6 +829,35 @@ class TrackingPipeline:
         self._latency.extend([time.perf_counter() - t_ready] * n)
         self._n_out += n
         return steps[0] if len(steps) == 1 else tuple(steps)
+
+    def _witness_refit(self, Cs, solved) -> list:
+        """The environment terms re-estimated from the witnesses' couplings of this chunk
+        (their mean: the witnesses are still) and the converged poses of every other sensor
+        of the witnesses' model refined under them (:func:`openemt.solve.refine_poses`)."""
+        from ..geometry import pose_from_vector
+        from ..solve import refine_poses
+
+        est = self._estimator
+        env = est.update(np.stack([Cs[k].mean(axis=0) for k, _ in self._witness]))
+        skip = {k for k, _ in self._witness}
+        out = list(solved)
+        for st in self.sensors:
+            k = st.index
+            if k in skip or st.setup.model is not est.model:
+                continue
+            poses, vecs, status, resid, rel = solved[k]
+            ok = status == _CONVERGED
+            if not ok.any():
+                continue
+            poses, vecs = poses.copy(), vecs.copy()
+            resid, rel = np.array(resid, dtype=np.float64), np.array(rel, dtype=np.float64)
+            vecs[ok], resid[ok] = refine_poses(env, Cs[k][ok], vecs[ok])
+            poses[ok] = pose_from_vector(vecs[ok])
+            C = Cs[k][ok]
+            rel[ok] = np.linalg.norm(C - env.coupling(poses[ok]), axis=(1, 2)) / \
+                np.linalg.norm(C, axis=(1, 2))
+            out[k] = (poses, vecs, status, resid, rel)
+        return out
 
     def _device(self, st: _SensorState) -> str:
         return st.setup.device_name or (self.igtl.device_name if self.igtl is not None
@@ -1012,6 +1126,7 @@ class TrackingPipeline:
         n = self._n_out
         out = {"status_counts": counts,
                "distorted_fraction": (st.n_distorted / n) if n else 0.0,
+               "distortion_level": _level_summary(st.level_counts),
                "not_sent_distorted": st.n_not_sent,
                "device_name": (st.setup.device_name or self.igtl.device_name)
                if self.igtl is not None else None,
@@ -1058,7 +1173,9 @@ class TrackingPipeline:
                  "stale_after": self.stale_after,
                  "reference": None if self.reference is None else self.reference.setup.name,
                  "relative_devices": [d for _, d in self._relative] or None,
-                 "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata}
+                 "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata,
+                 "distortion_level": _level_summary(sum(st.level_counts
+                                                        for st in self.sensors))}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:

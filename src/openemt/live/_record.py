@@ -4,13 +4,14 @@ readers, which accept the file of a killed session (marked incomplete).
 
 Log layout (``.h5``/``.hdf5``): one sensor (version 1): datasets at the root ``times`` (s),
 ``poses`` (N, 4, 4) m, ``pose_vectors`` (N, 6) m/rad, ``status`` int8, ``residual``,
-``distortion``, ``distorted`` bool, ``couplings`` complex (N, n_source, n_sensor); attrs
+``distortion``, ``distorted`` bool, ``couplings`` complex (N, n_source, n_sensor),
+``distortion_level`` uint8 (0-255, :func:`openemt.live.distortion_level`); attrs
 ``format = "openemt-track"``, ``version = 1``, ``complete``, ``rows``. Several sensors
 (version 2): the same datasets in one group per sensor (``/sensors/<name>/...``, each with its
 ``rows``) and the attribute ``sensors`` (names in tracker-file order).
 
 CSV: columns ``time_s, x_m, y_m, z_m, rx_rad, ry_rad, rz_rad, status, residual, distortion,
-distorted``; several sensors: a ``sensor`` column (the name) after ``time_s``, one row per
+distorted, distortion_level`` (logs written before the level, without it, still read); several sensors: a ``sensor`` column (the name) after ``time_s``, one row per
 sensor and sample, the sensors of one sample on consecutive rows.
 """
 
@@ -32,9 +33,12 @@ __all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log",
 
 TRACK_FORMAT = "openemt-track"
 LOG_KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
-            "distorted", "couplings")
-_CSV_COLS = "x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted"
-_CSV_FMT = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d"]
+            "distorted", "couplings", "distortion_level")
+_CSV_COLS = ("x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted,"
+             "distortion_level")
+#: the columns of logs written before the distortion level (still read)
+_CSV_COLS_OLD = _CSV_COLS.rsplit(",", 1)[0]
+_CSV_FMT = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d", "%d"]
 
 
 def _log_kind(path: Path) -> str:
@@ -148,7 +152,8 @@ class TrackLogWriter:
             return
         tables = [np.column_stack([a["times"], np.asarray(a["pose_vectors"]).reshape(-1, 6),
                                    a["status"], a["residual"], a["distortion"],
-                                   np.asarray(a["distorted"]).astype(int)]) for a in parts]
+                                   np.asarray(a["distorted"]).astype(int),
+                                   _levels_of(a)]) for a in parts]
         buf = io.StringIO()
         if len(tables) == 1:
             np.savetxt(buf, tables[0], delimiter=",", fmt=_CSV_FMT)
@@ -173,6 +178,13 @@ class TrackLogWriter:
         """Close without the buffered rows; the flushed ones stay readable."""
         if self._stream is not None:
             self._stream.abort()
+
+
+def _levels_of(a) -> np.ndarray:
+    """The ``distortion_level`` column of rows ``a`` (255 where rows come without one)."""
+    lv = a.get("distortion_level")
+    n = len(a["times"])
+    return np.full(n, 255) if lv is None or len(lv) != n else np.asarray(lv).astype(int)
 
 
 class _H5Log(H5Stream):
@@ -318,9 +330,11 @@ def _read_csv_log(path: Path) -> TrackLogData:
     text = path.read_text(encoding="utf-8", errors="strict")
     lines = text.split("\n")
     head = lines[0].strip().split(",") if lines else []
-    cols = _CSV_COLS.split(",")
     multi = head[:2] == ["time_s", "sensor"]
-    if head != (["time_s", "sensor"] if multi else ["time_s"]) + cols:
+    first = ["time_s", "sensor"] if multi else ["time_s"]
+    cols = next((c.split(",") for c in (_CSV_COLS, _CSV_COLS_OLD)
+                 if head == first + c.split(",")), None)
+    if cols is None:
         raise InputError(f"expected a track log CSV header 'time_s,{_CSV_COLS}', got "
                          f"{lines[0][:80]!r} in {str(path)!r}")
     body = lines[1:]
@@ -352,7 +366,9 @@ def _read_csv_log(path: Path) -> TrackLogData:
         t = np.asarray(rows.get(name, [])[:m], dtype=np.float64).reshape(-1, width - multi)
         arrays[name] = {"times": t[:, 0], "pose_vectors": t[:, 1:7],
                         "status": t[:, 7].astype(np.int8), "residual": t[:, 8],
-                        "distortion": t[:, 9], "distorted": t[:, 10].astype(bool)}
+                        "distortion": t[:, 9], "distorted": t[:, 10].astype(bool),
+                        "distortion_level": (t[:, 11].astype(np.uint8) if t.shape[1] > 11
+                                             else np.empty(0, np.uint8))}
     return TrackLogData(sensors=tuple(order or ["openemt"]), arrays=arrays, complete=complete)
 
 

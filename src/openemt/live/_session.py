@@ -474,7 +474,7 @@ class TrackingSession:
             send_distorted=o.send_distorted, reference=spec.reference,
             stale_after=spec.stale_after if o.stale_after is None else o.stale_after,
             tdata=bool(o.tdata or spec.tdata), igtl_metadata=spec.metadata and o.metadata,
-            registration=spec.registration)
+            registration=spec.registration, witnesses=spec.witnesses)
 
     def __enter__(self) -> TrackingSession:
         from ._backends import StallWatch
@@ -614,7 +614,7 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
         if cal is not None and getattr(cal.model, "cold_start", None) != "kim18":
             from ._board import board_solver
 
-            solver = boards.setdefault(id(cal), board_solver(cal.model))
+            solver = boards.setdefault(id(cal), board_solver(cal.coupling_model))
             out.append(SensorSetup(solver=solver, **common))
             continue
         if cal is None:
@@ -624,7 +624,9 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
                 preset_model = get_preset(spec.simulation.get("preset", "concentric")).dipole
             model, corr = preset_model, None
         else:
-            model, corr = cal.model, getattr(cal, "linear_correction", None)
+            # the model with what the calibration adds (octupoles, environment terms)
+            model = getattr(cal, "coupling_model", cal.model)
+            corr = getattr(cal, "linear_correction", None)
         out.append(SensorSetup(model=model, correction=corr, hemisphere=s.hemisphere,
                                **common))
     return out

@@ -313,6 +313,7 @@ class TrackerSpec:
     rate: float | None = None
     registration: object = None
     registration_path: Path | None = None
+    witnesses: tuple = ()
     bands: tuple = ()
 
     @property
@@ -550,7 +551,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     base = path.parent if path is not None else Path(".")
     r = _Reader(where)
     _unknown_keys(r, doc, "", ("format", "version", "adc", "source", "demodulation", "sensors",
-                               "filter", "simulation", "igtl", "navigation"))
+                               "filter", "simulation", "igtl", "navigation", "witness"))
     fmt = r.get(doc, "", "format", "string")
     if fmt != TRACKER_FORMAT:
         raise r.fail("format", repr(TRACKER_FORMAT), repr(fmt))
@@ -750,6 +751,21 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     igtl_rate = None
     if "rate" in ig:
         igtl_rate = check_rate(r.get(ig, "igtl", "rate", "number"), f"{where}: `igtl.rate`")
+    witnesses = []
+    for i, t in enumerate(r.get(doc, "", "witness", "list of tables", [])):
+        pre = f"witness[{i}]"
+        _unknown_keys(r, t, pre, ("sensor", "pose"))
+        wname = r.get(t, pre, "sensor", "string")
+        if wname not in names or any(w[0] == wname for w in witnesses):
+            raise r.fail(f"{pre}.sensor", f"the name of a sensor in {names}, each witness "
+                         f"once", repr(wname))
+        pose = r.get(t, pre, "pose", "list of numbers")
+        if len(pose) != 6 or not all(math.isfinite(v) for v in pose) \
+                or max(abs(v) for v in pose[:3]) > 10.0:
+            raise r.fail(f"{pre}.pose", "[x, y, z, rx, ry, rz]: 6 finite numbers (m, rad; "
+                         "within 10 m)", pose)
+        witnesses.append((wname, tuple(float(v) for v in pose)))
+
     nav = r.get(doc, "", "navigation", "table", {})
     _unknown_keys(r, nav, "navigation", ("registration",))
     registration = r.get(nav, "navigation", "registration", "string", None)
@@ -769,7 +785,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
                        filter=fspec, simulation=simd, path=path, reference=reference,
                        stale_after=stale, tdata=tdata, metadata=metadata,
                        header_version=header_version, rate=igtl_rate,
-                       bands=tuple(tuple(b) for b in bands))
+                       bands=tuple(tuple(b) for b in bands), witnesses=tuple(witnesses))
     try:
         if registration is not None:
             spec = spec.with_registration(registration)
