@@ -26,7 +26,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 #: Subpackages, in pipeline order.
 SUBPACKAGES = ("geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate",
                "correct", "align", "evaluate", "navigate", "paper", "report", "live", "collect",
-               "bench", "datasets", "design")
+               "view", "bench", "datasets", "design")
 
 #: Top-level name -> (subpackage, name there).
 _ATTRIBUTES = {

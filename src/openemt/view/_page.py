@@ -1,0 +1,294 @@
+"""The live view's page: one Bokeh document per browser tab, refreshed by a periodic callback
+from :meth:`openemt.view.LiveFeed.snapshot`.
+
+Panels (``?panel=NAME`` shows one alone): ``carriers`` (per carrier: drive and sensor level,
+coupling level, SNR, quadrature), ``spectrum`` (per channel), ``coupling`` (the latest coupling
+matrix), ``sensors`` (per sensor: status, quadrature ratio, residual, pose) and ``trail`` (the
+positions of the last seconds, three projections). Every value shown lives in a named
+``ColumnDataSource`` (``carriers``, ``spectrum``, ``coupling``, ``sensors``, ``trail``,
+``now``, ``header``), which a test reads back through Bokeh's document in the browser.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+PANELS = ("carriers", "spectrum", "coupling", "sensors", "trail")
+_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
+            "#7f7f7f", "#bcbd22", "#17becf")
+
+
+def _fmt(v, spec="{:.3g}"):
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else spec.format(v)
+
+
+class Page:
+    """The models of one tab and the function that refreshes them from a snapshot."""
+
+    def __init__(self, doc, feed, *, period_ms: float, stats, panels=PANELS):
+        from bokeh.layouts import column, row
+        from bokeh.models import (
+            ColumnDataSource,
+            Div,
+            LinearColorMapper,
+            Toggle,
+        )
+        from bokeh.plotting import figure
+
+        self.feed, self.stats = feed, stats
+        self.seen = None
+        self.n_updates = 0
+        self.header = Div(text="openemt live view: waiting for the session", name="title")
+        self.pause = Toggle(label="Pause display", active=False, button_type="default",
+                            name="pause", width=140)
+        self.src_header = ColumnDataSource({"n_updates": [0], "version": [-1],
+                                            "paused": [False]}, name="header")
+        parts = [row(self.header, self.pause)]
+        self.src = {}
+
+        def table(name, cols):
+            """A table shown as HTML in a Div (named ``<name>_table``) and its values at full
+            precision in a data source (named ``name``)."""
+            src = ColumnDataSource({c[0]: [] for c in cols}, name=name)
+            self.src[name] = src
+            self.tables[name] = (Div(text="", name=f"{name}_table"), cols)
+            doc.add_root(src)
+            return self.tables[name][0]
+
+        self.tables = {}
+        if "carriers" in panels:
+            t = table("carriers", [("frequency_hz", "carrier (Hz)", "{:g}"),
+                                   ("reference_v", "drive level (V)", "{:.4g}"),
+                                   ("sensor_mv", "sensor level (mV rms)", "{:.4g}"),
+                                   ("coupling", "coupling level", "{:.4g}"),
+                                   ("snr_db", "SNR (dB)", "{:.1f}"),
+                                   ("quadrature", "quadrature ratio", "{:.2e}")])
+            parts.append(column(Div(text="<b>Carriers</b>"), t, name="panel-carriers"))
+        if "spectrum" in panels:
+            self.src["spectrum"] = ColumnDataSource({"xs": [], "ys": [], "colour": [],
+                                                     "channel": []}, name="spectrum")
+            f = figure(width=900, height=300, x_axis_label="frequency (Hz)",
+                       y_axis_label="amplitude (dB re 1 V)", tools="pan,box_zoom,reset",
+                       title="Spectrum per channel")
+            f.multi_line("xs", "ys", source=self.src["spectrum"], line_color="colour",
+                         legend_field="channel", line_width=1)
+            f.legend.location = "top_right"
+            f.legend.label_text_font_size = "8pt"
+            parts.append(column(f, name="panel-spectrum"))
+        if "coupling" in panels:
+            self.src["coupling"] = ColumnDataSource(
+                {"carrier": [], "coil": [], "value": [], "quadrature": [], "norm": [],
+                 "text": []}, name="coupling")
+            self._coupling_fig = f = figure(
+                width=600, height=260, title="Coupling matrix (real part; colour: value / "
+                "largest |value|)", tools="", x_range=[], y_range=[], toolbar_location=None)
+            f.rect("coil", "carrier", 0.95, 0.95, source=self.src["coupling"],
+                   fill_color={"field": "norm", "transform": LinearColorMapper(
+                       palette=_diverging(), low=-1.0, high=1.0)}, line_color=None)
+            f.text("coil", "carrier", text="text", source=self.src["coupling"],
+                   text_align="center", text_baseline="middle", text_font_size="9pt")
+            f.xaxis.axis_label = "sensor coil"
+            f.yaxis.axis_label = "carrier"
+            parts.append(column(f, name="panel-coupling"))
+        if "sensors" in panels:
+            t = table("sensors", [("name", "sensor", "{}"), ("status", "status", "{}"),
+                                  ("distortion", "quadrature ratio", "{:.2e}"),
+                                  ("distorted", "distorted", "{}"),
+                                  ("residual", "residual", "{:.2e}"),
+                                  ("x_mm", "x (mm)", "{:.3f}"), ("y_mm", "y (mm)", "{:.3f}"),
+                                  ("z_mm", "z (mm)", "{:.3f}"), ("rx_deg", "rx (deg)", "{:.3f}"),
+                                  ("ry_deg", "ry (deg)", "{:.3f}"),
+                                  ("rz_deg", "rz (deg)", "{:.3f}"),
+                                  ("n_samples", "samples", "{}"), ("time_s", "time (s)", "{:.4f}")])
+            parts.append(column(Div(text="<b>Sensors</b>"), t, name="panel-sensors"))
+        if "trail" in panels:
+            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": []},
+                                                 name="trail")
+            self.src["now"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": [],
+                                                "name": []}, name="now")
+            figs = []
+            for a, b in (("x", "y"), ("x", "z"), ("y", "z")):
+                f = figure(width=300, height=300, match_aspect=True,
+                           title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
+                           y_axis_label=f"{b} (mm)", tools="pan,wheel_zoom,reset")
+                f.scatter(a, b, source=self.src["trail"], color="colour", size=2, alpha=0.5)
+                f.scatter(a, b, source=self.src["now"], color="colour", size=10,
+                          legend_field="name")
+                f.legend.label_text_font_size = "8pt"
+                figs.append(f)
+            parts.append(column(Div(text="<b>Trail in the volume</b> (converged poses of the "
+                                    "last seconds)"), row(*figs), name="panel-trail"))
+        doc.add_root(column(*parts))
+        doc.add_root(self.src_header)
+        doc.title = "openemt live view"
+        self.cb = doc.add_periodic_callback(self.update, period_ms)
+
+    def update(self) -> None:
+        if self.pause.active:                       # pauses the display only
+            if not self.src_header.data["paused"][0]:
+                self.src_header.data = dict(self.src_header.data, paused=[True])
+            return
+        snap = self.feed.snapshot()
+        self.n_updates += 1
+        self.stats.tick()
+        self.src_header.data = {"n_updates": [self.n_updates], "version": [snap["version"]],
+                                "paused": [False]}
+        if snap["version"] == self.seen:
+            return
+        self.seen = snap["version"]
+        sensors = snap["sensors"]
+        n = max((s["n_samples"] for s in sensors), default=0)
+        t = max((s.get("time", 0.0) for s in sensors), default=0.0)
+        src = snap.get("source") or "session"
+        self.header.text = (f"<b>openemt live view</b> ({src}): {n} samples, t = {t:.2f} s, "
+                            f"{len(sensors)} sensor(s)")
+        if "carriers" in self.src:
+            self._carriers(snap)
+        if "spectrum" in self.src and "spectrum" in snap:
+            self._spectrum(snap)
+        if "coupling" in self.src:
+            self._coupling(snap)
+        if "sensors" in self.src:
+            self._sensors(sensors)
+        if "trail" in self.src:
+            self._trail(sensors)
+
+    def _show(self, name, data) -> None:
+        """Put ``data`` in the source ``name`` and its HTML table in the Div beside it."""
+        self.src[name].data = data
+        div, cols = self.tables[name]
+        n = len(next(iter(data.values()), []))
+        head = "".join(f"<th>{c[1]}</th>" for c in cols)
+        body = "".join("<tr>" + "".join(f"<td>{_fmt(data[c[0]][r], c[2])}</td>" for c in cols)
+                       + "</tr>" for r in range(n))
+        div.text = (f'<table class="openemt" style="border-collapse: collapse; '
+                    f'font: 12px monospace"><tr style="text-align: left">{head}</tr>{body}'
+                    f"</table>").replace("<td>", '<td style="padding: 2px 10px">').replace(
+                        "<th>", '<th style="padding: 2px 10px; border-bottom: 1px solid #999">')
+
+    def _carriers(self, snap):
+        c = snap.get("carriers")
+        f = snap.get("frequencies")
+        if not c or f is None:
+            return
+        k = len(f)
+
+        def col(key, scale=1.0):
+            v = c.get(key)
+            return [float("nan")] * k if v is None else [float(x) * scale for x in v]
+
+        self._show("carriers", {
+            "frequency_hz": [float(x) for x in f], "reference_v": col("reference_level"),
+            "sensor_mv": col("sensor_level", 1e3), "coupling": col("coupling_level"),
+            "snr_db": col("snr_db"), "quadrature": col("quadrature")})
+
+    def _spectrum(self, snap):
+        s = snap["spectrum"]
+        layout_names = _channel_names(self.feed)
+        f = s["frequencies"].tolist()
+        db = s["db"]
+        self.src["spectrum"].data = {
+            "xs": [f] * db.shape[1], "ys": [db[:, j].tolist() for j in range(db.shape[1])],
+            "colour": [_COLOURS[j % len(_COLOURS)] for j in range(db.shape[1])],
+            "channel": [layout_names.get(j, f"ch{j}") for j in range(db.shape[1])]}
+
+    def _coupling(self, snap):
+        blocks = [(s["name"], s["couplings"]) for s in snap["sensors"]
+                  if s.get("couplings") is not None]
+        if not blocks:
+            return
+        f = snap.get("frequencies")
+        carrier, coil, value, quad, text = [], [], [], [], []
+        for name, C in blocks:
+            n_so, n_se = C.shape
+            labels = ([f"{x:g} Hz" for x in f] if f is not None and len(f) == n_so
+                      else [f"source {i}" for i in range(n_so)])
+            for i in range(n_so):
+                for j in range(n_se):
+                    carrier.append(labels[i])
+                    coil.append(f"{name}.{j}")
+                    value.append(float(C[i, j].real))
+                    quad.append(float(C[i, j].imag))
+                    text.append(f"{C[i, j].real:.3g}")
+        m = max((abs(v) for v in value), default=0.0) or 1.0
+        fig = self._coupling_fig
+        coils = list(dict.fromkeys(coil))
+        carriers = list(dict.fromkeys(carrier))[::-1]
+        if list(fig.x_range.factors) != coils:
+            fig.x_range.factors = coils
+        if list(fig.y_range.factors) != carriers:
+            fig.y_range.factors = carriers
+        self.src["coupling"].data = {"carrier": carrier, "coil": coil, "value": value,
+                                     "quadrature": quad, "norm": [v / m for v in value],
+                                     "text": text}
+
+    def _sensors(self, sensors):
+        rows = [s for s in sensors if s["n_samples"]]
+        v = [s["pose_vector"] for s in rows]
+        self._show("sensors", {
+            "name": [s["name"] for s in rows], "status": [s["status"] for s in rows],
+            "distortion": [s["distortion"] for s in rows],
+            "distorted": ["yes" if s["distorted"] else "no" for s in rows],
+            "residual": [s["residual"] for s in rows],
+            "x_mm": [1e3 * p[0] for p in v], "y_mm": [1e3 * p[1] for p in v],
+            "z_mm": [1e3 * p[2] for p in v],
+            "rx_deg": [math.degrees(p[3]) for p in v], "ry_deg": [math.degrees(p[4]) for p in v],
+            "rz_deg": [math.degrees(p[5]) for p in v],
+            "n_samples": [s["n_samples"] for s in rows],
+            "time_s": [s["time"] for s in rows]})
+
+    def _trail(self, sensors):
+        xs, ys, zs, cs = [], [], [], []
+        now = {"x": [], "y": [], "z": [], "colour": [], "name": []}
+        for k, s in enumerate(sensors):
+            if not s["n_samples"]:
+                continue
+            colour = _COLOURS[k % len(_COLOURS)]
+            tr = s["trail"] * 1e3
+            xs.append(tr[:, 0])
+            ys.append(tr[:, 1])
+            zs.append(tr[:, 2])
+            cs += [colour] * len(tr)
+            p = 1e3 * s["pose_vector"][:3]
+            for key, val in zip("xyz", p):
+                now[key].append(float(val))
+            now["colour"].append(colour)
+            now["name"].append(s["name"])
+
+        def cat(a):
+            return np.concatenate(a) if a else np.empty(0)
+
+        self.src["trail"].data = {"x": cat(xs), "y": cat(ys), "z": cat(zs), "colour": cs}
+        self.src["now"].data = now
+
+
+def _diverging():
+    """A blue-white-red palette of 64 colours (negative blue, positive red)."""
+    out = []
+    for k in range(64):
+        u = k / 63 * 2 - 1
+        if u < 0:
+            r, g, b = 1 + u, 1 + u, 1.0
+        else:
+            r, g, b = 1.0, 1 - u, 1 - u
+        out.append(f"#{int(55 + 200 * r):02x}{int(55 + 200 * g):02x}{int(55 + 200 * b):02x}")
+    return out
+
+
+def _channel_names(feed) -> dict:
+    lay = feed.layout
+    if lay is None:
+        return {}
+    out = {}
+    names = feed.names
+    per = len(lay.sensor_channels) // max(1, len(names)) if names else 0
+    for j, c in enumerate(lay.sensor_channels):
+        if per and len(names) * per == len(lay.sensor_channels):
+            out[c] = f"{names[j // per]}.{j % per} (ch {c})"
+        else:
+            out[c] = f"sensor coil {j} (ch {c})"
+    for i, c in enumerate(lay.reference_channels):
+        out[c] = f"reference {lay.frequencies[i]:g} Hz (ch {c})"
+    return out
