@@ -132,7 +132,7 @@ class LiveFeed:
     """
 
     def __init__(self, *, raw_samples: int = 4096, history_seconds: float = 5.0,
-                 window_samples: int = 300, trail_points: int = 750,
+                 window_samples: int = 300, trail_points: int = 500,
                  output_rate: float = 1500.0):
         self.raw_samples = int(raw_samples)
         self.history = max(int(history_seconds * output_rate), int(window_samples), 8)
@@ -274,6 +274,6 @@ def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points) -> 
         sens = np.sqrt(np.mean(lv[:, list(layout.sensor_channels)] ** 2, axis=1))
         snap.setdefault("carriers", {}).update({"reference_level": ref, "sensor_level": sens,
                                                 "levels": lv})
-        f, db = spectrum_db(raw, fs)
+        f, db = spectrum_db(raw, fs, max_points=512)
         snap["spectrum"] = {"frequencies": f, "db": db, "samples": len(raw)}
     return snap

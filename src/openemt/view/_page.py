@@ -12,6 +12,7 @@ positions of the last seconds, three projections). Every value shown lives in a 
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -31,13 +32,14 @@ class Page:
         from bokeh.layouts import column, row
         from bokeh.models import (
             ColumnDataSource,
+            CustomJS,
             Div,
             LinearColorMapper,
             Toggle,
         )
         from bokeh.plotting import figure
 
-        self.feed, self.stats = feed, stats
+        self.feed, self.stats, self.doc = feed, stats, doc
         self.seen = None
         self.n_updates = 0
         self.header = Div(text="openemt live view: waiting for the session", name="title")
@@ -104,17 +106,19 @@ class Page:
                                   ("n_samples", "samples", "{}"), ("time_s", "time (s)", "{:.4f}")])
             parts.append(column(Div(text="<b>Sensors</b>"), t, name="panel-sensors"))
         if "trail" in panels:
-            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": []},
+            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": []},
                                                  name="trail")
-            self.src["now"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": [],
+            self.src["now"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": [],
                                                 "name": []}, name="now")
+            colour = {"field": "k", "transform": LinearColorMapper(
+                palette=list(_COLOURS), low=-0.5, high=len(_COLOURS) - 0.5)}
             figs = []
             for a, b in (("x", "y"), ("x", "z"), ("y", "z")):
                 f = figure(width=300, height=300, match_aspect=True,
                            title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
                            y_axis_label=f"{b} (mm)", tools="pan,wheel_zoom,reset")
-                f.scatter(a, b, source=self.src["trail"], color="colour", size=2, alpha=0.5)
-                f.scatter(a, b, source=self.src["now"], color="colour", size=10,
+                f.scatter(a, b, source=self.src["trail"], color=colour, size=2, alpha=0.5)
+                f.scatter(a, b, source=self.src["now"], color=colour, size=10,
                           legend_field="name")
                 f.legend.label_text_font_size = "8pt"
                 figs.append(f)
@@ -122,6 +126,18 @@ class Page:
                                     "last seconds)"), row(*figs), name="panel-trail"))
         doc.add_root(column(*parts))
         doc.add_root(self.src_header)
+        # flow control: the page acknowledges every update it has applied, and the server
+        # keeps at most two in flight, so a slow browser shows the latest state at its own
+        # pace instead of falling further and further behind
+        self.src_ack = ColumnDataSource({"n": [0]}, name="ack")
+        doc.add_root(self.src_ack)
+        self.src_header.js_on_change("data", CustomJS(
+            args={"ack": self.src_ack, "header": self.src_header}, code="""
+            const d = header.data;
+            const n = (d instanceof Map ? d.get("n_updates") : d.n_updates)[0];
+            ack.data = (ack.data instanceof Map) ? new Map([["n", [n]]]) : {n: [n]};
+            """))
+        self.skipped, self.sent = 0, 0.0
         doc.title = "openemt live view"
         self.cb = doc.add_periodic_callback(self.update, period_ms)
 
@@ -130,6 +146,11 @@ class Page:
             if not self.src_header.data["paused"][0]:
                 self.src_header.data = dict(self.src_header.data, paused=[True])
             return
+        now = time.monotonic()
+        if self.n_updates - self.src_ack.data["n"][0] >= 2 and now - self.sent < 0.5:
+            self.skipped += 1                      # the page has not caught up yet
+            return
+        self.sent = now
         snap = self.feed.snapshot()
         self.n_updates += 1
         self.stats.tick()
@@ -186,13 +207,14 @@ class Page:
 
     def _spectrum(self, snap):
         s = snap["spectrum"]
-        layout_names = _channel_names(self.feed)
-        f = s["frequencies"].tolist()
-        db = s["db"]
+        names = _channel_names(self.feed)
+        f = s["frequencies"].astype(np.float32)
+        db = s["db"].astype(np.float32)
+        k = db.shape[1]
         self.src["spectrum"].data = {
-            "xs": [f] * db.shape[1], "ys": [db[:, j].tolist() for j in range(db.shape[1])],
-            "colour": [_COLOURS[j % len(_COLOURS)] for j in range(db.shape[1])],
-            "channel": [layout_names.get(j, f"ch{j}") for j in range(db.shape[1])]}
+            "xs": [f] * k, "ys": [np.ascontiguousarray(db[:, j]) for j in range(k)],
+            "colour": [_COLOURS[j % len(_COLOURS)] for j in range(k)],
+            "channel": [names.get(j, f"ch{j}") for j in range(k)]}
 
     def _coupling(self, snap):
         blocks = [(s["name"], s["couplings"]) for s in snap["sensors"]
@@ -240,27 +262,22 @@ class Page:
             "time_s": [s["time"] for s in rows]})
 
     def _trail(self, sensors):
-        xs, ys, zs, cs = [], [], [], []
-        now = {"x": [], "y": [], "z": [], "colour": [], "name": []}
+        parts, ks = [], []
+        now = {"x": [], "y": [], "z": [], "k": [], "name": []}
         for k, s in enumerate(sensors):
             if not s["n_samples"]:
                 continue
-            colour = _COLOURS[k % len(_COLOURS)]
-            tr = s["trail"] * 1e3
-            xs.append(tr[:, 0])
-            ys.append(tr[:, 1])
-            zs.append(tr[:, 2])
-            cs += [colour] * len(tr)
+            parts.append(s["trail"])
+            ks.append(np.full(len(s["trail"]), k % len(_COLOURS), np.int32))
             p = 1e3 * s["pose_vector"][:3]
             for key, val in zip("xyz", p):
                 now[key].append(float(val))
-            now["colour"].append(colour)
+            now["k"].append(k % len(_COLOURS))
             now["name"].append(s["name"])
-
-        def cat(a):
-            return np.concatenate(a) if a else np.empty(0)
-
-        self.src["trail"].data = {"x": cat(xs), "y": cat(ys), "z": cat(zs), "colour": cs}
+        tr = (1e3 * np.concatenate(parts) if parts else np.empty((0, 3))).astype(np.float32)
+        self.src["trail"].data = {"x": tr[:, 0].copy(), "y": tr[:, 1].copy(),
+                                  "z": tr[:, 2].copy(),
+                                  "k": np.concatenate(ks) if ks else np.empty(0, np.int32)}
         self.src["now"].data = now
 
 
