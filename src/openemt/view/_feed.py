@@ -14,7 +14,9 @@ computes outside it:
   quadrature ratio ``||Im C[i, :]|| / ||C[i, :]||`` over the last ``window_samples`` outputs;
 - per channel: the amplitude spectrum of the ring (Hann window, dB re 1 V amplitude);
 - the latest coupling matrix (every sensor's columns);
-- per sensor: the latest status, quadrature ratio, residual and pose, and its trail.
+- per sensor: the latest status, quadrature ratio, residual and pose, and its trail (the
+  converged last pose of each block of the history, at most ``trail_points`` blocks evenly
+  spaced).
 
 SNR: the coupling noise of each entry is estimated from second differences of outputs two
 output periods apart, ``d = C[k+4] - 2 C[k+2] + C[k]`` (outputs two periods apart share no
@@ -27,6 +29,7 @@ model and works on a log as on a live session.
 from __future__ import annotations
 
 import collections
+import functools
 import threading
 import time
 
@@ -40,11 +43,18 @@ def carrier_levels(x, frequencies, sample_rate) -> np.ndarray:
     Hann-windowed correlation at the carrier frequency, scaled so that a cosine of amplitude A
     at that frequency gives A. Shape ``(n_carriers, n_channels)``."""
     x = np.asarray(x, dtype=np.float64)
-    n = x.shape[0]
+    basis = _carrier_basis(x.shape[0], tuple(float(f) for f in frequencies),
+                           float(sample_rate))
+    return np.abs(basis @ x)
+
+
+@functools.lru_cache(maxsize=8)
+def _carrier_basis(n: int, frequencies: tuple, sample_rate: float) -> np.ndarray:
+    """``(n_carriers, n)``: Hann window x ``exp(-j 2 pi f t)`` x ``2 / sum(w)``."""
     w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n) / n)
-    f = np.asarray(frequencies, dtype=np.float64)
+    f = np.asarray(frequencies)
     basis = w[:, None] * np.exp(-2j * np.pi * np.outer(np.arange(n), f) / sample_rate)
-    return np.abs(basis.T @ x) * (2.0 / w.sum())
+    return np.ascontiguousarray(basis.T) * (2.0 / w.sum())
 
 
 def spectrum_db(x, sample_rate, max_points: int = 1024):
@@ -224,6 +234,7 @@ def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points) -> 
     snap: dict = {"wall_time": t, "sensors": [], "n_raw": n_raw,
                   "frequencies": None if layout is None else list(layout.frequencies)}
     blocks = []                       # per sensor: the recent couplings (window, n_so, k)
+    converged = int(Status.CONVERGED)
     for name, q, count in zip(names, steps, counts):
         if not q:
             snap["sensors"].append({"name": name, "n_samples": 0})
@@ -237,12 +248,12 @@ def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points) -> 
         except ValueError:
             status = str(code)
         rel = getattr(last, "relative_residual", None)
-        xyz = _cat(q, "pose_vectors")[:, :3]
-        stride = max(1, -(-len(xyz) // trail_points))
-        statuses = _cat(q, "status")
-        ok = statuses == int(Status.CONVERGED)
-        sel = np.arange(len(xyz) - 1, -1, -stride)[::-1]       # the latest point always in
-        sel = sel[ok[sel]]
+        # the trail: the last sample of every block (blocks evenly skipped beyond
+        # ``trail_points``), where it converged; the latest block always in
+        stride = max(1, -(-len(q) // trail_points))
+        pick = [b for b in q[::-1][::stride] if b.status[-1] == converged][::-1]
+        trail = (np.array([b.pose_vectors[-1, :3] for b in pick], dtype=np.float64)
+                 if pick else np.empty((0, 3)))
         C = _cat(q, "couplings", window)
         blocks.append(C)
         snap["sensors"].append({
@@ -252,7 +263,7 @@ def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points) -> 
             "residual": float(last.residual[k]),
             "relative_residual": float("nan") if rel is None else float(rel[k]),
             "pose_vector": np.array(last.pose_vectors[k], dtype=np.float64),
-            "trail": xyz[sel].copy(),
+            "trail": trail,
             "couplings": None if C is None else C[-1].copy()})
     # per carrier, over every sensor's columns
     have = [b for b in blocks if b is not None]

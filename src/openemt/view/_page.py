@@ -72,7 +72,7 @@ class Page:
             self.src["spectrum"] = ColumnDataSource({"xs": [], "ys": [], "colour": [],
                                                      "channel": []}, name="spectrum")
             f = figure(width=900, height=300, x_axis_label="frequency (Hz)",
-                       y_axis_label="amplitude (dB re 1 V)", tools="pan,box_zoom,reset",
+                       y_axis_label="amplitude (dB re 1 V)", tools="box_zoom,reset",
                        title="Spectrum per channel")
             f.multi_line("xs", "ys", source=self.src["spectrum"], line_color="colour",
                          legend_field="channel", line_width=1)
@@ -116,7 +116,7 @@ class Page:
             for a, b in (("x", "y"), ("x", "z"), ("y", "z")):
                 f = figure(width=300, height=300, match_aspect=True,
                            title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
-                           y_axis_label=f"{b} (mm)", tools="pan,wheel_zoom,reset")
+                           y_axis_label=f"{b} (mm)", tools="", toolbar_location=None)
                 f.scatter(a, b, source=self.src["trail"], color=colour, size=2, alpha=0.5)
                 f.scatter(a, b, source=self.src["now"], color=colour, size=10,
                           legend_field="name")
@@ -142,6 +142,11 @@ class Page:
         self.cb = doc.add_periodic_callback(self.update, period_ms)
 
     def update(self) -> None:
+        from bokeh.core.property.validation import without_property_validation
+
+        without_property_validation(self._update)()       # the values are ours: no checks
+
+    def _update(self) -> None:
         if self.pause.active:                       # pauses the display only
             if not self.src_header.data["paused"][0]:
                 self.src_header.data = dict(self.src_header.data, paused=[True])
@@ -151,13 +156,13 @@ class Page:
             self.skipped += 1                      # the page has not caught up yet
             return
         self.sent = now
+        if self.feed.version == self.seen and not self.src_header.data["paused"][0]:
+            return                                 # nothing new: nothing sent
         snap = self.feed.snapshot()
         self.n_updates += 1
         self.stats.tick()
         self.src_header.data = {"n_updates": [self.n_updates], "version": [snap["version"]],
                                 "paused": [False]}
-        if snap["version"] == self.seen:
-            return
         self.seen = snap["version"]
         sensors = snap["sensors"]
         n = max((s["n_samples"] for s in sensors), default=0)
