@@ -35,6 +35,7 @@ class Page:
             CustomJS,
             Div,
             LinearColorMapper,
+            Range1d,
             Toggle,
         )
         from bokeh.plotting import figure
@@ -71,14 +72,17 @@ class Page:
         if "spectrum" in panels:
             self.src["spectrum"] = ColumnDataSource({"xs": [], "ys": [], "colour": [],
                                                      "channel": []}, name="spectrum")
+            # fixed ranges, moved from here only when the data leave them: an auto-ranged
+            # plot re-lays out its axes on every update (most of the browser's work)
+            self._spec_x, self._spec_y = Range1d(0, 1), Range1d(-160, 10)
             f = figure(width=900, height=300, x_axis_label="frequency (Hz)",
+                       x_range=self._spec_x, y_range=self._spec_y,
                        y_axis_label="amplitude (dB re 1 V)", tools="box_zoom,reset",
                        title="Spectrum per channel")
             f.multi_line("xs", "ys", source=self.src["spectrum"], line_color="colour",
-                         legend_field="channel", line_width=1)
-            f.legend.location = "top_right"
-            f.legend.label_text_font_size = "8pt"
-            parts.append(column(f, name="panel-spectrum"))
+                         line_width=1)
+            self._spec_key = Div(text="", name="spectrum_key")      # the colours, once
+            parts.append(column(f, self._spec_key, name="panel-spectrum"))
         if "coupling" in panels:
             self.src["coupling"] = ColumnDataSource(
                 {"carrier": [], "coil": [], "value": [], "quadrature": [], "norm": [],
@@ -113,17 +117,19 @@ class Page:
             colour = {"field": "k", "transform": LinearColorMapper(
                 palette=list(_COLOURS), low=-0.5, high=len(_COLOURS) - 0.5)}
             figs = []
+            self._trail_ranges = {a: Range1d(-10, 10) for a in "xyz"}
             for a, b in (("x", "y"), ("x", "z"), ("y", "z")):
-                f = figure(width=300, height=300, match_aspect=True,
+                f = figure(width=300, height=300, x_range=self._trail_ranges[a],
+                           y_range=self._trail_ranges[b],
                            title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
                            y_axis_label=f"{b} (mm)", tools="", toolbar_location=None)
                 f.scatter(a, b, source=self.src["trail"], color=colour, size=2, alpha=0.5)
-                f.scatter(a, b, source=self.src["now"], color=colour, size=10,
-                          legend_field="name")
-                f.legend.label_text_font_size = "8pt"
+                f.scatter(a, b, source=self.src["now"], color=colour, size=10)
                 figs.append(f)
+            self._trail_key = Div(text="", name="trail_key")
             parts.append(column(Div(text="<b>Trail in the volume</b> (converged poses of the "
-                                    "last seconds)"), row(*figs), name="panel-trail"))
+                                    "last seconds; a dot: the latest pose)"), row(*figs),
+                                self._trail_key, name="panel-trail"))
         doc.add_root(column(*parts))
         doc.add_root(self.src_header)
         # flow control: the page acknowledges every update it has applied, and the server
@@ -220,6 +226,18 @@ class Page:
             "xs": [f] * k, "ys": [np.ascontiguousarray(db[:, j]) for j in range(k)],
             "colour": [_COLOURS[j % len(_COLOURS)] for j in range(k)],
             "channel": [names.get(j, f"ch{j}") for j in range(k)]}
+        key = _key(self.src["spectrum"].data["channel"])
+        if self._spec_key.text != key:
+            self._spec_key.text = key
+        top = float(f[-1]) if len(f) else 1.0
+        if self._spec_x.end != top:
+            self._spec_x.update(start=0.0, end=top)
+        finite = db[np.isfinite(db)]
+        if finite.size:
+            lo, hi = float(np.percentile(finite, 1)), float(finite.max())
+            y = self._spec_y
+            if lo < y.start or hi > y.end or lo > y.start + 30 or hi < y.end - 30:
+                y.update(start=10 * math.floor(lo / 10) - 10, end=10 * math.ceil(hi / 10) + 10)
 
     def _coupling(self, snap):
         blocks = [(s["name"], s["couplings"]) for s in snap["sensors"]
@@ -284,6 +302,31 @@ class Page:
                                   "z": tr[:, 2].copy(),
                                   "k": np.concatenate(ks) if ks else np.empty(0, np.int32)}
         self.src["now"].data = now
+        key = _key(now["name"], [_COLOURS[k] for k in now["k"]])
+        if self._trail_key.text != key:
+            self._trail_key.text = key
+        pts = np.vstack([tr, np.array([now["x"], now["y"], now["z"]], np.float32).T])
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts):
+            # one scale on all three axes (equal aspect), moved when a point leaves the
+            # view or the points fill less than a third of it
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            r = self._trail_ranges
+            span = r["x"].end - r["x"].start
+            need = max(float((hi - lo).max()), 10.0)
+            out = any(lo[i] < r[a].start or hi[i] > r[a].end for i, a in enumerate("xyz"))
+            if out or need < span / 3:
+                half = 0.65 * need
+                for i, a in enumerate("xyz"):
+                    c = 0.5 * float(lo[i] + hi[i])
+                    r[a].update(start=c - half, end=c + half)
+
+
+def _key(names, colours=None) -> str:
+    """A colour key in HTML: each name in its colour."""
+    colours = colours or [_COLOURS[j % len(_COLOURS)] for j in range(len(names))]
+    return "&nbsp; ".join(f'<span style="color: {c}">&#9632; {n}</span>'
+                          for n, c in zip(names, colours))
 
 
 def _diverging():

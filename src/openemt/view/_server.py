@@ -50,7 +50,7 @@ class ViewServer:
     Use as a context manager (or :meth:`start` / :meth:`close`); :attr:`url` is the page.
     """
 
-    def __init__(self, feed, *, port: int = 0, rate_hz: float = 15.0):
+    def __init__(self, feed, *, port: int = 0, rate_hz: float = 12.0):
         if not 0 <= int(port) <= 65535:
             raise InputError(f"expected a view port in 0..65535, got {port}")
         if not 1.0 <= float(rate_hz) <= 60.0:

@@ -31,7 +31,7 @@ class ViewOptions:
                       "machine (http://127.0.0.1:PORT/, printed on stderr; "
                       "docs/live.md#live-view); it only reads the session")
     view_port: int = _opt(0, "port of the live view (default 0: a free one)")
-    view_rate: float = _opt(15.0, "live view updates per second per open page (default 15)",
+    view_rate: float = _opt(12.0, "live view updates per second per open page (default 12)",
                             metavar="HZ")
 
     def check(self) -> None:
@@ -57,7 +57,7 @@ class ViewRecordingOptions:
     hold: float | None = _opt(None, "seconds to keep serving the last state after the end "
                               "(default: until Ctrl-C)")
     view_port: int = _opt(0, "port of the live view (default 0: a free one)")
-    view_rate: float = _opt(15.0, "live view updates per second per open page (default 15)",
+    view_rate: float = _opt(12.0, "live view updates per second per open page (default 12)",
                             metavar="HZ")
     quiet: bool = field(default=False, metadata={"cli": False})
 
