@@ -10,7 +10,9 @@ does not (the open page then has nothing new to draw and nothing is sent). Each 
 processes ``--view-seconds`` of signal (the ``--rate-seconds`` recording, repeated).
 
 Keys: ``realtime_factor_with_view`` and ``realtime_factor_without_view`` (medians),
-``ratio`` (with / without; the target is >= 0.9), every run's factor, ``updates_per_s``
+``ratio`` (with / without; the target is >= 0.9), every run's factor, ``cpu`` (where the time
+went: the session thread's own realtime factor per CPU second with and without the view, the
+cores used by the process's other threads and by the browser), ``updates_per_s``
 (updates the page applied per second during the runs with the view, from the server's
 count, which waits for the page's acknowledgement), ``browser`` (the Chromium used, or the
 reason there was none: then the factors are not measured).
@@ -27,6 +29,29 @@ import time
 import numpy as np
 
 __all__ = ["view_cost"]
+
+
+def _tree_cpu(pid: int) -> float:
+    """CPU seconds used so far by process ``pid`` and its descendants (Linux /proc; 0 where
+    it cannot be read)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    used, children = {}, {}
+    for name in os.listdir("/proc"):
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat") as f:
+                st = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        used[int(name)] = int(st[11]) + int(st[12])
+        children.setdefault(int(st[1]), []).append(int(name))
+    total, todo = 0, [pid]
+    while todo:
+        p = todo.pop()
+        total += used.get(p, 0)
+        todo.extend(children.get(p, []))
+    return total / tick
 
 _FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
           "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -76,14 +101,21 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
     sensors = tracker_sensors(spec)
     opts = TrackOptions(igtl=False, quiet=True)
 
+    cpu = {True: [], False: []}
+
     def run(feed):
         with TrackingSession(spec, opts, sensors=sensors, observer=feed,
                              backend=_Loop(raw, layout, chunk, n)) as session:
-            t0 = time.perf_counter()
+            t0, c0, p0 = time.perf_counter(), time.thread_time(), time.process_time()
+            b0 = _tree_cpu(browser.pid) if feed is not None else 0.0
             s = session.run().summary
-            return s.signal_seconds / (time.perf_counter() - t0)
+            wall = time.perf_counter() - t0
+            cpu[feed is not None].append(
+                (s.signal_seconds / (time.thread_time() - c0),
+                 (time.process_time() - p0 - (time.thread_time() - c0)) / wall,
+                 (_tree_cpu(browser.pid) - b0) / wall if feed is not None else 0.0))
+            return s.signal_seconds / wall
 
-    run(None)                                            # warm: kernels, caches
     feed = LiveFeed()
     with ViewServer(feed) as server, tempfile.TemporaryDirectory() as profile:
         browser = subprocess.Popen([chromium, *_FLAGS, f"--user-data-dir={profile}",
@@ -91,12 +123,15 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                                    stderr=subprocess.DEVNULL)
         try:
             end = time.monotonic() + 60.0
+            run(None)                                    # warm: kernels, caches
             run(feed)                                    # until the page shows updates
             while server.stats.count < 3 and time.monotonic() < end:
                 run(feed)
             if server.stats.count < 3:
                 raise OSError("expected the live view page to open in headless Chromium, "
                               "got no update applied in 60 s")
+            cpu[True].clear()
+            cpu[False].clear()
             with_, without, updates, wall = [], [], 0, 0.0
             for k in range(pairs):
                 order = (False, True) if k % 2 == 0 else (True, False)
@@ -117,6 +152,18 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                 browser.kill()
                 browser.wait(10)
     w, wo = float(np.median(with_)), float(np.median(without))
+
+    def med(on, k):
+        return float(np.median([c[k] for c in cpu[on]]))
+
+    # where the time went: the session thread's own CPU per second of signal (a slower
+    # acquisition code path would show here), the other threads of this process (the view's
+    # server) and the browser, in cores while the runs lasted
+    out["cpu"] = {"session_thread_realtime_factor_with_view": med(True, 0),
+                  "session_thread_realtime_factor_without_view": med(False, 0),
+                  "other_threads_cores_with_view": med(True, 1),
+                  "other_threads_cores_without_view": med(False, 1),
+                  "browser_cores_with_view": med(True, 2)}
     out.update(realtime_factor_with_view=w, realtime_factor_without_view=wo, ratio=w / wo,
                ratio_target=0.9, with_view_runs=with_, without_view_runs=without,
                updates_per_s=updates / wall if wall > 0 else None, pages_opened=pages,

@@ -4,13 +4,15 @@ The session hands an *observer* what it already has, block by block, and never w
 
 - ``observer.start(layout)`` once, with the source's :class:`~openemt.signal.ChannelLayout`;
 - ``observer.sensors(names)`` once, with the sensor names in tracker order;
-- ``observer.raw(chunk)`` after every read, with the raw samples ``(n, n_channels)`` (the
-  observer copies what it keeps: the session goes on with the array);
+- ``observer.raw(chunk)`` after every read, with the raw samples ``(n, n_channels)``;
 - ``observer.step(step, sensor)`` after every processed chunk of every sensor, with its
-  :class:`~openemt.live.TrackStep` (the arrays the log gets; nobody changes them afterwards).
+  :class:`~openemt.live.TrackStep` (the arrays the log gets).
 
-Each call must be cheap (a copy into a buffer or a reference appended under a lock): the view
-does its own work in its own thread. Nothing flows back: the observer cannot change the
+Nobody writes into these arrays afterwards (a backend hands out a new array, or a slice of
+memory it never writes again, per read; the raw recorder and the log keep references the
+same way), so an observer may keep references; it must not write into them. Each call must
+be cheap (a reference appended under a lock: about a microsecond): the view does its own
+work in its own thread. Nothing flows back: the observer cannot change the
 session.
 """
 

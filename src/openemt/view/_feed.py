@@ -93,37 +93,6 @@ def coupling_snr_db(C) -> tuple[np.ndarray, np.ndarray]:
         return 20 * np.log10(num / den), sigma
 
 
-class _Ring:
-    """The last ``size`` raw samples of every channel (a copy; writes wrap around)."""
-
-    def __init__(self, size: int, n_channels: int):
-        self.buf = np.zeros((int(size), int(n_channels)))
-        self.written = 0
-
-    def write(self, chunk) -> None:
-        x = np.asarray(chunk)
-        size, n = self.buf.shape[0], x.shape[0]
-        nc = min(self.buf.shape[1], x.shape[1])
-        if n >= size:
-            self.buf[:, :nc] = x[n - size:, :nc]
-            self.buf = np.roll(self.buf, self.written + n, axis=0)   # keep the write position
-        else:
-            i = (self.written) % size
-            k = min(n, size - i)
-            self.buf[i:i + k, :nc] = x[:k, :nc]
-            if k < n:
-                self.buf[:n - k, :nc] = x[k:, :nc]
-        self.written += n
-
-    def latest(self) -> np.ndarray:
-        """The samples in time order (fewer before the ring has filled)."""
-        size = self.buf.shape[0]
-        if self.written < size:
-            return self.buf[:self.written].copy()
-        i = self.written % size
-        return np.concatenate([self.buf[i:], self.buf[:i]])
-
-
 class LiveFeed:
     """The read-only observer a session publishes to, and the source of every panel.
 
@@ -132,8 +101,9 @@ class LiveFeed:
     raw_samples : int
         Raw samples kept per channel for the spectrum and the carrier levels (default 4096:
         43 ms at 96 kS/s, bins of 23 Hz).
-    history_seconds : float
-        Seconds of processed samples kept per sensor (the trail; at the output rate).
+    history_seconds, history_blocks : float, int
+        The trail covers the last ``history_seconds`` of each sensor, within the last
+        ``history_blocks`` processed blocks kept (5 s and 1024: 6.8 s of 640-sample reads).
     window_samples : int
         Outputs over which the SNR and the quadrature ratio per carrier are computed
         (default 300: 0.2 s at 1500/s).
@@ -142,19 +112,21 @@ class LiveFeed:
     """
 
     def __init__(self, *, raw_samples: int = 4096, history_seconds: float = 5.0,
-                 window_samples: int = 300, trail_points: int = 500,
+                 history_blocks: int = 1024, window_samples: int = 300,
+                 trail_points: int = 500,
                  output_rate: float = 1500.0):
         self.raw_samples = int(raw_samples)
-        self.history = max(int(history_seconds * output_rate), int(window_samples), 8)
-        self.window_samples = int(window_samples)
+        self.history_seconds = float(history_seconds)
+        self.window = max(int(window_samples), 8)
+        self.blocks = max(int(history_blocks), self.window)
         self.trail_points = int(trail_points)
         self.layout = None
         self.names: tuple = ()
         self.source = None
         self._lock = threading.Lock()
-        self._ring: _Ring | None = None
+        self._raw: collections.deque = collections.deque()
+        self._raw_kept = 0
         self._steps: list = []
-        self._kept: list = []
         self.n_samples: list = []
         self.n_raw = 0
         self.version = 0              # changes with every block published
@@ -164,31 +136,30 @@ class LiveFeed:
     def start(self, layout) -> None:
         with self._lock:
             self.layout = layout
-            self._ring = _Ring(self.raw_samples, layout.n_channels)
+            self._raw.clear()
+            self._raw_kept = 0
 
     def sensors(self, names) -> None:
         with self._lock:
             self.names = tuple(names)
-            self._steps = [collections.deque() for _ in self.names]
-            self._kept = [0] * len(self.names)
+            self._steps = [collections.deque(maxlen=self.blocks) for _ in self.names]
             self.n_samples = [0] * len(self.names)
 
     def raw(self, chunk) -> None:
+        n = len(chunk)
         with self._lock:
-            if self._ring is not None:
-                self._ring.write(chunk)
-                self.n_raw += len(chunk)
-                self.version += 1
+            q = self._raw
+            q.append(chunk)                  # a reference: the array is never written again
+            self._raw_kept += n
+            self.n_raw += n
+            while self._raw_kept - len(q[0]) >= self.raw_samples:
+                self._raw_kept -= len(q.popleft())
+            self.version += 1
 
     def step(self, step, sensor: int = 0) -> None:
-        n = len(step)
         with self._lock:
-            q = self._steps[sensor]
-            q.append(step)
-            self._kept[sensor] += n
-            self.n_samples[sensor] += n
-            while self._kept[sensor] - len(q[0]) >= self.history:
-                self._kept[sensor] -= len(q.popleft())
+            self._steps[sensor].append(step)      # a bounded deque: the oldest drops out
+            self.n_samples[sensor] += len(step)
             self.version += 1
 
     # -- the view's side
@@ -200,12 +171,15 @@ class LiveFeed:
             if self._cache[0] == version:
                 return self._cache[1]
             steps = [list(q) for q in self._steps]
-            raw = None if self._ring is None else self._ring.latest()
+            chunks = list(self._raw)
             layout, names = self.layout, self.names
             counts = list(self.n_samples)
             n_raw = self.n_raw
-        snap = _compute(layout, names, steps, raw, counts, n_raw, self.window_samples,
-                        self.trail_points)
+        raw = None
+        if chunks and layout is not None:
+            raw = np.concatenate(chunks)[-self.raw_samples:, :layout.n_channels]
+        snap = _compute(layout, names, steps, raw, counts, n_raw, self.window,
+                        self.trail_points, self.history_seconds)
         snap["version"] = version
         snap["source"] = self.source
         with self._lock:
@@ -227,7 +201,8 @@ def _cat(steps, key, last: int | None = None):
     return out if last is None or out is None else out[-last:]
 
 
-def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points) -> dict:
+def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points,
+             history_seconds) -> dict:
     from ..solve import Status
 
     t = time.time()
@@ -250,10 +225,12 @@ def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points) -> 
         rel = getattr(last, "relative_residual", None)
         # the trail: the last sample of every block (blocks evenly skipped beyond
         # ``trail_points``), where it converged; the latest block always in
-        stride = max(1, -(-len(q) // trail_points))
-        pick = [b for b in q[::-1][::stride] if b.status[-1] == converged][::-1]
-        trail = (np.array([b.pose_vectors[-1, :3] for b in pick], dtype=np.float64)
-                 if pick else np.empty((0, 3)))
+        t_end = float(last.times[k]) - history_seconds
+        recent = [b for b in q if b.times[-1] >= t_end]
+        stride = max(1, -(-len(recent) // trail_points))
+        pick = [b.pose_vectors[-1, :3] for b in recent[::-1][::stride]
+                if b.status[-1] == converged][::-1]
+        trail = np.array(pick, dtype=np.float64) if pick else np.empty((0, 3))
         C = _cat(q, "couplings", window)
         blocks.append(C)
         snap["sensors"].append({
