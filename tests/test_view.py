@@ -26,8 +26,8 @@ from openemt.signal import RawSignalConfig, frame_window
 from openemt.simulate import get_preset
 from openemt.view import (
     LiveFeed,
+    ViewProcess,
     ViewRecordingOptions,
-    ViewServer,
     carrier_levels,
     coupling_snr_db,
     view_recording,
@@ -130,7 +130,7 @@ def _check_against_log(shown, browser, a):
 @needs_chromium
 def test_view_of_a_simulated_session_in_chromium(tmp_path):
     feed = LiveFeed()
-    with ViewServer(feed) as server, Browser() as browser:
+    with ViewProcess(feed) as server, Browser() as browser:
         html = urllib.request.urlopen(server.url, timeout=30).read().decode()
         # the page's own markup (outside the inlined BokehJS source) loads nothing by URL
         markup = re.sub(r"<script[^>]*>.*?</script>", "", html, flags=re.S)

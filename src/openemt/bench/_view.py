@@ -2,8 +2,8 @@
 
 The realtime factor of ``bench track`` (seconds of signal per second of wall time, as fast as
 possible, raw samples held in memory) measured with and without the live view, in the same
-process and with the same page open: a Bokeh server (:class:`openemt.view.ViewServer`) and
-headless Chromium showing its page throughout. Runs alternate (without, with, with,
+process and with the same page open: the view's server (:class:`openemt.view.ViewProcess`,
+as ``track --view`` runs it) and headless Chromium showing its page throughout. Runs alternate (without, with, with,
 without, ...); a run *with* the view publishes every block to the view's
 :class:`~openemt.view.LiveFeed` (which the page then shows at its rate), a run *without* it
 does not (the open page then has nothing new to draw and nothing is sent). Each run
@@ -87,7 +87,7 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
     """The realtime factor of ``spec`` on ``raw`` with and without the live view open (see
     the module docstring)."""
     from ..live import TrackingSession, TrackOptions, tracker_sensors
-    from ..view import LiveFeed, ViewServer
+    from ..view import LiveFeed, ViewProcess
 
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     out = {"what": "realtime factor with the live view open in headless Chromium against "
@@ -117,7 +117,7 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
             return s.signal_seconds / wall
 
     feed = LiveFeed()
-    with ViewServer(feed) as server, tempfile.TemporaryDirectory() as profile:
+    with ViewProcess(feed) as server, tempfile.TemporaryDirectory() as profile:
         browser = subprocess.Popen([chromium, *_FLAGS, f"--user-data-dir={profile}",
                                     server.url], stdout=subprocess.DEVNULL,
                                    stderr=subprocess.DEVNULL)
@@ -125,9 +125,9 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
             end = time.monotonic() + 60.0
             run(None)                                    # warm: kernels, caches
             run(feed)                                    # until the page shows updates
-            while server.stats.count < 3 and time.monotonic() < end:
+            while server.stats()["updates_pushed"] < 3 and time.monotonic() < end:
                 run(feed)
-            if server.stats.count < 3:
+            if server.stats()["updates_pushed"] < 3:
                 raise OSError("expected the live view page to open in headless Chromium, "
                               "got no update applied in 60 s")
             cpu[True].clear()
@@ -137,13 +137,13 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                 order = (False, True) if k % 2 == 0 else (True, False)
                 for on in order:
                     if on:
-                        c0, t0 = server.stats.count, time.perf_counter()
+                        c0, t0 = server.stats()["updates_pushed"], time.perf_counter()
                         with_.append(run(feed))
-                        updates += server.stats.count - c0
+                        updates += server.stats()["updates_pushed"] - c0
                         wall += time.perf_counter() - t0
                     else:
                         without.append(run(None))
-            pages = server.pages
+            pages = server.stats()["pages_opened"]
         finally:
             browser.terminate()
             try:

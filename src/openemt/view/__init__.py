@@ -8,6 +8,7 @@ tracked again, into the view).
 """
 
 from ._feed import LiveFeed, carrier_levels, coupling_snr_db, spectrum_db
+from ._process import ViewProcess
 from ._server import ViewServer
 from ._workflow import (
     ViewOptions,
@@ -18,6 +19,6 @@ from ._workflow import (
     view_recording,
 )
 
-__all__ = ["LiveFeed", "ViewOptions", "ViewRecordingOptions", "ViewResult", "ViewServer",
+__all__ = ["LiveFeed", "ViewOptions", "ViewRecordingOptions", "ViewProcess", "ViewResult", "ViewServer",
            "carrier_levels", "coupling_snr_db", "replay_log", "spectrum_db",
            "track_with_view", "view_recording"]

@@ -161,10 +161,10 @@ class Page:
         if self.n_updates - self.src_ack.data["n"][0] >= 2 and now - self.sent < 0.5:
             self.skipped += 1                      # the page has not caught up yet
             return
-        self.sent = now
-        if self.feed.version == self.seen and not self.src_header.data["paused"][0]:
-            return                                 # nothing new: nothing sent
         snap = self.feed.snapshot()
+        if snap["version"] == self.seen and not self.src_header.data["paused"][0]:
+            return                                 # nothing new: nothing sent
+        self.sent = now
         self.n_updates += 1
         self.stats.tick()
         self.src_header.data = {"n_updates": [self.n_updates], "version": [snap["version"]],

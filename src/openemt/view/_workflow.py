@@ -164,12 +164,12 @@ def replay_log(feed, log, *, speed: float = 1.0, block: int = 10, stop=None) -> 
 def track_with_view(options, view: ViewOptions, *, say=None, tracker=None):
     """``openemt track`` with the live view: the :class:`~openemt.live.TrackingSession` of
     ``options`` (a :class:`~openemt.live.TrackOptions`) publishing to a :class:`LiveFeed`
-    served by a :class:`ViewServer` while it runs; the session's
+    served by a :class:`ViewProcess` while it runs; the session's
     :class:`~openemt.live.TrackResult` with a ``view`` key (page, pages opened, updates
     pushed and their rate)."""
     from ..live import TrackingSession
     from ._feed import LiveFeed
-    from ._server import ViewServer
+    from ._process import ViewProcess
 
     view.check()
     options.check()
@@ -177,16 +177,18 @@ def track_with_view(options, view: ViewOptions, *, say=None, tracker=None):
                                                                flush=True))
     feed = LiveFeed()
     feed.source = f"track --source {options.source}"
-    with ViewServer(feed, port=view.view_port, rate_hz=view.view_rate) as server:
+    with ViewProcess(feed, port=view.view_port, rate_hz=view.view_rate) as server:
         say(f"live view: {server.url} (open it in a browser on this machine)")
         t0 = time.monotonic()
         with TrackingSession.from_tracker(options.tracker if tracker is None else tracker,
                                           options, observer=feed) as session:
             result = session.run()
         seconds = time.monotonic() - t0
-        info = {"url": server.url, "pages_opened": server.pages,
-                "updates_pushed": server.stats.count,
-                "updates_per_s": server.stats.count / seconds if seconds > 0 else None}
+        stats = server.stats()
+        n = stats["updates_pushed"]
+        info = {"url": server.url, "pages_opened": stats["pages_opened"],
+                "updates_pushed": n,
+                "updates_per_s": n / seconds if n is not None and seconds > 0 else None}
     return replace(result, session={**result.session, "view": info})
 
 
@@ -195,7 +197,7 @@ def view_recording(options: ViewRecordingOptions, *, stop=None, say=None) -> Vie
     raw recording tracked again), then keep serving its last state for ``hold`` seconds
     (None: until ``stop()`` or Ctrl-C)."""
     from ._feed import LiveFeed
-    from ._server import ViewServer
+    from ._process import ViewProcess
 
     options.check()
     say = say or (lambda text: None if options.quiet else print(text, file=sys.stderr,
@@ -210,7 +212,7 @@ def view_recording(options: ViewRecordingOptions, *, stop=None, say=None) -> Vie
         return stop is not None and stop()
 
     try:
-        with ViewServer(feed, port=options.view_port, rate_hz=options.view_rate) as server:
+        with ViewProcess(feed, port=options.view_port, rate_hz=options.view_rate) as server:
             if options.log is not None:
                 from ..live import read_track_log
 
@@ -241,7 +243,9 @@ def view_recording(options: ViewRecordingOptions, *, stop=None, say=None) -> Vie
                 time.sleep(0.05)
     except KeyboardInterrupt:
         pass
+    stats = server.stats()
     return ViewResult(url=server.url, recording=recording, kind=kind, sensors=names,
                       rows=rows, samples_shown=max(feed.n_samples, default=0),
-                      pages_opened=server.pages, updates_pushed=server.stats.count,
+                      pages_opened=stats["pages_opened"],
+                      updates_pushed=stats["updates_pushed"],
                       seconds=time.monotonic() - t0, track=track)
