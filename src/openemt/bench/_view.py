@@ -12,7 +12,8 @@ processes ``--view-seconds`` of signal (the ``--rate-seconds`` recording, repeat
 Keys: ``realtime_factor_with_view`` and ``realtime_factor_without_view`` (medians),
 ``ratio`` (with / without; the target is >= 0.9), every run's factor, ``cpu`` (where the time
 went: the session thread's own realtime factor per CPU second with and without the view, the
-cores used by the process's other threads and by the browser), ``updates_per_s``
+cores used by the process's other threads, by the view's server process and by the browser),
+``updates_per_s``
 (updates the page applied per second during the runs with the view, from the server's
 count, which waits for the page's acknowledgement), ``browser`` (the Chromium used, or the
 reason there was none: then the factors are not measured).
@@ -108,12 +109,14 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                              backend=_Loop(raw, layout, chunk, n)) as session:
             t0, c0, p0 = time.perf_counter(), time.thread_time(), time.process_time()
             b0 = _tree_cpu(browser.pid) if feed is not None else 0.0
+            v0 = _tree_cpu(server._proc.pid) if feed is not None else 0.0
             s = session.run().summary
             wall = time.perf_counter() - t0
             cpu[feed is not None].append(
                 (s.signal_seconds / (time.thread_time() - c0),
                  (time.process_time() - p0 - (time.thread_time() - c0)) / wall,
-                 (_tree_cpu(browser.pid) - b0) / wall if feed is not None else 0.0))
+                 (_tree_cpu(browser.pid) - b0) / wall if feed is not None else 0.0,
+                 (_tree_cpu(server._proc.pid) - v0) / wall if feed is not None else 0.0))
             return s.signal_seconds / wall
 
     feed = LiveFeed()
@@ -163,7 +166,8 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                   "session_thread_realtime_factor_without_view": med(False, 0),
                   "other_threads_cores_with_view": med(True, 1),
                   "other_threads_cores_without_view": med(False, 1),
-                  "browser_cores_with_view": med(True, 2)}
+                  "browser_cores_with_view": med(True, 2),
+                  "view_server_process_cores_with_view": med(True, 3)}
     out.update(realtime_factor_with_view=w, realtime_factor_without_view=wo, ratio=w / wo,
                ratio_target=0.9, with_view_runs=with_, without_view_runs=without,
                updates_per_s=updates / wall if wall > 0 else None, pages_opened=pages,
