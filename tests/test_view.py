@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 import threading
 import time
 import urllib.request
@@ -219,3 +220,11 @@ def test_view_command_refuses_bad_input(tmp_path, capsys):
     assert "expected an existing track log" in capsys.readouterr().err
     assert main(["track", "--view", "--view-port", "70000", "--duration", "0.1"]) == 2
     assert "expected --view-port in 0..65535" in capsys.readouterr().err
+    with socket.socket() as busy:                   # a port taken: one line, exit 2
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert main(["track", "--view", "--view-port", str(port), "--duration", "0.1",
+                     "--no-igtl"]) == 2
+        err = capsys.readouterr().err
+        assert f"expected a free view port on 127.0.0.1, got {port}" in err, err
