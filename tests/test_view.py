@@ -228,3 +228,15 @@ def test_view_command_refuses_bad_input(tmp_path, capsys):
                      "--no-igtl"]) == 2
         err = capsys.readouterr().err
         assert f"expected a free view port on 127.0.0.1, got {port}" in err, err
+
+
+def test_view_of_a_raw_recording_tracks_it_again(tmp_path):
+    """``openemt view --raw``: the recording tracked again with the view open, the same
+    samples as the session that recorded it."""
+    opts = TrackOptions(duration=0.5, igtl=False, quiet=True, fast=True,
+                        save_raw=tmp_path / "raw.h5")
+    with TrackingSession.from_tracker(None, opts) as s:
+        first = s.run()
+    r = view_recording(ViewRecordingOptions(raw=tmp_path / "raw.h5", hold=0.0, quiet=True))
+    assert r.kind == "raw" and r.rows == r.samples_shown == first.summary.n_samples > 0
+    assert r.track["status_counts"] == first.summary.status_counts
