@@ -122,6 +122,14 @@ def _check_against_log(shown, browser, a):
     for k, x in want.items():
         assert shown[k][0] == pytest.approx(x, rel=1e-12, abs=1e-12), k
     assert shown["status"][0] == ("CONVERGED" if a["status"][-1] == 0 else shown["status"][0])
+    # per carrier: coupling level, quadrature ratio and SNR over the last 300 logged rows
+    C = a["couplings"][-300:]
+    ab = np.sqrt(np.sum(np.abs(C) ** 2, axis=2))
+    carriers = source_data(browser, "carriers")
+    assert np.allclose(carriers["coupling"], np.sqrt(np.mean(ab ** 2, axis=0)), rtol=1e-12)
+    quad = np.mean(np.sqrt(np.sum(C.imag ** 2, axis=2)) / ab, axis=0)
+    assert np.allclose(carriers["quadrature"], quad, rtol=1e-12)
+    assert np.allclose(carriers["snr_db"], coupling_snr_db(C)[0], rtol=1e-12)
     # and the table the page draws says the same, to the digits it shows
     html = browser.evaluate("Bokeh.documents[0].get_model_by_name('sensors_table').text")
     for k in ("x_mm", "y_mm", "z_mm"):

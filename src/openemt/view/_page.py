@@ -202,10 +202,10 @@ class Page:
 
     def _carriers(self, snap):
         c = snap.get("carriers")
-        f = snap.get("frequencies")
-        if not c or f is None:
+        if not c:
             return
-        k = len(f)
+        k = len(next(iter(v for v in c.values() if np.ndim(v))))
+        f = snap.get("frequencies") or [float("nan")] * k     # a log names no carrier
 
         def col(key, scale=1.0):
             v = c.get(key)
