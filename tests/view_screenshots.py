@@ -19,7 +19,7 @@ from openemt.live import TrackingSession, TrackOptions
 from openemt.view import LiveFeed, ViewServer
 from openemt.view._page import PANELS
 
-SIZES = {"carriers": (760, 170), "spectrum": (930, 350), "coupling": (620, 310),
+SIZES = {"carriers": (760, 170), "spectrum": (930, 372), "coupling": (620, 310),
          "sensors": (1080, 110), "trail": (960, 390)}
 
 

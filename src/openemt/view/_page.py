@@ -110,10 +110,10 @@ class Page:
                                   ("n_samples", "samples", "{}"), ("time_s", "time (s)", "{:.4f}")])
             parts.append(column(Div(text="<b>Sensors</b>"), t, name="panel-sensors"))
         if "trail" in panels:
-            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": []},
-                                                 name="trail")
-            self.src["now"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": [],
-                                                "name": []}, name="now")
+            # one source (one message, one redraw per update): the latest pose of each
+            # sensor is its trail's last point, drawn larger
+            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": [],
+                                                  "size": []}, name="trail")
             colour = {"field": "k", "transform": LinearColorMapper(
                 palette=list(_COLOURS), low=-0.5, high=len(_COLOURS) - 0.5)}
             figs = []
@@ -123,8 +123,8 @@ class Page:
                            y_range=self._trail_ranges[b],
                            title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
                            y_axis_label=f"{b} (mm)", tools="", toolbar_location=None)
-                f.scatter(a, b, source=self.src["trail"], color=colour, size=2, alpha=0.5)
-                f.scatter(a, b, source=self.src["now"], color=colour, size=10)
+                f.scatter(a, b, source=self.src["trail"], color=colour, size="size",
+                          alpha=0.6)
                 figs.append(f)
             self._trail_key = Div(text="", name="trail_key")
             parts.append(column(Div(text="<b>Trail in the volume</b> (converged poses of the "
@@ -285,28 +285,29 @@ class Page:
             "time_s": [s["time"] for s in rows]})
 
     def _trail(self, sensors):
-        parts, ks = [], []
+        parts, ks, sizes = [], [], []
         now = {"x": [], "y": [], "z": [], "k": [], "name": []}
         for k, s in enumerate(sensors):
             if not s["n_samples"]:
                 continue
-            parts.append(s["trail"])
-            ks.append(np.full(len(s["trail"]), k % len(_COLOURS), np.int32))
             p = 1e3 * s["pose_vector"][:3]
+            parts += [1e3 * s["trail"], p[None]]
+            ks.append(np.full(len(s["trail"]) + 1, k % len(_COLOURS), np.int32))
+            sizes += [np.full(len(s["trail"]), 2.0, np.float32), np.array([10.0], np.float32)]
             for key, val in zip("xyz", p):
                 now[key].append(float(val))
             now["k"].append(k % len(_COLOURS))
             now["name"].append(s["name"])
-        tr = (1e3 * np.concatenate(parts) if parts else np.empty((0, 3))).astype(np.float32)
+        tr = (np.concatenate(parts) if parts else np.empty((0, 3))).astype(np.float32)
         self.src["trail"].data = {"x": tr[:, 0].copy(), "y": tr[:, 1].copy(),
                                   "z": tr[:, 2].copy(),
-                                  "k": np.concatenate(ks) if ks else np.empty(0, np.int32)}
-        self.src["now"].data = now
+                                  "k": np.concatenate(ks) if ks else np.empty(0, np.int32),
+                                  "size": np.concatenate(sizes) if sizes
+                                  else np.empty(0, np.float32)}
         key = _key(now["name"], [_COLOURS[k] for k in now["k"]])
         if self._trail_key.text != key:
             self._trail_key.text = key
-        pts = np.vstack([tr, np.array([now["x"], now["y"], now["z"]], np.float32).T])
-        pts = pts[np.isfinite(pts).all(axis=1)]
+        pts = tr[np.isfinite(tr).all(axis=1)]
         if len(pts):
             # one scale on all three axes (equal aspect), moved when a point leaves the
             # view or the points fill less than a third of it
