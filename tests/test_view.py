@@ -248,3 +248,28 @@ def test_view_of_a_raw_recording_tracks_it_again(tmp_path):
     r = view_recording(ViewRecordingOptions(raw=tmp_path / "raw.h5", hold=0.0, quiet=True))
     assert r.kind == "raw" and r.rows == r.samples_shown == first.summary.n_samples > 0
     assert r.track["status_counts"] == first.summary.status_counts
+
+
+@needs_chromium
+def test_bench_track_view_key():
+    """``bench track --view``: both factors measured with the page open and drawing."""
+    from openemt.bench._track import _raw, _spec
+    from openemt.bench._view import view_cost
+
+    spec = _spec("concentric", 1)
+    raw, layout = _raw(spec, 0.5, 0)
+    out = view_cost(spec, raw, layout, seconds=2.0, pairs=1)
+    assert out["realtime_factor_with_view"] > 0 and out["realtime_factor_without_view"] > 0
+    assert out["ratio"] == pytest.approx(out["realtime_factor_with_view"]
+                                         / out["realtime_factor_without_view"])
+    assert out["pages_opened"] >= 1 and out["cpu"]["browser_cores_with_view"] > 0
+
+
+def test_bench_track_view_key_without_chromium(monkeypatch):
+    import shutil
+
+    from openemt.bench._view import view_cost
+
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    out = view_cost(None, None, None)
+    assert out["realtime_factor_with_view"] is None and "no chromium" in out["reason"]
