@@ -2,7 +2,8 @@
 runs, served on the local machine with Bokeh (docs/live.md#live-view).
 
 :class:`LiveFeed` is the read-only observer a :class:`~openemt.live.TrackingSession` publishes
-to; :class:`ViewServer` serves its panels; :func:`track_with_view` is ``openemt track --view``
+to; :class:`ViewServer` serves its panels, in a process of its own with
+:class:`ViewProcess`; :func:`track_with_view` is ``openemt track --view``
 and :func:`view_recording` ``openemt view`` (a session log replayed, or a raw recording
 tracked again, into the view).
 """

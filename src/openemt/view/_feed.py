@@ -1,22 +1,24 @@
 """The live view's side of a session: a read-only observer that keeps the latest blocks, and
-the numbers each panel shows, computed from them in the view's own thread.
+the numbers each panel shows, computed from them outside the acquisition thread.
 
 :class:`LiveFeed` implements the observer protocol of :mod:`openemt.live._observe`: the
-session copies every raw chunk into a bounded ring buffer and appends every processed chunk
-(a reference to its :class:`~openemt.live.TrackStep`, whose arrays nobody changes afterwards)
-to a bounded per-sensor history, under a lock held for microseconds. :meth:`LiveFeed.snapshot`
-(the view's thread, at most a few times per second) copies what it needs under the lock and
-computes outside it:
+session appends every raw chunk and every processed chunk (its
+:class:`~openemt.live.TrackStep`) to bounded histories, by reference (the arrays are handed
+out fresh and never written again; the raw recorder and the log keep them the same way),
+under a lock held for about a microsecond. :meth:`LiveFeed.snapshot` (called when a page is
+due for an update: :class:`~openemt.view.ViewProcess`'s thread, or the server's own with
+:class:`~openemt.view.ViewServer`) takes the lists under the lock and computes outside it:
 
 - per carrier: the drive-current level on its reference channel and the rms level of the
   sensor channels at its frequency (V, from the raw samples: a Hann-windowed correlation at
-  the carrier frequency over the ring), the coupling level ``||C[i, :]||``, the SNR and the
+  the carrier frequency over the last ``raw_samples``), the coupling level ``||C[i, :]||``, the SNR and the
   quadrature ratio ``||Im C[i, :]|| / ||C[i, :]||`` over the last ``window_samples`` outputs;
-- per channel: the amplitude spectrum of the ring (Hann window, dB re 1 V amplitude);
+- per channel: the amplitude spectrum of the last ``raw_samples`` (Hann window, dB re 1 V
+  amplitude);
 - the latest coupling matrix (every sensor's columns);
 - per sensor: the latest status, quadrature ratio, residual and pose, and its trail (the
-  converged last pose of each block of the history, at most ``trail_points`` blocks evenly
-  spaced).
+  converged last pose of each block of the last ``history_seconds``, at most
+  ``trail_points`` blocks evenly spaced).
 
 SNR: the coupling noise of each entry is estimated from second differences of outputs two
 output periods apart, ``d = C[k+4] - 2 C[k+2] + C[k]`` (outputs two periods apart share no
@@ -113,8 +115,7 @@ class LiveFeed:
 
     def __init__(self, *, raw_samples: int = 4096, history_seconds: float = 5.0,
                  history_blocks: int = 1024, window_samples: int = 300,
-                 trail_points: int = 500,
-                 output_rate: float = 1500.0):
+                 trail_points: int = 500):
         self.raw_samples = int(raw_samples)
         self.history_seconds = float(history_seconds)
         self.window = max(int(window_samples), 8)

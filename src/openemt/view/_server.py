@@ -1,4 +1,5 @@
-"""The live view's web server: a Bokeh server on the local machine, in its own thread.
+"""The live view's web server: a Bokeh server on the local machine, in a thread (of the
+process :class:`~openemt.view.ViewProcess` starts for it, or of any process).
 
 The server thread runs its own event loop; each browser tab gets a document whose periodic
 callback reads :meth:`openemt.view.LiveFeed.snapshot` (never the session itself). BokehJS is
