@@ -43,7 +43,10 @@ class Page:
         self.feed, self.stats, self.doc = feed, stats, doc
         self.seen = None
         self.n_updates = 0
-        self.header = Div(text="openemt live view: waiting for the session", name="title")
+        # a fixed size: new text then changes no layout (a Div that may resize makes the
+        # browser lay the page out again on every update)
+        self.header = Div(text="openemt live view: waiting for the session", name="title",
+                          width=640, height=24)
         self.pause = Toggle(label="Pause display", active=False, button_type="default",
                             name="pause", width=140)
         self.src_header = ColumnDataSource({"n_updates": [0], "version": [-1],
