@@ -35,7 +35,12 @@ def main(snap_conn, ctl_conn, port: int, rate_hz: float) -> None:
 
 
 if __name__ == "__main__":
+    import signal
     from multiprocessing.connection import Connection
+
+    # Ctrl-C reaches the whole process group: the session stops and then closes the view (a
+    # parent that dies closes the sockets, which ends this process too)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     logging.getLogger("bokeh").setLevel(logging.ERROR)    # closed pages are not errors
     main(Connection(int(sys.argv[1])), Connection(int(sys.argv[2])), int(sys.argv[3]),
