@@ -26,7 +26,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 #: Subpackages, in pipeline order.
 SUBPACKAGES = ("geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate",
                "correct", "align", "evaluate", "navigate", "paper", "report", "live", "collect",
-               "bench", "datasets", "design")
+               "view", "bench", "datasets", "design")
 
 #: Top-level name -> (subpackage, name there).
 _ATTRIBUTES = {
@@ -69,7 +69,7 @@ _ATTRIBUTES = {
 __all__ = [  # noqa: RUF022 - version, then the subpackages in pipeline order, then the names
     "__version__",
     "geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate", "correct",
-    "align", "evaluate", "navigate", "paper", "report", "live", "collect", "bench", "datasets",
+    "align", "evaluate", "navigate", "paper", "report", "live", "collect", "view", "bench", "datasets",
     "design",
     "Calibration", "CalibrationFit", "Dataset", "DipoleModel", "ErrorSummary", "SolveResult",
     "Status", "assess_grid", "error_summary",

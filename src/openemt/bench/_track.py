@@ -64,6 +64,10 @@ without_metadata
     (no per-message metadata): what the metadata costs, in the same run. On the 2-core
     development machine most of it is the viewer's decoding (a pyigtl client in another
     process) competing for the cores.
+realtime_factor_with_view, view
+    With ``--view``: the realtime factor with the live view open in headless Chromium
+    (``openemt track --view``) against the same runs without publishing to it, alternating,
+    in this process (:mod:`openemt.bench._view`; ``view.ratio`` target >= 0.9).
 baseline
     ``one_frame_reads`` with the solver unprepared: :func:`openemt.solve.solve_lm` called on
     every read, checking and packing the model and options each time, as the pipeline did
@@ -105,6 +109,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--tools-seconds", type=float, default=3.0,
                         help="seconds of real-time streaming per way in the many-tools test "
                              "(default 3; 0 skips it)")
+    parser.add_argument("--view", action="store_true",
+                        help="also measure the realtime factor with the live view open in "
+                             "headless Chromium (realtime_factor_with_view, view)")
+    parser.add_argument("--view-seconds", type=float, default=30.0,
+                        help="seconds of signal per run of the view measurement (default 30)")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -269,6 +278,13 @@ def run(args) -> dict:
         "load_average": list(os.getloadavg()), "cpu_count": os.cpu_count(),
     }
     out.update(_realtime_factor(spec, float(args.rate_seconds), args.chunk, args.seed))
+    if args.view:                           # the live view's cost (openemt.bench._view)
+        from ._view import view_cost
+
+        raw, layout = _raw(spec, float(args.rate_seconds), args.seed)
+        out["view"] = view_cost(spec, raw, layout, chunk=args.chunk,
+                                seconds=float(args.view_seconds))
+        out["realtime_factor_with_view"] = out["view"]["realtime_factor_with_view"]
 
     # --- noise of a static sensor at 200 mm vs the Cramer-Rao bound
     pose = pose_from_vector(np.array([0.2, 0.0, 0.0, 0.1, -0.2, 0.3]))
@@ -465,15 +481,22 @@ class _Memory:
         pass
 
 
-def _realtime_factor(spec, seconds, chunk, seed) -> dict:
-    from ..live import TrackingSession, TrackOptions, tracker_backend, tracker_sensors
+def _raw(spec, seconds, seed):
+    """``seconds`` of the simulated raw samples of ``spec`` and their channel layout."""
+    from ..live import tracker_backend
 
     sim = tracker_backend(spec, "sim", realtime=False, duration=seconds, chunk=96000,
                           seed=seed)
     parts = []
     while (x := sim.read()) is not None:
         parts.append(x)
-    raw = np.concatenate(parts)
+    return np.concatenate(parts), sim.layout
+
+
+def _realtime_factor(spec, seconds, chunk, seed) -> dict:
+    from ..live import TrackingSession, TrackOptions, tracker_sensors
+
+    raw, layout = _raw(spec, seconds, seed)
     import copy
     from dataclasses import replace
 
@@ -486,10 +509,10 @@ def _realtime_factor(spec, seconds, chunk, seed) -> dict:
 
     def timed(sensors):
         with TrackingSession(spec, opts, sensors=sensors,
-                             backend=_Memory(raw[:6400], sim.layout, chunk)) as warm:
+                             backend=_Memory(raw[:6400], layout, chunk)) as warm:
             warm.run()
         with TrackingSession(spec, opts, sensors=sensors,
-                             backend=_Memory(raw, sim.layout, chunk)) as session:
+                             backend=_Memory(raw, layout, chunk)) as session:
             c0, t0 = time.process_time(), time.perf_counter()
             s = session.run().summary
             return s, time.perf_counter() - t0, time.process_time() - c0

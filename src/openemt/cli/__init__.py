@@ -37,6 +37,7 @@ COMMANDS = {
     "points": ("points", "points from the dwells of a recorded log, as 3D Slicer markups"),
     "track": ("track",
               "live tracking: raw samples -> couplings -> poses -> OpenIGTLink (Slicer)"),
+    "view": ("view", "live view in the browser of a session log or a raw recording"),
     "collect": ("collect", "collect couplings at reference poses (robot, optical tracker)"),
     "info": ("info", "summarise any file openemt writes (dataset, poses, calibration, ...)"),
     "report": ("report", "write a self-contained HTML calibration and characterization report"),

@@ -11,6 +11,7 @@ __all__ = ["register", "run"]
 
 def register(subparsers) -> None:
     from ..live import TrackOptions
+    from ..view import ViewOptions
     from . import command_help
     from ._common import add_common, add_options
 
@@ -26,6 +27,7 @@ def register(subparsers) -> None:
                     "<Sensor>ToImage with a registration (docs/live.md#what-track-streams). "
                     "Stops at --duration, at the end of a recording, or on Ctrl-C.")
     add_options(p, TrackOptions)
+    add_options(p, ViewOptions)
     add_common(p)
     p.set_defaults(func=run)
 
@@ -37,11 +39,16 @@ def run(args) -> int:
         print(f"openemt track: starting (--source {args.source}; loading the solver and the "
               f"source)", file=sys.stderr, flush=True)
     from ..live import TrackingSession, TrackOptions
+    from ..view import ViewOptions, track_with_view
     from ._common import emit, options_from
 
     options = options_from(TrackOptions, args)
-    with TrackingSession.from_tracker(options.tracker, options) as session:
-        result = session.run()
+    view = options_from(ViewOptions, args)
+    if view.view:                                 # the live view in the browser
+        result = track_with_view(options, view)
+    else:
+        with TrackingSession.from_tracker(options.tracker, options) as session:
+            result = session.run()
     emit(args, result.to_dict(), result.human())
     return result.exit_code
 

@@ -413,12 +413,14 @@ class TrackingSession:
     ``sensors`` replaces the tracker's sensor setups (e.g. another solver), ``backend`` the
     source of ``options.source`` (any :class:`~openemt.live.Backend`, e.g. samples held in
     memory) and ``chunk`` the backend's samples per read; ``say`` receives the start-up lines
-    (default: stderr unless ``options.quiet``).
+    (default: stderr unless ``options.quiet``). ``observer`` (e.g. the live view's
+    :class:`openemt.view.LiveFeed`) is handed every raw chunk and every processed chunk, read
+    only (:mod:`openemt.live._observe`).
     """
 
     def __init__(self, spec: TrackerSpec, options: TrackOptions | None = None, *,
                  sensors=None, backend=None, chunk: int = 640, say=None,
-                 max_queue: int | None = None, match_layout: bool = True):
+                 max_queue: int | None = None, match_layout: bool = True, observer=None):
         options = TrackOptions() if options is None else options
         options.check()
         self.spec = spec
@@ -430,6 +432,7 @@ class TrackingSession:
         self._chunk = int(chunk)
         self._max_queue = max_queue
         self._match_layout = bool(match_layout)
+        self._observer = observer
         self.streams = spec.streams()
         self.log = self.raw = self.backend = self.server = self.source = self.pipeline = None
         self._ran = False
@@ -502,6 +505,12 @@ class TrackingSession:
                                                 truth_rate=spec.output_rate)
                 if self.log is not None:
                     self.log.flush_first = self.raw.stream   # the raw behind every logged pose
+            log = self.log
+            if self._observer is not None:             # the live view: read only
+                from ._observe import ObservedLog, ObservedSource
+
+                source = ObservedSource(source, self._observer)
+                log = ObservedLog(self.log, self._observer)
             self.source = StallWatch(source, warn_after=o.stall_warn, timeout=o.stall_timeout,
                                      on_warn=self.console.say)
             cfg = self.config()
@@ -510,7 +519,7 @@ class TrackingSession:
                 self._say(f"OpenIGTLink: serving {describe_streams(self.streams, cfg.tdata)} "
                           f"on {o.host}:{self.server.port}; Ctrl-C to stop")
             self.pipeline = TrackingPipeline(self.source, sensors, cfg, igtl=self.server,
-                                             log=self.log)
+                                             log=log)
         except BaseException:
             self.__exit__(*sys.exc_info())
             raise

@@ -1,0 +1,268 @@
+"""The live view's side of a session: a read-only observer that keeps the latest blocks, and
+the numbers each panel shows, computed from them outside the acquisition thread.
+
+:class:`LiveFeed` implements the observer protocol of :mod:`openemt.live._observe`: the
+session appends every raw chunk and every processed chunk (its
+:class:`~openemt.live.TrackStep`) to bounded histories, by reference (the arrays are handed
+out fresh and never written again; the raw recorder and the log keep them the same way),
+under a lock held for about a microsecond. :meth:`LiveFeed.snapshot` (called when a page is
+due for an update: :class:`~openemt.view.ViewProcess`'s thread, or the server's own with
+:class:`~openemt.view.ViewServer`) takes the lists under the lock and computes outside it:
+
+- per carrier: the drive-current level on its reference channel and the rms level of the
+  sensor channels at its frequency (V, from the raw samples: a Hann-windowed correlation at
+  the carrier frequency over the last ``raw_samples``), the coupling level ``||C[i, :]||``, the SNR and the
+  quadrature ratio ``||Im C[i, :]|| / ||C[i, :]||`` over the last ``window_samples`` outputs;
+- per channel: the amplitude spectrum of the last ``raw_samples`` (Hann window, dB re 1 V
+  amplitude);
+- the latest coupling matrix (every sensor's columns);
+- per sensor: the latest status, quadrature ratio, residual and pose, and its trail (the
+  converged last pose of each block of the last ``history_seconds``, at most
+  ``trail_points`` blocks evenly spaced).
+
+SNR: the coupling noise of each entry is estimated from second differences of outputs two
+output periods apart, ``d = C[k+4] - 2 C[k+2] + C[k]`` (outputs two periods apart share no
+raw sample with the Hann and rectangular frames, so their noise is independent and
+``var d = 6 sigma^2``; a smooth motion contributes ``(2 T)^4 |C''|^2``, negligible at 1500
+outputs/s), and ``SNR_i = 20 log10(||C[i, :]|| / ||sigma[i, :]||)`` in dB. It needs no noise
+model and works on a log as on a live session.
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+import threading
+import time
+
+import numpy as np
+
+__all__ = ["LiveFeed", "carrier_levels", "coupling_snr_db", "spectrum_db"]
+
+
+def carrier_levels(x, frequencies, sample_rate) -> np.ndarray:
+    """Amplitude (V) of each carrier in each channel of ``x`` ``(n, n_channels)``: the
+    Hann-windowed correlation at the carrier frequency, scaled so that a cosine of amplitude A
+    at that frequency gives A. Shape ``(n_carriers, n_channels)``."""
+    x = np.asarray(x, dtype=np.float64)
+    basis = _carrier_basis(x.shape[0], tuple(float(f) for f in frequencies),
+                           float(sample_rate))
+    return np.abs(basis @ x)
+
+
+@functools.lru_cache(maxsize=8)
+def _carrier_basis(n: int, frequencies: tuple, sample_rate: float) -> np.ndarray:
+    """``(n_carriers, n)``: Hann window x ``exp(-j 2 pi f t)`` x ``2 / sum(w)``."""
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n) / n)
+    f = np.asarray(frequencies)
+    basis = w[:, None] * np.exp(-2j * np.pi * np.outer(np.arange(n), f) / sample_rate)
+    return np.ascontiguousarray(basis.T) * (2.0 / w.sum())
+
+
+def spectrum_db(x, sample_rate, max_points: int = 1024):
+    """Amplitude spectrum of each channel of ``x`` ``(n, n_channels)`` in dB re 1 V
+    (Hann window, scaled so a sinusoid of amplitude A at a bin reads ``20 log10 A``), reduced
+    to at most ``max_points`` frequencies by keeping the largest value of each group of bins
+    (a carrier never disappears between two points). Returns ``(frequencies (F,), dB (F,
+    n_channels))``."""
+    x = np.asarray(x, dtype=np.float64)
+    n = x.shape[0]
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(n) / n)
+    amp = np.abs(np.fft.rfft(x * w[:, None], axis=0)) * (2.0 / w.sum())
+    f = np.fft.rfftfreq(n, 1.0 / sample_rate)
+    g = max(1, -(-len(f) // int(max_points)))
+    m = len(f) // g * g
+    amp = amp[:m].reshape(m // g, g, -1).max(axis=1)
+    f = f[:m].reshape(m // g, g).mean(axis=1)
+    with np.errstate(divide="ignore"):
+        return f, 20 * np.log10(np.maximum(amp, 1e-300))
+
+
+def coupling_snr_db(C) -> tuple[np.ndarray, np.ndarray]:
+    """SNR per carrier (dB) of complex couplings ``C`` ``(N, n_source, n_sensor)`` and the
+    noise ``sigma`` per entry (coupling units, real part), from second differences of outputs
+    two periods apart (see the module docstring). NaN with fewer than 8 outputs."""
+    C = np.asarray(C)
+    n_so = C.shape[1] if C.ndim == 3 else 0
+    if C.ndim != 3 or C.shape[0] < 8:
+        return np.full(n_so, np.nan), np.full(C.shape[1:] if C.ndim == 3 else (0,), np.nan)
+    d = C.real[4:] - 2 * C.real[2:-2] + C.real[:-4]
+    sigma = np.sqrt(np.mean(d ** 2, axis=0) / 6.0)
+    level = np.sqrt(np.mean(np.abs(C) ** 2, axis=0))         # rms |C| per entry
+    num = np.sqrt(np.sum(level ** 2, axis=1))
+    den = np.sqrt(np.sum(sigma ** 2, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 20 * np.log10(num / den), sigma
+
+
+class LiveFeed:
+    """The read-only observer a session publishes to, and the source of every panel.
+
+    Parameters
+    ----------
+    raw_samples : int
+        Raw samples kept per channel for the spectrum and the carrier levels (default 4096:
+        43 ms at 96 kS/s, bins of 23 Hz).
+    history_seconds, history_blocks : float, int
+        The trail covers the last ``history_seconds`` of each sensor, within the last
+        ``history_blocks`` processed blocks kept (5 s and 1024: 6.8 s of 640-sample reads).
+    window_samples : int
+        Outputs over which the SNR and the quadrature ratio per carrier are computed
+        (default 300: 0.2 s at 1500/s).
+    trail_points : int
+        Most points of a trail handed to the view (the history decimated evenly).
+    """
+
+    def __init__(self, *, raw_samples: int = 4096, history_seconds: float = 5.0,
+                 history_blocks: int = 1024, window_samples: int = 300,
+                 trail_points: int = 500):
+        self.raw_samples = int(raw_samples)
+        self.history_seconds = float(history_seconds)
+        self.window = max(int(window_samples), 8)
+        self.blocks = max(int(history_blocks), self.window)
+        self.trail_points = int(trail_points)
+        self.layout = None
+        self.names: tuple = ()
+        self.source = None
+        self._lock = threading.Lock()
+        self._raw: collections.deque = collections.deque()
+        self._raw_kept = 0
+        self._steps: list = []
+        self.n_samples: list = []
+        self.n_raw = 0
+        self.version = 0              # changes with every block published
+        self._cache = (None, None)
+
+    # -- the observer protocol (the session's thread: cheap)
+    def start(self, layout) -> None:
+        with self._lock:
+            self.layout = layout
+            self._raw.clear()
+            self._raw_kept = 0
+
+    def sensors(self, names) -> None:
+        with self._lock:
+            self.names = tuple(names)
+            self._steps = [collections.deque(maxlen=self.blocks) for _ in self.names]
+            self.n_samples = [0] * len(self.names)
+
+    def raw(self, chunk) -> None:
+        n = len(chunk)
+        with self._lock:
+            q = self._raw
+            q.append(chunk)                  # a reference: the array is never written again
+            self._raw_kept += n
+            self.n_raw += n
+            while self._raw_kept - len(q[0]) >= self.raw_samples:
+                self._raw_kept -= len(q.popleft())
+            self.version += 1
+
+    def step(self, step, sensor: int = 0) -> None:
+        with self._lock:
+            self._steps[sensor].append(step)      # a bounded deque: the oldest drops out
+            self.n_samples[sensor] += len(step)
+            self.version += 1
+
+    # -- the view's side
+    def snapshot(self) -> dict:
+        """Every number the panels show, from the blocks published so far (cached until the
+        next block arrives)."""
+        with self._lock:
+            version = self.version
+            if self._cache[0] == version:
+                return self._cache[1]
+            steps = [list(q) for q in self._steps]
+            chunks = list(self._raw)
+            layout, names = self.layout, self.names
+            counts = list(self.n_samples)
+            n_raw = self.n_raw
+        raw = None
+        if chunks and layout is not None:
+            raw = np.concatenate(chunks)[-self.raw_samples:, :layout.n_channels]
+        snap = _compute(layout, names, steps, raw, counts, n_raw, self.window,
+                        self.trail_points, self.history_seconds)
+        snap["version"] = version
+        snap["source"] = self.source
+        with self._lock:
+            self._cache = (version, snap)
+        return snap
+
+
+def _cat(steps, key, last: int | None = None):
+    parts, n = [], 0
+    for s in reversed(steps):
+        a = getattr(s, key, None)
+        if a is None:
+            return None
+        parts.append(a)
+        n += len(a)
+        if last is not None and n >= last:
+            break
+    out = np.concatenate(parts[::-1]) if parts else None
+    return out if last is None or out is None else out[-last:]
+
+
+def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points,
+             history_seconds) -> dict:
+    from ..solve import Status
+
+    t = time.time()
+    snap: dict = {"wall_time": t, "sensors": [], "n_raw": n_raw,
+                  "frequencies": None if layout is None else list(layout.frequencies)}
+    blocks = []                       # per sensor: the recent couplings (window, n_so, k)
+    converged = int(Status.CONVERGED)
+    for name, q, count in zip(names, steps, counts):
+        if not q:
+            snap["sensors"].append({"name": name, "n_samples": 0})
+            blocks.append(None)
+            continue
+        last = q[-1]
+        k = len(last) - 1
+        code = int(last.status[k])
+        try:
+            status = Status(code).name
+        except ValueError:
+            status = str(code)
+        rel = getattr(last, "relative_residual", None)
+        # the trail: the last sample of every block (blocks evenly skipped beyond
+        # ``trail_points``), where it converged; the latest block always in
+        t_end = float(last.times[k]) - history_seconds
+        recent = [b for b in q if b.times[-1] >= t_end]
+        stride = max(1, -(-len(recent) // trail_points))
+        pick = [b.pose_vectors[-1, :3] for b in recent[::-1][::stride]
+                if b.status[-1] == converged][::-1]
+        trail = np.array(pick, dtype=np.float64) if pick else np.empty((0, 3))
+        C = _cat(q, "couplings", window)
+        blocks.append(C)
+        snap["sensors"].append({
+            "name": name, "n_samples": count, "time": float(last.times[k]),
+            "status": status, "status_code": code,
+            "distortion": float(last.distortion[k]), "distorted": bool(last.distorted[k]),
+            "residual": float(last.residual[k]),
+            "relative_residual": float("nan") if rel is None else float(rel[k]),
+            "pose_vector": np.array(last.pose_vectors[k], dtype=np.float64),
+            "trail": trail,
+            "couplings": None if C is None else C[-1].copy()})
+    # per carrier, over every sensor's columns
+    have = [b for b in blocks if b is not None]
+    if have:
+        n = min(len(b) for b in have)
+        C = np.concatenate([b[-n:] for b in have], axis=2)       # (n, n_so, all columns)
+        snr, sigma = coupling_snr_db(C)
+        im = np.sqrt(np.sum(C.imag ** 2, axis=2))
+        ab = np.sqrt(np.sum(np.abs(C) ** 2, axis=2))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            quad = np.mean(im / ab, axis=0)
+        snap["carriers"] = {"snr_db": snr, "quadrature": quad,
+                            "coupling_level": np.sqrt(np.mean(ab ** 2, axis=0)),
+                            "noise": sigma, "window": n}
+    if raw is not None and len(raw) >= 64 and layout is not None:
+        fs = layout.sample_rate
+        lv = carrier_levels(raw, layout.frequencies, fs)          # (n_so, n_channels)
+        ref = lv[np.arange(layout.n_source), list(layout.reference_channels)]
+        sens = np.sqrt(np.mean(lv[:, list(layout.sensor_channels)] ** 2, axis=1))
+        snap.setdefault("carriers", {}).update({"reference_level": ref, "sensor_level": sens,
+                                                "levels": lv})
+        f, db = spectrum_db(raw, fs, max_points=512)
+        snap["spectrum"] = {"frequencies": f, "db": db, "samples": len(raw)}
+    return snap

@@ -1,0 +1,363 @@
+"""The live view's page: one Bokeh document per browser tab, refreshed by a periodic callback
+from :meth:`openemt.view.LiveFeed.snapshot`.
+
+Panels (``?panel=NAME`` shows one alone): ``carriers`` (per carrier: drive and sensor level,
+coupling level, SNR, quadrature), ``spectrum`` (per channel), ``coupling`` (the latest coupling
+matrix), ``sensors`` (per sensor: status, quadrature ratio, residual, pose) and ``trail`` (the
+positions of the last seconds, three projections). Every value shown lives in a named
+``ColumnDataSource`` (``carriers``, ``spectrum``, ``coupling``, ``sensors``, ``trail``,
+``now``, ``header``), which a test reads back through Bokeh's document in the browser.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+PANELS = ("carriers", "spectrum", "coupling", "sensors", "trail")
+_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
+            "#7f7f7f", "#bcbd22", "#17becf")
+
+
+def _fmt(v, spec="{:.3g}"):
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else spec.format(v)
+
+
+class Page:
+    """The models of one tab and the function that refreshes them from a snapshot."""
+
+    def __init__(self, doc, feed, *, period_ms: float, stats, panels=PANELS):
+        from bokeh.layouts import column, row
+        from bokeh.models import (
+            ColumnDataSource,
+            CustomJS,
+            Div,
+            LinearColorMapper,
+            Range1d,
+            Toggle,
+        )
+        from bokeh.plotting import figure
+
+        self.feed, self.stats, self.doc = feed, stats, doc
+        self.seen = None
+        self.n_updates = 0
+        # a fixed size: new text then changes no layout (a Div that may resize makes the
+        # browser lay the page out again on every update)
+        self.header = Div(text="openemt live view: waiting for the session", name="title",
+                          width=640, height=24)
+        self.pause = Toggle(label="Pause display", active=False, button_type="default",
+                            name="pause", width=140)
+        self.src_header = ColumnDataSource({"n_updates": [0], "version": [-1],
+                                            "paused": [False]}, name="header")
+        parts = [row(self.header, self.pause)]
+        self.src = {}
+
+        def table(name, cols):
+            """A table shown as HTML in a Div (named ``<name>_table``) and its values at full
+            precision in a data source (named ``name``)."""
+            src = ColumnDataSource({c[0]: [] for c in cols}, name=name)
+            self.src[name] = src
+            self.tables[name] = (Div(text="", name=f"{name}_table"), cols)
+            doc.add_root(src)
+            return self.tables[name][0]
+
+        self.tables = {}
+        if "carriers" in panels:
+            t = table("carriers", [("frequency_hz", "carrier (Hz)", "{:g}"),
+                                   ("reference_v", "drive level (V)", "{:.4g}"),
+                                   ("sensor_mv", "sensor level (mV rms)", "{:.4g}"),
+                                   ("coupling", "coupling level", "{:.4g}"),
+                                   ("snr_db", "SNR (dB)", "{:.1f}"),
+                                   ("quadrature", "quadrature ratio", "{:.2e}")])
+            parts.append(column(Div(text="<b>Carriers</b>"), t, name="panel-carriers"))
+        if "spectrum" in panels:
+            self.src["spectrum"] = ColumnDataSource({"xs": [], "ys": [], "colour": [],
+                                                     "channel": []}, name="spectrum")
+            # fixed ranges, moved from here only when the data leave them: an auto-ranged
+            # plot re-lays out its axes on every update (most of the browser's work)
+            self._spec_x, self._spec_y = Range1d(0, 1), Range1d(-160, 10)
+            f = figure(width=900, height=300, x_axis_label="frequency (Hz)",
+                       x_range=self._spec_x, y_range=self._spec_y,
+                       y_axis_label="amplitude (dB re 1 V)", tools="box_zoom,reset",
+                       title="Spectrum per channel")
+            f.multi_line("xs", "ys", source=self.src["spectrum"], line_color="colour",
+                         line_width=1)
+            self._spec_key = Div(text="", name="spectrum_key")      # the colours, once
+            parts.append(column(f, self._spec_key, name="panel-spectrum"))
+        if "coupling" in panels:
+            self.src["coupling"] = ColumnDataSource(
+                {"carrier": [], "coil": [], "value": [], "quadrature": [], "norm": [],
+                 "text": []}, name="coupling")
+            self._coupling_fig = f = figure(
+                width=600, height=260, title="Coupling matrix (real part; colour: value / "
+                "largest |value|)", tools="", x_range=[], y_range=[], toolbar_location=None)
+            f.rect("coil", "carrier", 0.95, 0.95, source=self.src["coupling"],
+                   fill_color={"field": "norm", "transform": LinearColorMapper(
+                       palette=_diverging(), low=-1.0, high=1.0)}, line_color=None)
+            f.text("coil", "carrier", text="text", source=self.src["coupling"],
+                   text_align="center", text_baseline="middle", text_font_size="9pt")
+            f.xaxis.axis_label = "sensor coil"
+            f.yaxis.axis_label = "carrier"
+            parts.append(column(f, name="panel-coupling"))
+        if "sensors" in panels:
+            t = table("sensors", [("name", "sensor", "{}"), ("status", "status", "{}"),
+                                  ("distortion", "quadrature ratio", "{:.2e}"),
+                                  ("distorted", "distorted", "{}"),
+                                  ("residual", "residual", "{:.2e}"),
+                                  ("x_mm", "x (mm)", "{:.3f}"), ("y_mm", "y (mm)", "{:.3f}"),
+                                  ("z_mm", "z (mm)", "{:.3f}"), ("rx_deg", "rx (deg)", "{:.3f}"),
+                                  ("ry_deg", "ry (deg)", "{:.3f}"),
+                                  ("rz_deg", "rz (deg)", "{:.3f}"),
+                                  ("n_samples", "samples", "{}"), ("time_s", "time (s)", "{:.4f}")])
+            parts.append(column(Div(text="<b>Sensors</b>"), t, name="panel-sensors"))
+        if "trail" in panels:
+            # one source (one message, one redraw per update): the latest pose of each
+            # sensor is its trail's last point, drawn larger
+            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": [],
+                                                  "size": []}, name="trail")
+            colour = {"field": "k", "transform": LinearColorMapper(
+                palette=list(_COLOURS), low=-0.5, high=len(_COLOURS) - 0.5)}
+            figs = []
+            self._trail_ranges = {a: Range1d(-10, 10) for a in "xyz"}
+            for a, b in (("x", "y"), ("x", "z"), ("y", "z")):
+                f = figure(width=300, height=300, x_range=self._trail_ranges[a],
+                           y_range=self._trail_ranges[b],
+                           title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
+                           y_axis_label=f"{b} (mm)", tools="", toolbar_location=None)
+                f.scatter(a, b, source=self.src["trail"], color=colour, size="size",
+                          alpha=0.6)
+                figs.append(f)
+            self._trail_key = Div(text="", name="trail_key")
+            parts.append(column(Div(text="<b>Trail in the volume</b> (converged poses of the "
+                                    "last seconds; a dot: the latest pose)"), row(*figs),
+                                self._trail_key, name="panel-trail"))
+        doc.add_root(column(*parts))
+        doc.add_root(self.src_header)
+        # flow control: the page acknowledges every update it has applied, and the server
+        # keeps at most two in flight, so a slow browser shows the latest state at its own
+        # pace instead of falling further and further behind
+        self.src_ack = ColumnDataSource({"n": [0]}, name="ack")
+        doc.add_root(self.src_ack)
+        self.src_header.js_on_change("data", CustomJS(
+            args={"ack": self.src_ack, "header": self.src_header}, code="""
+            const d = header.data;
+            const n = (d instanceof Map ? d.get("n_updates") : d.n_updates)[0];
+            ack.data = (ack.data instanceof Map) ? new Map([["n", [n]]]) : {n: [n]};
+            """))
+        self.skipped, self.sent = 0, 0.0
+        doc.title = "openemt live view"
+        self.cb = doc.add_periodic_callback(self.update, period_ms)
+
+    def update(self) -> None:
+        from bokeh.core.property.validation import without_property_validation
+
+        without_property_validation(self._update)()       # the values are ours: no checks
+
+    def _update(self) -> None:
+        if self.pause.active:                       # pauses the display only
+            if not self.src_header.data["paused"][0]:
+                self.src_header.data = dict(self.src_header.data, paused=[True])
+            return
+        now = time.monotonic()
+        if self.n_updates - self.src_ack.data["n"][0] >= 2 and now - self.sent < 0.5:
+            self.skipped += 1                      # the page has not caught up yet
+            return
+        snap = self.feed.snapshot()
+        if snap["version"] == self.seen and not self.src_header.data["paused"][0]:
+            return                                 # nothing new: nothing sent
+        self.sent = now
+        self.n_updates += 1
+        self.stats.tick()
+        self.src_header.data = {"n_updates": [self.n_updates], "version": [snap["version"]],
+                                "paused": [False]}
+        self.seen = snap["version"]
+        sensors = snap["sensors"]
+        n = max((s["n_samples"] for s in sensors), default=0)
+        t = max((s.get("time", 0.0) for s in sensors), default=0.0)
+        src = snap.get("source") or "session"
+        self.header.text = (f"<b>openemt live view</b> ({src}): {n} samples, t = {t:.2f} s, "
+                            f"{len(sensors)} sensor(s)")
+        if "carriers" in self.src:
+            self._carriers(snap)
+        if "spectrum" in self.src and "spectrum" in snap:
+            self._spectrum(snap)
+        if "coupling" in self.src:
+            self._coupling(snap)
+        if "sensors" in self.src:
+            self._sensors(sensors)
+        if "trail" in self.src:
+            self._trail(sensors)
+
+    def _show(self, name, data) -> None:
+        """Put ``data`` in the source ``name`` and its HTML table in the Div beside it."""
+        self.src[name].data = data
+        div, cols = self.tables[name]
+        n = len(next(iter(data.values()), []))
+        head = "".join(f"<th>{c[1]}</th>" for c in cols)
+        body = "".join("<tr>" + "".join(f"<td>{_fmt(data[c[0]][r], c[2])}</td>" for c in cols)
+                       + "</tr>" for r in range(n))
+        div.text = (f'<table class="openemt" style="border-collapse: collapse; '
+                    f'font: 12px monospace"><tr style="text-align: left">{head}</tr>{body}'
+                    f"</table>").replace("<td>", '<td style="padding: 2px 10px">').replace(
+                        "<th>", '<th style="padding: 2px 10px; border-bottom: 1px solid #999">')
+
+    def _carriers(self, snap):
+        c = snap.get("carriers")
+        if not c:
+            return
+        k = len(next(iter(v for v in c.values() if np.ndim(v))))
+        f = snap.get("frequencies") or [float("nan")] * k     # a log names no carrier
+
+        def col(key, scale=1.0):
+            v = c.get(key)
+            return [float("nan")] * k if v is None else [float(x) * scale for x in v]
+
+        self._show("carriers", {
+            "frequency_hz": [float(x) for x in f], "reference_v": col("reference_level"),
+            "sensor_mv": col("sensor_level", 1e3), "coupling": col("coupling_level"),
+            "snr_db": col("snr_db"), "quadrature": col("quadrature")})
+
+    def _spectrum(self, snap):
+        s = snap["spectrum"]
+        names = _channel_names(self.feed)
+        f = s["frequencies"].astype(np.float32)
+        db = s["db"].astype(np.float32)
+        k = db.shape[1]
+        self.src["spectrum"].data = {
+            "xs": [f] * k, "ys": [np.ascontiguousarray(db[:, j]) for j in range(k)],
+            "colour": [_COLOURS[j % len(_COLOURS)] for j in range(k)],
+            "channel": [names.get(j, f"ch{j}") for j in range(k)]}
+        key = _key(self.src["spectrum"].data["channel"])
+        if self._spec_key.text != key:
+            self._spec_key.text = key
+        top = float(f[-1]) if len(f) else 1.0
+        if self._spec_x.end != top:
+            self._spec_x.update(start=0.0, end=top)
+        finite = db[np.isfinite(db)]
+        if finite.size:
+            lo, hi = float(np.percentile(finite, 1)), float(finite.max())
+            y = self._spec_y
+            if lo < y.start or hi > y.end or lo > y.start + 30 or hi < y.end - 30:
+                y.update(start=10 * math.floor(lo / 10) - 10, end=10 * math.ceil(hi / 10) + 10)
+
+    def _coupling(self, snap):
+        blocks = [(s["name"], s["couplings"]) for s in snap["sensors"]
+                  if s.get("couplings") is not None]
+        if not blocks:
+            return
+        f = snap.get("frequencies")
+        carrier, coil, value, quad, text = [], [], [], [], []
+        for name, C in blocks:
+            n_so, n_se = C.shape
+            labels = ([f"{x:g} Hz" for x in f] if f is not None and len(f) == n_so
+                      else [f"source {i}" for i in range(n_so)])
+            for i in range(n_so):
+                for j in range(n_se):
+                    carrier.append(labels[i])
+                    coil.append(f"{name}.{j}")
+                    value.append(float(C[i, j].real))
+                    quad.append(float(C[i, j].imag))
+                    text.append(f"{C[i, j].real:.3g}")
+        m = max((abs(v) for v in value), default=0.0) or 1.0
+        fig = self._coupling_fig
+        coils = list(dict.fromkeys(coil))
+        carriers = list(dict.fromkeys(carrier))[::-1]
+        if list(fig.x_range.factors) != coils:
+            fig.x_range.factors = coils
+        if list(fig.y_range.factors) != carriers:
+            fig.y_range.factors = carriers
+        self.src["coupling"].data = {"carrier": carrier, "coil": coil, "value": value,
+                                     "quadrature": quad, "norm": [v / m for v in value],
+                                     "text": text}
+
+    def _sensors(self, sensors):
+        rows = [s for s in sensors if s["n_samples"]]
+        v = [s["pose_vector"] for s in rows]
+        self._show("sensors", {
+            "name": [s["name"] for s in rows], "status": [s["status"] for s in rows],
+            "distortion": [s["distortion"] for s in rows],
+            "distorted": ["yes" if s["distorted"] else "no" for s in rows],
+            "residual": [s["residual"] for s in rows],
+            "x_mm": [1e3 * p[0] for p in v], "y_mm": [1e3 * p[1] for p in v],
+            "z_mm": [1e3 * p[2] for p in v],
+            "rx_deg": [math.degrees(p[3]) for p in v], "ry_deg": [math.degrees(p[4]) for p in v],
+            "rz_deg": [math.degrees(p[5]) for p in v],
+            "n_samples": [s["n_samples"] for s in rows],
+            "time_s": [s["time"] for s in rows]})
+
+    def _trail(self, sensors):
+        parts, ks, sizes = [], [], []
+        now = {"x": [], "y": [], "z": [], "k": [], "name": []}
+        for k, s in enumerate(sensors):
+            if not s["n_samples"]:
+                continue
+            p = 1e3 * s["pose_vector"][:3]
+            parts += [1e3 * s["trail"], p[None]]
+            ks.append(np.full(len(s["trail"]) + 1, k % len(_COLOURS), np.int32))
+            sizes += [np.full(len(s["trail"]), 2.0, np.float32), np.array([10.0], np.float32)]
+            for key, val in zip("xyz", p):
+                now[key].append(float(val))
+            now["k"].append(k % len(_COLOURS))
+            now["name"].append(s["name"])
+        tr = (np.concatenate(parts) if parts else np.empty((0, 3))).astype(np.float32)
+        self.src["trail"].data = {"x": tr[:, 0].copy(), "y": tr[:, 1].copy(),
+                                  "z": tr[:, 2].copy(),
+                                  "k": np.concatenate(ks) if ks else np.empty(0, np.int32),
+                                  "size": np.concatenate(sizes) if sizes
+                                  else np.empty(0, np.float32)}
+        key = _key(now["name"], [_COLOURS[k] for k in now["k"]])
+        if self._trail_key.text != key:
+            self._trail_key.text = key
+        pts = tr[np.isfinite(tr).all(axis=1)]
+        if len(pts):
+            # one scale on all three axes (equal aspect), moved when a point leaves the
+            # view or the points fill less than a third of it
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            r = self._trail_ranges
+            span = r["x"].end - r["x"].start
+            need = max(float((hi - lo).max()), 10.0)
+            out = any(lo[i] < r[a].start or hi[i] > r[a].end for i, a in enumerate("xyz"))
+            if out or need < span / 3:
+                half = 0.65 * need
+                for i, a in enumerate("xyz"):
+                    c = 0.5 * float(lo[i] + hi[i])
+                    r[a].update(start=c - half, end=c + half)
+
+
+def _key(names, colours=None) -> str:
+    """A colour key in HTML: each name in its colour."""
+    colours = colours or [_COLOURS[j % len(_COLOURS)] for j in range(len(names))]
+    return "&nbsp; ".join(f'<span style="color: {c}">&#9632; {n}</span>'
+                          for n, c in zip(names, colours))
+
+
+def _diverging():
+    """A blue-white-red palette of 64 colours (negative blue, positive red)."""
+    out = []
+    for k in range(64):
+        u = k / 63 * 2 - 1
+        if u < 0:
+            r, g, b = 1 + u, 1 + u, 1.0
+        else:
+            r, g, b = 1.0, 1 - u, 1 - u
+        out.append(f"#{int(55 + 200 * r):02x}{int(55 + 200 * g):02x}{int(55 + 200 * b):02x}")
+    return out
+
+
+def _channel_names(feed) -> dict:
+    lay = feed.layout
+    if lay is None:
+        return {}
+    out = {}
+    names = feed.names
+    per = len(lay.sensor_channels) // max(1, len(names)) if names else 0
+    for j, c in enumerate(lay.sensor_channels):
+        if per and len(names) * per == len(lay.sensor_channels):
+            out[c] = f"{names[j // per]}.{j % per} (ch {c})"
+        else:
+            out[c] = f"sensor coil {j} (ch {c})"
+    for i, c in enumerate(lay.reference_channels):
+        out[c] = f"reference {lay.frequencies[i]:g} Hz (ch {c})"
+    return out
