@@ -107,9 +107,30 @@ class Backend:
     def read(self):  # pragma: no cover - abstract
         raise NotImplementedError
 
+    #: whether a read may start a run that does not continue the previous one (then
+    #: :meth:`pop_restart` says where)
+    discontinuous: bool = False
+    #: whether the samples arrive at the pace of their sample clock (end-to-end latency is
+    #: measured only then)
+    realtime: bool = True
+
     def truth_poses(self, times):
         """True poses ``(N, 4, 4)`` at sample times (s), or None when unknown."""
         return
+
+    def epoch_times(self, times):
+        """The acquisition time (UTC, epoch s) of session times ``times`` (s): ``t0_epoch +
+        times`` for a device whose sample clock is the host's (the simulator, a sound card)."""
+        return self.t0_epoch + times
+
+    def pop_restart(self):
+        """The session time (s) where the last read's samples start a new contiguous run
+        (after lost frames or a restarted device), once; None otherwise."""
+        return None
+
+    def link_stats(self) -> dict | None:
+        """Counters of a framed link (frames, CRC errors, gaps, ...), or None."""
+        return None
 
     def close(self) -> None:
         pass
@@ -385,6 +406,23 @@ class BackendWrapper(Backend):
 
     def truth_poses(self, times):
         return self.backend.truth_poses(times)
+
+    @property
+    def discontinuous(self):
+        return self.backend.discontinuous
+
+    @property
+    def realtime(self):
+        return self.backend.realtime
+
+    def epoch_times(self, times):
+        return self.backend.epoch_times(times)
+
+    def pop_restart(self):
+        return self.backend.pop_restart()
+
+    def link_stats(self):
+        return self.backend.link_stats()
 
     def read(self):
         return self.backend.read()

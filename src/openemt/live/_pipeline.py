@@ -114,6 +114,12 @@ class TrackStep:
         none); sent as the ``RelativeResidual`` metadata.
     tool_poses : ndarray, shape (N, 4, 4), optional
         The sensor's own poses when ``poses`` are its tool tip's (a sensor with a ``tip``).
+    acquisition_time : ndarray, shape (N,), optional
+        UTC (epoch s) of each sample (its frame centre) on the ADC's sample clock: the
+        OpenIGTLink timestamp (docs/live.md#time).
+    latency : ndarray, shape (N,), optional
+        Seconds from ``acquisition_time`` to the return of the OpenIGTLink send (to the end of
+        processing without a server); NaN when the source is not paced in real time.
     """
 
     times: np.ndarray
@@ -127,6 +133,8 @@ class TrackStep:
     t_ready: float = 0.0
     relative_residual: np.ndarray | None = None
     tool_poses: np.ndarray | None = None
+    acquisition_time: np.ndarray | None = None
+    latency: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.times.shape[0]
@@ -188,7 +196,7 @@ class TrackLog:
     """
 
     _KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
-             "distorted", "couplings")
+             "distorted", "couplings", "acquisition_time", "latency")
 
     def __init__(self, sensor_names=None):
         self.sensor_names = tuple(sensor_names) if sensor_names is not None else ("openemt",)
@@ -207,7 +215,8 @@ class TrackLog:
         if len(step):
             parts = self._parts[sensor]
             for k in self._KEYS:
-                parts[k].append(getattr(step, k))
+                v = getattr(step, k)
+                parts[k].append(np.full(len(step), np.nan) if v is None else v)
 
     def arrays(self, sensor: int | str = 0) -> dict:
         """The arrays of one sensor (index or name)."""
@@ -537,6 +546,12 @@ class TrackingPipeline:
             getattr(st.solver, "serial", False) for st in self.sensors)
         self._n_out = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
+        # acquisition time and end-to-end latency (docs/live.md#time)
+        self._e2e = collections.deque(maxlen=200_000)
+        self._epoch_times = getattr(backend, "epoch_times", None)
+        self._discontinuous = bool(getattr(backend, "discontinuous", False))
+        self._clocked = bool(getattr(backend, "realtime", True))
+        self.demod_restarts = 0
         self._truth_known = backend.truth_poses(np.zeros(1)) is not None
 
     @property
@@ -659,6 +674,11 @@ class TrackingPipeline:
         chunk = self.backend.read()
         if chunk is None:
             return None
+        if self._discontinuous and len(chunk):
+            restart = self.backend.pop_restart()
+            if restart is not None:       # lost frames or a restarted device: a new window
+                self.demod.reset(restart)
+                self.demod_restarts += 1
         d = self.demod.process(chunk)
         t_ready = time.perf_counter()
         n = len(d)
@@ -674,7 +694,9 @@ class TrackingPipeline:
                 self._watch(st, step, step.distorted, now, None)
             return steps[0] if len(steps) == 1 else tuple(steps)
         send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
-        epoch = self.backend.t0_epoch
+        stamps = (self.backend.t0_epoch + d.times if self._epoch_times is None
+                  else self._epoch_times(d.times))
+        latency = np.empty(n)
         parts = [d.couplings if st.columns is None else d.couplings[:, :, st.index_of_columns]
                  for st in self.sensors]
         Cs = [c.real for c in parts]
@@ -726,8 +748,7 @@ class TrackingPipeline:
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
-                                   t_ready, rel, tool))
-        stamps = epoch + d.times
+                                   t_ready, rel, tool, stamps, latency))
         if self.igtl is not None:
             self._send(steps, valids, stamps, t_ready)
             if send_status:
@@ -735,6 +756,11 @@ class TrackingPipeline:
                     self._send_status(self._device(st), int(step.status[-1]),
                                       bool(step.distorted[-1]), float(step.distortion[-1]),
                                       stamps[-1])
+        if self._clocked:                      # sample time -> sent, per sample
+            np.subtract(time.time(), stamps, out=latency)
+            self._e2e.extend(latency)
+        else:
+            latency.fill(np.nan)
         now = time.monotonic()
         for st, step, valid in zip(self.sensors, steps, valids):
             self._watch(st, step, valid, now, stamps[-1])
@@ -990,7 +1016,22 @@ class TrackingPipeline:
                 "status_counts": status_count_names(counts),
                 "distorted": sum(st.n_distorted for st in self.sensors),
                 "not_sent_distorted": sum(st.n_not_sent for st in self.sensors),
-                "latency_ms_p50": p50}
+                "latency_ms_p50": p50, "link": self._link_stats()}
+
+    def _link_stats(self):
+        f = getattr(self.backend, "link_stats", None)
+        return None if f is None else f()
+
+    def acquisition(self) -> dict:
+        """Time and link figures (docs/live.md#time): the end-to-end latency (acquisition time
+        of a sample to its send) percentiles in ms (None when the source is not paced in real
+        time), the demodulator restarts at gaps, and a framed link's counters and clock fit
+        (``link``, None for other sources)."""
+        e2e = np.asarray(self._e2e) * 1e3
+        return {"latency_ms_p50": float(np.percentile(e2e, 50)) if e2e.size else None,
+                "latency_ms_p99": float(np.percentile(e2e, 99)) if e2e.size else None,
+                "latency_ms_max": float(e2e.max()) if e2e.size else None,
+                "demodulator_restarts": self.demod_restarts, "link": self._link_stats()}
 
     def _sensor_summary(self, st: _SensorState) -> dict:
         counts = status_count_names(st.status_counts)
@@ -1044,7 +1085,8 @@ class TrackingPipeline:
                  "stale_after": self.stale_after,
                  "reference": None if self.reference is None else self.reference.setup.name,
                  "relative_devices": [d for _, d in self._relative] or None,
-                 "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata}
+                 "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata,
+                 "acquisition": self.acquisition()}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:

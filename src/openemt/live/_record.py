@@ -9,8 +9,12 @@ Log layout (``.h5``/``.hdf5``): one sensor (version 1): datasets at the root ``t
 (version 2): the same datasets in one group per sensor (``/sensors/<name>/...``, each with its
 ``rows``) and the attribute ``sensors`` (names in tracker-file order).
 
+Both carry the time of each sample (docs/live.md#time): ``acquisition_time`` (UTC, epoch s, on
+the ADC's sample clock) and ``latency`` (s from it to the OpenIGTLink send; NaN when the
+source was not paced in real time).
+
 CSV: columns ``time_s, x_m, y_m, z_m, rx_rad, ry_rad, rz_rad, status, residual, distortion,
-distorted``; several sensors: a ``sensor`` column (the name) after ``time_s``, one row per
+distorted, acquisition_time_s, latency_s`` (a log without the last two is read too); several sensors: a ``sensor`` column (the name) after ``time_s``, one row per
 sensor and sample, the sensors of one sample on consecutive rows.
 """
 
@@ -32,9 +36,12 @@ __all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log",
 
 TRACK_FORMAT = "openemt-track"
 LOG_KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
-            "distorted", "couplings")
-_CSV_COLS = "x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted"
-_CSV_FMT = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d"]
+            "distorted", "couplings", "acquisition_time", "latency")
+#: the time columns (docs/live.md#time): NaN where a writer gave none
+_TIME_KEYS = ("acquisition_time", "latency")
+_CSV_COLS_V1 = "x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted"
+_CSV_COLS = _CSV_COLS_V1 + ",acquisition_time_s,latency_s"
+_CSV_FMT = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d", "%.6f", "%.6g"]
 
 
 def _log_kind(path: Path) -> str:
@@ -140,6 +147,10 @@ class TrackLogWriter:
         if not n:
             return
         self._appended = True
+        for a in parts:
+            for key in _TIME_KEYS:
+                if a.get(key) is None:
+                    a[key] = np.full(n, np.nan)
         if self.kind == "h5":
             multi = len(parts) > 1
             for name, a in zip(self.sensor_names, parts):
@@ -148,7 +159,8 @@ class TrackLogWriter:
             return
         tables = [np.column_stack([a["times"], np.asarray(a["pose_vectors"]).reshape(-1, 6),
                                    a["status"], a["residual"], a["distortion"],
-                                   np.asarray(a["distorted"]).astype(int)]) for a in parts]
+                                   np.asarray(a["distorted"]).astype(int),
+                                   a["acquisition_time"], a["latency"]]) for a in parts]
         buf = io.StringIO()
         if len(tables) == 1:
             np.savetxt(buf, tables[0], delimiter=",", fmt=_CSV_FMT)
@@ -318,9 +330,12 @@ def _read_csv_log(path: Path) -> TrackLogData:
     text = path.read_text(encoding="utf-8", errors="strict")
     lines = text.split("\n")
     head = lines[0].strip().split(",") if lines else []
-    cols = _CSV_COLS.split(",")
     multi = head[:2] == ["time_s", "sensor"]
-    if head != (["time_s", "sensor"] if multi else ["time_s"]) + cols:
+    lead = ["time_s", "sensor"] if multi else ["time_s"]
+    cols = _CSV_COLS.split(",")
+    if head == lead + _CSV_COLS_V1.split(","):          # a log without the time columns
+        cols = _CSV_COLS_V1.split(",")
+    if head != lead + cols:
         raise InputError(f"expected a track log CSV header 'time_s,{_CSV_COLS}', got "
                          f"{lines[0][:80]!r} in {str(path)!r}")
     body = lines[1:]
@@ -352,7 +367,9 @@ def _read_csv_log(path: Path) -> TrackLogData:
         t = np.asarray(rows.get(name, [])[:m], dtype=np.float64).reshape(-1, width - multi)
         arrays[name] = {"times": t[:, 0], "pose_vectors": t[:, 1:7],
                         "status": t[:, 7].astype(np.int8), "residual": t[:, 8],
-                        "distortion": t[:, 9], "distorted": t[:, 10].astype(bool)}
+                        "distortion": t[:, 9], "distorted": t[:, 10].astype(bool),
+                        **({"acquisition_time": t[:, 11], "latency": t[:, 12]}
+                           if t.shape[1] > 12 else {})}
     return TrackLogData(sensors=tuple(order or ["openemt"]), arrays=arrays, complete=complete)
 
 
