@@ -213,3 +213,110 @@ def test_the_acquisition_time_is_the_sample_clock(tmp_path, pty_pair):
     assert np.all(np.isfinite(a["latency"])) and np.all(a["latency"] > 0)
     acq = r.to_dict()["acquisition"]
     assert 0 < acq["latency_ms_p50"] <= acq["latency_ms_p99"]
+
+
+def test_track_command_reads_a_tcp_stream(capsys):
+    import json
+
+    from openemt.cli import main
+
+    box, ready = [], threading.Event()
+    th = threading.Thread(target=_serve, args=(box, [Emitter(realtime=False, duration=0.6)],
+                                                ready), daemon=True)
+    th.start()
+    ready.wait(5)
+    assert main(["track", "--source", f"tcp://127.0.0.1:{box[0]}", "--duration", "0.3",
+                 "--no-igtl", "--quiet", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["source"] == f"tcp://127.0.0.1:{box[0]}"
+    assert out["link"]["frames"] > 0 and out["link"]["crc_errors"] == 0
+    assert out["status_counts"]["converged"] == out["n_samples"] >= 450
+    th.join(5)
+
+
+# --------------------------------------------------------------------- openemt devices
+
+def _probe_as_nobody(path):
+    """probe_serial(path) in a child process that runs as user 'nobody' (root opens anything,
+    so the permission reason needs another user)."""
+    from openemt.live._acquire import probe_serial
+
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:                                    # pragma: no cover - the child
+        try:
+            os.close(r)
+            os.setgroups([])
+            os.setgid(65534)
+            os.setuid(65534)
+            ok, why = probe_serial(path)
+            os.write(w, f"{int(ok)} {why}".encode())
+        finally:
+            os._exit(0)
+    os.close(w)
+    with os.fdopen(r) as f:
+        out = f.read()
+    os.waitpid(pid, 0)
+    ok, why = out.split(" ", 1)
+    return ok == "1", why
+
+
+def test_devices_says_why_a_port_does_not_open(tmp_path, pty_pair, capsys):
+    import grp
+    import json
+
+    from openemt.cli import main
+    from openemt.live._acquire import _open_serial, probe_serial
+
+    _, path = pty_pair
+    assert probe_serial(path) == (True, "opens")
+    ok, why = probe_serial(str(tmp_path / "ttyACM7"))
+    assert not ok and why.startswith("missing: no device at")
+
+    held = _open_serial(path, 921600)               # exclusively, as track does
+    try:
+        ok, why = probe_serial(path)
+        assert not ok and why.startswith(f"busy: {path} is open in another program")
+    finally:
+        held.close()
+
+    os.chmod(path, 0o600)                           # only its owner may open it
+    group = grp.getgrgid(os.stat(path).st_gid).gr_name
+    ok, why = _probe_as_nobody(path) if os.geteuid() == 0 else probe_serial(path)
+    assert not ok
+    assert why == (f"no permission to open {path}: join its group '{group}' (sudo usermod "
+                   f"-aG {group} $USER, then log in again)")
+
+    os.chmod(path, 0o620)
+    assert main(["devices", "--serial", path, str(tmp_path / "x"), "--json", "--quiet"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    mine = {p["port"]: p for p in d["serial_ports"]}
+    assert mine[path]["opens"] is True and mine[str(tmp_path / "x")]["opens"] is False
+    assert d["needs"] == {"channels": 6, "sample_rate": 96000.0, "what": d["needs"]["what"]}
+
+
+def test_devices_checks_the_tracker_files_network_source(tmp_path, capsys):
+    import json
+
+    from openemt.cli import main
+    from openemt.live import example_tracker
+
+    srv = socket.create_server(("127.0.0.1", 0))
+    port = srv.getsockname()[1]
+    text = example_tracker("simulated").read_text().replace(
+        "channels = 6 ", f'source = "tcp://127.0.0.1:{port}"\nchannels = 6 ')
+    tracker = tmp_path / "t.toml"
+    tracker.write_text(text)
+    (tmp_path / "concentric.json").write_bytes(
+        (example_tracker("simulated").parent / "concentric.json").read_bytes())
+    with srv:
+        assert main(["devices", "--tracker", str(tracker), "--json", "--quiet"]) == 0
+        net = json.loads(capsys.readouterr().out)["network"]
+        assert net == [{"source": f"tcp://127.0.0.1:{port}", "kind": "tcp", "opens": True,
+                        "reason": "accepts connections"}]
+    assert main(["devices", "--tracker", str(tracker), "--json", "--quiet"]) == 0
+    net = json.loads(capsys.readouterr().out)["network"]
+    assert not net[0]["opens"] and net[0]["reason"].startswith("refused: nothing listens")
+    # the tracker file's source is track's default source
+    assert main(["track", "--tracker", str(tracker), "--no-igtl", "--quiet"]) == 2
+    assert f"tcp://127.0.0.1:{port}, got refused" in capsys.readouterr().err

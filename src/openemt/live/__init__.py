@@ -12,6 +12,7 @@ from ._backends import (
     default_trajectory,
     list_audio_inputs,
 )
+from ._devices import DevicesOptions, DevicesResult, list_devices
 from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
 from ._igtl_wire import frame_messages, pack_transforms, transform_bodies
@@ -57,6 +58,8 @@ __all__ = [
     "transform_bodies",
     "DEFAULT_IGTL_PORT",
     "Backend",
+    "DevicesOptions",
+    "DevicesResult",
     "FilterSpec",
     "IgtlServer",
     "PipelineConfig",
@@ -85,6 +88,7 @@ __all__ = [
     "filter_restarts",
     "kalman_filter_poses",
     "list_audio_inputs",
+    "list_devices",
     "lm_solver",
     "new_filter_state",
     "read_registration_transform",
