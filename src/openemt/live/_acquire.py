@@ -222,6 +222,7 @@ class FramedBackend(Backend):
         self.reconnects = 0
         self.samples = 0
         self.stale_bytes = None if drain else 0
+        self._last_utc = self._last_time = None
 
     # subclasses
     def _recv(self, timeout: float) -> bytes:  # pragma: no cover - abstract
@@ -232,9 +233,18 @@ class FramedBackend(Backend):
         return self.clock.a if self.clock.a is not None else time.time()
 
     def epoch_times(self, times):
-        if self.clock.a is None:
-            return np.full(np.shape(times), time.time())
-        return self.clock.utc(times)
+        """UTC of session ``times`` (one chunk after the other, in order) from the clock fit,
+        never decreasing: when a refit moves the line back, the stamps advance at 0.1 % of
+        the sample clock until the fit catches up (less than one output period for a step
+        back of up to 0.6 ms)."""
+        times = np.asarray(times, dtype=np.float64)
+        t = (np.full(times.shape, time.time()) if self.clock.a is None
+             else self.clock.utc(times))
+        if len(t):
+            if self._last_utc is not None:
+                t = np.maximum(t, self._last_utc + 1e-3 * (times - self._last_time) + 1e-9)
+            self._last_utc, self._last_time = float(t[-1]), float(times[-1])
+        return t
 
     def truth_poses(self, times):
         """``truth(counter times)``: the given truth at the sample counter's time (s) of
