@@ -5,9 +5,7 @@ restarted streams counted and never bridged; the acquisition time of every pose.
 from __future__ import annotations
 
 import os
-import select
 import socket
-import threading
 
 import numpy as np
 import pytest
@@ -16,7 +14,7 @@ from openemt._errors import InputError
 from openemt.live import TrackingSession, TrackOptions
 from openemt.live._acquire import SerialBackend, TcpBackend, parse_source
 from openemt.live._framing import FLAG_START, FrameDecoder, pack_frame
-from openemt.live.emitter import Emitter, open_pty
+from openemt.live.emitter import Emitter, EmitterThread, open_pty
 
 
 def _frames(k, n=8, ch=3, start=0, flags0=FLAG_START):
@@ -64,37 +62,16 @@ def test_source_forms():
         TrackOptions(source="bogus").check()
 
 
-def _writer(fd, stop):
-    """Write all of a frame to the pty master unless ``stop`` is set (a reader that stopped
-    reading never leaves the emitter blocked)."""
-    os.set_blocking(fd, False)
-
-    def write(data):
-        view = memoryview(data)
-        while view and not stop.is_set():
-            try:
-                view = view[os.write(fd, view):]
-            except BlockingIOError:
-                select.select([], [fd], [], 0.05)
-    return write
-
-
 def _run(backend, emitter, fd, seconds, **opts):
-    """Track ``seconds`` from ``backend`` while ``emitter`` writes to ``fd`` in a thread
-    (started once the port is open)."""
+    """Track ``seconds`` from ``backend`` while ``emitter`` writes to ``fd`` (a pty master;
+    None: the emitter thread ``emitter`` serving TCP) from a thread started once the port is
+    open."""
     o = TrackOptions(igtl=False, quiet=True, duration=seconds, stall_timeout=20, **opts)
-    stop = threading.Event()
-    try:
-        with TrackingSession.from_tracker(None, o, backend=backend) as s:
-            th = threading.Thread(target=emitter.run, args=(_writer(fd, stop),),
-                                  kwargs={"stop": stop.is_set}, daemon=True)
-            th.start()
-            result = s.run()
-            pipe = s.pipeline
-    finally:
-        stop.set()
-    th.join(10)
-    assert not th.is_alive()
+    et = emitter if fd is None else EmitterThread([emitter], fd)
+    with TrackingSession.from_tracker(None, o, backend=backend) as s, et:
+        result = s.run()
+        pipe = s.pipeline
+    assert et.error is None
     return result, pipe
 
 
@@ -162,36 +139,15 @@ def test_a_restarted_emitter_is_counted_and_tracking_goes_on(pty_pair):
     assert r.summary.status_counts["converged"] == r.summary.n_samples >= 1500
 
 
-def _serve(port_box, emitters, ready):
-    """A TCP server sending each emitter's frames on its own connection, one after the other
-    (an ADC board that restarts)."""
-    srv = socket.create_server(("127.0.0.1", 0))
-    port_box.append(srv.getsockname()[1])
-    ready.set()
-    with srv:
-        for em in emitters:
-            conn, _ = srv.accept()
-            with conn:
-                try:
-                    em.run(conn.sendall)
-                except ConnectionError:     # the session ended first
-                    return
-
-
 def test_tcp_tracks_and_reconnects_after_the_emitter_restarts():
     ems = [Emitter(realtime=False, duration=0.7), Emitter(realtime=False, duration=0.7)]
-    box, ready = [], threading.Event()
-    th = threading.Thread(target=_serve, args=(box, ems, ready), daemon=True)
-    th.start()
-    ready.wait(5)
-    b = TcpBackend("127.0.0.1", box[0], ems[0].spec.layout(), ems[0].n_channels, drain=False)
-    o = TrackOptions(igtl=False, quiet=True, duration=1.2, stall_timeout=20)
-    with TrackingSession.from_tracker(None, o, backend=b) as s:
-        r = s.run()
+    et = EmitterThread(ems)
+    b = TcpBackend("127.0.0.1", et.port, ems[0].spec.layout(), ems[0].n_channels, drain=False,
+                   truth=ems[0].truth_poses)
+    r, _ = _run(b, et, None, 1.2)
     k = r.to_dict()["link"]
     assert k["reconnects"] == 1 and k["restarts"] == 1
     assert r.summary.status_counts["converged"] == r.summary.n_samples >= 1800
-    th.join(5)
 
 
 def test_the_acquisition_time_is_the_sample_clock(tmp_path, pty_pair):
@@ -222,18 +178,13 @@ def test_track_command_reads_a_tcp_stream(capsys):
 
     from openemt.cli import main
 
-    box, ready = [], threading.Event()
-    th = threading.Thread(target=_serve, args=(box, [Emitter(realtime=False, duration=0.6)],
-                                                ready), daemon=True)
-    th.start()
-    ready.wait(5)
-    assert main(["track", "--source", f"tcp://127.0.0.1:{box[0]}", "--duration", "0.3",
-                 "--no-igtl", "--quiet", "--json"]) == 0
+    with EmitterThread([Emitter(realtime=False, duration=0.6)]) as et:
+        assert main(["track", "--source", f"tcp://127.0.0.1:{et.port}", "--duration", "0.3",
+                     "--no-igtl", "--quiet", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["source"] == f"tcp://127.0.0.1:{box[0]}"
+    assert out["source"] == f"tcp://127.0.0.1:{et.port}"
     assert out["link"]["frames"] > 0 and out["link"]["crc_errors"] == 0
     assert out["status_counts"]["converged"] == out["n_samples"] >= 450
-    th.join(5)
 
 
 # --------------------------------------------------------------------- openemt devices
@@ -333,16 +284,12 @@ def test_openigtlink_messages_carry_the_acquisition_time(tmp_path):
 
     from openemt.live import read_track_log
 
-    box, ready = [], threading.Event()
-    th = threading.Thread(target=_serve, args=(box, [Emitter(realtime=False, duration=0.6)],
-                                                ready), daemon=True)
-    th.start()
-    ready.wait(5)
-    em_spec = Emitter(realtime=False, duration=0.01).spec
-    b = TcpBackend("127.0.0.1", box[0], em_spec.layout(), em_spec.n_channels, drain=False)
+    em = Emitter(realtime=False, duration=0.6)
+    et = EmitterThread([em])
+    b = TcpBackend("127.0.0.1", et.port, em.spec.layout(), em.n_channels, drain=False)
     o = TrackOptions(quiet=True, duration=0.3, igtl_port=0, log=tmp_path / "log.h5",
                      stall_timeout=20, header_version="auto")
-    with TrackingSession.from_tracker(None, o, backend=b) as s:
+    with TrackingSession.from_tracker(None, o, backend=b) as s, et:
         readers = [RawReader(s.server.port), RawReader(s.server.port, announce=True)]
         end = time.monotonic() + 10
         while s.server.n_clients < 2 and time.monotonic() < end:
@@ -359,4 +306,3 @@ def test_openigtlink_messages_carry_the_acquisition_time(tmp_path):
         gap = np.abs(stamps[:, None] - a["acquisition_time"][None, :]).min(axis=1)
         assert gap.max() < 1e-6
     assert np.all(np.diff(a["acquisition_time"]) > 0)
-    th.join(5)

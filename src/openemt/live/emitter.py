@@ -32,7 +32,7 @@ import numpy as np
 from .._errors import InputError
 from ._framing import FLAG_START, FORMATS, FRAME_VERSION, SYNC, format_code
 
-__all__ = ["Emitter", "main"]
+__all__ = ["Emitter", "EmitterThread", "fd_writer", "main", "open_pty"]
 
 
 class Emitter:
@@ -184,12 +184,85 @@ class Emitter:
                 "frame_samples": self.n}
 
 
-def _write_all(fd):
+def fd_writer(fd, stop=None):
+    """``write(bytes)`` to a file descriptor (a pty master) that returns without writing all
+    once ``stop()`` is true: a reader that stopped reading never leaves the emitter blocked."""
+    import select
+
+    os.set_blocking(fd, False)
+
     def write(data):
         view = memoryview(data)
-        while view:
-            view = view[os.write(fd, view):]
+        while view and not (stop is not None and stop()):
+            try:
+                view = view[os.write(fd, view):]
+            except BlockingIOError:
+                select.select([], [fd], [], 0.05)
     return write
+
+
+class EmitterThread:
+    """Emitters run one after the other on a background thread, writing to a pty master
+    (``fd``) or, with ``fd=None``, serving each on its own TCP connection on
+    ``127.0.0.1:port`` (:attr:`port`; an ADC board that restarts between them);
+    ``with EmitterThread(...)`` starts it and, on leaving, stops it and waits for it."""
+
+    def __init__(self, emitters, fd=None):
+        import socket
+        import threading
+
+        self.emitters = list(emitters)
+        self._stop = threading.Event()
+        self.error = None
+        self._srv = None
+        if fd is None:
+            self._srv = socket.create_server(("127.0.0.1", 0))
+            self._srv.settimeout(0.1)
+            self.port = self._srv.getsockname()[1]
+        self._fd = fd
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        import socket
+
+        try:
+            for em in self.emitters:
+                if self._fd is not None:
+                    em.run(fd_writer(self._fd, self._stop.is_set), stop=self._stop.is_set)
+                    continue
+                conn = None
+                while conn is None and not self._stop.is_set():
+                    try:
+                        conn, _ = self._srv.accept()
+                    except TimeoutError:
+                        pass
+                if conn is None:
+                    return
+                with conn:
+                    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    try:
+                        em.run(conn.sendall, stop=self._stop.is_set)
+                    except (ConnectionError, BrokenPipeError):
+                        return                       # the reader went away
+        except Exception as exc:  # noqa: BLE001 - kept for the caller
+            self.error = exc
+        finally:
+            if self._srv is not None:
+                self._srv.close()
+
+    def start(self):
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 10.0) -> None:
+        self._stop.set()
+        self._thread.join(timeout)
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
 
 
 def open_pty():
@@ -242,7 +315,7 @@ def main(argv=None) -> int:
         if a.to == "pty":
             master, _slave, path = open_pty()
             print(path, flush=True)
-            stats = emitter().run(_write_all(master))
+            stats = emitter().run(fd_writer(master))
         elif a.to.startswith("tcp://"):
             import socket
 
