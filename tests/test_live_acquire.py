@@ -161,7 +161,7 @@ def test_the_acquisition_time_is_the_sample_clock(tmp_path, pty_pair):
     log = tmp_path / "log.h5"
     r, pipe = _run(b, em, master, 2.5, log=log)
     a = read_track_log(log).arrays["openemt"]
-    counter_times = a["times"] - b._offset / b.fs          # no gap, no restart here
+    counter_times = b.counter_times(a["times"])          # no restart here
     true_utc = em.t0_epoch + counter_times * em.fs / em.rate_true
     # after the start-up (a reader that starts late sees every frame late: the fit needs a
     # moment of frames read on time, docs/live.md#time)

@@ -1,6 +1,7 @@
 """Live tracking: tracker description files, acquisition backends, the real-time pipeline (one
 or several sensors, optional tracking filter) and OpenIGTLink output."""
 
+from ._acquire import SerialBackend, TcpBackend
 from ._backends import (
     Backend,
     ReplayBackend,
@@ -67,6 +68,7 @@ __all__ = [
     "ReplayBackend",
     "SensorSetup",
     "SensorSpec",
+    "SerialBackend",
     "SimulatedBackend",
     "SoundDeviceBackend",
     "SourceStalled",
@@ -79,6 +81,7 @@ __all__ = [
     "TrackResult",
     "TrackStep",
     "TrackSummary",
+    "TcpBackend",
     "TrackerSpec",
     "TrackingPipeline",
     "TrackingSession",

@@ -251,7 +251,12 @@ class FramedBackend(Backend):
         session ``times`` (valid until the device restarts)."""
         if self._truth is None:
             return None
-        return self._truth(np.asarray(times) - self._offset / self.fs)
+        return self._truth(self.counter_times(times))
+
+    def counter_times(self, times):
+        """The sample counter's time (counter / sample clock, s) of session ``times``: the
+        device's own time axis (valid back to its last restart)."""
+        return np.asarray(times, dtype=np.float64) - self._offset / self.fs
 
     def pop_restart(self):
         r, self._restart_at = self._restart_at, None

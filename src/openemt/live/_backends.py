@@ -407,22 +407,26 @@ class BackendWrapper(Backend):
     def truth_poses(self, times):
         return self.backend.truth_poses(times)
 
+    # the wrapped backend's, or the defaults of Backend for one that does not derive from it
     @property
     def discontinuous(self):
-        return self.backend.discontinuous
+        return getattr(self.backend, "discontinuous", False)
 
     @property
     def realtime(self):
-        return self.backend.realtime
+        return getattr(self.backend, "realtime", True)
 
     def epoch_times(self, times):
-        return self.backend.epoch_times(times)
+        f = getattr(self.backend, "epoch_times", None)
+        return self.backend.t0_epoch + times if f is None else f(times)
 
     def pop_restart(self):
-        return self.backend.pop_restart()
+        f = getattr(self.backend, "pop_restart", None)
+        return None if f is None else f()
 
     def link_stats(self):
-        return self.backend.link_stats()
+        f = getattr(self.backend, "link_stats", None)
+        return None if f is None else f()
 
     def read(self):
         return self.backend.read()
