@@ -306,3 +306,54 @@ def test_openigtlink_messages_carry_the_acquisition_time(tmp_path):
         gap = np.abs(stamps[:, None] - a["acquisition_time"][None, :]).min(axis=1)
         assert gap.max() < 1e-6
     assert np.all(np.diff(a["acquisition_time"]) > 0)
+
+
+def test_simulated_source_times_and_latency(tmp_path):
+    """--source sim, paced: the acquisition time of a pose is the simulator's sample time
+    (the frame centre on its clock), and its latency is positive and about one device block."""
+    from openemt.live import read_track_log
+
+    _sim(0.05)                          # the kernels loaded: a paced start without a backlog
+    o = TrackOptions(igtl=False, quiet=True, duration=0.5, log=tmp_path / "log.csv")
+    with TrackingSession.from_tracker(None, o) as s:
+        r = s.run()
+        t0 = s.backend.t0_epoch
+    a = read_track_log(tmp_path / "log.csv").arrays["openemt"]
+    np.testing.assert_allclose(a["acquisition_time"] - t0, a["times"], rtol=0, atol=2e-6)
+    assert np.all(a["latency"] > 0)
+    acq = r.to_dict()["acquisition"]
+    assert 0 < acq["latency_ms_p50"] < 100 and acq["link"] is None
+
+
+def test_the_emitter_program_through_a_pty(tmp_path):
+    """python -m openemt.live.emitter --to pty, read by openemt track --source serial:..."""
+    import json
+    import signal
+    import subprocess
+    import sys
+
+    from openemt.cli import main
+
+    p = subprocess.Popen([sys.executable, "-m", "openemt.live.emitter", "--to", "pty",
+                          "--skip-every", "10", "--json"], stdout=subprocess.PIPE, text=True)
+    try:
+        path = p.stdout.readline().strip()
+        assert path.startswith("/dev/")
+        out = tmp_path / "out.json"
+        import contextlib
+        import io
+
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            code = main(["track", "--source", f"serial:{path}", "--duration", "0.5",
+                         "--no-igtl", "--quiet", "--json"])
+        out.write_text(buf.getvalue())
+    finally:
+        p.send_signal(signal.SIGINT)
+        counts = json.loads(p.stdout.readline())
+        p.wait(10)
+    d = json.loads(out.read_text())
+    assert code == 0 and counts["skipped"] > 0 and counts["t0_epoch"] > 0
+    k = d["link"]
+    assert k["gaps"] >= 5 and k["samples_lost"] >= 64 * k["gaps"]
+    assert d["status_counts"]["converged"] == d["n_samples"] >= 750

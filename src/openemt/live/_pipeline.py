@@ -547,7 +547,7 @@ class TrackingPipeline:
         self._n_out = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
         # acquisition time and end-to-end latency (docs/live.md#time)
-        self._e2e = collections.deque(maxlen=200_000)
+        self._e2e = collections.deque(maxlen=20_000)        # one array per chunk
         self._epoch_times = getattr(backend, "epoch_times", None)
         self._discontinuous = bool(getattr(backend, "discontinuous", False))
         self._clocked = bool(getattr(backend, "realtime", True))
@@ -758,7 +758,7 @@ class TrackingPipeline:
                                       stamps[-1])
         if self._clocked:                      # sample time -> sent, per sample
             np.subtract(time.time(), stamps, out=latency)
-            self._e2e.extend(latency)
+            self._e2e.append(latency)
         else:
             latency.fill(np.nan)
         now = time.monotonic()
@@ -1027,7 +1027,7 @@ class TrackingPipeline:
         of a sample to its send) percentiles in ms (None when the source is not paced in real
         time), the demodulator restarts at gaps, and a framed link's counters and clock fit
         (``link``, None for other sources)."""
-        e2e = np.asarray(self._e2e) * 1e3
+        e2e = np.concatenate(self._e2e) * 1e3 if self._e2e else np.empty(0)
         return {"latency_ms_p50": float(np.percentile(e2e, 50)) if e2e.size else None,
                 "latency_ms_p99": float(np.percentile(e2e, 99)) if e2e.size else None,
                 "latency_ms_max": float(e2e.max()) if e2e.size else None,

@@ -569,6 +569,10 @@ class TrackingSession:
         def stopping():
             return console.stop() or (stop is not None and stop())
 
+        restart = getattr(self.backend, "restart_clock", None)
+        if restart is not None and not o.fast:
+            restart()        # a paced simulator starts sampling now, not when it was made
+
         summary = pipe.run(o.duration, stop=stopping, monitor=monitor or console)
         self._ran = True
         console.end_line()
