@@ -128,13 +128,22 @@ def test_damaged_frames_are_counted_and_never_bridged(pty_pair):
     assert r.summary.status_counts["converged"] == r.summary.n_samples
 
 
-def test_a_restarted_emitter_is_counted_and_tracking_goes_on(pty_pair):
+def test_a_restarted_emitter_is_counted_and_tracking_goes_on(pty_pair, tmp_path):
+    import json
+
+    import h5py
+
     master, path = pty_pair
     em = Emitter(realtime=False, duration=1.2, restart_after=0.5)
     b = SerialBackend(path, em.spec.layout(), em.n_channels, drain=False)
-    r, pipe = _run(b, em, master, 1.0)
+    r, pipe = _run(b, em, master, 1.0, log=tmp_path / "log.h5")
     k = r.to_dict()["link"]
     assert k["restarts"] == 1 and k["gaps"] == 0 and k["clock_restarts"] == 1
+    with h5py.File(tmp_path / "log.h5") as f:          # the log says so too
+        assert json.loads(f.attrs["link"])["restarts"] == 1
+        assert f.attrs["source"] == f"serial:{path}"
+        t = f["times"][:]
+    assert np.all(np.diff(t) > 0)                      # session time goes on over a restart
     assert pipe.demod_restarts == 1
     assert r.summary.status_counts["converged"] == r.summary.n_samples >= 1500
 

@@ -347,6 +347,7 @@ class SerialBackend(FramedBackend):
                  baud: int = DEFAULT_BAUD, **kw):
         super().__init__(layout, n_channels, **kw)
         self.port, self.baud = port, int(baud)
+        self.source = f"serial:{port}" + ("" if self.baud == DEFAULT_BAUD else f"@{baud}")
         try:
             self._ser = _open_serial(port, self.baud)
         except (OSError, ValueError) as exc:
@@ -399,6 +400,7 @@ class TcpBackend(FramedBackend):
                  connect_timeout: float = 2.0, **kw):
         super().__init__(layout, n_channels, **kw)
         self.host, self.port = host, int(port)
+        self.source = f"tcp://{host}:{self.port}"
         self._sock = None
         self._retry = 0.0
         try:

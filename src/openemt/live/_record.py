@@ -5,7 +5,9 @@ readers, which accept the file of a killed session (marked incomplete).
 Log layout (``.h5``/``.hdf5``): one sensor (version 1): datasets at the root ``times`` (s),
 ``poses`` (N, 4, 4) m, ``pose_vectors`` (N, 6) m/rad, ``status`` int8, ``residual``,
 ``distortion``, ``distorted`` bool, ``couplings`` complex (N, n_source, n_sensor); attrs
-``format = "openemt-track"``, ``version = 1``, ``complete``, ``rows``. Several sensors
+``format = "openemt-track"``, ``version = 1``, ``complete``, ``rows``; from a serial or TCP
+source also ``source`` and ``link`` (the link counters as JSON text; docs/live.md, "Lost,
+damaged and restarted streams"). Several sensors
 (version 2): the same datasets in one group per sensor (``/sensors/<name>/...``, each with its
 ``rows``) and the attribute ``sensors`` (names in tracker-file order).
 
@@ -175,6 +177,11 @@ class TrackLogWriter:
 
     def flush(self) -> None:
         self._stream.flush()
+
+    def set_attrs(self, attrs: dict) -> None:
+        """File attributes of an HDF5 log (a CSV log has no place for them)."""
+        if self.kind == "h5" and self._stream is not None:
+            self._stream.group_attrs("/", attrs)
 
     def close(self, *, keep_empty: bool = True) -> None:
         """Write what is buffered, mark the file complete and close it (see

@@ -581,17 +581,26 @@ class TrackingSession:
             # SIGTERM arrives as the command line's ``Terminated`` (a KeyboardInterrupt)
             stopped = (signal.SIGTERM if type(pipe.interrupted).__name__ == "Terminated"
                        else signal.SIGINT)
+        link = self.source.link_stats()
+        if self.log is not None and link is not None:
+            import json
+
+            self.log.set_attrs({"source": self._source_name(), "link": json.dumps(link)})
         # a session stopped before its first sample never replaces an existing file
         for w in (self.log, self.raw and self.raw.stream):
             if w is not None:
                 w.close(keep_empty=stopped is None)
         return self._result(summary, stopped)
 
+    def _source_name(self) -> str:
+        """``--source``, or what a given backend says it reads (``serial:PORT``, ...)."""
+        return getattr(self.backend, "source", None) or self.options.source
+
     def _result(self, summary, stopped) -> TrackResult:
         import signal
 
         o, spec, server = self.options, self.spec, self.server
-        out = {"source": o.source,
+        out = {"source": self._source_name(),
                "tracker": None if spec.path is None else str(spec.path),
                "sensors_tracked": [s.name for s in spec.sensors],
                "device_name": None if server is None else spec.sensors[0].device_name,
