@@ -9,6 +9,8 @@ import socket
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from openemt._errors import InputError
 from openemt.live import TrackingSession, TrackOptions
@@ -165,7 +167,7 @@ def test_the_acquisition_time_is_the_sample_clock(tmp_path, pty_pair):
     from openemt.live import read_track_log
 
     master, path = pty_pair
-    em = Emitter(realtime=True)                      # endless: stopped after the session
+    em = Emitter(realtime=True, clock_ppm=300)       # endless: stopped after the session
     b = SerialBackend(path, em.spec.layout(), em.n_channels, drain=False)
     log = tmp_path / "log.h5"
     r, pipe = _run(b, em, master, 2.5, log=log)
@@ -180,6 +182,8 @@ def test_the_acquisition_time_is_the_sample_clock(tmp_path, pty_pair):
     assert np.all(np.isfinite(a["latency"])) and np.all(a["latency"] > 0)
     acq = r.to_dict()["acquisition"]
     assert 0 < acq["latency_ms_p50"] <= acq["latency_ms_p99"]
+    # the emitter's clock runs 300 ppm slow: fitted from 2.5 s of arrival times
+    assert acq["link"]["drift_ppm"] == pytest.approx(300, abs=150)
 
 
 def test_track_command_reads_a_tcp_stream(capsys):
@@ -366,3 +370,30 @@ def test_the_emitter_program_through_a_pty(tmp_path):
     k = d["link"]
     assert k["gaps"] >= 5 and k["samples_lost"] >= 64 * k["gaps"]
     assert d["status_counts"]["converged"] == d["n_samples"] >= 750
+
+
+@settings(max_examples=60, deadline=None)
+@given(cuts=st.lists(st.integers(0, 2000), max_size=6),
+       flips=st.lists(st.integers(0, 8 * 2000), max_size=6),
+       junk=st.binary(max_size=64), piece=st.integers(1, 300))
+def test_decoder_on_damaged_streams(cuts, flips, junk, piece):
+    """Whatever is cut, flipped or inserted: no exception, and every frame the decoder accepts
+    is one that was sent, whole (the CRC-32 guards it)."""
+    x, frames = _frames(12, n=16, ch=3)
+    data = bytearray(junk + b"".join(frames))
+    for b in flips:
+        if b // 8 < len(data):
+            data[b // 8] ^= 1 << (b % 8)
+    for c in sorted(cuts, reverse=True):
+        del data[c:c + 5]
+    d = FrameDecoder(3, 1000.0)
+    got = []
+    for i in range(0, len(data), piece):
+        got += d.feed(bytes(data[i:i + piece]))
+    for counter, _flags, y in got:
+        k = counter // 16
+        assert 0 <= k < 12 and counter == 16 * k
+        np.testing.assert_array_equal(y, 0.5 * x[k])
+    assert d.frames == len(got) <= 12
+    # what is missing was counted, or still waits for the bytes a damaged size asks for
+    assert len(got) == 12 or d.crc_errors + d.bad_headers + d.bytes_skipped + d.pending > 0

@@ -93,6 +93,12 @@ class FrameDecoder:
         self.bytes_skipped = 0
         self.bytes_read = 0
 
+    @property
+    def pending(self) -> int:
+        """Bytes held for a frame not yet complete (a damaged size field makes the decoder
+        wait for at most one largest frame before the CRC sends it on)."""
+        return len(self._buf)
+
     def drop_buffer(self) -> None:
         """Forget a partial frame (the connection it came on is gone)."""
         self.bytes_skipped += len(self._buf)
