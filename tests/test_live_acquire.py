@@ -397,3 +397,30 @@ def test_decoder_on_damaged_streams(cuts, flips, junk, piece):
     assert d.frames == len(got) <= 12
     # what is missing was counted, or still waits for the bytes a damaged size asks for
     assert len(got) == 12 or d.crc_errors + d.bad_headers + d.bytes_skipped + d.pending > 0
+
+
+def test_the_emitter_program_serves_tcp_clients_one_after_the_other(capsys):
+    """python -m openemt.live.emitter --to tcp://...: track connects, leaves, connects again
+    and gets a freshly started ADC."""
+    import json
+    import signal
+    import subprocess
+    import sys
+
+    from openemt.cli import main
+
+    p = subprocess.Popen([sys.executable, "-m", "openemt.live.emitter", "--to",
+                          "tcp://127.0.0.1:0", "--fast"], stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stderr.readline()
+        assert line.startswith("listening on 127.0.0.1:"), line
+        source = "tcp://127.0.0.1:" + line.strip().rsplit(":", 1)[1]
+        for _ in range(2):
+            assert main(["track", "--source", source, "--duration", "0.2", "--no-igtl",
+                         "--quiet", "--json"]) == 0
+            d = json.loads(capsys.readouterr().out)
+            assert d["source"] == source and d["link"]["restarts"] == 0
+            assert d["status_counts"]["converged"] == d["n_samples"] >= 300
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(10)

@@ -37,9 +37,10 @@ __all__ = ["DEFAULT_BAUD", "FramedBackend", "SerialBackend", "TcpBackend", "list
 DEFAULT_BAUD = 921600
 
 
-def parse_source(source: str) -> tuple:
+def parse_source(source: str, *, listen: bool = False) -> tuple:
     """``("sim"|"replay"|"sound", None)``, ``("serial", (port, baud))`` or
-    ``("tcp", (host, port))`` of a ``--source`` value; InputError naming the forms otherwise."""
+    ``("tcp", (host, port))`` of a ``--source`` value; InputError naming the forms otherwise.
+    ``listen``: a TCP address to listen on (port 0: any free port)."""
     forms = ("expected --source sim, replay, sound, serial:PORT[@BAUD] (e.g. "
              "serial:/dev/ttyACM0) or tcp://HOST:PORT")
     if source in ("sim", "replay", "sound"):
@@ -59,7 +60,8 @@ def parse_source(source: str) -> tuple:
         rest = source[len("tcp://"):]
         host, sep, port = rest.rpartition(":")
         host = host.strip("[]")
-        if not sep or not host or not port.isdigit() or not 0 < int(port) <= 65535:
+        if not sep or not host or not port.isdigit() or not (
+                0 if listen else 1) <= int(port) <= 65535:
             raise InputError(f"{forms}, got {source!r} (host and port 1..65535 needed)")
         return "tcp", (host, int(port))
     raise InputError(f"{forms}, got {source!r}")

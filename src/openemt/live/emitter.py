@@ -4,7 +4,7 @@ simulator's raw signal (docs/live.md#adc-framing).
 Run it as a program::
 
     python -m openemt.live.emitter --to pty                      # prints the port to open
-    python -m openemt.live.emitter --to tcp://127.0.0.1:5000     # serves one client at a time
+    python -m openemt.live.emitter --to tcp://127.0.0.1:5000     # one client at a time
     python -m openemt.live.emitter --to serial:/dev/ttyUSB0      # a real port (pyserial)
 
 and track it with ``openemt track --source serial:PORT`` or ``--source tcp://HOST:PORT``.
@@ -280,7 +280,8 @@ def main(argv=None) -> int:
                                 "openemt ADC framing (docs/live.md#adc-framing).")
     p.add_argument("--to", required=True,
                    help="pty (make a pseudo-terminal, print its path), serial:PORT[@BAUD] or "
-                        "tcp://HOST:PORT (listen there; one client at a time)")
+                        "tcp://HOST:PORT (listen there; one client at a time, each from a "
+                        "freshly started counter)")
     p.add_argument("--tracker", help="tracker file whose ADC is emulated (default: simulated)")
     p.add_argument("--frame-samples", type=int, default=64)
     p.add_argument("--format", default="int32", choices=[v[1] for v in FORMATS.values()])
@@ -319,13 +320,20 @@ def main(argv=None) -> int:
         elif a.to.startswith("tcp://"):
             import socket
 
-            _, (host, port) = parse_source(a.to)
+            _, (host, port) = parse_source(a.to, listen=True)
             srv = socket.create_server((host, port))
             print(f"listening on {host}:{srv.getsockname()[1]}", file=sys.stderr, flush=True)
-            conn, _ = srv.accept()
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with conn:
-                stats = emitter().run(conn.sendall)
+            while True:                  # each client gets a freshly started ADC
+                conn, _ = srv.accept()
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                em = emitter()
+                try:
+                    with conn:
+                        stats = em.run(conn.sendall)
+                except (BrokenPipeError, ConnectionError):
+                    stats = em.stats()
+                    continue             # the client went away: wait for the next one
+                break
         else:
             _, (port, baud) = parse_source(a.to)
             ser = _open_serial(port, baud)
