@@ -424,3 +424,11 @@ def test_the_emitter_program_serves_tcp_clients_one_after_the_other(capsys):
     finally:
         p.send_signal(signal.SIGINT)
         p.wait(10)
+
+
+def test_fuzz_section_framing():
+    from openemt_fuzz._fuzzframing import fuzz_framing
+
+    out = fuzz_framing(150, seed=5)
+    assert out["findings"] == 0 and out["held"] == 150
+    assert 0 < out["frames_accepted"] < out["frames_sent"]      # damage did cost frames

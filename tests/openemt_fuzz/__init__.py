@@ -46,6 +46,9 @@ def add_arguments(parser) -> None:
                         help="hostile references (openemt_fuzz._fuzzreference): servers read "
                              "by the reference client, reference CSVs, and collections against "
                              "either (100 100 31)")
+    parser.add_argument("--framing-cases", type=int, default=300,
+                        help="damaged ADC frame streams fed to the frame decoder "
+                             "(openemt_fuzz._fuzzframing) (300)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -144,6 +147,12 @@ def run(args) -> dict:
         reference = fuzz_reference(*n_ref, seed=args.seed, time_limit=max(args.time_limit, 90),
                                    progress=bar.update)
 
+    from ._fuzzframing import fuzz_framing
+
+    n_frm = max(0, getattr(args, "framing_cases", 0) or 0)
+    with progress(total=n_frm, desc="ADC framing", args=args, unit="case") as bar:
+        framing = fuzz_framing(n_frm, args.seed, progress=bar.update)
+
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
@@ -152,6 +161,7 @@ def run(args) -> dict:
         + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
         + hostile.get("findings", 0) + navigate["findings"] + corrections["findings"] \
         + reference["findings"]
+    findings += framing["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -171,6 +181,7 @@ def run(args) -> dict:
         "navigate": navigate,
         "corrections": corrections,
         "hostile_references": reference,
+        "framing": framing,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),
