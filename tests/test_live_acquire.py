@@ -432,3 +432,16 @@ def test_fuzz_section_framing():
     out = fuzz_framing(150, seed=5)
     assert out["findings"] == 0 and out["held"] == 150
     assert 0 < out["frames_accepted"] < out["frames_sent"]      # damage did cost frames
+
+
+def test_damaged_frames_over_tcp_are_counted_and_never_bridged():
+    em = Emitter(realtime=False, duration=1.0, flip_every=31, drop_every=43, skip_every=47)
+    et = EmitterThread([em])
+    b = TcpBackend("127.0.0.1", et.port, em.spec.layout(), em.n_channels, drain=False,
+                   truth=em.truth_poses)
+    r, pipe = _run(b, et, None, 0.6)
+    k = r.to_dict()["link"]
+    assert k["crc_errors"] >= 1 and k["gaps"] >= 10 and k["reconnects"] == 0
+    assert 10 <= pipe.demod_restarts <= k["gaps"]
+    assert r.summary.truth["position_error_mm_max"] < 0.05
+    assert r.summary.status_counts["converged"] == r.summary.n_samples
