@@ -338,40 +338,6 @@ def test_simulated_source_times_and_latency(tmp_path):
     assert 0 < acq["latency_ms_p50"] < 100 and acq["link"] is None
 
 
-def test_the_emitter_program_through_a_pty(tmp_path):
-    """python -m openemt.live.emitter --to pty, read by openemt track --source serial:..."""
-    import json
-    import signal
-    import subprocess
-    import sys
-
-    from openemt.cli import main
-
-    p = subprocess.Popen([sys.executable, "-m", "openemt.live.emitter", "--to", "pty",
-                          "--skip-every", "10", "--json"], stdout=subprocess.PIPE, text=True)
-    try:
-        path = p.stdout.readline().strip()
-        assert path.startswith("/dev/")
-        out = tmp_path / "out.json"
-        import contextlib
-        import io
-
-        buf = io.StringIO()
-        with contextlib.redirect_stdout(buf):
-            code = main(["track", "--source", f"serial:{path}", "--duration", "0.5",
-                         "--no-igtl", "--quiet", "--json"])
-        out.write_text(buf.getvalue())
-    finally:
-        p.send_signal(signal.SIGINT)
-        counts = json.loads(p.stdout.readline())
-        p.wait(10)
-    d = json.loads(out.read_text())
-    assert code == 0 and counts["skipped"] > 0 and counts["t0_epoch"] > 0
-    k = d["link"]
-    assert k["gaps"] >= 5 and k["samples_lost"] >= 64 * k["gaps"]
-    assert d["status_counts"]["converged"] == d["n_samples"] >= 750
-
-
 @settings(max_examples=60, deadline=None)
 @given(cuts=st.lists(st.integers(0, 2000), max_size=6),
        flips=st.lists(st.integers(0, 8 * 2000), max_size=6),
@@ -399,9 +365,10 @@ def test_decoder_on_damaged_streams(cuts, flips, junk, piece):
     assert len(got) == 12 or d.crc_errors + d.bad_headers + d.bytes_skipped + d.pending > 0
 
 
-def test_the_emitter_program_serves_tcp_clients_one_after_the_other(capsys):
-    """python -m openemt.live.emitter --to tcp://...: track connects, leaves, connects again
-    and gets a freshly started ADC."""
+def test_the_emitter_program_through_a_pty_and_over_tcp(capsys):
+    """python -m openemt.live.emitter --to pty (with frames left out), read by openemt track
+    --source serial:...; and --to tcp://...: track connects, leaves, connects again and gets
+    a freshly started ADC."""
     import json
     import signal
     import subprocess
@@ -409,10 +376,25 @@ def test_the_emitter_program_serves_tcp_clients_one_after_the_other(capsys):
 
     from openemt.cli import main
 
-    p = subprocess.Popen([sys.executable, "-m", "openemt.live.emitter", "--to",
-                          "tcp://127.0.0.1:0", "--fast"], stderr=subprocess.PIPE, text=True)
+    prog = [sys.executable, "-m", "openemt.live.emitter"]
+    pty = subprocess.Popen(prog + ["--to", "pty", "--skip-every", "10", "--json"],
+                           stdout=subprocess.PIPE, text=True)
+    tcp = subprocess.Popen(prog + ["--to", "tcp://127.0.0.1:0", "--fast"],
+                           stderr=subprocess.PIPE, text=True)
     try:
-        line = p.stderr.readline()
+        path = pty.stdout.readline().strip()
+        assert path.startswith("/dev/")
+        assert main(["track", "--source", f"serial:{path}", "--duration", "0.4",
+                     "--no-igtl", "--quiet", "--json"]) == 0
+        d = json.loads(capsys.readouterr().out)
+        pty.send_signal(signal.SIGINT)
+        counts = json.loads(pty.stdout.readline())
+        assert counts["skipped"] > 0 and counts["t0_epoch"] > 0
+        k = d["link"]
+        assert k["gaps"] >= 5 and k["samples_lost"] >= 64 * k["gaps"]
+        assert d["status_counts"]["converged"] == d["n_samples"] >= 600
+
+        line = tcp.stderr.readline()
         assert line.startswith("listening on 127.0.0.1:"), line
         source = "tcp://127.0.0.1:" + line.strip().rsplit(":", 1)[1]
         for _ in range(2):
@@ -422,8 +404,9 @@ def test_the_emitter_program_serves_tcp_clients_one_after_the_other(capsys):
             assert d["source"] == source and d["link"]["restarts"] == 0
             assert d["status_counts"]["converged"] == d["n_samples"] >= 300
     finally:
-        p.send_signal(signal.SIGINT)
-        p.wait(10)
+        for p in (pty, tcp):
+            p.send_signal(signal.SIGINT)
+            p.wait(10)
 
 
 def test_fuzz_section_framing():
