@@ -193,8 +193,11 @@ def test_track_command_reads_a_tcp_stream(capsys):
 
     with EmitterThread([Emitter(realtime=False, duration=0.6)]) as et:
         assert main(["track", "--source", f"tcp://127.0.0.1:{et.port}", "--duration", "0.3",
-                     "--no-igtl", "--quiet", "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
+                     "--no-igtl", "--json"]) == 0
+    cap = capsys.readouterr()
+    out = json.loads(cap.out)
+    assert "link: " in cap.err and "bad CRC" in cap.err and "(0 samples lost" in cap.err
+    assert "latency sample time -> send: p50" in cap.err
     assert out["source"] == f"tcp://127.0.0.1:{et.port}"
     assert out["link"]["frames"] > 0 and out["link"]["crc_errors"] == 0
     assert out["status_counts"]["converged"] == out["n_samples"] >= 450
@@ -428,3 +431,23 @@ def test_damaged_frames_over_tcp_are_counted_and_never_bridged():
     assert 10 <= pipe.demod_restarts <= k["gaps"]
     assert r.summary.truth["position_error_mm_max"] < 0.05
     assert r.summary.status_counts["converged"] == r.summary.n_samples
+
+
+def test_status_line_shows_the_link(capsys, monkeypatch):
+    from openemt.live._session import _Console
+
+    class Pipe:
+        igtl = None
+
+        def progress(self):
+            return {"n_samples": 1500, "signal_seconds": 1.0, "status_counts": {"converged": 9},
+                    "distorted": 0, "not_sent_distorted": 0, "latency_ms_p50": 0.3,
+                    "link": {"gaps": 2, "samples_lost": 640, "crc_errors": 1, "restarts": 0}}
+
+    c = _Console(quiet=False)
+    monkeypatch.setattr(c, "arm", lambda: None)
+    c.tty, c.period = False, 0.0
+    c(Pipe())                       # the first call starts the clock
+    c(Pipe())
+    err = capsys.readouterr().err
+    assert "link: 2 gap(s) (640 samples lost), 1 bad CRC, 0 restart(s)" in err
