@@ -31,10 +31,12 @@ def test_bench_demod_keys_and_physics():
 
 def test_bench_track_noise_matches_cramer_rao():
     out = _track.run(_args(_track, ["--seconds", "0.2", "--noise-seconds", "0.5",
-                                    "--tools-seconds", "0"]))
+                                    "--tools-seconds", "0", "--acquire-seconds", "0"]))
     for key in ("latency_ms_p50", "latency_ms_p99", "position_noise_um",
                 "crb_position_noise_um"):
         assert np.isfinite(out[key])
+    e2e = out["latency_end_to_end_ms"]
+    assert 0 < e2e["p50"] <= e2e["p99"] <= e2e["max"]
     assert out["igtl"]["sent"] > 0
     # the LM solution of the demodulated couplings is efficient: noise at the bound
     assert 0.8 < out["noise_to_crb_ratio"] < 1.2
@@ -93,7 +95,8 @@ def test_sounddevice_missing_is_a_clear_error(monkeypatch):
 
 def test_bench_track_several_sensors_and_filter():
     out = _track.run(_args(_track, ["--seconds", "0.2", "--noise-seconds", "0.4", "--sensors",
-                                    "2", "--rate-seconds", "0.2", "--tools-seconds", "0"]))
+                                    "2", "--rate-seconds", "0.2", "--tools-seconds", "0",
+                                    "--acquire-seconds", "0"]))
     assert out["sensors"] == 2
     assert out["status_counts"] == converged_only(2 * round(out["signal_seconds"] * 1500))
     assert out["igtl"]["sent"] > 0 and out["igtl"]["clients_max"] == 1
@@ -106,3 +109,17 @@ def test_bench_track_several_sensors_and_filter():
     assert abs(f["added_lag_ms"]) < 1.0 and 0 < f["step_settle_ms"] < 20
     with pytest.raises(ValueError, match="--sensors"):
         _track.run(_args(_track, ["--sensors", "0"]))
+
+
+def test_bench_track_acquisition_section():
+    out = _track._acquisition(0.4, 0)
+    sim, ser, tcp = out["sim"], out["serial"], out["tcp"]
+    assert ser["position_error_mm_rms"] == pytest.approx(sim["position_error_mm_rms"], rel=0.05)
+    assert tcp["position_error_mm_rms"] == pytest.approx(sim["position_error_mm_rms"], rel=0.05)
+    assert ser["max_pose_difference_m"] < 1e-8
+    d = out["damaged"]
+    assert d["frames_damaged"] > 0 and d["link"]["gaps"] > 0 and d["link"]["crc_errors"] > 0
+    assert d["position_error_mm_max"] < 0.05
+    p = out["paced"]
+    assert p["acquisition_time_error_ms"]["max"] < p["output_period_ms"]
+    assert 0 < p["latency_end_to_end_ms"]["p50"] <= p["latency_end_to_end_ms"]["p99"]

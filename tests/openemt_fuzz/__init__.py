@@ -49,6 +49,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--metal-cases", type=int, default=300,
                         help="generated metal scenes, refused in one line or evaluated to "
                              "finite couplings (openemt_fuzz._fuzzmetal) (300)")
+    parser.add_argument("--framing-cases", type=int, default=300,
+                        help="damaged ADC frame streams fed to the frame decoder "
+                             "(openemt_fuzz._fuzzframing) (300)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -153,6 +156,12 @@ def run(args) -> dict:
     with progress(total=n_metal, desc="metal scenes", args=args, unit="case") as bar:
         metal = fuzz_metal(n_metal, args.seed, time_limit=args.time_limit, progress=bar.update)
 
+    from ._fuzzframing import fuzz_framing
+
+    n_frm = max(0, getattr(args, "framing_cases", 0) or 0)
+    with progress(total=n_frm, desc="ADC framing", args=args, unit="case") as bar:
+        framing = fuzz_framing(n_frm, args.seed, progress=bar.update)
+
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
@@ -161,6 +170,7 @@ def run(args) -> dict:
         + solvers.get("crashes", 0) + hostile_live["findings"] + writers.get("broken", 0) \
         + hostile.get("findings", 0) + navigate["findings"] + corrections["findings"] \
         + reference["findings"] + metal["findings"]
+    findings += framing["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -181,6 +191,7 @@ def run(args) -> dict:
         "corrections": corrections,
         "hostile_references": reference,
         "metal": metal,
+        "framing": framing,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

@@ -68,6 +68,26 @@ realtime_factor_with_view, view
     With ``--view``: the realtime factor with the live view open in headless Chromium
     (``openemt track --view``) against the same runs without publishing to it, alternating,
     in this process (:mod:`openemt.bench._view`; ``view.ratio`` target >= 0.9).
+latency_end_to_end_ms
+    ``p50`` / ``p99`` / ``max`` of the first run, per sample: from its acquisition time (the
+    centre of its demodulation frame on the sample clock, UTC) to the return of the
+    OpenIGTLink send (docs/live.md#time). It includes the half frame (0.67 ms at 1500/s with
+    the Hann window), the wait for the rest of the ``--chunk`` read and the processing.
+acquisition
+    The framed ADC stream of ``openemt track --source serial:...`` / ``tcp://...``
+    (docs/live.md#serial-and-network-acquisition) from the reference emitter
+    (:mod:`openemt.live.emitter`) in a thread of this process, ``--acquire-seconds`` of signal
+    each (0 skips it): ``sim`` (``--source sim``), ``serial`` (through a real pseudo-terminal
+    pair, opened with pyserial) and ``tcp`` (loopback) as fast as possible, each with its
+    ``position_error_mm_rms`` against the simulated truth and ``n_samples``;
+    ``serial.max_pose_difference_m`` against the ``sim`` poses of the same samples;
+    ``damaged`` through the pty with one bit flipped in every 29th frame, bytes dropped from
+    every 41st and every 53rd frame left out: the emitter's damaged and left-out frames, the
+    link counters (CRC errors, gaps, samples lost), the demodulator restarts and the position
+    error (a window bridging a gap would give millimetres); ``paced``: the emitter at the
+    sample clock over TCP, the acquisition time of every pose of the last second against the
+    emitter's true sample time (``acquisition_time_error_ms`` max and rms, also at the top
+    level), the fitted clock drift, and that run's end-to-end latency.
 baseline
     ``one_frame_reads`` with the solver unprepared: :func:`openemt.solve.solve_lm` called on
     every read, checking and packing the model and options each time, as the pipeline did
@@ -114,6 +134,9 @@ def add_arguments(parser) -> None:
                              "headless Chromium (realtime_factor_with_view, view)")
     parser.add_argument("--view-seconds", type=float, default=30.0,
                         help="seconds of signal per run of the view measurement (default 30)")
+    parser.add_argument("--acquire-seconds", type=float, default=2.0,
+                        help="seconds of signal per run of the serial / TCP acquisition test "
+                             "(default 2; 0 skips it)")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -277,6 +300,8 @@ def run(args) -> dict:
                                         if len(send1) and len(sendb) else None)},
         "load_average": list(os.getloadavg()), "cpu_count": os.cpu_count(),
     }
+    acq = s.extra.get("acquisition") or {}
+    out["latency_end_to_end_ms"] = {k: acq.get(f"latency_ms_{k}") for k in ("p50", "p99", "max")}
     out.update(_realtime_factor(spec, float(args.rate_seconds), args.chunk, args.seed))
     if args.view:                           # the live view's cost (openemt.bench._view)
         from ._view import view_cost
@@ -326,7 +351,99 @@ def run(args) -> dict:
     if args.tools_seconds > 0:
         out["many_tools"] = _many_tools(args.preset, int(args.tools),
                                         float(args.tools_seconds), args.seed)
+    if args.acquire_seconds > 0:
+        out["acquisition"] = _acquisition(float(args.acquire_seconds), args.seed)
+        out["acquisition_time_error_ms"] = out["acquisition"]["paced"][
+            "acquisition_time_error_ms"]
     out["load_average_end"] = list(os.getloadavg())
+    return out
+
+
+def _acquisition(seconds: float, seed: int) -> dict:
+    """The framed serial / TCP paths against the simulator (module docstring,
+    ``acquisition``)."""
+    import tempfile
+    from pathlib import Path
+
+    from ..live import (
+        SerialBackend,
+        TcpBackend,
+        TrackingSession,
+        TrackOptions,
+        read_track_log,
+    )
+    from ..live.emitter import Emitter, EmitterThread, open_pty
+
+    def track(backend, thread, dur, **opts):
+        o = TrackOptions(igtl=False, quiet=True, duration=dur, stall_timeout=30, **opts)
+        with TrackingSession.from_tracker(None, o, backend=backend) as session, thread:
+            r = session.run()
+            restarts = session.pipeline.demod_restarts
+        return r, restarts
+
+    def err(r):
+        return (r.summary.truth or {}).get("position_error_mm_rms")
+
+    out: dict = {"seconds": seconds}
+    with tempfile.TemporaryDirectory() as tmp:
+        logs = {k: Path(tmp) / f"{k}.h5" for k in ("sim", "serial", "paced")}
+        o = TrackOptions(igtl=False, quiet=True, duration=seconds, fast=True, seed=seed,
+                         log=logs["sim"])
+        with TrackingSession.from_tracker(None, o) as session:
+            r = session.run()
+        out["sim"] = {"position_error_mm_rms": err(r), "n_samples": r.summary.n_samples}
+        em = Emitter(realtime=False, duration=seconds + 0.2, seed=seed)
+        master, slave, path = open_pty()
+        try:
+            b = SerialBackend(path, em.spec.layout(), em.n_channels, truth=em.truth_poses,
+                              drain=False)
+            r, _ = track(b, EmitterThread([em], master), seconds, seed=seed,
+                         log=logs["serial"])
+            a, z = (read_track_log(logs[k]).arrays["openemt"] for k in ("serial", "sim"))
+            n = min(len(a["times"]), len(z["times"]))
+            out["serial"] = {"position_error_mm_rms": err(r), "n_samples": r.summary.n_samples,
+                             "max_pose_difference_m": float(np.abs(
+                                 a["pose_vectors"][:n, :3] - z["pose_vectors"][:n, :3]).max()),
+                             "link": r.to_dict()["link"]}
+            em = Emitter(realtime=False, duration=seconds + 0.5, seed=seed, flip_every=29,
+                         drop_every=41, skip_every=53)
+            b = SerialBackend(path, em.spec.layout(), em.n_channels, truth=em.truth_poses,
+                              drain=False)
+            r, restarts = track(b, EmitterThread([em], master), seconds, seed=seed)
+            out["damaged"] = {"frames_damaged": em.damaged, "frames_left_out": em.skipped,
+                              "link": r.to_dict()["link"], "demodulator_restarts": restarts,
+                              "position_error_mm_rms": err(r),
+                              "position_error_mm_max": (r.summary.truth or {}).get(
+                                  "position_error_mm_max")}
+        finally:
+            os.close(master)
+            os.close(slave)
+        em = Emitter(realtime=False, duration=seconds + 0.2, seed=seed)
+        et = EmitterThread([em])
+        b = TcpBackend("127.0.0.1", et.port, em.spec.layout(), em.n_channels,
+                       truth=em.truth_poses, drain=False)
+        r, _ = track(b, et, seconds, seed=seed)
+        out["tcp"] = {"position_error_mm_rms": err(r), "n_samples": r.summary.n_samples,
+                      "link": r.to_dict()["link"]}
+        # paced: the acquisition time against the emitter's sample clock
+        em = Emitter(realtime=True, seed=seed)
+        et = EmitterThread([em])
+        b = TcpBackend("127.0.0.1", et.port, em.spec.layout(), em.n_channels, drain=False)
+        r, _ = track(b, et, max(seconds, 2.0), log=logs["paced"])
+        a = read_track_log(logs["paced"]).arrays["openemt"]
+        true_utc = em.t0_epoch + b.counter_times(a["times"]) * em.fs / em.rate_true
+        last = a["times"] > a["times"][-1] - 1.0
+        e = 1e3 * np.abs(a["acquisition_time"][last] - true_utc[last])
+        d = r.to_dict()
+        out["paced"] = {"acquisition_time_error_ms": {"max": float(e.max()),
+                                                      "rms": float(np.sqrt(np.mean(e ** 2))),
+                                                      "poses": int(last.sum())},
+                        "output_period_ms": 1e3 / OUTPUT_RATE_HZ,
+                        "drift_ppm": d["link"]["drift_ppm"],
+                        "latency_end_to_end_ms": {"p50": d["acquisition"]["latency_ms_p50"],
+                                                  "p99": d["acquisition"]["latency_ms_p99"]},
+                        "link": d["link"]}
+    out["load_average"] = list(os.getloadavg())
     return out
 
 
@@ -461,6 +578,8 @@ def _pack_per_sample(k: int) -> dict:
 
 class _Memory:
     """Backend over raw samples held in memory (the realtime factor excludes simulation)."""
+
+    realtime = False        # read as fast as possible: no end-to-end latency
 
     def __init__(self, samples, layout, chunk):
         self.samples, self.layout, self.chunk = samples, layout, int(chunk)

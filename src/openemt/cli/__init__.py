@@ -42,7 +42,7 @@ COMMANDS = {
     "info": ("info", "summarise any file openemt writes (dataset, poses, calibration, ...)"),
     "report": ("report", "write a self-contained HTML calibration and characterization report"),
     "reproduce": ("reproduce", "reproduce a table of MacLachlan et al. 2025 from raw data"),
-    "devices": ("devices", "list audio input devices for sound-card tracking"),
+    "devices": ("devices", "list sound cards, serial ports and network ADCs to track from"),
     "design": ("design", "design a tracker: accuracy maps and board layout optimisation"),
     "datasets": ("datasets", "list (and verify) the bundled data sets"),
     "bench": ("bench", "run a benchmark and print its JSON summary"),

@@ -1,26 +1,23 @@
-"""``openemt devices``: list the audio inputs a sound-card tracker can read from (needs the
-optional package sounddevice: pip install sounddevice). Use the index or name with openemt
-track --source sound --device."""
+"""``openemt devices``: list what a live session can read from: sound cards (with the optional
+package sounddevice), serial ports (pyserial; each opened once to say whether it can be used,
+and why not) and the tracker file's network or serial source (the workflow is
+:func:`openemt.live.list_devices`; this module parses, calls and prints)."""
 
 from __future__ import annotations
 
-from .._errors import InputError
 from ._common import add_command, emit
 
 
 def register(sub) -> None:
-    add_command(sub, "devices", run)
+    from ..live import DevicesOptions
+
+    add_command(sub, "devices", run, options=DevicesOptions)
 
 
 def run(args) -> int:
-    from ..live import list_audio_inputs
+    from ..live import DevicesOptions, list_devices
+    from ._common import options_from
 
-    try:
-        devices = list_audio_inputs()
-    except ImportError as exc:
-        raise InputError(str(exc)) from None
-    human = [f"{d['index']:>3}  {d['name']}  ({d['max_input_channels']} in, "
-             f"{d['default_samplerate']:g} Hz, {d['hostapi']})" for d in devices]
-    emit(args, {"devices": devices, "n_devices": len(devices)},
-         human or ["no audio input devices found"])
+    result = list_devices(options_from(DevicesOptions, args))
+    emit(args, result.to_dict(), result.human())
     return 0

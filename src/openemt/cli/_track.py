@@ -17,8 +17,8 @@ def register(subparsers) -> None:
 
     p = subparsers.add_parser(
         "track", help=command_help("track"),
-        description="Demodulate raw samples (simulated device, an HDF5 recording or a sound "
-                    "card), solve every sensor's pose with a warm-started LM solver, optionally "
+        description="Demodulate raw samples (simulated device, an HDF5 recording, a sound "
+                    "card, or an ADC streaming openemt frames over a serial port or TCP), solve every sensor's pose with a warm-started LM solver, optionally "
                     "filter it and map it into an image through a registration, and serve each "
                     "sensor (and tool tip) as an OpenIGTLink TRANSFORM device in millimetres "
                     "for 3D Slicer (OpenIGTLinkIF, client connector to the host and port "
@@ -36,8 +36,8 @@ def run(args) -> int:
     # on a terminal, a first line before the heavy imports (a second or two; elsewhere bad
     # input stays one `error:` line)
     if not args.quiet and sys.stderr.isatty():
-        print(f"openemt track: starting (--source {args.source}; loading the solver and the "
-              f"source)", file=sys.stderr, flush=True)
+        print(f"openemt track: starting (--source {args.source or 'default'}; loading the "
+              f"solver and the source)", file=sys.stderr, flush=True)
     from ..live import TrackingSession, TrackOptions
     from ..view import ViewOptions, track_with_view
     from ._common import emit, options_from

@@ -1,6 +1,7 @@
 """Live tracking: tracker description files, acquisition backends, the real-time pipeline (one
 or several sensors, optional tracking filter) and OpenIGTLink output."""
 
+from ._acquire import SerialBackend, TcpBackend
 from ._backends import (
     Backend,
     ReplayBackend,
@@ -12,6 +13,7 @@ from ._backends import (
     default_trajectory,
     list_audio_inputs,
 )
+from ._devices import DevicesOptions, DevicesResult, list_devices
 from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
 from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
 from ._igtl_meta import distortion_level
@@ -58,6 +60,8 @@ __all__ = [
     "transform_bodies",
     "DEFAULT_IGTL_PORT",
     "Backend",
+    "DevicesOptions",
+    "DevicesResult",
     "FilterSpec",
     "IgtlServer",
     "PipelineConfig",
@@ -65,6 +69,7 @@ __all__ = [
     "ReplayBackend",
     "SensorSetup",
     "SensorSpec",
+    "SerialBackend",
     "SimulatedBackend",
     "SoundDeviceBackend",
     "SourceStalled",
@@ -77,6 +82,7 @@ __all__ = [
     "TrackResult",
     "TrackStep",
     "TrackSummary",
+    "TcpBackend",
     "TrackerSpec",
     "TrackingPipeline",
     "TrackingSession",
@@ -87,6 +93,7 @@ __all__ = [
     "filter_restarts",
     "kalman_filter_poses",
     "list_audio_inputs",
+    "list_devices",
     "lm_solver",
     "new_filter_state",
     "read_registration_transform",

@@ -116,9 +116,30 @@ class Backend:
     def read(self):  # pragma: no cover - abstract
         raise NotImplementedError
 
+    #: whether a read may start a run that does not continue the previous one (then
+    #: :meth:`pop_restart` says where)
+    discontinuous: bool = False
+    #: whether the samples arrive at the pace of their sample clock (end-to-end latency is
+    #: measured only then)
+    realtime: bool = True
+
     def truth_poses(self, times):
         """True poses ``(N, 4, 4)`` at sample times (s), or None when unknown."""
         return
+
+    def epoch_times(self, times):
+        """The acquisition time (UTC, epoch s) of session times ``times`` (s): ``t0_epoch +
+        times`` for a device whose sample clock is the host's (the simulator, a sound card)."""
+        return self.t0_epoch + times
+
+    def pop_restart(self):
+        """The session time (s) where the last read's samples start a new contiguous run
+        (after lost frames or a restarted device), once; None otherwise."""
+        return None
+
+    def link_stats(self) -> dict | None:
+        """Counters of a framed link (frames, CRC errors, gaps, ...), or None."""
+        return None
 
     def close(self) -> None:
         pass
@@ -397,6 +418,27 @@ class BackendWrapper(Backend):
 
     def truth_poses(self, times):
         return self.backend.truth_poses(times)
+
+    # the wrapped backend's, or the defaults of Backend for one that does not derive from it
+    @property
+    def discontinuous(self):
+        return getattr(self.backend, "discontinuous", False)
+
+    @property
+    def realtime(self):
+        return getattr(self.backend, "realtime", True)
+
+    def epoch_times(self, times):
+        f = getattr(self.backend, "epoch_times", None)
+        return self.backend.t0_epoch + times if f is None else f(times)
+
+    def pop_restart(self):
+        f = getattr(self.backend, "pop_restart", None)
+        return None if f is None else f()
+
+    def link_stats(self):
+        f = getattr(self.backend, "link_stats", None)
+        return None if f is None else f()
 
     def read(self):
         return self.backend.read()

@@ -163,6 +163,12 @@ class TrackStep:
     distortion_level : ndarray, shape (N,), uint8, optional
         The 0-255 distortion level of each sample (:func:`openemt.live.distortion_level`, from
         the quadrature ratio and the relative residual; the ``DistortionLevel`` metadata).
+    acquisition_time : ndarray, shape (N,), optional
+        UTC (epoch s) of each sample (its frame centre) on the ADC's sample clock: the
+        OpenIGTLink timestamp (docs/live.md#time).
+    latency : ndarray, shape (N,), optional
+        Seconds from ``acquisition_time`` to the return of the OpenIGTLink send (to the end of
+        processing without a server); NaN when the source is not paced in real time.
     """
 
     times: np.ndarray
@@ -177,6 +183,8 @@ class TrackStep:
     relative_residual: np.ndarray | None = None
     tool_poses: np.ndarray | None = None
     distortion_level: np.ndarray | None = None
+    acquisition_time: np.ndarray | None = None
+    latency: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.times.shape[0]
@@ -238,7 +246,7 @@ class TrackLog:
     """
 
     _KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
-             "distorted", "couplings", "distortion_level")
+             "distorted", "couplings", "distortion_level", "acquisition_time", "latency")
 
     def __init__(self, sensor_names=None):
         self.sensor_names = tuple(sensor_names) if sensor_names is not None else ("openemt",)
@@ -257,7 +265,8 @@ class TrackLog:
         if len(step):
             parts = self._parts[sensor]
             for k in self._KEYS:
-                parts[k].append(getattr(step, k))
+                v = getattr(step, k)
+                parts[k].append(np.full(len(step), np.nan) if v is None else v)
 
     def arrays(self, sensor: int | str = 0) -> dict:
         """The arrays of one sensor (index or name)."""
@@ -611,6 +620,12 @@ class TrackingPipeline:
             getattr(st.solver, "serial", False) for st in self.sensors)
         self._n_out = 0
         self._latency = collections.deque(maxlen=200_000)   # bounded for endless runs
+        # acquisition time and end-to-end latency (docs/live.md#time)
+        self._e2e = collections.deque(maxlen=20_000)        # one array per chunk
+        self._epoch_times = getattr(backend, "epoch_times", None)
+        self._discontinuous = bool(getattr(backend, "discontinuous", False))
+        self._clocked = bool(getattr(backend, "realtime", True))
+        self.demod_restarts = 0
         self._truth_known = backend.truth_poses(np.zeros(1)) is not None
 
     @property
@@ -733,6 +748,11 @@ class TrackingPipeline:
         chunk = self.backend.read()
         if chunk is None:
             return None
+        if self._discontinuous and len(chunk):
+            restart = self.backend.pop_restart()
+            if restart is not None:       # lost frames or a restarted device: a new window
+                self.demod.reset(restart)
+                self.demod_restarts += 1
         d = self.demod.process(chunk)
         t_ready = time.perf_counter()
         n = len(d)
@@ -749,7 +769,9 @@ class TrackingPipeline:
                 self._watch(st, step, step.distorted, now, None)
             return steps[0] if len(steps) == 1 else tuple(steps)
         send_status = (self._n_out + n) // self.status_every > self._n_out // self.status_every
-        epoch = self.backend.t0_epoch
+        stamps = (self.backend.t0_epoch + d.times if self._epoch_times is None
+                  else self._epoch_times(d.times))
+        latency = np.empty(n)
         parts = [d.couplings if st.columns is None else d.couplings[:, :, st.index_of_columns]
                  for st in self.sensors]
         Cs = [c.real for c in parts]
@@ -812,8 +834,7 @@ class TrackingPipeline:
                                       self.distortion_threshold, witness_m)
             st.level_counts += np.bincount(level, minlength=256)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
-                                   t_ready, rel, tool, level))
-        stamps = epoch + d.times
+                                   t_ready, rel, tool, level, stamps, latency))
         if self.igtl is not None:
             self._send(steps, valids, stamps, t_ready)
             if send_status:
@@ -821,6 +842,11 @@ class TrackingPipeline:
                     self._send_status(self._device(st), int(step.status[-1]),
                                       bool(step.distorted[-1]), float(step.distortion[-1]),
                                       stamps[-1])
+        if self._clocked:                      # sample time -> sent, per sample
+            np.subtract(time.time(), stamps, out=latency)
+            self._e2e.append(latency)
+        else:
+            latency.fill(np.nan)
         now = time.monotonic()
         for st, step, valid in zip(self.sensors, steps, valids):
             self._watch(st, step, valid, now, stamps[-1])
@@ -1118,7 +1144,22 @@ class TrackingPipeline:
                 "status_counts": status_count_names(counts),
                 "distorted": sum(st.n_distorted for st in self.sensors),
                 "not_sent_distorted": sum(st.n_not_sent for st in self.sensors),
-                "latency_ms_p50": p50}
+                "latency_ms_p50": p50, "link": self._link_stats()}
+
+    def _link_stats(self):
+        f = getattr(self.backend, "link_stats", None)
+        return None if f is None else f()
+
+    def acquisition(self) -> dict:
+        """Time and link figures (docs/live.md#time): the end-to-end latency (acquisition time
+        of a sample to its send) percentiles in ms (None when the source is not paced in real
+        time), the demodulator restarts at gaps, and a framed link's counters and clock fit
+        (``link``, None for other sources)."""
+        e2e = np.concatenate(self._e2e) * 1e3 if self._e2e else np.empty(0)
+        return {"latency_ms_p50": float(np.percentile(e2e, 50)) if e2e.size else None,
+                "latency_ms_p99": float(np.percentile(e2e, 99)) if e2e.size else None,
+                "latency_ms_max": float(e2e.max()) if e2e.size else None,
+                "demodulator_restarts": self.demod_restarts, "link": self._link_stats()}
 
     def _sensor_summary(self, st: _SensorState) -> dict:
         counts = status_count_names(st.status_counts)
@@ -1175,7 +1216,8 @@ class TrackingPipeline:
                  "relative_devices": [d for _, d in self._relative] or None,
                  "tdata": self.tdata, "metadata": self.igtl_metadata and not self.tdata,
                  "distortion_level": _level_summary(sum(st.level_counts
-                                                        for st in self.sensors))}
+                                                        for st in self.sensors)),
+                 "acquisition": self.acquisition()}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:

@@ -6,12 +6,19 @@ Log layout (``.h5``/``.hdf5``): one sensor (version 1): datasets at the root ``t
 ``poses`` (N, 4, 4) m, ``pose_vectors`` (N, 6) m/rad, ``status`` int8, ``residual``,
 ``distortion``, ``distorted`` bool, ``couplings`` complex (N, n_source, n_sensor),
 ``distortion_level`` uint8 (0-255, :func:`openemt.live.distortion_level`); attrs
-``format = "openemt-track"``, ``version = 1``, ``complete``, ``rows``. Several sensors
+``format = "openemt-track"``, ``version = 1``, ``complete``, ``rows``; from a serial or TCP
+source also ``source`` and ``link`` (the link counters as JSON text; docs/live.md, "Lost,
+damaged and restarted streams"). Several sensors
 (version 2): the same datasets in one group per sensor (``/sensors/<name>/...``, each with its
 ``rows``) and the attribute ``sensors`` (names in tracker-file order).
 
+Both carry the time of each sample (docs/live.md#time): ``acquisition_time`` (UTC, epoch s, on
+the ADC's sample clock) and ``latency`` (s from it to the OpenIGTLink send; NaN when the
+source was not paced in real time).
+
 CSV: columns ``time_s, x_m, y_m, z_m, rx_rad, ry_rad, rz_rad, status, residual, distortion,
-distorted, distortion_level`` (logs written before the level, without it, still read); several sensors: a ``sensor`` column (the name) after ``time_s``, one row per
+distorted, distortion_level, acquisition_time_s, latency_s`` (logs written without the last
+three are still read); several sensors: a ``sensor`` column (the name) after ``time_s``, one row per
 sensor and sample, the sensors of one sample on consecutive rows.
 """
 
@@ -33,12 +40,13 @@ __all__ = ["RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log",
 
 TRACK_FORMAT = "openemt-track"
 LOG_KEYS = ("times", "poses", "pose_vectors", "status", "residual", "distortion",
-            "distorted", "couplings", "distortion_level")
-_CSV_COLS = ("x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted,"
-             "distortion_level")
-#: the columns of logs written before the distortion level (still read)
-_CSV_COLS_OLD = _CSV_COLS.rsplit(",", 1)[0]
-_CSV_FMT = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d", "%d"]
+            "distorted", "couplings", "distortion_level", "acquisition_time", "latency")
+#: the time columns (docs/live.md#time): NaN where a writer gave none
+_TIME_KEYS = ("acquisition_time", "latency")
+#: the columns of logs written before the distortion level and the times (still read)
+_CSV_COLS_V1 = "x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortion,distorted"
+_CSV_COLS = _CSV_COLS_V1 + ",distortion_level,acquisition_time_s,latency_s"
+_CSV_FMT = ["%.6f"] + ["%.9g"] * 6 + ["%d", "%.6g", "%.6g", "%d", "%d", "%.6f", "%.6g"]
 
 
 def _log_kind(path: Path) -> str:
@@ -144,6 +152,10 @@ class TrackLogWriter:
         if not n:
             return
         self._appended = True
+        for a in parts:
+            for key in _TIME_KEYS:
+                if a.get(key) is None:
+                    a[key] = np.full(n, np.nan)
         if self.kind == "h5":
             multi = len(parts) > 1
             for name, a in zip(self.sensor_names, parts):
@@ -153,7 +165,8 @@ class TrackLogWriter:
         tables = [np.column_stack([a["times"], np.asarray(a["pose_vectors"]).reshape(-1, 6),
                                    a["status"], a["residual"], a["distortion"],
                                    np.asarray(a["distorted"]).astype(int),
-                                   _levels_of(a)]) for a in parts]
+                                   _levels_of(a), a["acquisition_time"], a["latency"]])
+                  for a in parts]
         buf = io.StringIO()
         if len(tables) == 1:
             np.savetxt(buf, tables[0], delimiter=",", fmt=_CSV_FMT)
@@ -168,6 +181,11 @@ class TrackLogWriter:
 
     def flush(self) -> None:
         self._stream.flush()
+
+    def set_attrs(self, attrs: dict) -> None:
+        """File attributes of an HDF5 log (a CSV log has no place for them)."""
+        if self.kind == "h5" and self._stream is not None:
+            self._stream.group_attrs("/", attrs)
 
     def close(self, *, keep_empty: bool = True) -> None:
         """Write what is buffered, mark the file complete and close it (see
@@ -331,9 +349,9 @@ def _read_csv_log(path: Path) -> TrackLogData:
     lines = text.split("\n")
     head = lines[0].strip().split(",") if lines else []
     multi = head[:2] == ["time_s", "sensor"]
-    first = ["time_s", "sensor"] if multi else ["time_s"]
-    cols = next((c.split(",") for c in (_CSV_COLS, _CSV_COLS_OLD)
-                 if head == first + c.split(",")), None)
+    lead = ["time_s", "sensor"] if multi else ["time_s"]
+    cols = next((c.split(",") for c in (_CSV_COLS, _CSV_COLS_V1)
+                 if head == lead + c.split(",")), None)
     if cols is None:
         raise InputError(f"expected a track log CSV header 'time_s,{_CSV_COLS}', got "
                          f"{lines[0][:80]!r} in {str(path)!r}")
@@ -368,7 +386,9 @@ def _read_csv_log(path: Path) -> TrackLogData:
                         "status": t[:, 7].astype(np.int8), "residual": t[:, 8],
                         "distortion": t[:, 9], "distorted": t[:, 10].astype(bool),
                         "distortion_level": (t[:, 11].astype(np.uint8) if t.shape[1] > 11
-                                             else np.empty(0, np.uint8))}
+                                             else np.empty(0, np.uint8)),
+                        **({"acquisition_time": t[:, 12], "latency": t[:, 13]}
+                           if t.shape[1] > 13 else {})}
     return TrackLogData(sensors=tuple(order or ["openemt"]), arrays=arrays, complete=complete)
 
 

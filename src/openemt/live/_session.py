@@ -41,9 +41,14 @@ class TrackOptions:
                                 "docs/live.md#tracker-file): ADC, channels, carriers, sensors, "
                                 "calibrations, device names, filter, registration (default: "
                                 "the simulated one-sensor tracker)")
-    source: str = _opt("sim", "simulated device (default), replay of a raw HDF5 file, or a "
-                       "sound card (needs --tracker and the optional package sounddevice)",
-                       choices=("sim", "replay", "sound"))
+    source: str | None = _opt(None, "sim: simulated device; replay: a raw HDF5 file; sound: a "
+                              "sound card (needs --tracker and the optional package "
+                              "sounddevice); serial:PORT[@BAUD] or tcp://HOST:PORT: an ADC "
+                              "sending openemt frames (docs/live.md#serial-and-network-"
+                              "acquisition; needs the tracker's adc layout, default: the "
+                              "simulated tracker's) (default: the tracker file's [adc] "
+                              "source, else sim)",
+                              metavar="SOURCE")
     file: Path | None = _opt(None, "raw HDF5 recording (with --source replay)",
                              positional=True, optional=True)
     device: str | None = _opt(None, "(sound) audio input device: index or name (openemt "
@@ -142,6 +147,9 @@ class TrackOptions:
                 raise InputError(f"expected a positive, finite --{name.replace('_', '-')} in "
                                  f"seconds, got {v}")
 
+        from ._acquire import parse_source
+
+        kind = "sim" if self.source is None else parse_source(self.source)[0]
         if self.duration is not None and not 0 < self.duration < math.inf:
             raise InputError(f"expected a positive, finite --duration in seconds (leave it out "
                              f"to run until Ctrl-C), got {self.duration}")
@@ -165,21 +173,21 @@ class TrackOptions:
                     raise InputError(f"expected no --{opt.replace('_', '-')} with --tracker "
                                      f"(the tracker file names the model, calibrations and "
                                      f"devices), got {getattr(self, opt)}")
-        elif self.source == "sound":
+        elif kind == "sound":
             raise InputError("expected --tracker FILE with --source sound (which channels are "
                              "references and sensor coils), got none")
-        if self.source == "replay":
+        if kind == "replay":
             if self.file is None:
                 raise InputError("expected a raw HDF5 FILE with --source replay, got none")
         elif self.file is not None:
             raise InputError(f"expected FILE only with --source replay, got {str(self.file)!r}")
-        if self.save_raw is not None and self.source != "sim":
+        if self.save_raw is not None and kind != "sim":
             raise InputError(f"expected --save-raw only with --source sim, got --source "
                              f"{self.source}")
         if self.save_raw is not None and self.save_raw.suffix.lower() not in (".h5", ".hdf5"):
             raise InputError(f"expected --save-raw ending in .h5 or .hdf5, got "
                              f"{str(self.save_raw)!r}")
-        if self.device is not None and self.source != "sound":
+        if self.device is not None and kind != "sound":
             raise InputError(f"expected --device only with --source sound, got --source "
                              f"{self.source}")
         if self.log is not None and self.log.suffix.lower() not in (".h5", ".hdf5", ".csv"):
@@ -224,6 +232,18 @@ class TrackResult(Result):
         if s.latency_ms_p50 is not None:
             lines.append(f"latency coupling -> send: p50 {s.latency_ms_p50:.3f} ms, p99 "
                          f"{s.latency_ms_p99:.3f} ms")
+        acq = out.get("acquisition") or {}
+        if acq.get("latency_ms_p50") is not None:
+            lines.append(f"latency sample time -> send: p50 {acq['latency_ms_p50']:.3f} ms, "
+                         f"p99 {acq['latency_ms_p99']:.3f} ms")
+        k = out.get("link")
+        if k is not None:
+            drift = ("" if k["drift_ppm"] is None
+                     else f"; ADC clock {k['drift_ppm']:+.1f} ppm against the host")
+            lines.append(f"link: {k['frames']} frames, {k['crc_errors']} bad CRC, "
+                         f"{k['bytes_skipped']} bytes skipped, {k['gaps']} gap(s) "
+                         f"({k['samples_lost']} samples lost, not bridged), {k['restarts']} "
+                         f"restart(s), {k['reconnects']} reconnection(s){drift}")
         if s.igtl:
             g = s.igtl
             lines.append(f"OpenIGTLink: {g['sent']} sent, {g['clients_max']} client(s) at "
@@ -312,6 +332,10 @@ class _Console:
                 f"distorted {p['distorted']} (not sent {p['not_sent_distorted']}){lat}")
         if pipe.igtl is not None:
             line += f", {pipe.igtl.n_clients} client(s)"
+        k = p.get("link")
+        if k is not None:
+            line += (f", link: {k['gaps']} gap(s) ({k['samples_lost']} samples lost), "
+                     f"{k['crc_errors']} bad CRC, {k['restarts']} restart(s)")
         if self.tty:
             pad = max(0, self._width - len(line))
             self._width = len(line)
@@ -422,6 +446,8 @@ class TrackingSession:
                  sensors=None, backend=None, chunk: int = 640, say=None,
                  max_queue: int | None = None, match_layout: bool = True, observer=None):
         options = TrackOptions() if options is None else options
+        if options.source is None:          # the tracker file's [adc] source, else sim
+            options = replace(options, source=spec.adc_source or "sim")
         options.check()
         self.spec = spec
         self.options = options
@@ -552,6 +578,10 @@ class TrackingSession:
         def stopping():
             return console.stop() or (stop is not None and stop())
 
+        restart = getattr(self.backend, "restart_clock", None)
+        if restart is not None and not o.fast:
+            restart()        # a paced simulator starts sampling now, not when it was made
+
         summary = pipe.run(o.duration, stop=stopping, monitor=monitor or console)
         self._ran = True
         console.end_line()
@@ -560,17 +590,26 @@ class TrackingSession:
             # SIGTERM arrives as the command line's ``Terminated`` (a KeyboardInterrupt)
             stopped = (signal.SIGTERM if type(pipe.interrupted).__name__ == "Terminated"
                        else signal.SIGINT)
+        link = self.source.link_stats()
+        if self.log is not None and link is not None:
+            import json
+
+            self.log.set_attrs({"source": self._source_name(), "link": json.dumps(link)})
         # a session stopped before its first sample never replaces an existing file
         for w in (self.log, self.raw and self.raw.stream):
             if w is not None:
                 w.close(keep_empty=stopped is None)
         return self._result(summary, stopped)
 
+    def _source_name(self) -> str:
+        """``--source``, or what a given backend says it reads (``serial:PORT``, ...)."""
+        return getattr(self.backend, "source", None) or self.options.source
+
     def _result(self, summary, stopped) -> TrackResult:
         import signal
 
         o, spec, server = self.options, self.spec, self.server
-        out = {"source": o.source,
+        out = {"source": self._source_name(),
                "tracker": None if spec.path is None else str(spec.path),
                "sensors_tracked": [s.name for s in spec.sensors],
                "device_name": None if server is None else spec.sensors[0].device_name,
@@ -584,6 +623,9 @@ class TrackingSession:
                "longest_silence_s": self.source.longest_silence,
                "stopped_by": (None if stopped is None
                               else "SIGTERM" if stopped == signal.SIGTERM else "SIGINT")}
+        link = self.backend.link_stats() if hasattr(self.backend, "link_stats") else None
+        if link is not None:
+            out["link"] = link
         if getattr(self.backend, "n_overflow", None) is not None:
             out["audio_blocks_dropped"] = self.backend.n_overflow
         if self.log is not None:
@@ -645,18 +687,27 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
                     realtime: bool = True, duration: float | None = None, seed=None,
                     noise_rms: float | None = None, eddy_strength: float | None = None,
                     chunk: int = 640, match_layout: bool = True, trajectory=None):
-    """The backend of ``source`` (``"sim"``, ``"replay"`` or ``"sound"``) for a tracker.
+    """The backend of ``source`` (``"sim"``, ``"replay"``, ``"sound"``, ``"serial:PORT"`` or
+    ``"tcp://HOST:PORT"``) for a tracker.
 
     ``sim`` simulates the tracker's channel layout (every sensor follows ``trajectory``, a
     callable of times giving poses, by default :func:`~openemt.live.default_trajectory`,
     shifted by its ``simulation_offset``; truth model from ``[simulation] preset``);
     ``replay`` reads a raw recording whose channel layout must match the tracker's
     (``match_layout=False``: the recording's own layout is used); ``sound`` opens the audio
-    input ``device`` with ``adc.channels`` channels at ``adc.sample_rate``.
+    input ``device`` with ``adc.channels`` channels at ``adc.sample_rate``; ``serial:`` and
+    ``tcp://`` read frames of ``adc.channels`` channels at ``adc.sample_rate``
+    (:mod:`openemt.live._framing`).
     """
+    from ._acquire import SerialBackend, TcpBackend, parse_source
     from ._backends import ReplayBackend, SimulatedBackend, SoundDeviceBackend
 
     layout = spec.layout()
+    kind, where = parse_source(source)
+    if kind == "serial":
+        return SerialBackend(where[0], layout, spec.n_channels, baud=where[1], chunk=chunk)
+    if kind == "tcp":
+        return TcpBackend(where[0], where[1], layout, spec.n_channels, chunk=chunk)
     if source == "sound":
         return SoundDeviceBackend(layout, device=device, channels=spec.n_channels,
                                   chunk=chunk)

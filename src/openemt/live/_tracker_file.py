@@ -315,6 +315,10 @@ class TrackerSpec:
     registration_path: Path | None = None
     witnesses: tuple = ()
     bands: tuple = ()
+    #: where the ADC's frames come from (``[adc] source``: ``serial:PORT[@BAUD]`` or
+    #: ``tcp://HOST:PORT``, docs/live.md#serial-and-network-acquisition), the default of
+    #: ``track --source``; None: none configured
+    adc_source: str | None = None
 
     @property
     def sensor_names(self) -> tuple:
@@ -560,7 +564,19 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         raise r.fail("version", f"1..{_VERSION}", version)
 
     adc = r.get(doc, "", "adc", "table")
-    _unknown_keys(r, adc, "adc", ("sample_rate", "channels", "sensor_gain", "reference_gain"))
+    _unknown_keys(r, adc, "adc", ("sample_rate", "channels", "sensor_gain", "reference_gain",
+                                  "source"))
+    adc_source = r.get(adc, "adc", "source", "string", None)
+    if adc_source is not None:
+        from ._acquire import parse_source
+
+        try:
+            kind, _ = parse_source(adc_source)
+        except InputError:
+            kind = None
+        if kind not in ("serial", "tcp"):
+            raise r.fail("adc.source", "'serial:PORT[@BAUD]' or 'tcp://HOST:PORT'",
+                         repr(adc_source))
     fs = r.get(adc, "adc", "sample_rate", "number")
     if not (fs > 0 and fs < float("inf")):
         raise r.fail("adc.sample_rate", "a positive number (Hz)", fs)
@@ -785,7 +801,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
                        filter=fspec, simulation=simd, path=path, reference=reference,
                        stale_after=stale, tdata=tdata, metadata=metadata,
                        header_version=header_version, rate=igtl_rate,
-                       bands=tuple(tuple(b) for b in bands), witnesses=tuple(witnesses))
+                       bands=tuple(tuple(b) for b in bands), witnesses=tuple(witnesses),
+                       adc_source=adc_source)
     try:
         if registration is not None:
             spec = spec.with_registration(registration)
