@@ -43,6 +43,7 @@ from ._linalg import (
     det33,
     dominant_eigvec,
     euler_zyx_matrix,
+    herm3_lambda_max,
     quat_matrix,
     rotvec_from_matrix,
     rotvec_from_quat,
@@ -67,7 +68,8 @@ from ._validity import (
     classify,
 )
 
-__all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "new_outputs",
+__all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "complex_spectral_norm",
+           "new_outputs",
            "normalise_coupling", "residual_norms", "residuals_at", "result_from_outputs",
            "solve_kim18", "solve_kuipers", "solve_svd", "spectral_norms", "whitening"]
 
@@ -107,14 +109,67 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
         raise InputError(f"expected `couplings` of shape (N, {n_source}, {n_sensor}) for this "
                          f"model, got {C.shape}")
     if C.dtype.kind == "c":
-        norms = np.full(C.shape[0], np.nan)
-        ok = np.all(np.isfinite(C), axis=(1, 2))
-        if np.any(ok):
-            norms[ok] = np.linalg.norm(C[ok], ord=2, axis=(1, 2))
-        real = np.where(C.real < 0, -1.0, 1.0) * np.abs(C)
-        return np.ascontiguousarray(real), norms
+        C = np.ascontiguousarray(C, dtype=np.complex128)
+        real = np.abs(C)
+        np.negative(real, out=real, where=C.real < 0)
+        norms = np.empty(C.shape[0])
+        _complex_norms(C, norms)
+        rest = np.flatnonzero(norms < 0)    # sensors of more than 3 coils: no closed form here
+        if rest.size:
+            norms[rest] = np.linalg.norm(C[rest], ord=2, axis=(1, 2))
+        return real, norms
     return (np.ascontiguousarray(C, dtype=np.float64),
             np.full(C.shape[0], -1.0))
+
+
+@njit(inline="always")
+def complex_spectral_norm(C, G):
+    """Spectral norm of a complex matrix ``C`` (n_so, n_se) with ``n_se <= 3``: the square root
+    of the top eigenvalue of the Hermitian Gram matrix ``G = C^H C`` (n_se, n_se scratch; of
+    ``C`` divided by its largest real or imaginary part, multiplied back after) in
+    closed form (:func:`~openemt.solve._linalg.herm3_lambda_max` for three columns). -1 for
+    more columns (the caller computes those by SVD)."""
+    n_so, n_se = C.shape
+    if n_se > 3:
+        return -1.0
+    m = 0.0                      # the largest part: scales the Gram matrix clear of under-
+    for i in range(n_so):        # and overflow
+        for a in range(n_se):
+            m = max(m, abs(C[i, a].real), abs(C[i, a].imag))
+    if not m > 0.0:
+        return 0.0
+    for a in range(n_se):
+        for b in range(a, n_se):
+            acc = 0j
+            for i in range(n_so):
+                acc += complex(C[i, a].real / m, -C[i, a].imag / m) * complex(C[i, b].real / m,
+                                                                             C[i, b].imag / m)
+            G[a, b] = acc
+    if n_se == 1:
+        lam = G[0, 0].real
+    elif n_se == 2:
+        h = 0.5 * (G[0, 0].real - G[1, 1].real)
+        lam = 0.5 * (G[0, 0].real + G[1, 1].real) + np.sqrt(
+            h * h + G[0, 1].real ** 2 + G[0, 1].imag ** 2)
+    else:
+        lam = herm3_lambda_max(G[0, 0].real, G[1, 1].real, G[2, 2].real, G[0, 1], G[0, 2],
+                               G[1, 2])
+    return np.sqrt(max(lam, 0.0)) * m
+
+
+@njit(cache=True)
+def _complex_norms(C, norms):
+    """The complex spectral norms of couplings ``C`` (N, n_so, n_se) into ``norms``: NaN for a
+    sample with a non-finite entry, -1 where :func:`complex_spectral_norm` has no closed
+    form."""
+    G = np.empty((C.shape[2], C.shape[2]), np.complex128)
+    for k in range(C.shape[0]):
+        finite = True
+        for i in range(C.shape[1]):
+            for j in range(C.shape[2]):
+                z = C[k, i, j]
+                finite = finite and np.isfinite(z.real) and np.isfinite(z.imag)
+        norms[k] = complex_spectral_norm(C[k], G) if finite else np.nan
 
 
 @njit(inline="always")
