@@ -37,7 +37,7 @@ from numba import njit
 
 from .._errors import InputError
 from ..field import DipoleModel, check_dipole_model
-from ..field._dipole_kernel import concentric_eval, dipole_eval
+from ..field._dipole_kernel import concentric_eval
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._linalg import (
     det33,
@@ -54,6 +54,7 @@ from ._linalg import (
     sym3_lambda_max,
     wahba_quat,
 )
+from ._model_kernels import model_eval
 from ._packing import (
     O_RANK_TOL,
     pack_model,
@@ -201,6 +202,10 @@ def spectral_norm(C, G):
             G[a, b] = acc
     if n_se == 1:
         return np.sqrt(G[0, 0])
+    if n_se == 2:
+        h = 0.5 * (G[0, 0] - G[1, 1])
+        return np.sqrt(max(0.5 * (G[0, 0] + G[1, 1]) + np.sqrt(h * h + G[0, 1] * G[0, 1]),
+                           0.0))
     if n_se == 3:
         return np.sqrt(max(sym3_lambda_max(G[0, 0], G[0, 1], G[0, 2], G[1, 1], G[1, 2],
                                             G[2, 2]), 0.0))
@@ -505,8 +510,8 @@ def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac):
     :func:`normalise_coupling`) under the unpacked model ``geo``, evaluated at the couplings'
     own scale. ``Cp`` receives the predicted coupling; ``jac`` (the derivative arrays of
     ``dipole_eval``, unused) is scratch."""
-    no_jac = Ck.shape[0] < 0  # False at run time: one dipole_eval specialisation for all
-    dipole_eval(geo, R, t, Cp, jac, no_jac)
+    no_jac = Ck.shape[0] < 0  # False at run time: one model_eval specialisation for all
+    model_eval(geo, R, t, Cp, jac, no_jac)
     return residual_norms(Cp, Ck, s, cn, fn)
 
 

@@ -23,7 +23,7 @@ from ._planar import _rule_options
 from ._result import SolveResult, Status
 from ._validity import check_validity_options, classify
 
-__all__ = ["ModelSolver", "sensor_coil_starts"]
+__all__ = ["ModelSolver", "PackedModelSolver", "sensor_coil_starts"]
 
 #: Samples solved together from one start while tracking.
 TRACK_BLOCK = 32
@@ -349,3 +349,79 @@ class ModelSolver:
                 prev, last = last, (rows[conv[-1]], x[rows[conv[-1]]])
             else:
                 prev = last = None
+
+
+class PackedModelSolver(ModelSolver):
+    """:class:`ModelSolver`'s starts, cold retries and validity rule with the iteration done
+    by the compiled LM kernels (:func:`~openemt.solve._lm.lm_batch`,
+    :func:`~openemt.solve._lm.lm_track`), for a model whose packed form they accept
+    (:mod:`openemt.solve._model_kernels`; a board read by a multi-coil sensor:
+    :func:`~openemt.solve._model_kernels.pack_board`).
+
+    Tracking solves sample by sample, each from the previous converged pose (the first from
+    the model's cold start); a sample that does not converge (or, with ``retry_resnorm``,
+    converges above it) is solved again from the cold start, as :class:`ModelSolver` does.
+    The LM is the dipole solver's (docs/solve.md): full 6-DOF steps with a local rotation
+    increment, its step tolerance ``xtol`` relative to the distance from the origin for the
+    translation. The answers are :class:`ModelSolver`'s to 1e-9 m
+    (``tests/test_board_lm.py``); ``residual`` is, as there, ``rho**2 ||C||_F``.
+    """
+
+    def __init__(self, model, options, packed):
+        from ._packing import pack_options
+
+        super().__init__(model, options)
+        self.packed = packed
+        rule = self.rule
+        from ._packing import (
+            O_AMBIGUITY_TOL,
+            O_MAX_RANGE,
+            O_MAX_RELATIVE_RESIDUAL,
+        )
+
+        self.opts = pack_options(max_iter=self.max_iter, xtol=self.xtol,
+                                 retry_resnorm=np.inf, retry_relative=np.inf,
+                                 ambiguity_tol=rule[O_AMBIGUITY_TOL],
+                                 max_relative_residual=rule[O_MAX_RELATIVE_RESIDUAL],
+                                 max_range=rule[O_MAX_RANGE], unconstrained=1)
+
+    def _outputs(self, out, starts):
+        from ._closed_form import ST_INVALID_INPUT
+
+        _, vecs, status, _, rho, iters = out
+        # a start that is not finite (no cold start for the row) is NOT_CONVERGED, as in
+        # ModelSolver; the kernel calls such a row invalid input
+        bad = ~np.all(np.isfinite(starts), axis=1) & (status == ST_INVALID_INPUT)
+        status[bad] = int(Status.NOT_CONVERGED)
+        return vecs, status, rho, iters
+
+    def _solve_from(self, C, start_vectors, nvec):
+        from ._closed_form import new_outputs
+        from ._lm import lm_batch
+
+        n = len(C)
+        s = np.ascontiguousarray(start_vectors, dtype=np.float64).reshape(n, 6)
+        out = new_outputs(n)
+        if n:
+            lm_batch(self.packed, np.ascontiguousarray(C), np.full(n, -1.0), s,
+                     np.ascontiguousarray(nvec, dtype=np.float64), self.box, self.opts, out)
+        return self._outputs(out, s)
+
+    def _track(self, C, good, x, status, rho, iters):
+        from ._closed_form import new_outputs
+        from ._lm import lm_track
+
+        if not good.size:
+            return
+        first = vector_from_pose(self.cold_starts(C[good[:1]]))[0]
+        if not np.all(np.isfinite(first)):          # no cold start for the first sample
+            return super()._track(C, good, x, status, rho, iters)
+        n = good.size
+        out = new_outputs(n)
+        nvec = np.ascontiguousarray(self._nvec[good], dtype=np.float64)
+        Cg = np.ascontiguousarray(C[good])
+        lm_track(self.packed, Cg, np.full(n, -1.0), first, np.zeros((2, 3, 3)), nvec,
+                 self.box, self.opts, out)
+        sub = tuple(a.copy() for a in self._outputs(out, np.zeros((n, 6))))
+        self._retry_cold(Cg, *sub, nvec)
+        x[good], status[good], rho[good], iters[good] = sub
