@@ -35,6 +35,7 @@ from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix, store_pose
 from ._model_kernels import model_eval, unpack_any
 from ._packing import (
     O_CF_GAIN,
+    O_EXTRAPOLATE,
     O_FIVE_DOF,
     O_MAX_ITER,
     O_RANK_TOL,
@@ -396,6 +397,8 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
     ``first``). A sample failing the retry test is re-solved from the Kim18 closed form of the
     sample under the concentric whitening ``W = [M_so^-T, M_se^-1]`` and gain
     ``opts[O_CF_GAIN]`` (if ``opts[O_USE_CLOSED_FORM]``), then with the sign-flip retries.
+    With ``opts[O_EXTRAPOLATE]`` a sample whose two predecessors both converged starts from
+    their constant-velocity extrapolation (when they are less than 1 cm and 0.1 rad apart).
     Arguments as :func:`lm_batch`."""
     N = C.shape[0]
     lmw, sw, Cn, G = _workspace(C.shape[1], C.shape[2])
@@ -405,6 +408,11 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
     cws = closed_form_scratch()
     start = np.empty(6)
     prev = first.copy()
+    prev2 = first.copy()
+    guess = np.empty(6)
+    extrapolate = opts[O_EXTRAPOLATE] != 0.0
+    k1 = -2                          # the last two converged samples (prev, prev2)
+    k2 = -2
     # the first try of each sample: from the previous pose, without retries
     plain = opts.copy()
     plain[O_RETRIES] = 0.0
@@ -421,7 +429,17 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
             continue
         geo = unpack_any(mdl, s)
         res_fac = s * (s / cn)  # normalised sum of squares -> resnorm
-        cost, it, stop = _solve_sample(geo, Cn, res_fac, fn, prev, nvec[k], box, plain, sw,
+        guess[:] = prev
+        if extrapolate and k1 == k - 1 and k2 == k - 2:
+            dt2 = 0.0
+            dr2 = 0.0
+            for a in range(3):
+                dt2 += (prev[a] - prev2[a]) ** 2
+                dr2 += (prev[3 + a] - prev2[3 + a]) ** 2
+            if dt2 < 1e-4 and dr2 < 1e-2:
+                for a in range(6):
+                    guess[a] = 2.0 * prev[a] - prev2[a]
+        cost, it, stop = _solve_sample(geo, Cn, res_fac, fn, guess, nvec[k], box, plain, sw,
                                        lmw)
         if not _acceptable(cost, res_fac, fn, opts) and (use_cf or retries):
             start[:] = prev
@@ -447,4 +465,7 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
         _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, sw, lmw, out)
         if status[k] == ST_CONVERGED:
             for a in range(6):
+                prev2[a] = prev[a]
                 prev[a] = vecs[k, a]
+            k2 = k1
+            k1 = k

@@ -23,7 +23,7 @@ from ._planar import _rule_options
 from ._result import SolveResult, Status
 from ._validity import check_validity_options, classify
 
-__all__ = ["ModelSolver", "PackedModelSolver", "sensor_coil_starts"]
+__all__ = ["ModelSolver", "PackedModelSolver", "coil_solvers", "sensor_coil_starts"]
 
 #: Samples solved together from one start while tracking.
 TRACK_BLOCK = 32
@@ -76,23 +76,32 @@ def _roll_starts(model, C, p, u, k):
     return out
 
 
-def sensor_coil_starts(model, couplings, options=None):
+def coil_solvers(model, options=None) -> list:
+    """The 5-DOF board solvers (:class:`~openemt.solve._planar.PreparedPlanar`) of each
+    sensor coil of ``model`` alone, prepared once for :func:`sensor_coil_starts`."""
+    from ._planar import PreparedPlanar
+
+    kw = {} if options is None else options
+    return [PreparedPlanar(model.sensor_coil_model(k), **kw) for k in range(model.n_sensor)]
+
+
+def sensor_coil_starts(model, couplings, options=None, solvers=None):
     """Cold starts ``(N, 4, 4)`` for a board read by a sensor of several coils: each coil is
     solved on its own by the 5-DOF board solver (position and axis), the rotation is the one
     that best takes the sensor's coil axes (and their cross product) to the measured axes, and
     the position the mean of the coil positions less their rotated offsets. Where only some
     coils have a 5-DOF fit, the pose is the best of :data:`N_ROLLS` rolls about the first such
-    coil's axis; rows where no coil has one are NaN."""
-    from ._planar import PreparedPlanar
-
+    coil's axis; rows where no coil has one are NaN. ``solvers``: the coils' solvers of
+    :func:`coil_solvers` (``options`` are theirs), made here if not given."""
     C = np.asarray(couplings, dtype=np.float64)
     n, ne = C.shape[0], model.n_sensor
-    kw = {} if options is None else options
+    if solvers is None:
+        solvers = coil_solvers(model, options)
     p = np.empty((n, ne, 3))
     u = np.empty((n, ne, 3))
     coil_ok = np.zeros((n, ne), bool)
     for k in range(ne):
-        res = PreparedPlanar(model.sensor_coil_model(k), **kw).solve(C[:, :, k], "grid")
+        res = solvers[k].solve(C[:, :, k], "grid")
         coil_ok[:, k] = res.status == int(Status.CONVERGED)
         p[:, k] = res.poses[:, :3, 3]
         u[:, k] = res.poses[:, :3, 2]
@@ -164,6 +173,7 @@ class ModelSolver:
         self.retry_resnorm = options.retry_resnorm
         self._initial = "track" if options.initial is None else options.initial
         self.cold_start = model.cold_start
+        self._coil_solvers = None            # prepared at the first cold start
         if isinstance(self._initial, str) and self._initial not in ("track", "cold"):
             raise InputError(f"expected initial 'track', 'cold' or start poses for a "
                              f"{model.kind!r} model, got {self._initial!r}")
@@ -172,7 +182,9 @@ class ModelSolver:
     def cold_starts(self, C) -> np.ndarray:
         if hasattr(self.model, "sensor_coil_model") and self.n_sensor > 1:
             # a start need only be near: the coils' 5-DOF fits are accepted up to 50 % misfit
-            return sensor_coil_starts(self.model, C, {"max_relative_residual": 0.5})
+            if self._coil_solvers is None:
+                self._coil_solvers = coil_solvers(self.model, {"max_relative_residual": 0.5})
+            return sensor_coil_starts(self.model, C, solvers=self._coil_solvers)
         raise InputError(f"expected start poses for a {self.model.kind!r} model with "
                          f"{self.n_sensor} sensor coil(s) (it has no cold start), got none")
 
@@ -383,7 +395,8 @@ class PackedModelSolver(ModelSolver):
                                  retry_resnorm=np.inf, retry_relative=np.inf,
                                  ambiguity_tol=rule[O_AMBIGUITY_TOL],
                                  max_relative_residual=rule[O_MAX_RELATIVE_RESIDUAL],
-                                 max_range=rule[O_MAX_RANGE], unconstrained=1)
+                                 max_range=rule[O_MAX_RANGE], unconstrained=1,
+                                 extrapolate=1)
 
     def _outputs(self, out, starts):
         from ._closed_form import ST_INVALID_INPUT
