@@ -84,3 +84,19 @@ def test_closed_forms_same_decisions_on_complex_input(monkeypatch):
         assert len(set(got.status.tolist())) > 1
         np.testing.assert_allclose(got.pose_vectors, ref.pose_vectors, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(got.residual, ref.residual, rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("gap", [0.0, 1e-12, 1e-6, 1e-2, 0.2, 0.5, 0.9])
+def test_complex_norm_close_and_distant_top_singular_values(gap):
+    """Both branches of the eigenvalue: Newton's method where the top singular value stands
+    apart, the trigonometric form where a second one is close to it (or equal)."""
+    rng = np.random.default_rng(11)
+
+    def unitary():
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)) + 1j * rng.normal(size=(3, 3)))
+        return q
+
+    C = np.stack([unitary() @ np.diag([1.0, 1.0 - gap, 0.3 * k]) @ unitary().conj().T
+                  for k in range(3)]) * 1e-6
+    _, norms = check_couplings(C)
+    np.testing.assert_allclose(norms, np.linalg.norm(C, ord=2, axis=(1, 2)), rtol=1e-13)

@@ -111,11 +111,11 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
                          f"model, got {C.shape}")
     if C.dtype.kind == "c":
         C = np.ascontiguousarray(C, dtype=np.complex128)
-        real = np.abs(C)
-        np.negative(real, out=real, where=C.real < 0)
+        real = np.abs(C)                     # numpy's |z|; the kernel negates where Re z < 0
         norms = np.empty(C.shape[0])
-        _complex_norms(C, norms)
-        rest = np.flatnonzero(norms < 0)    # sensors of more than 3 coils: no closed form here
+        _complex_norms(C, real, norms)
+        # sensors of more than 3 coils, close top singular values: numpy's SVD
+        rest = np.flatnonzero(norms < 0)
         if rest.size:
             norms[rest] = np.linalg.norm(C[rest], ord=2, axis=(1, 2))
         return real, norms
@@ -127,24 +127,32 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
 def complex_spectral_norm(C, G):
     """Spectral norm of a complex matrix ``C`` (n_so, n_se) with ``n_se <= 3``: the square root
     of the top eigenvalue of the Hermitian Gram matrix ``G = C^H C`` (n_se, n_se scratch; of
-    ``C`` divided by its largest real or imaginary part, multiplied back after) in
-    closed form (:func:`~openemt.solve._linalg.herm3_lambda_max` for three columns). -1 for
-    more columns (the caller computes those by SVD)."""
+    ``C`` divided by its largest real or imaginary part where that is outside 1e-40..1e40,
+    multiplied back after): directly for one or two columns, by the trigonometric formula for
+    three (:func:`~openemt.solve._linalg.herm3_lambda_max`). -1 for more columns or a second
+    singular value close to the first (the caller computes those by SVD)."""
     n_so, n_se = C.shape
     if n_se > 3:
         return -1.0
-    m = 0.0                      # the largest part: scales the Gram matrix clear of under-
-    for i in range(n_so):        # and overflow
+    m = 0.0                      # the largest part: outside 1e-40..1e40 the Gram matrix is
+    for i in range(n_so):        # formed of C / m (its eigenvalue formula has 3rd powers)
         for a in range(n_se):
             m = max(m, abs(C[i, a].real), abs(C[i, a].imag))
     if not m > 0.0:
         return 0.0
+    scaled = not (1e-40 < m < 1e40)
+    if not scaled:
+        m = 1.0
     for a in range(n_se):
         for b in range(a, n_se):
             acc = 0j
             for i in range(n_so):
-                acc += complex(C[i, a].real / m, -C[i, a].imag / m) * complex(C[i, b].real / m,
-                                                                             C[i, b].imag / m)
+                x = C[i, a]
+                y = C[i, b]
+                if scaled:
+                    x = complex(x.real / m, x.imag / m)
+                    y = complex(y.real / m, y.imag / m)
+                acc += np.conj(x) * y
             G[a, b] = acc
     if n_se == 1:
         lam = G[0, 0].real
@@ -155,20 +163,24 @@ def complex_spectral_norm(C, G):
     else:
         lam = herm3_lambda_max(G[0, 0].real, G[1, 1].real, G[2, 2].real, G[0, 1], G[0, 2],
                                G[1, 2])
+        if lam < 0.0:
+            return -1.0              # a close second singular value: the caller's SVD
     return np.sqrt(max(lam, 0.0)) * m
 
 
 @njit(cache=True)
-def _complex_norms(C, norms):
-    """The complex spectral norms of couplings ``C`` (N, n_so, n_se) into ``norms``: NaN for a
+def _complex_norms(C, real, norms):
+    """The complex spectral norms of couplings ``C`` (N, n_so, n_se) into ``norms`` (NaN for a
     sample with a non-finite entry, -1 where :func:`complex_spectral_norm` has no closed
-    form."""
+    form); ``real`` (``|C|`` on entry) negated where ``Re C < 0``: the signed-real values."""
     G = np.empty((C.shape[2], C.shape[2]), np.complex128)
     for k in range(C.shape[0]):
         finite = True
         for i in range(C.shape[1]):
             for j in range(C.shape[2]):
                 z = C[k, i, j]
+                if z.real < 0:
+                    real[k, i, j] = -real[k, i, j]
                 finite = finite and np.isfinite(z.real) and np.isfinite(z.imag)
         norms[k] = complex_spectral_norm(C[k], G) if finite else np.nan
 
