@@ -370,27 +370,23 @@ class PackedModelSolver(ModelSolver):
     (:mod:`openemt.solve._model_kernels`; a board read by a multi-coil sensor:
     :func:`~openemt.solve._model_kernels.pack_board`).
 
-    Tracking solves sample by sample, each from the previous converged pose (the first from
-    the model's cold start); a sample that does not converge (or, with ``retry_resnorm``,
+    Tracking solves sample by sample, each from the constant-velocity extrapolation of the
+    last two converged poses (from the last one after a gap; the first from the model's cold
+    start); a sample that does not converge (or, with ``retry_resnorm``,
     converges above it) is solved again from the cold start, as :class:`ModelSolver` does.
-    The LM is the dipole solver's (docs/solve.md): full 6-DOF steps with a local rotation
-    increment, its step tolerance ``xtol`` relative to the distance from the origin for the
-    translation. The answers are :class:`ModelSolver`'s to 1e-9 m
+    The LM is the dipole solver's (docs/solve.md#compiled-models): full 6-DOF steps with a
+    local rotation increment, its step tolerance ``xtol`` relative to the distance from the
+    origin for the translation, without its projections onto the hemisphere and box
+    (``O_UNCONSTRAINED``: they only judge the result, as here). The answers are :class:`ModelSolver`'s to 1e-9 m
     (``tests/test_board_lm.py``); ``residual`` is, as there, ``rho**2 ||C||_F``.
     """
 
     def __init__(self, model, options, packed):
-        from ._packing import pack_options
+        from ._packing import O_AMBIGUITY_TOL, O_MAX_RANGE, O_MAX_RELATIVE_RESIDUAL, pack_options
 
         super().__init__(model, options)
         self.packed = packed
         rule = self.rule
-        from ._packing import (
-            O_AMBIGUITY_TOL,
-            O_MAX_RANGE,
-            O_MAX_RELATIVE_RESIDUAL,
-        )
-
         self.opts = pack_options(max_iter=self.max_iter, xtol=self.xtol,
                                  retry_resnorm=np.inf, retry_relative=np.inf,
                                  ambiguity_tol=rule[O_AMBIGUITY_TOL],
