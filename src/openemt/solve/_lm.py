@@ -21,7 +21,8 @@ result.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from ._closed_form import (
     CF_KIM18,
@@ -32,7 +33,7 @@ from ._closed_form import (
     residuals_at,
 )
 from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix, store_pose
-from ._model_kernels import model_eval, unpack_any
+from ._model_kernels import is_board, model_eval, unpack_any
 from ._packing import (
     O_CF_GAIN,
     O_EXTRAPOLATE,
@@ -55,6 +56,23 @@ __all__ = ["STOP_CONVERGED", "STOP_ITERATION_LIMIT", "lm_batch", "lm_track"]
 STOP_CONVERGED = 0
 #: ... or it reached the iteration limit
 STOP_ITERATION_LIMIT = 1
+
+
+def closed_form_start(mdl, method, Cn, W, gain, n, rank_tol, R, t, cws):
+    """The tracking kernel's closed-form restart (compiled code only): the closed form of a
+    dipole model (:func:`~openemt.solve._closed_form.closed_form_one`); none for a board (its
+    couplings are not a 3x3 concentric matrix), so that its kernels do not compile it."""
+    raise NotImplementedError("closed_form_start runs in compiled kernels only")
+
+
+@overload(closed_form_start)
+def _closed_form_start(mdl, method, Cn, W, gain, n, rank_tol, R, t, cws):
+    if isinstance(mdl, types.Array):
+        return lambda mdl, method, Cn, W, gain, n, rank_tol, R, t, cws: closed_form_one(
+            method, Cn, W, gain, n, rank_tol, R, t, cws)
+    if is_board(mdl):
+        return lambda mdl, method, Cn, W, gain, n, rank_tol, R, t, cws: ST_INVALID_INPUT
+    return None
 
 
 @njit(inline="always")
@@ -447,8 +465,8 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
                 ncf[:] = nvec[k]
                 if ncf[0] == 0.0 and ncf[1] == 0.0 and ncf[2] == 0.0:
                     ncf[0] = 1.0
-                if closed_form_one(kim18, Cn, W, opts[O_CF_GAIN] / s, ncf, opts[O_RANK_TOL],
-                                   R, t, cws) != ST_INVALID_INPUT:
+                if closed_form_start(mdl, kim18, Cn, W, opts[O_CF_GAIN] / s, ncf,
+                                     opts[O_RANK_TOL], R, t, cws) != ST_INVALID_INPUT:
                     rotvec_from_matrix(R, rv)
                     for a in range(3):
                         start[a] = t[a]

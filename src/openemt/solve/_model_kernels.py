@@ -30,7 +30,7 @@ from numba.extending import overload
 from ..field._dipole_kernel import dipole_eval, unpack_model
 from ..field._segments import coupling_point, sensor_rule
 
-__all__ = ["board_eval", "model_eval", "pack_board", "unpack_any"]
+__all__ = ["board_eval", "is_board", "model_eval", "pack_board", "unpack_any"]
 
 
 def pack_board(model) -> tuple:
@@ -83,7 +83,8 @@ def board_eval(geo, R, t, C, jac, want):
                                         + u[0] * du[i, 1] - u[1] * du[i, 0])
 
 
-def _is_board(mdl) -> bool:
+def is_board(mdl) -> bool:
+    """Whether the numba type ``mdl`` is the packed form of :func:`pack_board`."""
     return isinstance(mdl, types.BaseTuple) and len(mdl) == 8
 
 
@@ -101,7 +102,7 @@ def model_eval(geo, R, t, C, jac, want):
 def _unpack_any(mdl, scale):
     if isinstance(mdl, types.Array):
         return lambda mdl, scale: unpack_model(mdl, scale)
-    if _is_board(mdl):
+    if is_board(mdl):
         def impl(mdl, scale):
             S, off, g, A, L, sg, nodes, wts = mdl
             return S, off, g, A, L, sg, nodes, wts, 1.0 / scale
