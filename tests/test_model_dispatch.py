@@ -20,8 +20,8 @@ def test_models_declare_their_solver_family_and_cold_start():
     six = nominal_calibration("anser-6dof").model
     octu = OctupoleModel(dip, np.full(3, 1e-5), np.zeros(3))
     assert [solver_family(m) for m in (dip, octu, board, six)] == \
-        ["dipole", "dipole-refined", "planar", "model"]
-    assert set(SOLVER_FAMILIES) == {"dipole", "dipole-refined", "planar", "model"}
+        ["dipole", "dipole-refined", "planar", "board"]
+    assert set(SOLVER_FAMILIES) == {"dipole", "dipole-refined", "planar", "board", "model"}
     assert solver_family(object()) == "model"                 # undeclared: the generic LM
     # the prepared solver says how a sample with no prior pose starts (the live pipeline's
     # first sample): the model's own cold start, or the dipole LM's concentric start

@@ -95,9 +95,9 @@ class BoardModel:
 
     @property
     def solver_family(self) -> str:
-        """``'planar'`` (the compiled 5-DOF solver) for a single-coil sensor, else ``'model'``
-        (docs/field-models.md#the-model-interface)."""
-        return "planar" if self.n_sensor == 1 else "model"
+        """``'planar'`` (the compiled 5-DOF solver) for a single-coil sensor, else ``'board'``
+        (the compiled 6-DOF LM; docs/field-models.md#the-model-interface)."""
+        return "planar" if self.n_sensor == 1 else "board"
 
     @classmethod
     def from_board(cls, board=None, gains=1.0, offsets=None, tilts=None,

@@ -37,12 +37,13 @@ from numba import njit
 
 from .._errors import InputError
 from ..field import DipoleModel, check_dipole_model
-from ..field._dipole_kernel import concentric_eval, dipole_eval
+from ..field._dipole_kernel import concentric_eval
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._linalg import (
     det33,
     dominant_eigvec,
     euler_zyx_matrix,
+    herm3_lambda_max,
     quat_matrix,
     rotvec_from_matrix,
     rotvec_from_quat,
@@ -53,6 +54,7 @@ from ._linalg import (
     sym3_lambda_max,
     wahba_quat,
 )
+from ._model_kernels import model_eval
 from ._packing import (
     O_RANK_TOL,
     pack_model,
@@ -67,7 +69,8 @@ from ._validity import (
     classify,
 )
 
-__all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "new_outputs",
+__all__ = ["check_couplings", "closed_form_one", "closed_form_scratch", "complex_spectral_norm",
+           "new_outputs",
            "normalise_coupling", "residual_norms", "residuals_at", "result_from_outputs",
            "solve_kim18", "solve_kuipers", "solve_svd", "spectral_norms", "whitening"]
 
@@ -107,14 +110,79 @@ def check_couplings(couplings, n_source=None, n_sensor=None) -> tuple[np.ndarray
         raise InputError(f"expected `couplings` of shape (N, {n_source}, {n_sensor}) for this "
                          f"model, got {C.shape}")
     if C.dtype.kind == "c":
-        norms = np.full(C.shape[0], np.nan)
-        ok = np.all(np.isfinite(C), axis=(1, 2))
-        if np.any(ok):
-            norms[ok] = np.linalg.norm(C[ok], ord=2, axis=(1, 2))
-        real = np.where(C.real < 0, -1.0, 1.0) * np.abs(C)
-        return np.ascontiguousarray(real), norms
+        C = np.ascontiguousarray(C, dtype=np.complex128)
+        real = np.abs(C)                     # numpy's |z|; the kernel negates where Re z < 0
+        norms = np.empty(C.shape[0])
+        _complex_norms(C, real, norms)
+        # sensors of more than 3 coils, close top singular values: numpy's SVD
+        rest = np.flatnonzero(norms < 0)
+        if rest.size:
+            norms[rest] = np.linalg.norm(C[rest], ord=2, axis=(1, 2))
+        return real, norms
     return (np.ascontiguousarray(C, dtype=np.float64),
             np.full(C.shape[0], -1.0))
+
+
+@njit(inline="always")
+def complex_spectral_norm(C, G):
+    """Spectral norm of a complex matrix ``C`` (n_so, n_se) with ``n_se <= 3``: the square root
+    of the top eigenvalue of the Hermitian Gram matrix ``G = C^H C`` (n_se, n_se scratch; of
+    ``C`` divided by its largest real or imaginary part where that is outside 1e-40..1e40,
+    multiplied back after): directly for one or two columns, by the trigonometric formula for
+    three (:func:`~openemt.solve._linalg.herm3_lambda_max`). -1 for more columns or a second
+    singular value close to the first (the caller computes those by SVD)."""
+    n_so, n_se = C.shape
+    if n_se > 3:
+        return -1.0
+    m = 0.0                      # the largest part: outside 1e-40..1e40 the Gram matrix is
+    for i in range(n_so):        # formed of C / m (its eigenvalue formula has 3rd powers)
+        for a in range(n_se):
+            m = max(m, abs(C[i, a].real), abs(C[i, a].imag))
+    if not m > 0.0:
+        return 0.0
+    scaled = not (1e-40 < m < 1e40)
+    if not scaled:
+        m = 1.0
+    for a in range(n_se):
+        for b in range(a, n_se):
+            acc = 0j
+            for i in range(n_so):
+                x = C[i, a]
+                y = C[i, b]
+                if scaled:
+                    x = complex(x.real / m, x.imag / m)
+                    y = complex(y.real / m, y.imag / m)
+                acc += np.conj(x) * y
+            G[a, b] = acc
+    if n_se == 1:
+        lam = G[0, 0].real
+    elif n_se == 2:
+        h = 0.5 * (G[0, 0].real - G[1, 1].real)
+        lam = 0.5 * (G[0, 0].real + G[1, 1].real) + np.sqrt(
+            h * h + G[0, 1].real ** 2 + G[0, 1].imag ** 2)
+    else:
+        lam = herm3_lambda_max(G[0, 0].real, G[1, 1].real, G[2, 2].real, G[0, 1], G[0, 2],
+                               G[1, 2])
+        if lam < 0.0:
+            return -1.0              # a close second singular value: the caller's SVD
+    return np.sqrt(max(lam, 0.0)) * m
+
+
+@njit(cache=True)
+def _complex_norms(C, real, norms):
+    """The complex spectral norms of couplings ``C`` (N, n_so, n_se) into ``norms`` (NaN for a
+    sample with a non-finite entry, -1 where :func:`complex_spectral_norm` has no closed
+    form); ``real`` (``|C|`` on entry) negated where ``Re C < 0``: the signed-real values."""
+    G = np.empty((C.shape[2], C.shape[2]), np.complex128)
+    for k in range(C.shape[0]):
+        finite = True
+        for i in range(C.shape[1]):
+            for j in range(C.shape[2]):
+                z = C[k, i, j]
+                if z.real < 0:
+                    real[k, i, j] = -real[k, i, j]
+                finite = finite and np.isfinite(z.real) and np.isfinite(z.imag)
+        norms[k] = complex_spectral_norm(C[k], G) if finite else np.nan
 
 
 @njit(inline="always")
@@ -146,6 +214,10 @@ def spectral_norm(C, G):
             G[a, b] = acc
     if n_se == 1:
         return np.sqrt(G[0, 0])
+    if n_se == 2:
+        h = 0.5 * (G[0, 0] - G[1, 1])
+        return np.sqrt(max(0.5 * (G[0, 0] + G[1, 1]) + np.sqrt(h * h + G[0, 1] * G[0, 1]),
+                           0.0))
     if n_se == 3:
         return np.sqrt(max(sym3_lambda_max(G[0, 0], G[0, 1], G[0, 2], G[1, 1], G[1, 2],
                                             G[2, 2]), 0.0))
@@ -450,8 +522,8 @@ def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac):
     :func:`normalise_coupling`) under the unpacked model ``geo``, evaluated at the couplings'
     own scale. ``Cp`` receives the predicted coupling; ``jac`` (the derivative arrays of
     ``dipole_eval``, unused) is scratch."""
-    no_jac = Ck.shape[0] < 0  # False at run time: one dipole_eval specialisation for all
-    dipole_eval(geo, R, t, Cp, jac, no_jac)
+    no_jac = Ck.shape[0] < 0  # False at run time: one model_eval specialisation for all
+    model_eval(geo, R, t, Cp, jac, no_jac)
     return residual_norms(Cp, Ck, s, cn, fn)
 
 

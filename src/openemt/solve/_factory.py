@@ -264,6 +264,13 @@ def _dipole(model, solver, opts):
     return ClosedFormSolver(model, solver, opts)
 
 
+def _board_lm(model, solver, opts):
+    from ._model_kernels import pack_board
+    from ._model_lm import PackedModelSolver
+
+    return PackedModelSolver(model, opts, pack_board(model)), None
+
+
 def _model_lm(model, solver, opts):
     from ._model_lm import ModelSolver
 
@@ -278,5 +285,6 @@ SOLVER_FAMILIES = {
     # a dipole model with further terms (octupoles): the dipole kernel, then refined
     "dipole-refined": lambda m, s, o: (_dipole(m.dipole, s, o), m),
     "planar": lambda m, s, o: (PlanarSolver(m, o), None),   # the compiled 5-DOF board solver
+    "board": _board_lm,          # a board read by several sensor coils: the compiled 6-DOF LM
     "model": _model_lm,
 }

@@ -12,6 +12,7 @@ from numba import njit
 __all__ = [
     "cholesky_solve",
     "euler_zyx_matrix",
+    "herm3_lambda_max",
     "exp_so3",
     "quat_matrix",
     "rotvec_from_matrix",
@@ -216,6 +217,40 @@ def sym3_lambda_max(a00, a01, a02, a11, a12, a22):
     """Largest eigenvalue of the symmetric 3x3 matrix with these upper-triangle entries."""
     q, p, c = _sym3_trig(a00, a01, a02, a11, a12, a22)
     return q + 2.0 * p * c
+
+
+@njit(inline="always")
+def herm3_lambda_max(a00, a11, a22, a01, a02, a12):
+    """Largest eigenvalue of the Hermitian 3x3 matrix with the real diagonal ``a00, a11, a22``
+    and the complex upper-triangle entries ``a01, a02, a12``, or -1 where a second eigenvalue
+    is close to it.
+
+    The trigonometric formula of :func:`sym3_lambda_max`, whose characteristic polynomial is
+    real for a Hermitian matrix too (``det(A - q I)`` has ``2 Re(a01 a12 conj(a02))`` and the
+    squared moduli where the symmetric one has ``2 a01 a12 a02`` and the squares). Near a
+    double top eigenvalue ``r = det(A - q I) / (2 p^3)`` approaches -1, where ``arccos``
+    amplifies rounding (an error of about ``p eps / sqrt(2 (1 + r))``, 1e-8 at a double
+    eigenvalue): for ``r < -1 + 1e-4`` (an error above about 1e-14 relative) -1 is returned and
+    the caller uses an SVD."""
+    n01 = a01.real * a01.real + a01.imag * a01.imag
+    n02 = a02.real * a02.real + a02.imag * a02.imag
+    n12 = a12.real * a12.real + a12.imag * a12.imag
+    q = (a00 + a11 + a22) / 3.0
+    b0 = a00 - q
+    b1 = a11 - q
+    b2 = a22 - q
+    p2 = b0 * b0 + b1 * b1 + b2 * b2 + 2.0 * (n01 + n02 + n12)
+    if p2 <= 0.0:
+        return q
+    p = np.sqrt(p2 / 6.0)
+    if not p * p * p > 0.0:
+        return q
+    t = a01 * a12 * np.conj(a02)
+    r = 0.5 * (b0 * b1 * b2 + 2.0 * t.real - b0 * n12 - b1 * n02 - b2 * n01) / (p * p * p)
+    if r < -1.0 + 1e-4:
+        return -1.0
+    r = min(r, 1.0)
+    return q + 2.0 * p * np.cos(np.arccos(r) / 3.0)
 
 
 @njit(inline="always")

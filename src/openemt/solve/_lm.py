@@ -21,9 +21,9 @@ result.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
-from ..field._dipole_kernel import dipole_eval
 from ._closed_form import (
     CF_KIM18,
     _store_invalid,
@@ -33,17 +33,19 @@ from ._closed_form import (
     residuals_at,
 )
 from ._linalg import cholesky_solve, exp_so3, rotvec_from_matrix, store_pose
+from ._model_kernels import is_board, model_eval, unpack_any
 from ._packing import (
     O_CF_GAIN,
+    O_EXTRAPOLATE,
     O_FIVE_DOF,
     O_MAX_ITER,
     O_RANK_TOL,
     O_RETRIES,
     O_RETRY_RELATIVE,
     O_RETRY_RESNORM,
+    O_UNCONSTRAINED,
     O_USE_CLOSED_FORM,
     O_XTOL,
-    unpack_model,
 )
 from ._result import ST_CONVERGED, ST_INVALID_INPUT
 from ._validity import better_run, classify
@@ -56,8 +58,27 @@ STOP_CONVERGED = 0
 STOP_ITERATION_LIMIT = 1
 
 
+def closed_form_start(mdl, method, Cn, W, gain, n, rank_tol, R, t, cws):
+    """The tracking kernel's closed-form restart (compiled code only): the closed form of a
+    dipole model (:func:`~openemt.solve._closed_form.closed_form_one`); none for a board (its
+    couplings are not a 3x3 concentric matrix), so that its kernels do not compile it."""
+    raise NotImplementedError("closed_form_start runs in compiled kernels only")
+
+
+@overload(closed_form_start)
+def _closed_form_start(mdl, method, Cn, W, gain, n, rank_tol, R, t, cws):
+    if isinstance(mdl, types.Array):
+        return lambda mdl, method, Cn, W, gain, n, rank_tol, R, t, cws: closed_form_one(
+            method, Cn, W, gain, n, rank_tol, R, t, cws)
+    if is_board(mdl):
+        return lambda mdl, method, Cn, W, gain, n, rank_tol, R, t, cws: ST_INVALID_INPUT
+    return None
+
+
 @njit(inline="always")
-def _project(t, n, lo, hi):
+def _project(t, n, lo, hi, free):
+    if free:
+        return                  # O_UNCONSTRAINED: the constraints only judge the result
     d = t[0] * n[0] + t[1] * n[1] + t[2] * n[2]
     if d < 0.0:
         t[0] -= d * n[0]
@@ -105,7 +126,7 @@ def _rot_basis(R, M_se, five, basis):
 
 @njit(inline="always")
 def _eval(geo, Cm, R, t, Cp, jac, want):
-    dipole_eval(geo, R, t, Cp, jac, want)
+    model_eval(geo, R, t, Cp, jac, want)
     ss = 0.0
     for i in range(Cm.shape[0]):
         for j in range(Cm.shape[1]):
@@ -115,12 +136,12 @@ def _eval(geo, Cm, R, t, Cp, jac, want):
 
 
 @njit(inline="always")
-def _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2):
+def _trial(R, t, delta, basis, nr, n, lo, hi, free, t2, phi, dR, R2):
     """The pose ``(R2, t2)`` one step ``delta`` from ``(R, t)``, projected onto the
     constraints (``phi`` receives the rotation increment)."""
     for a in range(3):
         t2[a] = t[a] + delta[a]
-    _project(t2, n, lo, hi)
+    _project(t2, n, lo, hi, free)
     for a in range(3):
         acc = 0.0
         for c in range(nr):
@@ -154,11 +175,12 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     hi = box[1]
     M_se = geo[3]
     five = opts[O_FIVE_DOF] != 0.0
+    free = opts[O_UNCONSTRAINED] != 0.0
     max_iter = int(opts[O_MAX_ITER])
     xtol = opts[O_XTOL]
     n_so = Cm.shape[0]
     n_se = Cm.shape[1]
-    _project(t, n, lo, hi)
+    _project(t, n, lo, hi, free)
     with_jac = n_so > 0  # True at run time: one dipole_eval specialisation for all callers
     cost = _eval(geo, Cm, R, t, Cp, jac, with_jac)
     lam = 1e-4
@@ -212,7 +234,7 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
                     sr2 += delta[3 + c] * delta[3 + c]
                 tn = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
                 if np.sqrt(st2) <= xtol * (tn + xtol) and np.sqrt(sr2) <= xtol:
-                    _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2)
+                    _trial(R, t, delta, basis, nr, n, lo, hi, free, t2, phi, dR, R2)
                     _copy_pose(R2, t2, R, t)
                     return cost, it, STOP_CONVERGED
             if ok:
@@ -220,11 +242,11 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
                 # an unconstrained solve from running off to infinity, where C -> 0)
                 st2 = delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]
                 tn2 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2]
-                if st2 > 0.25 * tn2 and tn2 > 0.0:
+                if st2 > 0.25 * tn2 and tn2 > 0.0 and not free:
                     f = np.sqrt(0.25 * tn2 / st2)
                     for a in range(npar):
                         delta[a] *= f
-                _trial(R, t, delta, basis, nr, n, lo, hi, t2, phi, dR, R2)
+                _trial(R, t, delta, basis, nr, n, lo, hi, free, t2, phi, dR, R2)
                 # linear-rate prediction: if this step is much smaller than the previous
                 # accepted one and the step after it would be below tolerance, this is the
                 # last step; its Jacobian is not needed
@@ -298,7 +320,7 @@ def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
         for a in range(6):
             v0[a] = start[a]
         # ILEMT: an initial pose outside the hemisphere gets its translation negated
-        if v0[0] * n[0] + v0[1] * n[1] + v0[2] * n[2] < 0.0:
+        if v0[0] * n[0] + v0[1] * n[1] + v0[2] * n[2] < 0.0 and opts[O_UNCONSTRAINED] == 0.0:
             v0[0], v0[1], v0[2] = -v0[0], -v0[1], -v0[2]
         if trial >= 1:
             v0[trial - 1] = -v0[trial - 1]
@@ -353,7 +375,7 @@ def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, sw, lmw, out):
     rho = np.nan
     residual[k] = np.nan
     if finite:
-        residual[k], rho = residuals_at(unpack_model(mdl, 1.0), Rb, tb, Ck, s, cn, fn, lmw[0],
+        residual[k], rho = residuals_at(unpack_any(mdl, 1.0), Rb, tb, Ck, s, cn, fn, lmw[0],
                                         lmw[1])
     relres[k] = rho
     iterations[k] = it
@@ -380,7 +402,7 @@ def lm_batch(mdl, C, cnorm, init, nvec, box, opts, out):
         if not s > 0.0 or not finite:
             _store_invalid(k, out)
             continue
-        geo = unpack_model(mdl, s)
+        geo = unpack_any(mdl, s)
         res_fac = s * (s / cn)  # normalised sum of squares -> resnorm
         it, stop = _solve_sample(geo, Cn, res_fac, fn, init[k], nvec[k], box, opts, sw,
                                  lmw)[1:]
@@ -393,6 +415,8 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
     ``first``). A sample failing the retry test is re-solved from the Kim18 closed form of the
     sample under the concentric whitening ``W = [M_so^-T, M_se^-1]`` and gain
     ``opts[O_CF_GAIN]`` (if ``opts[O_USE_CLOSED_FORM]``), then with the sign-flip retries.
+    With ``opts[O_EXTRAPOLATE]`` a sample whose two predecessors both converged starts from
+    their constant-velocity extrapolation (when they are less than 1 cm and 0.1 rad apart).
     Arguments as :func:`lm_batch`."""
     N = C.shape[0]
     lmw, sw, Cn, G = _workspace(C.shape[1], C.shape[2])
@@ -402,6 +426,11 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
     cws = closed_form_scratch()
     start = np.empty(6)
     prev = first.copy()
+    prev2 = first.copy()
+    guess = np.empty(6)
+    extrapolate = opts[O_EXTRAPOLATE] != 0.0
+    k1 = -2                          # the last two converged samples (prev, prev2)
+    k2 = -2
     # the first try of each sample: from the previous pose, without retries
     plain = opts.copy()
     plain[O_RETRIES] = 0.0
@@ -416,9 +445,19 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
         if not s > 0.0:
             _store_invalid(k, out)
             continue
-        geo = unpack_model(mdl, s)
+        geo = unpack_any(mdl, s)
         res_fac = s * (s / cn)  # normalised sum of squares -> resnorm
-        cost, it, stop = _solve_sample(geo, Cn, res_fac, fn, prev, nvec[k], box, plain, sw,
+        guess[:] = prev
+        if extrapolate and k1 == k - 1 and k2 == k - 2:
+            dt2 = 0.0
+            dr2 = 0.0
+            for a in range(3):
+                dt2 += (prev[a] - prev2[a]) ** 2
+                dr2 += (prev[3 + a] - prev2[3 + a]) ** 2
+            if dt2 < 1e-4 and dr2 < 1e-2:
+                for a in range(6):
+                    guess[a] = 2.0 * prev[a] - prev2[a]
+        cost, it, stop = _solve_sample(geo, Cn, res_fac, fn, guess, nvec[k], box, plain, sw,
                                        lmw)
         if not _acceptable(cost, res_fac, fn, opts) and (use_cf or retries):
             start[:] = prev
@@ -426,8 +465,8 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
                 ncf[:] = nvec[k]
                 if ncf[0] == 0.0 and ncf[1] == 0.0 and ncf[2] == 0.0:
                     ncf[0] = 1.0
-                if closed_form_one(kim18, Cn, W, opts[O_CF_GAIN] / s, ncf, opts[O_RANK_TOL],
-                                   R, t, cws) != ST_INVALID_INPUT:
+                if closed_form_start(mdl, kim18, Cn, W, opts[O_CF_GAIN] / s, ncf,
+                                     opts[O_RANK_TOL], R, t, cws) != ST_INVALID_INPUT:
                     rotvec_from_matrix(R, rv)
                     for a in range(3):
                         start[a] = t[a]
@@ -444,4 +483,7 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
         _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, sw, lmw, out)
         if status[k] == ST_CONVERGED:
             for a in range(6):
+                prev2[a] = prev[a]
                 prev[a] = vecs[k, a]
+            k2 = k1
+            k1 = k

@@ -23,7 +23,7 @@ from ._planar import _rule_options
 from ._result import SolveResult, Status
 from ._validity import check_validity_options, classify
 
-__all__ = ["ModelSolver", "sensor_coil_starts"]
+__all__ = ["ModelSolver", "PackedModelSolver", "coil_solvers", "sensor_coil_starts"]
 
 #: Samples solved together from one start while tracking.
 TRACK_BLOCK = 32
@@ -76,23 +76,32 @@ def _roll_starts(model, C, p, u, k):
     return out
 
 
-def sensor_coil_starts(model, couplings, options=None):
+def coil_solvers(model, options=None) -> list:
+    """The 5-DOF board solvers (:class:`~openemt.solve._planar.PreparedPlanar`) of each
+    sensor coil of ``model`` alone, prepared once for :func:`sensor_coil_starts`."""
+    from ._planar import PreparedPlanar
+
+    kw = {} if options is None else options
+    return [PreparedPlanar(model.sensor_coil_model(k), **kw) for k in range(model.n_sensor)]
+
+
+def sensor_coil_starts(model, couplings, options=None, solvers=None):
     """Cold starts ``(N, 4, 4)`` for a board read by a sensor of several coils: each coil is
     solved on its own by the 5-DOF board solver (position and axis), the rotation is the one
     that best takes the sensor's coil axes (and their cross product) to the measured axes, and
     the position the mean of the coil positions less their rotated offsets. Where only some
     coils have a 5-DOF fit, the pose is the best of :data:`N_ROLLS` rolls about the first such
-    coil's axis; rows where no coil has one are NaN."""
-    from ._planar import PreparedPlanar
-
+    coil's axis; rows where no coil has one are NaN. ``solvers``: the coils' solvers of
+    :func:`coil_solvers` (``options`` are theirs), made here if not given."""
     C = np.asarray(couplings, dtype=np.float64)
     n, ne = C.shape[0], model.n_sensor
-    kw = {} if options is None else options
+    if solvers is None:
+        solvers = coil_solvers(model, options)
     p = np.empty((n, ne, 3))
     u = np.empty((n, ne, 3))
     coil_ok = np.zeros((n, ne), bool)
     for k in range(ne):
-        res = PreparedPlanar(model.sensor_coil_model(k), **kw).solve(C[:, :, k], "grid")
+        res = solvers[k].solve(C[:, :, k], "grid")
         coil_ok[:, k] = res.status == int(Status.CONVERGED)
         p[:, k] = res.poses[:, :3, 3]
         u[:, k] = res.poses[:, :3, 2]
@@ -164,6 +173,7 @@ class ModelSolver:
         self.retry_resnorm = options.retry_resnorm
         self._initial = "track" if options.initial is None else options.initial
         self.cold_start = model.cold_start
+        self._coil_solvers = None            # prepared at the first cold start
         if isinstance(self._initial, str) and self._initial not in ("track", "cold"):
             raise InputError(f"expected initial 'track', 'cold' or start poses for a "
                              f"{model.kind!r} model, got {self._initial!r}")
@@ -172,7 +182,9 @@ class ModelSolver:
     def cold_starts(self, C) -> np.ndarray:
         if hasattr(self.model, "sensor_coil_model") and self.n_sensor > 1:
             # a start need only be near: the coils' 5-DOF fits are accepted up to 50 % misfit
-            return sensor_coil_starts(self.model, C, {"max_relative_residual": 0.5})
+            if self._coil_solvers is None:
+                self._coil_solvers = coil_solvers(self.model, {"max_relative_residual": 0.5})
+            return sensor_coil_starts(self.model, C, solvers=self._coil_solvers)
         raise InputError(f"expected start poses for a {self.model.kind!r} model with "
                          f"{self.n_sensor} sensor coil(s) (it has no cold start), got none")
 
@@ -349,3 +361,76 @@ class ModelSolver:
                 prev, last = last, (rows[conv[-1]], x[rows[conv[-1]]])
             else:
                 prev = last = None
+
+
+class PackedModelSolver(ModelSolver):
+    """:class:`ModelSolver`'s starts, cold retries and validity rule with the iteration done
+    by the compiled LM kernels (:func:`~openemt.solve._lm.lm_batch`,
+    :func:`~openemt.solve._lm.lm_track`), for a model whose packed form they accept
+    (:mod:`openemt.solve._model_kernels`; a board read by a multi-coil sensor:
+    :func:`~openemt.solve._model_kernels.pack_board`).
+
+    Tracking solves sample by sample, each from the constant-velocity extrapolation of the
+    last two converged poses (from the last one after a gap; the first from the model's cold
+    start); a sample that does not converge (or, with ``retry_resnorm``,
+    converges above it) is solved again from the cold start, as :class:`ModelSolver` does.
+    The LM is the dipole solver's (docs/solve.md#compiled-models): full 6-DOF steps with a
+    local rotation increment, its step tolerance ``xtol`` relative to the distance from the
+    origin for the translation, without its projections onto the hemisphere and box
+    (``O_UNCONSTRAINED``: they only judge the result, as here). The answers are :class:`ModelSolver`'s to 1e-9 m
+    (``tests/test_board_lm.py``); ``residual`` is, as there, ``rho**2 ||C||_F``.
+    """
+
+    def __init__(self, model, options, packed):
+        from ._packing import O_AMBIGUITY_TOL, O_MAX_RANGE, O_MAX_RELATIVE_RESIDUAL, pack_options
+
+        super().__init__(model, options)
+        self.packed = packed
+        rule = self.rule
+        self.opts = pack_options(max_iter=self.max_iter, xtol=self.xtol,
+                                 retry_resnorm=np.inf, retry_relative=np.inf,
+                                 ambiguity_tol=rule[O_AMBIGUITY_TOL],
+                                 max_relative_residual=rule[O_MAX_RELATIVE_RESIDUAL],
+                                 max_range=rule[O_MAX_RANGE], unconstrained=1,
+                                 extrapolate=1)
+
+    def _outputs(self, out, starts):
+        from ._closed_form import ST_INVALID_INPUT
+
+        _, vecs, status, _, rho, iters = out
+        # a start that is not finite (no cold start for the row) is NOT_CONVERGED, as in
+        # ModelSolver; the kernel calls such a row invalid input
+        bad = ~np.all(np.isfinite(starts), axis=1) & (status == ST_INVALID_INPUT)
+        status[bad] = int(Status.NOT_CONVERGED)
+        return vecs, status, rho, iters
+
+    def _solve_from(self, C, start_vectors, nvec):
+        from ._closed_form import new_outputs
+        from ._lm import lm_batch
+
+        n = len(C)
+        s = np.ascontiguousarray(start_vectors, dtype=np.float64).reshape(n, 6)
+        out = new_outputs(n)
+        if n:
+            lm_batch(self.packed, np.ascontiguousarray(C), np.full(n, -1.0), s,
+                     np.ascontiguousarray(nvec, dtype=np.float64), self.box, self.opts, out)
+        return self._outputs(out, s)
+
+    def _track(self, C, good, x, status, rho, iters):
+        from ._closed_form import new_outputs
+        from ._lm import lm_track
+
+        if not good.size:
+            return
+        first = vector_from_pose(self.cold_starts(C[good[:1]]))[0]
+        if not np.all(np.isfinite(first)):          # no cold start for the first sample
+            return super()._track(C, good, x, status, rho, iters)
+        n = good.size
+        out = new_outputs(n)
+        nvec = np.ascontiguousarray(self._nvec[good], dtype=np.float64)
+        Cg = np.ascontiguousarray(C[good])
+        lm_track(self.packed, Cg, np.full(n, -1.0), first, np.zeros((2, 3, 3)), nvec,
+                 self.box, self.opts, out)
+        sub = tuple(a.copy() for a in self._outputs(out, np.zeros((n, 6))))
+        self._retry_cold(Cg, *sub, nvec)
+        x[good], status[good], rho[good], iters[good] = sub

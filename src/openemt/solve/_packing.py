@@ -12,9 +12,9 @@ import numpy as np
 
 from ..field._dipole_kernel import M_GAIN, M_N_SENSOR, M_N_SOURCE, pack_model, unpack_model
 
-__all__ = ["M_GAIN", "M_N_SENSOR", "M_N_SOURCE", "N_OPTIONS", "O_AMBIGUITY_TOL", "O_CF_GAIN", "O_FIVE_DOF", "O_MAX_ITER",
+__all__ = ["M_GAIN", "M_N_SENSOR", "M_N_SOURCE", "N_OPTIONS", "O_AMBIGUITY_TOL", "O_CF_GAIN", "O_EXTRAPOLATE", "O_FIVE_DOF", "O_MAX_ITER",
            "O_MAX_RANGE", "O_MAX_RELATIVE_RESIDUAL", "O_RANK_TOL", "O_RETRIES", "O_RETRY_RELATIVE",
-           "O_RETRY_RESNORM", "O_USE_CLOSED_FORM", "O_XTOL", "pack_box", "pack_model",
+           "O_RETRY_RESNORM", "O_UNCONSTRAINED", "O_USE_CLOSED_FORM", "O_XTOL", "pack_box", "pack_model",
            "pack_options", "unpack_model"]
 
 # option array indices
@@ -30,7 +30,13 @@ O_FIVE_DOF = 8                 #: 1: single-coil sensor, 5-DOF solve
 O_USE_CLOSED_FORM = 9          #: 1: tracking restarts from the Kim18 closed form
 O_CF_GAIN = 10                 #: gain of the closed-form (concentric) model
 O_RANK_TOL = 11                #: closed forms: s3 < rank_tol * s1 is rank deficient
-N_OPTIONS = 12
+#: 1: LM iterates are not projected onto the hemisphere and box, a start outside the
+#: hemisphere is not mirrored and a step is not limited to half the distance from the origin
+#: (the constraints only judge the result, as the interface-level LM's do)
+O_UNCONSTRAINED = 12
+#: 1: tracking starts from the constant-velocity extrapolation of the last two samples
+O_EXTRAPOLATE = 13
+N_OPTIONS = 14
 
 
 def pack_options(**values) -> np.ndarray:
