@@ -12,6 +12,11 @@ Kernels, in call order: ``dipole_coupling`` (``DipoleModel.coupling``), ``dipole
 (``coupling_jacobians``), ``closed_form`` (``solve_kim18``; the three closed forms share one
 kernel), ``lm_batch`` (``solve_lm`` from given starts), ``lm_track`` (``solve_lm`` tracking),
 ``lm_5dof`` (``solve_lm`` with a single-coil sensor: the same compiled kernel, so near zero).
+
+``per_kernel`` lists every kernel the commands announce (``openemt._compile_notice``: solver,
+live and finite-coil groups), each compiled by the commands' own warm-up call in list order,
+with its compile seconds in the empty cache (helpers shared with an earlier kernel are counted
+there) and its load seconds from the filled one.
 """
 
 from __future__ import annotations
@@ -76,10 +81,29 @@ def _child() -> dict:
             "kernels_cpu_s": cpu, "total_cpu_s": sum(cpu.values())}
 
 
-def _process(cache_dir: str) -> dict:
+def _child_per_kernel() -> dict:
+    """Every announced kernel compiled (or loaded) through the commands' warm-up, one by one."""
+    from openemt._compile_notice import (
+        LIVE_KERNELS,
+        PLANAR_KERNELS,
+        SOLVER_KERNELS,
+        compile_kernels,
+    )
+
+    out = {}
+    for spec in dict.fromkeys(SOLVER_KERNELS + LIVE_KERNELS + PLANAR_KERNELS):
+        t = time.perf_counter()
+        c = time.process_time()
+        compile_kernels([spec])
+        out[spec] = {"s": round(time.perf_counter() - t, 3),
+                     "cpu_s": round(time.process_time() - c, 3)}
+    return out
+
+
+def _process(cache_dir: str, what: str = "kernels") -> dict:
     env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
     t = time.perf_counter()
-    out = subprocess.run([sys.executable, "-m", "openemt.bench._compile"], env=env,
+    out = subprocess.run([sys.executable, "-m", "openemt.bench._compile", what], env=env,
                          capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t
     if out.returncode != 0:
@@ -103,17 +127,27 @@ def run(args) -> dict:
 
             raise InputError(f"expected a new or empty folder for --keep-cache, got {cache!r} "
                              f"with files in it")
+    per_cache = tempfile.mkdtemp(prefix="openemt-numba-cache-")
     try:
         first = _process(cache)
         cached = _process(cache)
+        per_first = _process(per_cache, "per_kernel")
+        per_cached = _process(per_cache, "per_kernel")
     finally:
         if not keep:
             shutil.rmtree(cache, ignore_errors=True)
+        shutil.rmtree(per_cache, ignore_errors=True)
+    per_kernel = {spec: {"compile_s": v["s"], "compile_cpu_s": v["cpu_s"],
+                         "cached_s": per_cached[spec]["s"]}
+                  for spec, v in per_first.items() if spec != "process_wall_s"}
     return {"numba_version": numba.__version__, "python": sys.version.split()[0],
             "cpu_count": os.cpu_count(), "kernels": list(KERNELS),
             "first_use": first, "cached": cached,
             "compile_total_s": first["total_s"], "compile_total_cpu_s": first["total_cpu_s"],
             "cached_total_s": cached["total_s"],
+            "per_kernel": per_kernel,
+            "per_kernel_compile_cpu_s": round(sum(v["compile_cpu_s"]
+                                                  for v in per_kernel.values()), 3),
             "cache_dir": cache if keep else "temporary (removed)",
             "note": "seconds in each fresh process (*_s wall clock, *_cpu_s process CPU time, "
                     "which other load on the machine does not inflate); first_use compiles "
@@ -121,4 +155,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    print(json.dumps(_child()))
+    print(json.dumps(_child_per_kernel() if sys.argv[1:] == ["per_kernel"] else _child()))
