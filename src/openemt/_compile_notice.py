@@ -47,13 +47,12 @@ PLANAR_KERNELS = (
     "openemt.solve._planar:_batch",
 )
 
-#: The live path beside the solver kernels: the cold start's candidate poses, sequential LM
-#: tracking, the tracking filter, the per-pose distortion levels and OpenIGTLink packing
-#: (``track`` calls ``SOLVER_KERNELS + LIVE_KERNELS``; the packing kernels run when the first
-#: client connects, so they are compiled before the stream starts rather than during it).
+#: The live path beside the solver kernels: the cold start's candidate poses, the tracking
+#: filter, the per-pose distortion levels and OpenIGTLink packing (``track`` calls
+#: ``SOLVER_KERNELS + LIVE_KERNELS``; the packing kernels run when the first client connects,
+#: so they are compiled before the stream starts rather than during it).
 LIVE_KERNELS = (
     "openemt.solve._cold_start:table_candidates",
-    "openemt.solve._lm:lm_track",
     "openemt.live._filter:_kalman_kernel",
     "openemt.live._igtl_wire:_pack_kernel",
     "openemt.live._igtl_wire:_frame_kernel",

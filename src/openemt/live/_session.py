@@ -337,7 +337,8 @@ def announce_compile_for(out, sensors) -> None:
         announce_compile,
     )
 
-    kernels = SOLVER_KERNELS + LIVE_KERNELS
+    # the dipole solver's kernels for dipole sensors, the finite-coil ones for board sensors
+    kernels = (SOLVER_KERNELS if any(s.solver is None for s in sensors) else ()) + LIVE_KERNELS
     if any(s.solver is not None for s in sensors):      # a board sensor
         kernels += PLANAR_KERNELS
     announce_compile(out, "solver kernels", kernels=kernels)
