@@ -50,10 +50,16 @@ def test_run_reports_first_use_and_cached(monkeypatch, tmp_path):
 
 
 def test_per_kernel_child_lists_every_announced_kernel():
-    from openemt._compile_notice import LIVE_KERNELS, PLANAR_KERNELS, SOLVER_KERNELS
+    from openemt._compile_notice import (
+        COLD_START_KERNELS,
+        LIVE_KERNELS,
+        PLANAR_KERNELS,
+        SOLVER_KERNELS,
+    )
 
     out = _compile._child_per_kernel()
-    assert list(out) == list(dict.fromkeys(SOLVER_KERNELS + LIVE_KERNELS + PLANAR_KERNELS))
+    assert list(out) == list(dict.fromkeys(SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS
+                                           + PLANAR_KERNELS))
     assert all(v["s"] >= 0 and v["cpu_s"] >= 0 for v in out.values())
 
 

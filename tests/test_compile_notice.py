@@ -12,6 +12,7 @@ import sys
 import pytest
 
 from openemt._compile_notice import (
+    COLD_START_KERNELS,
     LIVE_KERNELS,
     PLANAR_KERNELS,
     SOLVER_KERNELS,
@@ -80,11 +81,13 @@ def test_uninspectable_function_counts_as_cold(tmp_path, monkeypatch):
 
 def test_real_kernels_are_cold_with_an_empty_cache(tmp_path):
     probe = ("from openemt._compile_notice import *; "
-             "print(len(cold_kernels(SOLVER_KERNELS + PLANAR_KERNELS + LIVE_KERNELS)))")
+             "print(len(cold_kernels(SOLVER_KERNELS + COLD_START_KERNELS + PLANAR_KERNELS "
+             "+ LIVE_KERNELS)))")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
                          timeout=120, check=True)
-    assert int(out.stdout) == len(SOLVER_KERNELS + PLANAR_KERNELS + LIVE_KERNELS)
+    assert int(out.stdout) == len(SOLVER_KERNELS + COLD_START_KERNELS + PLANAR_KERNELS
+                                  + LIVE_KERNELS)
     # looking compiled nothing: no cache index or data file was written
     assert [p.name for p in tmp_path.rglob("*.nb[ic]")] == []
 
@@ -97,7 +100,7 @@ def _dispatcher(spec):
 def test_every_announced_kernel_is_compiled_by_its_warm_up():
     from openemt._compile_notice import _WARM_UP
 
-    specs = SOLVER_KERNELS + LIVE_KERNELS + PLANAR_KERNELS
+    specs = SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS + PLANAR_KERNELS
     assert set(specs) <= set(_WARM_UP)
     for spec in specs:
         _WARM_UP[spec]()                         # compiles, or loads from the cache
@@ -111,7 +114,7 @@ def test_after_the_warm_up_track_compiles_nothing_more(capsys):
     from openemt._compile_notice import _WARM_UP
     from openemt.cli import main
 
-    specs = SOLVER_KERNELS + LIVE_KERNELS
+    specs = SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS
     for spec in specs:
         _WARM_UP[spec]()
     before = {spec: len(_dispatcher(spec).signatures) for spec in specs}

@@ -27,8 +27,8 @@ from __future__ import annotations
 import importlib
 import sys
 
-__all__ = ["LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS", "announce_compile",
-           "cold_kernels", "compile_kernels"]
+__all__ = ["COLD_START_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
+           "announce_compile", "cold_kernels", "compile_kernels"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -47,12 +47,16 @@ PLANAR_KERNELS = (
     "openemt.solve._planar:_batch",
 )
 
-#: The live path beside the solver kernels: the cold start's candidate poses, the tracking
-#: filter, the per-pose distortion levels and OpenIGTLink packing (``track`` calls
-#: ``SOLVER_KERNELS + LIVE_KERNELS``; the packing kernels run when the first client connects,
-#: so they are compiled before the stream starts rather than during it).
+#: The dipole solver's cold start from its invariant table (``track`` of a dipole sensor, the
+#: default start of a model with coil offsets).
+COLD_START_KERNELS = ("openemt.solve._cold_start:table_candidates",)
+
+#: The live path beside the solvers' kernels: the tracking filter, the per-pose distortion
+#: levels and OpenIGTLink packing (``track`` calls ``SOLVER_KERNELS + COLD_START_KERNELS +
+#: LIVE_KERNELS`` for dipole sensors, ``LIVE_KERNELS + PLANAR_KERNELS`` for board sensors; the
+#: packing kernels run when the first client connects, so they are compiled before the stream
+#: starts rather than during it).
 LIVE_KERNELS = (
-    "openemt.solve._cold_start:table_candidates",
     "openemt.live._filter:_kalman_kernel",
     "openemt.live._igtl_wire:_pack_kernel",
     "openemt.live._igtl_wire:_frame_kernel",

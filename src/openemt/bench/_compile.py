@@ -97,6 +97,7 @@ def _child() -> dict:
 def _child_per_kernel() -> dict:
     """Every announced kernel compiled (or loaded) through the commands' warm-up, one by one."""
     from openemt._compile_notice import (
+        COLD_START_KERNELS,
         LIVE_KERNELS,
         PLANAR_KERNELS,
         SOLVER_KERNELS,
@@ -104,7 +105,8 @@ def _child_per_kernel() -> dict:
     )
 
     out = {}
-    for spec in dict.fromkeys(SOLVER_KERNELS + LIVE_KERNELS + PLANAR_KERNELS):
+    for spec in dict.fromkeys(SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS
+                              + PLANAR_KERNELS):
         t = time.perf_counter()
         c = time.process_time()
         compile_kernels([spec])
