@@ -122,13 +122,14 @@ def test_track_announces_the_compile_before_tracking(monkeypatch, capsys):
         print(f"compiling {what} (first run only, about {seconds:g} s)", file=sys.stderr)
         return True
 
-    fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k",), LIVE_KERNELS=("l:k",),
-                                 PLANAR_KERNELS=("p:k",), announce_compile=announce_compile)
+    fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k",), COLD_START_KERNELS=("c:k",),
+                                 LIVE_KERNELS=("l:k",), PLANAR_KERNELS=("p:k",),
+                                 announce_compile=announce_compile)
     monkeypatch.setitem(sys.modules, "openemt._compile_notice", fake)
     assert cli_mod.main(["track", "--source", "sim", "--no-igtl", "--duration", "0.05",
                          "--fast"]) == 0
     err = capsys.readouterr().err.splitlines()
-    assert calls == [("solver kernels", ("s:k", "l:k"))]
+    assert calls == [("solver kernels", ("s:k", "c:k", "l:k"))]
     i = err.index("compiling solver kernels (first run only, about 30 s)")
     assert err[i + 1].startswith("tracking 1 sensor(s)")
     assert err[i + 2].startswith("tracked 74 samples")

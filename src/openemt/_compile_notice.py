@@ -1,21 +1,25 @@
-"""Say so before the numba kernels compile: the first run of a command after installation spends
-tens of seconds compiling (``openemt bench compile`` measures it), and a silent terminal for
-that long reads as a hang.
+"""Compile the numba kernels a command needs before the step that needs them, under a line of
+their own: the first run of a command after installation spends seconds compiling
+(``openemt bench compile`` lists the time per kernel), and a step that compiles on the side
+reads as a slow step, a silent terminal as a hang.
 
-:func:`announce_compile` prints one line, e.g. ``compiling solver kernels (first run only, about
-30 s)``, when the on-disk numba cache of any of the named kernels is missing or stale, and
-nothing when every kernel will load from the cache. :func:`cold_kernels` is the test underneath:
-it asks each kernel's own numba cache (the dispatcher's cache index, where numba itself looks,
-``NUMBA_CACHE_DIR`` included) whether an entry exists for the current source file; nothing is
-compiled to find out.
+:func:`announce_compile` prints ``compiling N solver kernels (first run only) ...`` when the
+on-disk numba cache of any of the named kernels is missing or stale, then compiles those kernels
+there and then (a tiny call through the public function that runs each one, so the compiled
+types are the ones the command passes), and prints nothing and compiles nothing when every
+kernel will load from the cache. After it has run once the kernels are cached, so the next run
+of the command is silent. :func:`cold_kernels` is the test underneath: it asks each kernel's
+own numba cache (the dispatcher's cache index, where numba itself looks, ``NUMBA_CACHE_DIR``
+included) whether an entry exists for the current source file; nothing is compiled to find out.
 
 Kernels are named ``"module:function"`` (the compiled dispatchers, ``cache=True``); the tuples
-below are the groups the commands use. A command calls :func:`announce_compile` after it has
-checked its inputs and before the first compiled call, e.g. live tracking::
+below are the groups the commands use, and :func:`compile_kernels` compiles any of them. A
+command calls :func:`announce_compile` after it has checked its inputs and before the first
+compiled call, e.g. live tracking::
 
-    announce_compile(args, "tracking kernels", kernels=SOLVER_KERNELS + LIVE_KERNELS)
+    announce_compile(args, "solver kernels", kernels=SOLVER_KERNELS + LIVE_KERNELS)
 
-so that bad input stays one ``error:`` line and the notice comes before the silence.
+so that bad input stays one ``error:`` line and the compile has a line of its own.
 """
 
 from __future__ import annotations
@@ -23,8 +27,8 @@ from __future__ import annotations
 import importlib
 import sys
 
-__all__ = ["LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS", "announce_compile",
-           "cold_kernels"]
+__all__ = ["COLD_START_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
+           "announce_compile", "cold_kernels", "compile_kernels"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -43,10 +47,16 @@ PLANAR_KERNELS = (
     "openemt.solve._planar:_batch",
 )
 
-#: The live path beside the solver kernels: sample-by-sample LM tracking, tracking filter and
-#: OpenIGTLink packing (``track`` calls ``SOLVER_KERNELS + LIVE_KERNELS``).
+#: The dipole solver's cold start from its invariant table (``track`` of a dipole sensor, the
+#: default start of a model with coil offsets).
+COLD_START_KERNELS = ("openemt.solve._cold_start:table_candidates",)
+
+#: The live path beside the solvers' kernels: the tracking filter, the per-pose distortion
+#: levels and OpenIGTLink packing (``track`` calls ``SOLVER_KERNELS + COLD_START_KERNELS +
+#: LIVE_KERNELS`` for dipole sensors, ``LIVE_KERNELS + PLANAR_KERNELS`` for board sensors; the
+#: packing kernels run when the first client connects, so they are compiled before the stream
+#: starts rather than during it).
 LIVE_KERNELS = (
-    "openemt.solve._lm:lm_track",
     "openemt.live._filter:_kalman_kernel",
     "openemt.live._igtl_wire:_pack_kernel",
     "openemt.live._igtl_wire:_frame_kernel",
@@ -90,30 +100,139 @@ def cold_kernels(kernels=SOLVER_KERNELS) -> list[str]:
     return cold
 
 
+def _dipole_case():
+    """A 3x3 dipole model, its concentric model, two poses, their couplings and pose vectors:
+    the inputs of the warm-up calls (the types every command passes, not its sizes)."""
+    import numpy as np
+
+    from .field import DipoleModel
+    from .geometry import pose_from_vector
+
+    v = np.array([[0.30, 0.02, 0.01, 0.1, -0.2, 0.3], [0.25, -0.03, 0.05, -0.4, 0.1, 0.2]])
+    model = DipoleModel(np.diag([0.01, -0.01, 0.02]), np.eye(3), np.zeros((3, 3)), np.eye(3))
+    P = pose_from_vector(v)
+    return model, DipoleModel.concentric(), P, model.coupling(P), v
+
+
+def _warm_dipole(which):
+    from .field import coupling_jacobians
+    from .solve import solve_kim18, solve_lm
+
+    model, conc, P, C, v = _dipole_case()
+    if which == "jacobians":
+        coupling_jacobians(model, P)
+    elif which == "closed_form":
+        solve_kim18(conc.coupling(P), conc)
+    elif which == "lm_batch":
+        solve_lm(C, model, initial=v)
+    elif which == "lm_track":
+        solve_lm(C, model, initial="track")
+    elif which == "spectral":
+        from .solve import spectral_norms
+
+        spectral_norms(C)
+    elif which == "table":
+        solve_lm(C, model)   # the default start of a model with coil offsets: the table
+
+
+def _warm_planar():
+    import numpy as np
+
+    from .board import BoardModel
+    from .solve import solve_planar
+
+    model = BoardModel.from_board("anser")
+    P = np.repeat(np.eye(4)[None], 2, axis=0)
+    P[:, :3, 3] = [[0.0, 0.0, 0.12], [0.02, 0.01, 0.15]]
+    solve_planar(model.coupling(P), model)
+
+
+def _warm_live(which):
+    import numpy as np
+
+    if which == "filter":
+        from .live._filter import kalman_filter_poses
+
+        kalman_filter_poses(np.array([[0.3, 0.0, 0.0, 0.1, 0.2, 0.3]]), np.array([0.0]),
+                            np.array([True]), process_noise=1.0, measurement_noise=1e-4,
+                            rotation_process_noise=1.0, rotation_measurement_noise=1e-3,
+                            max_gap=0.1)
+    elif which == "levels":
+        from .live._igtl_meta import distortion_level
+
+        distortion_level(np.array([0.1]), np.array([0.1]), 0.5, 0.5)
+    else:
+        from .live._igtl_wire import pack_transforms
+
+        pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor")
+        pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor", {"Status": ["OK"]})
+
+
+#: How each kernel is compiled: one small call through the public function that runs it.
+_WARM_UP = {
+    "openemt.field._dipole_kernel:dipole_batch": lambda: _dipole_case(),
+    "openemt.field._dipole_kernel:dipole_batch_jac": lambda: _warm_dipole("jacobians"),
+    "openemt.solve._closed_form:_spectral_norms": lambda: _warm_dipole("spectral"),
+    "openemt.solve._closed_form:_closed_form_batch": lambda: _warm_dipole("closed_form"),
+    "openemt.solve._lm:lm_batch": lambda: _warm_dipole("lm_batch"),
+    "openemt.solve._lm:lm_track": lambda: _warm_dipole("lm_track"),
+    "openemt.solve._cold_start:table_candidates": lambda: _warm_dipole("table"),
+    "openemt.field._segments:_coupling_batch_impl": _warm_planar,
+    "openemt.solve._planar:_batch": _warm_planar,
+    "openemt.live._filter:_kalman_kernel": lambda: _warm_live("filter"),
+    "openemt.live._igtl_meta:_levels": lambda: _warm_live("levels"),
+    "openemt.live._igtl_wire:_pack_kernel": lambda: _warm_live("wire"),
+    "openemt.live._igtl_wire:_frame_kernel": lambda: _warm_live("wire"),
+}
+
+
+def compile_kernels(kernels) -> list[str]:
+    """Compile (or load from the cache) each of ``kernels`` now, in order; the ones that were
+    cold before (:func:`cold_kernels`). A kernel without a warm-up call compiles on its first
+    call, as before."""
+    cold = cold_kernels(kernels)
+    for spec in cold:
+        warm = _WARM_UP.get(spec)
+        if warm is not None and spec in cold_kernels([spec]):   # one call may serve several
+            warm()
+    return cold
+
+
 def announce_compile(out=None, what: str = "solver kernels", *, kernels=SOLVER_KERNELS,
-                     seconds: float = 30) -> bool:
-    """Print ``compiling {what} (first run only, about {seconds} s)`` if any of ``kernels`` will
-    compile; return whether it printed.
+                     seconds: float | None = None) -> bool:
+    """If any of ``kernels`` would compile: print ``compiling N {what} (first run only) ...``
+    (not with ``--quiet``) and compile them (:func:`compile_kernels`); return whether it
+    printed.
 
     Parameters
     ----------
-    out : argparse.Namespace or text stream, optional
-        A command's parsed arguments (the line goes to stderr unless ``--quiet``) or a stream to
-        write to; default stderr.
+    out : argparse.Namespace, text stream or callable, optional
+        A command's parsed arguments (the line goes to stderr unless ``--quiet``), a stream to
+        write to, or a progress callable ``say(text)``; default stderr.
     what : str
-        What compiles, in words.
+        What compiles, in words (``"solver kernels"``: the line counts the cold ones).
     kernels : sequence of str
         ``"module:function"`` of the compiled kernels the command is about to call
         (:data:`SOLVER_KERNELS`, :data:`PLANAR_KERNELS`, :data:`LIVE_KERNELS` or a mix).
-    seconds : float
-        The announced compile time.
+    seconds : float, optional
+        An expected compile time to add to the line.
     """
-    if out is None or not hasattr(out, "write"):
-        if getattr(out, "quiet", False):
-            return False
-        out = sys.stderr
-    if not cold_kernels(kernels):
+    cold = cold_kernels(kernels)
+    if not cold:
         return False
-    out.write(f"compiling {what} (first run only, about {seconds:g} s)\n")
-    out.flush()
-    return True
+    noun = what.split(" ", 1)
+    label = (f"{len(cold)} {what}" if len(cold) != 1
+             else " ".join(["1", *noun[:-1], noun[-1].removesuffix("s")]))
+    line = (f"compiling {label} (first run only"
+            + (f", about {seconds:g} s" if seconds is not None else "") + ") ...")
+    said = True
+    if callable(out) and not hasattr(out, "write"):
+        out(line)
+    elif getattr(out, "quiet", False):
+        said = False
+    else:
+        stream = out if hasattr(out, "write") else sys.stderr
+        stream.write(line + "\n")
+        stream.flush()
+    compile_kernels(cold)
+    return said

@@ -12,12 +12,26 @@ Kernels, in call order: ``dipole_coupling`` (``DipoleModel.coupling``), ``dipole
 (``coupling_jacobians``), ``closed_form`` (``solve_kim18``; the three closed forms share one
 kernel), ``lm_batch`` (``solve_lm`` from given starts), ``lm_track`` (``solve_lm`` tracking),
 ``lm_5dof`` (``solve_lm`` with a single-coil sensor: the same compiled kernel, so near zero).
+
+``per_kernel`` lists every kernel the commands announce (``openemt._compile_notice``: solver,
+live and finite-coil groups), each compiled by the commands' own warm-up call in list order,
+with its compile seconds in the empty cache (helpers shared with an earlier kernel are counted
+there) and its load seconds from the filled one.
+
+With ``--commands``, the commands users wait on, each a fresh ``openemt`` process whose CPU
+seconds (user + system, of the process and its children) and wall seconds are reported, all on
+one new numba cache: the first ``openemt demo`` (empty cache) and a second one, ``openemt
+track --source sim`` twice (whether each printed the compile notice), ``openemt info`` of the
+demo's dataset, ``openemt calibrate --mode planar`` on the README's simulated grid (a second,
+warm run is the one timed), and ``openemt reproduce table2 --improved`` on the bundled ILEMT
+recording.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -34,6 +48,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--keep-cache", default=None, metavar="DIR",
                         help="use this (new or empty) folder as the numba cache and keep it "
                              "(default: a temporary folder, removed afterwards)")
+    parser.add_argument("--commands", action="store_true",
+                        help="also time the commands users wait on in fresh processes (first "
+                             "demo, second track, info, planar calibrate, reproduce table2 "
+                             "--improved; minutes)")
 
 
 def _child() -> dict:
@@ -76,10 +94,31 @@ def _child() -> dict:
             "kernels_cpu_s": cpu, "total_cpu_s": sum(cpu.values())}
 
 
-def _process(cache_dir: str) -> dict:
+def _child_per_kernel() -> dict:
+    """Every announced kernel compiled (or loaded) through the commands' warm-up, one by one."""
+    from openemt._compile_notice import (
+        COLD_START_KERNELS,
+        LIVE_KERNELS,
+        PLANAR_KERNELS,
+        SOLVER_KERNELS,
+        compile_kernels,
+    )
+
+    out = {}
+    for spec in dict.fromkeys(SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS
+                              + PLANAR_KERNELS):
+        t = time.perf_counter()
+        c = time.process_time()
+        compile_kernels([spec])
+        out[spec] = {"s": round(time.perf_counter() - t, 3),
+                     "cpu_s": round(time.process_time() - c, 3)}
+    return out
+
+
+def _process(cache_dir: str, what: str = "kernels") -> dict:
     env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
     t = time.perf_counter()
-    out = subprocess.run([sys.executable, "-m", "openemt.bench._compile"], env=env,
+    out = subprocess.run([sys.executable, "-m", "openemt.bench._compile", what], env=env,
                          capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t
     if out.returncode != 0:
@@ -88,6 +127,67 @@ def _process(cache_dir: str) -> dict:
     res = json.loads(out.stdout.strip().splitlines()[-1])
     res["process_wall_s"] = wall
     return res
+
+
+def _command(argv, cache_dir: str, cwd: str) -> dict:
+    """Run ``openemt *argv`` in a fresh process on numba cache ``cache_dir``: its CPU seconds
+    (user + system, with its children), wall seconds and whether it printed a compile line."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
+    code = "import sys; from openemt.cli import main; sys.exit(main(sys.argv[1:]))"
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", code, *map(str, argv)], env=env, cwd=cwd,
+                         capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if out.returncode != 0:
+        tail = " ".join(out.stderr.strip().splitlines()[-1:])
+        raise RuntimeError(f"openemt {' '.join(map(str, argv[:2]))} failed (exit "
+                           f"{out.returncode}): {tail}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
+            "compile_notice": any(line.startswith("compiling ")
+                                  for line in out.stderr.splitlines())}
+
+
+def _commands() -> dict:
+    """The commands users wait on (module docstring), timed on one new numba cache."""
+    from ..datasets import path as dataset_path
+
+    work = tempfile.mkdtemp(prefix="openemt-bench-commands-")
+    cache = os.path.join(work, "numba-cache")
+    os.makedirs(cache)
+    ilemt = dataset_path("cal_9_15_premo_cmu")
+
+    def run_(*argv):
+        return _command(argv, cache, work)
+
+    try:
+        res = {"first_demo": run_("demo", "-o", "demo", "--json"),
+               "cached_demo": run_("demo", "-o", "demo2", "--json")}
+        track = ("track", "--source", "sim", "--duration", "1", "--no-igtl", "--fast", "--json")
+        res["first_track"] = run_(*track)
+        res["second_track"] = run_(*track)
+        res["info"] = run_("info", os.path.join("demo", "test_data.h5"), "--json")
+        run_("simulate", "--preset", "anser", "--source-fixtures", "YoutZup",
+             "--sensor-fixtures", "YoutZup", "--snr-db", "80", "--seed", "1", "-o", "grid.h5",
+             "--json")
+        planar = ("calibrate", "grid.h5", "--mode", "planar", "--holdout", "checkerboard",
+                  "-o", "board_cal.json", "--json")
+        res["first_planar_calibrate"] = run_(*planar)
+        res["planar_calibrate"] = run_(*planar)
+        res["reproduce_table2_improved"] = run_("reproduce", "table2", ilemt, "--improved",
+                                                "--json")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    keys = {"first_demo_cpu_s": res["first_demo"]["cpu_s"],
+            "first_demo_wall_s": res["first_demo"]["wall_s"],
+            "cached_demo_cpu_s": res["cached_demo"]["cpu_s"],
+            "second_track_compile_notice": res["second_track"]["compile_notice"],
+            "info_cpu_s": res["info"]["cpu_s"],
+            "planar_calibrate_warm_cpu_s": res["planar_calibrate"]["cpu_s"],
+            "reproduce_table2_improved_cpu_s": res["reproduce_table2_improved"]["cpu_s"]}
+    return {**keys, "commands": res}
 
 
 def run(args) -> dict:
@@ -103,17 +203,28 @@ def run(args) -> dict:
 
             raise InputError(f"expected a new or empty folder for --keep-cache, got {cache!r} "
                              f"with files in it")
+    per_cache = tempfile.mkdtemp(prefix="openemt-numba-cache-")
     try:
         first = _process(cache)
         cached = _process(cache)
+        per_first = _process(per_cache, "per_kernel")
+        per_cached = _process(per_cache, "per_kernel")
     finally:
         if not keep:
             shutil.rmtree(cache, ignore_errors=True)
-    return {"numba_version": numba.__version__, "python": sys.version.split()[0],
+        shutil.rmtree(per_cache, ignore_errors=True)
+    per_kernel = {spec: {"compile_s": v["s"], "compile_cpu_s": v["cpu_s"],
+                         "cached_s": per_cached[spec]["s"]}
+                  for spec, v in per_first.items() if spec != "process_wall_s"}
+    commands = _commands() if getattr(args, "commands", False) else {}
+    return {**commands, "numba_version": numba.__version__, "python": sys.version.split()[0],
             "cpu_count": os.cpu_count(), "kernels": list(KERNELS),
             "first_use": first, "cached": cached,
             "compile_total_s": first["total_s"], "compile_total_cpu_s": first["total_cpu_s"],
             "cached_total_s": cached["total_s"],
+            "per_kernel": per_kernel,
+            "per_kernel_compile_cpu_s": round(sum(v["compile_cpu_s"]
+                                                  for v in per_kernel.values()), 3),
             "cache_dir": cache if keep else "temporary (removed)",
             "note": "seconds in each fresh process (*_s wall clock, *_cpu_s process CPU time, "
                     "which other load on the machine does not inflate); first_use compiles "
@@ -121,4 +232,4 @@ def run(args) -> dict:
 
 
 if __name__ == "__main__":
-    print(json.dumps(_child()))
+    print(json.dumps(_child_per_kernel() if sys.argv[1:] == ["per_kernel"] else _child()))

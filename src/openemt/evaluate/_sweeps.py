@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from .._errors import InputError
 from .._result import DictResult, Result
@@ -182,6 +181,8 @@ def _derivative(y: np.ndarray, s: np.ndarray, window: int, polyorder: int) -> np
     For uniformly spaced ``s`` this equals ``savgol_filter(y, deriv=1, delta=ds)``; the chain
     rule also handles the odd step (e.g. ILEMT's Z sweep clipped at -46.2 mm).
     """
+    from scipy.signal import savgol_filter  # here: scipy.signal costs every command's import
+
     w = min(window, len(s) if len(s) % 2 else len(s) - 1)
     dy = savgol_filter(y, w, polyorder, deriv=1, axis=0, mode="interp")
     ds = savgol_filter(s, w, polyorder, deriv=1, axis=0, mode="interp")

@@ -20,10 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import magpylib
 import numpy as np
 from scipy.constants import mu_0
-from scipy.spatial.transform import Rotation
 
 from .._errors import InputError
 
@@ -326,6 +324,9 @@ class Coil:
         """The coil as magpylib current objects (parent frame, currents in A for 1 A of coil
         current: a filament loop of a thick winding carries its share of the turns)."""
         if "sources" not in self._cache:
+            import magpylib  # here: magpylib and scipy.spatial cost every command's import
+            from scipy.spatial.transform import Rotation
+
             rot = Rotation.from_matrix(self.rotation)
             if self.kind == "spiral":
                 verts = self.spiral_path() @ self.rotation.T + self.center
@@ -419,6 +420,8 @@ def _coil_fields(coils, pts: np.ndarray, chunk: int = 200_000) -> np.ndarray:
     member = np.zeros((len(coils), len(srcs)))
     member[owner, np.arange(len(srcs))] = 1.0
     step = max(1, chunk // max(1, sum(weight)))
+    import magpylib
+
     for a in range(0, len(pts), step):
         B = magpylib.getB(srcs, pts[a:a + step], squeeze=False)[:, 0, 0]  # (n_src, n, 3)
         out[:, a:a + step] = np.einsum("is,snk->ink", member, B)

@@ -81,7 +81,7 @@ def _inverse_powers(d2):
     return np.nan, np.nan, np.nan
 
 
-@njit(fastmath=False)
+@njit(cache=True)
 def dipole_eval(geo, R, t, C, jac, want_jac):
     """Coupling of one pose and, if ``want_jac``, its derivatives
     ``jac = (dC_dt, dC_dphi, dC_dMso, dC_dMse_src)``.

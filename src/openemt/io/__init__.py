@@ -1,38 +1,30 @@
 """Reading and writing every box of the pipeline: datasets, calibrations, importers."""
 
-from .._atomic import atomic_path
-from ._board_file import load_board, read_board, write_board
-from ._calfile import read_calibration, write_calibration
-from ._calibration import Calibration
-from ._csv import export_csv, import_csv
-from ._dataset import BAND_COUPLINGS, Dataset, is_recording, recording_meta, signed_real
-from ._h5write import atomic_h5
-from ._hdf5 import CouplingReader, open_dataset_couplings, read_dataset, write_dataset
-from ._ilemt import (
-                     compensate_stage,
-                     file_sha256,
-                     import_ilemt_folder,
-                     parse_sign_options,
-                     read_ilemt_dat,
-)
-from ._ilemt_mat import read_ilemt_calibration
-from ._import_workflow import (
-                     IMPORT_FORMATS,
-                     ImportOptions,
-                     ImportResult,
-                     import_files,
-                     parse_sign_arg,
-)
-from ._ndi import NdiRecording, NdiTool, import_ndi, read_ndi_tsv, write_ndi_tsv
-from ._pose_dataset import pose_dataset, read_pose_dataset
-from ._poses_csv import (
-                     PoseTable,
-                     StaticAverage,
-                     average_static,
-                     import_poses_csv,
-                     read_poses_csv,
-                     write_poses_csv,
-)
+import importlib
+
+#: where each public name lives; a module is imported on first use of one of its names (so a
+#: command reading a dataset does not load the board, field and calibration libraries)
+_SOURCES = {
+    ".._atomic": ("atomic_path",),
+    "._board_file": ("load_board", "read_board", "write_board"),
+    "._calfile": ("read_calibration", "write_calibration"),
+    "._calibration": ("Calibration",),
+    "._csv": ("export_csv", "import_csv"),
+    "._dataset": ("BAND_COUPLINGS", "Dataset", "is_recording", "recording_meta",
+                   "signed_real"),
+    "._h5write": ("atomic_h5",),
+    "._hdf5": ("CouplingReader", "open_dataset_couplings", "read_dataset", "write_dataset"),
+    "._ilemt": ("compensate_stage", "file_sha256", "import_ilemt_folder", "parse_sign_options",
+                "read_ilemt_dat"),
+    "._ilemt_mat": ("read_ilemt_calibration",),
+    "._import_workflow": ("IMPORT_FORMATS", "ImportOptions", "ImportResult", "import_files",
+                          "parse_sign_arg"),
+    "._ndi": ("NdiRecording", "NdiTool", "import_ndi", "read_ndi_tsv", "write_ndi_tsv"),
+    "._pose_dataset": ("pose_dataset", "read_pose_dataset"),
+    "._poses_csv": ("PoseTable", "StaticAverage", "average_static", "import_poses_csv",
+                    "read_poses_csv", "write_poses_csv"),
+}
+_MODULE = {name: module for module, names in _SOURCES.items() for name in names}
 
 __all__ = ["BAND_COUPLINGS", "Calibration", "Dataset", "atomic_h5", "atomic_path", "is_recording",
            "recording_meta", "signed_real"]
@@ -47,3 +39,16 @@ __all__ += ["NdiRecording", "NdiTool", "PoseTable", "StaticAverage", "average_st
             "import_ndi", "import_poses_csv", "pose_dataset", "read_ndi_tsv", "read_pose_dataset",
             "read_poses_csv", "write_ndi_tsv", "write_poses_csv"]
 __all__ += ["IMPORT_FORMATS", "ImportOptions", "ImportResult", "import_files", "parse_sign_arg"]
+
+
+def __getattr__(name):
+    module = _MODULE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

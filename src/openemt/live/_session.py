@@ -355,13 +355,16 @@ def announce_compile_for(out, sensors) -> None:
     """Say so (on stderr unless ``out.quiet``) before the solver kernels of ``sensors``
     (:class:`~openemt.live.SensorSetup`) compile: the first run after installation."""
     from .._compile_notice import (
+        COLD_START_KERNELS,
         LIVE_KERNELS,
         PLANAR_KERNELS,
         SOLVER_KERNELS,
         announce_compile,
     )
 
-    kernels = SOLVER_KERNELS + LIVE_KERNELS
+    # the dipole solver's kernels for dipole sensors, the finite-coil ones for board sensors
+    dipole = any(s.solver is None for s in sensors)
+    kernels = (SOLVER_KERNELS + COLD_START_KERNELS if dipole else ()) + LIVE_KERNELS
     if any(s.solver is not None for s in sensors):      # a board sensor
         kernels += PLANAR_KERNELS
     announce_compile(out, "solver kernels", kernels=kernels)
@@ -516,6 +519,8 @@ class TrackingSession:
             device = int(device)
         try:
             sensors = tracker_sensors(spec) if self._sensors is None else self._sensors
+            # before the backend: a simulated one computes couplings with the sensors' models
+            announce_compile_for(o, sensors)
             if o.log is not None:
                 self.log = TrackLogWriter(o.log, [s.name for s in sensors])
             try:
@@ -570,7 +575,6 @@ class TrackingSession:
         import signal
 
         o, spec, pipe = self.options, self.spec, self.pipeline
-        announce_compile_for(self.options, [st.setup for st in pipe.sensors])
         self._say(f"tracking {len(spec.sensors)} sensor(s) from --source {o.source}"
                   f"{'' if o.duration is None else f' for {o.duration:g} s'}; Ctrl-C to stop")
         console = self.console

@@ -139,6 +139,8 @@ def _hdf5_kind(path: Path) -> str:
 
     with open_h5(path, "a readable openemt HDF5 file") as f:   # probed, structure checked
         schema, fmt = _attr(f, "schema"), _attr(f, "format")
+    if schema == "openemt.dataset":       # the common case, without loading the solvers
+        return "dataset"
     from ..signal import RAW_FORMAT
     from ..solve import POSES_SCHEMA
 
@@ -347,9 +349,8 @@ def _human(path: Path, info: dict) -> list[str]:
 
 
 def _details(path) -> dict:
-    """JSON-able summary of any file openemt writes; ``kind`` names which one."""
-    from ..io import read_calibration, read_dataset
-
+    """JSON-able summary of any file openemt writes; ``kind`` names which one (each kind
+    loads only its own reader: a dataset's summary needs no model or solver library)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"expected a file openemt writes (dataset, poses, calibration, "
@@ -359,6 +360,8 @@ def _details(path) -> dict:
     if kind == "hdf5":
         sub = _hdf5_kind(path)
         if sub == "dataset":
+            from ..io import read_dataset
+
             return dataset_info(read_dataset(path))
         return {"poses": poses_info, "raw": raw_info, "track-log": track_log_info}[sub](path)
     if kind == "json":
@@ -367,8 +370,9 @@ def _details(path) -> dict:
         doc = load_json_file(path, "an openemt calibration or correction JSON file")
         if isinstance(doc, dict) and doc.get("format") == "openemt.correction":
             return correction_info(path)
-        return calibration_info(read_calibration(path))
-    if kind == "mat":
+    if kind in ("json", "mat"):
+        from ..io import read_calibration
+
         return calibration_info(read_calibration(path))
     if kind == "tsv":
         return ndi_info(path)

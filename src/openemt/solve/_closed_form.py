@@ -200,7 +200,7 @@ def _spectral_norm33(C):
     return np.sqrt(max(lam, 0.0))
 
 
-@njit
+@njit(cache=True)
 def spectral_norm(C, G):
     """Spectral norm of a real matrix ``C`` (n_so, n_se); ``G`` is (n_se, n_se) scratch."""
     n_so, n_se = C.shape
@@ -330,7 +330,7 @@ def _cos_sin(x, y):
     return 1.0, 0.0
 
 
-@njit
+@njit(cache=True)
 def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
     """Closed-form pose of one 3x3 coupling ``C``; writes ``R``, ``t``.
 
@@ -458,7 +458,7 @@ def closed_form_one(method, C, W, gain, n, rank_tol, R, t, cws):
     return ST_CONVERGED
 
 
-@njit
+@njit(cache=True)
 def closed_form_scratch():
     """Scratch arrays of :func:`closed_form_one`: ``(C0, U, s, V, B, q, M)``."""
     return (np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty((3, 3)), np.empty((3, 3)),
@@ -558,7 +558,7 @@ def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
     box[1] = np.inf
     one_n = nvec.shape[0] == 1
     n = np.empty(3)  # this sample's hemisphere
-    n[:] = nvec[0]
+    n[0], n[1], n[2] = nvec[0, 0], nvec[0, 1], nvec[0, 2]
     _, M_so, _, M_se, gain = unpack_model(mdl, 1.0)
     rank_tol = opts[O_RANK_TOL]
     for k0 in range(0, N, _BLOCK):
@@ -586,7 +586,7 @@ def _closed_form_batch(method, C, cnorm, W, mdl, nvec, opts, out):
             status[k] = classify(False, rho, t, n, box, opts)
 
 
-@njit
+@njit(cache=True)
 def _store_invalid(k, out):
     """Row ``k`` of the outputs ``(poses, vecs, status, residual, relres, iterations)``: NaN
     pose, ``INVALID_INPUT``."""

@@ -26,7 +26,7 @@ __all__ = [
 ]
 
 
-@njit
+@njit(cache=True)
 def svd3(A, U, s, V):
     """Singular value decomposition ``A = U diag(s) V^T`` of a 3x3 matrix (one-sided Jacobi).
 

@@ -161,7 +161,7 @@ def _copy_pose(R_from, t_from, R_to, t_to):
             R_to[a, b] = R_from[a, b]
 
 
-@njit
+@njit(cache=True)
 def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     """Levenberg-Marquardt from ``(R, t)`` (updated in place). Returns ``(cost, iterations,
     stop)`` with ``stop`` = ``STOP_CONVERGED`` (converged, or stalled at a minimum) or
@@ -303,7 +303,7 @@ def _acceptable(cost, res_fac, fn, opts):
             and np.sqrt(cost) <= opts[O_RETRY_RELATIVE] * fn)
 
 
-@njit
+@njit(cache=True)
 def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
     """Solve one sample from the pose vector ``start``, with ILEMT's sign-flip retries if
     ``opts[O_RETRIES]``; the best pose goes to ``sw``'s ``Rb, tb`` (NaN if no run gave a
@@ -339,7 +339,7 @@ def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
     return best, total_it, best_stop
 
 
-@njit
+@njit(cache=True)
 def _workspace(n_so, n_se):
     """Scratch of one solve: ``(lmw, sw, Cn, G)`` -- the LM run's arrays, the sample's poses
     ``(R, t, Rb, tb, v0, rv)``, the normalised coupling and spectral-norm scratch."""
@@ -357,7 +357,7 @@ def _workspace(n_so, n_se):
     return lmw, sw, np.empty((n_so, n_se)), np.empty((n_se, n_se))
 
 
-@njit
+@njit(cache=True)
 def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, sw, lmw, out):
     """Store sample ``k``'s best pose (in ``sw``) and judge it by the validity rule, with the
     residuals evaluated at the pose stored and the couplings' own scale."""
@@ -460,9 +460,11 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
         cost, it, stop = _solve_sample(geo, Cn, res_fac, fn, guess, nvec[k], box, plain, sw,
                                        lmw)
         if not _acceptable(cost, res_fac, fn, opts) and (use_cf or retries):
-            start[:] = prev
+            for a in range(6):  # element by element: a slice copy compiles a shape check
+                start[a] = prev[a]
             if use_cf:
-                ncf[:] = nvec[k]
+                for a in range(3):
+                    ncf[a] = nvec[k, a]
                 if ncf[0] == 0.0 and ncf[1] == 0.0 and ncf[2] == 0.0:
                     ncf[0] = 1.0
                 if closed_form_start(mdl, kim18, Cn, W, opts[O_CF_GAIN] / s, ncf,
