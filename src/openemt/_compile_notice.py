@@ -36,6 +36,7 @@ SOLVER_KERNELS = (
     "openemt.field._dipole_kernel:dipole_batch",
     "openemt.field._dipole_kernel:dipole_batch_jac",
     "openemt.solve._closed_form:_spectral_norms",
+    "openemt.solve._closed_form:_complex_norms",
     "openemt.solve._closed_form:_closed_form_batch",
     "openemt.solve._lm:lm_batch",
 )
@@ -123,6 +124,8 @@ def _warm_dipole(which):
         coupling_jacobians(model, P)
     elif which == "closed_form":
         solve_kim18(conc.coupling(P), conc)
+    elif which == "complex":                 # the closed forms' check of complex couplings
+        solve_kim18(conc.coupling(P) * (1.0 + 1e-3j), conc)
     elif which == "lm_batch":
         solve_lm(C, model, initial=v)
     elif which == "lm_track":
@@ -173,6 +176,7 @@ _WARM_UP = {
     "openemt.field._dipole_kernel:dipole_batch": lambda: _dipole_case(),
     "openemt.field._dipole_kernel:dipole_batch_jac": lambda: _warm_dipole("jacobians"),
     "openemt.solve._closed_form:_spectral_norms": lambda: _warm_dipole("spectral"),
+    "openemt.solve._closed_form:_complex_norms": lambda: _warm_dipole("complex"),
     "openemt.solve._closed_form:_closed_form_batch": lambda: _warm_dipole("closed_form"),
     "openemt.solve._lm:lm_batch": lambda: _warm_dipole("lm_batch"),
     "openemt.solve._lm:lm_track": lambda: _warm_dipole("lm_track"),
