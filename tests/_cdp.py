@@ -31,7 +31,7 @@ class Browser:
         exe = chromium_path()
         if exe is None:
             raise RuntimeError("no chromium")
-        self._dir = tempfile.TemporaryDirectory(prefix="openemt-cdp-")
+        self._dir = tempfile.TemporaryDirectory(prefix="openemt-cdp-", ignore_cleanup_errors=True)
         profile = Path(self._dir.name)
         self.proc = subprocess.Popen(
             [exe, *FLAGS, f"--user-data-dir={profile}", "--remote-debugging-port=0",

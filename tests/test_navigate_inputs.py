@@ -113,7 +113,7 @@ def test_track_log_rows_dropped_by_reason(made, tmp_path, capsys):
     P = simulate_pivot_poses(40, [0.002, -0.001, 0.155], [0.1, 0.0, 0.2],
                              np.random.default_rng(3))
     body = [",".join([f"{0.01 * k:.6f}"] + [f"{v:.9g}" for v in vector_from_pose(p)]
-                     + ["0", "0", "0", "0"]) for k, p in enumerate(P)]
+                     + ["0"] * (len(head.split(",")) - 7)) for k, p in enumerate(P)]
     cols = body[3].split(",")
     cols[7] = str(int(Status.MAX_ITERATIONS))
     body[3] = ",".join(cols)

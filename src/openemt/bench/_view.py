@@ -120,7 +120,9 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
             return s.signal_seconds / wall
 
     feed = LiveFeed()
-    with ViewProcess(feed) as server, tempfile.TemporaryDirectory() as profile:
+    # Chromium's helper processes may still write into the profile as it exits
+    with ViewProcess(feed) as server, \
+            tempfile.TemporaryDirectory(ignore_cleanup_errors=True) as profile:
         browser = subprocess.Popen([chromium, *_FLAGS, f"--user-data-dir={profile}",
                                     server.url], stdout=subprocess.DEVNULL,
                                    stderr=subprocess.DEVNULL)

@@ -156,6 +156,8 @@ class TrackLogWriter:
             for key in _TIME_KEYS:
                 if a.get(key) is None:
                     a[key] = np.full(n, np.nan)
+            if a.get("distortion_level") is None:     # rows given without one: the worst
+                a["distortion_level"] = _levels_of(a).astype(np.uint8)
         if self.kind == "h5":
             multi = len(parts) > 1
             for name, a in zip(self.sensor_names, parts):
