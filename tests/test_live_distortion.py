@@ -251,3 +251,16 @@ def test_witnesses_reestimate_the_metal_while_tracking():
     assert plain > 1e-3                                      # the sphere moves it by mm
     assert refit < 0.05 * plain
     assert (level == 255).all()                              # the witnesses see the metal
+
+
+def test_stream_metadata_carries_the_pipelines_level():
+    """The level sent in the metadata is the one the pipeline logs (witnesses included), not
+    one recomputed without them."""
+    from openemt.live._igtl_meta import transform_metadata
+
+    q, r = np.array([1e-4, 1e-4]), np.array([1e-5, 1e-5])
+    own = transform_metadata(np.zeros(2, bool), r, q, distortion_threshold=0.05)
+    given = transform_metadata(np.zeros(2, bool), r, q, distortion_threshold=0.05,
+                               level=np.array([200, 7], np.uint8))
+    assert own["DistortionLevel"].tolist() == [b"000", b"000"]
+    assert given["DistortionLevel"].tolist() == [b"200", b"007"]

@@ -96,11 +96,13 @@ def _all_ok(n: int) -> tuple:
 def transform_metadata(distorted, relative_residual, quadrature, *,
                        distortion_threshold: float,
                        residual_threshold: float = MAX_RELATIVE_RESIDUAL,
-                       status=None) -> dict:
+                       status=None, level=None) -> dict:
     """The metadata of N TRANSFORMs (key -> N values, as :meth:`IgtlServer.send_poses` takes
     them). ``status``: the solver status per sample (default: all converged, as the sent
     poses are); ``distorted``: the quadrature flag per sample; ``residual_threshold``: the
-    solver's validity threshold on the relative residual (default the solver's, 1 %)."""
+    solver's validity threshold on the relative residual (default the solver's, 1 %);
+    ``level``: the samples' distortion levels where the caller has them (the pipeline's,
+    witnesses included), else computed here from the quadrature and residual."""
     dist = np.asarray(distorted, dtype=bool)
     n = dist.shape[0]
     if status is None and not dist.any():       # the usual block: every pose good, as bytes
@@ -109,8 +111,9 @@ def transform_metadata(distorted, relative_residual, quadrature, *,
         names = transform_status(np.zeros(n, np.int64) if status is None else status, dist)
         ts = names.tolist()
         valid = np.where(names == "OK", "true", "false").tolist()
-    level = distortion_level(quadrature, relative_residual, distortion_threshold,
-                             residual_threshold)
+    if level is None:
+        level = distortion_level(quadrature, relative_residual, distortion_threshold,
+                                 residual_threshold)
     return {"TransformStatus": ts, "TransformValid": valid,
             "RelativeResidual": np.asarray(relative_residual, dtype=np.float64),
             "QuadratureRatio": np.asarray(quadrature, dtype=np.float64),

@@ -26,8 +26,9 @@ from .._result import Result
 from ..signal import Demodulator
 from ..solve import Status
 from ..solve._result import status_count_names
+from ..solve._validity import MAX_RELATIVE_RESIDUAL
 from ._filter import filter_restarts
-from ._igtl_meta import transform_metadata
+from ._igtl_meta import distortion_level, transform_metadata
 from ._tracker_file import (
     check_device_names,
     relative_device_name,
@@ -70,9 +71,6 @@ def _distortion_level(quadrature, relative_residual, threshold, witness_m=None
     """The 0-255 level of each sample (:func:`openemt.live.distortion_level` against the
     quadrature threshold and the solver's validity threshold, as the stream's metadata, and
     the witnesses' position error where the tracker has witnesses)."""
-    from ..solve._validity import MAX_RELATIVE_RESIDUAL
-    from ._igtl_meta import distortion_level
-
     return distortion_level(quadrature, relative_residual, threshold, MAX_RELATIVE_RESIDUAL,
                             witness_m=witness_m)
 
@@ -905,7 +903,8 @@ class TrackingPipeline:
             return step.poses if step.tool_poses is None else step.tool_poses
 
         out = [(self._device(st), own(step), pick, step.distorted, step.relative_residual,
-                step.distortion) for st, step, pick in zip(self.sensors, steps, picks)]
+                step.distortion, step.distortion_level)
+               for st, step, pick in zip(self.sensors, steps, picks)]
         if not self._extra:
             return out
         if self.reference is not None:
@@ -916,7 +915,7 @@ class TrackingPipeline:
             poses = step.poses if tip else own(step)
             if not relative:
                 out.append((device, poses, picks[st.index], step.distorted,
-                            step.relative_residual, step.distortion))
+                            step.relative_residual, step.distortion, step.distortion_level))
                 continue
             from ..geometry import invert
 
@@ -926,7 +925,8 @@ class TrackingPipeline:
                 poses[pick] = invert(own(ref)[pick]) @ poses[pick]
             out.append((device, poses, pick, step.distorted | ref.distorted,
                         np.fmax(step.relative_residual, ref.relative_residual),
-                        np.maximum(step.distortion, ref.distortion)))
+                        np.maximum(step.distortion, ref.distortion),
+                        np.maximum(step.distortion_level, ref.distortion_level)))
         return out
 
     def _send(self, steps, valids, stamps, t_ready) -> None:
@@ -961,18 +961,18 @@ class TrackingPipeline:
                 self.igtl.send_packed(data, count, t_ready)
             return
         if len(streams) == 1:                   # one stream: its arrays as they are
-            device, poses, pick, distorted, relative, distortion = streams[0]
+            device, poses, pick, distorted, relative, distortion, level = streams[0]
             if not pick.all():
                 poses, stamps = poses[pick], stamps[pick]
-                distorted, relative, distortion = distorted[pick], relative[pick], \
-                    distortion[pick]
+                distorted, relative, distortion, level = distorted[pick], relative[pick], \
+                    distortion[pick], level[pick]
             if not len(poses):
                 return
             kw = {}
             if self.igtl_metadata:
                 kw["metadata"] = transform_metadata(
                     distorted, relative, distortion,
-                    distortion_threshold=self.distortion_threshold)
+                    distortion_threshold=self.distortion_threshold, level=level)
             self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device, **kw)
             return
         # every stream's poses in one call (one packing pass, one write per client): the
@@ -992,7 +992,8 @@ class TrackingPipeline:
             meta = transform_metadata(
                 distorted, np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
                 np.concatenate([s[5][k] for s, k in zip(streams, sel)]),
-                distortion_threshold=self.distortion_threshold)
+                distortion_threshold=self.distortion_threshold,
+                level=np.concatenate([s[6][k] for s, k in zip(streams, sel)]))
         kw = {} if meta is None else {"metadata": meta}
         self.igtl.send_poses(poses, np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
                              device_name=devices[0] if len(streams) == 1 else devices, **kw)
