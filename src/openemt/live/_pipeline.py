@@ -370,7 +370,9 @@ class _SensorState:
         self.last = None             # last valid pose vector
         self.status_counts = np.zeros(len(Status), dtype=np.int64)   # per Status code
         self.n_distorted = 0
-        self.level_counts = np.zeros(256, dtype=np.int64)   # samples per distortion level
+        self._level_counts = np.zeros(256, dtype=np.int64)   # samples per distortion level
+        self._levels: list = []      # the levels of recent chunks, counted in batches
+        self._n_levels = 0
         self.n_not_sent = 0          # converged but distorted, not sent
         self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
         self.pending: list = []
@@ -379,6 +381,24 @@ class _SensorState:
         self.last_valid = None       # time.monotonic() of the last valid (sendable) pose
         self.bad_since = None        # time.monotonic() when the state left "OK"
         self.events = dict.fromkeys(STREAM_EVENTS, 0)
+
+    def add_levels(self, level) -> None:
+        """Count a chunk's distortion levels (in batches: one count per 1500 samples)."""
+        self._levels.append(level)
+        self._n_levels += len(level)
+        if self._n_levels >= 1500:
+            self._count_levels()
+
+    def _count_levels(self) -> None:
+        if self._levels:
+            self._level_counts += np.bincount(np.concatenate(self._levels), minlength=256)
+            self._levels, self._n_levels = [], 0
+
+    @property
+    def level_counts(self) -> np.ndarray:
+        """Samples per distortion level (0-255) so far."""
+        self._count_levels()
+        return self._level_counts
 
 
 @dataclass(frozen=True)
@@ -830,7 +850,7 @@ class TrackingPipeline:
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
             level = _distortion_level(ratio, np.full(n, np.nan) if rel is None else rel,
                                       self.distortion_threshold, witness_m)
-            st.level_counts += np.bincount(level, minlength=256)
+            st.add_levels(level)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
                                    t_ready, rel, tool, level, stamps, latency))
         if self.igtl is not None:
