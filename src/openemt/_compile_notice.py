@@ -150,28 +150,8 @@ def _warm_planar():
     solve_planar(model.coupling(P), model)
 
 
-def _warm_live(which):
-    import numpy as np
-
-    if which == "filter":
-        from .live._filter import kalman_filter_poses
-
-        kalman_filter_poses(np.array([[0.3, 0.0, 0.0, 0.1, 0.2, 0.3]]), np.array([0.0]),
-                            np.array([True]), process_noise=1.0, measurement_noise=1e-4,
-                            rotation_process_noise=1.0, rotation_measurement_noise=1e-3,
-                            max_gap=0.1)
-    elif which == "levels":
-        from .live._igtl_meta import distortion_level
-
-        distortion_level(np.array([0.1]), np.array([0.1]), 0.5, 0.5)
-    else:
-        from .live._igtl_wire import pack_transforms
-
-        pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor")
-        pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor", {"Status": ["OK"]})
-
-
-#: How each kernel is compiled: one small call through the public function that runs it.
+#: How each kernel is compiled: one small call through the public function that runs it
+#: (the live kernels' modules add theirs, :func:`warm_up_with`).
 _WARM_UP = {
     "openemt.field._dipole_kernel:dipole_batch": lambda: _dipole_case(),
     "openemt.field._dipole_kernel:dipole_batch_jac": lambda: _warm_dipole("jacobians"),
@@ -183,11 +163,14 @@ _WARM_UP = {
     "openemt.solve._cold_start:table_candidates": lambda: _warm_dipole("table"),
     "openemt.field._segments:_coupling_batch_impl": _warm_planar,
     "openemt.solve._planar:_batch": _warm_planar,
-    "openemt.live._filter:_kalman_kernel": lambda: _warm_live("filter"),
-    "openemt.live._igtl_meta:_levels": lambda: _warm_live("levels"),
-    "openemt.live._igtl_wire:_pack_kernel": lambda: _warm_live("wire"),
-    "openemt.live._igtl_wire:_frame_kernel": lambda: _warm_live("wire"),
 }
+
+
+def warm_up_with(spec: str, warm) -> None:
+    """Register ``warm()``, one small call that compiles kernel ``spec`` (``"module:function"``)
+    through its public function; the kernel's own module registers it when imported (which
+    :func:`cold_kernels` does), so this module needs no import of the packages above it."""
+    _WARM_UP[spec] = warm
 
 
 def compile_kernels(kernels) -> list[str]:

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._compile_notice import warm_up_with
 from .._errors import InputError
 from ..solve._linalg import exp_so3, rotvec_from_matrix, store_pose
 
@@ -209,3 +210,13 @@ def kalman_filter_poses(pose_vectors, times, valid, *, process_noise: float,
     out = np.empty((n, 6))
     _kalman_kernel(v, t, ok, params, state, poses, out)
     return poses, out, state
+
+
+def _warm_up():
+    kalman_filter_poses(np.array([[0.3, 0.0, 0.0, 0.1, 0.2, 0.3]]), np.array([0.0]),
+                        np.array([True]), process_noise=1.0, measurement_noise=1e-4,
+                        rotation_process_noise=1.0, rotation_measurement_noise=1e-3,
+                        max_gap=0.1)
+
+
+warm_up_with("openemt.live._filter:_kalman_kernel", _warm_up)

@@ -9,6 +9,7 @@ import functools
 import numpy as np
 from numba import njit
 
+from .._compile_notice import warm_up_with
 from ..solve import Status
 from ..solve._validity import MAX_RELATIVE_RESIDUAL
 
@@ -118,3 +119,7 @@ def transform_metadata(distorted, relative_residual, quadrature, *,
             "RelativeResidual": np.asarray(relative_residual, dtype=np.float64),
             "QuadratureRatio": np.asarray(quadrature, dtype=np.float64),
             "DistortionLevel": _LEVELS[level]}
+
+
+warm_up_with("openemt.live._igtl_meta:_levels",
+             lambda: distortion_level(np.array([0.1]), np.array([0.1]), 0.5, 0.5))

@@ -11,6 +11,7 @@ import time
 import numpy as np
 from numba import njit
 
+from .._compile_notice import warm_up_with
 from .._errors import InputError
 
 __all__ = ["frame_messages", "pack_message", "pack_transforms", "status_content",
@@ -421,3 +422,12 @@ def status_content(code: int = 1, text: str = "", *, subcode: int = 0,
     name and the NUL-terminated status text."""
     return (struct.pack(">Hq", int(code), int(subcode)) + _name_bytes(error_name, 20).tobytes()
             + text.encode("ascii", "replace") + b"\0")
+
+
+def _warm_up():
+    pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor")
+    pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor", {"Status": ["OK"]})
+
+
+warm_up_with("openemt.live._igtl_wire:_pack_kernel", _warm_up)
+warm_up_with("openemt.live._igtl_wire:_frame_kernel", _warm_up)
