@@ -848,8 +848,7 @@ class TrackingPipeline:
             oks.append(ok)
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
-            level = _distortion_level(ratio, np.full(n, np.nan) if rel is None else rel,
-                                      self.distortion_threshold, witness_m)
+            level = _distortion_level(ratio, rel, self.distortion_threshold, witness_m)
             st.add_levels(level)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
                                    t_ready, rel, tool, level, stamps, latency))
