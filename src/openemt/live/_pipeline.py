@@ -24,7 +24,7 @@ from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
 from .._result import Result
 from ..signal import Demodulator
-from ..solve import Status
+from ..solve import DEFAULT_BAND_TIME_CONSTANT_S, BandStage, Status, resolve_bands
 from ..solve._result import status_count_names
 from ..solve._validity import MAX_RELATIVE_RESIDUAL
 from ._filter import filter_restarts
@@ -367,6 +367,7 @@ class _SensorState:
         f = setup.filter
         self.filter = f if f is not None and getattr(f, "enabled", False) else None
         self.filter_state = None
+        self.band_state = None       # the band fusion's low-pass state (BandStage)
         self.last = None             # last valid pose vector
         self.status_counts = np.zeros(len(Status), dtype=np.int64)   # per Status code
         self.n_distorted = 0
@@ -459,6 +460,14 @@ class PipelineConfig:
         :data:`WITNESS_REFIT_M`, an induced dipole is re-estimated from their couplings
         (:class:`openemt.calibrate.WitnessEstimator`) and the other sensors of that model
         are refined under it.
+    bands : str
+        With several carrier bands: the couplings each sensor solves
+        (:class:`openemt.solve.BandStage`): ``fast``, ``slow``, ``fuse`` (the fast band
+        corrected from the slow one through a low-pass of ``band_time_constant`` seconds,
+        its state per sensor), ``eddy-free``; ``auto``: ``fuse``. With ``slow`` and ``fuse``
+        the quadrature ratio (the distortion flag) is the slow band's. One band: ignored
+        (``auto``, ``fast``) or refused.
+    band_time_constant : float
     """
 
     output_rate: float = OUTPUT_RATE_HZ
@@ -476,6 +485,8 @@ class PipelineConfig:
     serial_small_batches: bool = True
     registration: object = None
     witnesses: tuple = ()
+    bands: str = "auto"
+    band_time_constant: float = DEFAULT_BAND_TIME_CONSTANT_S
 
 
 class TrackingPipeline:
@@ -580,6 +591,12 @@ class TrackingPipeline:
                                  window=cfg.window, phase=cfg.phase)
         self.distortion_threshold = check_nonnegative(cfg.distortion_threshold,
                                                       "`distortion_threshold`")
+        lay = backend.layout
+        method = resolve_bands(cfg.bands, lay.n_bands, ordered=True,
+                               rate=self.demod.output_rate, where="`bands`")
+        self.bands = None if method is None else BandStage(
+            method, lay.band_frequencies, time_constant=cfg.band_time_constant,
+            rate=self.demod.output_rate, quadrature_threshold=self.distortion_threshold)
         self.igtl = igtl
         self.send_distorted = bool(cfg.send_distorted)
         self.interrupted = None
@@ -792,10 +809,19 @@ class TrackingPipeline:
         latency = np.empty(n)
         parts = [d.couplings if st.columns is None else d.couplings[:, :, st.index_of_columns]
                  for st in self.sensors]
-        Cs = [c.real for c in parts]
+        quad = d.couplings
+        if self.bands is None:
+            Cs = [c.real for c in parts]
+        else:                                   # the couplings to solve from the bands
+            Cs = []
+            for st in self.sensors:
+                b = d.bands if st.columns is None else d.bands[..., st.index_of_columns]
+                C, st.band_state = self.bands(b, st.band_state)
+                Cs.append(C)
+            quad = d.bands[:, self.bands.quadrature_band]
         # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
-        im2 = (d.couplings.imag ** 2).sum(axis=1)
-        ab2 = (d.couplings.real ** 2).sum(axis=1) + im2
+        im2 = (quad.imag ** 2).sum(axis=1)
+        ab2 = (quad.real ** 2).sum(axis=1) + im2
         if self._blocks:                        # equal consecutive blocks: one pass
             k = len(self.sensors)
             num = np.sqrt(im2.reshape(n, k, -1).sum(axis=2))

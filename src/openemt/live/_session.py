@@ -21,6 +21,7 @@ import numpy as np
 from .._constants import SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
 from .._result import Result
+from ..solve import BAND_METHODS
 from ._tracker_file import TrackerSpec
 
 __all__ = ["TrackOptions", "TrackResult", "TrackingSession", "tracker_backend",
@@ -132,6 +133,11 @@ class TrackOptions:
     distortion_threshold: float | None = _opt(None, "quadrature ratio above which a sample is "
                                               "flagged distorted and not sent (default: the "
                                               "tracker file's, else 1e-3)")
+    bands: str | None = _opt(None, "couplings to solve from the carrier bands: fast, slow, "
+                             "fuse (the fast band corrected from the slow one through a "
+                             "low-pass), eddy-free, auto (fuse where the tracker has bands; "
+                             "default: the tracker file's [solve] bands, else auto)",
+                             choices=BAND_METHODS)
     quiet: bool = field(default=False, metadata={"cli": False})
 
     def __post_init__(self):
@@ -506,7 +512,8 @@ class TrackingSession:
             send_distorted=o.send_distorted, reference=spec.reference,
             stale_after=spec.stale_after if o.stale_after is None else o.stale_after,
             tdata=bool(o.tdata or spec.tdata), igtl_metadata=spec.metadata and o.metadata,
-            registration=spec.registration, witnesses=spec.witnesses)
+            registration=spec.registration, witnesses=spec.witnesses,
+            bands=o.bands or spec.solve_bands, band_time_constant=spec.band_time_constant)
 
     def __enter__(self) -> TrackingSession:
         from ._backends import StallWatch

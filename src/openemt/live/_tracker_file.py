@@ -315,6 +315,9 @@ class TrackerSpec:
     registration_path: Path | None = None
     witnesses: tuple = ()
     bands: tuple = ()
+    #: ``[solve] bands`` and ``band_time_constant`` (:class:`openemt.solve.BandStage`)
+    solve_bands: str = "auto"
+    band_time_constant: float = 0.1
     #: where the ADC's frames come from (``[adc] source``: ``serial:PORT[@BAUD]`` or
     #: ``tcp://HOST:PORT``, docs/live.md#serial-and-network-acquisition), the default of
     #: ``track --source``; None: none configured
@@ -555,7 +558,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     base = path.parent if path is not None else Path(".")
     r = _Reader(where)
     _unknown_keys(r, doc, "", ("format", "version", "adc", "source", "demodulation", "sensors",
-                               "filter", "simulation", "igtl", "navigation", "witness"))
+                               "filter", "simulation", "igtl", "navigation", "witness",
+                               "solve"))
     fmt = r.get(doc, "", "format", "string")
     if fmt != TRACKER_FORMAT:
         raise r.fail("format", repr(TRACKER_FORMAT), repr(fmt))
@@ -767,6 +771,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     igtl_rate = None
     if "rate" in ig:
         igtl_rate = check_rate(r.get(ig, "igtl", "rate", "number"), f"{where}: `igtl.rate`")
+    solve_bands, band_tc = _solve_section(r, doc, bands)
     witnesses = []
     for i, t in enumerate(r.get(doc, "", "witness", "list of tables", [])):
         pre = f"witness[{i}]"
@@ -802,6 +807,7 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
                        stale_after=stale, tdata=tdata, metadata=metadata,
                        header_version=header_version, rate=igtl_rate,
                        bands=tuple(tuple(b) for b in bands), witnesses=tuple(witnesses),
+                       solve_bands=solve_bands, band_time_constant=band_tc,
                        adc_source=adc_source)
     try:
         if registration is not None:
@@ -837,6 +843,26 @@ def _carriers(r, src) -> tuple[list, list]:
         raise r.fail("source.frequencies", "the same number of carrier bands for every coil",
                      [len(c) for c in per_coil])
     return [c[0] for c in per_coil], [[c[b] for c in per_coil] for b in range(1, n)]
+
+
+def _solve_section(r, doc, bands) -> tuple[str, float]:
+    """``[solve]``: ``bands`` (the couplings each sensor solves from the carrier bands,
+    :data:`openemt.solve.BAND_METHODS`) and ``band_time_constant`` (s, the fusion's
+    low-pass)."""
+    from ..solve import BAND_METHODS, DEFAULT_BAND_TIME_CONSTANT_S
+
+    sol = r.get(doc, "", "solve", "table", {})
+    _unknown_keys(r, sol, "solve", ("bands", "band_time_constant"))
+    method = r.get(sol, "solve", "bands", "string", "auto")
+    if method not in BAND_METHODS:
+        raise r.fail("solve.bands", " or ".join(repr(m) for m in BAND_METHODS), repr(method))
+    if not bands and method not in ("auto", "fast"):
+        raise r.fail("solve.bands", "'auto' or 'fast' for carriers of one band (several bands: "
+                     "source.frequencies as [[fast, slow], ...] per coil)", repr(method))
+    tc = r.get(sol, "solve", "band_time_constant", "number", DEFAULT_BAND_TIME_CONSTANT_S)
+    if not 0 <= tc < 3600:
+        raise r.fail("solve.band_time_constant", "a number of seconds in [0, 3600)", tc)
+    return method, float(tc)
 
 
 def _metal_scene(r, spec, base: Path):

@@ -6,7 +6,15 @@ calibration or a model and one options record (:class:`SolveOptions`).
 See docs/solve.md for the algorithms, status codes, SNR definition and benchmarks.
 """
 
-from ._bands import eddy_free_couplings, fuse_bands
+from ._bands import (
+    BAND_METHODS,
+    DEFAULT_BAND_TIME_CONSTANT_S,
+    BandReader,
+    BandStage,
+    eddy_free_couplings,
+    fuse_bands,
+    resolve_bands,
+)
 from ._closed_form import solve_kim18, solve_kuipers, solve_svd, spectral_norms
 from ._crb import cramer_rao, solver_covariance
 from ._factory import SOLVER_FAMILIES, prepare
@@ -31,6 +39,10 @@ from ._workflow import (
 )
 
 __all__ = [
+    "BAND_METHODS",
+    "BandReader",
+    "BandStage",
+    "DEFAULT_BAND_TIME_CONSTANT_S",
     "GridData",
     "POSES_SCHEMA",
     "PlanarErrors",
@@ -55,6 +67,7 @@ __all__ = [
     "planar_errors",
     "prepare",
     "read_poses",
+    "resolve_bands",
     "pose_from_axis",
     "refine_poses",
     "rig_hemispheres",

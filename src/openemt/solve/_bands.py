@@ -30,7 +30,19 @@ Band fusion
 :func:`fuse_bands` follows the fast band and corrects it from the slow one, as ILEMT does:
 ``fused = fast + lowpass(slow - fast)``; a first-order low-pass of time constant
 ``time_constant`` keeps the fast band's bandwidth for motion and the slow band's immunity to
-eddy currents for the slowly changing difference.
+eddy currents for the slowly changing difference. Streamed block by block (the low-pass state
+carried from one block to the next, ``state=``), it gives the batch result on the
+concatenated stream.
+
+The couplings to solve
+----------------------
+:class:`BandStage` is the one place where ``solve`` and ``track`` turn a sample's band
+couplings into the real couplings the pose solver takes (``bands`` = :data:`BAND_METHODS`):
+``fast`` (the highest band), ``slow`` (the lowest), ``fuse`` (above; rows in time order only)
+or ``eddy-free`` (:func:`eddy_free_couplings` on the samples whose fast-band quadrature ratio
+exceeds the distortion threshold, the fast band elsewhere). ``auto`` (the default):
+``fuse`` where the rows are a time series at a known rate (``track``, a recording), else
+band 0 as without bands (docs/live.md#carrier-bands gives the reasons).
 """
 
 from __future__ import annotations
@@ -39,7 +51,15 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["eddy_free_couplings", "fuse_bands"]
+__all__ = ["BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "BandReader", "BandStage",
+           "band_dataset_shape", "eddy_free_couplings", "fuse_bands", "resolve_bands"]
+
+#: The choices of ``bands`` (``--bands``, the tracker file's ``[solve] bands``).
+BAND_METHODS = ("auto", "fast", "slow", "fuse", "eddy-free")
+#: Default time constant (s) of the low-pass of ``fuse``: about 15 samples at the default
+#: output rate; a slower one lags the eddy change of a moving sensor, a faster one passes more
+#: of the slow band's noise.
+DEFAULT_BAND_TIME_CONSTANT_S = 0.1
 
 
 def _bands(C, f, n_source: int | None = None):
@@ -118,11 +138,16 @@ def eddy_free_couplings(band_couplings, band_frequencies, *, slow=None, fast=Non
     return (C0, tau) if return_tau else C0
 
 
-def fuse_bands(fast, slow, *, time_constant: float, rate: float) -> np.ndarray:
+def fuse_bands(fast, slow, *, time_constant: float, rate: float, state=None,
+               return_state: bool = False):
     """``fast + lowpass(slow - fast)`` along the first (time) axis: a causal first-order
     low-pass of time constant ``time_constant`` (s) at ``rate`` samples per second, started
     at the first difference. ``fast`` and ``slow`` are any arrays of equal shape (couplings
-    ``(N, n_source, n_sensor)`` or pose vectors ``(N, 6)``)."""
+    ``(N, n_source, n_sensor)`` or pose vectors ``(N, 6)``).
+
+    ``state``: the low-pass output of the sample before this block (None: a new stream);
+    with ``return_state`` the result and the state after the block, so that a stream fused
+    block by block equals the batch result on the concatenated stream."""
     a, b = np.asarray(fast, dtype=np.float64), np.asarray(slow, dtype=np.float64)
     if a.shape != b.shape or a.ndim < 1:
         raise InputError(f"expected fast and slow arrays of one shape, got {a.shape} and "
@@ -134,10 +159,218 @@ def fuse_bands(fast, slow, *, time_constant: float, rate: float) -> np.ndarray:
     alpha = 1.0 - np.exp(-1.0 / (tc * r)) if tc > 0 else 1.0
     d = b - a
     if len(d) == 0:
-        return a.copy()
-    from scipy.signal import lfilter
+        return (a.copy(), state) if return_state else a.copy()
+    prev = d[0] if state is None else np.asarray(state, dtype=np.float64)
+    if prev.shape != d.shape[1:]:
+        raise InputError(f"expected a fusion state of shape {d.shape[1:]}, got {prev.shape}")
+    if len(d) <= 8:                         # a live read: a few samples, no filter set-up
+        low = np.empty_like(d)
+        y = prev
+        for k in range(len(d)):
+            y = y + alpha * (d[k] - y)
+            low[k] = y
+    else:
+        from scipy.signal import lfilter
 
-    zi = (1 - alpha) * d[0]
-    low, _ = lfilter([alpha], [1.0, alpha - 1.0], d, axis=0, zi=zi[None] if d.ndim > 1 else
-                     np.atleast_1d(zi))
-    return a + low
+        zi = (1 - alpha) * prev
+        low, _ = lfilter([alpha], [1.0, alpha - 1.0], d, axis=0,
+                         zi=zi[None] if d.ndim > 1 else np.atleast_1d(zi))
+    out = a + low
+    return (out, low[-1].copy()) if return_state else out
+
+
+def resolve_bands(method: str, n_bands: int, *, ordered: bool, rate=None,
+                  where: str = "--bands") -> str | None:
+    """The band method to use for couplings of ``n_bands`` carrier bands: ``method`` from
+    :data:`BAND_METHODS` with ``auto`` resolved (``fuse`` for rows in time order at a known
+    ``rate``, else None); None means band 0 as it is (one band, or ``auto`` on unordered
+    rows). Refuses a method the data cannot serve, naming ``where``."""
+    m = str(method).strip().lower()
+    if m not in BAND_METHODS:
+        raise InputError(f"expected {where} in {', '.join(BAND_METHODS)}, got {method!r}")
+    if n_bands < 2:
+        if m in ("auto", "fast"):
+            return None
+        raise InputError(f"expected couplings of two or more carrier bands for {where} {m}, "
+                         f"got one band")
+    if m == "auto":
+        return "fuse" if ordered and rate else None
+    if m == "fuse" and not ordered:
+        raise InputError(f"expected rows in time order (a recording or a live stream) for "
+                         f"{where} fuse, got rows that are not a recording (use slow, fuse's "
+                         f"steady state, or eddy-free)")
+    if m == "fuse" and not rate:
+        raise InputError(f"expected a known sample rate for {where} fuse (the recording's "
+                         f"meta sample_rate_hz), got none")
+    return m
+
+
+class BandStage:
+    """The couplings to solve from a block of band couplings (module docstring).
+
+    Parameters
+    ----------
+    method : str
+        ``fast``, ``slow``, ``fuse`` or ``eddy-free`` (resolved: :func:`resolve_bands`).
+    frequencies : array (n_bands, n_source)
+        The carriers (Hz) of the bands.
+    time_constant, rate : float
+        The low-pass of ``fuse`` (s) and the samples' rate (Hz).
+    quadrature_threshold : float
+        ``eddy-free``: the fast-band quadrature ratio above which a sample is corrected.
+    signed : bool
+        The ``solve`` command's reading of a dataset: ``fast`` and ``slow`` give the band's
+        complex couplings as they are (the solver takes ``sign(Re z)|z|`` and normalises its
+        residual by the complex norm, as for band 0 without bands) and ``fuse`` fuses
+        ``sign(Re z)|z|``; else the in-phase part ``Re z`` throughout (the live pipeline's).
+    """
+
+    def __init__(self, method: str, frequencies, *, time_constant: float =
+                 DEFAULT_BAND_TIME_CONSTANT_S, rate: float | None = None,
+                 quadrature_threshold: float = 1e-3, signed: bool = False):
+        if method not in BAND_METHODS[1:]:
+            raise InputError(f"expected a band method in {', '.join(BAND_METHODS[1:])}, got "
+                             f"{method!r}")
+        f = np.asarray(frequencies, dtype=np.float64)
+        if f.ndim != 2 or len(f) < 2 or not np.all(np.isfinite(f)) or np.any(f <= 0):
+            raise InputError(f"expected band frequencies (n_bands >= 2, n_source), positive, "
+                             f"got {f.tolist()}")
+        tc = float(time_constant)
+        if not (np.isfinite(tc) and tc >= 0):
+            raise InputError(f"expected a band time constant >= 0 (s), got {time_constant!r}")
+        if method == "fuse" and not (rate is not None and np.isfinite(rate) and rate > 0):
+            raise InputError(f"expected a positive sample rate for band fusion, got {rate!r}")
+        self.method, self.frequencies, self.time_constant = method, f, tc
+        self.rate = None if rate is None else float(rate)
+        self.quadrature_threshold = float(quadrature_threshold)
+        self.signed = bool(signed)
+        mean = f.mean(axis=1)
+        self.fast, self.slow = int(np.argmax(mean)), int(np.argmin(mean))
+        #: the band whose quadrature ratio flags a sample: the slow band where its couplings
+        #: are what is solved (slow, fuse), else the fast band
+        self.quadrature_band = self.slow if method in ("slow", "fuse") else self.fast
+
+    def _real(self, C):
+        if not self.signed:
+            return np.ascontiguousarray(C.real)
+        from ..io import signed_real
+
+        return signed_real(C)
+
+    def __call__(self, bands, state=None):
+        """``(couplings (N, n_source, n_sensor) real, state)`` of band couplings ``(N,
+        n_bands, n_source, n_sensor)`` (complex); ``state`` is the stream's state after the
+        previous block (None at its start; only ``fuse`` keeps one)."""
+        B = np.asarray(bands)
+        if B.ndim != 4 or B.shape[1] != len(self.frequencies) \
+                or B.shape[2] != self.frequencies.shape[1]:
+            raise InputError(f"expected band couplings (N, {len(self.frequencies)}, "
+                             f"{self.frequencies.shape[1]}, n_sensor), got {B.shape}")
+        m = self.method
+        if m == "fast" or m == "slow":
+            C = B[:, self.fast if m == "fast" else self.slow]
+            return (C if self.signed else np.ascontiguousarray(C.real)), state
+        if m == "fuse":
+            return fuse_bands(self._real(B[:, self.fast]), self._real(B[:, self.slow]),
+                              time_constant=self.time_constant, rate=self.rate, state=state,
+                              return_state=True)
+        fast = B[:, self.fast]
+        out = self._real(fast)
+        q = np.sqrt((fast.imag ** 2).sum(axis=(1, 2)) / np.maximum(
+            (np.abs(fast) ** 2).sum(axis=(1, 2)), np.finfo(float).tiny))
+        hit = q > self.quadrature_threshold
+        if hit.any():
+            out = out.copy()
+            out[hit] = eddy_free_couplings(B[hit], self.frequencies, slow=self.slow,
+                                           fast=self.fast)
+        return out, state
+
+
+#: Where a dataset file keeps its band couplings: ``extra/couplings_bands`` as two parts
+#: (complex) or as it is (real).
+_BAND_PARTS = ("extra/couplings_bands_real", "extra/couplings_bands_imag")
+_BAND_REAL = "extra/couplings_bands"
+
+
+def band_dataset_shape(f) -> tuple | None:
+    """The shape ``(N, n_bands, n_source, n_sensor)`` of the band couplings of an open
+    dataset file ``f`` (h5py), or None where it has none."""
+    d = f.get(_BAND_PARTS[0], f.get(_BAND_REAL))
+    return tuple(d.shape) if d is not None and len(d.shape) == 4 else None
+
+
+class BandReader:
+    """Lazy row-block access to a dataset file's band couplings turned into the couplings to
+    solve by a :class:`BandStage`: an array-like ``(N, n_source, n_sensor)`` float64 that
+    :func:`openemt.solve.solve_to_file` slices block by block (here or on a cluster: it
+    pickles by path).
+
+    For ``fuse`` the low-pass state at every block start (multiples of ``block_rows``) is
+    found by one pass over the file when the reader is made, so each block is computed on its
+    own and the whole equals the batch fusion of the stream."""
+
+    def __init__(self, path, stage: BandStage, block_rows: int):
+        from pathlib import Path
+
+        self.path, self.stage, self.rows = Path(path), stage, int(block_rows)
+        self._file = None
+        f = self._open()
+        n, nb, nso, nse = band_dataset_shape(f)
+        if nb != len(stage.frequencies):
+            raise InputError(f"{self.path}: expected {len(stage.frequencies)} carrier bands "
+                             f"(meta band_frequencies_hz), got {nb} in extra/couplings_bands")
+        self.shape, self.ndim = (n, nso, nse), 3
+        self.dtype = np.dtype(np.complex128 if stage.signed and stage.method in ("fast", "slow")
+                              else np.float64)
+        self._states: dict = {0: None}
+        if stage.method == "fuse":
+            state = None
+            for a in range(0, n, self.rows):
+                _, state = stage(self._raw(a, min(a + self.rows, n)), state)
+                self._states[a + self.rows] = state
+
+    def _open(self):
+        if self._file is None:
+            import h5py
+
+            self._file = h5py.File(self.path, "r")
+            if band_dataset_shape(self._file) is None:
+                self._file.close()
+                self._file = None
+                raise InputError(f"{self.path}: expected band couplings "
+                                 f"(extra/couplings_bands), got none")
+        return self._file
+
+    def _raw(self, a: int, b: int) -> np.ndarray:
+        f = self._open()
+        if _BAND_PARTS[0] not in f:                # real band couplings: no quadrature
+            return f[_BAND_REAL][a:b].astype(np.complex128)
+        out = f[_BAND_PARTS[0]][a:b].astype(np.complex128)
+        if _BAND_PARTS[1] in f:
+            out.imag = f[_BAND_PARTS[1]][a:b]
+        return out
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key) -> np.ndarray:
+        if not isinstance(key, slice) or key.step not in (None, 1):
+            raise InputError(f"expected a row slice of band couplings, got {key!r}")
+        a, b, _ = key.indices(self.shape[0])
+        if self.stage.method != "fuse":
+            return self.stage(self._raw(a, b))[0]
+        start = max(k for k in self._states if k <= a)
+        state = self._states[start]
+        if start < a:                       # a start off the block grid: run up to it
+            state = self.stage(self._raw(start, a), state)[1]
+        return self.stage(self._raw(a, b), state)[0]
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d["_file"] = None
+        return d
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None

@@ -15,6 +15,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import Result
+from ._bands import BAND_METHODS, DEFAULT_BAND_TIME_CONSTANT_S
 from ._factory import SOLVERS
 from ._hemisphere import DEFAULT_HEMISPHERE, hemisphere_vectors
 from ._validity import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
@@ -61,6 +62,15 @@ class SolveFileOptions:
                                 "are out_of_volume")
     no_correction: bool = _opt(False, "do not apply the calibration's linear output "
                                "correction")
+    bands: str = _opt(
+        "auto", "carrier bands of a dataset with band couplings: fast, slow, fuse (the fast "
+        "band corrected from the slow one through a low-pass; rows in time order), eddy-free "
+        "(extrapolated to zero frequency where the quadrature flags eddy currents); 'auto' "
+        "(default): fuse on a recording with a sample rate, else band 0 as without bands",
+        choices=BAND_METHODS)
+    band_time_constant: float = _opt(
+        DEFAULT_BAND_TIME_CONSTANT_S, "time constant of the fuse low-pass in seconds "
+        f"(default {DEFAULT_BAND_TIME_CONSTANT_S})")
     chunk_rows: int = _opt(262144, "rows per block")
     scheduler: str | None = _opt(
         None, "dask.distributed scheduler address (default: local, in process); the workers "
@@ -103,9 +113,10 @@ class SolveFileResult(Result):
     hemispheres: dict | None = None
     accuracy: dict | None = None
     initial_given: bool = False
+    bands: str | None = None
 
     _OPTIONAL = ("hemisphere", "initial", "recording", "cold_retries", "hemispheres",
-                 "accuracy")
+                 "accuracy", "bands")
 
     def _items(self) -> dict:
         return {k: v for k, v in super()._items().items()
@@ -131,6 +142,8 @@ class SolveFileResult(Result):
                                    for code, a in axes.items()))
         elif self.hemisphere is not None:
             out.append(f"hemisphere: {self.hemisphere}")
+        if self.bands is not None:
+            out.append(f"carrier bands: {self.bands} (--bands)")
         out.append("status: " + ", ".join(f"{k} {v}" for k, v in self.status_counts.items()
                                           if v))
         out += [f"  {f['status']} {f['rows']}: {f['reason']}" for f in self.failed]
@@ -208,6 +221,13 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
         if per_fixture:
             hemisphere = fixtures
         recording = _is_recording(side, is_recording)
+        bands = _band_stage(o, side, dipole, recording)
+        if bands is not None:
+            from ._bands import BandReader
+
+            solved_rows = BandReader(o.dataset, bands, o.chunk_rows)
+        else:
+            solved_rows = reader
         initial = None
         if dipole and o.solver == "lm":
             initial = rule["initial"] = o.initial or ("track" if recording else "kim18")
@@ -220,10 +240,11 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
                                                          "dof": model.dof}),
                 "correction_applied": applied,
                 **({"board": model.board.name} if hasattr(model, "board") else {}),
-                **({"initial": initial} if initial is not None else {})}
+                **({"initial": initial} if initial is not None else {}),
+                **({"bands": bands.method} if bands is not None else {})}
         if on_start is not None:
             on_start(n, "solver" if dipole else "finite-coil")
-        done = solve_to_file(reader, cal, o.output, chunk_rows=o.chunk_rows,
+        done = solve_to_file(solved_rows, cal, o.output, chunk_rows=o.chunk_rows,
                              scheduler=o.scheduler, solver=o.solver, hemisphere=hemisphere,
                              apply_correction=not o.no_correction, meta=meta,
                              groups=None if fixtures is None else
@@ -244,7 +265,46 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
         recording=recording if initial is not None else None,
         cold_retries=done.cold_retries if initial is not None else None,
         hemispheres=fixtures.hemisphere_summary() if per_fixture else None,
-        accuracy=accuracy, initial_given=o.initial is not None)
+        accuracy=accuracy, initial_given=o.initial is not None,
+        bands=None if bands is None else bands.method)
+
+
+def _meta(side) -> dict:
+    text = side.attrs.get("meta")
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", "replace")
+    try:
+        d = json.loads(text) if isinstance(text, str) else {}
+    except ValueError:
+        return {}
+    return d if isinstance(d, dict) else {}
+
+
+def _band_stage(o: SolveFileOptions, side, dipole: bool, recording: bool):
+    """The :class:`~openemt.solve.BandStage` of ``--bands`` for the open dataset ``side``, or
+    None where band 0 is solved as it is."""
+    from ._bands import BandStage, band_dataset_shape, resolve_bands
+
+    shape = band_dataset_shape(side)
+    n_bands = 1 if shape is None else int(shape[1])
+    meta = _meta(side)
+    rec = meta.get("recording") if isinstance(meta.get("recording"), dict) else {}
+    rate = rec.get("sample_rate_hz")
+    rate = float(rate) if isinstance(rate, (int, float)) and rate > 0 else None
+    if not dipole:
+        if o.bands == "auto" or n_bands < 2:
+            return None if o.bands in ("auto", "fast") else resolve_bands(
+                o.bands, n_bands, ordered=recording, rate=rate)
+        raise InputError(f"expected --bands auto with a finite-coil board calibration (its "
+                         f"solver takes band 0), got --bands {o.bands}")
+    method = resolve_bands(o.bands, n_bands, ordered=recording, rate=rate)
+    if method is None:
+        return None
+    f = meta.get("band_frequencies_hz")
+    if f is None:
+        raise InputError(f"{o.dataset}: expected the carriers of its bands (meta "
+                         f"band_frequencies_hz) for --bands {o.bands}, got none")
+    return BandStage(method, f, time_constant=o.band_time_constant, rate=rate, signed=True)
 
 
 def _is_recording(side, is_recording) -> bool:

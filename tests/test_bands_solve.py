@@ -1,0 +1,217 @@
+"""The carrier bands in the solver: one band stage for ``solve`` and ``track`` (fast, slow,
+fuse, eddy-free), streamed block by block as in one batch, and what it does near a conductive
+object and in a clean workspace."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from openemt._errors import InputError
+from openemt.solve import BandStage, fuse_bands, resolve_bands
+
+#: band 0 fast (ILEMT's), band 1 slow
+BANDS = [[7500.0, 10500.0, 13500.0], [274.0, 334.0, 370.0]]
+#: a short stainless tube as one loop (radius 50 mm, 5 mm wire radius), 50 mm beside the
+#: simulated rig's sensor volume, facing it
+RING = {"object": [{"kind": "ring", "material": "stainless_steel",
+                    "position": [0.101, 0.244, 0.015], "rotation": [0.0, np.pi / 2, 0.0],
+                    "radius": 0.05, "wire_radius": 0.005}]}
+
+
+def _random_bands(n, rng, eddy=0.02):
+    C0 = rng.standard_normal((n, 3, 3))
+    B = np.repeat(C0[:, None], 2, axis=1).astype(complex)
+    B += eddy * (rng.standard_normal(B.shape) + 1j * rng.standard_normal(B.shape))
+    return B
+
+
+def test_fusion_streamed_block_by_block_equals_the_batch():
+    rng = np.random.default_rng(3)
+    B = _random_bands(200, rng)
+    stage = BandStage("fuse", BANDS, time_constant=0.05, rate=150.0)
+    whole, _ = stage(B)
+    # the batch function on the concatenated stream
+    np.testing.assert_allclose(whole, fuse_bands(B[:, 0].real, B[:, 1].real,
+                                                 time_constant=0.05, rate=150.0),
+                               rtol=0, atol=1e-12)
+    parts, state, a = [], None, 0
+    for size in (1, 1, 3, 8, 9, 50, 2, 126):          # live reads and long blocks
+        C, state = stage(B[a:a + size], state)
+        parts.append(C)
+        a += size
+    assert a == len(B)
+    np.testing.assert_allclose(np.concatenate(parts), whole, rtol=0, atol=1e-12)
+    # a fresh stream starts again on its first difference
+    np.testing.assert_allclose(stage(B[50:60])[0][0], B[50, 1].real, atol=1e-12)
+
+
+def test_band_stage_methods():
+    rng = np.random.default_rng(4)
+    B = _random_bands(20, rng)
+    B[:10].imag = 0                                   # no quadrature: not corrected
+    slow_first = [BANDS[1], BANDS[0]]                 # the bands in any order
+    np.testing.assert_array_equal(BandStage("fast", slow_first)(B[:, ::-1])[0], B[:, 0].real)
+    np.testing.assert_array_equal(BandStage("slow", BANDS)(B)[0], B[:, 1].real)
+    np.testing.assert_array_equal(BandStage("slow", BANDS, signed=True)(B)[0], B[:, 1])
+    ef = BandStage("eddy-free", BANDS)(B)[0]
+    np.testing.assert_array_equal(ef[:10], B[:10, 0].real)
+    assert not np.allclose(ef[10:], B[10:, 0].real)
+    assert BandStage("fuse", BANDS, rate=1.0).quadrature_band == 1
+    assert BandStage("eddy-free", BANDS).quadrature_band == 0
+    with pytest.raises(InputError, match="band couplings"):
+        BandStage("slow", BANDS)(B[:, :1])
+    with pytest.raises(InputError, match="sample rate"):
+        BandStage("fuse", BANDS)
+
+
+def test_resolve_bands():
+    assert resolve_bands("auto", 2, ordered=True, rate=150.0) == "fuse"
+    assert resolve_bands("auto", 2, ordered=False, rate=None) is None
+    assert resolve_bands("auto", 1, ordered=True, rate=150.0) is None
+    assert resolve_bands("fast", 1, ordered=False) is None
+    assert resolve_bands("eddy-free", 2, ordered=False) == "eddy-free"
+    with pytest.raises(InputError, match="two or more carrier bands for --bands slow"):
+        resolve_bands("slow", 1, ordered=True, rate=1.0)
+    with pytest.raises(InputError, match="time order"):
+        resolve_bands("fuse", 2, ordered=False, rate=1.0)
+    with pytest.raises(InputError, match="--bands in auto"):
+        resolve_bands("mean", 2, ordered=True)
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """The simulated rig's stage pattern near the stainless ring and without it (two
+    bands), each also as a recording at 50 samples/s, and the truth calibration."""
+    from openemt.io import recording_meta, write_calibration, write_dataset
+    from openemt.simulate import simulate, truth_calibration
+
+    d = tmp_path_factory.mktemp("bands")
+    kw = dict(source_fixtures="YoutZup", sensor_fixtures="YoutZup", stage_sigma=0,
+              bands=BANDS)
+    for name, metal in (("ring", RING), ("clean", None)):
+        data = simulate("dipole-approx", "md", metal=metal, **kw)
+        write_dataset(data, d / f"{name}.h5")
+        rec = dataclasses.replace(data, meta={**data.meta,
+                                              "recording": recording_meta(50.0, "test")})
+        write_dataset(rec, d / f"{name}-rec.h5")
+    write_calibration(truth_calibration("dipole-approx"), d / "cal.json")
+    return d, data.poses
+
+
+def _solve(rig, name, bands, **kw):
+    from openemt.evaluate import pose_error_magnitudes
+    from openemt.solve import SolveFileOptions, read_poses, solve_file
+
+    d, truth = rig
+    out = d / f"{name}-{bands}-{len(kw)}.h5"
+    res = solve_file(SolveFileOptions(dataset=d / f"{name}.h5", calibration=d / "cal.json",
+                                      output=out, bands=bands, max_relative_residual=0.5,
+                                      **kw))
+    poses = read_poses(out)
+    assert poses.valid.all()
+    t, _ = pose_error_magnitudes(poses.poses, truth)
+    return res, poses, float(np.sqrt(np.mean(t ** 2)))
+
+
+def test_solve_with_bands_near_a_conductive_ring(rig):
+    res, _, fast = _solve(rig, "ring", "auto")        # not a recording: band 0 as it is
+    assert res.bands is None and "bands" not in res.to_dict()
+    for method in ("slow", "eddy-free"):
+        res, _, err = _solve(rig, "ring", method)
+        assert res.to_dict()["bands"] == method
+        assert err < fast / 10, (method, err, fast)
+    with pytest.raises(InputError, match="time order"):
+        _solve(rig, "ring", "fuse")
+
+
+def test_solve_with_bands_in_a_clean_workspace(rig):
+    _, base, fast = _solve(rig, "clean", "fast")
+    _, same, _ = _solve(rig, "clean", "eddy-free")    # no quadrature: nothing corrected
+    np.testing.assert_array_equal(same.poses, base.poses)
+    _, _, slow = _solve(rig, "clean", "slow")
+    assert slow < fast + 1e-5, (slow, fast)           # the same poses within 10 um
+
+
+def test_solve_fuses_a_recording_block_by_block(rig):
+    from openemt.solve import BandReader
+
+    res, _, _ = _solve(rig, "ring-rec", "auto")
+    assert res.bands == "fuse"
+    # every row solved on its own (no warm start across blocks): the poses follow the
+    # fused couplings alone, whatever the blocks (to the LM's stopping tolerance)
+    _, whole, _ = _solve(rig, "ring-rec", "fuse", initial="kim18")
+    _, blocks, _ = _solve(rig, "ring-rec", "fuse", initial="kim18", chunk_rows=7)
+    np.testing.assert_allclose(blocks.poses, whole.poses, rtol=0, atol=1e-8)
+    d, _ = rig
+    stage = BandStage("fuse", BANDS, rate=50.0, signed=True)
+    one = BandReader(d / "ring-rec.h5", stage, 10_000)[0:142]
+    seven = BandReader(d / "ring-rec.h5", stage, 7)
+    np.testing.assert_allclose(np.concatenate([seven[a:a + 7] for a in range(0, 142, 7)]),
+                               one, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(seven[10:30], one[10:30], rtol=0, atol=1e-12)  # off the grid
+
+
+def _tracker(tmp_path, metal: str | None, bands: str | None = None):
+    """The shipped simulated tracker driven at two bands (slow band 275 / 325 / 375 Hz, whole
+    cycles of the 50 Hz output's frames, clear of the simulated mains harmonics)."""
+    folder = resources.files("openemt.live") / "trackers"
+    text = (folder / "simulated.toml").read_text()
+    text = text.replace("frequencies = [7500.0, 10500.0, 13500.0]",
+                        "frequencies = [[7500.0, 275.0], [10500.0, 325.0], [13500.0, 375.0]]")
+    text = text.replace("output_rate = 1500.0", "output_rate = 50.0")
+    if metal is not None:
+        text = text.replace('preset = "concentric"', f'preset = "concentric"\nmetal = "{metal}"')
+    if bands is not None:
+        text += f'\n[solve]\nbands = "{bands}"\n'
+    shutil.copy(folder / "concentric.json", tmp_path / "concentric.json")
+    (tmp_path / "ring.toml").write_text(
+        # a stainless ring (short tube) 90 mm beside the simulated sensor's path
+        '[[object]]\nkind = "ring"\nmaterial = "stainless_steel"\n'
+        'position = [0.2, 0.09, 0.0]\nrotation = [1.5707963, 0.0, 0.0]\n'
+        'radius = 0.04\nwire_radius = 0.004\n')
+    (tmp_path / "t.toml").write_text(text)
+    return tmp_path / "t.toml"
+
+
+def _track(path, bands=None):
+    from openemt.live import TrackingSession, TrackOptions
+
+    o = TrackOptions(tracker=path, duration=1.0, fast=True, igtl_port=0, bands=bands,
+                     quiet=True)
+    with TrackingSession.from_tracker(path, o) as session:
+        return session.run().to_dict()
+
+
+def test_track_sim_with_bands_near_a_conductive_ring(tmp_path):
+    from openemt.live import read_tracker
+
+    path = _tracker(tmp_path, "ring.toml", bands="eddy-free")
+    assert read_tracker(path).solve_bands == "eddy-free"
+    err = {b: _track(path, b)["truth"]["position_error_mm_rms"]
+           for b in ("fast", "auto", "eddy-free")}
+    assert err["auto"] < err["fast"] / 3, err          # auto: fusion
+    assert err["eddy-free"] < err["fast"] / 10, err
+    clean = _tracker(tmp_path, None)
+    got = {b: _track(clean, b)["truth"]["position_error_mm_rms"] for b in ("fast", "auto")}
+    # without metal: the same poses within the slow band's noise (0.1 mm)
+    assert got["auto"] < got["fast"] + 0.1, got
+
+
+def test_tracker_file_solve_section(tmp_path):
+    from openemt.live import read_tracker
+
+    path = _tracker(tmp_path, None)
+    assert read_tracker(path).solve_bands == "auto"
+    text = path.read_text()
+    path.write_text(text + '\n[solve]\nbands = "mean"\n')
+    with pytest.raises(InputError, match="solve.bands"):
+        read_tracker(path)
+    one = (resources.files("openemt.live") / "trackers" / "simulated.toml").read_text()
+    path.write_text(one + '\n[solve]\nbands = "fuse"\n')
+    with pytest.raises(InputError, match="carriers of one band"):
+        read_tracker(path)
