@@ -67,8 +67,11 @@ __all__ = ["METAL_KINDS", "METAL_SCENES", "MetalObject", "MetalScene", "Motion",
 
 #: Object kinds of a metal scene.
 METAL_KINDS = ("sphere", "disk", "plate", "sheet", "ring")
-#: Named scenes (:func:`metal_scene`), the metal benchmark's scenes.
-METAL_SCENES = ("clean", "aluminium_sheet", "steel_plate", "moving_ring")
+#: Named scenes (:func:`metal_scene`), the metal benchmark's scenes: the four of the metal
+#: benchmark's targets, then conductive-only objects whose eddy response the carrier bands
+#: separate (thin or poorly conducting: stainless steel, titanium).
+METAL_SCENES = ("clean", "aluminium_sheet", "steel_plate", "moving_ring", "stainless_sheet",
+                "titanium_sheet", "titanium_disk", "stainless_ring")
 MOTION_KINDS = ("fixed", "linear", "periodic", "waypoints")
 #: Most objects of one scene (bounded work: each object is evaluated on every sample).
 MAX_SCENE_OBJECTS = 100
@@ -756,6 +759,13 @@ def metal_scene(name: str, volume=None) -> MetalScene:
     - ``moving_ring``: a C-arm-like carbon-steel ring (radius 0.3 m, 25 mm wire radius) in a
       plane 150 mm beside the volume (+x), its centre moving along y through +-0.3 m about
       the volume's centre (period 120 s).
+    - ``stainless_sheet`` / ``titanium_sheet``: the aluminium sheet's geometry (2 mm,
+      infinite, 100 mm under the volume) in stainless steel (AISI 304) / titanium (grade 2).
+    - ``titanium_disk``: a titanium disk (grade 2), 200 mm across and 2 mm thick, 50 mm under
+      the volume, centred under it.
+    - ``stainless_ring``: a stainless-steel ring (radius 50 mm, 5 mm wire radius: the
+      circulating eddy current of a short stainless tube as one loop, a stand-in for ILEMT's
+      stainless-tube measurement) in a plane 50 mm beside the volume (+x), facing it.
     """
     lo, hi = rig_volume() if volume is None else (np.asarray(v, float) for v in volume)
     mid = 0.5 * (lo + hi)
@@ -774,6 +784,17 @@ def metal_scene(name: str, volume=None) -> MetalScene:
                             motion=Motion("periodic", amplitude=(0.0, 0.3, 0.0),
                                           period_s=120.0),
                             name="C-arm ring"),)
+    elif name in ("stainless_sheet", "titanium_sheet"):
+        mat = name.split("_")[0].replace("stainless", "stainless_steel")
+        objs = (MetalObject("sheet", mat, (mid[0], mid[1], lo[2] - 0.1), thickness=0.002,
+                            name=name.replace("_", " ")),)
+    elif name == "titanium_disk":
+        objs = (MetalObject("disk", "titanium", (mid[0], mid[1], lo[2] - 0.05), radius=0.1,
+                            thickness=0.002, name="titanium disk"),)
+    elif name == "stainless_ring":
+        objs = (MetalObject("ring", "stainless_steel", (hi[0] + 0.05, mid[1], mid[2]),
+                            (0.0, np.pi / 2, 0.0), radius=0.05, wire_radius=0.005,
+                            name="stainless ring"),)
     else:
         raise InputError(f"expected a metal scene name in {list(METAL_SCENES)} or a scene "
                          f"file (.toml), got {name!r}")
