@@ -181,7 +181,7 @@ def _tracker(tmp_path, metal: str | None, bands: str | None = None):
 def _track(path, bands=None):
     from openemt.live import TrackingSession, TrackOptions
 
-    o = TrackOptions(tracker=path, duration=1.0, fast=True, igtl_port=0, bands=bands,
+    o = TrackOptions(tracker=path, duration=0.7, fast=True, igtl_port=0, bands=bands,
                      quiet=True)
     with TrackingSession.from_tracker(path, o) as session:
         return session.run().to_dict()
@@ -215,3 +215,51 @@ def test_tracker_file_solve_section(tmp_path):
     path.write_text(one + '\n[solve]\nbands = "fuse"\n')
     with pytest.raises(InputError, match="carriers of one band"):
         read_tracker(path)
+
+
+def test_cole_cole_extrapolation_recovers_a_broadened_relaxation():
+    """C_b = C0 + k (i w tau)^a / (1 + (i w tau)^a), k per entry, tau and a per sample (on
+    the estimator's grid): C0 comes back; a = 1 is the single relaxation."""
+    from openemt.solve import cole_cole_couplings
+
+    rng = np.random.default_rng(5)
+    n = 6
+    C0 = rng.standard_normal((n, 3, 3))
+    k = 0.3 * rng.standard_normal((n, 3, 3))
+    tau = np.array([1e-5, 1e-4, 1e-3, 1e-4, 1e-2, 1e-3])[:, None, None]
+    a = np.array([0.5, 0.6, 1.0, 0.8, 0.7, 0.35])[:, None, None]
+    f = np.array(BANDS)
+    B = np.stack([C0 + k * (1j * 2 * np.pi * f[b][None, :, None] * tau) ** a
+                  / (1 + (1j * 2 * np.pi * f[b][None, :, None] * tau) ** a)
+                  for b in range(2)], axis=1)
+    out, t, alpha = cole_cole_couplings(B, f, return_params=True)
+    np.testing.assert_allclose(out, C0, atol=1e-8)
+    np.testing.assert_allclose(t, tau[:, 0, 0], rtol=1e-9)
+    np.testing.assert_allclose(alpha, a[:, 0, 0], atol=1e-12)
+
+
+def test_solve_cli_bands_errors(rig, tmp_path, capsys):
+    """``openemt solve --bands``: a choice the dataset cannot serve is one error line, exit
+    2, no output file; --json names the bands used."""
+    import json
+
+    from openemt.cli import main
+    from openemt.io import write_dataset
+    from openemt.simulate import simulate
+
+    d, _ = rig
+    one = tmp_path / "one.h5"
+    write_dataset(simulate("dipole-approx", "md", source_fixtures="YoutZup",
+                           sensor_fixtures="YoutZup", stage_sigma=0), one)
+    out = tmp_path / "p.h5"
+    for data, bands, what in ((one, "slow", "two or more carrier bands"),
+                              (d / "ring.h5", "fuse", "time order")):
+        assert main(["solve", str(data), "-c", str(d / "cal.json"), "-o", str(out),
+                     "--bands", bands, "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and what in err[0], err
+        assert not out.exists()
+    assert main(["solve", str(d / "ring.h5"), "-c", str(d / "cal.json"), "-o", str(out),
+                 "--bands", "eddy-free", "--max-relative-residual", "0.5", "--json",
+                 "--quiet"]) == 0
+    assert json.loads(capsys.readouterr().out)["bands"] == "eddy-free"

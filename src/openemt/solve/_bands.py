@@ -52,7 +52,7 @@ import numpy as np
 from .._errors import InputError
 
 __all__ = ["BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "BandReader", "BandStage",
-           "band_dataset_shape", "eddy_free_couplings", "fuse_bands", "resolve_bands"]
+           "band_dataset_shape", "cole_cole_couplings", "eddy_free_couplings", "fuse_bands", "resolve_bands"]
 
 #: The choices of ``bands`` (``--bands``, the tracker file's ``[solve] bands``).
 BAND_METHODS = ("auto", "fast", "slow", "fuse", "eddy-free")
@@ -136,6 +136,51 @@ def eddy_free_couplings(band_couplings, band_frequencies, *, slow=None, fast=Non
     t_ij = (d_re * d_q + mu * tau[:, None, None]) / np.where(d_q**2 + mu > 0, d_q**2 + mu, 1.0)
     C0 = Cs.real - ws * t_ij * Cs.imag
     return (C0, tau) if return_tau else C0
+
+
+def cole_cole_couplings(band_couplings, band_frequencies, *, taus=None, alphas=None,
+                        return_params: bool = False):
+    """The couplings extrapolated to zero frequency with a broadened relaxation per sample:
+    ``(N, n_source, n_sensor)`` real (with ``return_params`` also ``tau`` and ``alpha`` per
+    sample).
+
+    Per entry ``C_b = C0 + k g(w_b)`` with a real strength ``k`` and the Cole-Cole form
+    ``g(w) = (i w tau)^alpha / (1 + (i w tau)^alpha)`` shared by the sample's entries
+    (``alpha = 1``: the single relaxation of :func:`eddy_free_couplings`). An infinite sheet
+    responds with a spread of time constants (one per spatial wavenumber of the source field),
+    which ``alpha < 1`` follows. Every band's in-phase and quadrature parts enter (two or more
+    bands); for each ``(tau, alpha)`` of the grid (``taus``: default 120 values from 1 us to
+    0.1 s; ``alphas``: default 0.3 to 1 in steps of 0.05) ``C0`` and ``k`` are linear least
+    squares per entry, and the pair with the smallest residual over the sample's entries is
+    kept. Same premises as :func:`eddy_free_couplings` (phase-calibrated couplings, no
+    ferromagnetic object)."""
+    C, f = _bands(band_couplings, band_frequencies)
+    taus = np.logspace(-6, -1, 121) if taus is None else np.asarray(taus, dtype=np.float64)
+    alphas = np.arange(0.3, 1.0001, 0.05) if alphas is None else \
+        np.asarray(alphas, dtype=np.float64)
+    n, nb, nso = C.shape[0], C.shape[1], C.shape[2]
+    w = 2 * np.pi * f                                          # (nb, nso)
+    y = np.concatenate([C.real, C.imag], axis=1)               # (N, 2 nb, nso, nse)
+    best = np.full(n, np.inf)
+    out = C[:, int(np.argmin(f.mean(axis=1)))].real.copy()
+    t_best, a_best = np.zeros(n), np.ones(n)
+    A = np.zeros((nso, 2 * nb, 2))
+    A[:, :nb, 0] = 1.0
+    for a in alphas:
+        for t in taus:
+            z = (1j * w * t) ** a
+            g = z / (1 + z)                                    # (nb, nso)
+            A[:, :nb, 1] = g.real.T
+            A[:, nb:, 1] = g.imag.T
+            x = np.einsum("iab,nbij->naij", np.linalg.pinv(A), y)
+            r = y - np.einsum("iab,nbij->naij", A, x)
+            ss = np.einsum("nbij,nbij->n", r, r)
+            hit = ss < best
+            if hit.any():
+                best[hit] = ss[hit]
+                out[hit] = x[hit, 0]
+                t_best[hit], a_best[hit] = t, a
+    return (out, t_best, a_best) if return_params else out
 
 
 def fuse_bands(fast, slow, *, time_constant: float, rate: float, state=None,
