@@ -192,8 +192,11 @@ def test_track_sim_with_bands_near_a_conductive_ring(tmp_path):
 
     path = _tracker(tmp_path, "ring.toml", bands="eddy-free")
     assert read_tracker(path).solve_bands == "eddy-free"
-    err = {b: _track(path, b)["truth"]["position_error_mm_rms"]
-           for b in ("fast", "auto", "eddy-free")}
+    runs = {b: _track(path, b) for b in ("fast", "auto", "eddy-free")}
+    assert runs["auto"]["bands"] == {"method": "fuse", "time_constant_s": 0.1,
+                                     "frequencies_hz": [[7500.0, 10500.0, 13500.0],
+                                                        [275.0, 325.0, 375.0]]}
+    err = {b: r["truth"]["position_error_mm_rms"] for b, r in runs.items()}
     assert err["auto"] < err["fast"] / 3, err          # auto: fusion
     assert err["eddy-free"] < err["fast"] / 10, err
     clean = _tracker(tmp_path, None)

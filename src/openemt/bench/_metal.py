@@ -238,9 +238,15 @@ def _scene(name, args, model, rng) -> dict:
     res0 = _solve(model, fast)
     raw = _errors(res0.poses, Pte)
     out = {"methods": {"uncompensated": _summary(raw)}}
-    env_model, k, evidence = _environment(model, Ptr, Ctr[:, 0], args.max_dipoles, rng)
-    out["methods"]["environment"] = _summary(_errors(_solve(env_model, fast).poses, Pte))
-    out["environment"] = {"dipoles": k, "validation_rms_coupling": evidence}
+    from .._errors import InputError
+
+    try:
+        env_model, k, evidence = _environment(model, Ptr, Ctr[:, 0], args.max_dipoles, rng)
+    except InputError as exc:                 # the fit refused its own result: say so
+        out["environment"] = {"error": str(exc)}
+    else:
+        out["methods"]["environment"] = _summary(_errors(_solve(env_model, fast).poses, Pte))
+        out["environment"] = {"dipoles": k, "validation_rms_coupling": evidence}
     witness_m = None
     if moving:
         Pw = _witness_poses(lo, hi, args.witnesses)

@@ -1264,6 +1264,11 @@ class TrackingPipeline:
                  "distortion_level": _level_summary(sum(st.level_counts
                                                         for st in self.sensors)),
                  "acquisition": self.acquisition()}
+        if self.bands is not None:                 # what the carrier bands gave the solver
+            extra["bands"] = {"method": self.bands.method,
+                              "frequencies_hz": self.bands.frequencies.tolist(),
+                              **({"time_constant_s": self.bands.time_constant}
+                                 if self.bands.method == "fuse" else {})}
         if k > 1:
             extra["sensors"] = per
         elif per[self.sensors[0].setup.name]["filter"] is not None:
