@@ -305,3 +305,23 @@ def test_live_fusion_state_per_sensor_equals_the_batch(tmp_path):
     got = np.concatenate(seen)
     assert len(got) == len(batch) > 10
     np.testing.assert_allclose(got, batch, rtol=0, atol=1e-12 * np.abs(batch).max())
+
+
+def test_a_bad_sample_does_not_end_the_fusion():
+    """A sample whose band difference is not finite keeps the low-pass state: the samples
+    after it fuse as if it had not come (the live stream goes on); it gets its fast band
+    plus the last low-passed difference (NaN where its fast band is not finite)."""
+    rng = np.random.default_rng(6)
+    B = _random_bands(30, rng)
+    bad = B.copy()
+    bad[10, 1, 0, 0] = np.nan
+    bad[20, 0, 2, 1] = np.inf
+    stage = BandStage("fuse", BANDS, time_constant=0.05, rate=150.0)
+    out, _ = stage(bad)
+    ok = np.isfinite(out).all(axis=(1, 2))
+    assert ok.sum() == 29 and not ok[20]
+    skip = np.delete(B, [10, 20], axis=0)
+    fused = stage(skip)[0]
+    np.testing.assert_allclose(np.delete(out, [10, 20], axis=0), fused, atol=1e-12)
+    np.testing.assert_allclose(out[10], B[10, 0].real + fused[9] - skip[9, 0].real,
+                               atol=1e-12)

@@ -52,6 +52,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--framing-cases", type=int, default=300,
                         help="damaged ADC frame streams fed to the frame decoder "
                              "(openemt_fuzz._fuzzframing) (300)")
+    parser.add_argument("--bands-cases", type=int, default=300,
+                        help="generated carrier-band inputs for the solver's band stage "
+                             "(openemt_fuzz._fuzzbands) (300)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0,
                         help="seconds one case may take before it counts as a hang (30)")
@@ -162,6 +165,12 @@ def run(args) -> dict:
     with progress(total=n_frm, desc="ADC framing", args=args, unit="case") as bar:
         framing = fuzz_framing(n_frm, args.seed, progress=bar.update)
 
+    from ._fuzzbands import fuzz_bands
+
+    n_bands = max(0, getattr(args, "bands_cases", 0) or 0)
+    with progress(total=n_bands, desc="carrier bands", args=args, unit="case") as bar:
+        bands = fuzz_bands(n_bands, args.seed, time_limit=args.time_limit, progress=bar.update)
+
     def bad(counts):
         return {k: sum(c.get(k, 0) for c in counts.values()) for k in _BAD}
 
@@ -171,6 +180,7 @@ def run(args) -> dict:
         + hostile.get("findings", 0) + navigate["findings"] + corrections["findings"] \
         + reference["findings"] + metal["findings"]
     findings += framing["findings"]
+    findings += bands["findings"]
     return {
         "reader_cases": args.reader_cases,
         "cli_cases": args.cli_cases,
@@ -192,6 +202,7 @@ def run(args) -> dict:
         "hostile_references": reference,
         "metal": metal,
         "framing": framing,
+        "bands": bands,
         "examples": examples + solvers.get("examples", []),
         "seconds_files": round(t_files, 1),
         "seconds_total": round(time.perf_counter() - t0, 1),

@@ -192,7 +192,9 @@ def fuse_bands(fast, slow, *, time_constant: float, rate: float, state=None,
 
     ``state``: the low-pass output of the sample before this block (None: a new stream);
     with ``return_state`` the result and the state after the block, so that a stream fused
-    block by block equals the batch result on the concatenated stream."""
+    block by block equals the batch result on the concatenated stream. A sample whose
+    difference is not finite leaves the state unchanged (its output: ``fast`` plus the last
+    low-passed difference; NaN before the first finite one)."""
     a, b = np.asarray(fast, dtype=np.float64), np.asarray(slow, dtype=np.float64)
     if a.shape != b.shape or a.ndim < 1:
         raise InputError(f"expected fast and slow arrays of one shape, got {a.shape} and "
@@ -205,21 +207,29 @@ def fuse_bands(fast, slow, *, time_constant: float, rate: float, state=None,
     d = b - a
     if len(d) == 0:
         return (a.copy(), state) if return_state else a.copy()
-    prev = d[0] if state is None else np.asarray(state, dtype=np.float64)
-    if prev.shape != d.shape[1:]:
-        raise InputError(f"expected a fusion state of shape {d.shape[1:]}, got {prev.shape}")
-    if len(d) <= 8:                         # a live read: a few samples, no filter set-up
+    if state is not None:
+        state = np.asarray(state, dtype=np.float64)
+        if state.shape != d.shape[1:]:
+            raise InputError(f"expected a fusion state of shape {d.shape[1:]}, got "
+                             f"{state.shape}")
+    good = np.isfinite(d.reshape(len(d), -1)).all(axis=1)
+    if len(d) <= 8 or not good.all():
+        # a live read (a few samples, no filter set-up), or samples with a non-finite
+        # difference: those leave the state as it is (their output: fast + the last
+        # difference), so one bad sample does not end the fusion of the stream
         low = np.empty_like(d)
-        y = prev
+        y = state
         for k in range(len(d)):
-            y = y + alpha * (d[k] - y)
-            low[k] = y
-    else:
-        from scipy.signal import lfilter
+            if good[k]:
+                y = d[k] if y is None else y + alpha * (d[k] - y)
+            low[k] = np.nan if y is None else y
+        out = a + low
+        return (out, None if y is None else np.array(y)) if return_state else out
+    from scipy.signal import lfilter
 
-        zi = (1 - alpha) * prev
-        low, _ = lfilter([alpha], [1.0, alpha - 1.0], d, axis=0,
-                         zi=zi[None] if d.ndim > 1 else np.atleast_1d(zi))
+    zi = (1 - alpha) * (d[0] if state is None else state)
+    low, _ = lfilter([alpha], [1.0, alpha - 1.0], d, axis=0,
+                     zi=zi[None] if d.ndim > 1 else np.atleast_1d(zi))
     out = a + low
     return (out, low[-1].copy()) if return_state else out
 
