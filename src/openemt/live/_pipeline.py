@@ -593,7 +593,8 @@ class TrackingPipeline:
                                                       "`distortion_threshold`")
         lay = backend.layout
         method = resolve_bands(cfg.bands, lay.n_bands, ordered=True,
-                               rate=self.demod.output_rate, where="`bands`")
+                               rate=self.demod.output_rate,
+                               where="--bands or the tracker file's [solve] bands")
         self.bands = None if method is None else BandStage(
             method, lay.band_frequencies, time_constant=cfg.band_time_constant,
             rate=self.demod.output_rate, quadrature_threshold=self.distortion_threshold)

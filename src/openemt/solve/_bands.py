@@ -242,20 +242,21 @@ def resolve_bands(method: str, n_bands: int, *, ordered: bool, rate=None,
     rows). Refuses a method the data cannot serve, naming ``where``."""
     m = str(method).strip().lower()
     if m not in BAND_METHODS:
-        raise InputError(f"expected {where} in {', '.join(BAND_METHODS)}, got {method!r}")
+        raise InputError(f"expected a band method ({where}) in {', '.join(BAND_METHODS)}, got "
+                         f"{method!r}")
     if n_bands < 2:
         if m in ("auto", "fast"):
             return None
-        raise InputError(f"expected couplings of two or more carrier bands for {where} {m}, "
+        raise InputError(f"expected couplings of two or more carrier bands for {m} ({where}), "
                          f"got one band")
     if m == "auto":
         return "fuse" if ordered and rate else None
     if m == "fuse" and not ordered:
         raise InputError(f"expected rows in time order (a recording or a live stream) for "
-                         f"{where} fuse, got rows that are not a recording (use slow, fuse's "
+                         f"fuse ({where}), got rows that are not a recording (use slow, fuse's "
                          f"steady state, or eddy-free)")
     if m == "fuse" and not rate:
-        raise InputError(f"expected a known sample rate for {where} fuse (the recording's "
+        raise InputError(f"expected a known sample rate for fuse ({where}; the recording's "
                          f"meta sample_rate_hz), got none")
     return m
 
