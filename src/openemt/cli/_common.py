@@ -9,7 +9,7 @@ from collections.abc import Iterable
 from typing import Any
 
 __all__ = ["add_command", "add_common", "add_options", "emit", "options_from", "progress",
-           "run_workflow", "say", "stage", "to_jsonable"]
+           "run_workflow", "say", "stage", "to_jsonable", "workflow_command"]
 
 
 def add_command(sub, name: str, func=None, options=None, only=None, **kwargs):
@@ -53,6 +53,20 @@ def run_workflow(args, workflow, options_cls, **values) -> int:
     result = workflow(options_from(options_cls, args, **values), say=say(args))
     emit(args, result.to_dict(), result.lines())
     return getattr(result, "exit_status", 0)
+
+
+def workflow_command(name: str, package: str, options: str, workflow: str):
+    """``register(sub)`` of a command that is one workflow of ``openemt.<package>``: the
+    options record ``options`` as its options, :func:`run_workflow` of ``workflow`` as what it
+    runs (both imported when the command is registered)."""
+    def register(sub) -> None:
+        import importlib
+
+        mod = importlib.import_module(f"openemt.{package}")
+        cls, run = getattr(mod, options), getattr(mod, workflow)
+        add_command(sub, name, lambda args: run_workflow(args, run, cls), cls)
+
+    return register
 
 
 def add_common(parser) -> None:
