@@ -16,7 +16,7 @@ from ..correct import ApplyOptions, FitOptions, apply_correction_file, fit_corre
 from . import command_help
 from ._common import add_common, add_options, emit, options_from
 
-__all__ = ["register", "run_apply", "run_fit"]
+__all__ = ["register"]
 
 
 def register(sub) -> None:
@@ -24,31 +24,20 @@ def register(sub) -> None:
                        description=__doc__.splitlines()[0])
     actions = p.add_subparsers(dest="action", metavar="ACTION")
     actions.required = True
-    f = actions.add_parser("fit", help="fit a correction to pose pairs (CSV)")
-    add_options(f, FitOptions)
-    add_common(f)
-    f.set_defaults(func=run_fit)
-    a = actions.add_parser("apply", help="apply a correction to poses inside its fitted box")
-    add_options(a, ApplyOptions)
-    add_common(a)
-    a.set_defaults(func=run_apply)
+    for name, help_, options, workflow in (
+            ("fit", "fit a correction to pose pairs (CSV)", FitOptions, fit_correction_files),
+            ("apply", "apply a correction to poses inside its fitted box", ApplyOptions,
+             apply_correction_file)):
+        a = actions.add_parser(name, help=help_)
+        add_options(a, options)
+        add_common(a)
+        a.set_defaults(func=lambda args, o=options, w=workflow: _run(args, o, w))
 
 
-def _warn(args, warnings) -> None:
+def _run(args, options, workflow) -> int:
+    res = workflow(options_from(options, args))
+    emit(args, res.to_dict(), res.lines())
     if not args.quiet:
-        for w in warnings:
+        for w in res.warnings:
             print(f"warning: {w}", file=sys.stderr)
-
-
-def run_fit(args) -> int:
-    res = fit_correction_files(options_from(FitOptions, args))
-    emit(args, res.to_dict(), res.lines())
-    _warn(args, res.warnings)
-    return 0
-
-
-def run_apply(args) -> int:
-    res = apply_correction_file(options_from(ApplyOptions, args))
-    emit(args, res.to_dict(), res.lines())
-    _warn(args, res.warnings)
     return 0
