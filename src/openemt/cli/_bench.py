@@ -16,8 +16,8 @@ def register(sub) -> None:
     bsub = add_command(sub, "bench").add_subparsers(dest="bench", metavar="NAME")
     bsub.required = True
     # reached by name: bench is the layer above the command line
-    for name, (module, help_) in importlib.import_module("openemt.bench").BENCHMARKS.items():
-        mod = importlib.import_module(module)
+    for name, help_ in importlib.import_module("openemt.bench").BENCHMARKS.items():
+        mod = importlib.import_module(f"openemt.bench._{name}")
         mod.add_arguments(add_command(bsub, name, _runner(mod), help=help_))
 
 
