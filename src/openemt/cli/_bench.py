@@ -9,7 +9,8 @@ from __future__ import annotations
 import importlib
 import json
 
-from ._common import add_command, emit, to_jsonable
+from .._result import json_ready
+from ._common import add_command, emit
 
 
 def register(sub) -> None:
@@ -25,7 +26,7 @@ def _runner(mod):
     def run(args) -> int:
         summary = mod.run(args)
         # without --json the same summary goes to stderr, readable
-        emit(args, summary, json.dumps(to_jsonable(summary), indent=2).splitlines())
+        emit(args, summary, json.dumps(json_ready(summary), indent=2).splitlines())
         return 0
 
     return run

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from collections.abc import Iterable
-from typing import Any
 
 __all__ = ["add_command", "add_common", "add_options", "emit", "options_from", "progress",
-           "run_workflow", "say", "stage", "to_jsonable", "workflow_command"]
+           "run_workflow", "say", "stage", "workflow_command"]
 
 
 def add_command(sub, name: str, func=None, options=None, only=None, **kwargs):
@@ -153,25 +151,12 @@ def options_from(options_cls, args, **values):
     return options_cls(**{**given, **values})
 
 
-def to_jsonable(obj: Any) -> Any:
-    """``obj`` in plain JSON types (:func:`openemt._result.plain`), with paths as strings and
-    non-finite floats as null."""
-    from .._result import plain
-
-    obj = plain(obj)
-    if isinstance(obj, dict):
-        return {k: to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return str(obj) if hasattr(obj, "__fspath__") else obj
-
-
 def emit(args, summary: dict, human: Iterable[str] = ()) -> None:
     """Print the summary: JSON on stdout with ``--json``; human lines on stderr unless quiet."""
     if getattr(args, "json", False):
-        sys.stdout.write(json.dumps(to_jsonable(summary), indent=2) + "\n")
+        from .._result import json_ready
+
+        sys.stdout.write(json.dumps(json_ready(summary), indent=2) + "\n")
         sys.stdout.flush()
     if not getattr(args, "quiet", False):
         for line in human:

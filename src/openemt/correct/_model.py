@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from .._result import Result
+from .._result import Result, json_ready
 from ..evaluate import error_summary
 from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
@@ -250,20 +250,6 @@ def _warnings(method: str, n: int, params: dict, held: dict | None) -> tuple[lis
     return out, worse, req
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
-
-
 def _v1_box(method: str, model) -> FitBox | None:
     """The fitted box of a version-1 file (which did not store it), where the parameters
     determine it: an RBF's centres, a grid's or Bernstein basis's own box; None (unknown) for
@@ -426,9 +412,9 @@ class Correction:
 
     def to_dict(self) -> dict:
         return {"format": _FORMAT, "version": _VERSION, "method": self.method,
-                "params": _jsonable(self.params),
+                "params": json_ready(self.params),
                 "box": None if self.box is None else self.box.to_dict(),
-                "stats": _jsonable(self.stats), "meta": _jsonable(self.meta)}
+                "stats": json_ready(self.stats), "meta": json_ready(self.meta)}
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "") -> Correction:
