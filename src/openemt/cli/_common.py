@@ -6,7 +6,7 @@ import json
 import sys
 from collections.abc import Iterable
 
-__all__ = ["add_command", "add_common", "add_options", "emit", "options_from", "progress",
+__all__ = ["add_actions", "add_command", "add_common", "add_options", "emit", "options_from", "progress",
            "run_workflow", "say", "stage", "workflow_command"]
 
 
@@ -65,6 +65,27 @@ def workflow_command(name: str, package: str, options: str, workflow: str):
         add_command(sub, name, lambda args: run_workflow(args, run, cls), cls)
 
     return register
+
+
+def add_actions(parser, actions) -> None:
+    """Sub-commands ``ACTION`` of ``parser``, one per ``(name, help, options record,
+    workflow)``: the record's fields as options; running one calls ``workflow(options)`` and
+    prints its result (:func:`emit`) and, unless ``--quiet``, its ``warnings``."""
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    for name, help_, options, workflow in actions:
+        a = sub.add_parser(name, help=help_)
+        add_options(a, options)
+        add_common(a)
+        a.set_defaults(func=lambda args, o=options, w=workflow: _run_action(args, o, w))
+
+
+def _run_action(args, options, workflow) -> int:
+    result = workflow(options_from(options, args))
+    emit(args, result.to_dict(), result.lines())
+    if not getattr(args, "quiet", False):
+        for w in getattr(result, "warnings", ()):
+            print(f"warning: {w}", file=sys.stderr)
+    return 0
 
 
 def add_common(parser) -> None:

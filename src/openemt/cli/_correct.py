@@ -10,11 +10,9 @@ row. The workflows are :func:`openemt.correct.fit_correction_files` and
 
 from __future__ import annotations
 
-import sys
-
 from ..correct import ApplyOptions, FitOptions, apply_correction_file, fit_correction_files
 from . import command_help
-from ._common import add_common, add_options, emit, options_from
+from ._common import add_actions
 
 __all__ = ["register"]
 
@@ -22,22 +20,7 @@ __all__ = ["register"]
 def register(sub) -> None:
     p = sub.add_parser("correct", help=command_help("correct"),
                        description=__doc__.splitlines()[0])
-    actions = p.add_subparsers(dest="action", metavar="ACTION")
-    actions.required = True
-    for name, help_, options, workflow in (
-            ("fit", "fit a correction to pose pairs (CSV)", FitOptions, fit_correction_files),
-            ("apply", "apply a correction to poses inside its fitted box", ApplyOptions,
-             apply_correction_file)):
-        a = actions.add_parser(name, help=help_)
-        add_options(a, options)
-        add_common(a)
-        a.set_defaults(func=lambda args, o=options, w=workflow: _run(args, o, w))
-
-
-def _run(args, options, workflow) -> int:
-    res = workflow(options_from(options, args))
-    emit(args, res.to_dict(), res.lines())
-    if not args.quiet:
-        for w in res.warnings:
-            print(f"warning: {w}", file=sys.stderr)
-    return 0
+    add_actions(p, (
+        ("fit", "fit a correction to pose pairs (CSV)", FitOptions, fit_correction_files),
+        ("apply", "apply a correction to poses inside its fitted box", ApplyOptions,
+         apply_correction_file)))
