@@ -10,8 +10,8 @@ _SOURCES = {
     "._motion": ("MIN_SECOND_AXIS_DEG", "RotationDiversity", "require_rotation_diversity",
                  "rotation_diversity"),
     "._pose": ("adjoint", "check_points", "check_pose_vectors", "check_poses", "compose",
-               "error_magnitudes", "invert", "left_jacobian_so3", "pose_error", "pose_from_rt",
-               "pose_from_vector", "rotation_x", "rotation_y", "rotation_z", "rotvec_between",
-               "skew", "vector_from_pose"),
+               "error_magnitudes", "invert", "left_jacobian_so3", "nearest_rotation", "pose_error",
+               "pose_from_rt", "pose_from_vector", "rotation_x", "rotation_y", "rotation_z",
+               "rotvec_between", "skew", "vector_from_pose"),
 }
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)
