@@ -136,12 +136,13 @@ def test_sigterm_ends_a_live_session_like_ctrl_c(tmp_path):
 
 
 def test_a_bug_is_not_reported_as_bad_input(monkeypatch, capsys):
-    import openemt.cli._datasets as cmd
+    import openemt.datasets as workflow
 
-    def broken(args):
+    def broken(options, say=None):
         raise KeyError("center")
 
-    monkeypatch.setattr(cmd, "run", broken)
+    # the bug inside the command's workflow (the command module only registers it)
+    monkeypatch.setattr(workflow, "check_datasets", broken)
     assert main(["datasets"]) == 1
     err = capsys.readouterr().err
     assert "Traceback" in err and "KeyError" in err

@@ -39,6 +39,14 @@ def _imports(root: Path = SRC) -> dict[str, set[str]]:
                     deps.add(sub if sub in modules else target)
             elif isinstance(node, ast.Import):
                 deps.update(a.name for a in node.names)
+            elif isinstance(node, ast.Assign) and isinstance(node.value, ast.Dict) and \
+                    [getattr(t, "id", None) for t in node.targets] == ["_SOURCES"]:
+                # a lazy package's table (openemt._lazy): module -> the names it provides
+                for key in node.value.keys:
+                    rel = key.value
+                    level = len(rel) - len(rel.lstrip("."))
+                    base = package.split(".")[:len(package.split(".")) - level + 1]
+                    deps.add(".".join(base + [rel.lstrip(".")]))
         graph[name] = {d for d in deps if d in modules and d != name}
     return graph
 

@@ -66,20 +66,8 @@ _ATTRIBUTES = {
     "read_markups": ("navigate", "read_markups"),
 }
 
-__all__ = [  # noqa: RUF022 - version, then the subpackages in pipeline order, then the names
-    "__version__",
-    "geometry", "field", "board", "simulate", "io", "signal", "solve", "calibrate", "correct",
-    "align", "evaluate", "navigate", "paper", "report", "live", "collect", "view", "bench", "datasets",
-    "design",
-    "Calibration", "CalibrationFit", "Dataset", "DipoleModel", "ErrorSummary", "SolveResult",
-    "Status", "assess_grid", "error_summary",
-    "fit_calibration", "fit_correction", "import_ilemt_folder", "pose_errors",
-    "pivot_calibration", "pose_from_vector", "read_calibration", "read_dataset",
-    "read_ilemt_calibration", "read_markups", "register_points", "register_points_batch",
-    "solve_kim18", "solve_kuipers", "solve_lm", "solve_svd", "spin_calibration",
-    "vector_from_pose",
-    "write_calibration", "write_dataset",
-]
+#: the version, then the subpackages in pipeline order, then the names
+__all__ = ["__version__", *SUBPACKAGES, *_ATTRIBUTES]
 
 
 def __getattr__(name: str):

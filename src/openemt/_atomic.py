@@ -42,7 +42,7 @@ from pathlib import Path
 
 from ._errors import InputError
 
-__all__ = ["atomic_path", "check_output_path", "check_outputs", "new_temporary",
+__all__ = ["atomic_path", "check_output_path", "check_outputs", "file_kind", "new_temporary",
            "remove_stale_temporaries", "resolve_output"]
 
 # the process umask, read once at import (setting it to read it is not thread-safe later)
@@ -128,7 +128,8 @@ def remove_stale_temporaries(path) -> list[Path]:
     return removed
 
 
-def _kind(mode: int) -> str:
+def file_kind(mode: int) -> str:
+    """What a file of ``os.stat`` mode ``mode`` that is not a regular file is, in words."""
     for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
                        (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
                        (stat.S_ISSOCK, "a socket")):
@@ -165,7 +166,7 @@ def resolve_output(output, *, folder: bool = False, check_datasets: bool = True)
         ok = stat.S_ISDIR(st.st_mode) if folder else stat.S_ISREG(st.st_mode)
         if not ok:
             raise InputError(f"expected {want} for output, got {str(given)!r}, which is "
-                             f"{_kind(st.st_mode)} (not replaced)")
+                             f"{file_kind(st.st_mode)} (not replaced)")
     real = Path(os.path.realpath(given))
     if check_datasets:
         _refuse_datasets(given, real)

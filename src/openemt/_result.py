@@ -9,12 +9,13 @@ plain Python) that the command line prints with ``--json``. Indexing a result li
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from typing import Any, ClassVar
 
 import numpy as np
 
-__all__ = ["DictResult", "Result", "plain"]
+__all__ = ["DictResult", "Result", "json_ready", "plain"]
 
 
 def plain(value: Any) -> Any:
@@ -31,6 +32,19 @@ def plain(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def json_ready(value: Any) -> Any:
+    """:func:`plain` ``value`` for strict JSON: non-finite floats become None (null), paths
+    strings."""
+    value = plain(value)
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [json_ready(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return str(value) if hasattr(value, "__fspath__") else value
 
 
 class Result:

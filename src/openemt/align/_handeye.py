@@ -38,7 +38,13 @@ from scipy.stats import chi2
 
 from .._errors import InputError
 from ..evaluate import pose_error_magnitudes
-from ..geometry import check_poses, invert, pose_from_rt, require_rotation_diversity
+from ..geometry import (
+    check_poses,
+    invert,
+    nearest_rotation,
+    pose_from_rt,
+    require_rotation_diversity,
+)
 
 __all__ = [
     "MIN_PAIRS",
@@ -56,13 +62,6 @@ MIN_PAIRS = 3
 OUTLIER_P = 1e-3
 #: Folds of the held-out check (fewer when there are fewer pairs).
 HELD_OUT_FOLDS = 5
-
-
-def _rot(R: np.ndarray) -> np.ndarray:
-    """Nearest rotation matrix (SVD projection, det +1)."""
-    U, _, Vt = np.linalg.svd(R)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
 def axyb_closed_form(A, B) -> tuple[np.ndarray, np.ndarray]:
@@ -91,7 +90,7 @@ def axyb_closed_form(A, B) -> tuple[np.ndarray, np.ndarray]:
         raise InputError("expected pose pairs whose rotations determine X and Y, got a "
                          "degenerate set (all rotations about one axis or none)")
     alpha = np.sign(det) * abs(det) ** (-1.0 / 3.0)
-    Rx, Ry = _rot(alpha * Vx), _rot(alpha * Vy)
+    Rx, Ry = nearest_rotation(alpha * Vx), nearest_rotation(alpha * Vy)
     C = np.zeros((3 * n, 6))
     d = np.zeros(3 * n)
     for i in range(n):

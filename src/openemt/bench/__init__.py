@@ -9,31 +9,23 @@ Solver benchmarks:
 
 __all__: list[str] = []
 
-#: ``openemt bench`` NAME -> (module, one-line help)
+#: ``openemt bench`` NAME (the module ``openemt.bench._NAME``) -> one-line help
 BENCHMARKS = {
-    "noise": ("openemt.bench._noise",
-              "the noise protocol of Teixeira Silva et al. 2017: solver accuracy vs SNR next to the Cramer-Rao bound"),
-    "speed": ("openemt.bench._speed",
-              "poses/s per solver on one core vs per-pose scipy least_squares"),
-    "demod": ("openemt.bench._demod", "demodulator realtime factor, accuracy, mains rejection"),
-    "track": ("openemt.bench._track", "live pipeline latency and position noise vs the CRB"),
-    "metal": ("openemt.bench._metal",
-              "metal scenes: held-out pose error with no compensation, environment terms, "
-              "witness sensors and two bands, and the distortion level's ROC area"),
-    "correct": ("openemt.bench._correct",
-                "output corrections on a simulated distortion: held-out vs in-sample"),
-    "hybrid": ("openemt.bench._hybrid",
-               "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs"),
-    "collect": ("openemt.bench._collect",
-                "collect on a simulated robot over OpenIGTLink, then calibrate: offset, dwells, held-out error vs the simulate path"),
-    "reference": ("openemt.bench._reference",
-                  "reference calibration per row weighting: held-out error against the "
-                  "simulation's truth on the same poses"),
-    "fuzz": ("openemt.bench._fuzz",
-             "fuzzed files for every reader and command and couplings for every solver"),
-    "compile": ("openemt.bench._compile",
-                "numba compile time per kernel in a fresh process (empty cache) and cached"),
-    "batch": ("openemt.bench._batch",
-              "openemt solve file to file: a 1500/s recording warm-started vs cold, and "
-              "poses/s per LocalCluster worker count (--workers 1,2)"),
+    "noise": "the noise protocol of Teixeira Silva et al. 2017: solver accuracy vs SNR next to the "
+             "Cramer-Rao bound",
+    "speed": "poses/s per solver on one core vs per-pose scipy least_squares",
+    "demod": "demodulator realtime factor, accuracy, mains rejection",
+    "track": "live pipeline latency and position noise vs the CRB",
+    "metal": "metal scenes: held-out pose error with no compensation, environment terms, witness "
+             "sensors and two bands, and the distortion level's ROC area",
+    "correct": "output corrections on a simulated distortion: held-out vs in-sample",
+    "hybrid": "EM vs optical tracker: AX = YB alignment and auto correction for 10-300 pairs",
+    "collect": "collect on a simulated robot over OpenIGTLink, then calibrate: offset, dwells, "
+               "held-out error vs the simulate path",
+    "reference": "reference calibration per row weighting: held-out error against the simulation's "
+                 "truth on the same poses",
+    "fuzz": "fuzzed files for every reader and command and couplings for every solver",
+    "compile": "numba compile time per kernel in a fresh process (empty cache) and cached",
+    "batch": "openemt solve file to file: a 1500/s recording warm-started vs cold, and poses/s per "
+             "LocalCluster worker count (--workers 1,2)",
 }

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._speed import _best_time
+from ._timing import best_time
 
 __all__ = ["add_arguments", "run"]
 
@@ -126,7 +126,7 @@ def run(args) -> dict:
                     # warm-up on a few rows: loads (or compiles) the kernels
                     solve_to_file(reader[:200], cal, tmp / "warm.h5", hemisphere="+x",
                                   initial=initial)
-                    cpu, wall, done = _best_time(lambda out=out, initial=initial: solve_to_file(
+                    cpu, wall, done = best_time(lambda out=out, initial=initial: solve_to_file(
                         reader, cal, out, hemisphere="+x", initial=initial), args.repeats)
                     res = read_poses(out)
                     answers[name] = res

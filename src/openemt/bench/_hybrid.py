@@ -59,11 +59,10 @@ def add_arguments(parser) -> None:
 
 
 def _pose_diff(P, T):
-    from scipy.spatial.transform import Rotation
+    from ..evaluate import pose_error_magnitudes
 
-    return (float(1e3 * np.linalg.norm(P[:3, 3] - T[:3, 3])),
-            float(np.rad2deg(np.linalg.norm(
-                Rotation.from_matrix(P[:3, :3] @ T[:3, :3].T).as_rotvec()))))
+    t, r = pose_error_magnitudes(P[None], T[None])
+    return float(1e3 * t[0]), float(np.rad2deg(r[0]))
 
 
 def _z(P, T, se):

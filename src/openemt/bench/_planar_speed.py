@@ -34,6 +34,8 @@ import time
 
 import numpy as np
 
+from ._timing import best_time
+
 __all__ = ["board_6dof_speed", "planar_live_speed", "planar_speed", "planar_trajectory"]
 
 
@@ -46,15 +48,6 @@ def planar_trajectory(n, rate_hz=1000.0):
     th, ph = np.pi - 0.6 + ang[:, 0], ang[:, 1] * 3
     axes = np.column_stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
     return pos, axes
-
-
-def _cpu(f, repeats):
-    best, out = np.inf, None
-    for _ in range(max(1, repeats)):
-        c0 = time.process_time()
-        out = f()
-        best = min(best, time.process_time() - c0)
-    return best, out
 
 
 def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, seed=0) -> dict:
@@ -77,7 +70,7 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
         C = C + sigma[:, None] * rng.normal(size=C.shape)
         solver = prepare(model, initial="track")            # the factory's board solver
         solver(C[:20])                                      # warm-up: load the kernels
-        dt, res = _cpu(lambda: solver(C), repeats)
+        dt, _, res = best_time(lambda: solver(C), repeats)
 
         import magpylib
 
@@ -111,8 +104,8 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
         model_diff = float(np.abs(coupling_ref(np.r_[P[0], 2.5, 0.3])
                                   - coupling_compiled(np.r_[P[0], 2.5, 0.3])).max()
                            / np.abs(C[0]).max())
-        dt_b, base = _cpu(lambda: baseline(coupling_ref), 1)
-        dt_c, base_c = _cpu(lambda: baseline(coupling_compiled), 1)
+        dt_b, _, base = best_time(lambda: baseline(coupling_ref), 1)
+        dt_c, _, base_c = best_time(lambda: baseline(coupling_compiled), 1)
     finally:
         numba.set_num_threads(threads)
     live = planar_live_speed(seconds=min(3.0, n / 1500.0), seed=seed)
@@ -176,10 +169,10 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
         C = add_noise(C, noise_sigma(C, snr_db=snr_db), np.random.default_rng(seed))
         solver = prepare(model, initial="track")
         solver(C[:20])                                      # warm-up: load the kernels
-        dt, res = _cpu(lambda: solver(C), repeats)
+        dt, _, res = best_time(lambda: solver(C), repeats)
         # the interface-level LM: the registry's entry for models without a solver of their own
         interface = SOLVER_FAMILIES["model"](model, "lm", SolveOptions(initial="track"))[0]
-        dt_i, res_i = _cpu(lambda: interface(C), 1)
+        dt_i, _, res_i = best_time(lambda: interface(C), 1)
     finally:
         numba.set_num_threads(threads)
     both = (res.status == int(Status.CONVERGED)) & (res_i.status == int(Status.CONVERGED))

@@ -38,11 +38,10 @@ judges every pose by its relative residual).
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from .._errors import InputError
+from ._timing import best_time
 
 __all__ = ["add_arguments", "cold_quality", "compare_cold", "random_poses", "run", "trajectory"]
 
@@ -120,8 +119,8 @@ def cold_runs(solver, C, starts_previous, repeats):
     once, the default best of ``repeats``) on couplings ``C``: ``(result, cpu s, wall s)`` of
     each."""
     solver(C[:50], "kim18")   # warm-up: compiles or loads the kernels, builds the table
-    cpu, wall, new = _best_time(lambda: solver(C, "kim18"), repeats)
-    cpu_o, wall_o, old = _best_time(lambda: solver(C, starts_previous(C)), 1)  # slow: once
+    cpu, wall, new = best_time(lambda: solver(C, "kim18"), repeats)
+    cpu_o, wall_o, old = best_time(lambda: solver(C, starts_previous(C)), 1)  # slow: once
     return (new, cpu, wall), (old, cpu_o, wall_o)
 
 
@@ -200,19 +199,6 @@ def cold_ilemt(summary, repeats) -> None:
             summary[f"cold_iterations_{p}"][name] = v
 
 
-def _best_time(f, repeats):
-    """Best of ``repeats`` runs: (process CPU seconds, wall seconds, last output)."""
-    best_cpu = best_wall = np.inf
-    out = None
-    for _ in range(max(1, repeats)):
-        c0 = time.process_time()
-        w0 = time.perf_counter()
-        out = f()
-        best_cpu = min(best_cpu, time.process_time() - c0)
-        best_wall = min(best_wall, time.perf_counter() - w0)
-    return best_cpu, best_wall, out
-
-
 def run(args) -> dict:
     import numba
     from scipy.optimize import least_squares
@@ -255,7 +241,7 @@ def run(args) -> dict:
         results = {}
         for name, f in runs.items():
             f(C[:50])  # warm-up (loads or compiles the kernels)
-            dt, wall, res = _best_time(lambda f=f: f(C), args.repeats)
+            dt, wall, res = best_time(lambda f=f: f(C), args.repeats)
             results[name] = res
             summary[f"{name}_poses_per_s"] = n / dt
             summary[f"{name}_wall_poses_per_s"] = n / wall
@@ -268,7 +254,7 @@ def run(args) -> dict:
         for name in ("svd", "kuipers", "kim18"):
             f = closed[name]
             f(Cc[:50])
-            dt, wall, res = _best_time(lambda f=f: f(Cc), args.repeats)
+            dt, wall, res = best_time(lambda f=f: f(Cc), args.repeats)
             summary[f"{name}_complex_poses_per_s"] = n / dt
             summary[f"{name}_complex_wall_poses_per_s"] = n / wall
             summary[f"{name}_complex_status_counts"] = res.status_counts()
@@ -294,12 +280,12 @@ def run(args) -> dict:
             return out
 
         # scipy's default tolerances (1e-8) too: faster, but its answers are less exact
-        dt_d, _, base_d = _best_time(lambda: baseline(1e-8), 1)
+        dt_d, _, base_d = best_time(lambda: baseline(1e-8), 1)
         summary["scipy_default_tol_poses_per_s"] = nb / dt_d
         summary["lm_vs_scipy_default_tol_ratio"] = summary["lm_tracking_poses_per_s"] / (nb / dt_d)
         summary["max_position_diff_default_tol_m"] = float(
             np.abs(results["lm_tracking"].pose_vectors[:nb, :3] - base_d[:, :3]).max())
-        dt_b, wall_b, base = _best_time(baseline, 1)
+        dt_b, wall_b, base = best_time(baseline, 1)
         summary["scipy_per_pose_poses_per_s"] = nb / dt_b
         summary["scipy_per_pose_wall_poses_per_s"] = nb / wall_b
         summary["scipy_baseline"] = ("scipy.optimize.least_squares per pose, method='trf', "

@@ -431,7 +431,7 @@ def _acquisition(seconds: float, seed: int) -> dict:
         b = TcpBackend("127.0.0.1", et.port, em.spec.layout(), em.n_channels, drain=False)
         r, _ = track(b, et, max(seconds, 2.0), log=logs["paced"])
         a = read_track_log(logs["paced"]).arrays["openemt"]
-        true_utc = em.t0_epoch + b.counter_times(a["times"]) * em.fs / em.rate_true
+        true_utc = em.sample_utc(b.counter_times(a["times"]) * em.fs)
         last = a["times"] > a["times"][-1] - 1.0
         e = 1e3 * np.abs(a["acquisition_time"][last] - true_utc[last])
         d = r.to_dict()

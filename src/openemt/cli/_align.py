@@ -1,13 +1,8 @@
 """``openemt align``: thin layer over :func:`openemt.navigate.align_poses` (options:
 :class:`openemt.navigate.AlignOptions`)."""
 
-from __future__ import annotations
+from ._navcommon import step
 
 __all__ = ["register"]
 
-
-def register(sub) -> None:
-    from ..navigate import AlignOptions, align_poses
-    from ._navcommon import add_step
-
-    add_step(sub, "align", AlignOptions, align_poses)
+register = step("align", "AlignOptions", "align_poses")

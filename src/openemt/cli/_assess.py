@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from ._navcommon import step
+
 __all__ = ["register"]
 
 
@@ -14,8 +16,4 @@ def _report(args, run) -> None:
                             nominal=run.summary["nominal"]).write(args.output)
 
 
-def register(sub) -> None:
-    from ..navigate import AssessOptions, assess
-    from ._navcommon import add_step
-
-    add_step(sub, "assess", AssessOptions, assess, after=_report)
+register = step("assess", "AssessOptions", "assess", after=_report)

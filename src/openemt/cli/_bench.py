@@ -9,15 +9,16 @@ from __future__ import annotations
 import importlib
 import json
 
-from ._common import add_command, emit, to_jsonable
+from .._result import json_ready
+from ._common import add_command, emit
 
 
 def register(sub) -> None:
     bsub = add_command(sub, "bench").add_subparsers(dest="bench", metavar="NAME")
     bsub.required = True
     # reached by name: bench is the layer above the command line
-    for name, (module, help_) in importlib.import_module("openemt.bench").BENCHMARKS.items():
-        mod = importlib.import_module(module)
+    for name, help_ in importlib.import_module("openemt.bench").BENCHMARKS.items():
+        mod = importlib.import_module(f"openemt.bench._{name}")
         mod.add_arguments(add_command(bsub, name, _runner(mod), help=help_))
 
 
@@ -25,7 +26,7 @@ def _runner(mod):
     def run(args) -> int:
         summary = mod.run(args)
         # without --json the same summary goes to stderr, readable
-        emit(args, summary, json.dumps(to_jsonable(summary), indent=2).splitlines())
+        emit(args, summary, json.dumps(json_ready(summary), indent=2).splitlines())
         return 0
 
     return run

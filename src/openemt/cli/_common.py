@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from collections.abc import Iterable
-from typing import Any
 
-__all__ = ["add_command", "add_common", "add_options", "emit", "options_from", "progress",
-           "run_workflow", "say", "stage", "to_jsonable"]
+__all__ = ["add_actions", "add_command", "add_common", "add_options", "emit", "options_from", "progress",
+           "run_workflow", "say", "stage", "workflow_command"]
 
 
 def add_command(sub, name: str, func=None, options=None, only=None, **kwargs):
@@ -53,6 +51,41 @@ def run_workflow(args, workflow, options_cls, **values) -> int:
     result = workflow(options_from(options_cls, args, **values), say=say(args))
     emit(args, result.to_dict(), result.lines())
     return getattr(result, "exit_status", 0)
+
+
+def workflow_command(name: str, package: str, options: str, workflow: str):
+    """``register(sub)`` of a command that is one workflow of ``openemt.<package>``: the
+    options record ``options`` as its options, :func:`run_workflow` of ``workflow`` as what it
+    runs (both imported when the command is registered)."""
+    def register(sub) -> None:
+        import importlib
+
+        mod = importlib.import_module(f"openemt.{package}")
+        cls, run = getattr(mod, options), getattr(mod, workflow)
+        add_command(sub, name, lambda args: run_workflow(args, run, cls), cls)
+
+    return register
+
+
+def add_actions(parser, actions) -> None:
+    """Sub-commands ``ACTION`` of ``parser``, one per ``(name, help, options record,
+    workflow)``: the record's fields as options; running one calls ``workflow(options)`` and
+    prints its result (:func:`emit`) and, unless ``--quiet``, its ``warnings``."""
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    for name, help_, options, workflow in actions:
+        a = sub.add_parser(name, help=help_)
+        add_options(a, options)
+        add_common(a)
+        a.set_defaults(func=lambda args, o=options, w=workflow: _run_action(args, o, w))
+
+
+def _run_action(args, options, workflow) -> int:
+    result = workflow(options_from(options, args))
+    emit(args, result.to_dict(), result.lines())
+    if not getattr(args, "quiet", False):
+        for w in getattr(result, "warnings", ()):
+            print(f"warning: {w}", file=sys.stderr)
+    return 0
 
 
 def add_common(parser) -> None:
@@ -139,25 +172,12 @@ def options_from(options_cls, args, **values):
     return options_cls(**{**given, **values})
 
 
-def to_jsonable(obj: Any) -> Any:
-    """``obj`` in plain JSON types (:func:`openemt._result.plain`), with paths as strings and
-    non-finite floats as null."""
-    from .._result import plain
-
-    obj = plain(obj)
-    if isinstance(obj, dict):
-        return {k: to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return str(obj) if hasattr(obj, "__fspath__") else obj
-
-
 def emit(args, summary: dict, human: Iterable[str] = ()) -> None:
     """Print the summary: JSON on stdout with ``--json``; human lines on stderr unless quiet."""
     if getattr(args, "json", False):
-        sys.stdout.write(json.dumps(to_jsonable(summary), indent=2) + "\n")
+        from .._result import json_ready
+
+        sys.stdout.write(json.dumps(json_ready(summary), indent=2) + "\n")
         sys.stdout.flush()
     if not getattr(args, "quiet", False):
         for line in human:

@@ -9,7 +9,7 @@ import sys
 from . import command_help
 from ._common import add_common, add_options, emit, options_from
 
-__all__ = ["add_step", "run_step"]
+__all__ = ["add_step", "run_step", "step"]
 
 
 def add_step(sub, name: str, options_cls, workflow, after=None):
@@ -31,3 +31,14 @@ def run_step(args, options_cls, workflow, after=None) -> int:
     for w in run.warnings:
         print(f"warning: {w}", file=sys.stderr)
     return 0
+
+
+def step(name: str, options: str, workflow: str, after=None):
+    """``register(sub)`` of command ``name``: :func:`add_step` with the options record and the
+    workflow of :mod:`openemt.navigate` so named (imported when the command is registered)."""
+    def register(sub) -> None:
+        from .. import navigate
+
+        add_step(sub, name, getattr(navigate, options), getattr(navigate, workflow), after)
+
+    return register

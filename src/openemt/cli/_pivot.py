@@ -1,13 +1,8 @@
 """``openemt pivot``: thin layer over :func:`openemt.navigate.pivot` (options:
 :class:`openemt.navigate.PivotOptions`)."""
 
-from __future__ import annotations
+from ._navcommon import step
 
 __all__ = ["register"]
 
-
-def register(sub) -> None:
-    from ..navigate import PivotOptions, pivot
-    from ._navcommon import add_step
-
-    add_step(sub, "pivot", PivotOptions, pivot)
+register = step("pivot", "PivotOptions", "pivot")

@@ -3,18 +3,6 @@ ILEMT folder's paper reproduction, of a calibration on a test dataset, or of a f
 calibration on grid data (docs/paper-reproductions.md#openemt-report, docs/planar.md#reports).
 """
 
-from __future__ import annotations
+from ._common import workflow_command
 
-from ._common import add_command, run_workflow
-
-
-def register(sub) -> None:
-    from ..report import ReportOptions
-
-    add_command(sub, "report", run, ReportOptions)
-
-
-def run(args) -> int:
-    from ..report import ReportOptions, write_report
-
-    return run_workflow(args, write_report, ReportOptions)
+register = workflow_command("report", "report", "ReportOptions", "write_report")

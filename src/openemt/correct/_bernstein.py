@@ -176,13 +176,10 @@ def fit_bernstein(measured_xyz, reference_xyz, measured_R=None, reference_R=None
         degrees = [D for D in degrees if MIN_PAIRS_FACTOR * (D + 1) ** 3 <= n_train] \
             or [min(degrees)]
 
-    def basis(uu, r):
-        return bernstein_basis(uu, r)
-
     selection = {}
     degree, pos_coef, rot_degree, rot_coef = fit_offset_terms(
-        u, d - m, measured_R, reference_R, degree, rot_degree, degrees, splits, selection, basis,
-        "a bernstein correction of degree")
+        u, d - m, measured_R, reference_R, degree, rot_degree, degrees, splits, selection,
+        bernstein_basis, "a bernstein correction of degree")
     return BernsteinCorrection(lower=lower, upper=upper, pos_degree=int(degree),
                                pos_coef=pos_coef,
                                rot_degree=None if rot_degree is None else int(rot_degree),

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from .._result import Result
+from .._result import Result, json_ready
 from ..evaluate import error_summary
 from ..geometry import check_points, check_poses, pose_from_rt
 from ..io import atomic_path
@@ -109,13 +109,19 @@ def _numbers(p: dict, key: str, where: str, shape=None, *, optional: bool = Fals
     return a
 
 
-def _order(p: dict, key: str, where: str, *, optional: bool = False):
+def _order(p: dict, key: str, coef_key: str, where: str, *, optional: bool,
+           limit: int = MAX_POLY_ORDER, name: str = " (MAX_POLY_ORDER)"):
+    """``params[key]``, an integer ``0..limit``; None when it may be absent and is (its
+    coefficients ``params[coef_key]`` then null too)."""
     v = p.get(key)
     if v is None and optional:
+        if p.get(coef_key) is not None:
+            raise InputError(f"{where}expected `params.{coef_key}` null without "
+                             f"`params.{key}`, got coefficients")
         return None
-    if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= MAX_POLY_ORDER:
-        raise InputError(f"{where}expected `params.{key}` an integer 0..{MAX_POLY_ORDER} "
-                         f"(MAX_POLY_ORDER), got {v!r}")
+    if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= limit:
+        raise InputError(f"{where}expected `params.{key}` an integer 0..{limit}{name}, got "
+                         f"{v!r}")
     return v
 
 
@@ -147,39 +153,23 @@ def _check_params(method: str, p: dict, where: str) -> None:
                              f"a non-negative integer, got {mp!r}")
         for order_key, coef_key, optional in (("pos_order", "pos_coef", False),
                                               ("rot_order", "rot_coef", True)):
-            order = _order(p, order_key, where, optional=optional)
-            if order is None:
-                if p.get(coef_key) is not None:
-                    raise InputError(f"{where}expected `params.{coef_key}` null without "
-                                     f"`params.{order_key}`, got coefficients")
-                continue
-            n_terms = len(monomial_exponents(order, mp))
-            _numbers(p, coef_key, where, (n_terms, 3))
-    elif method == "bernstein":
+            order = _order(p, order_key, coef_key, where, optional=optional)
+            if order is not None:
+                _numbers(p, coef_key, where, (len(monomial_exponents(order, mp)), 3))
+    if method in ("bernstein", "grid"):
         lo = _numbers(p, "lower", where, (3,))
         hi = _numbers(p, "upper", where, (3,))
         if not np.all(lo < hi):
             raise InputError(f"{where}expected `params.lower` < `params.upper` on every axis, "
                              f"got {lo.tolist()} and {hi.tolist()}")
+    if method == "bernstein":
         for deg_key, coef_key, optional in (("pos_degree", "pos_coef", False),
                                             ("rot_degree", "rot_coef", True)):
-            deg = p.get(deg_key)
-            if deg is None and optional:
-                if p.get(coef_key) is not None:
-                    raise InputError(f"{where}expected `params.{coef_key}` null without "
-                                     f"`params.{deg_key}`, got coefficients")
-                continue
-            if not isinstance(deg, int) or isinstance(deg, bool) or not (
-                    0 <= deg <= MAX_BERNSTEIN_DEGREE):
-                raise InputError(f"{where}expected `params.{deg_key}` an integer "
-                                 f"0..{MAX_BERNSTEIN_DEGREE}, got {deg!r}")
-            _numbers(p, coef_key, where, ((deg + 1) ** 3, 3))
+            deg = _order(p, deg_key, coef_key, where, optional=optional,
+                         limit=MAX_BERNSTEIN_DEGREE, name="")
+            if deg is not None:
+                _numbers(p, coef_key, where, ((deg + 1) ** 3, 3))
     elif method == "grid":
-        lo = _numbers(p, "lower", where, (3,))
-        hi = _numbers(p, "upper", where, (3,))
-        if not np.all(lo < hi):
-            raise InputError(f"{where}expected `params.lower` < `params.upper` on every axis, "
-                             f"got {lo.tolist()} and {hi.tolist()}")
         shape = p.get("shape")
         if not isinstance(shape, list) or len(shape) != 3 or not all(
                 isinstance(s, int) and not isinstance(s, bool) and s >= 2 for s in shape):
@@ -258,20 +248,6 @@ def _warnings(method: str, n: int, params: dict, held: dict | None) -> tuple[lis
                 out.append(f"{method}: held-out {what} error {c:.4f} {unit} is worse than no "
                            f"correction ({u:.4f} {unit})")
     return out, worse, req
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
 
 
 def _v1_box(method: str, model) -> FitBox | None:
@@ -436,9 +412,9 @@ class Correction:
 
     def to_dict(self) -> dict:
         return {"format": _FORMAT, "version": _VERSION, "method": self.method,
-                "params": _jsonable(self.params),
+                "params": json_ready(self.params),
                 "box": None if self.box is None else self.box.to_dict(),
-                "stats": _jsonable(self.stats), "meta": _jsonable(self.meta)}
+                "stats": json_ready(self.stats), "meta": json_ready(self.meta)}
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "") -> Correction:

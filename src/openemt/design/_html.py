@@ -5,22 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..report._figures import pyplot
+
 __all__ = ["map_document", "optimize_document"]
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def slices_figure(maps: dict, title: str):
     """Top views of the per-point RMS position bound (mm), one row per map, one panel per
     grid height (at most 5, spread over the heights)."""
-    plt = _plt()
+    plt = pyplot()
     first = next(iter(maps.values()))
     z = np.unique(np.round(first.points[:, 2], 9))
     pick = z[np.unique(np.linspace(0, len(z) - 1, min(5, len(z))).round().astype(int))]
@@ -49,7 +42,7 @@ def slices_figure(maps: dict, title: str):
 
 def distribution_figure(maps: dict):
     """Histograms of the position and rotation bounds over (point, orientation)."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), layout="constrained")
     for label, m in maps.items():
         p = m.position_std.ravel() * 1e3
@@ -66,7 +59,7 @@ def distribution_figure(maps: dict):
 
 def montecarlo_figure(mc: dict):
     """Monte Carlo RMS against the bound at the sampled points."""
-    plt = _plt()
+    plt = pyplot()
     b = np.array([p["bound_mm"] for p in mc["points"]])
     e = np.array([p["montecarlo_rms_mm"] for p in mc["points"]])
     fig, ax = plt.subplots(figsize=(4.6, 4.2), layout="constrained")
@@ -166,7 +159,7 @@ def optimize_document(result):
 
 
 def layout_figure(result):
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 5), layout="constrained")
     for board, color in ((result.start_board, "0.6"), (result.board, "tab:blue")):
         for c in board.coils:

@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._errors import InputError
-from ..geometry import check_pose_vectors, check_poses, left_jacobian_so3, pose_from_vector
+from ..geometry import check_pose_vectors, check_poses, pose_from_vector
 from ._dipole_kernel import dipole_batch, dipole_batch_jac, pack_model
+from ._protocol import ModelJacobians
 
 __all__ = [
     "ILEMT_GAIN",
@@ -281,11 +282,7 @@ class CouplingJacobians:
     d_L_se: np.ndarray
     d_M_se: np.ndarray
 
-    def pose_vector(self, rotvecs) -> np.ndarray:
-        """Jacobian with respect to the pose vector ``[x, y, z, rx, ry, rz]``, ``(N, n_so, n_se, 6)``."""
-        Jl = left_jacobian_so3(np.asarray(rotvecs, dtype=np.float64))
-        d_rv = np.einsum("kija,kab->kijb", self.d_rotation, Jl)
-        return np.concatenate([self.d_translation, d_rv], axis=-1)
+    pose_vector = ModelJacobians.pose_vector
 
 
 def _split(poses):

@@ -21,6 +21,7 @@ __all__ = [
     "error_magnitudes",
     "invert",
     "left_jacobian_so3",
+    "nearest_rotation",
     "pose_error",
     "pose_from_rt",
     "pose_from_vector",
@@ -184,6 +185,14 @@ def rotvec_between(a, u) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         unit = np.where(s[:, None] > 1e-12, axis / s[:, None], e)
     return unit * ang[:, None]
+
+
+def nearest_rotation(M) -> np.ndarray:
+    """The rotation nearest ``M`` (3, 3), or each of ``M`` (N, 3, 3), in the Frobenius norm:
+    ``U diag(1, 1, det(U V^T)) V^T`` of the SVD ``M = U S V^T`` (orthogonal Procrustes)."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    return U @ Vt
 
 
 def skew(w) -> np.ndarray:

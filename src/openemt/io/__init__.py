@@ -1,6 +1,6 @@
 """Reading and writing every box of the pipeline: datasets, calibrations, importers."""
 
-import importlib
+from .._lazy import lazy_exports
 
 #: where each public name lives; a module is imported on first use of one of its names (so a
 #: command reading a dataset does not load the board, field and calibration libraries)
@@ -24,31 +24,4 @@ _SOURCES = {
     "._poses_csv": ("PoseTable", "StaticAverage", "average_static", "import_poses_csv",
                     "read_poses_csv", "write_poses_csv"),
 }
-_MODULE = {name: module for module, names in _SOURCES.items() for name in names}
-
-__all__ = ["BAND_COUPLINGS", "Calibration", "Dataset", "atomic_h5", "atomic_path", "is_recording",
-           "recording_meta", "signed_real"]
-__all__ += ["load_board", "read_board", "write_board"]
-
-__all__ += ["compensate_stage", "file_sha256", "import_ilemt_folder", "parse_sign_options",
-            "read_ilemt_dat"]
-__all__ += ["CouplingReader", "export_csv", "import_csv", "open_dataset_couplings",
-            "read_calibration", "read_dataset", "read_ilemt_calibration", "write_calibration",
-            "write_dataset"]
-__all__ += ["NdiRecording", "NdiTool", "PoseTable", "StaticAverage", "average_static",
-            "import_ndi", "import_poses_csv", "pose_dataset", "read_ndi_tsv", "read_pose_dataset",
-            "read_poses_csv", "write_ndi_tsv", "write_poses_csv"]
-__all__ += ["IMPORT_FORMATS", "ImportOptions", "ImportResult", "import_files", "parse_sign_arg"]
-
-
-def __getattr__(name):
-    module = _MODULE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)

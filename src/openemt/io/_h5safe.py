@@ -34,7 +34,7 @@ from ._safefile import check_regular
 
 __all__ = ["ALLOWED_H5_FILTERS", "H5_FLOOR_BYTES", "MAX_H5_DECLARED_BYTES", "MAX_H5_EXPANSION",
            "MAX_H5_LINKS", "PROBE_TIMEOUT_S", "SEAL_SIZE", "check_readable", "check_rows",
-           "check_structure", "open_h5", "seal", "seal_matches"]
+           "check_structure", "committed_rows", "open_h5", "seal", "seal_matches"]
 
 #: size of the HDF5 user block that carries openemt's seal (a power of two >= 512)
 SEAL_SIZE = 512
@@ -310,6 +310,17 @@ def check_rows(f, where: str, n: int, shapes, *, reference: str) -> None:
         if not shape or shape[0] != n or (tail is not None and tuple(shape[1:]) != tuple(tail)):
             raise InputError(f"{where}: expected `{name}` to have {want} like `{reference}`, "
                              f"got shape {shape}")
+
+
+def committed_rows(group, keys) -> int:
+    """Rows of ``group`` to read: its ``rows`` attribute (a file streamed by a live session,
+    which commits its rows as it goes) capped by the lengths of the datasets ``keys``; 0 at
+    least."""
+    lengths = [group[k].shape[0] for k in keys if group[k].ndim >= 1]
+    rows = group.attrs.get("rows")
+    if rows is not None:
+        lengths.append(int(rows))
+    return max(min(lengths, default=0), 0)
 
 
 def open_h5(path, what: str):

@@ -21,6 +21,7 @@ import os
 import stat
 from pathlib import Path
 
+from .._atomic import file_kind
 from .._errors import InputError
 
 __all__ = ["MAX_CONFIG_BYTES", "MAX_JSON_BYTES", "MAX_TEXT_BYTES", "MAX_TOML_DEPTH",
@@ -36,18 +37,6 @@ MAX_TEXT_BYTES = 4 << 30
 #: deepest nesting of inline arrays/tables accepted in a TOML file (openemt's need 2)
 MAX_TOML_DEPTH = 32
 
-_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
-          (stat.S_ISDIR, "a folder"))
-
-
-def _kind(mode: int) -> str:
-    for test, name in _KINDS:
-        if test(mode):
-            return name
-    return "not a regular file"
-
-
 def check_regular(path, what: str) -> os.stat_result:
     """The ``os.stat`` of ``path`` if it is a regular file (symlinks followed); otherwise
     ``FileNotFoundError`` (missing) or one-line :class:`InputError` naming what it is."""
@@ -61,7 +50,7 @@ def check_regular(path, what: str) -> os.stat_result:
                          f"({exc.strerror})") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"expected {what} (a regular file), got {str(path)!r} which is "
-                         f"{_kind(st.st_mode)}")
+                         f"{file_kind(st.st_mode)}")
     return st
 
 
@@ -92,7 +81,7 @@ def read_limited(path, what: str, max_bytes: int) -> bytes:
         st = os.fstat(fh.fileno())
         if not stat.S_ISREG(st.st_mode):
             raise InputError(f"expected {what} (a regular file), got {str(path)!r} which is "
-                             f"{_kind(st.st_mode)}")
+                             f"{file_kind(st.st_mode)}")
         if st.st_size > max_bytes:
             raise InputError(f"expected {what} of at most {_size_text(max_bytes)}, got "
                              f"{path.name} of {_size_text(st.st_size)}")

@@ -51,10 +51,6 @@ class DiskFullError(OSError):
     flushed before stay readable."""
 
 
-def _folder(path: Path) -> Path:
-    return path.parent if str(path.parent) else Path(".")
-
-
 class _Stream:
     """The temporary name, the rename when rows first arrive, the flush cadence and the
     disk-space check shared by the HDF5 and CSV streams."""
@@ -73,7 +69,6 @@ class _Stream:
         self.published = False
         self.closed = False
         self.rows = 0                     # rows committed (flushed) so far
-        self.n_flushes = 0
         self._buffered_bytes = 0
         # the flush clock starts with the first row, not at creation: start-up before the
         # first sample (loading the solver's kernels) must not make the first flush come at once
@@ -140,7 +135,6 @@ class _Stream:
             raise self._disk_error(exc) from None
         self._buffered_bytes = 0
         self.rows += added
-        self.n_flushes += 1
         if self.rows:
             self._publish()
 

@@ -1,106 +1,27 @@
 """Live tracking: tracker description files, acquisition backends, the real-time pipeline (one
 or several sensors, optional tracking filter) and OpenIGTLink output."""
 
-from ._acquire import SerialBackend, TcpBackend
-from ._backends import (
-    Backend,
-    ReplayBackend,
-    SimulatedBackend,
-    SoundDeviceBackend,
-    SourceStalled,
-    StallWatch,
-    default_model,
-    default_trajectory,
-    list_audio_inputs,
-)
-from ._devices import DevicesOptions, DevicesResult, list_devices
-from ._filter import filter_restarts, kalman_filter_poses, new_filter_state
-from ._igtl import DEFAULT_IGTL_PORT, IgtlServer
-from ._igtl_meta import distortion_level
-from ._igtl_wire import frame_messages, pack_transforms, transform_bodies
-from ._pipeline import (
-    PipelineConfig,
-    SensorSetup,
-    TrackingPipeline,
-    TrackLog,
-    TrackStep,
-    TrackSummary,
-    lm_solver,
-)
-from ._record import (
-    RawRecorder,
-    TrackLogData,
-    TrackLogWriter,
-    read_track_log,
-    track_log_dataset,
-)
-from ._session import (
-    TrackingSession,
-    TrackOptions,
-    TrackResult,
-    tracker_backend,
-    tracker_sensors,
-)
-from ._tdata import pack_tdata
-from ._tracker_file import (
-    FilterSpec,
-    SensorSpec,
-    StreamSpec,
-    TrackerSpec,
-    example_tracker,
-    read_registration_transform,
-    read_tracker,
-    tracker_from_dict,
-)
+from .._lazy import lazy_exports
 
-__all__ = [
-    "frame_messages",
-    "pack_tdata",
-    "pack_transforms",
-    "transform_bodies",
-    "DEFAULT_IGTL_PORT",
-    "Backend",
-    "DevicesOptions",
-    "DevicesResult",
-    "FilterSpec",
-    "IgtlServer",
-    "PipelineConfig",
-    "RawRecorder",
-    "ReplayBackend",
-    "SensorSetup",
-    "SensorSpec",
-    "SerialBackend",
-    "SimulatedBackend",
-    "SoundDeviceBackend",
-    "SourceStalled",
-    "StallWatch",
-    "StreamSpec",
-    "TrackLog",
-    "TrackLogData",
-    "TrackLogWriter",
-    "TrackOptions",
-    "TrackResult",
-    "TrackStep",
-    "TrackSummary",
-    "TcpBackend",
-    "TrackerSpec",
-    "TrackingPipeline",
-    "TrackingSession",
-    "default_model",
-    "default_trajectory",
-    "distortion_level",
-    "example_tracker",
-    "filter_restarts",
-    "kalman_filter_poses",
-    "list_audio_inputs",
-    "list_devices",
-    "lm_solver",
-    "new_filter_state",
-    "read_registration_transform",
-    "read_track_log",
-    "read_tracker",
-    "track_log_dataset",
-    "tracker_backend",
-    "tracker_from_dict",
-    "tracker_sensors",
-]
+#: where each public name lives; a module is imported on first use of one of its names
+_SOURCES = {
+    "._acquire": ("SerialBackend", "TcpBackend"),
+    "._backends": ("Backend", "ReplayBackend", "SimulatedBackend", "SoundDeviceBackend",
+                   "SourceStalled", "StallWatch", "default_model", "default_trajectory",
+                   "list_audio_inputs"),
+    "._devices": ("DevicesOptions", "DevicesResult", "list_devices"),
+    "._filter": ("filter_restarts", "kalman_filter_poses", "new_filter_state"),
+    "._igtl": ("DEFAULT_IGTL_PORT", "IgtlServer"),
+    "._igtl_meta": ("distortion_level",),
+    "._igtl_wire": ("frame_messages", "pack_transforms", "transform_bodies"),
+    "._pipeline": ("PipelineConfig", "SensorSetup", "TrackingPipeline", "TrackLog", "TrackStep",
+                   "TrackSummary", "lm_solver"),
+    "._record": ("RawRecorder", "TrackLogData", "TrackLogWriter", "read_track_log",
+                 "track_log_dataset"),
+    "._session": ("TrackingSession", "TrackOptions", "TrackResult", "tracker_backend",
+                  "tracker_sensors"),
+    "._tdata": ("pack_tdata",),
+    "._tracker_file": ("FilterSpec", "SensorSpec", "StreamSpec", "TrackerSpec", "example_tracker",
+                       "read_registration_transform", "read_tracker", "tracker_from_dict"),
+}
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)

@@ -325,11 +325,6 @@ class IgtlServer:
         return len(self._clients)
 
     @property
-    def n_dropped(self) -> int:
-        """Messages skipped for slow clients (alias of ``messages_skipped``)."""
-        return self.n_skipped
-
-    @property
     def queue_length(self) -> int:
         """Longest client queue now (items)."""
         with self._lock:

@@ -241,11 +241,6 @@ class TrackLogData:
         return min((len(a["times"]) for a in self.arrays.values()), default=0)
 
 
-def _h5_rows(group) -> int | None:
-    r = group.attrs.get("rows")
-    return None if r is None else int(r)
-
-
 #: Datasets every sensor of a log has; a log without them is refused, not read as empty.
 REQUIRED_LOG_KEYS = ("times", "status")
 
@@ -256,11 +251,9 @@ def _read_group(g, keys) -> dict:
         raise InputError(f"expected datasets {' and '.join(REQUIRED_LOG_KEYS)} per sensor in "
                          f"a track log, got none named {', '.join(lacking)} in "
                          f"{g.file.filename!r}{'' if g.name == '/' else ' ' + g.name}")
-    n = _h5_rows(g)
-    lengths = [g[k].shape[0] for k in keys if k in g and g[k].ndim >= 1]
-    if lengths:
-        n = min(lengths) if n is None else min([n] + lengths)
-    n = n or 0
+    from ..io._h5safe import committed_rows
+
+    n = committed_rows(g, [k for k in keys if k in g])
     return {k: (np.asarray(g[k][:n]) if k in g else np.empty(0)) for k in keys}
 
 

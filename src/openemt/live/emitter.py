@@ -22,15 +22,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import struct
 import sys
 import time
-import zlib
 
 import numpy as np
 
 from .._errors import InputError
-from ._framing import FLAG_START, FORMATS, FRAME_VERSION, SYNC, format_code
+from ._framing import FLAG_START, FORMATS, format_code, pack_frame
 
 __all__ = ["Emitter", "EmitterThread", "fd_writer", "main", "open_pty"]
 
@@ -103,17 +101,13 @@ class Emitter:
         return self.t0_epoch + np.asarray(index, dtype=np.float64) / self.rate_true
 
     def frame(self, samples, counter: int, flags: int) -> bytes:
-        """The bytes of one frame, as a firmware packs them."""
-        header = struct.pack("<4sBBHQdfHH", SYNC, FRAME_VERSION, self.code, flags, counter,
-                             self.fs, self.scale, samples.shape[1], samples.shape[0])
-        if self.code == 3:
-            payload = samples.astype("<f4").tobytes()
-        else:
+        """The bytes of one frame, as a firmware packs them (:func:`~._framing.pack_frame` of
+        the samples in counts, or in volts for float32)."""
+        if self.code != 3:
             info = np.iinfo(np.dtype(self.dtype))
-            counts = np.clip(np.rint(samples / self.scale), info.min, info.max)
-            payload = counts.astype(self.dtype).tobytes()
-        crc = zlib.crc32(payload, zlib.crc32(header[4:]))
-        return header + payload + struct.pack("<I", crc)
+            samples = np.clip(np.rint(samples / self.scale), info.min, info.max)
+        return pack_frame(samples, counter, self.fs, fmt=self.code, scale=self.scale,
+                          flags=flags)
 
     def frames_iter(self):
         """Every frame's bytes (damaged as configured; ``b""`` for a frame left out), in

@@ -138,7 +138,7 @@ def _pick_sensor(names, sensor, path):
 
 
 def _read_h5(path: Path, sensor):
-    from ..io._h5safe import open_h5
+    from ..io._h5safe import committed_rows, open_h5
     from ..solve import POSES_SCHEMA
 
     dropped: dict = {}
@@ -155,9 +155,7 @@ def _read_h5(path: Path, sensor):
                                     ("poses", "status")):
                 raise InputError(f"expected datasets poses and status in {path}, got "
                                  f"{sorted(g) if g is not None else 'no sensor group'}")
-            n = g["poses"].shape[0] if g["poses"].ndim else 0
-            if "rows" in g.attrs:          # a track log commits its rows (a killed session)
-                n = min(n, max(int(g.attrs["rows"]), 0))
+            n = committed_rows(g, ("poses",))   # a track log commits its rows (killed session)
             _rows_bounded(n, path)
             if g["poses"].shape[1:] != (4, 4) or g["status"].ndim != 1 or \
                     g["status"].shape[0] < n or g["poses"].dtype.kind not in "fiu" or \

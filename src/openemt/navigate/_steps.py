@@ -9,13 +9,14 @@ pose file openemt writes), fits, writes its output atomically and returns the su
 from __future__ import annotations
 
 import json
-from dataclasses import MISSING, dataclass, field
+from dataclasses import MISSING, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
-from .._result import Result, plain
+from .._options import option as _opt
+from .._result import Result, json_ready
 from ._inputs import ToolPoses, read_tool_poses
 from ._pivot import MAX_PIVOT_RMS_MM, MAX_SPIN_RMS_DEG, PIVOT_METHODS, TOOL_FORMAT
 from ._register import MAX_FRE_MM
@@ -31,12 +32,8 @@ MAX_LOG_SECONDS = 4000.0
 REGISTRATION_FORMAT = "openemt.registration"
 
 
-def _opt(default=MISSING, help: str = "", **meta):
-    return field(default=default, metadata={"help": help, **meta})
-
-
 def _pos(help: str, **meta):
-    return _opt(help=help, positional=True, **meta)
+    return _opt(MISSING, help, positional=True, **meta)
 
 
 _POSES = ("tool poses: a solve output or track log (.h5), a track log or pose CSV (.csv), or a "
@@ -85,15 +82,8 @@ class NavigationRun(Result):
 def _write_json(path, doc: dict) -> None:
     from .._atomic import atomic_path
 
-    def clean(v):
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, list):
-            return [clean(x) for x in v]
-        return None if isinstance(v, float) and not np.isfinite(v) else v
-
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(clean(plain(doc)), indent=1) + "\n")
+        Path(tmp).write_text(json.dumps(json_ready(doc), indent=1) + "\n")
 
 
 def _checked(output, *inputs):

@@ -11,7 +11,8 @@ import numpy as np
 __all__ = ["error_histogram_figure", "error_map_figure", "error_vector_figure", "sweep_figure"]
 
 
-def _plt():
+def pyplot():
+    """``matplotlib.pyplot`` on the non-interactive Agg backend (unless one is chosen)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -35,7 +36,7 @@ def error_vector_figure(positions, errors, *, exaggeration: float | None = None,
         Scale applied to the error vectors; by default chosen so the largest vector is a quarter
         of the workspace extent.
     """
-    plt = _plt()
+    plt = pyplot()
     p = np.asarray(positions, dtype=float) * 1e3
     e = np.asarray(errors, dtype=float) * 1e3
     ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(e), axis=1)
@@ -65,7 +66,7 @@ def error_vector_figure(positions, errors, *, exaggeration: float | None = None,
 
 def error_histogram_figure(trans_err, rot_err, *, title: str = "Error distribution"):
     """Histograms of translation (mm) and rotation (deg) error magnitudes (inputs m and rad)."""
-    plt = _plt()
+    plt = pyplot()
     t = np.asarray(trans_err, dtype=float) * 1e3
     r = np.rad2deg(np.asarray(rot_err, dtype=float))
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
@@ -93,7 +94,7 @@ def sweep_figure(curves, *, title: str = "Axis sweeps: absolute error and nonlin
         ``{axis_name: {"position": (n,), "position_unit": "mm"|"deg", "panels": {panel_title:
         (n,) values}}}``; panels with the same title across axes share a subplot.
     """
-    plt = _plt()
+    plt = pyplot()
     titles: list[str] = []
     for c in curves.values():
         for k in c["panels"]:
@@ -133,7 +134,7 @@ def error_map_figure(points, errors, *, failed=None, tolerance: float = 1e-3,
     failed : ndarray of bool, shape (N,), optional
         Points drawn as crosses (no converged solution); default: the NaN rows of ``errors``.
     """
-    plt = _plt()
+    plt = pyplot()
     p = np.asarray(points, dtype=float)
     e = np.asarray(errors, dtype=float)
     bad = ~np.all(np.isfinite(e), axis=1) if failed is None else np.asarray(failed, bool)

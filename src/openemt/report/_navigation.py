@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._figures import _plt, error_vector_figure
+from ._figures import error_vector_figure, pyplot
 from ._html import Report
 
 __all__ = ["assessment_document", "distance_error_figure"]
@@ -13,7 +13,7 @@ __all__ = ["assessment_document", "distance_error_figure"]
 def distance_error_figure(nominal_distance, distance_error, classes=(), tolerance: float = 0.0):
     """Measured minus nominal distance (mm) against the nominal distance (mm) of every point
     pair; the pairs of the distance ``classes`` (m, within ``tolerance``) highlighted."""
-    plt = _plt()
+    plt = pyplot()
     dn = 1e3 * np.asarray(nominal_distance, dtype=float)
     e = 1e3 * np.asarray(distance_error, dtype=float)
     fig, ax = plt.subplots(figsize=(7.5, 4.2))

@@ -1,41 +1,12 @@
 """Signal processing: raw-signal simulation of an FDM tracker and demodulation to couplings."""
 
-from ._demod import (
-    Demodulated,
-    Demodulator,
-    demodulate,
-    frame_length,
-    frame_window,
-    phase_calibration,
-)
-from ._rawsim import (
-    ILEMT_FREQUENCIES,
-    RAW_FORMAT,
-    ChannelLayout,
-    RawSignal,
-    RawSignalConfig,
-    RawSimulator,
-    eddy_factor,
-    read_raw,
-    simulate_raw,
-    write_raw,
-)
+from .._lazy import lazy_exports
 
-__all__ = [
-    "ILEMT_FREQUENCIES",
-    "RAW_FORMAT",
-    "ChannelLayout",
-    "Demodulated",
-    "Demodulator",
-    "RawSignal",
-    "RawSignalConfig",
-    "RawSimulator",
-    "demodulate",
-    "eddy_factor",
-    "frame_length",
-    "frame_window",
-    "phase_calibration",
-    "read_raw",
-    "simulate_raw",
-    "write_raw",
-]
+#: where each public name lives; a module is imported on first use of one of its names
+_SOURCES = {
+    "._demod": ("Demodulated", "Demodulator", "demodulate", "frame_length", "frame_window",
+                "phase_calibration"),
+    "._rawsim": ("ILEMT_FREQUENCIES", "RAW_FORMAT", "ChannelLayout", "RawSignal", "RawSignalConfig",
+                 "RawSimulator", "eddy_factor", "read_raw", "simulate_raw", "write_raw"),
+}
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)

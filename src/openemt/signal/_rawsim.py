@@ -475,7 +475,7 @@ def read_raw(path) -> RawSignal:
     FileNotFoundError
         When ``path`` does not exist.
     """
-    from ..io._h5safe import check_rows, open_h5
+    from ..io._h5safe import check_rows, committed_rows, open_h5
 
     path = Path(path)
     f = open_h5(path, f"an openemt raw HDF5 file (format {RAW_FORMAT!r})")
@@ -503,7 +503,7 @@ def read_raw(path) -> RawSignal:
                                  f"got {getattr(samples, 'shape', 'a group')} in {str(path)!r}")
             # a file streamed by a live session holds `rows` (committed rows) per group and
             # `complete` (False when the session was killed): read no more than committed
-            samples = np.asarray(samples[:_committed(f, ("samples",))])
+            samples = np.asarray(samples[:committed_rows(f, ("samples",))])
             truth = {}
             times = getattr(f.get("truth/times"), "shape", None)
             if times:
@@ -516,7 +516,7 @@ def read_raw(path) -> RawSignal:
             if "truth" in f:
                 g = f["truth"]
                 keys = [k for k in ("times", "couplings", "poses") if k in g]
-                n = _committed(g, keys)
+                n = committed_rows(g, keys)
                 for key in keys:
                     truth[key] = np.asarray(g[key][:n])
             t0 = float(f.attrs.get("t0", 0.0))
@@ -536,14 +536,4 @@ def read_raw(path) -> RawSignal:
     return RawSignal(samples=samples, layout=layout, t0=t0, truth_times=truth.get("times"),
                      truth_couplings=truth.get("couplings"), truth_poses=truth.get("poses"),
                      complete=complete)
-
-
-def _committed(group, keys) -> int:
-    """Rows of ``group`` to read: its ``rows`` attribute (a streamed file) capped by the
-    datasets' lengths."""
-    lengths = [group[k].shape[0] for k in keys if group[k].ndim >= 1]
-    rows = group.attrs.get("rows")
-    if rows is not None:
-        lengths.append(int(rows))
-    return min(lengths, default=0)
 

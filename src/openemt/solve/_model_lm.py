@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import InputError
-from ..geometry import pose_from_vector, vector_from_pose
+from ..geometry import nearest_rotation, pose_from_vector, vector_from_pose
 from ._planar import _rule_options
 from ._result import SolveResult, Status
 from ._validity import check_validity_options, classify
@@ -27,18 +27,6 @@ __all__ = ["ModelSolver", "PackedModelSolver", "coil_solvers", "sensor_coil_star
 
 #: Samples solved together from one start while tracking.
 TRACK_BLOCK = 32
-
-
-def _kabsch(body, measured) -> np.ndarray:
-    """Rotations ``(N, 3, 3)`` taking the body vectors ``(K, 3)`` closest to the measured
-    ones ``(N, K, 3)`` (orthogonal Procrustes)."""
-    H = np.einsum("nka,kb->nab", measured, body)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.zeros_like(H)
-    D[:, 0, 0] = D[:, 1, 1] = 1.0
-    D[:, 2, 2] = d
-    return U @ D @ Vt
 
 
 #: Rolls tried about a coil's measured axis when the sensor's other coils gave no 5-DOF fit.
@@ -111,7 +99,8 @@ def sensor_coil_starts(model, couplings, options=None, solvers=None):
     body = np.vstack([A, np.cross(A[0], A[1]) / np.linalg.norm(np.cross(A[0], A[1]))])
     x = np.cross(u[:, 0], u[:, 1])
     x /= np.linalg.norm(x, axis=1, keepdims=True)
-    R = _kabsch(body, np.concatenate([u, x[:, None]], axis=1))
+    # the rotations taking the body vectors closest to the measured ones
+    R = nearest_rotation(np.einsum("nka,kb->nab", np.concatenate([u, x[:, None]], axis=1), body))
     t = (p - np.einsum("nab,kb->nka", R, L)).mean(axis=1)
     P = np.tile(np.eye(4), (n, 1, 1))
     P[:, :3, :3] = R
