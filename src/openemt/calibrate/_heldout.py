@@ -27,7 +27,7 @@ from ..geometry import SOURCE_FIXTURES, pose_from_vector
 from ..solve import refine_poses
 from ._check import ILEMT_VALID_RESNORM
 from ._identifiability import analyse_identifiability
-from ._improved import ImprovedProblem, RigOptions, fit_improved
+from ._improved import ImprovedProblem, RigOptions, carry_parameters, fit_improved
 from ._modes import MODES
 
 __all__ = [
@@ -92,24 +92,10 @@ TERM_MAX_CONDITION = 1e6
 def transfer(prob: ImprovedProblem, x, rows) -> tuple[ImprovedProblem, np.ndarray]:
     """The problem of other ``rows`` (a Dataset) with the fitted parameters ``x`` of ``prob``.
 
-    Fixture-code corrections are carried over by code; codes the fit did not see get none.
+    Fixture-code corrections are carried over by code; codes the fit did not see get none
+    (:func:`openemt.calibrate.carry_parameters`).
     """
-    tp = ImprovedProblem(rows, prob.layout, prob.base.gain, prob.options)
-    xt = np.zeros(tp.size)
-    xt[:prob.layout.size] = x[:prob.layout.size]
-    for name in tp.extra:
-        if name in ("sensor_fix", "source_fix"):
-            src = prob.sensor_codes if name == "sensor_fix" else prob.source_codes
-            dst = tp.sensor_codes if name == "sensor_fix" else tp.source_codes
-            vals = np.reshape(x[prob.extra[name]], (-1, 6))
-            out = np.zeros((len(dst), 6))
-            for i, c in enumerate(dst):
-                if c in src:
-                    out[i] = vals[src.index(c)]
-            xt[tp.extra[name]] = out.ravel()
-        else:
-            xt[tp.extra[name]] = x[prob.extra[name]]
-    return tp, xt
+    return carry_parameters(prob, x, rows)
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,22 +206,24 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
                        positions=M[:, :3, 3], truth=D, residual=resid, poses=M)
 
 
-def _fit(rows, start, options):
+def _fit(rows, start, options, initial=None):
     opt = (("so_fix",) if options.source_code_fix else ()) + MODES["XYZ"].optimize
     freeze = MODES["XYZ"].freeze
     if options.sensor_code_fix:
         # with a free translation per sensor-fixture code, shifting F_se along the Rz axis
         # (compensated by F_st and the codes' corrections) is a gauge: hold it, as Z_only does
         freeze = freeze + ("z_se_fix",)
-    return fit_improved(rows, start, options, optimize=opt, freeze=freeze)
+    return fit_improved(rows, start, options, optimize=opt, freeze=freeze, initial=initial)
 
 
 def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: int = 3,
-                   seed: int = 0) -> CrossValidation:
+                   seed: int = 0, initial=None) -> CrossValidation:
     """Position-grouped K-fold cross-validation on calibration rows.
 
     Rows sharing a stage position (x, y, z) are held out together; the errors of every fold
-    are pooled.
+    are pooled. ``initial`` (the fit of ``options`` on every row of ``md``, ``(problem, x)``)
+    starts each fold's fit from it (:func:`openemt.calibrate.fit_improved`): the training
+    rows alone decide where the fit converges, the start only shortens the way there.
     """
     stage = md.stage if md.stage_logged is None else md.stage_logged
     key = np.round(stage[:, :3] * 1e4).astype(np.int64)
@@ -247,7 +235,7 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
     trans, rot = [], []
     for k in range(folds):
         train, test = md.select(fold != k), md.select(fold == k)
-        f = _fit(train, start, options)
+        f = _fit(train, start, options, initial)
         prob, x = f.problem, f.x
         tp, xt = transfer(prob, x, test)
         s = solve_and_score(tp, xt, test, concentric_model)
@@ -299,9 +287,9 @@ def _flat(v) -> np.ndarray:
     return np.ravel(np.asarray(v, dtype=np.float64))
 
 
-def _identify(md, start, options):
+def _identify(md, start, options, initial=None):
     """Fit on every md row; ``(prob, x, free, ident, se)``."""
-    f = _fit(md, start, options)
+    f = _fit(md, start, options, initial)
     prob, x, free = f.problem, f.x, f.free
     r, J = prob.residuals_and_jacobian(x)
     ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
@@ -329,16 +317,29 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
         The fit on every md row of the base model (``"base"``) and of each trial (the term's
         name), for the before/after scores.
     """
+    return _select_terms(md, start, concentric_model, base, terms, folds)[:4]
+
+
+def _select_terms(md, start, concentric_model, base, terms, folds):
+    """:func:`select_terms`, and the :func:`_identify` tuple of the chosen model's fit.
+
+    Each fit on every md row starts from the model kept so far (the base from ``start``),
+    each cross-validation fold from the fit on every md row of its model
+    (:func:`cross_validate`'s ``initial``).
+    """
     terms = TERMS if terms is None else terms
     options = base
-    cv = cross_validate(md, start, options, concentric_model, folds=folds)
+    kept_fit = _identify(md, start, options)
+    cv = cross_validate(md, start, options, concentric_model, folds=folds,
+                        initial=kept_fit[:2])
     base_cv, decisions = cv, []
-    base_fit = _fit(md, start, options)
-    fits = {"base": (base_fit.problem, base_fit.x)}
+    fits = {"base": kept_fit[:2]}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
-        cv_t = cross_validate(md, start, trial, concentric_model, folds=folds)
-        prob, x, free, ident, se = _identify(md, start, trial)
+        fit_t = _identify(md, start, trial, initial=kept_fit[:2])
+        prob, x, free, ident, se = fit_t
+        cv_t = cross_validate(md, start, trial, concentric_model, folds=folds,
+                              initial=(prob, x))
         fits[name] = (prob, x)
         cond = ident.to_dict()["condition"]
         gain = 1.0 - cv_t.trans_rms_mm / cv.trans_rms_mm
@@ -364,8 +365,10 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
             md_cv_after=cv_t.to_dict(), rank=ident.rank, n_free=ident.n_free, condition=cond,
             parameters=params))
         if kept:
-            options, cv = trial, cv_t
-    return options, decisions, base_cv, fits
+            options, cv, kept_fit = trial, cv_t, fit_t
+    return options, decisions, base_cv, fits, kept_fit
+
+
 
 
 def repeat_pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
@@ -584,10 +587,10 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     t0 = time.perf_counter()
     selection = {k: cross_validate(md, start, o, concentric_model, folds=folds)
                  for k, o in (candidates or {}).items()}
-    decisions, steps = [], {}
+    decisions, steps, chosen = [], {}, None
     if terms:
-        options, decisions, _, fits = select_terms(md, start, concentric_model, base=options,
-                                                   terms=terms)
+        options, decisions, _, fits, chosen = _select_terms(md, start, concentric_model,
+                                                            options, terms, SELECTION_FOLDS)
         label = name
         steps[label] = fits["base"]
         for d in decisions:
@@ -597,7 +600,7 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
         name = label
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()
-    prob, x, free, ident, se = _identify(md, start, options)
+    prob, x, free, ident, se = chosen if terms else _identify(md, start, options)
     r = prob.residuals(x)
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)

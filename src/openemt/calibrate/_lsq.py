@@ -7,9 +7,49 @@ import numpy as np
 __all__ = ["fit_free_parameters"]
 
 
-def fit_free_parameters(prob, x0: np.ndarray, free: np.ndarray, *, tol: float, max_nfev):
+#: Rows per block of the Gram matrix in :func:`_compressed`: small enough products that a
+#: threaded BLAS runs them on one thread (a loaded machine spends more CPU than it gains on
+#: threads for these shapes).
+_GRAM_BLOCK_ROWS = 48
+
+
+def _compressed(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An upper triangular ``R`` with ``R^T R = A^T A`` for ``A = [J r]``: residuals
+    ``R[:, n]`` and Jacobian ``R[:, :n]``, ``n + 1`` rows each, with the same norm, column
+    norms, ``J^T J``, ``J^T r`` and ``|r + J p|`` for every step ``p`` as ``r`` and ``J`` (an
+    orthogonal transform of both; the last residual is the part of ``r`` outside the range of
+    ``J``). The Cholesky factor of the column-scaled Gram matrix, accumulated over row blocks;
+    a Householder QR where that is not positive definite."""
+    n = J.shape[1]
+    A = np.empty((J.shape[0], n + 1))
+    A[:, :n] = J
+    A[:, n] = r
+    s = np.sqrt(np.einsum("ki,ki->i", A, A))
+    s[s == 0.0] = 1.0
+    As = A / s
+    G = np.zeros((n + 1, n + 1))
+    for k in range(0, As.shape[0], _GRAM_BLOCK_ROWS):
+        B = As[k:k + _GRAM_BLOCK_ROWS]
+        G += B.T @ B
+    try:
+        R = np.linalg.cholesky(G, upper=True) * s
+    except np.linalg.LinAlgError:
+        R = np.linalg.qr(A, mode="r")
+    return R[:, n].copy(), R[:, :n].copy()
+
+
+def fit_free_parameters(prob, x0: np.ndarray, free: np.ndarray, *, tol: float, max_nfev,
+                        compress: bool = False):
     """Minimise ``prob.residuals`` over the parameters ``x0[free]`` (the others held at ``x0``)
     with scipy's Levenberg-Marquardt and the problem's analytic Jacobian.
+
+    With ``compress``, MINPACK is handed the triangular factor of ``[J r]`` at each point
+    instead of the tall residual vector and Jacobian (:func:`_compressed`; one
+    ``residuals_and_jacobian`` per point, no residual-only evaluations): every quantity the
+    Levenberg-Marquardt iteration uses (``|r|``, ``J^T J``, ``J^T r``, the column norms of
+    ``x_scale="jac"`` and the predicted reduction ``|r + J p|``) is the same, so are its steps
+    (up to rounding), while its QR costs ``n`` rather than ``m`` rows. ``result.fun`` is then
+    the compressed residual vector (same norm and cost).
 
     Returns ``(x, result)``: the full parameter vector at the solution and scipy's result.
     """
@@ -20,8 +60,25 @@ def fit_free_parameters(prob, x0: np.ndarray, free: np.ndarray, *, tol: float, m
         x[free] = xf
         return x
 
-    res = least_squares(lambda xf: prob.residuals(full(xf)), x0[free],
-                        jac=lambda xf: prob.residuals_and_jacobian(full(xf))[1][:, free],
-                        method="lm", x_scale="jac", ftol=tol, xtol=tol, gtol=tol,
-                        max_nfev=max_nfev)
+    opts = dict(method="lm", x_scale="jac", ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
+    n = np.size(free)
+    if compress:
+        r0, J0 = prob.residuals_and_jacobian(x0)
+        compress = r0.size > 2 * (n + 1)
+    if not compress:
+        res = least_squares(lambda xf: prob.residuals(full(xf)), x0[free],
+                            jac=lambda xf: prob.residuals_and_jacobian(full(xf))[1][:, free],
+                            **opts)
+        return full(res.x), res
+
+    last = {"x": x0[free].copy(), "rJ": _compressed(r0, J0[:, free])}
+
+    def evaluate(xf):
+        if not np.array_equal(xf, last["x"]):
+            r, J = prob.residuals_and_jacobian(full(xf))
+            last["x"], last["rJ"] = np.array(xf, copy=True), _compressed(r, J[:, free])
+        return last["rJ"]
+
+    res = least_squares(lambda xf: evaluate(xf)[0], x0[free], jac=lambda xf: evaluate(xf)[1],
+                        **opts)
     return full(res.x), res
