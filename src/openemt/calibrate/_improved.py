@@ -37,9 +37,7 @@ from ..field import (
     EnvironmentTerms,
     ModelJacobians,
     OctupoleModel,
-    coupling_jacobians,
 )
-from ..field._dipole import param_jacobian
 from ..geometry import (
     SENSOR_FIXTURES,
     SOURCE_FIXTURES,
@@ -57,7 +55,6 @@ from ._layout import ParameterLayout
 from ._lsq import fit_free_parameters
 from ._objective import build_problem, fixture_twist_map
 from ._rig import (
-    InducedDipoles,
     error_motion_twists,
     gain_linearise,
     gain_linearise_gradient,
@@ -132,7 +129,7 @@ class RigModel:
         Pose-independent coupling offset (crosstalk), in coupling units.
     induced : ndarray, shape (3 + 3 n_source,) or None
         Position (m, source frame) and per-carrier moments of an induced dipole
-        (:class:`openemt.calibrate._rig.InducedDipoles`).
+        (the induced dipoles of :class:`openemt.field.EnvironmentModel`).
     """
 
     sensor_codes: tuple = ()
@@ -273,7 +270,8 @@ class ImprovedProblem:
             base = OctupoleModel(dip, k_so, k_se)
         if o.induced:
             v = x[self.extra["induced"]]
-            return InducedDipoles(base, v[:3], v[3:])
+            return EnvironmentModel(base, EnvironmentTerms(v[None, :3], v[None, 3:].reshape(
+                1, -1, 3)))
         return base
 
     def full_model(self, x):
@@ -281,7 +279,7 @@ class ImprovedProblem:
         (and octupole) model with the environment terms (:class:`openemt.field.
         EnvironmentModel`: induced dipole, gain non-linearity, offset), else the base."""
         base = self.model(x)
-        base = getattr(base, "base", base) if isinstance(base, InducedDipoles) else base
+        base = base.base if isinstance(base, EnvironmentModel) else base
         terms = self.rig(x).environment()
         return base if terms.empty else EnvironmentModel(base, terms)
 
@@ -332,15 +330,15 @@ class ImprovedProblem:
         ch = self._chain(x)
         P = ch["P"]
         model = self.model(x)
-        if hasattr(model, "split_jacobians"):       # octupole terms, an induced dipole
-            jac, dks, dke = model.split_jacobians(P)
-        else:
-            jac, dks, dke = coupling_jacobians(model, P), None, None
+        # the model interface's Jacobians: pose derivatives and those of the model's
+        # parameters, the dipole's first, then (by group) the octupole strengths and the
+        # induced dipole's position and moments
+        jac = model.jacobians(P)
+        groups = model.parameter_groups
         lay, e = self.layout, self.extra
-        # the base problem's part: the dipole parameters and fixtures (the model interface's
-        # Jacobians of the dipole part; the octupole strengths follow below)
-        dip = getattr(model, "dipole", model)
-        mj = ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, param_jacobian(dip, jac))
+        # the base problem's part: the dipole parameters and fixtures
+        n_dip = lay.slices["model"].stop - lay.slices["model"].start
+        mj = ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, jac.d_params[..., :n_dip])
         dC_base, H = self.base.gradients(x[:lay.size], mj, P, ch["A"], ch["D"])
         n, ns, ne = jac.C.shape
         J = np.zeros((n, ns, ne, self.size))
@@ -371,18 +369,9 @@ class ImprovedProblem:
             J[..., e["stage_linear"]] = _transport(HKt, dt.transpose(0, 2, 1))
         if self.options.rz_motion:
             J[..., e["rz_motion"]] = _transport(H, adjoint(ch["K"]) @ ch["Mm"])
-        if self.options.induced:
-            ji = model.induced_jacobians(P)
-            s0 = e["induced"].start
-            J[..., s0:s0 + 3] = ji.d_L_so
-            for i in range(ns):
-                J[:, i, :, s0 + 3 + 3 * i:s0 + 6 + 3 * i] = ji.d_M_so[:, i, :, :]
-        if dks is not None and self.options.octupole_source:
-            for i in range(ns):
-                J[:, i, :, e["k_so"].start + i] = dks[:, i, :]
-        if dke is not None and self.options.octupole_sensor:
-            for j in range(ne):
-                J[:, :, j, e["k_se"].start + j] = dke[:, :, j]
+        for block, group in (("k_so", "k_so"), ("k_se", "k_se"), ("induced", "induced")):
+            if e[block].stop > e[block].start:
+                J[..., e[block]] = jac.d_params[..., groups[group]]
         w = self.base.weight[:, None, None]
         r = (self.linearised(self.base.C_meas, x) - jac.C) * w
         J *= -w[..., None]
