@@ -182,7 +182,6 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
     the readings themselves), as ``openemt solve`` refines it; ``model`` (e.g. a written
     calibration's :attr:`~openemt.io.Calibration.coupling_model`) replaces it.
     """
-    from ..correct import apply_linear_correction
     from ..solve import hemisphere_from_positions, solve_lm
 
     D = tp.poses(xt)
@@ -197,7 +196,15 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
     v, resid = res.pose_vectors, np.asarray(res.residual)
     if model is not dip:
         v, resid = refine_poses(model, couplings, v)
-    M = pose_from_vector(v)
+    return _score(tp, xt, pose_from_vector(v), D, resid, correction)
+
+
+def _score(tp: ImprovedProblem, xt, M, D, resid, correction=None) -> ScoredPoses:
+    """Solved poses ``M`` (with the output ``correction`` applied, if given) scored against
+    the ground truth ``D`` of ``tp`` at ``xt``."""
+    from ..correct import apply_linear_correction
+
+    M = np.array(M, dtype=np.float64)
     if correction is not None:
         M[:, :3, 3] = apply_linear_correction(correction, M[:, :3, 3])
     F_se = tp.layout.fixtures(xt)[2]
@@ -487,11 +494,14 @@ class ImprovedCalibration:
         tp, xt = transfer(self.problem, self.x, rows)
         cal = self.to_calibration()
         out = {}
+        # one solve: the corrected row applies the output correction to the same poses
+        plain = solve_and_score(tp, xt, rows, cm, model=cal.coupling_model)
         for name, corr in (("improved", None), ("improved_corrected", cal.linear_correction)):
             if name == "improved_corrected" and corr is None:
                 out[name] = None
                 continue
-            res = solve_and_score(tp, xt, rows, cm, correction=corr, model=cal.coupling_model)
+            res = plain if corr is None else _score(tp, xt, plain.poses, plain.truth,
+                                                    plain.residual, corr)
             s = res.summary
             out[name] = {k: s[k] for k in ACCURACY_KEYS}
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
