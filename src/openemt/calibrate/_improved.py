@@ -309,8 +309,11 @@ class ImprovedProblem:
         G = np.einsum("p,pab->ab", x[self.extra["stage_linear"]], self.G_basis)
         t_stage = self.stage[:, :3] + self.stage[:, :3] @ G.T
         K = A @ F_st @ pose_from_rt(np.eye(3), t_stage)              # prefix of the error motion
-        Em, Mm = error_motion_twists(theta, x[self.extra["rz_motion"]])
-        K2 = K @ Em                                                   # prefix of the Rz rotation
+        if self.options.rz_motion:
+            Em, Mm = error_motion_twists(theta, x[self.extra["rz_motion"]])
+            K2 = K @ Em                                               # prefix of the Rz rotation
+        else:
+            K2, Mm = K, None
         Q = K2 @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))      # prefix of a sensor-code fix
         D = Q @ dse                             # prefix of F_se
         P = D @ F_se
