@@ -296,7 +296,11 @@ def _flat(v) -> np.ndarray:
 
 def _identify(md, start, options, initial=None):
     """Fit on every md row; ``(prob, x, free, ident, se)``."""
-    f = _fit(md, start, options, initial)
+    return _identified(_fit(md, start, options, initial))
+
+
+def _identified(f):
+    """``(prob, x, free, ident, se)`` of a fit: its identifiability at the solution."""
     prob, x, free = f.problem, f.x, f.free
     r, J = prob.residuals_and_jacobian(x)
     ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
@@ -328,7 +332,8 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
 
 
 def _select_terms(md, start, concentric_model, base, terms, folds):
-    """:func:`select_terms`, and the :func:`_identify` tuple of the chosen model's fit.
+    """:func:`select_terms`, and the chosen model's fit on every md row (an
+    :class:`~openemt.calibrate.ImprovedFit`, or the :func:`_identify` tuple of a term's).
 
     Each fit on every md row starts from the model kept so far (the base from ``start``),
     each cross-validation fold from the fit on every md row of its model
@@ -336,14 +341,14 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
     """
     terms = TERMS if terms is None else terms
     options = base
-    kept_fit = _identify(md, start, options)
-    cv = cross_validate(md, start, options, concentric_model, folds=folds,
-                        initial=kept_fit[:2])
+    kept_fit = _fit(md, start, options)
+    warm = (kept_fit.problem, kept_fit.x)
+    cv = cross_validate(md, start, options, concentric_model, folds=folds, initial=warm)
     base_cv, decisions = cv, []
-    fits = {"base": kept_fit[:2]}
+    fits = {"base": warm}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
-        fit_t = _identify(md, start, trial, initial=kept_fit[:2])
+        fit_t = _identify(md, start, trial, initial=warm)
         prob, x, free, ident, se = fit_t
         cv_t = cross_validate(md, start, trial, concentric_model, folds=folds,
                               initial=(prob, x))
@@ -372,7 +377,7 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
             md_cv_after=cv_t.to_dict(), rank=ident.rank, n_free=ident.n_free, condition=cond,
             parameters=params))
         if kept:
-            options, cv, kept_fit = trial, cv_t, fit_t
+            options, cv, kept_fit, warm = trial, cv_t, fit_t, fit_t[:2]
     return options, decisions, base_cv, fits, kept_fit
 
 
@@ -610,7 +615,10 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
         name = label
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()
-    prob, x, free, ident, se = chosen if terms else _identify(md, start, options)
+    if chosen is None:
+        prob, x, free, ident, se = _identify(md, start, options)
+    else:
+        prob, x, free, ident, se = chosen if isinstance(chosen, tuple) else _identified(chosen)
     r = prob.residuals(x)
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)
