@@ -232,6 +232,14 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
     starts each fold's fit from it (:func:`openemt.calibrate.fit_improved`): the training
     rows alone decide where the fit converges, the start only shortens the way there.
     """
+    return _cross_validate(md, start, options, concentric_model, folds, seed, initial)[0]
+
+
+def _cross_validate(md, start, options, concentric_model, folds, seed=0, initial=None,
+                    previous=None):
+    """:func:`cross_validate`, and each fold's fit ``(problem, x)``. ``previous``: the fold
+    fits of a model with fewer terms (same ``folds`` and ``seed``); each fold then starts
+    from its parameters, the other terms' from ``initial``."""
     stage = md.stage if md.stage_logged is None else md.stage_logged
     key = np.round(stage[:, :3] * 1e4).astype(np.int64)
     _, group = np.unique(key, axis=0, return_inverse=True)
@@ -239,17 +247,35 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
     rng = np.random.default_rng(seed)
     fold_of_group = rng.permutation(group.max() + 1) % folds
     fold = fold_of_group[group]
-    trans, rot = [], []
+    trans, rot, fits = [], [], []
     for k in range(folds):
         train, test = md.select(fold != k), md.select(fold == k)
-        f = _fit(train, start, options, initial)
+        start_k = initial
+        if initial is not None and previous is not None:
+            start_k = _overlay(initial, previous[k], train, options)
+        f = _fit(train, start, options, start_k)
         prob, x = f.problem, f.x
+        fits.append((prob, x))
         tp, xt = transfer(prob, x, test)
         s = solve_and_score(tp, xt, test, concentric_model)
         trans.append(s.trans)
         rot.append(s.rot)
     s = error_summary(np.concatenate(trans), np.concatenate(rot))
-    return CrossValidation(trans_rms_mm=s.trans_rms_mm, rot_rms_deg=s.rot_rms_deg, n=s.n)
+    return CrossValidation(trans_rms_mm=s.trans_rms_mm, rot_rms_deg=s.rot_rms_deg,
+                           n=s.n), fits
+
+
+def _overlay(initial, previous, rows, options):
+    """A start on ``rows`` under ``options``: the parameters of the fit ``previous`` (a model
+    with fewer terms, on these rows) where it has them, those of ``initial`` for the rest."""
+    tp, x0 = carry_parameters(*initial, rows, options)
+    pp, px = previous
+    _, xp = carry_parameters(pp, px, rows, options)
+    x0[:tp.layout.size] = xp[:tp.layout.size]
+    for name, sl in tp.extra.items():
+        if pp.extra[name].stop - pp.extra[name].start == sl.stop - sl.start:
+            x0[sl] = xp[sl]
+    return tp, x0
 
 
 @dataclass(frozen=True)
@@ -343,15 +369,16 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
     options = base
     kept_fit = _fit(md, start, options)
     warm = (kept_fit.problem, kept_fit.x)
-    cv = cross_validate(md, start, options, concentric_model, folds=folds, initial=warm)
+    cv, folds_kept = _cross_validate(md, start, options, concentric_model, folds,
+                                     initial=warm)
     base_cv, decisions = cv, []
     fits = {"base": warm}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
         fit_t = _identify(md, start, trial, initial=warm)
         prob, x, free, ident, se = fit_t
-        cv_t = cross_validate(md, start, trial, concentric_model, folds=folds,
-                              initial=(prob, x))
+        cv_t, folds_t = _cross_validate(md, start, trial, concentric_model, folds,
+                                        initial=(prob, x), previous=folds_kept)
         fits[name] = (prob, x)
         cond = ident.to_dict()["condition"]
         gain = 1.0 - cv_t.trans_rms_mm / cv.trans_rms_mm
@@ -377,7 +404,7 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
             md_cv_after=cv_t.to_dict(), rank=ident.rank, n_free=ident.n_free, condition=cond,
             parameters=params))
         if kept:
-            options, cv, kept_fit, warm = trial, cv_t, fit_t, fit_t[:2]
+            options, cv, kept_fit, warm, folds_kept = trial, cv_t, fit_t, fit_t[:2], folds_t
     return options, decisions, base_cv, fits, kept_fit
 
 
