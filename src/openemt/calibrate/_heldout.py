@@ -361,9 +361,9 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
     """:func:`select_terms`, and the chosen model's fit on every md row (an
     :class:`~openemt.calibrate.ImprovedFit`, or the :func:`_identify` tuple of a term's).
 
-    Each fit on every md row starts from the model kept so far (the base from ``start``),
-    each cross-validation fold from the fit on every md row of its model
-    (:func:`cross_validate`'s ``initial``).
+    Each fit on every md row starts from the model kept so far (the base from ``start``);
+    each cross-validation fold of a term from the same fold's fit of the model kept so far,
+    the term's own parameters from the fit on every md row (:func:`_cross_validate`).
     """
     terms = TERMS if terms is None else terms
     options = base
@@ -406,8 +406,6 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
         if kept:
             options, cv, kept_fit, warm, folds_kept = trial, cv_t, fit_t, fit_t[:2], folds_t
     return options, decisions, base_cv, fits, kept_fit
-
-
 
 
 def repeat_pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
