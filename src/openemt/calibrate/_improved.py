@@ -461,6 +461,10 @@ def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize
     layout = ParameterLayout.for_model(start.model)
     if initial is not None:
         ip, ix = (initial.problem, initial.x) if isinstance(initial, ImprovedFit) else initial
+        if (ip.layout.n_source, ip.layout.n_sensor) != (layout.n_source, layout.n_sensor):
+            raise InputError(f"expected an initial fit of the start's {layout.n_source} x "
+                             f"{layout.n_sensor} coils, got one of {ip.layout.n_source} x "
+                             f"{ip.layout.n_sensor}")
         prob, x0 = carry_parameters(ip, ix, dataset, options)
         warm_induced = options.induced and ip.options.induced
     else:
