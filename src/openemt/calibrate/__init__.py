@@ -39,6 +39,7 @@ from ._improved import (
     ImprovedProblem,
     RigModel,
     RigOptions,
+    carry_parameters,
     fit_improved,
 )
 from ._layout import FIELD_NAMES, ParameterLayout
@@ -126,6 +127,7 @@ __all__ = [
     "XY_CONDITION_LIMIT",
     "analyse_identifiability",
     "build_problem",
+    "carry_parameters",
     "checkerboard_split",
     "cross_validate",
     "errors_in_variables_whitening",

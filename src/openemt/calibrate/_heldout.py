@@ -27,7 +27,7 @@ from ..geometry import SOURCE_FIXTURES, pose_from_vector
 from ..solve import refine_poses
 from ._check import ILEMT_VALID_RESNORM
 from ._identifiability import analyse_identifiability
-from ._improved import ImprovedProblem, RigOptions, fit_improved
+from ._improved import ImprovedProblem, RigOptions, carry_parameters, fit_improved
 from ._modes import MODES
 
 __all__ = [
@@ -92,24 +92,10 @@ TERM_MAX_CONDITION = 1e6
 def transfer(prob: ImprovedProblem, x, rows) -> tuple[ImprovedProblem, np.ndarray]:
     """The problem of other ``rows`` (a Dataset) with the fitted parameters ``x`` of ``prob``.
 
-    Fixture-code corrections are carried over by code; codes the fit did not see get none.
+    Fixture-code corrections are carried over by code; codes the fit did not see get none
+    (:func:`openemt.calibrate.carry_parameters`).
     """
-    tp = ImprovedProblem(rows, prob.layout, prob.base.gain, prob.options)
-    xt = np.zeros(tp.size)
-    xt[:prob.layout.size] = x[:prob.layout.size]
-    for name in tp.extra:
-        if name in ("sensor_fix", "source_fix"):
-            src = prob.sensor_codes if name == "sensor_fix" else prob.source_codes
-            dst = tp.sensor_codes if name == "sensor_fix" else tp.source_codes
-            vals = np.reshape(x[prob.extra[name]], (-1, 6))
-            out = np.zeros((len(dst), 6))
-            for i, c in enumerate(dst):
-                if c in src:
-                    out[i] = vals[src.index(c)]
-            xt[tp.extra[name]] = out.ravel()
-        else:
-            xt[tp.extra[name]] = x[prob.extra[name]]
-    return tp, xt
+    return carry_parameters(prob, x, rows)
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,7 +182,6 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
     the readings themselves), as ``openemt solve`` refines it; ``model`` (e.g. a written
     calibration's :attr:`~openemt.io.Calibration.coupling_model`) replaces it.
     """
-    from ..correct import apply_linear_correction
     from ..solve import hemisphere_from_positions, solve_lm
 
     D = tp.poses(xt)
@@ -211,7 +196,15 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
     v, resid = res.pose_vectors, np.asarray(res.residual)
     if model is not dip:
         v, resid = refine_poses(model, couplings, v)
-    M = pose_from_vector(v)
+    return _score(tp, xt, pose_from_vector(v), D, resid, correction)
+
+
+def _score(tp: ImprovedProblem, xt, M, D, resid, correction=None) -> ScoredPoses:
+    """Solved poses ``M`` (with the output ``correction`` applied, if given) scored against
+    the ground truth ``D`` of ``tp`` at ``xt``."""
+    from ..correct import apply_linear_correction
+
+    M = np.array(M, dtype=np.float64)
     if correction is not None:
         M[:, :3, 3] = apply_linear_correction(correction, M[:, :3, 3])
     F_se = tp.layout.fixtures(xt)[2]
@@ -220,23 +213,33 @@ def solve_and_score(tp: ImprovedProblem, xt, rows, concentric_model, *, initial=
                        positions=M[:, :3, 3], truth=D, residual=resid, poses=M)
 
 
-def _fit(rows, start, options):
+def _fit(rows, start, options, initial=None):
     opt = (("so_fix",) if options.source_code_fix else ()) + MODES["XYZ"].optimize
     freeze = MODES["XYZ"].freeze
     if options.sensor_code_fix:
         # with a free translation per sensor-fixture code, shifting F_se along the Rz axis
         # (compensated by F_st and the codes' corrections) is a gauge: hold it, as Z_only does
         freeze = freeze + ("z_se_fix",)
-    return fit_improved(rows, start, options, optimize=opt, freeze=freeze)
+    return fit_improved(rows, start, options, optimize=opt, freeze=freeze, initial=initial)
 
 
 def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: int = 3,
-                   seed: int = 0) -> CrossValidation:
+                   seed: int = 0, initial=None) -> CrossValidation:
     """Position-grouped K-fold cross-validation on calibration rows.
 
     Rows sharing a stage position (x, y, z) are held out together; the errors of every fold
-    are pooled.
+    are pooled. ``initial`` (the fit of ``options`` on every row of ``md``, ``(problem, x)``)
+    starts each fold's fit from it (:func:`openemt.calibrate.fit_improved`): the training
+    rows alone decide where the fit converges, the start only shortens the way there.
     """
+    return _cross_validate(md, start, options, concentric_model, folds, seed, initial)[0]
+
+
+def _cross_validate(md, start, options, concentric_model, folds, seed=0, initial=None,
+                    previous=None):
+    """:func:`cross_validate`, and each fold's fit ``(problem, x)``. ``previous``: the fold
+    fits of a model with fewer terms (same ``folds`` and ``seed``); each fold then starts
+    from its parameters, the other terms' from ``initial``."""
     stage = md.stage if md.stage_logged is None else md.stage_logged
     key = np.round(stage[:, :3] * 1e4).astype(np.int64)
     _, group = np.unique(key, axis=0, return_inverse=True)
@@ -244,17 +247,35 @@ def cross_validate(md, start, options: RigOptions, concentric_model, *, folds: i
     rng = np.random.default_rng(seed)
     fold_of_group = rng.permutation(group.max() + 1) % folds
     fold = fold_of_group[group]
-    trans, rot = [], []
+    trans, rot, fits = [], [], []
     for k in range(folds):
         train, test = md.select(fold != k), md.select(fold == k)
-        f = _fit(train, start, options)
+        start_k = initial
+        if initial is not None and previous is not None:
+            start_k = _overlay(initial, previous[k], train, options)
+        f = _fit(train, start, options, start_k)
         prob, x = f.problem, f.x
+        fits.append((prob, x))
         tp, xt = transfer(prob, x, test)
         s = solve_and_score(tp, xt, test, concentric_model)
         trans.append(s.trans)
         rot.append(s.rot)
     s = error_summary(np.concatenate(trans), np.concatenate(rot))
-    return CrossValidation(trans_rms_mm=s.trans_rms_mm, rot_rms_deg=s.rot_rms_deg, n=s.n)
+    return CrossValidation(trans_rms_mm=s.trans_rms_mm, rot_rms_deg=s.rot_rms_deg,
+                           n=s.n), fits
+
+
+def _overlay(initial, previous, rows, options):
+    """A start on ``rows`` under ``options``: the parameters of the fit ``previous`` (a model
+    with fewer terms, on these rows) where it has them, those of ``initial`` for the rest."""
+    tp, x0 = carry_parameters(*initial, rows, options)
+    pp, px = previous
+    _, xp = carry_parameters(pp, px, rows, options)
+    x0[:tp.layout.size] = xp[:tp.layout.size]
+    for name, sl in tp.extra.items():
+        if pp.extra[name].stop - pp.extra[name].start == sl.stop - sl.start:
+            x0[sl] = xp[sl]
+    return tp, x0
 
 
 @dataclass(frozen=True)
@@ -299,9 +320,13 @@ def _flat(v) -> np.ndarray:
     return np.ravel(np.asarray(v, dtype=np.float64))
 
 
-def _identify(md, start, options):
+def _identify(md, start, options, initial=None):
     """Fit on every md row; ``(prob, x, free, ident, se)``."""
-    f = _fit(md, start, options)
+    return _identified(_fit(md, start, options, initial))
+
+
+def _identified(f):
+    """``(prob, x, free, ident, se)`` of a fit: its identifiability at the solution."""
     prob, x, free = f.problem, f.x, f.free
     r, J = prob.residuals_and_jacobian(x)
     ident = analyse_identifiability(J[:, free], r, free, prob.layout, (), warn=False)
@@ -329,16 +354,31 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
         The fit on every md row of the base model (``"base"``) and of each trial (the term's
         name), for the before/after scores.
     """
+    return _select_terms(md, start, concentric_model, base, terms, folds)[:4]
+
+
+def _select_terms(md, start, concentric_model, base, terms, folds):
+    """:func:`select_terms`, and the chosen model's fit on every md row (an
+    :class:`~openemt.calibrate.ImprovedFit`, or the :func:`_identify` tuple of a term's).
+
+    Each fit on every md row starts from the model kept so far (the base from ``start``);
+    each cross-validation fold of a term from the same fold's fit of the model kept so far,
+    the term's own parameters from the fit on every md row (:func:`_cross_validate`).
+    """
     terms = TERMS if terms is None else terms
     options = base
-    cv = cross_validate(md, start, options, concentric_model, folds=folds)
+    kept_fit = _fit(md, start, options)
+    warm = (kept_fit.problem, kept_fit.x)
+    cv, folds_kept = _cross_validate(md, start, options, concentric_model, folds,
+                                     initial=warm)
     base_cv, decisions = cv, []
-    base_fit = _fit(md, start, options)
-    fits = {"base": (base_fit.problem, base_fit.x)}
+    fits = {"base": warm}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
-        cv_t = cross_validate(md, start, trial, concentric_model, folds=folds)
-        prob, x, free, ident, se = _identify(md, start, trial)
+        fit_t = _identify(md, start, trial, initial=warm)
+        prob, x, free, ident, se = fit_t
+        cv_t, folds_t = _cross_validate(md, start, trial, concentric_model, folds,
+                                        initial=(prob, x), previous=folds_kept)
         fits[name] = (prob, x)
         cond = ident.to_dict()["condition"]
         gain = 1.0 - cv_t.trans_rms_mm / cv.trans_rms_mm
@@ -364,8 +404,8 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
             md_cv_after=cv_t.to_dict(), rank=ident.rank, n_free=ident.n_free, condition=cond,
             parameters=params))
         if kept:
-            options, cv = trial, cv_t
-    return options, decisions, base_cv, fits
+            options, cv, kept_fit, warm, folds_kept = trial, cv_t, fit_t, fit_t[:2], folds_t
+    return options, decisions, base_cv, fits, kept_fit
 
 
 def repeat_pairs(a, b) -> tuple[np.ndarray, np.ndarray]:
@@ -484,11 +524,14 @@ class ImprovedCalibration:
         tp, xt = transfer(self.problem, self.x, rows)
         cal = self.to_calibration()
         out = {}
+        # one solve: the corrected row applies the output correction to the same poses
+        plain = solve_and_score(tp, xt, rows, cm, model=cal.coupling_model)
         for name, corr in (("improved", None), ("improved_corrected", cal.linear_correction)):
             if name == "improved_corrected" and corr is None:
                 out[name] = None
                 continue
-            res = solve_and_score(tp, xt, rows, cm, correction=corr, model=cal.coupling_model)
+            res = plain if corr is None else _score(tp, xt, plain.poses, plain.truth,
+                                                    plain.residual, corr)
             s = res.summary
             out[name] = {k: s[k] for k in ACCURACY_KEYS}
             out[name]["trans_uncert_mm"] = float(np.hypot(s["trans_rms_mm"],
@@ -584,10 +627,10 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     t0 = time.perf_counter()
     selection = {k: cross_validate(md, start, o, concentric_model, folds=folds)
                  for k, o in (candidates or {}).items()}
-    decisions, steps = [], {}
+    decisions, steps, chosen = [], {}, None
     if terms:
-        options, decisions, _, fits = select_terms(md, start, concentric_model, base=options,
-                                                   terms=terms)
+        options, decisions, _, fits, chosen = _select_terms(md, start, concentric_model,
+                                                            options, terms, SELECTION_FOLDS)
         label = name
         steps[label] = fits["base"]
         for d in decisions:
@@ -597,7 +640,10 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
         name = label
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()
-    prob, x, free, ident, se = _identify(md, start, options)
+    if chosen is None:
+        prob, x, free, ident, se = _identify(md, start, options)
+    else:
+        prob, x, free, ident, se = chosen if isinstance(chosen, tuple) else _identified(chosen)
     r = prob.residuals(x)
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)

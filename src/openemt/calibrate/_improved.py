@@ -37,9 +37,7 @@ from ..field import (
     EnvironmentTerms,
     ModelJacobians,
     OctupoleModel,
-    coupling_jacobians,
 )
-from ..field._dipole import param_jacobian
 from ..geometry import (
     SENSOR_FIXTURES,
     SOURCE_FIXTURES,
@@ -57,14 +55,13 @@ from ._layout import ParameterLayout
 from ._lsq import fit_free_parameters
 from ._objective import build_problem, fixture_twist_map
 from ._rig import (
-    InducedDipoles,
     error_motion_twists,
     gain_linearise,
     gain_linearise_gradient,
 )
 
 __all__ = ["STAGE_LINEAR_BASIS", "ImprovedFit", "ImprovedProblem", "RigModel", "RigOptions",
-           "fit_improved"]
+           "carry_parameters", "fit_improved"]
 
 
 #: Start of the induced dipole's position: this far beyond the centroid of the fitted rows,
@@ -132,7 +129,7 @@ class RigModel:
         Pose-independent coupling offset (crosstalk), in coupling units.
     induced : ndarray, shape (3 + 3 n_source,) or None
         Position (m, source frame) and per-carrier moments of an induced dipole
-        (:class:`openemt.calibrate._rig.InducedDipoles`).
+        (the induced dipoles of :class:`openemt.field.EnvironmentModel`).
     """
 
     sensor_codes: tuple = ()
@@ -273,7 +270,8 @@ class ImprovedProblem:
             base = OctupoleModel(dip, k_so, k_se)
         if o.induced:
             v = x[self.extra["induced"]]
-            return InducedDipoles(base, v[:3], v[3:])
+            return EnvironmentModel(base, EnvironmentTerms(v[None, :3], v[None, 3:].reshape(
+                1, -1, 3)))
         return base
 
     def full_model(self, x):
@@ -281,7 +279,7 @@ class ImprovedProblem:
         (and octupole) model with the environment terms (:class:`openemt.field.
         EnvironmentModel`: induced dipole, gain non-linearity, offset), else the base."""
         base = self.model(x)
-        base = getattr(base, "base", base) if isinstance(base, InducedDipoles) else base
+        base = base.base if isinstance(base, EnvironmentModel) else base
         terms = self.rig(x).environment()
         return base if terms.empty else EnvironmentModel(base, terms)
 
@@ -311,8 +309,11 @@ class ImprovedProblem:
         G = np.einsum("p,pab->ab", x[self.extra["stage_linear"]], self.G_basis)
         t_stage = self.stage[:, :3] + self.stage[:, :3] @ G.T
         K = A @ F_st @ pose_from_rt(np.eye(3), t_stage)              # prefix of the error motion
-        Em, Mm = error_motion_twists(theta, x[self.extra["rz_motion"]])
-        K2 = K @ Em                                                   # prefix of the Rz rotation
+        if self.options.rz_motion:
+            Em, Mm = error_motion_twists(theta, x[self.extra["rz_motion"]])
+            K2 = K @ Em                                               # prefix of the Rz rotation
+        else:
+            K2, Mm = K, None
         Q = K2 @ pose_from_rt(Rn @ rest @ self.S, np.zeros(3))      # prefix of a sensor-code fix
         D = Q @ dse                             # prefix of F_se
         P = D @ F_se
@@ -332,15 +333,15 @@ class ImprovedProblem:
         ch = self._chain(x)
         P = ch["P"]
         model = self.model(x)
-        if hasattr(model, "split_jacobians"):       # octupole terms, an induced dipole
-            jac, dks, dke = model.split_jacobians(P)
-        else:
-            jac, dks, dke = coupling_jacobians(model, P), None, None
+        # the model interface's Jacobians: pose derivatives and those of the model's
+        # parameters, the dipole's first, then (by group) the octupole strengths and the
+        # induced dipole's position and moments
+        jac = model.jacobians(P)
+        groups = model.parameter_groups
         lay, e = self.layout, self.extra
-        # the base problem's part: the dipole parameters and fixtures (the model interface's
-        # Jacobians of the dipole part; the octupole strengths follow below)
-        dip = getattr(model, "dipole", model)
-        mj = ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, param_jacobian(dip, jac))
+        # the base problem's part: the dipole parameters and fixtures
+        n_dip = lay.slices["model"].stop - lay.slices["model"].start
+        mj = ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, jac.d_params[..., :n_dip])
         dC_base, H = self.base.gradients(x[:lay.size], mj, P, ch["A"], ch["D"])
         n, ns, ne = jac.C.shape
         J = np.zeros((n, ns, ne, self.size))
@@ -348,15 +349,14 @@ class ImprovedProblem:
         for c, (rows, v) in enumerate(zip(self.se_rows,
                                           np.reshape(x[e["sensor_fix"]], (-1, 6)))):
             s = slice(e["sensor_fix"].start + 6 * c, e["sensor_fix"].start + 6 * c + 6)
-            T = adjoint(ch["Q"][rows]) @ fixture_twist_map(v)
-            J[rows, :, :, s] = np.einsum("kijb,kbc->kijc", H[rows], T)
+            J[rows, :, :, s] = _transport(H[rows], adjoint(ch["Q"][rows]) @ fixture_twist_map(v))
         for c, (rows, v) in enumerate(zip(self.so_rows,
                                           np.reshape(x[e["source_fix"]], (-1, 6)))):
             s = slice(e["source_fix"].start + 6 * c, e["source_fix"].start + 6 * c + 6)
-            T = adjoint(ch["A0"][rows]) @ fixture_twist_map(v)
-            J[rows, :, :, s] = np.einsum("kijb,kbc->kijc", H[rows], T)
+            J[rows, :, :, s] = _transport(H[rows],
+                                          adjoint(ch["A0"][rows]) @ fixture_twist_map(v))
         if e["rz_poly"].stop > e["rz_poly"].start or self.options.rz_tilt:
-            HK = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K2"]))[..., 3:]  # rotation part
+            HK = _transport(H, adjoint(ch["K2"])[:, :, 3:])                  # rotation part
             axis = ch["E"][:, 2]
             g_axis = HK @ axis                                                # (n, ns, ne)
             for p in range(e["rz_poly"].stop - e["rz_poly"].start):
@@ -364,27 +364,17 @@ class ImprovedProblem:
             if self.options.rz_tilt:
                 Jl = left_jacobian_so3(ch["w"])[:, :2]
                 M = (np.eye(3) - ch["Rn"]) @ Jl                               # (n, 3, 2)
-                J[..., e["rz_tilt"]] = np.einsum("kijb,kbc->kijc", HK, M)
+                J[..., e["rz_tilt"]] = _transport(HK, M)
         if self.G_basis.shape[0]:
             # t -> t + G t: a translation of the stage carriage in stage-base axes
-            HKt = np.einsum("kijb,kbc->kijc", H, adjoint(ch["K"]))[..., :3]
-            dt = np.einsum("pab,kb->kpa", self.G_basis, self.stage[:, :3])   # (n, p, 3)
-            J[..., e["stage_linear"]] = np.einsum("kija,kpa->kijp", HKt, dt)
+            HKt = _transport(H, adjoint(ch["K"])[:, :, :3])
+            dt = np.tensordot(self.stage[:, :3], self.G_basis, axes=([1], [2]))  # (n, p, 3)
+            J[..., e["stage_linear"]] = _transport(HKt, dt.transpose(0, 2, 1))
         if self.options.rz_motion:
-            J[..., e["rz_motion"]] = np.einsum("kijb,kbc->kijc", H,
-                                               adjoint(ch["K"]) @ ch["Mm"])
-        if self.options.induced:
-            ji = model.induced_jacobians(P)
-            s0 = e["induced"].start
-            J[..., s0:s0 + 3] = ji.d_L_so
-            for i in range(ns):
-                J[:, i, :, s0 + 3 + 3 * i:s0 + 6 + 3 * i] = ji.d_M_so[:, i, :, :]
-        if dks is not None and self.options.octupole_source:
-            for i in range(ns):
-                J[:, i, :, e["k_so"].start + i] = dks[:, i, :]
-        if dke is not None and self.options.octupole_sensor:
-            for j in range(ne):
-                J[:, :, j, e["k_se"].start + j] = dke[:, :, j]
+            J[..., e["rz_motion"]] = _transport(H, adjoint(ch["K"]) @ ch["Mm"])
+        for block, group in (("k_so", "k_so"), ("k_se", "k_se"), ("induced", "induced")):
+            if e[block].stop > e[block].start:
+                J[..., e[block]] = jac.d_params[..., groups[group]]
         w = self.base.weight[:, None, None]
         r = (self.linearised(self.base.C_meas, x) - jac.C) * w
         J *= -w[..., None]
@@ -394,6 +384,12 @@ class ImprovedProblem:
             J[..., e["offset"]] = (-np.eye(ns * ne).reshape(ns, ne, ns * ne)
                                    * w[..., None])
         return r.ravel(), J.reshape(r.size, self.size)
+
+
+def _transport(H, T) -> np.ndarray:
+    """``H (N, n_so, n_se, b) @ T (N, b, c)`` per row: ``(N, n_so, n_se, c)``."""
+    n, ns, ne, b = H.shape
+    return np.matmul(H.reshape(n, ns * ne, b), T).reshape(n, ns, ne, -1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -426,17 +422,57 @@ class ImprovedFit(Result):
         return iter((self.problem, self.x, self.free, self.result))
 
 
+def carry_parameters(prob: ImprovedProblem, x, rows, options: RigOptions | None = None
+                     ) -> tuple[ImprovedProblem, np.ndarray]:
+    """The problem of ``rows`` (a Dataset) under ``options`` (default ``prob``'s) with the
+    parameters ``x`` of ``prob`` carried over: the layout vector, and each extra block the two
+    problems share with the same size (fixture-code corrections by code; codes ``prob`` did not
+    see get none). Blocks ``prob`` lacks are zero."""
+    options = prob.options if options is None else options
+    tp = ImprovedProblem(rows, prob.layout, prob.base.gain, options)
+    xt = np.zeros(tp.size)
+    xt[:prob.layout.size] = x[:prob.layout.size]
+    for name, sl in tp.extra.items():
+        if name in ("sensor_fix", "source_fix"):
+            src = prob.sensor_codes if name == "sensor_fix" else prob.source_codes
+            dst = tp.sensor_codes if name == "sensor_fix" else tp.source_codes
+            vals = np.reshape(x[prob.extra[name]], (-1, 6))
+            out = np.zeros((len(dst), 6))
+            for i, c in enumerate(dst):
+                if c in src:
+                    out[i] = vals[src.index(c)]
+            xt[sl] = out.ravel()
+        elif prob.extra[name].stop - prob.extra[name].start == sl.stop - sl.start:
+            xt[sl] = x[prob.extra[name]]
+    return tp, xt
+
+
 def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize, freeze,
-                 max_nfev: int = 200, tol: float = 1e-12) -> ImprovedFit:
+                 max_nfev: int = 200, tol: float = 1e-12, initial=None) -> ImprovedFit:
     """Fit the improved model to every row of ``dataset`` from the calibration ``start``:
     an :class:`ImprovedFit` (``problem``, the full parameter vector ``x`` (layout + extras),
     ``free``, ``result``).
+
+    ``initial`` (a fit of the improved model, e.g. on more rows or with fewer terms: an
+    :class:`ImprovedFit` or ``(problem, x)``) starts the fit from its parameters instead
+    (:func:`carry_parameters`; ``start`` still gives the parameters it lacks): a warm start
+    for fits that converge to the same solution, in fewer iterations.
     """
     layout = ParameterLayout.for_model(start.model)
-    prob = ImprovedProblem(dataset, layout, start.model.gain, options)
-    x0 = np.zeros(prob.size)
-    x0[:layout.size] = layout.pack_calibration(start)
-    if options.induced:
+    if initial is not None:
+        ip, ix = (initial.problem, initial.x) if isinstance(initial, ImprovedFit) else initial
+        if (ip.layout.n_source, ip.layout.n_sensor) != (layout.n_source, layout.n_sensor):
+            raise InputError(f"expected an initial fit of the start's {layout.n_source} x "
+                             f"{layout.n_sensor} coils, got one of {ip.layout.n_source} x "
+                             f"{ip.layout.n_sensor}")
+        prob, x0 = carry_parameters(ip, ix, dataset, options)
+        warm_induced = options.induced and ip.options.induced
+    else:
+        prob = ImprovedProblem(dataset, layout, start.model.gain, options)
+        x0 = np.zeros(prob.size)
+        x0[:layout.size] = layout.pack_calibration(start)
+        warm_induced = False
+    if options.induced and not warm_induced:
         # start: beyond the rows' centroid, 0.15 m further from the source, with a small moment
         # (at zero moment the position has no gradient)
         s0 = prob.extra["induced"].start
@@ -446,11 +482,11 @@ def fit_improved(dataset, start, options: RigOptions = RigOptions(), *, optimize
         x0[s0 + 3:prob.extra["induced"].stop] = 1e-4
     free = np.r_[layout.free_indices(optimize, freeze), np.arange(layout.size, prob.size)]
 
-    if options.induced:
+    if options.induced and not warm_induced:
         # first the moments with the position held at its start (at a near-zero moment the
         # position's gradient is tiny and a free position wanders), then everything
         s0 = prob.extra["induced"].start
         x0, _ = fit_free_parameters(prob, x0, np.setdiff1d(free, np.arange(s0, s0 + 3)),
-                                    tol=tol, max_nfev=max_nfev)
-    x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev)
+                                    tol=tol, max_nfev=max_nfev, compress=True)
+    x, res = fit_free_parameters(prob, x0, free, tol=tol, max_nfev=max_nfev, compress=True)
     return ImprovedFit(prob, x, free, res)

@@ -20,8 +20,9 @@ Parameter groups of the improved rig model (:mod:`openemt.calibrate._improved`),
   ``c = c_read (1 + beta_j |c_read|)`` (first order) before the coupling model.
 * **Coupling offset.** A pose-independent coupling ``C0`` (crosstalk of the drive into the
   sensor channels) is subtracted from every reading.
-* **Induced dipole.** The field of a conductive or magnetic object near the rig
-  (:class:`InducedDipoles`).
+* **Induced dipole.** The field of a conductive or magnetic object near the rig: a dipole at
+  ``q`` with a moment per source coil's carrier, the induced dipoles of
+  :class:`openemt.field.EnvironmentModel` (the improved model is its base plus that term).
 
 Pure array functions and a thin model wrapper; the calibration problem wires them in.
 """
@@ -30,7 +31,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import InputError
 from ..geometry import left_jacobian_so3, pose_from_vector, skew
 
 __all__ = [
@@ -104,70 +104,3 @@ def gain_linearise_gradient(C) -> np.ndarray:
     for j in range(ne):
         G[:, :, j, j] = C[:, :, j] * np.abs(C[:, :, j])
     return G
-
-
-class InducedDipoles:
-    """A coupling model plus the field of a conductive or magnetic object near the rig.
-
-    An object at ``q`` (source frame) carries, at each source coil's carrier, an induced moment
-    ``mu_i`` (in phase with the drive, what the signed real coupling sees: eddy currents of a
-    conductor or the magnetisation of iron, frequency-dependent). Its field reaches the sensor
-    coils as that of a dipole at ``q``, so the coupling gains ``C_ind[i, j]`` = the dipole model
-    of a "source coil" ``i`` at ``q`` with moment ``mu_i`` into sensor coil ``j`` (such metal
-    distortions are reviewed by Kindratenko, "A survey of electromagnetic position tracker
-    calibration techniques", Virtual Reality 5(3), 2000). ``base`` is a
-    :class:`~openemt.field.DipoleModel`
-    or :class:`~openemt.field.OctupoleModel`; ``coupling`` and ``split_jacobians`` follow the
-    latter (``(CouplingJacobians, d_k_so, d_k_se)``, the last two None for a dipole base), and
-    ``jacobians(poses, params=False)`` gives the pose derivatives of the model interface, so
-    :func:`openemt.solve.refine_poses` refines poses with it.
-    """
-
-    def __init__(self, base, q, mu):
-        from ..field import DipoleModel
-
-        self.base = base
-        self.dipole = getattr(base, "dipole", base)
-        d = self.dipole
-        q = np.asarray(q, dtype=np.float64)
-        self.q = q
-        self.mu = np.asarray(mu, dtype=np.float64).reshape(d.n_source, 3).T   # (3, n_so)
-        self.induced = DipoleModel(gain=d.gain, L_so=np.repeat(q[:, None], d.n_source, axis=1),
-                                   M_so=self.mu, L_se=d.L_se, M_se=d.M_se)
-        self.n_source, self.n_sensor = d.n_source, d.n_sensor
-
-    def coupling(self, poses) -> np.ndarray:
-        return self.base.coupling(poses) + self.induced.coupling(poses)
-
-    def induced_jacobians(self, poses):
-        """:func:`openemt.field.coupling_jacobians` of the induced part alone (its ``d_L_so``
-        and ``d_M_so`` are the derivatives with respect to ``q`` and ``mu_i``)."""
-        from ..field import coupling_jacobians
-
-        return coupling_jacobians(self.induced, poses)
-
-    def jacobians(self, poses, params: bool = False):
-        """Pose derivatives as the model interface gives them (:class:`~openemt.field.
-        ModelJacobians`, no parameter part: the object's parameters are fitted by the improved
-        problem), for :func:`openemt.solve.refine_poses`."""
-        from ..field import ModelJacobians
-
-        if params:
-            raise InputError("expected params=False: an induced dipole's parameters belong to "
-                             "the improved calibration problem, got params=True")
-        jac, _, _ = self.split_jacobians(poses)
-        return ModelJacobians(jac.C, jac.d_translation, jac.d_rotation, None)
-
-    def split_jacobians(self, poses):
-        from ..field import CouplingJacobians, coupling_jacobians
-
-        if hasattr(self.base, "split_jacobians"):
-            jb, dks, dke = self.base.split_jacobians(poses)
-        else:
-            jb, dks, dke = coupling_jacobians(self.base, poses), None, None
-        ji = self.induced_jacobians(poses)
-        fields = {k: getattr(jb, k) + (getattr(ji, k) if k in (
-            "C", "d_translation", "d_rotation", "d_L_se", "d_M_se") else 0.0)
-            for k in ("C", "d_translation", "d_rotation", "d_L_so", "d_M_so", "d_L_se",
-                      "d_M_se")}
-        return CouplingJacobians(**fields), dks, dke

@@ -29,43 +29,21 @@ from ._dipole import CouplingJacobians, DipoleModel, coupling_jacobians
 __all__ = ["OctupoleModel", "octupole_coupling"]
 
 
-def _octupole_pair(r, M, m, gain, want_grad):
-    """Octupole coupling of source moments ``M`` at offset ``r`` (source -> sensor) into ``m``.
-
-    Shapes broadcast: ``r, M, m (..., 3)``. Returns ``C (...)`` and, if wanted, the gradients
-    with respect to ``r``, ``M`` and ``m`` (each ``(..., 3)``), for ``kappa = 1``. Coils at zero
-    distance give NaN (the field is undefined there), without a warning.
-    """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return _octupole_pair_values(r, M, m, gain, want_grad)
+def _cross(a, b):
+    """``a x b`` over the last axis (broadcasting), without :func:`numpy.cross`'s overhead."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
-def _octupole_pair_values(r, M, m, gain, want_grad):
-    d2 = np.sum(r * r, axis=-1)
-    d = np.sqrt(d2)
-    u = r / d[..., None]
-    a = np.sum(M * u, axis=-1)
-    b = np.sum(m * u, axis=-1)
-    g = np.sum(M * m, axis=-1)
-    mu2 = np.sum(M * M, axis=-1)
-    f = 15 * a * a * g - 3 * g * mu2 - 35 * a ** 3 * b + 15 * a * b * mu2
-    K = -0.5 * gain / (mu2 * d2 * d2 * d)
-    C = K * f
-    if not want_grad:
-        return C, None, None, None
-    fa = 30 * a * g - 105 * a * a * b + 15 * b * mu2
-    fb = -35 * a ** 3 + 15 * a * mu2
-    fg = 15 * a * a - 3 * mu2
-    fmu = -3 * g + 15 * a * b
-    inv_d = (1.0 / d)[..., None]
-    da_dr = (M - a[..., None] * u) * inv_d
-    db_dr = (m - b[..., None] * u) * inv_d
-    Kx = K[..., None]
-    dr = Kx * (fa[..., None] * da_dr + fb[..., None] * db_dr - 5 * f[..., None] * u * inv_d)
-    dM = Kx * (fa[..., None] * u + fg[..., None] * m + 2 * fmu[..., None] * M
-               - 2 * (f / mu2)[..., None] * M)
-    dm = Kx * (fb[..., None] * u + fg[..., None] * M)
-    return C, dr, dM, dm
+def _dot(a, b):
+    """``a . b`` over the last axis of 3-vectors (broadcasting)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _vec(cu, u, cM, M, cm, m):
+    """``cu u + cM M + cm m`` for coefficients ``(...)`` and vectors ``(..., 3)``."""
+    return cu[..., None] * u + cM[..., None] * M + cm[..., None] * m
 
 
 def octupole_coupling(model: DipoleModel, k_so, k_se, R, t, want_grad=False):
@@ -75,33 +53,72 @@ def octupole_coupling(model: DipoleModel, k_so, k_se, R, t, want_grad=False):
     With ``want_grad`` also returns a dict of gradients shaped like
     :class:`~openemt.field.CouplingJacobians` fields plus ``d_k_so``/``d_k_se``
     ``(N, n_so, n_se)`` (``C`` for unit strength of the coil concerned).
+
+    The source coil's octupole is ``C3`` of the module doc with ``a = M.u``, ``b = m.u``; the
+    sensor coil's, by reciprocity, the same form with the roles of ``M`` and ``m`` swapped
+    (seen from the sensor, ``u -> -u``: ``a -> -b``, ``b -> -a``), so both share ``d``,
+    ``u``, ``a``, ``b`` and ``g``. Coils at zero distance give NaN (the field is undefined
+    there), without a warning.
     """
-    k_so = np.asarray(k_so, dtype=np.float64)
-    k_se = np.asarray(k_se, dtype=np.float64)
-    Lr = np.einsum("kab,bj->kja", R, model.L_se)                   # (N, n_se, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _octupole_values(model, k_so, k_se, R, t, want_grad)
+
+
+def _octupole_values(model, k_so, k_se, R, t, want_grad):
+    k_so = np.asarray(k_so, dtype=np.float64)[None, :, None]
+    k_se = np.asarray(k_se, dtype=np.float64)[None, None, :]
+    R = np.asarray(R, dtype=np.float64)
+    Lr = np.matmul(R, model.L_se).transpose(0, 2, 1)                # (N, n_se, 3)
     p = Lr + t[:, None, :]
-    m = np.einsum("kab,bj->kja", R, model.M_se)                    # (N, n_se, 3)
-    r = p[:, None, :, :] - model.L_so.T[None, :, None, :]          # (N, n_so, n_se, 3)
-    M = np.broadcast_to(model.M_so.T[None, :, None, :], r.shape)
-    mm = np.broadcast_to(m[:, None, :, :], r.shape)
-    # source coil finite size: field of the source octupole at the point sensor
-    Cs, drs, dMs, dms = _octupole_pair(r, M, mm, model.gain, want_grad)
-    # sensor coil finite size: by reciprocity, the sensor octupole "seen" from the source
-    Ce, dre, dme, dMe = _octupole_pair(-r, mm, M, model.gain, want_grad)
-    C = Cs * k_so[None, :, None] + Ce * k_se[None, None, :]
+    mv = np.matmul(R, model.M_se).transpose(0, 2, 1)[:, None]       # (N, 1, n_se, 3)
+    Mv = model.M_so.T[None, :, None, :]                              # (1, n_so, 1, 3)
+    r = p[:, None, :, :] - model.L_so.T[None, :, None, :]           # (N, n_so, n_se, 3)
+    d2 = _dot(r, r)
+    d = np.sqrt(d2)
+    inv_d = 1.0 / d
+    u = r * inv_d[..., None]
+    a = _dot(Mv, u)
+    b = _dot(mv, u)
+    g = _dot(Mv, mv)
+    mu2 = _dot(Mv, Mv)                   # |M|^2 (source), |m|^2 (sensor)
+    nu2 = _dot(mv, mv)
+    a2, b2 = a * a, b * b
+    ab = a * b
+    # source octupole (first moment M) and sensor octupole (first moment m, u -> -u)
+    fs = 15 * a2 * g - 3 * g * mu2 - 35 * a2 * ab + 15 * ab * mu2
+    fe = 15 * b2 * g - 3 * g * nu2 - 35 * b2 * ab + 15 * ab * nu2
+    d5 = d2 * d2 * d
+    Ks = -0.5 * model.gain / (mu2 * d5)
+    Ke = -0.5 * model.gain / (nu2 * d5)
+    Cs, Ce = Ks * fs, Ke * fe
+    C = Cs * k_so + Ce * k_se
     if not want_grad:
         return C, None
-    ks = k_so[None, :, None, None]
-    ke = k_se[None, None, :, None]
-    g_r = drs * ks - dre * ke          # gradient with respect to r = p_j - L_so_i
-    g_M = dMs * ks + dMe * ke          # with respect to the source moment (source frame)
-    g_m = dms * ks + dme * ke          # with respect to the sensor moment (source frame)
+    # partial derivatives of f: source (a, b, g, |M|^2), sensor in its own (a', b') = (-b, -a)
+    fa = 30 * a * g - 105 * a2 * b + 15 * b * mu2
+    fb = -35 * a2 * a + 15 * a * mu2
+    fg = 15 * a2 - 3 * mu2
+    fmu = -3 * g + 15 * ab
+    fa_e = -30 * b * g + 105 * b2 * a - 15 * a * nu2
+    fb_e = 35 * b2 * b - 15 * b * nu2
+    fg_e = 15 * b2 - 3 * nu2
+    ws, we = Ks * k_so, Ke * k_se
+    # gradient with respect to r = p_j - L_so_i: da/dr = (M - a u) / d, db/dr = (m - b u) / d
+    cM = (ws * fa - we * fb_e) * inv_d
+    cm = (ws * fb - we * fa_e) * inv_d
+    cu = -(ws * (fa * a + fb * b + 5 * fs) + we * (-fa_e * b - fb_e * a + 5 * fe)) * inv_d
+    g_r = _vec(cu, u, cM, Mv, cm, mv)
+    # with respect to the source moment M and the sensor moment m (source frame)
+    g_M = _vec(ws * fa - we * fb_e, u, ws * (2 * fmu - 2 * fs / mu2), Mv, ws * fg + we * fg_e,
+               mv)
+    g_m = _vec(ws * fb - we * fa_e, u, ws * fg + we * fg_e, Mv,
+               we * (2 * fmu - 2 * fe / nu2), mv)
     # p_j = R L_se_j + t, m_j = R M_se_j (as the dipole kernel)
-    d_phi = np.cross(Lr[:, None, :, :], g_r) + np.cross(mm, g_m)
+    d_phi = _cross(Lr[:, None, :, :], g_r) + _cross(mv, g_m)
+    Rb = R[:, None]
     grads = {
         "C": C, "d_translation": g_r, "d_rotation": d_phi, "d_L_so": -g_r, "d_M_so": g_M,
-        "d_L_se": np.einsum("kba,kijb->kija", R, g_r),
-        "d_M_se": np.einsum("kba,kijb->kija", R, g_m),
+        "d_L_se": np.matmul(g_r, Rb), "d_M_se": np.matmul(g_m, Rb),
         "d_k_so": Cs, "d_k_se": Ce,
     }
     return C, grads
