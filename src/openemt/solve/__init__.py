@@ -6,84 +6,28 @@ calibration or a model and one options record (:class:`SolveOptions`).
 See docs/solve.md for the algorithms, status codes, SNR definition and benchmarks.
 """
 
-from ._bands import (
-    BAND_METHODS,
-    DEFAULT_BAND_TIME_CONSTANT_S,
-    BandReader,
-    BandStage,
-    cole_cole_couplings,
-    eddy_free_couplings,
-    fuse_bands,
-    resolve_bands,
-)
-from ._closed_form import solve_kim18, solve_kuipers, solve_svd, spectral_norms
-from ._crb import cramer_rao, solver_covariance
-from ._factory import SOLVER_FAMILIES, prepare
-from ._grid import GridData, PlanarErrors, planar_accuracy, planar_errors
-from ._hemisphere import hemisphere_from_positions, hemisphere_vectors, rig_hemispheres
-from ._lm_solver import solve_lm
-from ._lm_starts import closed_form_start
-from ._options import SolveOptions
-from ._output import POSES_SCHEMA, PoseWriter, read_poses
-from ._planar import pose_from_axis, solve_planar
-from ._refine import refine_poses
-from ._result import SolveResult, Status, status_count_names
-from ._runner import SOLVERS, apply_position_correction, solve, solve_chunks
-from ._series import solve_series
-from ._tofile import solve_to_file
-from ._workflow import (
-    RowFixtures,
-    SolveFileOptions,
-    SolveFileResult,
-    failure_reasons,
-    solve_file,
-)
+from .._lazy import lazy_exports
 
-__all__ = [
-    "BAND_METHODS",
-    "BandReader",
-    "BandStage",
-    "DEFAULT_BAND_TIME_CONSTANT_S",
-    "GridData",
-    "POSES_SCHEMA",
-    "PlanarErrors",
-    "SOLVERS",
-    "SOLVER_FAMILIES",
-    "RowFixtures",
-    "SolveFileOptions",
-    "SolveFileResult",
-    "SolveOptions",
-    "PoseWriter",
-    "SolveResult",
-    "Status",
-    "apply_position_correction",
-    "closed_form_start",
-    "cole_cole_couplings",
-    "cramer_rao",
-    "eddy_free_couplings",
-    "failure_reasons",
-    "fuse_bands",
-    "hemisphere_from_positions",
-    "hemisphere_vectors",
-    "planar_accuracy",
-    "planar_errors",
-    "prepare",
-    "read_poses",
-    "resolve_bands",
-    "pose_from_axis",
-    "refine_poses",
-    "rig_hemispheres",
-    "solve",
-    "solve_chunks",
-    "solve_file",
-    "solve_kim18",
-    "solve_kuipers",
-    "solve_lm",
-    "solve_planar",
-    "solve_series",
-    "solve_svd",
-    "solve_to_file",
-    "solver_covariance",
-    "status_count_names",
-    "spectral_norms",
-]
+#: where each public name lives; a module is imported on first use of one of its names
+_SOURCES = {
+    "._bands": ("BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "BandReader", "BandStage",
+                "cole_cole_couplings", "eddy_free_couplings", "fuse_bands", "resolve_bands"),
+    "._closed_form": ("solve_kim18", "solve_kuipers", "solve_svd", "spectral_norms"),
+    "._crb": ("cramer_rao", "solver_covariance"),
+    "._factory": ("SOLVER_FAMILIES", "prepare"),
+    "._grid": ("GridData", "PlanarErrors", "planar_accuracy", "planar_errors"),
+    "._hemisphere": ("hemisphere_from_positions", "hemisphere_vectors", "rig_hemispheres"),
+    "._lm_solver": ("solve_lm",),
+    "._lm_starts": ("closed_form_start",),
+    "._options": ("SolveOptions",),
+    "._output": ("POSES_SCHEMA", "PoseWriter", "read_poses"),
+    "._planar": ("pose_from_axis", "solve_planar"),
+    "._refine": ("refine_poses",),
+    "._result": ("SolveResult", "Status", "status_count_names"),
+    "._runner": ("SOLVERS", "apply_position_correction", "solve", "solve_chunks"),
+    "._series": ("solve_series",),
+    "._tofile": ("solve_to_file",),
+    "._workflow": ("RowFixtures", "SolveFileOptions", "SolveFileResult", "failure_reasons",
+                   "solve_file"),
+}
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)
