@@ -259,7 +259,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
             f"grid points ...")
         chosen, scores = planar_environment_cv(
             subset(fit_mask), start_model,
-            lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt))
+            lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt, uncertainty=False))
         tilt = chosen == "tilt"
         env_prov = {"chosen": [] if chosen == "none" else [chosen],
                     "method": "cross-validation", "candidates": scores}
