@@ -215,36 +215,58 @@ _START_DIRECTIONS /= np.linalg.norm(_START_DIRECTIONS, axis=1, keepdims=True)
 _START_DISTANCES_M = (0.15, 0.3)
 
 
-def _signed(C) -> np.ndarray:
+def _target(C, quadrature):
+    """The couplings a fit matches: complex (phase-calibrated: in-phase real part,
+    quadrature imaginary part) where ``quadrature`` says so (None: where they are complex
+    with a quadrature part), else real (the signed real coupling of complex ones)."""
     from ..io import signed_real
 
     C = np.asarray(C)
-    return signed_real(C) if np.iscomplexobj(C) else np.asarray(C, dtype=np.float64)
+    if np.iscomplexobj(C):
+        if quadrature or (quadrature is None and np.any(C.imag)):
+            return C.astype(np.complex128)
+        return signed_real(C) if quadrature is None else C.real.astype(np.float64)
+    return np.asarray(C, dtype=np.float64)
+
+
+def _predict(m, P, complex_: bool):
+    return m.complex_coupling(P) if complex_ else m.coupling(P)
 
 
 def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
-    """Least squares of the environment terms alone (the base model held)."""
+    """Least squares of the environment terms alone (the base model held); a complex
+    ``target`` is matched in phase and in quadrature."""
     from scipy.optimize import least_squares
 
     from ..field import EnvironmentModel
 
+    cplx = np.iscomplexobj(target)
+    if cplx:
+        terms = terms.with_phases()
     nb = np.size(base.params)
     v0 = terms.vector()
     free = np.ones(v0.size, bool) if free_mask is None else free_mask
-    scale = np.sqrt(np.mean(target ** 2)) or 1.0
+    scale = np.sqrt(np.mean(np.abs(target) ** 2)) or 1.0
+    parts = (target.real, target.imag) if cplx else (target,)
+
+    def model(v):
+        full = v0.copy()
+        full[free] = v
+        return EnvironmentModel(base, terms.with_vector(full))
 
     def fun(v):
-        full = v0.copy()
-        full[free] = v
-        m = EnvironmentModel(base, terms.with_vector(full))
-        return ((target - m.coupling(P)) / scale).ravel()
+        m = model(v)
+        if not cplx:
+            return ((target - m.coupling(P)) / scale).ravel()
+        C = m.complex_coupling(P)
+        return np.concatenate([((t - c) / scale).ravel()
+                               for t, c in zip(parts, (C.real, C.imag))])
 
     def jac(v):
-        full = v0.copy()
-        full[free] = v
-        m = EnvironmentModel(base, terms.with_vector(full))
+        m = model(v)
         J = m.jacobians(P, params=True).d_params[..., nb:][..., free]
-        return -(J / scale).reshape(-1, int(free.sum()))
+        J = [J] + ([m.quadrature_jacobians(P)[1][..., free]] if cplx else [])
+        return -np.concatenate([(j / scale).reshape(-1, int(free.sum())) for j in J])
 
     res = least_squares(fun, v0[free], jac=jac, method="lm", max_nfev=max_nfev * (1 + v0.size),
                         x_scale="jac")
@@ -255,7 +277,9 @@ def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
 
 def _moments_for(base, q, P, target, n_source):
     """The best moments of one dipole at ``q`` for the residual ``target`` (linear), and the
-    residual's sum of squares after them."""
+    residual's sum of squares after them; with a complex ``target`` also the phases (the
+    complex moment ``mu exp(1j phi)`` of each source coil: the best rank-one fit of its
+    least-squares complex moment, a real vector times a phase)."""
     from ..field import DipoleModel, coupling_jacobians
     from ..field._environment import sensor_dipoles
 
@@ -263,63 +287,103 @@ def _moments_for(base, q, P, target, n_source):
     d = DipoleModel(gain=gain, L_so=np.repeat(np.asarray(q, float)[:, None], n_source, axis=1),
                     M_so=np.ones((3, n_source)), L_se=L, M_se=M)
     dM = coupling_jacobians(d, P).d_M_so                       # (N, n_so, n_se, 3)
+    cplx = np.iscomplexobj(target)
     mu = np.zeros((n_source, 3))
+    ph = np.zeros(n_source)
     ss = 0.0
     for i in range(n_source):
         A = dM[:, i].reshape(-1, 3)
         b = target[:, i].ravel()
-        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-        mu[i] = sol
-        ss += float(np.sum((b - A @ sol) ** 2))
-    return mu, ss
+        if not cplx:
+            sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+            mu[i] = sol
+            ss += float(np.sum((b - A @ sol) ** 2))
+            continue
+        sol, *_ = np.linalg.lstsq(A, np.c_[b.real, b.imag], rcond=None)   # (3, 2)
+        # rank one in the metric of A: A sol ~ (A v) [cos phi, sin phi]
+        _, _, vt = np.linalg.svd(A @ sol, full_matrices=False)
+        c = vt[0] if vt[0, 0] >= 0 else -vt[0]
+        mu[i] = sol @ c
+        ph[i] = np.arctan2(c[1], c[0])
+        fit = (A @ mu[i])[:, None] * c
+        ss += float(np.sum((b.real - fit[:, 0]) ** 2 + (b.imag - fit[:, 1]) ** 2))
+    return (mu, ph, ss) if cplx else (mu, ss)
 
 
 def fit_environment(model, poses, couplings, *, dipoles: int = 1, gain: bool = False,
-                    offset: bool = False, start=None, max_nfev: int = 100) -> EnvironmentFit:
+                    offset: bool = False, start=None, max_nfev: int = 100,
+                    quadrature: bool | None = None) -> EnvironmentFit:
     """Fit environment terms (:class:`openemt.field.EnvironmentTerms`) to ``couplings``
-    ``(N, n_source, n_sensor)`` (complex: their signed real part) measured at known ``poses``
-    with the metal in place, the base ``model`` held (it is the tracker's clean calibration).
+    ``(N, n_source, n_sensor)`` measured at known ``poses`` with the metal in place, the base
+    ``model`` held (it is the tracker's clean calibration).
+
+    Complex couplings are phase-calibrated (the in-phase part real, the quadrature
+    imaginary): where they carry a quadrature part (``quadrature=None``, or always with
+    ``quadrature=True``) the induced moments get a phase per source coil's carrier and the
+    terms are fitted to both parts, so the model predicts the quadrature too
+    (:meth:`openemt.field.EnvironmentModel.complex_coupling`); otherwise (real couplings,
+    complex ones without quadrature) the moments are real and the fit is to the signed real
+    coupling (``quadrature=False``: to the real part of complex couplings).
 
     Induced dipoles are added one at a time: the new one starts from the best of 28 positions
     around the collection (the 6 axes and 8 diagonals at 0.15 and 0.3 m from the centre of its
-    positions; at each the moments are linear, solved exactly), then every term is refined by
-    Levenberg-Marquardt. ``start`` (terms) instead refines those terms from where they are
-    (an online re-estimate, e.g. from witness sensors).
+    positions; at each the moments are linear, solved exactly) or of ``positions`` when
+    given, then every term is refined by Levenberg-Marquardt. ``start`` (terms) instead
+    refines those terms from where they are (an online re-estimate, e.g. from witness
+    sensors). ``rms`` and ``rms_base`` are over the complex residual's magnitude when the fit
+    is complex.
     """
+    return _fit_environment(model, poses, couplings, dipoles=dipoles, gain=gain,
+                            offset=offset, start=start, max_nfev=max_nfev,
+                            quadrature=quadrature)
+
+
+def _start_positions(P) -> np.ndarray:
+    centre = P[:, :3, 3].mean(axis=0)
+    return np.array([centre + dist * u for dist in _START_DISTANCES_M
+                     for u in _START_DIRECTIONS])
+
+
+def _fit_environment(model, poses, couplings, *, dipoles=1, gain=False, offset=False,
+                     start=None, max_nfev=100, quadrature=None, positions=None
+                     ) -> EnvironmentFit:
     from ..field import EnvironmentModel, EnvironmentTerms
 
     P = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    target = _signed(couplings)
-    base_rms = float(np.sqrt(np.mean((target - model.coupling(P)) ** 2)))
+    target = _target(couplings, quadrature)
+    cplx = np.iscomplexobj(target)
+    base_rms = float(np.sqrt(np.mean(np.abs(target - model.coupling(P)) ** 2)))
     ns, ne = model.n_source, model.n_sensor
+    cands = _start_positions(P) if positions is None else np.asarray(positions, float)
     if start is not None:
         terms, res = _lsq(model, start, P, target, max_nfev=max_nfev)
     else:
         terms = EnvironmentTerms(np.zeros((0, 3)), np.zeros((0, ns, 3)),
                                  np.zeros(ne) if gain else None,
-                                 np.zeros((ns, ne)) if offset else None)
+                                 np.zeros((ns, ne)) if offset else None,
+                                 np.zeros((0, ns)) if cplx else None)
         res = None
         if gain or offset:
             terms, res = _lsq(model, terms, P, target, max_nfev=max_nfev)
-        centre = P[:, :3, 3].mean(axis=0)
         for _ in range(int(dipoles)):
-            resid = target - EnvironmentModel(model, terms).coupling(P) if not terms.empty \
-                else target - model.coupling(P)
+            resid = target - _predict(EnvironmentModel(model, terms), P, cplx) \
+                if not terms.empty else target - model.coupling(P)
             best = None
-            for dist in _START_DISTANCES_M:
-                for u in _START_DIRECTIONS:
-                    q = centre + dist * u
-                    mu, ss = _moments_for(model, q, P, resid, ns)
-                    if best is None or ss < best[0]:
-                        best = (ss, q, mu)
-            _, q, mu = best
+            for q in cands:
+                out = _moments_for(model, q, P, resid, ns)
+                if best is None or out[-1] < best[0]:
+                    best = (out[-1], q, out[:-1])
+            _, q, got = best
+            ph = None if not cplx else np.concatenate([terms.phases.reshape(-1, ns),
+                                                       got[1][None]])
             terms = EnvironmentTerms(np.r_[terms.positions, q[None]],
                                      np.concatenate([terms.moments.reshape(-1, ns, 3),
-                                                     mu[None]]),
-                                     terms.gain_beta, terms.offset)
+                                                     got[0][None]]),
+                                     terms.gain_beta, terms.offset, ph)
             terms, res = _lsq(model, terms, P, target, max_nfev=max_nfev)
     fitted = EnvironmentModel(model, terms) if not terms.empty else model
-    rms = float(np.sqrt(np.mean((target - fitted.coupling(P)) ** 2)))
+    pred = _predict(fitted, P, cplx) if not terms.empty else model.coupling(P)
+    rms = float(np.sqrt(np.mean(np.abs(target - pred) ** 2)))
     return EnvironmentFit(terms, fitted, rms, base_rms, int(getattr(res, "nfev", 0)),
                           int(getattr(res, "status", 0)))
 
