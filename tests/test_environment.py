@@ -59,8 +59,20 @@ def test_environment_model_on_a_board_reads_induced_dipoles_by_its_sensor():
     for k in ("d_translation", "d_rotation"):
         x, y = getattr(a, k), getattr(b, k)
         assert np.abs(x - y).max() < 1e-6 * np.abs(y).max(), k
-    assert m.solver_family == "model" and m.dof == bm.dof
+    assert m.solver_family == "planar-refined" and m.dof == bm.dof
     assert np.abs(m.coupling(P) - bm.coupling(P)).max() > 0
+    # solved cold (the board's compiled solver from its seed grid, then refined under the
+    # whole model): the known positions and axes, with the induced field 2 % of the board's
+    ratio = np.abs(m.coupling(P) - bm.coupling(P)).max() / np.abs(bm.coupling(P)).max()
+    m = EnvironmentModel(bm, EnvironmentTerms(t.positions, t.moments * 0.02 / ratio))
+    C = m.coupling(P)[:, :, 0]
+    res = prepare(m, initial="grid")(C)
+    assert np.all(res.status == 0)
+    np.testing.assert_allclose(res.poses[:, :3, 3], P[:, :3, 3], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(np.abs(np.einsum("na,na->n", res.poses[:, :3, 2],
+                                                P[:, :3, 2])), 1.0, atol=1e-9)
+    np.testing.assert_allclose(m.coupling_points(P[:, :3, 3], P[:, :3, 2]), C, rtol=0,
+                               atol=1e-12 * np.abs(C).max())
 
 
 def test_calibration_file_carries_the_environment_and_solve_uses_it(tmp_path):
@@ -157,7 +169,7 @@ def test_improved_calibration_file_solves_the_poses_of_its_own_scoring(tmp_path)
         5 * own.summary["trans_rms_mm"]
 
 
-def _board_grid(tmp_path, name, tilt_sigma, seed):
+def _board_grid(tmp_path, name, tilt_sigma, seed, metal=None, noise=1e-4):
     from openemt.calibrate import GridData, write_grid_csv
     from openemt.simulate import stage_pattern
 
@@ -170,21 +182,44 @@ def _board_grid(tmp_path, name, tilt_sigma, seed):
     truth = BoardModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
                                   offsets=rng.normal(0, 2e-3, (8, 3)), tilts=tilts)
     C = truth.coupling_points(pts, u)
-    C = C + rng.normal(0, 1e-4 * np.abs(C).max(), C.shape)
+    if metal is not None:
+        # the metal's in-phase response at a 10 kHz carrier, from the simulator's physics
+        rv = np.tile([np.pi, 0.0, 0.0], (len(pts), 1))          # sensor z axis along -z
+        P = pose_from_vector(np.c_[pts, rv])
+        C = C + metal.induced_couplings(truth, P, 10000.0)[:, :, 0].real
+    C = C + rng.normal(0, noise * np.abs(C).max(), C.shape)
     path = tmp_path / f"{name}.csv"
     write_grid_csv(GridData(pts, u, C), path)
     return path
 
 
-@pytest.mark.parametrize("tilt_sigma", [0.0, 0.02])
-def test_planar_environment_auto_is_as_good_held_out_as_the_best_hand_picked(tmp_path,
-                                                                            tilt_sigma):
-    """``--environment auto`` on a board: its choice (by cross-validation over the fitted
-    grid points) is held out at least as well as the better of ``none`` and ``tilt``; with
-    untilted coils the two differ only by the noise (auto within 2 % of the better)."""
-    from openemt.calibrate import CalibrateOptions, calibrate_dataset
+def _aluminium_plate():
+    """A 300 x 300 x 2 mm aluminium plate standing 90 mm beside the grid (+x), facing it."""
+    from openemt.simulate import MetalObject, MetalScene
 
-    path = _board_grid(tmp_path, "grid", tilt_sigma, 11)
+    return MetalScene((MetalObject("plate", "aluminium", (0.22, 0.0, 0.09),
+                                   (0.0, -np.pi / 2, 0.0), size=(0.3, 0.3),
+                                   thickness=0.002),))
+
+
+#: Held-out tolerance where auto's choice ties (CV_TIE) with a more complex one that scores
+#: better on the checkerboard: the 49 held-out points' own sampling noise.
+HELD_OUT_TIE = 0.02
+
+
+@pytest.mark.parametrize("grid", ["untilted", "tilted", "metal"])
+def test_planar_environment_auto_is_as_good_held_out_as_the_best_hand_picked(tmp_path, grid):
+    """``--environment auto`` on a board: its choice (cross-validated on the fitted grid
+    points only: none, tilt, one induced dipole, both) is held out at least as well as the
+    best hand-picked option. Where the best hand-picked option is more complex than auto's
+    choice (the cross-validation found them tied within CV_TIE and took the simpler), auto
+    may trail it by the held-out points' sampling noise, HELD_OUT_TIE; never otherwise."""
+    from openemt.calibrate import PLANAR_CANDIDATES, CalibrateOptions, calibrate_dataset
+
+    path = {"untilted": lambda: _board_grid(tmp_path, "g", 0.0, 11),
+            "tilted": lambda: _board_grid(tmp_path, "g", 0.02, 11),
+            "metal": lambda: _board_grid(tmp_path, "g", 0.0, 11, _aluminium_plate(),
+                                         2e-5)}[grid]()
 
     def run(env):
         return calibrate_dataset(CalibrateOptions(dataset=path, mode="planar",
@@ -193,18 +228,27 @@ def test_planar_environment_auto_is_as_good_held_out_as_the_best_hand_picked(tmp
     auto = run("auto")
     prov = auto.calibration.provenance["environment"]
     assert prov["method"] == "cross-validation"
-    assert set(prov["candidates"]) == {"none", "tilt"}
-    assert all(v["cv_position_rms_mm"] > 0 for v in prov["candidates"].values())
-    chosen = prov["chosen"][0] if prov["chosen"] else "none"
-    other = "none" if chosen == "tilt" else "tilt"
-    held = {chosen: auto.holdout["position_rms_mm"],
-            other: run(other).holdout["position_rms_mm"]}
-    best = min(held.values())
-    if tilt_sigma:
-        assert chosen == "tilt" and held["tilt"] < 0.8 * held["none"], held
-        assert held[chosen] <= best, held
+    assert list(prov["candidates"]) == list(PLANAR_CANDIDATES)
+    chosen = ",".join(prov["chosen"]) or "none"
+    held = {chosen: auto.holdout["position_rms_mm"]}
+    for name in PLANAR_CANDIDATES:
+        if name != chosen:
+            held[name] = run(name).holdout["position_rms_mm"]
+    order = list(PLANAR_CANDIDATES)
+    best = min(held, key=held.get)
+    if order.index(best) > order.index(chosen):
+        assert held[chosen] <= (1 + HELD_OUT_TIE) * held[best], (chosen, held)
     else:
-        assert held[chosen] <= 1.02 * best, held
+        assert held[chosen] <= held[best], (chosen, held)
+    if grid == "tilted":
+        assert "tilt" in prov["chosen"] and held[chosen] < 0.5 * held["none"], held
+    if grid == "metal":
+        # the plate: an induced dipole is chosen and takes most of the error away
+        assert any(c.startswith("dipoles") for c in prov["chosen"]), prov
+        assert held[chosen] < 0.2 * held["none"], held
+        assert set(auto.calibration.environment.names()) >= {"dipoles:1"}
+    if grid == "untilted":
+        assert "skipped" in prov["candidates"]["dipoles:1"], prov     # the gate
 
 
 def test_fit_environment_recovers_an_induced_dipole_and_refits_from_witnesses():
@@ -260,7 +304,7 @@ def test_witness_estimator_follows_a_moving_object():
                                    atol=1e-5 * np.abs(moved.coupling(Q)).max())
 
 
-@pytest.mark.parametrize("mode, env, what", [("planar", "gain", "auto, none or tilt in planar"),
+@pytest.mark.parametrize("mode, env, what", [("planar", "gain", "tilt and dipoles:K in planar"),
                                              ("XYZ", "dipoles:1", "auto or none in mode XYZ"),
                                              ("improved", "dipoles:2", "at most dipoles:1"),
                                              ("planar", "lead", "auto, none or a list")])

@@ -23,7 +23,8 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "EnvironmentChoice", "EnvironmentFit",
+__all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "BoardEnvironmentFit", "EnvironmentChoice",
+           "EnvironmentFit", "fit_board_environment", "known_pose_errors",
            "WitnessEstimator", "fit_environment", "improved_environment", "parse_environment", "planar_environment_cv"]
 
 #: The names an explicit ``--environment`` list takes.
@@ -107,57 +108,203 @@ def improved_environment(choice: EnvironmentChoice) -> dict:
                                            coupling_offset=choice.offset)}
 
 
-#: Candidate term sets ``--environment auto`` compares on a board, by name.
-PLANAR_CANDIDATES = {"none": {}, "tilt": {"tilt": True}}
+#: Candidate term sets ``--environment auto`` compares on a board, by name, simplest first
+#: (the order ties are broken in): the board's gains and offsets alone, with the coils' tilt,
+#: with one induced dipole, with both.
+PLANAR_CANDIDATES = {"none": {}, "tilt": {"tilt": True}, "dipoles:1": {"dipoles": 1},
+                     "tilt,dipoles:1": {"tilt": True, "dipoles": 1}}
 
 
-def _pose_vectors(points, axes) -> np.ndarray:
-    """Pose vectors ``(N, 6)`` at ``points`` whose z axis is ``axes`` (the shortest rotation
-    from z; a half turn about x for -z)."""
+def _grid_poses(points, axes) -> np.ndarray:
+    """Poses ``(N, 4, 4)`` at ``points`` whose z axis is ``axes`` (the smallest rotation
+    from z)."""
+    from ..geometry import pose_from_vector, rotvec_between
+
     u = np.asarray(axes, dtype=np.float64)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    w = np.cross([0.0, 0.0, 1.0], u)
-    s = np.linalg.norm(w, axis=1)
-    ang = np.arctan2(s, u[:, 2])
-    k = np.where(s[:, None] > 1e-12, w / np.maximum(s, 1e-300)[:, None], [1.0, 0.0, 0.0])
-    return np.c_[np.asarray(points, dtype=np.float64), k * ang[:, None]]
+    return pose_from_vector(np.c_[np.asarray(points, dtype=np.float64),
+                                  rotvec_between(np.array([0.0, 0.0, 1.0]), u)])
 
 
-def known_pose_errors(model, points, axes, couplings) -> np.ndarray:
+def known_pose_errors(model, points, axes, couplings, iterations: int = 8) -> np.ndarray:
     """Position errors (m) of single-coil samples solved from their known poses: each
-    sample's couplings ``(N, n_source)`` fitted by the batched Gauss-Newton of
-    :func:`openemt.solve.refine_poses` started at the known position and axis, under any
-    coupling model of a single-coil sensor (a board, a board with environment terms). The
-    model's error, not a cold start's, is what this scores; the least-squares pose is the
-    one the 5-DOF solver converges to from there."""
-    from ..solve import refine_poses
+    sample's couplings ``(N, n_source)`` fitted by batched Gauss-Newton started at the known
+    position and axis, under any coupling model of a single-coil sensor (a board, a board
+    with environment terms). The model's error, not a cold start's, is what this scores; the
+    least-squares pose is the one the 5-DOF solver converges to from there. The steps are
+    the minimum-norm solutions in the translation and a left rotation (the roll about the
+    sensor axis is not seen), so no rotation vector's singularity is met (an axis along -z
+    is a half turn)."""
+    from scipy.spatial.transform import Rotation
 
-    C = np.asarray(couplings, dtype=np.float64).reshape(len(points), -1, 1)
-    v, _ = refine_poses(model, C, _pose_vectors(points, axes))
-    e = np.linalg.norm(v[:, :3] - np.asarray(points, dtype=np.float64), axis=1)
-    return np.where(np.all(np.isfinite(v), axis=1), e, np.nan)
+    P = _grid_poses(points, axes)
+    C = np.asarray(couplings, dtype=np.float64).reshape(len(P), -1)
+    for _ in range(int(iterations)):
+        jac = model.jacobians(P, params=False)
+        n = len(P)
+        J = np.concatenate([jac.d_translation, jac.d_rotation], axis=-1).reshape(n, -1, 6)
+        r = C - jac.C.reshape(n, -1)
+        step = np.einsum("nam,nm->na", np.linalg.pinv(J, rcond=1e-10), r)
+        P = P.copy()
+        P[:, :3, 3] += step[:, :3]
+        P[:, :3, :3] = Rotation.from_rotvec(step[:, 3:]).as_matrix() @ P[:, :3, :3]
+        if np.max(np.abs(step)) < 1e-12:
+            break
+    e = np.linalg.norm(P[:, :3, 3] - np.asarray(points, dtype=np.float64), axis=1)
+    return np.where(np.isfinite(e), e, np.nan)
+
+
+def board_dipole_starts(points, margins=(0.1, 0.25)) -> np.ndarray:
+    """Start positions of an induced dipole over a board: the corners, edge and face centres
+    of the grid points' bounding box grown by each of ``margins`` (m) -- below (the board's
+    side), beside and above the volume, never inside it."""
+    pts = np.asarray(points, dtype=np.float64)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    mid = 0.5 * (lo + hi)
+    out = []
+    for m in margins:
+        for a in (-1, 0, 1):
+            for b in (-1, 0, 1):
+                for c in (-1, 0, 1):
+                    if a == b == c == 0:
+                        continue
+                    s = np.array([a, b, c])
+                    out.append(np.where(s < 0, lo - m, np.where(s > 0, hi + m, mid)))
+    return np.array(out)
+
+
+@dataclass(frozen=True, eq=False)
+class BoardEnvironmentFit:
+    """A board fitted with environment terms (:func:`fit_board_environment`): ``board``
+    (the fit of the board's own parameters, a :class:`~openemt.calibrate.PlanarFit`),
+    ``terms`` (None without) and ``model`` (the board with them: an
+    :class:`~openemt.field.EnvironmentModel`; the board alone without terms)."""
+
+    board: object
+    terms: object
+    model: object
+
+
+def _joint_lsq(board_model, terms, P, C, groups, max_nfev: int = 30):
+    """Least squares of a board's ``groups`` and the environment terms together."""
+    from scipy.optimize import least_squares
+
+    from ..field import EnvironmentModel
+
+    m0 = EnvironmentModel(board_model, terms)
+    x0 = m0.params
+    nb = np.size(board_model.params)
+    pg = board_model.parameter_groups
+    free = np.r_[np.concatenate([pg[g] for g in groups]), np.arange(nb, x0.size)]
+    scale = np.sqrt(np.mean(C ** 2)) or 1.0
+
+    def model(v):
+        x = x0.copy()
+        x[free] = v
+        return m0.with_params(x)
+
+    res = least_squares(lambda v: ((C - model(v).coupling(P)) / scale).ravel(), x0[free],
+                        jac=lambda v: -(model(v).jacobians(P, params=True).d_params[..., free]
+                                        / scale).reshape(-1, free.size),
+                        method="lm", x_scale="jac", max_nfev=max_nfev * (1 + free.size))
+    return model(res.x)
+
+
+def fit_board_environment(data, start_model, fit_board, *, tilt: bool = False,
+                          dipoles: int = 1, board=None) -> BoardEnvironmentFit:
+    """Fit a board with ``dipoles`` induced dipoles to grid ``data``: the board alone
+    (``fit_board(data, start_model, tilt=tilt)``, or ``board``, a fit of it already made),
+    the dipoles on its residual (each started from the best of :func:`board_dipole_starts`,
+    its moments linear there, then refined with every term), the board refitted to the
+    couplings less the induced ones, then the board's gains, offsets (and tilts) and the
+    terms refined together by Levenberg-Marquardt; last the board is fitted once more to the
+    couplings less the induced ones from there (its standard errors, given the terms). The
+    induced couplings do not depend on the board's parameters (the induced field is read by
+    the board's sensor coil)."""
+    from dataclasses import replace as _replace
+
+    P = _grid_poses(data.points, data.axes)
+    C = np.asarray(data.couplings, dtype=np.float64)[:, :, None]
+    bf = fit_board(data, start_model, tilt=tilt) if board is None else board
+    if not dipoles:
+        return BoardEnvironmentFit(bf, None, bf.model)
+    ef = _fit_environment(bf.model, P, C, dipoles=dipoles,
+                          positions=board_dipole_starts(data.points))
+
+    def less_induced(board_model, terms):
+        from ..field import EnvironmentModel
+
+        ind = EnvironmentModel(board_model, terms).coupling(P) - board_model.coupling(P)
+        return _replace(data, couplings=data.couplings - ind[:, :, 0])
+
+    bf = fit_board(less_induced(bf.model, ef.terms), bf.model, tilt=tilt)
+    groups = ("gains", "offsets") + (("tilts_in_plane",) if tilt else ())
+    joint = _joint_lsq(bf.model, ef.terms, P, C, groups)
+    bf = fit_board(less_induced(joint.base, joint.terms), joint.base, tilt=tilt)
+    return BoardEnvironmentFit(bf, joint.terms, type(joint)(bf.model, joint.terms))
+
+
+#: The induced dipole candidates are cross-validated on a board only where one dipole, at the
+#: best of :func:`board_dipole_starts` with its moments solved there, takes at least this
+#: fraction of the sum of squares off the board's residual on the first fold's training
+#: points: a dipole fitted to noise takes about its parameter count over the residual's
+#: degrees of freedom (24 of 120-170 on the grids of the tests), metal within reach of the
+#: volume most of it.
+DIPOLE_GATE = 0.5
+
+
+def dipole_residual_gain(board_model, data) -> float:
+    """The fraction of the board's residual sum of squares on grid ``data`` one induced
+    dipole removes at the best of :func:`board_dipole_starts` (moments solved linearly,
+    position not refined): the cheap evidence for :data:`DIPOLE_GATE`."""
+    P = _grid_poses(data.points, data.axes)
+    r = np.asarray(data.couplings, dtype=np.float64)[:, :, None] - board_model.coupling(P)
+    ss0 = float(np.sum(r ** 2))
+    if not ss0 > 0:
+        return 0.0
+    best = min(_moments_for(board_model, q, P, r, board_model.n_source)[-1]
+               for q in board_dipole_starts(data.points))
+    return 1.0 - best / ss0
+
+
+#: Candidates whose cross-validated position RMS is within this fraction of the least one
+#: tie, and the simplest of them is chosen: a more complex term set has to beat the simpler
+#: ones by more than the noise of the comparison (fold-to-fold and point-to-point scatter of
+#: a few percent on the grids of the tests).
+CV_TIE = 0.02
+
+
+def _choose(cands, scores) -> str:
+    """The simplest candidate (``cands`` is ordered simplest first) whose cross-validated
+    position RMS is within :data:`CV_TIE` of the least one."""
+    rms = {k: scores[k]["cv_position_rms_mm"] for k in cands if k in scores}
+    rms = {k: v for k, v in rms.items() if v is not None and np.isfinite(v)}
+    if not rms:
+        return next(iter(cands))
+    best = min(rms.values())
+    return next(k for k in cands if k in rms and rms[k] <= best * (1 + CV_TIE))
 
 
 def _folds(points, folds: int) -> np.ndarray:
-    """Position-grouped folds: the points ordered along their widest axis, in blocks, the
-    two halves of the blocks interleaved."""
-    pts = np.asarray(points, dtype=np.float64)
-    order = np.argsort(pts[:, int(np.argmax(np.ptp(pts, axis=0)))], kind="stable")
-    fold = np.empty(len(pts), dtype=np.int64)
-    fold[order] = np.arange(len(pts)) * folds // len(pts)
-    return (fold + np.arange(len(pts)) % 2 * (folds // 2)) % folds
+    """Interleaved folds: point ``i`` (in the grid's order) in fold ``i % folds``, so each
+    fold's points lie between the others' as a checkerboard's held-out points do (blocks of
+    the volume would score a dipole's extrapolation to a region no training point reached,
+    which a grid's held-out points never ask of it)."""
+    return np.arange(len(points)) % int(folds)
 
 
 def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
                           candidates=None) -> tuple[str, dict]:
     """Cross-validate the board's candidate term sets on ``data`` (the grid points of the
-    fit): folds of alternate regions of the volume (position-grouped), each candidate fitted
-    on the others and its held-out points solved from their known poses
-    (:func:`known_pose_errors`). ``fit(data, start_model, **terms)`` fits one and returns
-    an object with ``model``.
+    fit): interleaved folds (:func:`_folds`), each candidate fitted
+    on the others (``fit(data, start_model, tilt=...)`` fits the board alone; induced
+    dipoles are fitted over the same fold's board fit by :func:`fit_board_environment`) and
+    its held-out points solved from their known poses (:func:`known_pose_errors`).
 
-    Returns the chosen name (least pooled held-out position RMS; ties go to the simpler,
-    earlier candidate) and ``{name: {"cv_position_rms_mm", "n"}}``.
+    Returns the chosen name (:func:`_choose`: the simplest candidate within
+    :data:`CV_TIE` of the least pooled held-out position RMS) and ``{name:
+    {"cv_position_rms_mm", "n"}}`` (with ``skipped``, the reason, where the dipole
+    candidates were not tried: :data:`DIPOLE_GATE`).
     """
     from ..solve import GridData
 
@@ -168,27 +315,39 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
         return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
                         data.coil_names)
 
-    scores = {}
+    boards, scores = {}, {}
+    gate = None
     for name, terms in cands.items():
+        tilt, k_dip = bool(terms.get("tilt")), int(terms.get("dipoles", 0))
+        if k_dip:
+            if gate is None:
+                k0 = int(fold.min())
+                tr = fold != k0
+                if (k0, False) not in boards:
+                    boards[k0, False] = fit(subset(tr), start_model, tilt=False)
+                gate = dipole_residual_gain(boards[k0, False].model, subset(tr))
+            if gate < DIPOLE_GATE:
+                scores[name] = {"cv_position_rms_mm": None, "n": 0,
+                                "skipped": f"one induced dipole takes {gate:.0%} of the "
+                                           f"board's residual (< {DIPOLE_GATE:.0%})"}
+                continue
         err = []
         for k in range(folds):
             train, test = fold != k, fold == k
             if train.sum() < 7 or not test.any():
                 continue
-            f = fit(subset(train), start_model, **terms)
-            err.append(known_pose_errors(f.model, data.points[test], data.axes[test],
+            if (k, tilt) not in boards:
+                boards[k, tilt] = fit(subset(train), start_model, tilt=tilt)
+            m = boards[k, tilt].model if not k_dip else fit_board_environment(
+                subset(train), start_model, fit, tilt=tilt, dipoles=k_dip,
+                board=boards[k, tilt]).model
+            err.append(known_pose_errors(m, data.points[test], data.axes[test],
                                          data.couplings[test]))
         e = np.concatenate(err) if err else np.zeros(0)
-        e = e[np.isfinite(e)]
-        scores[name] = {"cv_position_rms_mm": float(np.sqrt(np.mean(e ** 2)) * 1e3)
-                        if e.size else None, "n": int(e.size)}
-    finite = {k: v["cv_position_rms_mm"] for k, v in scores.items()
-              if v["cv_position_rms_mm"] is not None and np.isfinite(v["cv_position_rms_mm"])}
-    if not finite:
-        return next(iter(cands)), scores
-    best = min(finite.values())
-    chosen = next(k for k in cands if k in finite and finite[k] <= best * (1 + 1e-9))
-    return chosen, scores
+        ok = np.isfinite(e)
+        scores[name] = {"cv_position_rms_mm": float(np.sqrt(np.mean(e[ok] ** 2)) * 1e3)
+                        if ok.any() else None, "n": int(ok.sum())}
+    return _choose(cands, scores), scores
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,6 +392,37 @@ def _predict(m, P, complex_: bool):
     return m.complex_coupling(P) if complex_ else m.coupling(P)
 
 
+class _HeldBase:
+    """A base model held at fixed poses ``P``: its couplings there computed once, no
+    parameters of its own, its sensor coils as point dipoles (what the induced dipoles are
+    read by). The terms' least squares evaluate the model thousands of times at the same
+    poses; a board's couplings are the costly part of each evaluation."""
+
+    solver_family = "model"
+
+    def __init__(self, base, P):
+        from ..field._environment import sensor_dipoles
+
+        self.gain, self.L_se, self.M_se = sensor_dipoles(base)
+        self.n_source, self.n_sensor, self.kind = base.n_source, base.n_sensor, base.kind
+        self.params = np.zeros(0)
+        self._P = P
+        self._C = np.asarray(base.coupling(P), dtype=np.float64)
+
+    def coupling(self, P):
+        if P is not self._P and not (np.shape(P) == self._P.shape
+                                     and np.array_equal(P, self._P)):
+            raise ValueError("a held base model is evaluated at its own poses only")
+        return self._C
+
+    def jacobians(self, P, params: bool = True):
+        from ..field import ModelJacobians
+
+        z = np.zeros(self._C.shape + (3,))
+        return ModelJacobians(self.coupling(P).copy(), z, z,
+                              np.zeros(self._C.shape + (0,)) if params else None)
+
+
 def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
     """Least squares of the environment terms alone (the base model held); a complex
     ``target`` is matched in phase and in quadrature."""
@@ -243,7 +433,8 @@ def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
     cplx = np.iscomplexobj(target)
     if cplx:
         terms = terms.with_phases()
-    nb = np.size(base.params)
+    base = _HeldBase(base, P)
+    nb = 0
     v0 = terms.vector()
     free = np.ones(v0.size, bool) if free_mask is None else free_mask
     scale = np.sqrt(np.mean(np.abs(target) ** 2)) or 1.0

@@ -327,9 +327,15 @@ class EnvironmentModel:
         self._induced = dipoles(terms.in_phase_moments())
         self._quadrature = dipoles(terms.quadrature_moments()) if terms.has_quadrature \
             else []
-        if hasattr(base, "dipole") or getattr(base, "solver_family", "model") == "dipole":
+        family = getattr(base, "solver_family", "model")
+        if hasattr(base, "dipole") or family == "dipole":
             self.dipole = getattr(base, "dipole", base)
             self.solver_family = "dipole-refined"
+        elif family == "planar":
+            # a board read by a single coil: its compiled 5-DOF solver (and cold start from
+            # the seed grid), then refined under the whole model
+            self.planar = base
+            self.solver_family = "planar-refined"
         else:
             self.solver_family = "model"
 
@@ -353,6 +359,25 @@ class EnvironmentModel:
     @property
     def gain(self):
         return getattr(self.base, "gain", 1.0)
+
+    @property
+    def n_coils(self) -> int:
+        """A board's source coil count (the 5-DOF grid scoring's interface)."""
+        return self.base.n_coils
+
+    def coupling_points(self, points, axes) -> np.ndarray:
+        """Couplings ``(N, n_source)`` into a single-coil sensor at ``points (N, 3)`` with
+        ``axes (N, 3)`` (a board's interface for grid data), environment terms included."""
+        from ..geometry import pose_from_vector, rotvec_between
+
+        if self.n_sensor != 1:
+            raise InputError(f"expected a model of a single-coil sensor for couplings at "
+                             f"points and axes, got {self.n_sensor} sensor coils")
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        u = np.asarray(axes, dtype=np.float64).reshape(-1, 3)
+        u = u / np.linalg.norm(u, axis=1, keepdims=True)
+        rv = rotvec_between(np.array([0.0, 0.0, 1.0]), u)
+        return self.coupling(pose_from_vector(np.c_[pts, rv]))[:, :, 0]
 
     def linear_coupling(self, poses) -> np.ndarray:
         """The couplings before the gain non-linearity: base, induced dipoles and offset."""
