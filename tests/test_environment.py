@@ -288,6 +288,13 @@ def test_planar_calibration_with_an_induced_dipole_is_written_and_solved(tmp_pat
     assert back.environment.names() == ["dipoles:1"]
     assert back.coupling_model.solver_family == "planar-refined"
     assert r.holdout["n"] == 49 and r.holdout["position_rms_mm"] < 0.2
+    # the report solves the grid with the same model: the calibration's held-out block
+    from openemt.calibrate._planar import read_grid
+    from openemt.report import planar_report
+
+    rep = planar_report(read_grid(path), back, holdout="checkerboard").summary
+    assert rep["holdout"]["position_rms_mm"] == pytest.approx(r.holdout["position_rms_mm"],
+                                                              rel=1e-9)
 
 
 def test_fit_environment_recovers_an_induced_dipole_and_refits_from_witnesses():
