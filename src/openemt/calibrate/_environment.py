@@ -246,10 +246,10 @@ def fit_board_environment(data, start_model, fit_board, *, tilt: bool = False,
 
 #: The induced dipole candidates are cross-validated on a board only where one dipole, at the
 #: best of :func:`board_dipole_starts` with its moments solved there, takes at least this
-#: fraction of the sum of squares off the board's residual on the first fold's training
-#: points: a dipole fitted to noise takes about its parameter count over the residual's
-#: degrees of freedom (24 of 120-170 on the grids of the tests), metal within reach of the
-#: volume most of it.
+#: fraction of the sum of squares off the residual of the board fitted with tilt on the first
+#: fold's training points: a dipole fitted to noise takes about its parameter count over the
+#: residual's degrees of freedom (24 of 100-150 on the grids of the tests), metal within
+#: reach of the volume most of it.
 DIPOLE_GATE = 0.5
 
 
@@ -321,11 +321,13 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
         tilt, k_dip = bool(terms.get("tilt")), int(terms.get("dipoles", 0))
         if k_dip:
             if gate is None:
+                # over the most general board fit (with tilt): a dipole has to explain what
+                # the coils' own terms cannot
                 k0 = int(fold.min())
                 tr = fold != k0
-                if (k0, False) not in boards:
-                    boards[k0, False] = fit(subset(tr), start_model, tilt=False)
-                gate = dipole_residual_gain(boards[k0, False].model, subset(tr))
+                if (k0, True) not in boards:
+                    boards[k0, True] = fit(subset(tr), start_model, tilt=True)
+                gate = dipole_residual_gain(boards[k0, True].model, subset(tr))
             if gate < DIPOLE_GATE:
                 scores[name] = {"cv_position_rms_mm": None, "n": 0,
                                 "skipped": f"one induced dipole takes {gate:.0%} of the "
