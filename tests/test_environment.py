@@ -397,7 +397,18 @@ def test_track_solves_with_the_environment_terms_of_its_calibration(tmp_path):
     {"induced_dipoles": [{"position": [1e6, 0, 0], "moments": [[0, 0, 0]] * 3}]},
     {"gain_nonlinearity": "abc"}, {"gain_nonlinearity": [1, 2]},
     {"gain_nonlinearity": [None, None, None]}, {"coupling_offset": [[1]]},
-    {"coupling_offset": {"a": 1}}, "str", [1]])
+    {"coupling_offset": {"a": 1}}, "str", [1],
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, 0.2]}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": "abc"}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, None, 0.2]}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, 0.2, 0.3]},
+                         {"position": [0, 0, 1], "moments": [[0, 0, 0]] * 3}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, 0.2, float("inf")]}]}])
 def test_damaged_environment_terms_in_a_file_are_one_error_line(tmp_path, env):
     cal = Calibration(model=truth_model(np.random.default_rng(8)))
     path = tmp_path / "c.json"
