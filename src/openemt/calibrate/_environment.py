@@ -8,8 +8,9 @@ model fits its coil moments' directions anyway). ``--environment`` takes
 * ``auto`` (the default): the terms are chosen by cross-validation on the training rows only
   (the improved rig model: forward selection on position-grouped folds of the md rows,
   :func:`openemt.calibrate.select_terms`; a board: every candidate of
-  :data:`PLANAR_CANDIDATES` on position-grouped folds of the fitted grid points); the choice and
-  each candidate's held-out error go to the calibration's ``provenance["environment"]``;
+  :data:`PLANAR_CANDIDATES` -- none, tilt, an induced dipole, both -- on interleaved folds of
+  the fitted grid points, :func:`planar_environment_cv`); the choice and each candidate's
+  held-out error go to the calibration's ``provenance["environment"]``;
 * ``none``: no environment term;
 * an explicit list such as ``dipoles:2,gain,tilt`` (``dipoles:K`` induced dipoles, ``gain``,
   ``offset``, ``tilt``).
@@ -520,8 +521,9 @@ def fit_environment(model, poses, couplings, *, dipoles: int = 1, gain: bool = F
 
     Induced dipoles are added one at a time: the new one starts from the best of 28 positions
     around the collection (the 6 axes and 8 diagonals at 0.15 and 0.3 m from the centre of its
-    positions; at each the moments are linear, solved exactly) or of ``positions`` when
-    given, then every term is refined by Levenberg-Marquardt. ``start`` (terms) instead
+    positions; at each the moments are linear, solved exactly; over a board,
+    :func:`fit_board_environment` starts from :func:`board_dipole_starts`), then every term
+    is refined by Levenberg-Marquardt. ``start`` (terms) instead
     refines those terms from where they are (an online re-estimate, e.g. from witness
     sensors). ``rms`` and ``rms_base`` are over the complex residual's magnitude when the fit
     is complex.
