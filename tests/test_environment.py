@@ -59,8 +59,20 @@ def test_environment_model_on_a_board_reads_induced_dipoles_by_its_sensor():
     for k in ("d_translation", "d_rotation"):
         x, y = getattr(a, k), getattr(b, k)
         assert np.abs(x - y).max() < 1e-6 * np.abs(y).max(), k
-    assert m.solver_family == "model" and m.dof == bm.dof
+    assert m.solver_family == "planar-refined" and m.dof == bm.dof
     assert np.abs(m.coupling(P) - bm.coupling(P)).max() > 0
+    # solved cold (the board's compiled solver from its seed grid, then refined under the
+    # whole model): the known positions and axes, with the induced field 2 % of the board's
+    ratio = np.abs(m.coupling(P) - bm.coupling(P)).max() / np.abs(bm.coupling(P)).max()
+    m = EnvironmentModel(bm, EnvironmentTerms(t.positions, t.moments * 0.02 / ratio))
+    C = m.coupling(P)[:, :, 0]
+    res = prepare(m, initial="grid")(C)
+    assert np.all(res.status == 0)
+    np.testing.assert_allclose(res.poses[:, :3, 3], P[:, :3, 3], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(np.abs(np.einsum("na,na->n", res.poses[:, :3, 2],
+                                                P[:, :3, 2])), 1.0, atol=1e-9)
+    np.testing.assert_allclose(m.coupling_points(P[:, :3, 3], P[:, :3, 2]), C, rtol=0,
+                               atol=1e-12 * np.abs(C).max())
 
 
 def test_calibration_file_carries_the_environment_and_solve_uses_it(tmp_path):
@@ -157,7 +169,7 @@ def test_improved_calibration_file_solves_the_poses_of_its_own_scoring(tmp_path)
         5 * own.summary["trans_rms_mm"]
 
 
-def _board_grid(tmp_path, name, tilt_sigma, seed):
+def _board_grid(tmp_path, name, tilt_sigma, seed, metal=None, noise=1e-4):
     from openemt.calibrate import GridData, write_grid_csv
     from openemt.simulate import stage_pattern
 
@@ -170,41 +182,119 @@ def _board_grid(tmp_path, name, tilt_sigma, seed):
     truth = BoardModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
                                   offsets=rng.normal(0, 2e-3, (8, 3)), tilts=tilts)
     C = truth.coupling_points(pts, u)
-    C = C + rng.normal(0, 1e-4 * np.abs(C).max(), C.shape)
+    if metal is not None:
+        # the metal's in-phase response at a 10 kHz carrier, from the simulator's physics
+        rv = np.tile([np.pi, 0.0, 0.0], (len(pts), 1))          # sensor z axis along -z
+        P = pose_from_vector(np.c_[pts, rv])
+        C = C + metal.induced_couplings(truth, P, 10000.0)[:, :, 0].real
+    C = C + rng.normal(0, noise * np.abs(C).max(), C.shape)
     path = tmp_path / f"{name}.csv"
     write_grid_csv(GridData(pts, u, C), path)
     return path
 
 
-@pytest.mark.parametrize("tilt_sigma", [0.0, 0.02])
-def test_planar_environment_auto_is_as_good_held_out_as_the_best_hand_picked(tmp_path,
-                                                                            tilt_sigma):
-    """``--environment auto`` on a board: its choice (by cross-validation over the fitted
-    grid points) is held out at least as well as the better of ``none`` and ``tilt``; with
-    untilted coils the two differ only by the noise (auto within 2 % of the better)."""
+def _aluminium_plate():
+    """A 300 x 300 x 2 mm aluminium plate standing 90 mm beside the grid (+x), facing it."""
+    from openemt.simulate import MetalObject, MetalScene
+
+    return MetalScene((MetalObject("plate", "aluminium", (0.22, 0.0, 0.09),
+                                   (0.0, -np.pi / 2, 0.0), size=(0.3, 0.3),
+                                   thickness=0.002),))
+
+
+#: Held-out tolerance where auto's choice ties (CV_TIE) with a more complex one that scores
+#: better on the checkerboard: the 49 held-out points' own sampling noise.
+HELD_OUT_TIE = 0.02
+
+
+def _checkerboard_options(path):
+    """Every hand-picked board option fitted on the checkerboard's fitted points as
+    ``calibrate --mode planar --holdout checkerboard --environment NAME`` fits it, and the
+    held-out points' position RMS (mm) under it, each solved from its known pose (the
+    model's error; the command's cold solves converge to these poses)."""
+    from openemt.calibrate import (
+        PLANAR_CANDIDATES,
+        GridData,
+        fit_board_environment,
+        holdout_split,
+        known_pose_errors,
+    )
+    from openemt.calibrate._planar import fit_planar, read_grid
+    from openemt.io import load_board
+
+    d = read_grid(path)
+    held = holdout_split("checkerboard", len(d.points), points=d.points)
+    train = GridData(d.points[~held], d.axes[~held], d.couplings[~held], d.coil_names)
+    out = {}
+    for name, terms in PLANAR_CANDIDATES.items():
+        f = fit_board_environment(train, load_board(None),
+                                  lambda g, m, tilt=False: fit_planar(g, m, fit_tilt=tilt),
+                                  tilt=bool(terms.get("tilt")), dipoles=terms.get("dipoles", 0))
+        e = known_pose_errors(f.model, d.points[held], d.axes[held], d.couplings[held])
+        out[name] = float(np.sqrt(np.mean(e ** 2)) * 1e3)
+    return train, out
+
+
+@pytest.mark.parametrize("grid", ["untilted", "tilted", "metal"])
+def test_planar_environment_auto_is_as_good_held_out_as_the_best_hand_picked(tmp_path, grid):
+    """``--environment auto`` on a board: its choice (cross-validated on the fitted grid
+    points only: none, tilt, one induced dipole, both) is held out at least as well as the
+    best hand-picked option. Where the best hand-picked option is more complex than auto's
+    choice (the cross-validation found them tied within CV_TIE and took the simpler), auto
+    may trail it by the held-out points' sampling noise, HELD_OUT_TIE; never otherwise."""
+    from openemt.calibrate import PLANAR_CANDIDATES
+    from openemt.calibrate._environment import planar_environment_cv
+    from openemt.calibrate._planar import fit_planar
+    from openemt.io import load_board
+
+    path = {"untilted": lambda: _board_grid(tmp_path, "g", 0.0, 11),
+            "tilted": lambda: _board_grid(tmp_path, "g", 0.02, 11),
+            "metal": lambda: _board_grid(tmp_path, "g", 0.0, 11, _aluminium_plate(),
+                                         2e-5)}[grid]()
+    train, held = _checkerboard_options(path)
+    # what calibrate's auto runs on its fitted points
+    chosen, scores = planar_environment_cv(
+        train, load_board(None),
+        lambda g, m, tilt=False: fit_planar(g, m, fit_tilt=tilt, uncertainty=False))
+    assert list(scores) == list(PLANAR_CANDIDATES)
+    order = list(PLANAR_CANDIDATES)
+    best = min(held, key=held.get)
+    if order.index(best) > order.index(chosen):
+        assert held[chosen] <= (1 + HELD_OUT_TIE) * held[best], (chosen, held)
+    else:
+        assert held[chosen] <= held[best], (chosen, held)
+    if grid != "metal":
+        assert "skipped" in scores["dipoles:1"], scores              # the gate
+    if grid == "tilted":
+        assert "tilt" in chosen and held[chosen] < 0.5 * held["none"], (chosen, held)
+    if grid == "metal":
+        # the plate: an induced dipole is chosen and takes most of the error away
+        assert "dipoles:1" in chosen and held[chosen] < 0.2 * held["none"], (chosen, held)
+
+
+def test_planar_calibration_with_an_induced_dipole_is_written_and_solved(tmp_path):
+    """``calibrate --mode planar --environment dipoles:1``: the file carries the dipole,
+    its provenance says so, and its held-out points are solved cold through the board's
+    solver refined under the whole model."""
     from openemt.calibrate import CalibrateOptions, calibrate_dataset
 
-    path = _board_grid(tmp_path, "grid", tilt_sigma, 11)
+    path = _board_grid(tmp_path, "g", 0.0, 11, _aluminium_plate(), 2e-5)
+    out = tmp_path / "cal.json"
+    r = calibrate_dataset(CalibrateOptions(dataset=path, mode="planar", output=out,
+                                           holdout="checkerboard", environment="dipoles:1"))
+    assert r.calibration.provenance["environment"] == {"chosen": ["dipoles:1"],
+                                                       "method": "given", "candidates": {}}
+    back = read_calibration(out)
+    assert back.environment.names() == ["dipoles:1"]
+    assert back.coupling_model.solver_family == "planar-refined"
+    assert r.holdout["n"] == 49 and r.holdout["position_rms_mm"] < 0.2
+    # the report solves the grid with the same model: the calibration's held-out block
+    from openemt.calibrate._planar import read_grid
+    from openemt.report import planar_report
 
-    def run(env):
-        return calibrate_dataset(CalibrateOptions(dataset=path, mode="planar",
-                                                  holdout="checkerboard", environment=env))
-
-    auto = run("auto")
-    prov = auto.calibration.provenance["environment"]
-    assert prov["method"] == "cross-validation"
-    assert set(prov["candidates"]) == {"none", "tilt"}
-    assert all(v["cv_position_rms_mm"] > 0 for v in prov["candidates"].values())
-    chosen = prov["chosen"][0] if prov["chosen"] else "none"
-    other = "none" if chosen == "tilt" else "tilt"
-    held = {chosen: auto.holdout["position_rms_mm"],
-            other: run(other).holdout["position_rms_mm"]}
-    best = min(held.values())
-    if tilt_sigma:
-        assert chosen == "tilt" and held["tilt"] < 0.8 * held["none"], held
-        assert held[chosen] <= best, held
-    else:
-        assert held[chosen] <= 1.02 * best, held
+    rep = planar_report(read_grid(path), back, holdout="checkerboard").summary
+    assert rep["holdout"]["position_rms_mm"] == pytest.approx(r.holdout["position_rms_mm"],
+                                                              rel=1e-9)
 
 
 def test_fit_environment_recovers_an_induced_dipole_and_refits_from_witnesses():
@@ -260,7 +350,7 @@ def test_witness_estimator_follows_a_moving_object():
                                    atol=1e-5 * np.abs(moved.coupling(Q)).max())
 
 
-@pytest.mark.parametrize("mode, env, what", [("planar", "gain", "auto, none or tilt in planar"),
+@pytest.mark.parametrize("mode, env, what", [("planar", "gain", "tilt and dipoles:K in planar"),
                                              ("XYZ", "dipoles:1", "auto or none in mode XYZ"),
                                              ("improved", "dipoles:2", "at most dipoles:1"),
                                              ("planar", "lead", "auto, none or a list")])
@@ -307,7 +397,18 @@ def test_track_solves_with_the_environment_terms_of_its_calibration(tmp_path):
     {"induced_dipoles": [{"position": [1e6, 0, 0], "moments": [[0, 0, 0]] * 3}]},
     {"gain_nonlinearity": "abc"}, {"gain_nonlinearity": [1, 2]},
     {"gain_nonlinearity": [None, None, None]}, {"coupling_offset": [[1]]},
-    {"coupling_offset": {"a": 1}}, "str", [1]])
+    {"coupling_offset": {"a": 1}}, "str", [1],
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, 0.2]}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": "abc"}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, None, 0.2]}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, 0.2, 0.3]},
+                         {"position": [0, 0, 1], "moments": [[0, 0, 0]] * 3}]},
+    {"induced_dipoles": [{"position": [0, 0, 0], "moments": [[0, 0, 0]] * 3,
+                          "phases_rad": [0.1, 0.2, float("inf")]}]}])
 def test_damaged_environment_terms_in_a_file_are_one_error_line(tmp_path, env):
     cal = Calibration(model=truth_model(np.random.default_rng(8)))
     path = tmp_path / "c.json"

@@ -16,6 +16,7 @@ circulate the same way about the normal (as the Anser coils, Jaeger et al. 2017)
 
 from __future__ import annotations
 
+import functools
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -179,6 +180,11 @@ class CoilSpec:
 
     def segments(self) -> np.ndarray:
         """Straight current segments ``(S, 2, 3)`` (start, end) in the board frame."""
+        return self._segments.copy()
+
+    @functools.cached_property
+    def _segments(self) -> np.ndarray:
+        # a fit builds the board model at every evaluation: the coil's path, once per coil
         v = self.local_path() @ self.rotation.T + self.center
         return np.stack([v[:-1], v[1:]], axis=1)
 

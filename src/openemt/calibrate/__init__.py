@@ -10,10 +10,14 @@ paper's staged sequence of such fits; :func:`improved_calibration` the improved 
 from ..io import Calibration, Dataset
 from ._check import HeldOutTest, held_out_rows, solve_held_out
 from ._environment import (
+    PLANAR_CANDIDATES,
+    BoardEnvironmentFit,
     EnvironmentChoice,
     EnvironmentFit,
     WitnessEstimator,
+    fit_board_environment,
     fit_environment,
+    known_pose_errors,
     parse_environment,
 )
 from ._fit import CalibrationFit, ResidueStats, fit, residue_stats
@@ -86,8 +90,12 @@ __all__ = [
     "calibrate_dataset",
     "load_dataset",
     "CANDIDATES",
+    "BoardEnvironmentFit",
     "EnvironmentChoice",
     "EnvironmentFit",
+    "PLANAR_CANDIDATES",
+    "fit_board_environment",
+    "known_pose_errors",
     "Calibration",
     "CalibrationFit",
     "CalibrationMode",

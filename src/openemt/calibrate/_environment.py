@@ -8,8 +8,9 @@ model fits its coil moments' directions anyway). ``--environment`` takes
 * ``auto`` (the default): the terms are chosen by cross-validation on the training rows only
   (the improved rig model: forward selection on position-grouped folds of the md rows,
   :func:`openemt.calibrate.select_terms`; a board: every candidate of
-  :data:`PLANAR_CANDIDATES` on position-grouped folds of the fitted grid points); the choice and
-  each candidate's held-out error go to the calibration's ``provenance["environment"]``;
+  :data:`PLANAR_CANDIDATES` -- none, tilt, an induced dipole, both -- on interleaved folds of
+  the fitted grid points, :func:`planar_environment_cv`); the choice and each candidate's
+  held-out error go to the calibration's ``provenance["environment"]``;
 * ``none``: no environment term;
 * an explicit list such as ``dipoles:2,gain,tilt`` (``dipoles:K`` induced dipoles, ``gain``,
   ``offset``, ``tilt``).
@@ -23,7 +24,8 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "EnvironmentChoice", "EnvironmentFit",
+__all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "BoardEnvironmentFit", "EnvironmentChoice",
+           "EnvironmentFit", "fit_board_environment", "known_pose_errors",
            "WitnessEstimator", "fit_environment", "improved_environment", "parse_environment", "planar_environment_cv"]
 
 #: The names an explicit ``--environment`` list takes.
@@ -107,68 +109,248 @@ def improved_environment(choice: EnvironmentChoice) -> dict:
                                            coupling_offset=choice.offset)}
 
 
-#: Candidate term sets ``--environment auto`` compares on a board, by name.
-PLANAR_CANDIDATES = {"none": {}, "tilt": {"tilt": True}}
+#: Candidate term sets ``--environment auto`` compares on a board, by name, simplest first
+#: (the order ties are broken in): the board's gains and offsets alone, with the coils' tilt,
+#: with one induced dipole, with both.
+PLANAR_CANDIDATES = {"none": {}, "tilt": {"tilt": True}, "dipoles:1": {"dipoles": 1},
+                     "tilt,dipoles:1": {"tilt": True, "dipoles": 1}}
 
 
-def _pose_vectors(points, axes) -> np.ndarray:
-    """Pose vectors ``(N, 6)`` at ``points`` whose z axis is ``axes`` (the shortest rotation
-    from z; a half turn about x for -z)."""
+def _grid_poses(points, axes) -> np.ndarray:
+    """Poses ``(N, 4, 4)`` at ``points`` whose z axis is ``axes`` (the smallest rotation
+    from z)."""
+    from ..geometry import pose_from_vector, rotvec_between
+
     u = np.asarray(axes, dtype=np.float64)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    w = np.cross([0.0, 0.0, 1.0], u)
-    s = np.linalg.norm(w, axis=1)
-    ang = np.arctan2(s, u[:, 2])
-    k = np.where(s[:, None] > 1e-12, w / np.maximum(s, 1e-300)[:, None], [1.0, 0.0, 0.0])
-    return np.c_[np.asarray(points, dtype=np.float64), k * ang[:, None]]
+    return pose_from_vector(np.c_[np.asarray(points, dtype=np.float64),
+                                  rotvec_between(np.array([0.0, 0.0, 1.0]), u)])
+
+
+def known_pose_errors(model, points, axes, couplings, iterations: int = 8) -> np.ndarray:
+    """Position errors (m) of single-coil samples solved from their known poses: each
+    sample's couplings ``(N, n_source)`` fitted by batched Gauss-Newton started at the known
+    position and axis, under any coupling model of a single-coil sensor (a board, a board
+    with environment terms). The model's error, not a cold start's, is what this scores; the
+    least-squares pose is the one the 5-DOF solver converges to from there. The steps are
+    the minimum-norm solutions in the translation and a left rotation (the roll about the
+    sensor axis is not seen), so no rotation vector's singularity is met (an axis along -z
+    is a half turn)."""
+    from scipy.spatial.transform import Rotation
+
+    P = _grid_poses(points, axes)
+    C = np.asarray(couplings, dtype=np.float64).reshape(len(P), -1)
+    for _ in range(int(iterations)):
+        jac = model.jacobians(P, params=False)
+        n = len(P)
+        J = np.concatenate([jac.d_translation, jac.d_rotation], axis=-1).reshape(n, -1, 6)
+        r = C - jac.C.reshape(n, -1)
+        step = np.einsum("nam,nm->na", np.linalg.pinv(J, rcond=1e-10), r)
+        P = P.copy()
+        P[:, :3, 3] += step[:, :3]
+        P[:, :3, :3] = Rotation.from_rotvec(step[:, 3:]).as_matrix() @ P[:, :3, :3]
+        if np.max(np.abs(step)) < 1e-12:
+            break
+    e = np.linalg.norm(P[:, :3, 3] - np.asarray(points, dtype=np.float64), axis=1)
+    return np.where(np.isfinite(e), e, np.nan)
+
+
+def board_dipole_starts(points, margins=(0.1, 0.25)) -> np.ndarray:
+    """Start positions of an induced dipole over a board: the corners, edge and face centres
+    of the grid points' bounding box grown by each of ``margins`` (m) -- below (the board's
+    side), beside and above the volume, never inside it."""
+    pts = np.asarray(points, dtype=np.float64)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    mid = 0.5 * (lo + hi)
+    out = []
+    for m in margins:
+        for a in (-1, 0, 1):
+            for b in (-1, 0, 1):
+                for c in (-1, 0, 1):
+                    if a == b == c == 0:
+                        continue
+                    s = np.array([a, b, c])
+                    out.append(np.where(s < 0, lo - m, np.where(s > 0, hi + m, mid)))
+    return np.array(out)
+
+
+@dataclass(frozen=True, eq=False)
+class BoardEnvironmentFit:
+    """A board fitted with environment terms (:func:`fit_board_environment`): ``board``
+    (the fit of the board's own parameters, a :class:`~openemt.calibrate.PlanarFit`),
+    ``terms`` (None without) and ``model`` (the board with them: an
+    :class:`~openemt.field.EnvironmentModel`; the board alone without terms)."""
+
+    board: object
+    terms: object
+    model: object
+
+
+def _joint_lsq(board_model, terms, P, C, groups, max_nfev: int = 30):
+    """Least squares of a board's ``groups`` and the environment terms together."""
+    from scipy.optimize import least_squares
+
+    from ..field import EnvironmentModel
+
+    m0 = EnvironmentModel(board_model, terms)
+    x0 = m0.params
+    nb = np.size(board_model.params)
+    pg = board_model.parameter_groups
+    free = np.r_[np.concatenate([pg[g] for g in groups]), np.arange(nb, x0.size)]
+    scale = np.sqrt(np.mean(C ** 2)) or 1.0
+
+    def model(v):
+        x = x0.copy()
+        x[free] = v
+        return m0.with_params(x)
+
+    res = least_squares(lambda v: ((C - model(v).coupling(P)) / scale).ravel(), x0[free],
+                        jac=lambda v: -(model(v).jacobians(P, params=True).d_params[..., free]
+                                        / scale).reshape(-1, free.size),
+                        method="lm", x_scale="jac", max_nfev=max_nfev * (1 + free.size))
+    return model(res.x)
+
+
+def fit_board_environment(data, start_model, fit_board, *, tilt: bool = False,
+                          dipoles: int = 1, board=None) -> BoardEnvironmentFit:
+    """Fit a board with ``dipoles`` induced dipoles to grid ``data``: the board alone
+    (``fit_board(data, start_model, tilt=tilt)``, or ``board``, a fit of it already made),
+    the dipoles on its residual (each started from the best of :func:`board_dipole_starts`,
+    its moments linear there, then refined with every term), the board refitted to the
+    couplings less the induced ones, then the board's gains, offsets (and tilts) and the
+    terms refined together by Levenberg-Marquardt; last the board is fitted once more to the
+    couplings less the induced ones from there (its standard errors, given the terms). The
+    induced couplings do not depend on the board's parameters (the induced field is read by
+    the board's sensor coil)."""
+    from dataclasses import replace as _replace
+
+    P = _grid_poses(data.points, data.axes)
+    C = np.asarray(data.couplings, dtype=np.float64)[:, :, None]
+    bf = fit_board(data, start_model, tilt=tilt) if board is None else board
+    if not dipoles:
+        return BoardEnvironmentFit(bf, None, bf.model)
+    ef = _fit_environment(bf.model, P, C, dipoles=dipoles,
+                          positions=board_dipole_starts(data.points))
+
+    def less_induced(board_model, terms):
+        from ..field import EnvironmentModel
+
+        ind = EnvironmentModel(board_model, terms).coupling(P) - board_model.coupling(P)
+        return _replace(data, couplings=data.couplings - ind[:, :, 0])
+
+    bf = fit_board(less_induced(bf.model, ef.terms), bf.model, tilt=tilt)
+    groups = ("gains", "offsets") + (("tilts_in_plane",) if tilt else ())
+    joint = _joint_lsq(bf.model, ef.terms, P, C, groups)
+    bf = fit_board(less_induced(joint.base, joint.terms), joint.base, tilt=tilt)
+    return BoardEnvironmentFit(bf, joint.terms, type(joint)(bf.model, joint.terms))
+
+
+#: The induced dipole candidates are cross-validated on a board only where one dipole, at the
+#: best of :func:`board_dipole_starts` with its moments solved there, takes at least this
+#: fraction of the sum of squares off the residual of the board fitted with tilt on the first
+#: fold's training points: a dipole fitted to noise takes about its parameter count over the
+#: residual's degrees of freedom (24 of 100-150 on the grids of the tests), metal within
+#: reach of the volume most of it.
+DIPOLE_GATE = 0.5
+
+
+def dipole_residual_gain(board_model, data) -> float:
+    """The fraction of the board's residual sum of squares on grid ``data`` one induced
+    dipole removes at the best of :func:`board_dipole_starts` (moments solved linearly,
+    position not refined): the cheap evidence for :data:`DIPOLE_GATE`."""
+    P = _grid_poses(data.points, data.axes)
+    r = np.asarray(data.couplings, dtype=np.float64)[:, :, None] - board_model.coupling(P)
+    ss0 = float(np.sum(r ** 2))
+    if not ss0 > 0:
+        return 0.0
+    best = min(_moments_for(board_model, q, P, r, board_model.n_source)[-1]
+               for q in board_dipole_starts(data.points))
+    return 1.0 - best / ss0
+
+
+#: Candidates whose cross-validated position RMS is within this fraction of the least one
+#: tie, and the simplest of them is chosen: a more complex term set has to beat the simpler
+#: ones by more than the noise of the comparison (fold-to-fold and point-to-point scatter of
+#: a few percent on the grids of the tests).
+CV_TIE = 0.02
+
+
+def _choose(cands, scores) -> str:
+    """The simplest candidate (``cands`` is ordered simplest first) whose cross-validated
+    position RMS is within :data:`CV_TIE` of the least one."""
+    rms = {k: scores[k]["cv_position_rms_mm"] for k in cands if k in scores}
+    rms = {k: v for k, v in rms.items() if v is not None and np.isfinite(v)}
+    if not rms:
+        return next(iter(cands))
+    best = min(rms.values())
+    return next(k for k in cands if k in rms and rms[k] <= best * (1 + CV_TIE))
+
+
+def _folds(points, folds: int) -> np.ndarray:
+    """Interleaved folds: point ``i`` (in the grid's order) in fold ``i % folds``, so each
+    fold's points lie between the others' as a checkerboard's held-out points do (blocks of
+    the volume would score a dipole's extrapolation to a region no training point reached,
+    which a grid's held-out points never ask of it)."""
+    return np.arange(len(points)) % int(folds)
 
 
 def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
                           candidates=None) -> tuple[str, dict]:
     """Cross-validate the board's candidate term sets on ``data`` (the grid points of the
-    fit): folds of alternate regions of the volume (position-grouped), each candidate fitted
-    on the others and solved on the fold. ``fit(data, start_model, **terms)`` fits one.
+    fit): interleaved folds (:func:`_folds`), each candidate fitted
+    on the others (``fit(data, start_model, tilt=...)`` fits the board alone; induced
+    dipoles are fitted over the same fold's board fit by :func:`fit_board_environment`) and
+    its held-out points solved from their known poses (:func:`known_pose_errors`).
 
-    Returns the chosen name (least pooled held-out position RMS; ties go to the simpler,
-    earlier candidate) and ``{name: {"cv_position_rms_mm", "n"}}``.
+    Returns the chosen name (:func:`_choose`: the simplest candidate within
+    :data:`CV_TIE` of the least pooled held-out position RMS) and ``{name:
+    {"cv_position_rms_mm", "n"}}`` (with ``skipped``, the reason, where the dipole
+    candidates were not tried: :data:`DIPOLE_GATE`).
     """
-    from ..solve import GridData, planar_errors, prepare
+    from ..solve import GridData
 
     cands = PLANAR_CANDIDATES if candidates is None else candidates
-    pts = np.asarray(data.points, dtype=np.float64)
-    # position-grouped folds: the grid's points ordered along its widest axis, in blocks
-    order = np.argsort(pts[:, int(np.argmax(np.ptp(pts, axis=0)))], kind="stable")
-    fold = np.empty(len(pts), dtype=np.int64)
-    fold[order] = np.arange(len(pts)) * folds // len(pts)
-    fold = (fold + np.arange(len(pts)) % 2 * (folds // 2)) % folds    # interleave halves
+    fold = _folds(data.points, folds)
 
     def subset(mask):
         return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
                         data.coil_names)
 
-    scores = {}
+    boards, scores = {}, {}
+    gate = None
     for name, terms in cands.items():
-        err, n = [], 0
+        tilt, k_dip = bool(terms.get("tilt")), int(terms.get("dipoles", 0))
+        if k_dip:
+            if gate is None:
+                # over the most general board fit (with tilt): a dipole has to explain what
+                # the coils' own terms cannot
+                k0 = int(fold.min())
+                tr = fold != k0
+                if (k0, True) not in boards:
+                    boards[k0, True] = fit(subset(tr), start_model, tilt=True)
+                gate = dipole_residual_gain(boards[k0, True].model, subset(tr))
+            if gate < DIPOLE_GATE:
+                scores[name] = {"cv_position_rms_mm": None, "n": 0,
+                                "skipped": f"one induced dipole takes {gate:.0%} of the "
+                                           f"board's residual (< {DIPOLE_GATE:.0%})"}
+                continue
+        err = []
         for k in range(folds):
             train, test = fold != k, fold == k
             if train.sum() < 7 or not test.any():
                 continue
-            f = fit(subset(train), start_model, **terms)
-            # solved from the known pose: the model's error, not the cold start's, is scored
-            held = subset(test)
-            res = prepare(f.model)(held.couplings, _pose_vectors(held.points, held.axes))
-            acc = planar_errors(f.model, held, result=res).summary()
-            err.append(acc["position_rms_mm"] ** 2 * acc["n"])
-            n += acc["n"]
-        scores[name] = {"cv_position_rms_mm": float(np.sqrt(sum(err) / n)) if n else None,
-                        "n": int(n)}
-    finite = {k: v["cv_position_rms_mm"] for k, v in scores.items()
-              if v["cv_position_rms_mm"] is not None and np.isfinite(v["cv_position_rms_mm"])}
-    if not finite:
-        return next(iter(cands)), scores
-    best = min(finite.values())
-    chosen = next(k for k in cands if k in finite and finite[k] <= best * (1 + 1e-9))
-    return chosen, scores
+            if (k, tilt) not in boards:
+                boards[k, tilt] = fit(subset(train), start_model, tilt=tilt)
+            m = boards[k, tilt].model if not k_dip else fit_board_environment(
+                subset(train), start_model, fit, tilt=tilt, dipoles=k_dip,
+                board=boards[k, tilt]).model
+            err.append(known_pose_errors(m, data.points[test], data.axes[test],
+                                         data.couplings[test]))
+        e = np.concatenate(err) if err else np.zeros(0)
+        ok = np.isfinite(e)
+        scores[name] = {"cv_position_rms_mm": float(np.sqrt(np.mean(e[ok] ** 2)) * 1e3)
+                        if ok.any() else None, "n": int(ok.sum())}
+    return _choose(cands, scores), scores
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,36 +377,90 @@ _START_DIRECTIONS /= np.linalg.norm(_START_DIRECTIONS, axis=1, keepdims=True)
 _START_DISTANCES_M = (0.15, 0.3)
 
 
-def _signed(C) -> np.ndarray:
+def _target(C, quadrature):
+    """The couplings a fit matches: complex (phase-calibrated: in-phase real part,
+    quadrature imaginary part) where ``quadrature`` says so (None: where they are complex
+    with a quadrature part), else real (the signed real coupling of complex ones)."""
     from ..io import signed_real
 
     C = np.asarray(C)
-    return signed_real(C) if np.iscomplexobj(C) else np.asarray(C, dtype=np.float64)
+    if np.iscomplexobj(C):
+        if quadrature or (quadrature is None and np.any(C.imag)):
+            return C.astype(np.complex128)
+        return signed_real(C) if quadrature is None else C.real.astype(np.float64)
+    return np.asarray(C, dtype=np.float64)
+
+
+def _predict(m, P, complex_: bool):
+    return m.complex_coupling(P) if complex_ else m.coupling(P)
+
+
+class _HeldBase:
+    """A base model held at fixed poses ``P``: its couplings there computed once, no
+    parameters of its own, its sensor coils as point dipoles (what the induced dipoles are
+    read by). The terms' least squares evaluate the model thousands of times at the same
+    poses; a board's couplings are the costly part of each evaluation."""
+
+    solver_family = "model"
+
+    def __init__(self, base, P):
+        from ..field._environment import sensor_dipoles
+
+        self.gain, self.L_se, self.M_se = sensor_dipoles(base)
+        self.n_source, self.n_sensor, self.kind = base.n_source, base.n_sensor, base.kind
+        self.params = np.zeros(0)
+        self._P = P
+        self._C = np.asarray(base.coupling(P), dtype=np.float64)
+
+    def coupling(self, P):
+        if P is not self._P and not (np.shape(P) == self._P.shape
+                                     and np.array_equal(P, self._P)):
+            raise ValueError("a held base model is evaluated at its own poses only")
+        return self._C
+
+    def jacobians(self, P, params: bool = True):
+        from ..field import ModelJacobians
+
+        z = np.zeros(self._C.shape + (3,))
+        return ModelJacobians(self.coupling(P).copy(), z, z,
+                              np.zeros(self._C.shape + (0,)) if params else None)
 
 
 def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
-    """Least squares of the environment terms alone (the base model held)."""
+    """Least squares of the environment terms alone (the base model held); a complex
+    ``target`` is matched in phase and in quadrature."""
     from scipy.optimize import least_squares
 
     from ..field import EnvironmentModel
 
-    nb = np.size(base.params)
+    cplx = np.iscomplexobj(target)
+    if cplx:
+        terms = terms.with_phases()
+    base = _HeldBase(base, P)
+    nb = 0
     v0 = terms.vector()
     free = np.ones(v0.size, bool) if free_mask is None else free_mask
-    scale = np.sqrt(np.mean(target ** 2)) or 1.0
+    scale = np.sqrt(np.mean(np.abs(target) ** 2)) or 1.0
+    parts = (target.real, target.imag) if cplx else (target,)
+
+    def model(v):
+        full = v0.copy()
+        full[free] = v
+        return EnvironmentModel(base, terms.with_vector(full))
 
     def fun(v):
-        full = v0.copy()
-        full[free] = v
-        m = EnvironmentModel(base, terms.with_vector(full))
-        return ((target - m.coupling(P)) / scale).ravel()
+        m = model(v)
+        if not cplx:
+            return ((target - m.coupling(P)) / scale).ravel()
+        C = m.complex_coupling(P)
+        return np.concatenate([((t - c) / scale).ravel()
+                               for t, c in zip(parts, (C.real, C.imag))])
 
     def jac(v):
-        full = v0.copy()
-        full[free] = v
-        m = EnvironmentModel(base, terms.with_vector(full))
+        m = model(v)
         J = m.jacobians(P, params=True).d_params[..., nb:][..., free]
-        return -(J / scale).reshape(-1, int(free.sum()))
+        J = [J] + ([m.quadrature_jacobians(P)[1][..., free]] if cplx else [])
+        return -np.concatenate([(j / scale).reshape(-1, int(free.sum())) for j in J])
 
     res = least_squares(fun, v0[free], jac=jac, method="lm", max_nfev=max_nfev * (1 + v0.size),
                         x_scale="jac")
@@ -235,7 +471,9 @@ def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
 
 def _moments_for(base, q, P, target, n_source):
     """The best moments of one dipole at ``q`` for the residual ``target`` (linear), and the
-    residual's sum of squares after them."""
+    residual's sum of squares after them; with a complex ``target`` also the phases (the
+    complex moment ``mu exp(1j phi)`` of each source coil: the best rank-one fit of its
+    least-squares complex moment, a real vector times a phase)."""
     from ..field import DipoleModel, coupling_jacobians
     from ..field._environment import sensor_dipoles
 
@@ -243,63 +481,104 @@ def _moments_for(base, q, P, target, n_source):
     d = DipoleModel(gain=gain, L_so=np.repeat(np.asarray(q, float)[:, None], n_source, axis=1),
                     M_so=np.ones((3, n_source)), L_se=L, M_se=M)
     dM = coupling_jacobians(d, P).d_M_so                       # (N, n_so, n_se, 3)
+    cplx = np.iscomplexobj(target)
     mu = np.zeros((n_source, 3))
+    ph = np.zeros(n_source)
     ss = 0.0
     for i in range(n_source):
         A = dM[:, i].reshape(-1, 3)
         b = target[:, i].ravel()
-        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-        mu[i] = sol
-        ss += float(np.sum((b - A @ sol) ** 2))
-    return mu, ss
+        if not cplx:
+            sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+            mu[i] = sol
+            ss += float(np.sum((b - A @ sol) ** 2))
+            continue
+        sol, *_ = np.linalg.lstsq(A, np.c_[b.real, b.imag], rcond=None)   # (3, 2)
+        # rank one in the metric of A: A sol ~ (A v) [cos phi, sin phi]
+        _, _, vt = np.linalg.svd(A @ sol, full_matrices=False)
+        c = vt[0] if vt[0, 0] >= 0 else -vt[0]
+        mu[i] = sol @ c
+        ph[i] = np.arctan2(c[1], c[0])
+        fit = (A @ mu[i])[:, None] * c
+        ss += float(np.sum((b.real - fit[:, 0]) ** 2 + (b.imag - fit[:, 1]) ** 2))
+    return (mu, ph, ss) if cplx else (mu, ss)
 
 
 def fit_environment(model, poses, couplings, *, dipoles: int = 1, gain: bool = False,
-                    offset: bool = False, start=None, max_nfev: int = 100) -> EnvironmentFit:
+                    offset: bool = False, start=None, max_nfev: int = 100,
+                    quadrature: bool | None = None) -> EnvironmentFit:
     """Fit environment terms (:class:`openemt.field.EnvironmentTerms`) to ``couplings``
-    ``(N, n_source, n_sensor)`` (complex: their signed real part) measured at known ``poses``
-    with the metal in place, the base ``model`` held (it is the tracker's clean calibration).
+    ``(N, n_source, n_sensor)`` measured at known ``poses`` with the metal in place, the base
+    ``model`` held (it is the tracker's clean calibration).
+
+    Complex couplings are phase-calibrated (the in-phase part real, the quadrature
+    imaginary): where they carry a quadrature part (``quadrature=None``, or always with
+    ``quadrature=True``) the induced moments get a phase per source coil's carrier and the
+    terms are fitted to both parts, so the model predicts the quadrature too
+    (:meth:`openemt.field.EnvironmentModel.complex_coupling`); otherwise (real couplings,
+    complex ones without quadrature) the moments are real and the fit is to the signed real
+    coupling (``quadrature=False``: to the real part of complex couplings).
 
     Induced dipoles are added one at a time: the new one starts from the best of 28 positions
     around the collection (the 6 axes and 8 diagonals at 0.15 and 0.3 m from the centre of its
-    positions; at each the moments are linear, solved exactly), then every term is refined by
-    Levenberg-Marquardt. ``start`` (terms) instead refines those terms from where they are
-    (an online re-estimate, e.g. from witness sensors).
+    positions; at each the moments are linear, solved exactly; over a board,
+    :func:`fit_board_environment` starts from :func:`board_dipole_starts`), then every term
+    is refined by Levenberg-Marquardt. ``start`` (terms) instead
+    refines those terms from where they are (an online re-estimate, e.g. from witness
+    sensors). ``rms`` and ``rms_base`` are over the complex residual's magnitude when the fit
+    is complex.
     """
+    return _fit_environment(model, poses, couplings, dipoles=dipoles, gain=gain,
+                            offset=offset, start=start, max_nfev=max_nfev,
+                            quadrature=quadrature)
+
+
+def _start_positions(P) -> np.ndarray:
+    centre = P[:, :3, 3].mean(axis=0)
+    return np.array([centre + dist * u for dist in _START_DISTANCES_M
+                     for u in _START_DIRECTIONS])
+
+
+def _fit_environment(model, poses, couplings, *, dipoles=1, gain=False, offset=False,
+                     start=None, max_nfev=100, quadrature=None, positions=None
+                     ) -> EnvironmentFit:
     from ..field import EnvironmentModel, EnvironmentTerms
 
     P = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    target = _signed(couplings)
-    base_rms = float(np.sqrt(np.mean((target - model.coupling(P)) ** 2)))
+    target = _target(couplings, quadrature)
+    cplx = np.iscomplexobj(target)
+    base_rms = float(np.sqrt(np.mean(np.abs(target - model.coupling(P)) ** 2)))
     ns, ne = model.n_source, model.n_sensor
+    cands = _start_positions(P) if positions is None else np.asarray(positions, float)
     if start is not None:
         terms, res = _lsq(model, start, P, target, max_nfev=max_nfev)
     else:
         terms = EnvironmentTerms(np.zeros((0, 3)), np.zeros((0, ns, 3)),
                                  np.zeros(ne) if gain else None,
-                                 np.zeros((ns, ne)) if offset else None)
+                                 np.zeros((ns, ne)) if offset else None,
+                                 np.zeros((0, ns)) if cplx else None)
         res = None
         if gain or offset:
             terms, res = _lsq(model, terms, P, target, max_nfev=max_nfev)
-        centre = P[:, :3, 3].mean(axis=0)
         for _ in range(int(dipoles)):
-            resid = target - EnvironmentModel(model, terms).coupling(P) if not terms.empty \
-                else target - model.coupling(P)
+            resid = target - _predict(EnvironmentModel(model, terms), P, cplx) \
+                if not terms.empty else target - model.coupling(P)
             best = None
-            for dist in _START_DISTANCES_M:
-                for u in _START_DIRECTIONS:
-                    q = centre + dist * u
-                    mu, ss = _moments_for(model, q, P, resid, ns)
-                    if best is None or ss < best[0]:
-                        best = (ss, q, mu)
-            _, q, mu = best
+            for q in cands:
+                out = _moments_for(model, q, P, resid, ns)
+                if best is None or out[-1] < best[0]:
+                    best = (out[-1], q, out[:-1])
+            _, q, got = best
+            ph = None if not cplx else np.concatenate([terms.phases.reshape(-1, ns),
+                                                       got[1][None]])
             terms = EnvironmentTerms(np.r_[terms.positions, q[None]],
                                      np.concatenate([terms.moments.reshape(-1, ns, 3),
-                                                     mu[None]]),
-                                     terms.gain_beta, terms.offset)
+                                                     got[0][None]]),
+                                     terms.gain_beta, terms.offset, ph)
             terms, res = _lsq(model, terms, P, target, max_nfev=max_nfev)
     fitted = EnvironmentModel(model, terms) if not terms.empty else model
-    rms = float(np.sqrt(np.mean((target - fitted.coupling(P)) ** 2)))
+    pred = _predict(fitted, P, cplx) if not terms.empty else model.coupling(P)
+    rms = float(np.sqrt(np.mean(np.abs(target - pred) ** 2)))
     return EnvironmentFit(terms, fitted, rms, base_rms, int(getattr(res, "nfev", 0)),
                           int(getattr(res, "status", 0)))
 

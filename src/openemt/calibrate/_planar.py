@@ -192,8 +192,8 @@ def check_grid_units(data: GridData, sensor_length: float | None = None) -> None
                          f"{sensor_length:g}: millimetres given where metres are expected?")
 
 
-def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1e-10
-               ) -> PlanarFit:
+def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1e-10,
+               uncertainty: bool = True) -> PlanarFit:
     """Fit per-coil gain, position offset (and with ``fit_tilt`` a small tilt) of a board to
     grid data: the one calibration engine (:class:`~openemt.calibrate.CalibrationProblem`,
     scipy's Levenberg-Marquardt with the model interface's analytic Jacobian) with the grid's
@@ -213,6 +213,9 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
     max_iter, tol
         Iteration limit (function evaluations of the Levenberg-Marquardt fit) and its relative
         tolerance.
+    uncertainty : bool
+        Compute the standard errors and the condition number (NaN without: the
+        cross-validation's fits, which need the fitted model only).
     """
     from ..board import BoardModel
     from ..io import load_board
@@ -250,15 +253,19 @@ def fit_planar(data: GridData, model=None, *, fit_tilt=False, max_iter=50, tol=1
     groups = ("gains", "offsets") + (("tilts_in_plane",) if fit_tilt else ())
     free = layout.free_indices(groups)
     x0 = layout.pack(model, np.zeros(6), np.zeros(6), np.zeros(6))
-    f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_iter, warn=False)
+    f = fit_problem(prob, x0, free, groups, tol=tol, max_nfev=max_iter, warn=False,
+                    uncertainty=uncertainty)
     model = layout.model(f.x)
-    parts = model.split_params(f.standard_errors[layout.slices["model"]])
-    status = ("singular" if not f.identifiability.condition <= 1e12 else
+    se = f.standard_errors[layout.slices["model"]] if uncertainty else \
+        np.full(np.size(model.params), np.nan)
+    parts = model.split_params(se)
+    condition = float(f.identifiability.condition) if uncertainty else float("nan")
+    status = ("singular" if uncertainty and not condition <= 1e12 else
               "converged" if f.converged else "max_iterations")
     resid = Cm - model.coupling_points(data.points, data.axes)
     return PlanarFit(model=model, gains_se=parts["gains"], offsets_se=parts["offsets"],
                      tilts_se=parts["tilts"], status=status, iterations=int(f.result.nfev),
                      rms_residual=float(np.sqrt(np.mean(resid ** 2))),
                      coil_residual_percent=coil_residual_percent(resid, Cm),
-                     n_points=N, condition=float(f.identifiability.condition),
+                     n_points=N, condition=condition,
                      free=groups)

@@ -71,8 +71,9 @@ class CalibrateOptions:
     environment: str = _opt(
         "auto", "environment terms (metal near the tracker, the acquisition): 'auto' "
         "(default) chooses them by cross-validation on the training rows ('improved': induced "
-        "dipole, gain non-linearity, ... by md cross-validation; 'planar': none or tilt by "
-        "grid cross-validation), 'none', or a list of dipoles:K, gain, offset, tilt; the "
+        "dipole, gain non-linearity, ... by md cross-validation; 'planar': none, tilt, an "
+        "induced dipole or both by grid cross-validation), 'none', or a list of dipoles:K, "
+        "gain, offset, tilt (planar: tilt and dipoles:K); the "
         "choice and each candidate's held-out error go to the calibration's provenance "
         "(docs/calibration.md#environment-terms-environment); the paper's modes fit none",
         metavar="auto|none|dipoles:K,gain,offset,tilt")
@@ -99,9 +100,9 @@ class CalibrateOptions:
             raise InputError(f"expected --environment auto or none in mode {self.mode} (the "
                              f"paper's and the reference modes fit no environment terms), got "
                              f"{self.environment!r}")
-        if self.mode == "planar" and (env.dipoles or env.gain or env.offset):
-            raise InputError(f"expected --environment auto, none or tilt in planar mode, got "
-                             f"{self.environment!r}")
+        if self.mode == "planar" and (env.gain or env.offset):
+            raise InputError(f"expected --environment auto, none or a list of tilt and "
+                             f"dipoles:K in planar mode, got {self.environment!r}")
         if self.mode == "improved" and (env.dipoles > 1 or env.tilt):
             raise InputError(f"expected --environment with at most dipoles:1 and without tilt "
                              f"in improved mode (the rig model fits one induced dipole; its "
@@ -214,7 +215,12 @@ def _planar(o, say, compile_) -> CalibrateResult:
     from ..board import BoardModel
     from ..io import load_board, read_calibration
     from ..solve import GridData, planar_accuracy
-    from ._environment import parse_environment, planar_environment_cv
+    from ._environment import (
+        PLANAR_CANDIDATES,
+        fit_board_environment,
+        parse_environment,
+        planar_environment_cv,
+    )
     from ._planar import check_grid_units, fit_planar, read_grid
     from ._split import holdout_split
 
@@ -253,27 +259,33 @@ def _planar(o, say, compile_) -> CalibrateResult:
 
     compile_()
     env = parse_environment(o.environment)
-    tilt, env_prov = bool(o.tilt or env.tilt), None
+    tilt, dipoles, env_prov = bool(o.tilt or env.tilt), env.dipoles, None
     if env.mode == "auto" and not o.tilt:
         say(f"choosing the environment terms by cross-validation on {int(fit_mask.sum())} "
             f"grid points ...")
         chosen, scores = planar_environment_cv(
             subset(fit_mask), start_model,
-            lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt))
-        tilt = chosen == "tilt"
-        env_prov = {"chosen": [] if chosen == "none" else [chosen],
+            lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt, uncertainty=False))
+        tilt = bool(PLANAR_CANDIDATES[chosen].get("tilt"))
+        dipoles = int(PLANAR_CANDIDATES[chosen].get("dipoles", 0))
+        env_prov = {"chosen": [] if chosen == "none" else chosen.split(","),
                     "method": "cross-validation", "candidates": scores}
     else:
-        env_prov = {"chosen": ["tilt"] if tilt else [], "method": "given",
+        env_prov = {"chosen": (["tilt"] if tilt else []) +
+                    ([f"dipoles:{dipoles}"] if dipoles else []), "method": "given",
                     "candidates": {}}
     say(f"fitting the gains and offsets{' and tilts' if tilt else ''} of "
-        f"{data.couplings.shape[1]} coils on {int(fit_mask.sum())} grid points ...")
-    fit = fit_planar(subset(fit_mask), start_model, fit_tilt=tilt)
+        f"{data.couplings.shape[1]} coils{f' and {dipoles} induced dipole(s)' if dipoles else ''}"
+        f" on {int(fit_mask.sum())} grid points ...")
+    both = fit_board_environment(subset(fit_mask), start_model,
+                                 lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt),
+                                 tilt=tilt, dipoles=dipoles)
+    fit, model = both.board, both.model
     say("solving the grid points with the fitted board (5-DOF) to score it ...")
-    insample = planar_accuracy(fit.model, subset(fit_mask))
+    insample = planar_accuracy(model, subset(fit_mask))
     holdout = None
     if o.holdout:
-        holdout = {**planar_accuracy(fit.model, subset(~fit_mask)), "scheme": o.holdout}
+        holdout = {**planar_accuracy(model, subset(~fit_mask)), "scheme": o.holdout}
     warns = []
     if fit.status != "converged":
         warns.append(f"the planar fit ended with status {fit.status!r} after {fit.iterations} "
@@ -287,6 +299,8 @@ def _planar(o, say, compile_) -> CalibrateResult:
         provenance={"grid_file": str(o.dataset), "start_file": _path(o.start),
                     "board": o.board or (None if o.start else "anser"),
                     "fit_tilt": tilt, "holdout": o.holdout, "environment": env_prov})
+    if both.terms is not None:
+        cal = cal.replace(extra={**cal.extra, "environment": both.terms.to_dict()})
     human = [(f"planar: {len(fit.model.gains)} coils, fit {fit.status} in {fit.iterations} "
               f"iterations, max |offset| {np.abs(fit.model.offsets).max() * 1e3:.3f} mm, "
               f"in-sample {insample['position_rms_mm']:.3f} mm RMS over {insample['n']} "
@@ -299,7 +313,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
         human.append("environment (auto): " + ", ".join(
             f"{k} {v['cv_position_rms_mm']:.3f} mm" for k, v in env_prov["candidates"].items()
             if v["cv_position_rms_mm"] is not None) + " cross-validated on the fitted grid "
-            f"points -> {'tilt' if tilt else 'none'}")
+            f"points -> {','.join(env_prov['chosen']) or 'none'}")
     return CalibrateResult("planar", _path(o.output), _path(o.start),
                            {"board": fit.model.board.name, **fit.to_dict(),
                             "insample": insample, "environment": env_prov}, holdout, warns,

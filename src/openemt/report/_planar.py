@@ -133,7 +133,7 @@ def planar_report(data, cal, *, holdout: str | None = None, dataset: str = "",
                          f"{holdout!r}")
     m = cal.model
     check_grid_units(data)
-    errors = planar_errors(m, data)
+    errors = planar_errors(cal.coupling_model, data)     # with its environment terms, if any
     summary = {"mode": "planar", "board": m.board.name, "dataset": dataset,
                "n_points": len(data.points), "accuracy": errors.summary()}
     if holdout:

@@ -176,7 +176,10 @@ class CalibrationSolver:
         if self.full_model is not None:
             from ._refine import refine_result
 
-            result = refine_result(result, self.full_model, couplings,
+            C = np.asarray(couplings)
+            if C.ndim == 2:                    # a single coil's (N, n_source) couplings
+                C = C[:, :, None]
+            result = refine_result(result, self.full_model, C,
                                    max_relative_residual=self.options.max_relative_residual)
         if self.correction is not None:
             result = apply_position_correction(result, self.correction)
@@ -285,6 +288,8 @@ SOLVER_FAMILIES = {
     # a dipole model with further terms (octupoles): the dipole kernel, then refined
     "dipole-refined": lambda m, s, o: (_dipole(m.dipole, s, o), m),
     "planar": lambda m, s, o: (PlanarSolver(m, o), None),   # the compiled 5-DOF board solver
+    # a 5-DOF board with further terms (environment terms): the board's solver, then refined
+    "planar-refined": lambda m, s, o: (PlanarSolver(m.planar, o), m),
     "board": _board_lm,          # a board read by several sensor coils: the compiled 6-DOF LM
     "model": _model_lm,
 }
