@@ -169,28 +169,61 @@ def test_improved_calibration_file_solves_the_poses_of_its_own_scoring(tmp_path)
         5 * own.summary["trans_rms_mm"]
 
 
-def _board_grid(tmp_path, name, tilt_sigma, seed, metal=None, noise=1e-4):
-    from openemt.calibrate import GridData, write_grid_csv
-    from openemt.simulate import stage_pattern
-
-    rng = np.random.default_rng(seed)
-    base = stage_pattern("grid")[:, :3]
-    pts = np.vstack([base + [0.0, 0.0, h] for h in (0.06, 0.12)])
-    u = np.tile([0.0, 0.0, -1.0], (len(pts), 1))
+def _board_truth(rng, tilt_sigma):
+    """The simulated board of a grid: the Anser layout with random coil tilts (zero with
+    ``tilt_sigma`` 0), gains and offsets drawn from ``rng``."""
     tilts = np.zeros((8, 3))
     tilts[:, :2] = rng.normal(0, tilt_sigma, (8, 2))
-    truth = BoardModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
-                                  offsets=rng.normal(0, 2e-3, (8, 3)), tilts=tilts)
+    return BoardModel.from_board("anser", gains=rng.uniform(0.9, 1.1, 8),
+                                 offsets=rng.normal(0, 2e-3, (8, 3)), tilts=tilts)
+
+
+def _board_couplings(truth, pts, metal, noise, rng, scale=None):
+    """Couplings of sensors at ``pts`` pointing down (-z), with the metal's in-phase response
+    at a 10 kHz carrier from the simulator's physics, plus noise of ``noise`` times ``scale``
+    (default: the largest coupling)."""
+    u = np.tile([0.0, 0.0, -1.0], (len(pts), 1))
     C = truth.coupling_points(pts, u)
     if metal is not None:
-        # the metal's in-phase response at a 10 kHz carrier, from the simulator's physics
         rv = np.tile([np.pi, 0.0, 0.0], (len(pts), 1))          # sensor z axis along -z
         P = pose_from_vector(np.c_[pts, rv])
         C = C + metal.induced_couplings(truth, P, 10000.0)[:, :, 0].real
-    C = C + rng.normal(0, noise * np.abs(C).max(), C.shape)
+    scale = np.abs(C).max() if scale is None else scale
+    return u, C + rng.normal(0, noise * scale, C.shape), scale
+
+
+def _grid_points():
+    from openemt.simulate import stage_pattern
+
+    base = stage_pattern("grid")[:, :3]
+    return np.vstack([base + [0.0, 0.0, h] for h in (0.06, 0.12)])
+
+
+def _board_grid(tmp_path, name, tilt_sigma, seed, metal=None, noise=1e-4):
+    from openemt.calibrate import GridData, write_grid_csv
+
+    rng = np.random.default_rng(seed)
+    truth = _board_truth(rng, tilt_sigma)
+    pts = _grid_points()
+    u, C, _ = _board_couplings(truth, pts, metal, noise, rng)
     path = tmp_path / f"{name}.csv"
     write_grid_csv(GridData(pts, u, C), path)
     return path
+
+
+def _independent_points(tilt_sigma, seed, metal=None, noise=1e-4, n=2000):
+    """``n`` further points of the board of ``_board_grid(..., tilt_sigma, seed, metal,
+    noise)`` (the same truth, metal and noise level), spread uniformly over the grid's
+    volume: points no fit has seen."""
+    rng = np.random.default_rng(seed)
+    truth = _board_truth(rng, tilt_sigma)
+    grid = _grid_points()
+    scale = _board_couplings(truth, grid, metal, noise, rng)[2]
+    r2 = np.random.default_rng(1000 + seed)
+    lo, hi = grid.min(axis=0), grid.max(axis=0)
+    pts = r2.uniform(lo, hi, (n, 3))
+    u, C, _ = _board_couplings(truth, pts, metal, noise, r2, scale)
+    return pts, u, C
 
 
 def _aluminium_plate():
@@ -202,16 +235,18 @@ def _aluminium_plate():
                                    thickness=0.002),))
 
 
-#: Held-out tolerance where auto's choice ties (CV_TIE) with a more complex one that scores
-#: better on the checkerboard: the 49 held-out points' own sampling noise.
-HELD_OUT_TIE = 0.02
+GRIDS = {"untilted": (0.0, 11, None, 1e-4), "tilted": (0.02, 11, None, 1e-4),
+         "metal": (0.0, 11, "plate", 2e-5)}
 
 
-def _checkerboard_options(path):
+def _held_out_options(path, grid):
     """Every hand-picked board option fitted on the checkerboard's fitted points as
-    ``calibrate --mode planar --holdout checkerboard --environment NAME`` fits it, and the
-    held-out points' position RMS (mm) under it, each solved from its known pose (the
-    model's error; the command's cold solves converge to these poses)."""
+    ``calibrate --mode planar --holdout checkerboard --environment NAME`` fits it, and its
+    position RMS (mm) on 2,000 independent points of the same board (``_independent_points``),
+    each solved from its known pose (the model's error; the command's cold solves converge to
+    these poses). The 49 checkerboard points alone rank options that differ by 1-2 % by
+    their own sampling noise (untilted grid: tilt 0.514 mm against none 0.521, while on the
+    2,000 points none is the better one)."""
     from openemt.calibrate import (
         PLANAR_CANDIDATES,
         GridData,
@@ -225,44 +260,39 @@ def _checkerboard_options(path):
     d = read_grid(path)
     held = holdout_split("checkerboard", len(d.points), points=d.points)
     train = GridData(d.points[~held], d.axes[~held], d.couplings[~held], d.coil_names)
+    tilt_sigma, seed, metal, noise = GRIDS[grid]
+    pts, u, C = _independent_points(tilt_sigma, seed, _aluminium_plate() if metal else None,
+                                    noise)
     out = {}
     for name, terms in PLANAR_CANDIDATES.items():
         f = fit_board_environment(train, load_board(None),
                                   lambda g, m, tilt=False: fit_planar(g, m, fit_tilt=tilt),
                                   tilt=bool(terms.get("tilt")), dipoles=terms.get("dipoles", 0))
-        e = known_pose_errors(f.model, d.points[held], d.axes[held], d.couplings[held])
+        e = known_pose_errors(f.model, pts, u, C)
         out[name] = float(np.sqrt(np.mean(e ** 2)) * 1e3)
     return train, out
 
 
-@pytest.mark.parametrize("grid", ["untilted", "tilted", "metal"])
+@pytest.mark.parametrize("grid", list(GRIDS))
 def test_planar_environment_auto_is_as_good_held_out_as_the_best_hand_picked(tmp_path, grid):
     """``--environment auto`` on a board: its choice (cross-validated on the fitted grid
     points only: none, tilt, one induced dipole, both) is held out at least as well as the
-    best hand-picked option. Where the best hand-picked option is more complex than auto's
-    choice (the cross-validation found them tied within CV_TIE and took the simpler), auto
-    may trail it by the held-out points' sampling noise, HELD_OUT_TIE; never otherwise."""
+    best hand-picked option, on points none of them was fitted to."""
     from openemt.calibrate import PLANAR_CANDIDATES
     from openemt.calibrate._environment import planar_environment_cv
     from openemt.calibrate._planar import fit_planar
     from openemt.io import load_board
 
-    path = {"untilted": lambda: _board_grid(tmp_path, "g", 0.0, 11),
-            "tilted": lambda: _board_grid(tmp_path, "g", 0.02, 11),
-            "metal": lambda: _board_grid(tmp_path, "g", 0.0, 11, _aluminium_plate(),
-                                         2e-5)}[grid]()
-    train, held = _checkerboard_options(path)
+    tilt_sigma, seed, metal, noise = GRIDS[grid]
+    path = _board_grid(tmp_path, "g", tilt_sigma, seed, _aluminium_plate() if metal else None,
+                       noise)
+    train, held = _held_out_options(path, grid)
     # what calibrate's auto runs on its fitted points
     chosen, scores = planar_environment_cv(
         train, load_board(None),
         lambda g, m, tilt=False: fit_planar(g, m, fit_tilt=tilt, uncertainty=False))
     assert list(scores) == list(PLANAR_CANDIDATES)
-    order = list(PLANAR_CANDIDATES)
-    best = min(held, key=held.get)
-    if order.index(best) > order.index(chosen):
-        assert held[chosen] <= (1 + HELD_OUT_TIE) * held[best], (chosen, held)
-    else:
-        assert held[chosen] <= held[best], (chosen, held)
+    assert held[chosen] <= min(held.values()), (chosen, held)
     if grid != "metal":
         assert "skipped" in scores["dipoles:1"], scores              # the gate
     if grid == "tilted":
