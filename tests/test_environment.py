@@ -448,3 +448,24 @@ def test_damaged_environment_terms_in_a_file_are_one_error_line(tmp_path, env):
     path.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="expected"):
         read_calibration(path)
+
+
+def test_a_dipole_drifting_out_of_range_is_held_back_not_a_failed_fit():
+    """A uniform background field (what a dipole far away looks like) pulls an induced dipole
+    outwards without bound: the fit keeps it within MAX_DIPOLE_DISTANCE_M (a trial step
+    beyond is rejected) and returns terms a calibration file accepts, instead of failing on
+    its own trial step (seen on a short stainless tube beside the rig)."""
+    from openemt.calibrate import fit_environment
+    from openemt.field._environment import MAX_DIPOLE_DISTANCE_M
+
+    rng = np.random.default_rng(3)
+    base = truth_model(rng)
+    P = _poses(rng, 60, spread=0.08)
+    C = base.coupling(P)
+    B = rng.normal(0, 1, (base.n_source, 3)) * 1e-2 * np.abs(C).max()
+    m = np.einsum("nab,bk->nak", P[:, :3, :3], base.M_se) * base.gain     # sensor moments
+    C = C + np.einsum("ja,nak->njk", B, m)
+    f = fit_environment(base, P, C, dipoles=1)
+    assert np.abs(f.terms.positions).max() <= MAX_DIPOLE_DISTANCE_M
+    assert f.rms < 0.5 * f.rms_base
+    EnvironmentTerms(f.terms.positions, f.terms.moments)            # a file would accept it

@@ -432,6 +432,7 @@ def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
     from scipy.optimize import least_squares
 
     from ..field import EnvironmentModel
+    from ..field._environment import MAX_DIPOLE_DISTANCE_M
 
     cplx = np.iscomplexobj(target)
     if cplx:
@@ -448,7 +449,17 @@ def _lsq(base, terms, P, target, free_mask=None, max_nfev: int = 100):
         full[free] = v
         return EnvironmentModel(base, terms.with_vector(full))
 
+    K, size = terms.n_dipoles, terms.dipole_size
+    n_res = target.size * len(parts)
+
     def fun(v):
+        full = v0.copy()
+        full[free] = v
+        q = full[:K * size].reshape(K, size)[:, :3] if K else np.zeros((0, 3))
+        if not np.abs(q).max(initial=0.0) <= MAX_DIPOLE_DISTANCE_M:
+            # a trial step that carries a dipole out of range (one drifting away to mimic a
+            # uniform field): a cost the step cannot win with, so LM rejects it and damps
+            return np.full(n_res, 1e6)
         m = model(v)
         if not cplx:
             return ((target - m.coupling(P)) / scale).ravel()
