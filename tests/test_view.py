@@ -130,8 +130,15 @@ def _check_against_log(shown, browser, a):
     quad = np.mean(np.sqrt(np.sum(C.imag ** 2, axis=2)) / ab, axis=0)
     assert np.allclose(carriers["quadrature"], quad, rtol=1e-12)
     assert np.allclose(carriers["snr_db"], coupling_snr_db(C)[0], rtol=1e-12)
-    # and the table the page draws says the same, to the digits it shows
-    html = browser.evaluate("Bokeh.documents[0].get_model_by_name('sensors_table').text")
+    # and the table the page draws says the same, to the digits it shows (the HTML is
+    # written into the Div's element, not into its model: read what the page shows)
+    js = ("Bokeh.index.find_one(Bokeh.documents[0].get_model_by_name('sensors_table'))"
+          ".markup_el.innerHTML")
+    try:
+        browser.wait_for(f"{js}.includes({want['z_mm']:.3f}.toFixed(3))", timeout=10)
+    except TimeoutError:
+        pass                                       # the assertions below say what is shown
+    html = browser.evaluate(js)
     for k in ("x_mm", "y_mm", "z_mm"):
         assert f"{want[k]:.3f}" in html, (k, html)
 

@@ -6,7 +6,10 @@ coupling level, SNR, quadrature), ``spectrum`` (per channel), ``coupling`` (the 
 matrix), ``sensors`` (per sensor: status, quadrature ratio, residual, pose) and ``trail`` (the
 positions of the last seconds, three projections). Every value shown lives in a named
 ``ColumnDataSource`` (``carriers``, ``spectrum``, ``coupling``, ``sensors``, ``trail``,
-``now``, ``header``), which a test reads back through Bokeh's document in the browser.
+``header``), which a test reads back through Bokeh's document in the browser; the HTML of the
+header line and the tables goes through the source ``html`` and is written into the Divs'
+elements in the page (their models' ``text`` is set only before the page has applied an
+update and when the display pauses: a change of it lays the whole page out again).
 """
 
 from __future__ import annotations
@@ -135,6 +138,30 @@ class Page:
                                 self._trail_key, name="panel-trail"))
         doc.add_root(column(*parts))
         doc.add_root(self.src_header)
+        # the changing HTML (the header line and the tables) goes to the page in a data source
+        # and is written into each Div's element there: setting a Div's ``text`` makes BokehJS
+        # lay the whole page out again and redraw every plot (about half of the browser's work
+        # per update when it did); the Divs' ``text`` is set only when the display pauses
+        self.src_html = ColumnDataSource({"name": [], "html": []}, name="html")
+        doc.add_root(self.src_html)
+        self._html: dict = {}
+        self.src_html.js_on_change("data", CustomJS(args={"src": self.src_html}, code="""
+            const d = src.data;
+            const get = (k) => (d instanceof Map ? d.get(k) : d[k]);
+            const names = get("name"), html = get("html");
+            const doc = src.document;
+            for (let i = 0; i < names.length; i++) {
+              const m = doc.get_model_by_name(names[i]);
+              if (m == null) continue;
+              const index = window.Bokeh && Bokeh.index;
+              const v = index && index.find_one ? index.find_one(m) : null;
+              if (v != null && v.markup_el != null) {
+                if (v.markup_el.innerHTML !== html[i]) v.markup_el.innerHTML = html[i];
+              } else if (m.text !== html[i]) {
+                m.text = html[i];          // no view to write into: the slow way
+              }
+            }
+            """))
         # flow control: the page acknowledges every update it has applied, and the server
         # keeps at most two in flight, so a slow browser shows the latest state at its own
         # pace instead of falling further and further behind
@@ -147,6 +174,7 @@ class Page:
             ack.data = (ack.data instanceof Map) ? new Map([["n", [n]]]) : {n: [n]};
             """))
         self.skipped, self.sent = 0, 0.0
+        self._sent_html: dict = {}
         doc.title = "openemt live view"
         self.cb = doc.add_periodic_callback(self.update, period_ms)
 
@@ -159,6 +187,8 @@ class Page:
         if self.pause.active:                       # pauses the display only
             if not self.src_header.data["paused"][0]:
                 self.src_header.data = dict(self.src_header.data, paused=[True])
+                for div, html in self._html.values():       # the models say what is shown
+                    div.text = html
             return
         now = time.monotonic()
         if self.n_updates - self.src_ack.data["n"][0] >= 2 and now - self.sent < 0.5:
@@ -177,8 +207,8 @@ class Page:
         n = max((s["n_samples"] for s in sensors), default=0)
         t = max((s.get("time", 0.0) for s in sensors), default=0.0)
         src = snap.get("source") or "session"
-        self.header.text = (f"<b>openemt live view</b> ({src}): {n} samples, t = {t:.2f} s, "
-                            f"{len(sensors)} sensor(s)")
+        self._set_html(self.header, f"<b>openemt live view</b> ({src}): {n} samples, "
+                                    f"t = {t:.2f} s, {len(sensors)} sensor(s)")
         if "carriers" in self.src:
             self._carriers(snap)
         if "spectrum" in self.src and "spectrum" in snap:
@@ -189,6 +219,19 @@ class Page:
             self._sensors(sensors)
         if "trail" in self.src:
             self._trail(sensors)
+        changed = {k: h for k, (div, h) in self._html.items() if self._sent_html.get(k) != h}
+        if changed and not self.src_ack.data["n"][0]:
+            # the page has applied no update yet: what is sent now may arrive within the
+            # document it loads, where no change callback runs, so the Divs get it themselves
+            for k, h in changed.items():
+                self._html[k][0].text = h
+        if changed:
+            self.src_html.data = {"name": list(changed), "html": list(changed.values())}
+            self._sent_html.update(changed)
+
+    def _set_html(self, div, html: str) -> None:
+        """Show ``html`` in ``div`` (sent with the update, see ``src_html``)."""
+        self._html[div.name] = (div, html)
 
     def _show(self, name, data) -> None:
         """Put ``data`` in the source ``name`` and its HTML table in the Div beside it."""
@@ -198,10 +241,11 @@ class Page:
         head = "".join(f"<th>{c[1]}</th>" for c in cols)
         body = "".join("<tr>" + "".join(f"<td>{_fmt(data[c[0]][r], c[2])}</td>" for c in cols)
                        + "</tr>" for r in range(n))
-        div.text = (f'<table class="openemt" style="border-collapse: collapse; '
-                    f'font: 12px monospace"><tr style="text-align: left">{head}</tr>{body}'
-                    f"</table>").replace("<td>", '<td style="padding: 2px 10px">').replace(
-                        "<th>", '<th style="padding: 2px 10px; border-bottom: 1px solid #999">')
+        self._set_html(div, (
+            f'<table class="openemt" style="border-collapse: collapse; '
+            f'font: 12px monospace"><tr style="text-align: left">{head}</tr>{body}'
+            f"</table>").replace("<td>", '<td style="padding: 2px 10px">').replace(
+                "<th>", '<th style="padding: 2px 10px; border-bottom: 1px solid #999">'))
 
     def _carriers(self, snap):
         c = snap.get("carriers")
