@@ -10,6 +10,7 @@ import socket
 import threading
 import time
 import urllib.request
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -280,3 +281,62 @@ def test_bench_track_view_key_without_chromium(monkeypatch):
     monkeypatch.setattr(shutil, "which", lambda name: None)
     out = view_cost(None, None, None)
     assert out["realtime_factor_with_view"] is None and "no chromium" in out["reason"]
+
+
+def _collect_options(tmp_path, **kw):
+    from openemt.collect import CollectOptions
+
+    return CollectOptions(output=tmp_path / "c.h5", simulate_reference="robot", n_poses=4,
+                          seed=2, sim_speed=4, **kw)
+
+
+@needs_chromium
+def test_view_of_a_simulated_collect_in_chromium(tmp_path):
+    """``collect --view``: the collect panel shows the dwell count (against the target and
+    the minimum calibrate needs) and the coverage the collection's result reports."""
+    from openemt.calibrate import MIN_REFERENCE_POSES
+    from openemt.collect import collect
+    from openemt.view._page import COLLECT_PANELS
+
+    feed = LiveFeed()
+    with ViewProcess(feed, panels=COLLECT_PANELS) as server, Browser() as browser:
+        browser.open(server.url)
+        browser.wait_for(_source_js("header"))
+        r = collect(_collect_options(tmp_path), observer=feed)
+        browser.wait_for(f"(() => {{ const d = {_source_js('collect')}; return d && d.state "
+                         f"&& d.state[0].startsWith('ended'); }})()", timeout=30)
+        shown = source_data(browser, "collect")
+        js = ("Bokeh.index.find_one(Bokeh.documents[0].get_model_by_name('collect_table'))"
+              ".markup_el.innerHTML")
+        browser.wait_for(f"{js}.includes('ended')", timeout=10)
+        html = browser.evaluate(js)
+        dwells = source_data(browser, "dwells")
+        carriers = source_data(browser, "carriers")
+    assert r.n_poses == 4 and shown["state"] == [f"ended: {r.ended_by}"]
+    assert shown["n_dwells"] == [r.n_poses] and shown["n_target"] == [4]
+    assert shown["n_min"] == [MIN_REFERENCE_POSES]
+    cov = r.coverage
+    for k in ("volume_coverage_pct", "outside", "orientation_spread_deg",
+              "rotation_second_axis_deg"):
+        assert shown[k][0] == pytest.approx(cov[k], rel=1e-12, abs=1e-12), k
+    assert shown["rotation_diversity"] == ["ok" if cov["rotation_diversity_ok"] else "NOT yet"]
+    assert shown["time_offset_ms"][0] == pytest.approx(r.time_offset_ms, rel=1e-12)
+    assert len(dwells["x"]) == r.n_poses == len(dwells["azimuth"])
+    # the table the page draws says the same, to the digits it shows
+    for text in (f"<td>{r.n_poses}</td>", f"{cov['volume_coverage_pct']:.1f}",
+                 f"{cov['orientation_spread_deg']:.1f}", f"<td>{MIN_REFERENCE_POSES}</td>"):
+        assert text in html.replace('<td style="padding: 2px 10px">', "<td>"), (text, html)
+    # the carriers panel has the raw samples' drive levels (a collect solves no sample)
+    assert len(carriers["reference_v"]) == 3 and min(carriers["reference_v"]) > 0
+
+
+def test_collect_with_view_reports_the_view(tmp_path):
+    """The workflow of ``collect --view``: the same collection, the page's address and its
+    counts in the result (``view``), and no ``view`` key without it."""
+    from openemt.view import ViewOptions, collect_with_view
+
+    r = collect_with_view(_collect_options(tmp_path), ViewOptions(view=True))
+    d = r.to_dict()
+    assert r.n_poses == 4 and d["view"]["url"].startswith("http://127.0.0.1:")
+    assert d["view"]["pages_opened"] == 0 and d["view"]["updates_pushed"] == 0
+    assert "view" not in replace(r, view=None).to_dict()

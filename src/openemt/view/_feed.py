@@ -37,7 +37,7 @@ import time
 
 import numpy as np
 
-__all__ = ["LiveFeed", "carrier_levels", "coupling_snr_db", "spectrum_db"]
+__all__ = ["LiveFeed", "carrier_levels", "collect_panel", "coupling_snr_db", "spectrum_db"]
 
 
 def carrier_levels(x, frequencies, sample_rate) -> np.ndarray:
@@ -136,6 +136,7 @@ class LiveFeed:
         self.n_raw = 0
         self.version = 0              # changes with every block published
         self._cache = (None, None)
+        self._collect = None          # the latest state of a collection (``collect``)
 
     # -- the observer protocol (the session's thread: cheap)
     def start(self, layout) -> None:
@@ -167,6 +168,13 @@ class LiveFeed:
             self.n_samples[sensor] += len(step)
             self.version += 1
 
+    def collect(self, state: dict) -> None:
+        """A collection's state (``openemt collect``, once per analysis and at the end): a
+        dict of numbers and arrays handed out fresh (references kept, never written)."""
+        with self._lock:
+            self._collect = state
+            self.version += 1
+
     # -- the view's side
     def snapshot(self) -> dict:
         """Every number the panels show, from the blocks published so far (cached until the
@@ -180,11 +188,14 @@ class LiveFeed:
             layout, names = self.layout, self.names
             counts = list(self.n_samples)
             n_raw = self.n_raw
+            collecting = self._collect
         raw = None
         if chunks and layout is not None:
             raw = np.concatenate(chunks)[-self.raw_samples:, :layout.n_channels]
         snap = _compute(layout, names, steps, raw, counts, n_raw, self.window,
                         self.trail_points, self.history_seconds)
+        if collecting is not None:
+            snap["collect"] = collect_panel(collecting)
         snap["version"] = version
         snap["source"] = self.source
         with self._lock:
@@ -270,3 +281,29 @@ def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points,
         f, db = spectrum_db(raw, fs, max_points=512)
         snap["spectrum"] = {"frequencies": f, "db": db, "samples": len(raw)}
     return snap
+
+
+def collect_panel(state: dict) -> dict:
+    """What the collect panel shows of a collection's ``state`` (see
+    :meth:`LiveFeed.collect`): the dwell count against the target and the minimum, the
+    coverage (:func:`openemt.align.coverage` of the tracker's dwell positions and the
+    reference's rotations in the working volume ``box``, as the collection reports it), the
+    dwell positions (mm) and the direction of each dwell's sensor z axis (azimuth and
+    elevation in the tracker's frame, degrees)."""
+    from ..align import coverage
+
+    P = np.asarray(state["poses"], dtype=np.float64).reshape(-1, 4, 4)
+    B = np.asarray(state["reference_poses"], dtype=np.float64).reshape(-1, 4, 4)
+    box = np.asarray(state["box"], dtype=np.float64)
+    n = min(len(P), len(B))
+    cov = coverage(P[:n, :3, 3], B[:n], box)
+    axis = P[:n, :3, 2]
+    return {
+        "n_dwells": int(state["n_dwells"]), "n_used": n, "n_target": int(state["n_target"]),
+        "n_min": int(state["n_min"]), "coverage": cov, "box_mm": 1e3 * box,
+        "positions_mm": 1e3 * P[:n, :3, 3],
+        "azimuth_deg": np.degrees(np.arctan2(axis[:, 1], axis[:, 0])),
+        "elevation_deg": np.degrees(np.arcsin(np.clip(axis[:, 2], -1.0, 1.0))),
+        "tracker_seconds": float(state["tracker_seconds"]),
+        "time_offset_ms": state.get("time_offset_ms"), "locked": bool(state.get("locked")),
+        "ended_by": state.get("ended_by"), "sensor": state.get("sensor")}

@@ -20,6 +20,10 @@ import time
 import numpy as np
 
 PANELS = ("carriers", "spectrum", "coupling", "sensors", "trail")
+#: The panels of ``openemt collect --view`` (no per-sample poses: no coupling, sensors, trail).
+COLLECT_PANELS = ("collect", "carriers", "spectrum")
+#: Every panel a page can show (``?panel=NAME``).
+ALL_PANELS = ("collect", *PANELS)
 _COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
             "#7f7f7f", "#bcbd22", "#17becf")
 
@@ -67,6 +71,9 @@ class Page:
             return self.tables[name][0]
 
         self.tables = {}
+        if "collect" in panels:
+            parts.append(self._collect_panel(table, figure, row, column, Div, ColumnDataSource,
+                                             Range1d))
         if "carriers" in panels:
             t = table("carriers", [("frequency_hz", "carrier (Hz)", "{:g}"),
                                    ("reference_v", "drive level (V)", "{:.4g}"),
@@ -207,8 +214,15 @@ class Page:
         n = max((s["n_samples"] for s in sensors), default=0)
         t = max((s.get("time", 0.0) for s in sensors), default=0.0)
         src = snap.get("source") or "session"
-        self._set_html(self.header, f"<b>openemt live view</b> ({src}): {n} samples, "
-                                    f"t = {t:.2f} s, {len(sensors)} sensor(s)")
+        if "collect" in snap:
+            c = snap["collect"]
+            what = (f"sensor {c['sensor']}: {c['n_used']}/{c['n_target']} dwells, "
+                    f"{c['tracker_seconds']:.1f} s of signal")
+        else:
+            what = f"{n} samples, t = {t:.2f} s, {len(sensors)} sensor(s)"
+        self._set_html(self.header, f"<b>openemt live view</b> ({src}): {what}")
+        if "collect" in self.src and "collect" in snap:
+            self._collect(snap["collect"])
         if "carriers" in self.src:
             self._carriers(snap)
         if "spectrum" in self.src and "spectrum" in snap:
@@ -246,6 +260,76 @@ class Page:
             f'font: 12px monospace"><tr style="text-align: left">{head}</tr>{body}'
             f"</table>").replace("<td>", '<td style="padding: 2px 10px">').replace(
                 "<th>", '<th style="padding: 2px 10px; border-bottom: 1px solid #999">'))
+
+    def _collect_panel(self, table, figure, row, column, Div, ColumnDataSource, Range1d):
+        """The collect panel: the dwell count and coverage (a table), where the dwells are in
+        the working volume (x-y and x-z, the volume's box drawn) and how the sensor pointed
+        (its z axis: azimuth and elevation)."""
+        from bokeh.models import CDSView, GroupFilter
+
+        t = table("collect", [("n_dwells", "dwells", "{}"), ("n_target", "target", "{}"),
+                              ("n_min", "calibrate needs", "{}"),
+                              ("volume_coverage_pct", "volume (%)", "{:.1f}"),
+                              ("outside", "outside", "{}"),
+                              ("orientation_spread_deg", "orient. spread (deg)", "{:.1f}"),
+                              ("rotation_diversity", "rot. diversity", "{}"),
+                              ("rotation_second_axis_deg", "2nd axis (deg)", "{:.1f}"),
+                              ("time_offset_ms", "time offset (ms)", "{:.1f}"),
+                              ("tracker_seconds", "signal (s)", "{:.1f}"),
+                              ("state", "state", "{}")])
+        self.src["dwells"] = ColumnDataSource({"x": [], "y": [], "z": [], "azimuth": [],
+                                               "elevation": []}, name="dwells")
+        self.src["volume"] = ColumnDataSource({"left": [], "right": [], "bottom": [], "top": [],
+                                               "view": []}, name="volume")
+        self._collect_ranges = {a: Range1d(-10, 10) for a in "xyz"}
+        figs = []
+        for a, b in (("x", "y"), ("x", "z")):
+            f = figure(width=300, height=300, x_range=self._collect_ranges[a],
+                       y_range=self._collect_ranges[b], title=f"dwells {a}-{b} (mm)",
+                       x_axis_label=f"{a} (mm)", y_axis_label=f"{b} (mm)", tools="",
+                       toolbar_location=None)
+            view = self.src["volume"]
+            f.quad("left", "right", "bottom", "top", source=view, fill_alpha=0.05,
+                   line_color="#999", line_dash="dashed",
+                   view=CDSView(filter=GroupFilter(column_name="view", group=a + b)))
+            f.scatter(a, b, source=self.src["dwells"], size=6, color=_COLOURS[0])
+            figs.append(f)
+        f = figure(width=360, height=300, x_range=Range1d(-180, 180), y_range=Range1d(-90, 90),
+                   title="sensor z axis of each dwell (deg)", x_axis_label="azimuth (deg)",
+                   y_axis_label="elevation (deg)", tools="", toolbar_location=None)
+        f.scatter("azimuth", "elevation", source=self.src["dwells"], size=6,
+                  color=_COLOURS[1])
+        figs.append(f)
+        return column(Div(text="<b>Collection</b>: dwells kept against the target (--n-poses) "
+                          "and the minimum calibrate --mode reference needs; coverage of the "
+                          "working volume (dashed) and of orientations"), t, row(*figs),
+                      name="panel-collect")
+
+    def _collect(self, c):
+        cov = c["coverage"]
+        state = ("ended: " + str(c["ended_by"]) if c["ended_by"] else
+                 "collecting" if c["locked"] else "waiting for the time offset")
+        self._show("collect", {
+            "n_dwells": [c["n_used"]], "n_target": [c["n_target"]], "n_min": [c["n_min"]],
+            "volume_coverage_pct": [cov["volume_coverage_pct"]], "outside": [cov["outside"]],
+            "orientation_spread_deg": [_num(cov["orientation_spread_deg"])],
+            "rotation_diversity": ["ok" if cov["rotation_diversity_ok"] else "NOT yet"],
+            "rotation_second_axis_deg": [_num(cov["rotation_second_axis_deg"])],
+            "time_offset_ms": [_num(c["time_offset_ms"])],
+            "tracker_seconds": [c["tracker_seconds"]], "state": [state]})
+        p = c["positions_mm"]
+        self.src["dwells"].data = {"x": p[:, 0].copy(), "y": p[:, 1].copy(), "z": p[:, 2].copy(),
+                                   "azimuth": c["azimuth_deg"], "elevation": c["elevation_deg"]}
+        (lx, ly, lz), (hx, hy, hz) = c["box_mm"]
+        box = {"left": [lx, lx], "right": [hx, hx], "bottom": [ly, lz], "top": [hy, hz],
+               "view": ["xy", "xz"]}
+        if self.src["volume"].data != box:
+            self.src["volume"].data = box
+            # one scale on the three axes (equal aspect), the box and a margin in view
+            half = 0.6 * float(max(hx - lx, hy - ly, hz - lz))
+            for a, lo, hi in (("x", lx, hx), ("y", ly, hy), ("z", lz, hz)):
+                m = 0.5 * (lo + hi)
+                self._collect_ranges[a].update(start=m - half, end=m + half)
 
     def _carriers(self, snap):
         c = snap.get("carriers")
@@ -368,6 +452,10 @@ class Page:
                 for i, a in enumerate("xyz"):
                     c = 0.5 * float(lo[i] + hi[i])
                     r[a].update(start=c - half, end=c + half)
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)
 
 
 def _key(names, colours=None) -> str:

@@ -53,12 +53,13 @@ class ViewProcess:
     same interface as :class:`ViewServer`: :attr:`url`, :meth:`stats` (updates pushed, pages
     opened), use as a context manager."""
 
-    def __init__(self, feed, *, port: int = 0, rate_hz: float = 12.0):
+    def __init__(self, feed, *, port: int = 0, rate_hz: float = 12.0, panels=None):
         if not 0 <= int(port) <= 65535:
             raise InputError(f"expected a view port in 0..65535, got {port}")
         if not 1.0 <= float(rate_hz) <= 60.0:
             raise InputError(f"expected a view rate in 1..60 Hz, got {rate_hz}")
         self.feed, self.requested_port, self.rate_hz = feed, int(port), float(rate_hz)
+        self.panels = None if panels is None else tuple(panels)
         self.port = None
         self._proc = self._thread = None
         self._ctl_lock = threading.Lock()
@@ -79,7 +80,8 @@ class ViewProcess:
         fds = (snap_child.fileno(), ctl_child.fileno())
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "openemt.view._child", *map(str, fds),
-             str(self.requested_port), repr(self.rate_hz)], pass_fds=fds,
+             str(self.requested_port), repr(self.rate_hz), ",".join(self.panels or ())],
+            pass_fds=fds,
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
         snap_child.close()
         ctl_child.close()
