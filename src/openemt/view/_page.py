@@ -6,7 +6,7 @@ coupling level, SNR, quadrature), ``spectrum`` (per channel), ``coupling`` (the 
 matrix), ``sensors`` (per sensor: status, quadrature ratio, residual, pose) and ``trail`` (the
 positions of the last seconds, three projections). Every value shown lives in a named
 ``ColumnDataSource`` (``carriers``, ``spectrum``, ``coupling``, ``sensors``, ``trail``,
-``header``), which a test reads back through Bokeh's document in the browser; the HTML of the
+``now``, ``header``, ``collect``, ``dwells``), which a test reads back through Bokeh's document in the browser; the HTML of the
 header line and the tables goes through the source ``html`` and is written into the Divs'
 elements in the page (their models' ``text`` is set only before the page has applied an
 update and when the display pauses: a change of it lays the whole page out again).
@@ -123,12 +123,12 @@ class Page:
                                   ("n_samples", "samples", "{}"), ("time_s", "time (s)", "{:.4f}")])
             parts.append(column(Div(text="<b>Sensors</b>"), t, name="panel-sensors"))
         if "trail" in panels:
-            # one source (one message, one redraw per update): the latest pose of each
-            # sensor is its trail's last point, drawn larger
-            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": [],
-                                                  "size": []}, name="trail")
-            colour = {"field": "k", "transform": LinearColorMapper(
-                palette=list(_COLOURS), low=-0.5, high=len(_COLOURS) - 0.5)}
+            # a line per sensor (one path to draw, where a marker per point costs the browser
+            # a path each) and a dot at its latest pose
+            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": []},
+                                                 name="trail")
+            self.src["now"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": []},
+                                               name="now")
             figs = []
             self._trail_ranges = {a: Range1d(-10, 10) for a in "xyz"}
             for a, b in (("x", "y"), ("x", "z"), ("y", "z")):
@@ -136,8 +136,9 @@ class Page:
                            y_range=self._trail_ranges[b],
                            title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
                            y_axis_label=f"{b} (mm)", tools="", toolbar_location=None)
-                f.scatter(a, b, source=self.src["trail"], color=colour, size="size",
-                          alpha=0.6)
+                f.multi_line(a, b, source=self.src["trail"], line_color="colour",
+                             line_width=1, line_alpha=0.7)
+                f.scatter(a, b, source=self.src["now"], color="colour", size=10)
                 figs.append(f)
             self._trail_key = Div(text="", name="trail_key")
             parts.append(column(Div(text="<b>Trail in the volume</b> (converged poses of the "
@@ -416,25 +417,26 @@ class Page:
             "time_s": [s["time"] for s in rows]})
 
     def _trail(self, sensors):
-        parts, ks, sizes = [], [], []
-        now = {"x": [], "y": [], "z": [], "k": [], "name": []}
+        lines = {"x": [], "y": [], "z": [], "colour": []}
+        now = {"x": [], "y": [], "z": [], "colour": [], "k": [], "name": []}
+        parts = []
         for k, s in enumerate(sensors):
             if not s["n_samples"]:
                 continue
             p = 1e3 * s["pose_vector"][:3]
-            parts += [1e3 * s["trail"], p[None]]
-            ks.append(np.full(len(s["trail"]) + 1, k % len(_COLOURS), np.int32))
-            sizes += [np.full(len(s["trail"]), 2.0, np.float32), np.array([10.0], np.float32)]
-            for key, val in zip("xyz", p):
-                now[key].append(float(val))
+            tr = np.concatenate([1e3 * s["trail"], p[None]]).astype(np.float32)
+            parts.append(tr)
+            colour = _COLOURS[k % len(_COLOURS)]
+            for i, key in enumerate("xyz"):
+                lines[key].append(np.ascontiguousarray(tr[:, i]))
+                now[key].append(float(p[i]))
+            lines["colour"].append(colour)
+            now["colour"].append(colour)
             now["k"].append(k % len(_COLOURS))
             now["name"].append(s["name"])
-        tr = (np.concatenate(parts) if parts else np.empty((0, 3))).astype(np.float32)
-        self.src["trail"].data = {"x": tr[:, 0].copy(), "y": tr[:, 1].copy(),
-                                  "z": tr[:, 2].copy(),
-                                  "k": np.concatenate(ks) if ks else np.empty(0, np.int32),
-                                  "size": np.concatenate(sizes) if sizes
-                                  else np.empty(0, np.float32)}
+        self.src["trail"].data = lines
+        self.src["now"].data = {key: now[key] for key in ("x", "y", "z", "colour")}
+        tr = np.concatenate(parts) if parts else np.empty((0, 3), np.float32)
         key = _key(now["name"], [_COLOURS[k] for k in now["k"]])
         if self._trail_key.text != key:
             self._trail_key.text = key
