@@ -271,6 +271,12 @@ def test_bench_track_view_key():
     assert out["ratio"] == pytest.approx(out["realtime_factor_with_view"]
                                          / out["realtime_factor_without_view"])
     assert out["pages_opened"] >= 1 and out["cpu"]["browser_cores_with_view"] > 0
+    # the page's own count of the updates it applied, never more than the server sent it
+    # over the same runs and the two it may have had in flight before them
+    assert 0 <= out["updates_applied"] <= out["updates_pushed"] + 2
+    assert out["cpu"]["session_thread_ratio"] == pytest.approx(
+        out["cpu"]["session_thread_realtime_factor_with_view"]
+        / out["cpu"]["session_thread_realtime_factor_without_view"])
 
 
 def test_bench_track_view_key_without_chromium(monkeypatch):

@@ -26,7 +26,7 @@ def main(snap_conn, ctl_conn, port: int, rate_hz: float, panels=None) -> None:
         while True:
             msg = ctl_conn.recv()
             ctl_conn.send(("stats", server.stats.count, server.pages,
-                           server.stats.per_second()))
+                           server.stats.per_second(), server.stats.n_applied))
             if msg == "close":
                 break
     except (EOFError, OSError, KeyboardInterrupt):

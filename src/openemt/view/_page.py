@@ -175,6 +175,8 @@ class Page:
         # pace instead of falling further and further behind
         self.src_ack = ColumnDataSource({"n": [0]}, name="ack")
         doc.add_root(self.src_ack)
+        self.src_ack.on_change("data", lambda attr, old, new: stats.applied(
+            id(self), new["n"][0]))
         self.src_header.js_on_change("data", CustomJS(
             args={"ack": self.src_ack, "header": self.src_header}, code="""
             const d = header.data;

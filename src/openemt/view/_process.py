@@ -48,6 +48,13 @@ class _RemoteFeed:
         return self.last
 
 
+def _stats(msg) -> dict:
+    """The child's ``("stats", pushed, pages, rate, applied)`` as :meth:`ViewProcess.stats`
+    gives it (None: every value None)."""
+    keys = ("updates_pushed", "pages_opened", "updates_per_s", "updates_applied")
+    return dict(zip(keys, msg[1:] if msg is not None else (None,) * len(keys)))
+
+
 class ViewProcess:
     """Serve the live view of ``feed`` from a child process (see the module docstring); the
     same interface as :class:`ViewServer`: :attr:`url`, :meth:`stats` (updates pushed, pages
@@ -119,16 +126,16 @@ class ViewProcess:
             return
 
     def stats(self) -> dict:
-        """Updates pushed to the pages, pages opened and the recent update rate."""
+        """Updates pushed to the pages, pages opened, the recent update rate and the updates
+        the pages say they have applied."""
         if self._final is not None:
             return self._final
         with self._ctl_lock:
             try:
                 self._ctl.send("stats")
-                _, count, pages, rate = self._ctl.recv()
+                return _stats(self._ctl.recv())
             except (EOFError, OSError):
-                return {"updates_pushed": None, "pages_opened": None, "updates_per_s": None}
-        return {"updates_pushed": count, "pages_opened": pages, "updates_per_s": rate}
+                return _stats(None)
 
     def close(self) -> None:
         proc, self._proc = self._proc, None
@@ -139,9 +146,7 @@ class ViewProcess:
                 try:
                     self._ctl.send("close")
                     if self._ctl.poll(10.0):
-                        _, count, pages, rate = self._ctl.recv()
-                        self._final = {"updates_pushed": count, "pages_opened": pages,
-                                       "updates_per_s": rate}
+                        self._final = _stats(self._ctl.recv())
                 except (EOFError, OSError):
                     pass
         try:

@@ -27,6 +27,18 @@ class _Rate:
         self.count = 0
         self.times: list = []
         self._lock = threading.Lock()
+        self._applied: dict = {}         # page -> updates it says it has applied
+
+    def applied(self, page, n: int) -> None:
+        """Page ``page`` has applied ``n`` updates (its acknowledgement)."""
+        with self._lock:
+            self._applied[page] = max(int(n), self._applied.get(page, 0))
+
+    @property
+    def n_applied(self) -> int:
+        """Updates the pages have applied, counted by the pages themselves."""
+        with self._lock:
+            return sum(self._applied.values())
 
     def tick(self) -> None:
         now = time.monotonic()
