@@ -21,7 +21,7 @@ from openemt.live import TrackingSession, TrackOptions
 from openemt.view import LiveFeed, ViewServer
 from openemt.view._page import COLLECT_PANELS, PANELS
 
-SIZES = {"carriers": (760, 170), "spectrum": (930, 372), "coupling": (620, 310),
+SIZES = {"carriers": (760, 170), "spectrum": (930, 372), "coupling": (620, 160),
          "sensors": (1080, 110), "trail": (960, 390), "collect": (1250, 440)}
 
 

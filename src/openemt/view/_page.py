@@ -41,7 +41,6 @@ class Page:
             ColumnDataSource,
             CustomJS,
             Div,
-            LinearColorMapper,
             Range1d,
             Toggle,
         )
@@ -100,17 +99,13 @@ class Page:
             self.src["coupling"] = ColumnDataSource(
                 {"carrier": [], "coil": [], "value": [], "quadrature": [], "norm": [],
                  "text": []}, name="coupling")
-            self._coupling_fig = f = figure(
-                width=600, height=260, title="Coupling matrix (real part; colour: value / "
-                "largest |value|)", tools="", x_range=[], y_range=[], toolbar_location=None)
-            f.rect("coil", "carrier", 0.95, 0.95, source=self.src["coupling"],
-                   fill_color={"field": "norm", "transform": LinearColorMapper(
-                       palette=_diverging(), low=-1.0, high=1.0)}, line_color=None)
-            f.text("coil", "carrier", text="text", source=self.src["coupling"],
-                   text_align="center", text_baseline="middle", text_font_size="9pt")
-            f.xaxis.axis_label = "sensor coil"
-            f.yaxis.axis_label = "carrier"
-            parts.append(column(f, name="panel-coupling"))
+            # an HTML table with coloured cells: changing its text lays out only the table,
+            # where a plot is redrawn whole (axes and all) on every update
+            self._coupling_div = Div(text="", name="coupling_table")
+            doc.add_root(self.src["coupling"])
+            parts.append(column(Div(text="<b>Coupling matrix</b> (real part; colour: value / "
+                                    "largest |value|, blue negative, red positive)"),
+                                self._coupling_div, name="panel-coupling"))
         if "sensors" in panels:
             t = table("sensors", [("name", "sensor", "{}"), ("status", "status", "{}"),
                                   ("distortion", "quadrature ratio", "{:.2e}"),
@@ -392,16 +387,22 @@ class Page:
                     quad.append(float(C[i, j].imag))
                     text.append(f"{C[i, j].real:.3g}")
         m = max((abs(v) for v in value), default=0.0) or 1.0
-        fig = self._coupling_fig
-        coils = list(dict.fromkeys(coil))
-        carriers = list(dict.fromkeys(carrier))[::-1]
-        if list(fig.x_range.factors) != coils:
-            fig.x_range.factors = coils
-        if list(fig.y_range.factors) != carriers:
-            fig.y_range.factors = carriers
+        norm = [v / m for v in value]
         self.src["coupling"].data = {"carrier": carrier, "coil": coil, "value": value,
-                                     "quadrature": quad, "norm": [v / m for v in value],
-                                     "text": text}
+                                     "quadrature": quad, "norm": norm, "text": text}
+        palette = _diverging()
+        coils = list(dict.fromkeys(coil))
+        cell = {(a, b): (t, u) for a, b, t, u in zip(carrier, coil, text, norm)}
+        td = '<td style="padding: 3px 8px; text-align: center; background: {}">{}</td>'
+        body = "".join(
+            f'<tr><th style="padding: 3px 8px; text-align: right">{a}</th>' + "".join(
+                td.format(palette[min(63, int(round((cell[a, b][1] + 1) * 31.5)))],
+                          cell[a, b][0]) if (a, b) in cell else "<td></td>" for b in coils)
+            + "</tr>" for a in dict.fromkeys(carrier))
+        head = "".join(f'<th style="padding: 3px 8px">{b}</th>' for b in coils)
+        self._set_html(self._coupling_div, (
+            f'<table style="border-collapse: collapse; font: 12px monospace"><tr><th>carrier '
+            f'\\ sensor coil</th>{head}</tr>{body}</table>'))
 
     def _sensors(self, sensors):
         rows = [s for s in sensors if s["n_samples"]]
