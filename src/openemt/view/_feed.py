@@ -51,11 +51,19 @@ def carrier_levels(x, frequencies, sample_rate) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _carrier_basis(n: int, frequencies: tuple, sample_rate: float) -> np.ndarray:
-    """``(n_carriers, n)``: Hann window x ``exp(-j 2 pi f t)`` x ``2 / sum(w)``."""
+def _hann(n: int) -> np.ndarray:
+    """The demodulator's Hann window of ``n`` samples (computed once per length)."""
     from ..signal import frame_window
 
     w = frame_window("hann", n)
+    w.flags.writeable = False
+    return w
+
+
+@functools.lru_cache(maxsize=8)
+def _carrier_basis(n: int, frequencies: tuple, sample_rate: float) -> np.ndarray:
+    """``(n_carriers, n)``: Hann window x ``exp(-j 2 pi f t)`` x ``2 / sum(w)``."""
+    w = _hann(n)
     f = np.asarray(frequencies)
     basis = w[:, None] * np.exp(-2j * np.pi * np.outer(np.arange(n), f) / sample_rate)
     return np.ascontiguousarray(basis.T) * (2.0 / w.sum())
@@ -69,9 +77,7 @@ def spectrum_db(x, sample_rate, max_points: int = 1024):
     n_channels))``."""
     x = np.asarray(x, dtype=np.float64)
     n = x.shape[0]
-    from ..signal import frame_window
-
-    w = frame_window("hann", n)
+    w = _hann(n)
     amp = np.abs(np.fft.rfft(x * w[:, None], axis=0)) * (2.0 / w.sum())
     f = np.fft.rfftfreq(n, 1.0 / sample_rate)
     g = max(1, -(-len(f) // int(max_points)))
