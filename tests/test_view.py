@@ -236,6 +236,10 @@ def test_view_command_refuses_bad_input(tmp_path, capsys):
     assert "expected an existing track log" in capsys.readouterr().err
     assert main(["track", "--view", "--view-port", "70000", "--duration", "0.1"]) == 2
     assert "expected --view-port in 0..65535" in capsys.readouterr().err
+    assert main(["collect", "-o", str(tmp_path / "c.h5"), "--simulate-reference", "robot",
+                 "--view", "--view-rate", "0.5"]) == 2
+    assert "expected --view-rate in 1..60 Hz, got 0.5" in capsys.readouterr().err
+    assert not (tmp_path / "c.h5").exists()
     with socket.socket() as busy:                   # a port taken: one line, exit 2
         busy.bind(("127.0.0.1", 0))
         busy.listen()
