@@ -10,6 +10,7 @@ import socket
 import threading
 import time
 import urllib.request
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -130,8 +131,15 @@ def _check_against_log(shown, browser, a):
     quad = np.mean(np.sqrt(np.sum(C.imag ** 2, axis=2)) / ab, axis=0)
     assert np.allclose(carriers["quadrature"], quad, rtol=1e-12)
     assert np.allclose(carriers["snr_db"], coupling_snr_db(C)[0], rtol=1e-12)
-    # and the table the page draws says the same, to the digits it shows
-    html = browser.evaluate("Bokeh.documents[0].get_model_by_name('sensors_table').text")
+    # and the table the page draws says the same, to the digits it shows (the HTML is
+    # written into the Div's element, not into its model: read what the page shows)
+    js = ("Bokeh.index.find_one(Bokeh.documents[0].get_model_by_name('sensors_table'))"
+          ".markup_el.innerHTML")
+    try:
+        browser.wait_for(f"{js}.includes({want['z_mm']:.3f}.toFixed(3))", timeout=10)
+    except TimeoutError:
+        pass                                       # the assertions below say what is shown
+    html = browser.evaluate(js)
     for k in ("x_mm", "y_mm", "z_mm"):
         assert f"{want[k]:.3f}" in html, (k, html)
 
@@ -228,6 +236,10 @@ def test_view_command_refuses_bad_input(tmp_path, capsys):
     assert "expected an existing track log" in capsys.readouterr().err
     assert main(["track", "--view", "--view-port", "70000", "--duration", "0.1"]) == 2
     assert "expected --view-port in 0..65535" in capsys.readouterr().err
+    assert main(["collect", "-o", str(tmp_path / "c.h5"), "--simulate-reference", "robot",
+                 "--view", "--view-rate", "0.5"]) == 2
+    assert "expected --view-rate in 1..60 Hz, got 0.5" in capsys.readouterr().err
+    assert not (tmp_path / "c.h5").exists()
     with socket.socket() as busy:                   # a port taken: one line, exit 2
         busy.bind(("127.0.0.1", 0))
         busy.listen()
@@ -263,6 +275,12 @@ def test_bench_track_view_key():
     assert out["ratio"] == pytest.approx(out["realtime_factor_with_view"]
                                          / out["realtime_factor_without_view"])
     assert out["pages_opened"] >= 1 and out["cpu"]["browser_cores_with_view"] > 0
+    # the page's own count of the updates it applied, never more than the server sent it
+    # over the same runs and the two it may have had in flight before them
+    assert 0 <= out["updates_applied"] <= out["updates_pushed"] + 2
+    assert out["cpu"]["session_thread_ratio"] == pytest.approx(
+        out["cpu"]["session_thread_realtime_factor_with_view"]
+        / out["cpu"]["session_thread_realtime_factor_without_view"])
 
 
 def test_bench_track_view_key_without_chromium(monkeypatch):
@@ -273,3 +291,62 @@ def test_bench_track_view_key_without_chromium(monkeypatch):
     monkeypatch.setattr(shutil, "which", lambda name: None)
     out = view_cost(None, None, None)
     assert out["realtime_factor_with_view"] is None and "no chromium" in out["reason"]
+
+
+def _collect_options(tmp_path, **kw):
+    from openemt.collect import CollectOptions
+
+    return CollectOptions(output=tmp_path / "c.h5", simulate_reference="robot", n_poses=4,
+                          seed=2, sim_speed=4, **kw)
+
+
+@needs_chromium
+def test_view_of_a_simulated_collect_in_chromium(tmp_path):
+    """``collect --view``: the collect panel shows the dwell count (against the target and
+    the minimum calibrate needs) and the coverage the collection's result reports."""
+    from openemt.calibrate import MIN_REFERENCE_POSES
+    from openemt.collect import collect
+    from openemt.view._page import COLLECT_PANELS
+
+    feed = LiveFeed()
+    with ViewProcess(feed, panels=COLLECT_PANELS) as server, Browser() as browser:
+        browser.open(server.url)
+        browser.wait_for(_source_js("header"))
+        r = collect(_collect_options(tmp_path), observer=feed)
+        browser.wait_for(f"(() => {{ const d = {_source_js('collect')}; return d && d.state "
+                         f"&& d.state[0].startsWith('ended'); }})()", timeout=30)
+        shown = source_data(browser, "collect")
+        js = ("Bokeh.index.find_one(Bokeh.documents[0].get_model_by_name('collect_table'))"
+              ".markup_el.innerHTML")
+        browser.wait_for(f"{js}.includes('ended')", timeout=10)
+        html = browser.evaluate(js)
+        dwells = source_data(browser, "dwells")
+        carriers = source_data(browser, "carriers")
+    assert r.n_poses == 4 and shown["state"] == [f"ended: {r.ended_by}"]
+    assert shown["n_dwells"] == [r.n_poses] and shown["n_target"] == [4]
+    assert shown["n_min"] == [MIN_REFERENCE_POSES]
+    cov = r.coverage
+    for k in ("volume_coverage_pct", "outside", "orientation_spread_deg",
+              "rotation_second_axis_deg"):
+        assert shown[k][0] == pytest.approx(cov[k], rel=1e-12, abs=1e-12), k
+    assert shown["rotation_diversity"] == ["ok" if cov["rotation_diversity_ok"] else "NOT yet"]
+    assert shown["time_offset_ms"][0] == pytest.approx(r.time_offset_ms, rel=1e-12)
+    assert len(dwells["x"]) == r.n_poses == len(dwells["azimuth"])
+    # the table the page draws says the same, to the digits it shows
+    for text in (f"<td>{r.n_poses}</td>", f"{cov['volume_coverage_pct']:.1f}",
+                 f"{cov['orientation_spread_deg']:.1f}", f"<td>{MIN_REFERENCE_POSES}</td>"):
+        assert text in html.replace('<td style="padding: 2px 10px">', "<td>"), (text, html)
+    # the carriers panel has the raw samples' drive levels (a collect solves no sample)
+    assert len(carriers["reference_v"]) == 3 and min(carriers["reference_v"]) > 0
+
+
+def test_collect_with_view_reports_the_view(tmp_path):
+    """The workflow of ``collect --view``: the same collection, the page's address and its
+    counts in the result (``view``), and no ``view`` key without it."""
+    from openemt.view import ViewOptions, collect_with_view
+
+    r = collect_with_view(_collect_options(tmp_path), ViewOptions(view=True))
+    d = r.to_dict()
+    assert r.n_poses == 4 and d["view"]["url"].startswith("http://127.0.0.1:")
+    assert d["view"]["pages_opened"] == 0 and d["view"]["updates_pushed"] == 0
+    assert "view" not in replace(r, view=None).to_dict()

@@ -11,12 +11,14 @@ processes ``--view-seconds`` of signal (the ``--rate-seconds`` recording, repeat
 
 Keys: ``realtime_factor_with_view`` and ``realtime_factor_without_view`` (medians),
 ``ratio`` (with / without; the target is >= 0.9), every run's factor, ``cpu`` (where the time
-went: the session thread's own realtime factor per CPU second with and without the view, the
-cores used by the process's other threads, by the view's server process and by the browser),
-``updates_per_s``
-(updates the page applied per second during the runs with the view, from the server's
-count, which waits for the page's acknowledgement), ``browser`` (the Chromium used, or the
-reason there was none: then the factors are not measured).
+went: the session thread's own realtime factor per CPU second with and without the view and
+``session_thread_ratio``, with / without, the CPU-based figure; the cores used by the
+process's other threads, by the view's server process and by the browser),
+``updates_per_s`` (updates the server sent the page per second during the runs with the
+view; it waits for the page's acknowledgement before sending more than two ahead),
+``updates_applied`` and ``updates_applied_per_s`` (the updates the page itself counted as
+applied over those runs, from its acknowledgements: what the browser drew), ``browser`` (the
+Chromium used, or the reason there was none: then the factors are not measured).
 """
 
 from __future__ import annotations
@@ -120,6 +122,7 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
             return s.signal_seconds / wall
 
     feed = LiveFeed()
+    out["load_average_start"] = list(os.getloadavg())
     # Chromium's helper processes may still write into the profile as it exits
     with ViewProcess(feed) as server, \
             tempfile.TemporaryDirectory(ignore_cleanup_errors=True) as profile:
@@ -137,14 +140,16 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                               "got no update applied in 60 s")
             cpu[True].clear()
             cpu[False].clear()
-            with_, without, updates, wall = [], [], 0, 0.0
+            with_, without, updates, applied, wall = [], [], 0, 0, 0.0
             for k in range(pairs):
                 order = (False, True) if k % 2 == 0 else (True, False)
                 for on in order:
                     if on:
-                        c0, t0 = server.stats()["updates_pushed"], time.perf_counter()
+                        s0, t0 = server.stats(), time.perf_counter()
                         with_.append(run(feed))
-                        updates += server.stats()["updates_pushed"] - c0
+                        s1 = server.stats()
+                        updates += s1["updates_pushed"] - s0["updates_pushed"]
+                        applied += s1["updates_applied"] - s0["updates_applied"]
                         wall += time.perf_counter() - t0
                     else:
                         without.append(run(None))
@@ -166,13 +171,16 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
     # server) and the browser, in cores while the runs lasted
     out["cpu"] = {"session_thread_realtime_factor_with_view": med(True, 0),
                   "session_thread_realtime_factor_without_view": med(False, 0),
+                  "session_thread_ratio": med(True, 0) / med(False, 0),
                   "other_threads_cores_with_view": med(True, 1),
                   "other_threads_cores_without_view": med(False, 1),
                   "browser_cores_with_view": med(True, 2),
                   "view_server_process_cores_with_view": med(True, 3)}
     out.update(realtime_factor_with_view=w, realtime_factor_without_view=wo, ratio=w / wo,
                ratio_target=0.9, with_view_runs=with_, without_view_runs=without,
-               updates_per_s=updates / wall if wall > 0 else None, pages_opened=pages,
+               updates_per_s=updates / wall if wall > 0 else None,
+               updates_applied_per_s=applied / wall if wall > 0 else None,
+               updates_pushed=updates, updates_applied=applied, pages_opened=pages,
                view_rate_hz=server.rate_hz, load_average=list(os.getloadavg()),
                cpu_count=os.cpu_count())
     return out

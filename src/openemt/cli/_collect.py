@@ -11,6 +11,7 @@ __all__ = ["register", "run"]
 
 def register(subparsers) -> None:
     from ..collect import CollectOptions
+    from ..view import ViewOptions
     from . import command_help
     from ._common import add_common, add_options
 
@@ -25,16 +26,23 @@ def register(subparsers) -> None:
                     "#collecting). Stops at --n-poses, --duration, the end of the source or "
                     "reference, or on Ctrl-C, writing what it has.")
     add_options(p, CollectOptions)
+    add_options(p, ViewOptions)
     add_common(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..collect import CollectOptions, collect
+    from ..view import ViewOptions, collect_with_view
     from ._common import emit, options_from
 
-    res = collect(options_from(CollectOptions, args),
-                  progress=None if args.quiet else sys.stderr, handle_signals=True)
+    options = options_from(CollectOptions, args)
+    view = options_from(ViewOptions, args)
+    progress = None if args.quiet else sys.stderr
+    if view.view:                                 # the live view in the browser
+        res = collect_with_view(options, view, progress=progress, handle_signals=True)
+    else:
+        res = collect(options, progress=progress, handle_signals=True)
     human = [f"collected {res.n_poses} poses of sensor {res.sensor!r} -> {res.path} (time "
              f"offset {res.time_offset_ms:.1f} ms, {res.dwells['tracker_dwells']} tracker and "
              f"{res.dwells['reference_dwells']} reference dwells; ended by {res.ended_by})"]

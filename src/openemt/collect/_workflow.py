@@ -154,6 +154,13 @@ class CollectResult(Result):
     warnings: list
     simulated: dict | None = None
     time_offset_error_ms: float | None = None
+    view: dict | None = None
+
+    def _items(self) -> dict:
+        items = super()._items()
+        if items["view"] is None:           # ``collect --view`` only
+            del items["view"]
+        return items
 
     @property
     def exit_code(self) -> int:
@@ -235,8 +242,8 @@ def _setup(o: CollectOptions):
     return spec, setup
 
 
-def collect(options: CollectOptions, *, progress=None, handle_signals: bool = False
-            ) -> CollectResult:
+def collect(options: CollectOptions, *, progress=None, handle_signals: bool = False,
+            observer=None) -> CollectResult:
     """Collect a reference-pose dataset (docs/reference-calibration.md#collecting).
 
     Reads the tracker source and the reference until ``n_poses`` dwells are kept (or the
@@ -251,6 +258,10 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
         Where progress lines go (none when None).
     handle_signals : bool
         SIGINT / SIGTERM stop the collection, which writes what it has (main thread only).
+    observer : optional
+        A read-only observer (the live view's :class:`openemt.view.LiveFeed`): ``start``
+        with the layout, ``raw`` with every chunk read, ``collect`` with the state after every
+        analysis and at the end (:func:`_observed`); references only, nothing flows back.
     """
     from ..calibrate import MIN_REFERENCE_POSES
     from ..live import tracker_backend
@@ -356,6 +367,8 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
                              reference_complete=csv is not None)
             if csv is not None:
                 coll.add_reference(*csv)
+            if observer is not None:
+                observer.start(backend.layout)
             paced = o.source == "sim" and client is not None
             say(f"collecting {o.n_poses} poses of sensor {setup.name!r} from --source "
                 f"{o.source}; Ctrl-C to stop and write what is collected")
@@ -371,6 +384,8 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
                     end = "end of source"
                     break
                 coll.add_chunk(chunk)
+                if observer is not None and len(chunk):
+                    observer.raw(chunk)             # a reference: never written again
                 tau = (coll.tracker_time or t0) - t0
                 if paced:                       # the simulated world runs at --sim-speed
                     delay = t0 + tau / o.sim_speed - time.time()
@@ -391,6 +406,9 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
                     if follower is not None:
                         coll.add_reference(*follower.take())
                     coll.update()
+                    if observer is not None:
+                        _observed(observer, coll, cover, o, box, setup.name, tau,
+                                  MIN_REFERENCE_POSES)
                     if coll.n_dwells >= o.n_poses:
                         break
                     if tau >= GIVE_UP_S and (coll.reference_frozen() or not coll.locked):
@@ -430,6 +448,9 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
     if n < MIN_REFERENCE_POSES:
         warn(f"{n} poses collected, below the {MIN_REFERENCE_POSES} training poses that "
              f"'openemt calibrate --mode reference' needs")
+    if observer is not None:
+        _observed(observer, coll, cover, o, box, setup.name, tracker_seconds,
+                  MIN_REFERENCE_POSES, n=n, ended_by=end)
     ds = _dataset(o, dws, n, setup, motion, server, kind, noise_t, noise_r, hemisphere,
                   spec, end, lost, t0, tracker_seconds, pairing, dropped)
     from ..io import write_dataset
@@ -453,6 +474,22 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
         warnings=warnings, simulated=ds.meta.get("truth") if server is not None else None,
         time_offset_error_ms=((e.offset - server.time_offset) * 1e3 if server is not None
                               else None))
+
+
+def _observed(observer, coll, cover, o, box, sensor, tau, min_poses, *, n=None,
+              ended_by=None) -> None:
+    """Hand ``observer`` the collection's state: the dwells kept (the first ``n`` at the end,
+    those written), their tracker poses (solved once each, as the coverage line does) and
+    reference poses, the counts and the working volume."""
+    dws = coll.result()
+    P = cover.poses(dws)[:n]
+    B = np.empty((0, 4, 4)) if dws is None else dws.reference_poses[:len(P)]
+    e = coll.offset
+    observer.collect({"n_dwells": 0 if dws is None else len(dws), "n_target": o.n_poses,
+                      "n_min": min_poses, "poses": P, "reference_poses": B, "box": box,
+                      "tracker_seconds": tau, "locked": coll.locked, "sensor": sensor,
+                      "time_offset_ms": None if e is None else e.offset * 1e3,
+                      "ended_by": ended_by})
 
 
 def _lost(client, wall0, timeout) -> str | None:

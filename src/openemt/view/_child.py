@@ -1,5 +1,5 @@
 """The live view's server process (``python -m openemt.view._child SNAP_FD CTL_FD PORT
-RATE``, started by :class:`openemt.view.ViewProcess`): a :class:`~openemt.view.ViewServer`
+RATE PANELS``, started by :class:`openemt.view.ViewProcess`): a :class:`~openemt.view.ViewServer`
 whose feed asks the session's process for snapshots over the first socket; the second one
 carries its port, its statistics and the request to close."""
 
@@ -12,11 +12,12 @@ from .._errors import InputError
 from ._process import _RemoteFeed
 
 
-def main(snap_conn, ctl_conn, port: int, rate_hz: float) -> None:
+def main(snap_conn, ctl_conn, port: int, rate_hz: float, panels=None) -> None:
     from ._server import ViewServer
 
     try:
-        server = ViewServer(_RemoteFeed(snap_conn), port=port, rate_hz=rate_hz).start()
+        server = ViewServer(_RemoteFeed(snap_conn), port=port, rate_hz=rate_hz,
+                            panels=panels).start()
     except BaseException as exc:           # noqa: BLE001 - reported to the parent
         ctl_conn.send(("error", f"{type(exc).__name__}: {exc}", isinstance(exc, InputError)))
         return
@@ -25,7 +26,7 @@ def main(snap_conn, ctl_conn, port: int, rate_hz: float) -> None:
         while True:
             msg = ctl_conn.recv()
             ctl_conn.send(("stats", server.stats.count, server.pages,
-                           server.stats.per_second()))
+                           server.stats.per_second(), server.stats.n_applied))
             if msg == "close":
                 break
     except (EOFError, OSError, KeyboardInterrupt):
@@ -44,4 +45,4 @@ if __name__ == "__main__":
 
     logging.getLogger("bokeh").setLevel(logging.ERROR)    # closed pages are not errors
     main(Connection(int(sys.argv[1])), Connection(int(sys.argv[2])), int(sys.argv[3]),
-         float(sys.argv[4]))
+         float(sys.argv[4]), tuple(p for p in sys.argv[5].split(",") if p) or None)

@@ -5,9 +5,9 @@ the numbers each panel shows, computed from them outside the acquisition thread.
 session appends every raw chunk and every processed chunk (its
 :class:`~openemt.live.TrackStep`) to bounded histories, by reference (the arrays are handed
 out fresh and never written again; the raw recorder and the log keep them the same way),
-under a lock held for about a microsecond. :meth:`LiveFeed.snapshot` (called when a page is
+an append to a bounded deque and no more. :meth:`LiveFeed.snapshot` (called when a page is
 due for an update: :class:`~openemt.view.ViewProcess`'s thread, or the server's own with
-:class:`~openemt.view.ViewServer`) takes the lists under the lock and computes outside it:
+:class:`~openemt.view.ViewServer`) copies the deques and computes from the copies:
 
 - per carrier: the drive-current level on its reference channel and the rms level of the
   sensor channels at its frequency (V, from the raw samples: a Hann-windowed correlation at
@@ -37,7 +37,7 @@ import time
 
 import numpy as np
 
-__all__ = ["LiveFeed", "carrier_levels", "coupling_snr_db", "spectrum_db"]
+__all__ = ["LiveFeed", "carrier_levels", "collect_panel", "coupling_snr_db", "spectrum_db"]
 
 
 def carrier_levels(x, frequencies, sample_rate) -> np.ndarray:
@@ -51,11 +51,19 @@ def carrier_levels(x, frequencies, sample_rate) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _carrier_basis(n: int, frequencies: tuple, sample_rate: float) -> np.ndarray:
-    """``(n_carriers, n)``: Hann window x ``exp(-j 2 pi f t)`` x ``2 / sum(w)``."""
+def _hann(n: int) -> np.ndarray:
+    """The demodulator's Hann window of ``n`` samples (computed once per length)."""
     from ..signal import frame_window
 
     w = frame_window("hann", n)
+    w.flags.writeable = False
+    return w
+
+
+@functools.lru_cache(maxsize=8)
+def _carrier_basis(n: int, frequencies: tuple, sample_rate: float) -> np.ndarray:
+    """``(n_carriers, n)``: Hann window x ``exp(-j 2 pi f t)`` x ``2 / sum(w)``."""
+    w = _hann(n)
     f = np.asarray(frequencies)
     basis = w[:, None] * np.exp(-2j * np.pi * np.outer(np.arange(n), f) / sample_rate)
     return np.ascontiguousarray(basis.T) * (2.0 / w.sum())
@@ -69,9 +77,7 @@ def spectrum_db(x, sample_rate, max_points: int = 1024):
     n_channels))``."""
     x = np.asarray(x, dtype=np.float64)
     n = x.shape[0]
-    from ..signal import frame_window
-
-    w = frame_window("hann", n)
+    w = _hann(n)
     amp = np.abs(np.fft.rfft(x * w[:, None], axis=0)) * (2.0 / w.sum())
     f = np.fft.rfftfreq(n, 1.0 / sample_rate)
     g = max(1, -(-len(f) // int(max_points)))
@@ -129,20 +135,22 @@ class LiveFeed:
         self.names: tuple = ()
         self.source = None
         self._lock = threading.Lock()
-        self._raw: collections.deque = collections.deque()
-        self._raw_kept = 0
+        self._raw: collections.deque = collections.deque(maxlen=8)
+        self._n_chunks = 0
         self._steps: list = []
         self.n_samples: list = []
-        self.n_raw = 0
-        self.version = 0              # changes with every block published
         self._cache = (None, None)
+        self._collect = None          # the latest state of a collection (``collect``)
 
-    # -- the observer protocol (the session's thread: cheap)
+    # -- the observer protocol (the session's thread: as little as possible). Each call only
+    # appends a reference to a bounded deque (and counts the samples): a deque's append is
+    # atomic under the interpreter lock and ``list(deque)`` copies it whole under it, so the
+    # session never waits for the view; keeping the recent blocks costs the session's caches
+    # enough already (docs/live.md#what-the-view-costs-the-acquisition-openemt-bench-track---view---json)
     def start(self, layout) -> None:
         with self._lock:
             self.layout = layout
-            self._raw.clear()
-            self._raw_kept = 0
+            self._raw = collections.deque(maxlen=8)
 
     def sensors(self, names) -> None:
         with self._lock:
@@ -151,23 +159,45 @@ class LiveFeed:
             self.n_samples = [0] * len(self.names)
 
     def raw(self, chunk) -> None:
-        n = len(chunk)
-        with self._lock:
-            q = self._raw
-            q.append(chunk)                  # a reference: the array is never written again
-            self._raw_kept += n
-            self.n_raw += n
-            while self._raw_kept - len(q[0]) >= self.raw_samples:
-                self._raw_kept -= len(q.popleft())
-            self.version += 1
+        self._raw.append(chunk)      # a reference: the array is never written again
+        self._n_chunks += 1
 
     def step(self, step, sensor: int = 0) -> None:
-        with self._lock:
-            self._steps[sensor].append(step)      # a bounded deque: the oldest drops out
-            self.n_samples[sensor] += len(step)
-            self.version += 1
+        self._steps[sensor].append(step)          # a bounded deque: the oldest drops out
+        self.n_samples[sensor] += len(step)
+
+    def collect(self, state: dict) -> None:
+        """A collection's state (``openemt collect``, once per analysis and at the end): a
+        dict of numbers and arrays handed out fresh (references kept, never written)."""
+        self._collect = state
 
     # -- the view's side
+    @property
+    def version(self) -> tuple:
+        """Changes with every block published (the samples counted, the raw chunks
+        received, the latest collection state, which the feed holds)."""
+        return (sum(self.n_samples), self._n_chunks, id(self._collect))
+
+    def _raw_chunks(self) -> list:
+        """The raw chunks held, newest last; the deque sized to hold ``raw_samples`` (grown
+        when full and short of them, shrunk when far beyond: a chunk appended while it is
+        swapped is left out of the spectra, once)."""
+        q = self._raw
+        chunks = list(q)
+        if not chunks:
+            return chunks
+        need, n = 0, 0
+        for c in reversed(chunks):
+            need += 1
+            n += len(c)
+            if n >= self.raw_samples:
+                break
+        if n < self.raw_samples and len(chunks) == q.maxlen:
+            self._raw = collections.deque(q, maxlen=2 * q.maxlen)
+        elif q.maxlen > 2 * (need + 1):
+            self._raw = collections.deque(q, maxlen=need + 1)
+        return chunks[-need:]
+
     def snapshot(self) -> dict:
         """Every number the panels show, from the blocks published so far (cached until the
         next block arrives)."""
@@ -176,15 +206,17 @@ class LiveFeed:
             if self._cache[0] == version:
                 return self._cache[1]
             steps = [list(q) for q in self._steps]
-            chunks = list(self._raw)
+            chunks = self._raw_chunks()
             layout, names = self.layout, self.names
             counts = list(self.n_samples)
-            n_raw = self.n_raw
+            collecting = self._collect
         raw = None
         if chunks and layout is not None:
             raw = np.concatenate(chunks)[-self.raw_samples:, :layout.n_channels]
-        snap = _compute(layout, names, steps, raw, counts, n_raw, self.window,
+        snap = _compute(layout, names, steps, raw, counts, self.window,
                         self.trail_points, self.history_seconds)
+        if collecting is not None:
+            snap["collect"] = collect_panel(collecting)
         snap["version"] = version
         snap["source"] = self.source
         with self._lock:
@@ -206,12 +238,12 @@ def _cat(steps, key, last: int | None = None):
     return out if last is None or out is None else out[-last:]
 
 
-def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points,
+def _compute(layout, names, steps, raw, counts, window, trail_points,
              history_seconds) -> dict:
     from ..solve import Status
 
     t = time.time()
-    snap: dict = {"wall_time": t, "sensors": [], "n_raw": n_raw,
+    snap: dict = {"wall_time": t, "sensors": [],
                   "frequencies": None if layout is None else list(layout.frequencies)}
     blocks = []                       # per sensor: the recent couplings (window, n_so, k)
     converged = int(Status.CONVERGED)
@@ -270,3 +302,29 @@ def _compute(layout, names, steps, raw, counts, n_raw, window, trail_points,
         f, db = spectrum_db(raw, fs, max_points=512)
         snap["spectrum"] = {"frequencies": f, "db": db, "samples": len(raw)}
     return snap
+
+
+def collect_panel(state: dict) -> dict:
+    """What the collect panel shows of a collection's ``state`` (see
+    :meth:`LiveFeed.collect`): the dwell count against the target and the minimum, the
+    coverage (:func:`openemt.align.coverage` of the tracker's dwell positions and the
+    reference's rotations in the working volume ``box``, as the collection reports it), the
+    dwell positions (mm) and the direction of each dwell's sensor z axis (azimuth and
+    elevation in the tracker's frame, degrees)."""
+    from ..align import coverage
+
+    P = np.asarray(state["poses"], dtype=np.float64).reshape(-1, 4, 4)
+    B = np.asarray(state["reference_poses"], dtype=np.float64).reshape(-1, 4, 4)
+    box = np.asarray(state["box"], dtype=np.float64)
+    n = min(len(P), len(B))
+    cov = coverage(P[:n, :3, 3], B[:n], box)
+    axis = P[:n, :3, 2]
+    return {
+        "n_dwells": int(state["n_dwells"]), "n_used": n, "n_target": int(state["n_target"]),
+        "n_min": int(state["n_min"]), "coverage": cov, "box_mm": 1e3 * box,
+        "positions_mm": 1e3 * P[:n, :3, 3],
+        "azimuth_deg": np.degrees(np.arctan2(axis[:, 1], axis[:, 0])),
+        "elevation_deg": np.degrees(np.arcsin(np.clip(axis[:, 2], -1.0, 1.0))),
+        "tracker_seconds": float(state["tracker_seconds"]),
+        "time_offset_ms": state.get("time_offset_ms"), "locked": bool(state.get("locked")),
+        "ended_by": state.get("ended_by"), "sensor": state.get("sensor")}

@@ -6,7 +6,10 @@ coupling level, SNR, quadrature), ``spectrum`` (per channel), ``coupling`` (the 
 matrix), ``sensors`` (per sensor: status, quadrature ratio, residual, pose) and ``trail`` (the
 positions of the last seconds, three projections). Every value shown lives in a named
 ``ColumnDataSource`` (``carriers``, ``spectrum``, ``coupling``, ``sensors``, ``trail``,
-``now``, ``header``), which a test reads back through Bokeh's document in the browser.
+``now``, ``header``, ``collect``, ``dwells``), which a test reads back through Bokeh's document in the browser; the HTML of the
+header line and the tables goes through the source ``html`` and is written into the Divs'
+elements in the page (their models' ``text`` is set only before the page has applied an
+update and when the display pauses: a change of it lays the whole page out again).
 """
 
 from __future__ import annotations
@@ -17,6 +20,10 @@ import time
 import numpy as np
 
 PANELS = ("carriers", "spectrum", "coupling", "sensors", "trail")
+#: The panels of ``openemt collect --view`` (no per-sample poses: no coupling, sensors, trail).
+COLLECT_PANELS = ("collect", "carriers", "spectrum")
+#: Every panel a page can show (``?panel=NAME``).
+ALL_PANELS = ("collect", *PANELS)
 _COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
             "#7f7f7f", "#bcbd22", "#17becf")
 
@@ -34,7 +41,6 @@ class Page:
             ColumnDataSource,
             CustomJS,
             Div,
-            LinearColorMapper,
             Range1d,
             Toggle,
         )
@@ -64,6 +70,9 @@ class Page:
             return self.tables[name][0]
 
         self.tables = {}
+        if "collect" in panels:
+            parts.append(self._collect_panel(table, figure, row, column, Div, ColumnDataSource,
+                                             Range1d))
         if "carriers" in panels:
             t = table("carriers", [("frequency_hz", "carrier (Hz)", "{:g}"),
                                    ("reference_v", "drive level (V)", "{:.4g}"),
@@ -90,17 +99,13 @@ class Page:
             self.src["coupling"] = ColumnDataSource(
                 {"carrier": [], "coil": [], "value": [], "quadrature": [], "norm": [],
                  "text": []}, name="coupling")
-            self._coupling_fig = f = figure(
-                width=600, height=260, title="Coupling matrix (real part; colour: value / "
-                "largest |value|)", tools="", x_range=[], y_range=[], toolbar_location=None)
-            f.rect("coil", "carrier", 0.95, 0.95, source=self.src["coupling"],
-                   fill_color={"field": "norm", "transform": LinearColorMapper(
-                       palette=_diverging(), low=-1.0, high=1.0)}, line_color=None)
-            f.text("coil", "carrier", text="text", source=self.src["coupling"],
-                   text_align="center", text_baseline="middle", text_font_size="9pt")
-            f.xaxis.axis_label = "sensor coil"
-            f.yaxis.axis_label = "carrier"
-            parts.append(column(f, name="panel-coupling"))
+            # an HTML table with coloured cells: changing its text lays out only the table,
+            # where a plot is redrawn whole (axes and all) on every update
+            self._coupling_div = Div(text="", name="coupling_table")
+            doc.add_root(self.src["coupling"])
+            parts.append(column(Div(text="<b>Coupling matrix</b> (real part; colour: value / "
+                                    "largest |value|, blue negative, red positive)"),
+                                self._coupling_div, name="panel-coupling"))
         if "sensors" in panels:
             t = table("sensors", [("name", "sensor", "{}"), ("status", "status", "{}"),
                                   ("distortion", "quadrature ratio", "{:.2e}"),
@@ -113,12 +118,12 @@ class Page:
                                   ("n_samples", "samples", "{}"), ("time_s", "time (s)", "{:.4f}")])
             parts.append(column(Div(text="<b>Sensors</b>"), t, name="panel-sensors"))
         if "trail" in panels:
-            # one source (one message, one redraw per update): the latest pose of each
-            # sensor is its trail's last point, drawn larger
-            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "k": [],
-                                                  "size": []}, name="trail")
-            colour = {"field": "k", "transform": LinearColorMapper(
-                palette=list(_COLOURS), low=-0.5, high=len(_COLOURS) - 0.5)}
+            # a line per sensor (one path to draw, where a marker per point costs the browser
+            # a path each) and a dot at its latest pose
+            self.src["trail"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": []},
+                                                 name="trail")
+            self.src["now"] = ColumnDataSource({"x": [], "y": [], "z": [], "colour": []},
+                                               name="now")
             figs = []
             self._trail_ranges = {a: Range1d(-10, 10) for a in "xyz"}
             for a, b in (("x", "y"), ("x", "z"), ("y", "z")):
@@ -126,8 +131,9 @@ class Page:
                            y_range=self._trail_ranges[b],
                            title=f"trail {a}-{b} (mm)", x_axis_label=f"{a} (mm)",
                            y_axis_label=f"{b} (mm)", tools="", toolbar_location=None)
-                f.scatter(a, b, source=self.src["trail"], color=colour, size="size",
-                          alpha=0.6)
+                f.multi_line(a, b, source=self.src["trail"], line_color="colour",
+                             line_width=1, line_alpha=0.7)
+                f.scatter(a, b, source=self.src["now"], color="colour", size=10)
                 figs.append(f)
             self._trail_key = Div(text="", name="trail_key")
             parts.append(column(Div(text="<b>Trail in the volume</b> (converged poses of the "
@@ -135,11 +141,37 @@ class Page:
                                 self._trail_key, name="panel-trail"))
         doc.add_root(column(*parts))
         doc.add_root(self.src_header)
+        # the changing HTML (the header line and the tables) goes to the page in a data source
+        # and is written into each Div's element there: setting a Div's ``text`` makes BokehJS
+        # lay the whole page out again and redraw every plot (about half of the browser's work
+        # per update when it did); the Divs' ``text`` is set only when the display pauses
+        self.src_html = ColumnDataSource({"name": [], "html": []}, name="html")
+        doc.add_root(self.src_html)
+        self._html: dict = {}
+        self.src_html.js_on_change("data", CustomJS(args={"src": self.src_html}, code="""
+            const d = src.data;
+            const get = (k) => (d instanceof Map ? d.get(k) : d[k]);
+            const names = get("name"), html = get("html");
+            const doc = src.document;
+            for (let i = 0; i < names.length; i++) {
+              const m = doc.get_model_by_name(names[i]);
+              if (m == null) continue;
+              const index = window.Bokeh && Bokeh.index;
+              const v = index && index.find_one ? index.find_one(m) : null;
+              if (v != null && v.markup_el != null) {
+                if (v.markup_el.innerHTML !== html[i]) v.markup_el.innerHTML = html[i];
+              } else if (m.text !== html[i]) {
+                m.text = html[i];          // no view to write into: the slow way
+              }
+            }
+            """))
         # flow control: the page acknowledges every update it has applied, and the server
         # keeps at most two in flight, so a slow browser shows the latest state at its own
         # pace instead of falling further and further behind
         self.src_ack = ColumnDataSource({"n": [0]}, name="ack")
         doc.add_root(self.src_ack)
+        self.src_ack.on_change("data", lambda attr, old, new: stats.applied(
+            id(self), new["n"][0]))
         self.src_header.js_on_change("data", CustomJS(
             args={"ack": self.src_ack, "header": self.src_header}, code="""
             const d = header.data;
@@ -147,6 +179,7 @@ class Page:
             ack.data = (ack.data instanceof Map) ? new Map([["n", [n]]]) : {n: [n]};
             """))
         self.skipped, self.sent = 0, 0.0
+        self._sent_html: dict = {}
         doc.title = "openemt live view"
         self.cb = doc.add_periodic_callback(self.update, period_ms)
 
@@ -159,6 +192,8 @@ class Page:
         if self.pause.active:                       # pauses the display only
             if not self.src_header.data["paused"][0]:
                 self.src_header.data = dict(self.src_header.data, paused=[True])
+                for div, html in self._html.values():       # the models say what is shown
+                    div.text = html
             return
         now = time.monotonic()
         if self.n_updates - self.src_ack.data["n"][0] >= 2 and now - self.sent < 0.5:
@@ -177,8 +212,15 @@ class Page:
         n = max((s["n_samples"] for s in sensors), default=0)
         t = max((s.get("time", 0.0) for s in sensors), default=0.0)
         src = snap.get("source") or "session"
-        self.header.text = (f"<b>openemt live view</b> ({src}): {n} samples, t = {t:.2f} s, "
-                            f"{len(sensors)} sensor(s)")
+        if "collect" in snap:
+            c = snap["collect"]
+            what = (f"sensor {c['sensor']}: {c['n_used']}/{c['n_target']} dwells, "
+                    f"{c['tracker_seconds']:.1f} s of signal")
+        else:
+            what = f"{n} samples, t = {t:.2f} s, {len(sensors)} sensor(s)"
+        self._set_html(self.header, f"<b>openemt live view</b> ({src}): {what}")
+        if "collect" in self.src and "collect" in snap:
+            self._collect(snap["collect"])
         if "carriers" in self.src:
             self._carriers(snap)
         if "spectrum" in self.src and "spectrum" in snap:
@@ -189,6 +231,19 @@ class Page:
             self._sensors(sensors)
         if "trail" in self.src:
             self._trail(sensors)
+        changed = {k: h for k, (div, h) in self._html.items() if self._sent_html.get(k) != h}
+        if changed and not self.src_ack.data["n"][0]:
+            # the page has applied no update yet: what is sent now may arrive within the
+            # document it loads, where no change callback runs, so the Divs get it themselves
+            for k, h in changed.items():
+                self._html[k][0].text = h
+        if changed:
+            self.src_html.data = {"name": list(changed), "html": list(changed.values())}
+            self._sent_html.update(changed)
+
+    def _set_html(self, div, html: str) -> None:
+        """Show ``html`` in ``div`` (sent with the update, see ``src_html``)."""
+        self._html[div.name] = (div, html)
 
     def _show(self, name, data) -> None:
         """Put ``data`` in the source ``name`` and its HTML table in the Div beside it."""
@@ -198,10 +253,81 @@ class Page:
         head = "".join(f"<th>{c[1]}</th>" for c in cols)
         body = "".join("<tr>" + "".join(f"<td>{_fmt(data[c[0]][r], c[2])}</td>" for c in cols)
                        + "</tr>" for r in range(n))
-        div.text = (f'<table class="openemt" style="border-collapse: collapse; '
-                    f'font: 12px monospace"><tr style="text-align: left">{head}</tr>{body}'
-                    f"</table>").replace("<td>", '<td style="padding: 2px 10px">').replace(
-                        "<th>", '<th style="padding: 2px 10px; border-bottom: 1px solid #999">')
+        self._set_html(div, (
+            f'<table class="openemt" style="border-collapse: collapse; '
+            f'font: 12px monospace"><tr style="text-align: left">{head}</tr>{body}'
+            f"</table>").replace("<td>", '<td style="padding: 2px 10px">').replace(
+                "<th>", '<th style="padding: 2px 10px; border-bottom: 1px solid #999">'))
+
+    def _collect_panel(self, table, figure, row, column, Div, ColumnDataSource, Range1d):
+        """The collect panel: the dwell count and coverage (a table), where the dwells are in
+        the working volume (x-y and x-z, the volume's box drawn) and how the sensor pointed
+        (its z axis: azimuth and elevation)."""
+        from bokeh.models import CDSView, GroupFilter
+
+        t = table("collect", [("n_dwells", "dwells", "{}"), ("n_target", "target", "{}"),
+                              ("n_min", "calibrate needs", "{}"),
+                              ("volume_coverage_pct", "volume (%)", "{:.1f}"),
+                              ("outside", "outside", "{}"),
+                              ("orientation_spread_deg", "orient. spread (deg)", "{:.1f}"),
+                              ("rotation_diversity", "rot. diversity", "{}"),
+                              ("rotation_second_axis_deg", "2nd axis (deg)", "{:.1f}"),
+                              ("time_offset_ms", "time offset (ms)", "{:.1f}"),
+                              ("tracker_seconds", "signal (s)", "{:.1f}"),
+                              ("state", "state", "{}")])
+        self.src["dwells"] = ColumnDataSource({"x": [], "y": [], "z": [], "azimuth": [],
+                                               "elevation": []}, name="dwells")
+        self.src["volume"] = ColumnDataSource({"left": [], "right": [], "bottom": [], "top": [],
+                                               "view": []}, name="volume")
+        self._collect_ranges = {a: Range1d(-10, 10) for a in "xyz"}
+        figs = []
+        for a, b in (("x", "y"), ("x", "z")):
+            f = figure(width=300, height=300, x_range=self._collect_ranges[a],
+                       y_range=self._collect_ranges[b], title=f"dwells {a}-{b} (mm)",
+                       x_axis_label=f"{a} (mm)", y_axis_label=f"{b} (mm)", tools="",
+                       toolbar_location=None)
+            view = self.src["volume"]
+            f.quad("left", "right", "bottom", "top", source=view, fill_alpha=0.05,
+                   line_color="#999", line_dash="dashed",
+                   view=CDSView(filter=GroupFilter(column_name="view", group=a + b)))
+            f.scatter(a, b, source=self.src["dwells"], size=6, color=_COLOURS[0])
+            figs.append(f)
+        f = figure(width=360, height=300, x_range=Range1d(-180, 180), y_range=Range1d(-90, 90),
+                   title="sensor z axis of each dwell (deg)", x_axis_label="azimuth (deg)",
+                   y_axis_label="elevation (deg)", tools="", toolbar_location=None)
+        f.scatter("azimuth", "elevation", source=self.src["dwells"], size=6,
+                  color=_COLOURS[1])
+        figs.append(f)
+        return column(Div(text="<b>Collection</b>: dwells kept against the target (--n-poses) "
+                          "and the minimum calibrate --mode reference needs; coverage of the "
+                          "working volume (dashed) and of orientations"), t, row(*figs),
+                      name="panel-collect")
+
+    def _collect(self, c):
+        cov = c["coverage"]
+        state = ("ended: " + str(c["ended_by"]) if c["ended_by"] else
+                 "collecting" if c["locked"] else "waiting for the time offset")
+        self._show("collect", {
+            "n_dwells": [c["n_used"]], "n_target": [c["n_target"]], "n_min": [c["n_min"]],
+            "volume_coverage_pct": [cov["volume_coverage_pct"]], "outside": [cov["outside"]],
+            "orientation_spread_deg": [_num(cov["orientation_spread_deg"])],
+            "rotation_diversity": ["ok" if cov["rotation_diversity_ok"] else "NOT yet"],
+            "rotation_second_axis_deg": [_num(cov["rotation_second_axis_deg"])],
+            "time_offset_ms": [_num(c["time_offset_ms"])],
+            "tracker_seconds": [c["tracker_seconds"]], "state": [state]})
+        p = c["positions_mm"]
+        self.src["dwells"].data = {"x": p[:, 0].copy(), "y": p[:, 1].copy(), "z": p[:, 2].copy(),
+                                   "azimuth": c["azimuth_deg"], "elevation": c["elevation_deg"]}
+        (lx, ly, lz), (hx, hy, hz) = c["box_mm"]
+        box = {"left": [lx, lx], "right": [hx, hx], "bottom": [ly, lz], "top": [hy, hz],
+               "view": ["xy", "xz"]}
+        if self.src["volume"].data != box:
+            self.src["volume"].data = box
+            # one scale on the three axes (equal aspect), the box and a margin in view
+            half = 0.6 * float(max(hx - lx, hy - ly, hz - lz))
+            for a, lo, hi in (("x", lx, hx), ("y", ly, hy), ("z", lz, hz)):
+                m = 0.5 * (lo + hi)
+                self._collect_ranges[a].update(start=m - half, end=m + half)
 
     def _carriers(self, snap):
         c = snap.get("carriers")
@@ -261,16 +387,22 @@ class Page:
                     quad.append(float(C[i, j].imag))
                     text.append(f"{C[i, j].real:.3g}")
         m = max((abs(v) for v in value), default=0.0) or 1.0
-        fig = self._coupling_fig
-        coils = list(dict.fromkeys(coil))
-        carriers = list(dict.fromkeys(carrier))[::-1]
-        if list(fig.x_range.factors) != coils:
-            fig.x_range.factors = coils
-        if list(fig.y_range.factors) != carriers:
-            fig.y_range.factors = carriers
+        norm = [v / m for v in value]
         self.src["coupling"].data = {"carrier": carrier, "coil": coil, "value": value,
-                                     "quadrature": quad, "norm": [v / m for v in value],
-                                     "text": text}
+                                     "quadrature": quad, "norm": norm, "text": text}
+        palette = _diverging()
+        coils = list(dict.fromkeys(coil))
+        cell = {(a, b): (t, u) for a, b, t, u in zip(carrier, coil, text, norm)}
+        td = '<td style="padding: 3px 8px; text-align: center; background: {}">{}</td>'
+        body = "".join(
+            f'<tr><th style="padding: 3px 8px; text-align: right">{a}</th>' + "".join(
+                td.format(palette[min(63, int(round((cell[a, b][1] + 1) * 31.5)))],
+                          cell[a, b][0]) if (a, b) in cell else "<td></td>" for b in coils)
+            + "</tr>" for a in dict.fromkeys(carrier))
+        head = "".join(f'<th style="padding: 3px 8px">{b}</th>' for b in coils)
+        self._set_html(self._coupling_div, (
+            f'<table style="border-collapse: collapse; font: 12px monospace"><tr><th>carrier '
+            f'\\ sensor coil</th>{head}</tr>{body}</table>'))
 
     def _sensors(self, sensors):
         rows = [s for s in sensors if s["n_samples"]]
@@ -288,25 +420,26 @@ class Page:
             "time_s": [s["time"] for s in rows]})
 
     def _trail(self, sensors):
-        parts, ks, sizes = [], [], []
-        now = {"x": [], "y": [], "z": [], "k": [], "name": []}
+        lines = {"x": [], "y": [], "z": [], "colour": []}
+        now = {"x": [], "y": [], "z": [], "colour": [], "k": [], "name": []}
+        parts = []
         for k, s in enumerate(sensors):
             if not s["n_samples"]:
                 continue
             p = 1e3 * s["pose_vector"][:3]
-            parts += [1e3 * s["trail"], p[None]]
-            ks.append(np.full(len(s["trail"]) + 1, k % len(_COLOURS), np.int32))
-            sizes += [np.full(len(s["trail"]), 2.0, np.float32), np.array([10.0], np.float32)]
-            for key, val in zip("xyz", p):
-                now[key].append(float(val))
+            tr = np.concatenate([1e3 * s["trail"], p[None]]).astype(np.float32)
+            parts.append(tr)
+            colour = _COLOURS[k % len(_COLOURS)]
+            for i, key in enumerate("xyz"):
+                lines[key].append(np.ascontiguousarray(tr[:, i]))
+                now[key].append(float(p[i]))
+            lines["colour"].append(colour)
+            now["colour"].append(colour)
             now["k"].append(k % len(_COLOURS))
             now["name"].append(s["name"])
-        tr = (np.concatenate(parts) if parts else np.empty((0, 3))).astype(np.float32)
-        self.src["trail"].data = {"x": tr[:, 0].copy(), "y": tr[:, 1].copy(),
-                                  "z": tr[:, 2].copy(),
-                                  "k": np.concatenate(ks) if ks else np.empty(0, np.int32),
-                                  "size": np.concatenate(sizes) if sizes
-                                  else np.empty(0, np.float32)}
+        self.src["trail"].data = lines
+        self.src["now"].data = {key: now[key] for key in ("x", "y", "z", "colour")}
+        tr = np.concatenate(parts) if parts else np.empty((0, 3), np.float32)
         key = _key(now["name"], [_COLOURS[k] for k in now["k"]])
         if self._trail_key.text != key:
             self._trail_key.text = key
@@ -324,6 +457,10 @@ class Page:
                 for i, a in enumerate("xyz"):
                     c = 0.5 * float(lo[i] + hi[i])
                     r[a].update(start=c - half, end=c + half)
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)
 
 
 def _key(names, colours=None) -> str:

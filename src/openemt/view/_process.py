@@ -48,17 +48,25 @@ class _RemoteFeed:
         return self.last
 
 
+def _stats(msg) -> dict:
+    """The child's ``("stats", pushed, pages, rate, applied)`` as :meth:`ViewProcess.stats`
+    gives it (None: every value None)."""
+    keys = ("updates_pushed", "pages_opened", "updates_per_s", "updates_applied")
+    return dict(zip(keys, msg[1:] if msg is not None else (None,) * len(keys)))
+
+
 class ViewProcess:
     """Serve the live view of ``feed`` from a child process (see the module docstring); the
     same interface as :class:`ViewServer`: :attr:`url`, :meth:`stats` (updates pushed, pages
     opened), use as a context manager."""
 
-    def __init__(self, feed, *, port: int = 0, rate_hz: float = 12.0):
+    def __init__(self, feed, *, port: int = 0, rate_hz: float = 12.0, panels=None):
         if not 0 <= int(port) <= 65535:
             raise InputError(f"expected a view port in 0..65535, got {port}")
         if not 1.0 <= float(rate_hz) <= 60.0:
             raise InputError(f"expected a view rate in 1..60 Hz, got {rate_hz}")
         self.feed, self.requested_port, self.rate_hz = feed, int(port), float(rate_hz)
+        self.panels = None if panels is None else tuple(panels)
         self.port = None
         self._proc = self._thread = None
         self._ctl_lock = threading.Lock()
@@ -79,7 +87,8 @@ class ViewProcess:
         fds = (snap_child.fileno(), ctl_child.fileno())
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "openemt.view._child", *map(str, fds),
-             str(self.requested_port), repr(self.rate_hz)], pass_fds=fds,
+             str(self.requested_port), repr(self.rate_hz), ",".join(self.panels or ())],
+            pass_fds=fds,
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
         snap_child.close()
         ctl_child.close()
@@ -117,16 +126,16 @@ class ViewProcess:
             return
 
     def stats(self) -> dict:
-        """Updates pushed to the pages, pages opened and the recent update rate."""
+        """Updates pushed to the pages, pages opened, the recent update rate and the updates
+        the pages say they have applied."""
         if self._final is not None:
             return self._final
         with self._ctl_lock:
             try:
                 self._ctl.send("stats")
-                _, count, pages, rate = self._ctl.recv()
+                return _stats(self._ctl.recv())
             except (EOFError, OSError):
-                return {"updates_pushed": None, "pages_opened": None, "updates_per_s": None}
-        return {"updates_pushed": count, "pages_opened": pages, "updates_per_s": rate}
+                return _stats(None)
 
     def close(self) -> None:
         proc, self._proc = self._proc, None
@@ -137,9 +146,7 @@ class ViewProcess:
                 try:
                     self._ctl.send("close")
                     if self._ctl.poll(10.0):
-                        _, count, pages, rate = self._ctl.recv()
-                        self._final = {"updates_pushed": count, "pages_opened": pages,
-                                       "updates_per_s": rate}
+                        self._final = _stats(self._ctl.recv())
                 except (EOFError, OSError):
                     pass
         try:

@@ -27,6 +27,18 @@ class _Rate:
         self.count = 0
         self.times: list = []
         self._lock = threading.Lock()
+        self._applied: dict = {}         # page -> updates it says it has applied
+
+    def applied(self, page, n: int) -> None:
+        """Page ``page`` has applied ``n`` updates (its acknowledgement)."""
+        with self._lock:
+            self._applied[page] = max(int(n), self._applied.get(page, 0))
+
+    @property
+    def n_applied(self) -> int:
+        """Updates the pages have applied, counted by the pages themselves."""
+        with self._lock:
+            return sum(self._applied.values())
 
     def tick(self) -> None:
         now = time.monotonic()
@@ -46,17 +58,19 @@ class _Rate:
 
 class ViewServer:
     """Serve the live view of ``feed`` on ``http://127.0.0.1:PORT/`` (``port`` 0: a free one)
-    in a thread; refresh each open tab ``rate_hz`` times per second.
+    in a thread; refresh each open tab ``rate_hz`` times per second; ``panels``: the panels
+    a page shows unless its address names some (default: those of a tracking session).
 
     Use as a context manager (or :meth:`start` / :meth:`close`); :attr:`url` is the page.
     """
 
-    def __init__(self, feed, *, port: int = 0, rate_hz: float = 12.0):
+    def __init__(self, feed, *, port: int = 0, rate_hz: float = 12.0, panels=None):
         if not 0 <= int(port) <= 65535:
             raise InputError(f"expected a view port in 0..65535, got {port}")
         if not 1.0 <= float(rate_hz) <= 60.0:
             raise InputError(f"expected a view rate in 1..60 Hz, got {rate_hz}")
         self.feed = feed
+        self.panels = None if panels is None else tuple(panels)
         self.requested_port = int(port)
         self.rate_hz = float(rate_hz)
         self.port = None
@@ -72,11 +86,11 @@ class ViewServer:
         return f"http://{HOST}:{self.port}/"
 
     def _make_doc(self, doc) -> None:
-        from ._page import PANELS, Page
+        from ._page import ALL_PANELS, PANELS, Page
 
         args = doc.session_context.request.arguments if doc.session_context else {}
         want = [a.decode() for a in args.get("panel", [])]
-        panels = tuple(p for p in PANELS if p in want) or PANELS
+        panels = tuple(p for p in ALL_PANELS if p in want) or self.panels or PANELS
         self.pages += 1
         Page(doc, self.feed, period_ms=1000.0 / self.rate_hz, stats=self.stats,
              panels=panels)

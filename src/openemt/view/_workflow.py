@@ -1,5 +1,5 @@
-"""The live view's workflows: ``openemt track --view`` (:func:`track_with_view`) and
-``openemt view`` (:func:`view_recording`: a session log replayed, or a raw recording tracked
+"""The live view's workflows: ``openemt track --view`` (:func:`track_with_view`),
+``openemt collect --view`` (:func:`collect_with_view`) and ``openemt view`` (:func:`view_recording`: a session log replayed, or a raw recording tracked
 again, into the view)."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import numpy as np
 from .._errors import InputError
 from .._result import Result
 
-__all__ = ["ViewOptions", "ViewRecordingOptions", "ViewResult", "replay_log",
-           "track_with_view", "view_recording"]
+__all__ = ["ViewOptions", "ViewRecordingOptions", "ViewResult", "collect_with_view",
+           "replay_log", "track_with_view", "view_recording"]
 
 
 def _opt(default, help: str, **meta):
@@ -169,7 +169,6 @@ def track_with_view(options, view: ViewOptions, *, say=None, tracker=None):
     pushed and their rate)."""
     from ..live import TrackingSession
     from ._feed import LiveFeed
-    from ._process import ViewProcess
 
     view.check()
     options.check()
@@ -177,19 +176,57 @@ def track_with_view(options, view: ViewOptions, *, say=None, tracker=None):
                                                                flush=True))
     feed = LiveFeed()
     feed.source = f"track --source {options.source}"
-    with ViewProcess(feed, port=view.view_port, rate_hz=view.view_rate) as server:
-        say(f"live view: {server.url} (open it in a browser on this machine)")
-        t0 = time.monotonic()
+
+    def run():
         with TrackingSession.from_tracker(options.tracker if tracker is None else tracker,
                                           options, observer=feed) as session:
-            result = session.run()
+            return session.run()
+
+    result, info = _served(feed, view, run, say)
+    return replace(result, session={**result.session, "view": info})
+
+
+def _served(feed, view: ViewOptions, run, say, panels=None):
+    """``run()`` while a :class:`ViewProcess` serves ``feed`` (its address said first): its
+    result and the view's summary (page, pages opened, updates pushed and their rate)."""
+    from ._process import ViewProcess
+
+    with ViewProcess(feed, port=view.view_port, rate_hz=view.view_rate,
+                     panels=panels) as server:
+        say(f"live view: {server.url} (open it in a browser on this machine)")
+        t0 = time.monotonic()
+        result = run()
         seconds = time.monotonic() - t0
         stats = server.stats()
         n = stats["updates_pushed"]
         info = {"url": server.url, "pages_opened": stats["pages_opened"],
                 "updates_pushed": n,
                 "updates_per_s": n / seconds if n is not None and seconds > 0 else None}
-    return replace(result, session={**result.session, "view": info})
+    return result, info
+
+
+def collect_with_view(options, view: ViewOptions, *, progress=None,
+                      handle_signals: bool = False):
+    """``openemt collect`` with the live view: :func:`openemt.collect.collect` of ``options``
+    (a :class:`~openemt.collect.CollectOptions`) handing its raw chunks and its state after
+    every analysis to a :class:`LiveFeed` served by a :class:`ViewProcess` (the collect panel,
+    the carriers and the spectra) while it runs; its
+    :class:`~openemt.collect.CollectResult` with ``view`` (page, pages opened, updates pushed
+    and their rate)."""
+    from ..collect import collect
+    from ._feed import LiveFeed
+    from ._page import COLLECT_PANELS
+
+    view.check()
+    options.check()
+    feed = LiveFeed()
+    feed.source = f"collect --source {options.source}"
+    result, info = _served(
+        feed, view, lambda: collect(options, progress=progress, handle_signals=handle_signals,
+                                    observer=feed),
+        lambda text: None if progress is None else print(text, file=progress, flush=True),
+        panels=COLLECT_PANELS)
+    return replace(result, view=info)
 
 
 def view_recording(options: ViewRecordingOptions, *, stop=None, say=None) -> ViewResult:
