@@ -5,63 +5,18 @@ streams averaged over the dwells where both are static, the pairing checked, and
 written for ``openemt calibrate --mode reference`` (docs/reference-calibration.md#collecting).
 """
 
-from ._collector import (
-    MIN_CONFIDENCE,
-    MIN_CORRELATION,
-    MIN_OVERLAP_S,
-    OFFSET_WINDOW_S,
-    Collector,
-)
-from ._gate import MAX_STEP_S, ROTATION_TOL, Drops, TimeGate, rigid_rows
-from ._pairing import MAX_ANGLE_DIFF_DEG, MIN_RANK_CORRELATION, SCALE_RANGE, check_pairing
-from ._refcsv import MAX_MEDIAN_STEP_S, ReferenceTable, read_reference_csv
-from ._reference import (
-    DwellMotion,
-    ReferenceClient,
-    SimulatedReferenceServer,
-    parse_reference_url,
-    parse_transform_body,
-    simulated_motion,
-)
-from ._workflow import (
-    SIM_CLOCK_OFFSET_S,
-    SIM_LATENCY_S,
-    SIM_RATE_HZ,
-    CollectOptions,
-    CollectResult,
-    collect,
-    spare_poses,
-)
+from .._lazy import lazy_exports
 
-__all__ = [
-    "MAX_ANGLE_DIFF_DEG",
-    "MAX_MEDIAN_STEP_S",
-    "MAX_STEP_S",
-    "MIN_CONFIDENCE",
-    "MIN_CORRELATION",
-    "MIN_OVERLAP_S",
-    "MIN_RANK_CORRELATION",
-    "OFFSET_WINDOW_S",
-    "ROTATION_TOL",
-    "SCALE_RANGE",
-    "SIM_CLOCK_OFFSET_S",
-    "SIM_LATENCY_S",
-    "SIM_RATE_HZ",
-    "CollectOptions",
-    "CollectResult",
-    "Collector",
-    "Drops",
-    "DwellMotion",
-    "ReferenceClient",
-    "ReferenceTable",
-    "SimulatedReferenceServer",
-    "TimeGate",
-    "check_pairing",
-    "collect",
-    "parse_reference_url",
-    "parse_transform_body",
-    "read_reference_csv",
-    "rigid_rows",
-    "simulated_motion",
-    "spare_poses",
-]
+#: where each public name lives; a module is imported on first use of one of its names
+_SOURCES = {
+    "._collector": ("MIN_CONFIDENCE", "MIN_CORRELATION", "MIN_OVERLAP_S", "OFFSET_WINDOW_S",
+                    "Collector"),
+    "._gate": ("MAX_STEP_S", "ROTATION_TOL", "Drops", "TimeGate", "rigid_rows"),
+    "._pairing": ("MAX_ANGLE_DIFF_DEG", "MIN_RANK_CORRELATION", "SCALE_RANGE", "check_pairing"),
+    "._refcsv": ("MAX_MEDIAN_STEP_S", "ReferenceTable", "read_reference_csv"),
+    "._reference": ("DwellMotion", "ReferenceClient", "SimulatedReferenceServer",
+                    "parse_reference_url", "parse_transform_body", "simulated_motion"),
+    "._workflow": ("SIM_CLOCK_OFFSET_S", "SIM_LATENCY_S", "SIM_RATE_HZ", "CollectOptions",
+                   "CollectResult", "collect", "spare_poses"),
+}
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)

@@ -9,19 +9,14 @@ coverage) and :func:`view_recording` ``openemt view`` (a session log replayed, o
 recording tracked again, into the view).
 """
 
-from ._feed import LiveFeed, carrier_levels, collect_panel, coupling_snr_db, spectrum_db
-from ._process import ViewProcess
-from ._server import ViewServer
-from ._workflow import (
-    ViewOptions,
-    ViewRecordingOptions,
-    ViewResult,
-    collect_with_view,
-    replay_log,
-    track_with_view,
-    view_recording,
-)
+from .._lazy import lazy_exports
 
-__all__ = ["LiveFeed", "ViewOptions", "ViewRecordingOptions", "ViewProcess", "ViewResult", "ViewServer",
-           "carrier_levels", "collect_panel", "collect_with_view", "coupling_snr_db",
-           "replay_log", "spectrum_db", "track_with_view", "view_recording"]
+#: where each public name lives; a module is imported on first use of one of its names
+_SOURCES = {
+    "._feed": ("LiveFeed", "carrier_levels", "collect_panel", "coupling_snr_db", "spectrum_db"),
+    "._process": ("ViewProcess",),
+    "._server": ("ViewServer",),
+    "._workflow": ("ViewOptions", "ViewRecordingOptions", "ViewResult", "collect_with_view",
+                   "replay_log", "track_with_view", "view_recording"),
+}
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)
