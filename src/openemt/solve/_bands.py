@@ -387,9 +387,9 @@ class BandReader:
 
     def _open(self):
         if self._file is None:
-            import h5py
+            from ..io._h5safe import open_h5
 
-            self._file = h5py.File(self.path, "r")
+            self._file = open_h5(self.path, "an openemt dataset HDF5 file")
             if band_dataset_shape(self._file) is None:
                 self._file.close()
                 self._file = None
