@@ -19,9 +19,17 @@ def test_models_declare_their_solver_family_and_cold_start():
     board = BoardModel.from_board("anser")
     six = nominal_calibration("anser-6dof").model
     octu = OctupoleModel(dip, np.full(3, 1e-5), np.zeros(3))
-    assert [solver_family(m) for m in (dip, octu, board, six)] == \
-        ["dipole", "dipole-refined", "planar", "board"]
-    assert set(SOLVER_FAMILIES) == {"dipole", "dipole-refined", "planar", "board", "model"}
+    from openemt.field import EnvironmentModel, EnvironmentTerms
+
+    # a board with environment terms: its compiled 5-DOF solver, then a refinement under the
+    # whole model
+    env_board = EnvironmentModel(board, EnvironmentTerms(np.zeros((0, 3)),
+                                                         np.zeros((0, board.n_source, 3)),
+                                                         gain_beta=np.zeros(board.n_sensor)))
+    assert [solver_family(m) for m in (dip, octu, board, six, env_board)] == \
+        ["dipole", "dipole-refined", "planar", "board", "planar-refined"]
+    assert set(SOLVER_FAMILIES) == {"dipole", "dipole-refined", "planar", "planar-refined",
+                                    "board", "model"}
     assert solver_family(object()) == "model"                 # undeclared: the generic LM
     # the prepared solver says how a sample with no prior pose starts (the live pipeline's
     # first sample): the model's own cold start, or the dipole LM's concentric start
