@@ -75,3 +75,21 @@ def test_calibration_holds_its_octupole_model():
     assert isinstance(full, OctupoleModel) and full is imp.coupling_model   # one object
     np.testing.assert_array_equal(full.k_so, rig["octupole_k_so"])
     assert solver_family(full) == "dipole-refined"
+
+
+def test_no_isinstance_dipole_model_outside_field_and_the_registry():
+    """The model protocol does the dispatch: outside openemt.field and the solver registry no
+    code asks whether a model is a DipoleModel (it asks the model: ``kind``,
+    ``solver_family``)."""
+    import pathlib
+    import re
+
+    import openemt
+
+    src = pathlib.Path(openemt.__file__).parent
+    found = [f"{p.relative_to(src)}:{i}"
+             for p in src.rglob("*.py")
+             if p.parent.name != "field" and p.relative_to(src).as_posix() != "solve/_factory.py"
+             for i, line in enumerate(p.read_text().splitlines(), 1)
+             if re.search(r"isinstance\([^)]*\bDipoleModel\b", line)]
+    assert found == []

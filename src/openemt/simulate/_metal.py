@@ -193,7 +193,6 @@ class _Coils:
 
     def __init__(self, model):
         from ..board import BoardModel
-        from ..field import DipoleModel
 
         self.model = model
         if isinstance(model, BoardModel):
@@ -204,7 +203,7 @@ class _Coils:
             self.centres = np.stack([c.center for c in model.board.coils]) + model.offsets
             self.n_source = model.n_source
         else:
-            if not isinstance(model, DipoleModel):
+            if getattr(model, "kind", None) != "dipole":     # the model says what it is
                 if not hasattr(model, "dipole_equivalent"):
                     raise InputError(f"expected a dipole model, a board model or a model with "
                                      f"a dipole equivalent for a metal scene, got "
