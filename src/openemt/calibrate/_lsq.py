@@ -31,7 +31,8 @@ def _compressed(r: np.ndarray, J: np.ndarray, free: np.ndarray
     s = np.sqrt(np.diag(G))
     s[s == 0.0] = 1.0
     try:
-        R = np.linalg.cholesky(G / np.outer(s, s), upper=True) * s
+        # the upper factor as the lower one transposed (numpy < 2 has no `upper`)
+        R = np.linalg.cholesky(G / np.outer(s, s)).T * s
     except np.linalg.LinAlgError:
         R = np.linalg.qr(A[:m], mode="r")
     return R[:, n].copy(), R[:, :n].copy()
