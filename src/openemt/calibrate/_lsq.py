@@ -31,11 +31,19 @@ def _compressed(r: np.ndarray, J: np.ndarray, free: np.ndarray
     s = np.sqrt(np.diag(G))
     s[s == 0.0] = 1.0
     try:
-        # the upper factor as the lower one transposed (numpy < 2 has no `upper`)
-        R = np.linalg.cholesky(G / np.outer(s, s)).T * s
+        R = _upper_cholesky(G / np.outer(s, s)) * s
     except np.linalg.LinAlgError:
         R = np.linalg.qr(A[:m], mode="r")
     return R[:, n].copy(), R[:, :n].copy()
+
+
+def _upper_cholesky(A):
+    """The upper Cholesky factor ``R`` (``R^T R = A``): numpy's own where it has one (numpy >= 2),
+    else the lower factor transposed (numpy 1.26, the declared minimum)."""
+    try:
+        return np.linalg.cholesky(A, upper=True)
+    except TypeError:
+        return np.linalg.cholesky(A).T
 
 
 def fit_free_parameters(prob, x0: np.ndarray, free: np.ndarray, *, tol: float, max_nfev,
