@@ -14,7 +14,6 @@ the state carried, equal the whole stream's. Anything else is a finding.
 from __future__ import annotations
 
 import random
-import time
 
 import numpy as np
 
@@ -83,39 +82,15 @@ def _check(method, f, B, tc, rate, cuts) -> tuple[str, str]:
 
 def fuzz_bands(n: int, seed: int = 0, *, time_limit: float = 30.0, progress=None) -> dict:
     """Run ``n`` generated cases; the counts, findings and up to 20 examples."""
-    from openemt._errors import InputError
+    from ._fuzzcases import run_checks
 
-    rng = random.Random(seed)
-    counts = {"refused": 0, "evaluated": 0, "findings": 0}
-    examples: list = []
-    slowest = 0.0
-    for _ in range(int(n)):
-        case = _case(rng)
-        t0 = time.perf_counter()
-        try:
-            with np.errstate(all="ignore"):
-                kind, message = _check(*case)
-            if kind == "held":
-                counts["evaluated"] += 1
-        except InputError as exc:
-            text = str(exc)
-            kind, message = ("vague", text) if "expected" not in text or "\n" in text \
-                else ("held", "")
-            if kind == "held":
-                counts["refused"] += 1
-        except Exception as exc:  # noqa: BLE001 - every other exception is a finding
-            kind, message = "crash", f"{type(exc).__name__}: {exc}"
-        dt = time.perf_counter() - t0
-        slowest = max(slowest, dt)
-        if dt > time_limit and kind == "held":
-            kind, message = "hang", f"{dt:.1f} s"
-        if kind != "held":
-            counts["findings"] += 1
-            counts[kind] = counts.get(kind, 0) + 1
-            if len(examples) < 20:
-                m, f, B, tc, rate, cuts = case
-                examples.append({"outcome": kind, "case": f"{m} f{f.shape} B{B.shape} "
-                                 f"tc={tc} rate={rate} cuts={cuts}", "message": message[:200]})
-        if progress is not None:
-            progress(1)
-    return {"cases": int(n), **counts, "slowest_s": round(slowest, 3), "examples": examples}
+    def check(case):
+        with np.errstate(all="ignore"):
+            return _check(*case)
+
+    def describe(case):
+        m, f, B, tc, rate, cuts = case
+        return {"case": f"{m} f{f.shape} B{B.shape} tc={tc} rate={rate} cuts={cuts}"}
+
+    return run_checks(n, seed, _case, check, describe, time_limit=time_limit,
+                      progress=progress)

@@ -38,6 +38,7 @@ import numpy as np
 from openemt._errors import InputError
 
 __all__ = ["CLI_COMMANDS", "OUTCOMES", "TARGETS", "CaseRunner", "Outcome", "mutate_bytes",
+           "run_checks",
            "mutate_json", "prepare_targets", "run_case", "run_cli_case"]
 
 OUTCOMES = ("ok", "rejected", "vague", "garbage", "crash", "hang")
@@ -587,3 +588,44 @@ def _serve(conn, workdir, time_limit):  # pragma: no cover - runs in the child p
         else:
             outcome = run_case(targets[name], content, workdir / "case", time_limit=time_limit)
         conn.send(outcome)
+
+
+def run_checks(n: int, seed: int, make, check, describe, *, time_limit: float,
+               progress=None) -> dict:
+    """Run ``n`` in-process cases: ``make(rng)`` builds one, ``check(case)`` returns
+    ``(kind, message)`` (``"held"`` where the result is sound, else the finding's kind). A
+    one-line ``expected ...`` InputError is a refusal that holds, any other a ``vague``
+    finding, any other exception a ``crash``, a held case slower than ``time_limit`` a
+    ``hang``. Returns the counts, the slowest case and up to 20 examples (``describe(case)``:
+    the example's fields)."""
+    rng = random.Random(seed)
+    counts = {"refused": 0, "evaluated": 0, "findings": 0}
+    examples: list = []
+    slowest = 0.0
+    for _ in range(int(n)):
+        case = make(rng)
+        t0 = time.perf_counter()
+        try:
+            kind, message = check(case)
+            if kind == "held":
+                counts["evaluated"] += 1
+        except InputError as exc:
+            text = str(exc)
+            kind, message = ("vague", text) if "expected" not in text or "\n" in text \
+                else ("held", "")
+            if kind == "held":
+                counts["refused"] += 1
+        except Exception as exc:  # noqa: BLE001 - every other exception is a finding
+            kind, message = "crash", f"{type(exc).__name__}: {exc}"
+        dt = time.perf_counter() - t0
+        slowest = max(slowest, dt)
+        if dt > time_limit and kind == "held":
+            kind, message = "hang", f"{dt:.1f} s"
+        if kind != "held":
+            counts["findings"] += 1
+            counts[kind] = counts.get(kind, 0) + 1
+            if len(examples) < 20:
+                examples.append({"outcome": kind, **describe(case), "message": message[:200]})
+        if progress is not None:
+            progress(1)
+    return {"cases": int(n), **counts, "slowest_s": round(slowest, 3), "examples": examples}

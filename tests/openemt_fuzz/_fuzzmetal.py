@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import random
-import time
 
 import numpy as np
 
@@ -78,50 +77,29 @@ def _object(rng: random.Random) -> dict:
 
 def fuzz_metal(n: int, seed: int = 0, *, time_limit: float = 30.0, progress=None) -> dict:
     """Run ``n`` generated scenes; the counts, findings and up to 20 examples."""
-    from openemt._errors import InputError
     from openemt.field import DipoleModel
     from openemt.geometry import pose_from_vector
     from openemt.simulate import MetalScene
 
-    rng = random.Random(seed)
+    from ._fuzzcases import run_checks
+
     model = DipoleModel.concentric()
-    counts = {"refused": 0, "evaluated": 0, "findings": 0}
-    examples: list = []
-    slowest = 0.0
-    for _ in range(int(n)):
+
+    def make(rng):
         table = {"object": [_object(rng) for _ in range(rng.randint(0, 3))]}
         vec = np.array([[rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3),
                          rng.uniform(0.05, 0.4)] + [rng.uniform(-3, 3) for _ in range(3)]
                         for _ in range(4)])
-        freqs = [_num(rng, 1.0, 1e6) for _ in range(3)]
-        t0 = time.perf_counter()
-        kind, message = "held", ""
-        try:
-            scene = MetalScene.from_dict(table)
-            dC = scene.induced_couplings(model, pose_from_vector(vec), freqs,
-                                         t=np.linspace(0, 5, 4))
-            if dC.shape != (4, 3, 3) or not np.all(np.isfinite(dC)):
-                kind, message = "garbage", f"shape {dC.shape}, finite {np.isfinite(dC).all()}"
-            else:
-                counts["evaluated"] += 1
-        except InputError as exc:
-            text = str(exc)
-            if "expected" not in text or "\n" in text:
-                kind, message = "vague", text
-            else:
-                counts["refused"] += 1
-        except Exception as exc:  # noqa: BLE001 - every other exception is a finding
-            kind, message = "crash", f"{type(exc).__name__}: {exc}"
-        dt = time.perf_counter() - t0
-        slowest = max(slowest, dt)
-        if dt > time_limit and kind == "held":
-            kind, message = "hang", f"{dt:.1f} s"
-        if kind != "held":
-            counts["findings"] += 1
-            counts[kind] = counts.get(kind, 0) + 1
-            if len(examples) < 20:
-                examples.append({"outcome": kind, "scene": repr(table)[:300],
-                                 "message": message[:200]})
-        if progress is not None:
-            progress(1)
-    return {"cases": int(n), **counts, "slowest_s": round(slowest, 3), "examples": examples}
+        return table, vec, [_num(rng, 1.0, 1e6) for _ in range(3)]
+
+    def check(case):
+        table, vec, freqs = case
+        scene = MetalScene.from_dict(table)
+        dC = scene.induced_couplings(model, pose_from_vector(vec), freqs,
+                                     t=np.linspace(0, 5, 4))
+        if dC.shape != (4, 3, 3) or not np.all(np.isfinite(dC)):
+            return "garbage", f"shape {dC.shape}, finite {np.isfinite(dC).all()}"
+        return "held", ""
+
+    return run_checks(n, seed, make, check, lambda case: {"scene": repr(case[0])[:300]},
+                      time_limit=time_limit, progress=progress)
