@@ -221,6 +221,7 @@ def _witness_poses(lo, hi, n):
 
 def _scene(name, args, model, rng) -> dict:
     from ..live import distortion_level
+    from ..signal import distortion_ratio
     from ..simulate import metal_scene, rig_volume
     from ..solve import BandStage, cole_cole_couplings
 
@@ -254,7 +255,7 @@ def _scene(name, args, model, rng) -> dict:
         poses = np.concatenate([_solve(m, fast[i:i + 1]).poses for i, m in enumerate(models)])
         out["methods"]["witness"] = _summary(_errors(poses, Pte))
         out["witnesses"] = len(Pw)
-    q = np.linalg.norm(fast.imag, axis=(1, 2)) / np.linalg.norm(fast, axis=(1, 2))
+    q = distortion_ratio(fast)
     f = np.array([FAST_HZ, SLOW_HZ])
     # the eddy part taken out of the samples whose quadrature flags them (threshold 1e-3,
     # the tracker's default): a clean sample keeps its fast band

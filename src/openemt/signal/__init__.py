@@ -4,8 +4,8 @@ from .._lazy import lazy_exports
 
 #: where each public name lives; a module is imported on first use of one of its names
 _SOURCES = {
-    "._demod": ("Demodulated", "Demodulator", "demodulate", "frame_length", "frame_window",
-                "phase_calibration"),
+    "._demod": ("Demodulated", "Demodulator", "demodulate", "distortion_ratio", "frame_length",
+                "frame_window", "phase_calibration"),
     "._rawsim": ("ILEMT_FREQUENCIES", "RAW_FORMAT", "ChannelLayout", "RawSignal", "RawSignalConfig",
                  "RawSimulator", "eddy_factor", "read_raw", "simulate_raw", "write_raw"),
 }

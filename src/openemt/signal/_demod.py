@@ -78,10 +78,18 @@ class Demodulated:
         return self.couplings.imag
 
     def distortion_ratio(self) -> np.ndarray:
-        """``||Im C||_F / ||C||_F`` per sample, shape ``(N,)``."""
-        num = np.sqrt(np.sum(self.couplings.imag ** 2, axis=(1, 2)))
-        den = np.sqrt(np.sum(np.abs(self.couplings) ** 2, axis=(1, 2)))
-        return num / np.where(den > 0, den, np.inf)
+        """``||Im C||_F / ||C||_F`` per sample, shape ``(N,)`` (:func:`distortion_ratio`)."""
+        return distortion_ratio(self.couplings)
+
+
+def distortion_ratio(C) -> np.ndarray:
+    """The quadrature ratio ``||Im C||_F / ||C||_F`` of each sample of complex couplings
+    ``(N, n_source, n_sensor)``, shape ``(N,)`` (0 for an all-zero sample): the eddy-current
+    (metal) indicator."""
+    C = np.asarray(C)
+    num = np.sqrt(np.sum(C.imag ** 2, axis=(1, 2)))
+    den = np.sqrt(np.sum(np.abs(C) ** 2, axis=(1, 2)))
+    return num / np.where(den > 0, den, np.inf)
 
 
 def frame_length(layout: ChannelLayout, output_rate: float = OUTPUT_RATE_HZ,

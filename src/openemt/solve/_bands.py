@@ -330,11 +330,11 @@ class BandStage:
             return fuse_bands(self._real(B[:, self.fast]), self._real(B[:, self.slow]),
                               time_constant=self.time_constant, rate=self.rate, state=state,
                               return_state=True)
+        from ..signal import distortion_ratio
+
         fast = B[:, self.fast]
         out = self._real(fast)
-        q = np.sqrt((fast.imag ** 2).sum(axis=(1, 2)) / np.maximum(
-            (np.abs(fast) ** 2).sum(axis=(1, 2)), np.finfo(float).tiny))
-        hit = q > self.quadrature_threshold
+        hit = distortion_ratio(fast) > self.quadrature_threshold
         if hit.any():
             out = out.copy()
             out[hit] = eddy_free_couplings(B[hit], self.frequencies, slow=self.slow,
