@@ -449,26 +449,6 @@ class _Reader:
                 raise InputError(f"{self.where}: expected key `{full}` ({kind}), got it missing")
             return default
         v = table[key]
-        if kind == "number":
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise self.fail(full, "a number", _show(v))
-            return float(v)
-        if kind == "integer":
-            if isinstance(v, bool) or not isinstance(v, int):
-                raise self.fail(full, "an integer", _show(v))
-            return int(v)
-        if kind == "string":
-            if not isinstance(v, str):
-                raise self.fail(full, "a string", _show(v))
-            return v
-        if kind == "boolean":
-            if not isinstance(v, bool):
-                raise self.fail(full, "true or false", _show(v))
-            return v
-        if kind == "table":
-            if not isinstance(v, dict):
-                raise self.fail(full, "a table", _show(v))
-            return v
         if kind.startswith("list of "):
             item = kind[len("list of "):]
             if not isinstance(v, list) or not v:
@@ -476,23 +456,34 @@ class _Reader:
             if len(v) > MAX_LIST_ITEMS:
                 raise self.fail(full, f"a list of at most {MAX_LIST_ITEMS} {item}",
                                 f"{len(v)} items")
-            return [self._item(full, x, item) for x in v]
-        raise AssertionError(kind)  # pragma: no cover
+            return [self._typed(x, _ITEMS[item], full, f"a list of {item}", f"an item {_show(x)}")
+                    for x in v]
+        return self._typed(v, kind, full, _KINDS[kind][1], _show(v))
 
-    def _item(self, full, x, item):
-        if item == "numbers":
-            if isinstance(x, bool) or not isinstance(x, (int, float)):
-                raise self.fail(full, "a list of numbers", f"an item {_show(x)}")
-            return float(x)
-        if item == "integers":
-            if isinstance(x, bool) or not isinstance(x, int):
-                raise self.fail(full, "a list of integers", f"an item {_show(x)}")
-            return int(x)
-        if item == "tables":
-            if not isinstance(x, dict):
-                raise self.fail(full, "a list of tables", f"an item {_show(x)}")
-            return x
-        raise AssertionError(item)  # pragma: no cover
+    def _typed(self, v, kind: str, full: str, expected: str, got: str):
+        """``v`` as ``kind`` (a key of :data:`_KINDS`), else the error naming ``full``."""
+        types, _ = _KINDS[kind]
+        if not isinstance(v, types) or (isinstance(v, bool) and kind != "boolean"):
+            raise self.fail(full, expected, got)
+        return float(v) if kind == "number" else v
+
+    def file(self, value: str, base: Path, key: str, what: str) -> Path:
+        """``value`` as a path, relative to ``base`` (the tracker file's folder) unless
+        absolute, refused unless it names an existing file (``what``: which file)."""
+        path = Path(value)
+        path = path if path.is_absolute() else base / path
+        if not path.is_file():
+            raise self.fail(key, f"{what} (relative to the tracker file)",
+                            f"missing {str(path)!r}")
+        return path
+
+
+#: The value kinds of a tracker file: kind -> (Python types, what it should be); a bool is
+#: no number (TOML's true is no 1); ``list of <items>`` reads a non-empty list of them.
+_KINDS = {"number": ((int, float), "a number"), "integer": (int, "an integer"),
+          "string": (str, "a string"), "boolean": (bool, "true or false"),
+          "table": (dict, "a table")}
+_ITEMS = {"numbers": "number", "integers": "integer", "tables": "table"}
 
 
 def _show(v) -> str:
@@ -667,14 +658,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
             raise r.fail(f"{pre}.device_name", "a device name no other sensor uses",
                          repr(device))
         cal = r.get(t, pre, "calibration", "string", None)
-        cal_path = None
-        if cal is not None:
-            cal_path = Path(cal)
-            if not cal_path.is_absolute():
-                cal_path = base / cal_path
-            if not cal_path.is_file():
-                raise r.fail(f"{pre}.calibration", "an existing calibration file (relative to "
-                             "the tracker file)", f"missing {str(cal_path)!r}")
+        cal_path = None if cal is None else r.file(cal, base, f"{pre}.calibration",
+                                                   "an existing calibration file")
         hemi = r.get(t, pre, "hemisphere", "string", "+x")
         if hemi not in ("+x", "-x", "+y", "-y", "+z", "-z"):
             raise r.fail(f"{pre}.hemisphere", "one of +x, -x, +y, -y, +z, -z", repr(hemi))
@@ -686,11 +671,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
         if tip is not None:
             from ..navigate import read_tip_transform
 
-            tip_path = Path(tip) if Path(tip).is_absolute() else base / tip
-            if not tip_path.is_file():
-                raise r.fail(f"{pre}.tip", "an existing pivot calibration file from 'openemt "
-                             "pivot' (relative to the tracker file)", f"missing {str(tip_path)!r}")
-            tip = read_tip_transform(tip_path)
+            tip = read_tip_transform(r.file(tip, base, f"{pre}.tip", "an existing pivot "
+                                            "calibration file from 'openemt pivot'"))
         sensors.append(SensorSpec(name=name, channels=tuple(chans), calibration=cal_path,
                                   device_name=device, hemisphere=hemi,
                                   simulation_offset=tuple(off), tip=tip,
@@ -791,13 +773,8 @@ def tracker_from_dict(doc: dict, path=None) -> TrackerSpec:
     _unknown_keys(r, nav, "navigation", ("registration",))
     registration = r.get(nav, "navigation", "registration", "string", None)
     if registration is not None:
-        registration = Path(registration)
-        if not registration.is_absolute():
-            registration = base / registration
-        if not registration.is_file():
-            raise r.fail("navigation.registration", "an existing registration file from "
-                         "'openemt register -o' (relative to the tracker file)",
-                         f"missing {str(registration)!r}")
+        registration = r.file(registration, base, "navigation.registration", "an existing "
+                              "registration file from 'openemt register -o'")
 
     spec = TrackerSpec(sample_rate=fs, n_channels=n_ch, frequencies=tuple(freqs),
                        reference_channels=tuple(refs), sensors=tuple(sensors),
