@@ -66,13 +66,23 @@ def _witness_estimator(models, poses):
         return None
 
 
-def _distortion_level(quadrature, relative_residual, threshold, witness_m=None
-                      ) -> np.ndarray:
-    """The 0-255 level of each sample (:func:`openemt.live.distortion_level` against the
-    quadrature threshold and the solver's validity threshold, as the stream's metadata, and
-    the witnesses' position error where the tracker has witnesses)."""
-    return distortion_level(quadrature, relative_residual, threshold, MAX_RELATIVE_RESIDUAL,
-                            witness_m=witness_m)
+def _transform(value, name: str):
+    """``value`` as a finite (4, 4) float64 array, or None for None."""
+    if value is None:
+        return None
+    T = np.asarray(value, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(f"expected a finite (4, 4) `{name}`, got shape {T.shape}")
+    return T
+
+
+def _status_name(code) -> str:
+    """The :class:`~openemt.solve.Status` name of ``code`` (a custom solver's own code as
+    its number)."""
+    try:
+        return Status(int(code)).name
+    except ValueError:  # pragma: no cover - a custom solver's own code
+        return str(int(code))
 
 
 def _level_summary(counts) -> dict:
@@ -121,12 +131,6 @@ def _serial_threads():
         yield
     finally:
         numba.set_num_threads(before)
-
-
-def _serial(fn, *args):
-    """Call ``fn`` inside :func:`_serial_threads`."""
-    with _serial_threads():
-        return fn(*args)
 
 
 @dataclass(frozen=True, eq=False)
@@ -356,13 +360,7 @@ class _SensorState:
         self.cold_start = (getattr(setup.model, "cold_start", "kim18") if setup.solver is None
                            else "kim18")
         self.set_columns(setup.columns)
-        corr = setup.correction
-        if corr is not None:
-            L = np.asarray(corr, dtype=np.float64)
-            if L.shape != (4, 4) or not np.all(np.isfinite(L)):
-                raise InputError(f"expected a finite (4, 4) `correction`, got shape {L.shape}")
-            corr = L
-        self.correction = corr
+        self.correction = _transform(setup.correction, "correction")
         self.tip = None if setup.tip is None else np.asarray(setup.tip, dtype=np.float64)
         f = setup.filter
         self.filter = f if f is not None and getattr(f, "enabled", False) else None
@@ -585,8 +583,6 @@ class TrackingPipeline:
         w = n_se // len(self.sensors)
         self._blocks = len(self.sensors) > 1 and w * len(self.sensors) == n_se and all(
             st.columns == list(range(i * w, (i + 1) * w)) for i, st in enumerate(self.sensors))
-        self.solver = self.sensors[0].solver
-        self.correction = self.sensors[0].correction
         self.demod = Demodulator(backend.layout, output_rate=cfg.output_rate,
                                  window=cfg.window, phase=cfg.phase)
         self.distortion_threshold = check_nonnegative(cfg.distortion_threshold,
@@ -613,13 +609,7 @@ class TrackingPipeline:
         self.tdata = bool(cfg.tdata)
         self.tdata_device = cfg.tdata_device
         self.igtl_metadata = bool(cfg.igtl_metadata) and _takes_metadata(igtl)
-        self.registration = None
-        if cfg.registration is not None:
-            T = np.asarray(cfg.registration, dtype=np.float64)
-            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-                raise InputError(f"expected a finite (4, 4) `registration`, got shape "
-                                 f"{T.shape}")
-            self.registration = T
+        self.registration = _transform(cfg.registration, "registration")
         self.reference = None
         reference = cfg.reference
         if reference is not None:
@@ -875,7 +865,10 @@ class TrackingPipeline:
             oks.append(ok)
             # valid = sent: converged, and not distorted unless distorted samples are sent
             valids.append(ok & ~flag if not self.send_distorted and flag.any() else ok)
-            level = _distortion_level(ratio, rel, self.distortion_threshold, witness_m)
+            # against the quadrature threshold and the solver's validity threshold (as the
+            # stream's metadata) and the witnesses' position error where there are witnesses
+            level = distortion_level(ratio, rel, self.distortion_threshold,
+                                     MAX_RELATIVE_RESIDUAL, witness_m=witness_m)
             st.add_levels(level)
             steps.append(TrackStep(d.times, couplings, poses, vecs, status, resid, ratio, flag,
                                    t_ready, rel, tool, level, stamps, latency))
@@ -1006,43 +999,29 @@ class TrackingPipeline:
             if count:
                 self.igtl.send_packed(data, count, t_ready)
             return
-        if len(streams) == 1:                   # one stream: its arrays as they are
-            device, poses, pick, distorted, relative, distortion, level = streams[0]
-            if not pick.all():
-                poses, stamps = poses[pick], stamps[pick]
-                distorted, relative, distortion, level = distorted[pick], relative[pick], \
-                    distortion[pick], level[pick]
-            if not len(poses):
-                return
-            kw = {}
-            if self.igtl_metadata:
-                kw["metadata"] = transform_metadata(
-                    distorted, relative, distortion,
-                    distortion_threshold=self.distortion_threshold, level=level)
-            self.igtl.send_poses(poses, stamps, t_ready=t_ready, device_name=device, **kw)
-            return
         # every stream's poses in one call (one packing pass, one write per client): the
         # samples of the first stream, then those of the next, ...
         if all(s[2].all() for s in streams):
             sel = [slice(None)] * len(streams)
         else:
             sel = [s[2] for s in streams]
-        poses = np.concatenate([s[1][k] for s, k in zip(streams, sel)])
+
+        def joined(j):                          # field j of every stream's picked samples
+            return np.concatenate([s[j][k] for s, k in zip(streams, sel)])
+
+        poses = joined(1)
         if not len(poses):
             return
-        devices = [d for s, k in zip(streams, sel)
-                   for d in [s[0]] * (n if isinstance(k, slice) else int(k.sum()))]
-        meta = None
+        devices = streams[0][0] if len(streams) == 1 else [
+            d for s, k in zip(streams, sel)
+            for d in [s[0]] * (n if isinstance(k, slice) else int(k.sum()))]
+        kw = {}
         if self.igtl_metadata:
-            distorted = np.concatenate([s[3][k] for s, k in zip(streams, sel)])
-            meta = transform_metadata(
-                distorted, np.concatenate([s[4][k] for s, k in zip(streams, sel)]),
-                np.concatenate([s[5][k] for s, k in zip(streams, sel)]),
-                distortion_threshold=self.distortion_threshold,
-                level=np.concatenate([s[6][k] for s, k in zip(streams, sel)]))
-        kw = {} if meta is None else {"metadata": meta}
+            kw["metadata"] = transform_metadata(
+                joined(3), joined(4), joined(5), distortion_threshold=self.distortion_threshold,
+                level=joined(6))
         self.igtl.send_poses(poses, np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
-                             device_name=devices[0] if len(streams) == 1 else devices, **kw)
+                             device_name=devices, **kw)
 
     def _watch(self, st: _SensorState, step: TrackStep, valid, now: float, stamp) -> None:
         """Update the stream state of ``st`` after a chunk (see the class docstring) and
@@ -1074,11 +1053,7 @@ class TrackingPipeline:
             if st.bad_since is None:
                 st.bad_since = now
             if new == "LOST":
-                try:
-                    name = Status(int(step.status[-1])).name
-                except ValueError:  # pragma: no cover - a custom solver's own code
-                    name = str(int(step.status[-1]))
-                detail = f": status {name}"
+                detail = f": status {_status_name(step.status[-1])}"
             elif new == "DISTORTED":
                 detail = (f": quadrature {float(step.distortion[-1]):.2e} > "
                           f"{self.distortion_threshold:.2e}")
@@ -1099,12 +1074,8 @@ class TrackingPipeline:
     def _send_status(self, device, code, distorted, ratio, timestamp):
         import pyigtl
 
-        try:
-            name = Status(code).name
-        except ValueError:  # pragma: no cover - a custom solver's own code
-            name = str(code)
         self.igtl.send_message(pyigtl.StringMessage(
-            f"{name} distorted={int(distorted)} quadrature={ratio:.2e}", timestamp=timestamp,
+            f"{_status_name(code)} distorted={int(distorted)} quadrature={ratio:.2e}", timestamp=timestamp,
             device_name=status_device_name(device)))
 
     def _account(self, st: _SensorState, step: TrackStep, ok):
@@ -1216,8 +1187,7 @@ class TrackingPipeline:
                "distorted_fraction": (st.n_distorted / n) if n else 0.0,
                "distortion_level": _level_summary(st.level_counts),
                "not_sent_distorted": st.n_not_sent,
-               "device_name": (st.setup.device_name or self.igtl.device_name)
-               if self.igtl is not None else None,
+               "device_name": self._device(st) if self.igtl is not None else None,
                "truth": None, "filter": None, "state": st.state, "events": dict(st.events)}
         if st.err_n:
             out["truth"] = {"position_error_mm_rms": 1e3 * float(np.sqrt(st.err_ss / st.err_n)),
