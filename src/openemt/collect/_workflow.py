@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option as _f
 from .._result import Result
 
 __all__ = ["GIVE_UP_S", "SIM_CLOCK_OFFSET_S", "SIM_LATENCY_S", "SIM_RATE_HZ", "CollectOptions",
@@ -22,10 +23,6 @@ GIVE_UP_S = 60.0
 SIM_RATE_HZ = 250.0
 SIM_LATENCY_S = 0.030
 SIM_CLOCK_OFFSET_S = 0.250
-
-
-def _f(default, help, **meta):
-    return field(default=default, metadata={"help": help, **meta})
 
 
 @dataclass(frozen=True)
@@ -174,32 +171,6 @@ def spare_poses(n_poses: int) -> int:
     return max(5, int(n_poses) // 4)
 
 
-class _Stop:
-    """SIGINT/SIGTERM become a stop request while armed (main thread only)."""
-
-    def __init__(self, enabled: bool):
-        self.enabled, self.signal, self._previous = enabled, None, {}
-
-    def _on(self, signum, frame):
-        self.signal = signum
-
-    def __enter__(self):
-        import signal
-        import threading
-
-        if self.enabled and threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._previous[sig] = signal.signal(sig, self._on)
-        return self
-
-    def __exit__(self, *exc):
-        import signal
-
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        self._previous = {}
-
-
 class _Coverage:
     """Coverage of the kept dwells, each solved once with the tracker's model."""
 
@@ -327,7 +298,9 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
     backend = server = client = follower = None
     stopped = lost = None
     end = "n_poses"
-    with _Stop(handle_signals) as stop:
+    from ..live import StopSignals
+
+    with StopSignals(handle_signals) as stop:
         try:
             if o.follow_reference:
                 from ._follow import Follower

@@ -20,16 +20,13 @@ import numpy as np
 
 from .._constants import SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
+from .._options import option as _opt
 from .._result import Result
 from ..solve import BAND_METHODS
 from ._tracker_file import TrackerSpec
 
-__all__ = ["TrackOptions", "TrackResult", "TrackingSession", "tracker_backend",
+__all__ = ["StopSignals", "TrackOptions", "TrackResult", "TrackingSession", "tracker_backend",
            "tracker_sensors"]
-
-
-def _opt(default, help: str, **meta):
-    return field(default=default, metadata={"help": help, **meta})
 
 
 @dataclass(frozen=True)
@@ -272,21 +269,15 @@ def describe_streams(streams, tdata: bool = False) -> str:
     return f"{kind} " + ", ".join(parts)
 
 
-class _Console:
-    """The session's side of the terminal: SIGTERM/Ctrl-C become a stop request once tracking
-    runs (the chunk in hand is finished and the outputs are closed), and a status line on
-    stderr (carriage-return updated every second on a terminal; a plain line every 5 s
-    otherwise; none when quiet)."""
+class StopSignals:
+    """SIGINT and SIGTERM become a stop request while armed (in the main thread; elsewhere,
+    or when not ``enabled``, arming does nothing): :attr:`signal` is the number of the
+    signal that asked to stop, None before one. A context manager (armed inside)."""
 
-    def __init__(self, quiet: bool):
-        self.quiet = bool(quiet)
-        self.tty = sys.stderr.isatty()
-        self.period = 1.0 if self.tty else 5.0
-        self.signal = None               # the signal number that asked to stop
-        self._previous: dict = {}
-        self._t0 = self._last = None
-        self._n0 = 0
-        self._width = 0
+    def __init__(self, enabled: bool = True):
+        self.enabled = bool(enabled)
+        self.signal = None
+        self._previous: dict = {}        # signal -> the handler it had before
 
     def _on_signal(self, signum, frame):
         self.signal = signum
@@ -295,7 +286,8 @@ class _Console:
         import signal
         import threading
 
-        if self._previous or threading.current_thread() is not threading.main_thread():
+        if (not self.enabled or self._previous
+                or threading.current_thread() is not threading.main_thread()):
             return
         for sig in (signal.SIGINT, signal.SIGTERM):
             self._previous[sig] = signal.signal(sig, self._on_signal)
@@ -306,6 +298,29 @@ class _Console:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
         self._previous = {}
+
+    def __enter__(self):
+        self.arm()
+        return self
+
+    def __exit__(self, *exc):
+        self.disarm()
+
+
+class _Console(StopSignals):
+    """The session's side of the terminal: SIGTERM/Ctrl-C become a stop request once tracking
+    runs (the chunk in hand is finished and the outputs are closed), and a status line on
+    stderr (carriage-return updated every second on a terminal; a plain line every 5 s
+    otherwise; none when quiet)."""
+
+    def __init__(self, quiet: bool):
+        super().__init__()
+        self.quiet = bool(quiet)
+        self.tty = sys.stderr.isatty()
+        self.period = 1.0 if self.tty else 5.0
+        self._t0 = self._last = None
+        self._n0 = 0
+        self._width = 0
 
     def stop(self) -> bool:
         return self.signal is not None
