@@ -173,7 +173,10 @@ class _Run:
 
 
 class FramedBackend(Backend):
-    """Raw samples from a byte stream of frames (subclasses give :meth:`_recv`).
+    """Raw samples from a byte stream of frames. Subclasses give ``_open(timeout)`` (the link:
+    a port or socket; OSError or ValueError when it cannot be opened) and
+    ``_read_link(timeout)`` (the bytes it gives within ``timeout`` s; :meth:`_drop` when it
+    went away); a link that went away is opened again every 0.2 s.
 
     ``read`` returns the samples of one contiguous run, at least ``chunk`` of them when they
     arrive within ``timeout`` (else what arrived, possibly none: a live stream has no end);
@@ -227,8 +230,37 @@ class FramedBackend(Backend):
         self._last_utc = self._last_time = None
 
     # subclasses
-    def _recv(self, timeout: float) -> bytes:  # pragma: no cover - abstract
-        raise NotImplementedError
+    _link = None                    # the open port or socket; None while it is gone
+    _retry = 0.0                    # time.monotonic() of the next try to open it again
+
+    def _recv(self, timeout: float) -> bytes:
+        if self._link is not None:
+            return self._read_link(timeout)
+        now = time.monotonic()                         # gone: try again now and then
+        if now >= self._retry:
+            self._retry = now + 0.2
+            try:
+                self._link = self._open(0.2)
+                self.reconnects += 1
+                return b""
+            except (OSError, ValueError):
+                pass
+        time.sleep(min(timeout, 0.05))
+        return b""
+
+    def _drop(self) -> None:
+        """The link went away: close it and forget the bytes of a torn frame."""
+        try:
+            self._link.close()
+        except OSError:  # pragma: no cover
+            pass
+        self._link = None
+        self.decoder.drop_buffer()
+
+    def close(self) -> None:
+        if self._link is not None:
+            self._link.close()
+            self._link = None
 
     @property
     def t0_epoch(self) -> float:
@@ -351,25 +383,16 @@ class SerialBackend(FramedBackend):
         self.port, self.baud = port, int(baud)
         self.source = f"serial:{port}" + ("" if self.baud == DEFAULT_BAUD else f"@{baud}")
         try:
-            self._ser = _open_serial(port, self.baud)
+            self._link = self._open(0.0)
         except (OSError, ValueError) as exc:
             raise InputError(f"expected a serial port openemt can open at {port}, got "
                              f"{explain_serial_error(port, exc)}") from None
-        self._retry = 0.0
 
-    def _recv(self, timeout: float) -> bytes:
-        s = self._ser
-        if s is None:                                  # gone: try again now and then
-            now = time.monotonic()
-            if now >= self._retry:
-                self._retry = now + 0.2
-                try:
-                    self._ser = _open_serial(self.port, self.baud)
-                    self.reconnects += 1
-                except (OSError, ValueError):
-                    pass
-            time.sleep(min(timeout, 0.05))
-            return b""
+    def _open(self, timeout: float):
+        return _open_serial(self.port, self.baud)
+
+    def _read_link(self, timeout: float) -> bytes:
+        s = self._link
         try:
             if hasattr(s, "fd"):
                 r, _, _ = select.select([s.fd], [], [], timeout)
@@ -378,19 +401,6 @@ class SerialBackend(FramedBackend):
         except OSError:                                # EIO: the other end went away
             self._drop()
             return b""
-
-    def _drop(self) -> None:
-        try:
-            self._ser.close()
-        except OSError:  # pragma: no cover
-            pass
-        self._ser = None
-        self.decoder.drop_buffer()
-
-    def close(self) -> None:
-        if self._ser is not None:
-            self._ser.close()
-            self._ser = None
 
 
 class TcpBackend(FramedBackend):
@@ -403,35 +413,21 @@ class TcpBackend(FramedBackend):
         super().__init__(layout, n_channels, **kw)
         self.host, self.port = host, int(port)
         self.source = f"tcp://{host}:{self.port}"
-        self._sock = None
-        self._retry = 0.0
         try:
-            self._sock = self._connect(connect_timeout)
+            self._link = self._open(connect_timeout)
         except OSError:
             ok, why = probe_tcp(host, port, connect_timeout)
             raise InputError(f"expected an ADC frame stream at tcp://{host}:{port}, got "
                              f"{why}") from None
 
-    def _connect(self, timeout):
+    def _open(self, timeout: float):
         s = socket.create_connection((self.host, self.port), timeout=timeout)
         s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         s.setblocking(False)
         return s
 
-    def _recv(self, timeout: float) -> bytes:
-        s = self._sock
-        if s is None:
-            now = time.monotonic()
-            if now >= self._retry:
-                self._retry = now + 0.2
-                try:
-                    self._sock = self._connect(0.2)
-                    self.reconnects += 1
-                    return b""
-                except OSError:
-                    pass
-            time.sleep(min(timeout, 0.05))
-            return b""
+    def _read_link(self, timeout: float) -> bytes:
+        s = self._link
         r, _, _ = select.select([s], [], [], timeout)
         if not r:
             return b""
@@ -442,12 +438,5 @@ class TcpBackend(FramedBackend):
         except OSError:
             data = b""
         if not data:                                   # closed by the emitter
-            s.close()
-            self._sock = None
-            self.decoder.drop_buffer()
+            self._drop()
         return data
-
-    def close(self) -> None:
-        if self._sock is not None:
-            self._sock.close()
-            self._sock = None
