@@ -376,8 +376,7 @@ def simulated_motion(kind: str = "robot", n_poses: int = 100, *, spare: int = 0,
     the motion is not periodic), each move takes ``move`` seconds with a minimum-jerk profile,
     and the stream adds a per-message noise of ``jitter`` times the stated noise.
     """
-    from ..simulate import get_preset, simulate_reference
-    from ..simulate._reference import _volume
+    from ..simulate import simulate_reference, working_volume
 
     if not 0 < hold[0] <= hold[1] or not move > 0:
         raise InputError(f"expected positive hold times (min <= max) and move time, got "
@@ -394,7 +393,7 @@ def simulated_motion(kind: str = "robot", n_poses: int = 100, *, spare: int = 0,
     rng = np.random.default_rng([0 if seed is None else int(seed), 20])
     h = rng.uniform(hold[0], hold[1], len(P))
     starts = np.concatenate([[0.0], np.cumsum(h[:-1] + move)])
-    lo, hi, _ = _volume(get_preset(preset))
+    lo, hi, _ = working_volume(preset)
     return DwellMotion(poses=P, reported=B, errors=invert(Bt) @ B,
                        X=np.asarray(ds.meta["truth"]["X"]), Y=np.asarray(ds.meta["truth"]["Y"]),
                        hold_starts=starts, hold_ends=starts + h, kind=ref["kind"],

@@ -236,8 +236,7 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
     """
     from ..calibrate import MIN_REFERENCE_POSES
     from ..live import tracker_backend
-    from ..simulate import REFERENCE_KINDS, get_preset
-    from ..simulate._reference import _volume
+    from ..simulate import REFERENCE_KINDS, working_volume
     from ._collector import Collector
     from ._pairing import check_pairing
     from ._refcsv import read_reference_csv
@@ -275,7 +274,7 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
     if o.source == "sim":
         motion = simulated_motion(kind, o.n_poses, spare=spare_poses(o.n_poses), preset=preset,
                                   seed=o.seed, noise_trans=noise_t, noise_rot=noise_r)
-    box = motion.box if motion is not None else np.array(_volume(get_preset(preset))[:2])
+    box = motion.box if motion is not None else np.array(working_volume(preset)[:2])
     hemisphere = setup.hemisphere
     if motion is not None and o.tracker is None:
         hemisphere = motion.hemisphere

@@ -6,12 +6,13 @@ Gaussian per axis.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._options import option
 from .._result import plain
 from ..geometry import pose_from_rt
 
@@ -78,25 +79,18 @@ _LOG_HEADER = "time_s,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,status,residual,distortio
 class MotionOptions:
     """A tracked tool with a tip performing a navigation motion on a simulated tracker."""
 
-    motion: str | None = field(default=None, metadata={
-        "choices": MOTIONS, "help": "instead of the apparatus: a tracked tool with a tip "
-        "performing this motion; -o names the track log (.csv) and its truth is written "
-        "beside it (docs/navigation.md)"})
-    tip_mm: tuple[float, ...] = field(default=(2.0, -1.0, 120.0), metadata={
-        "help": "--motion: the tool tip in the tool frame (mm)"})
-    rate_hz: float = field(default=40.0, metadata={"help": "--motion: pose rate (Hz)"})
-    n_fiducials: int = field(default=6, metadata={"help": "--motion fiducials: points touched"})
-    preset: str = field(default="concentric", metadata={"cli": False})
-    snr_db: float | None = field(default=None, metadata={"cli": False})
-    seed: int = field(default=0, metadata={"cli": False})
-    output: str = field(default="", metadata={"cli": False})
-
-
-def _text(path, text: str) -> None:
-    from .._atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text)
+    motion: str | None = option(None, "instead of the apparatus: a tracked tool with a tip "
+                                "performing this motion; -o names the track log (.csv) and its "
+                                "truth is written beside it (docs/navigation.md)",
+                                choices=MOTIONS)
+    tip_mm: tuple[float, ...] = option((2.0, -1.0, 120.0), "--motion: the tool tip in the tool "
+                                       "frame (mm)")
+    rate_hz: float = option(40.0, "--motion: pose rate (Hz)")
+    n_fiducials: int = option(6, "--motion fiducials: points touched")
+    preset: str = option("concentric", "", cli=False)
+    snr_db: float | None = option(None, "", cli=False)
+    seed: int = option(0, "", cli=False)
+    output: str = option("", "", cli=False)
 
 
 def _path(times, key, values):
@@ -136,11 +130,11 @@ def simulate_tool_session(options: MotionOptions):
 
     from .._atomic import atomic_path
     from .._errors import InputError
-    from ..geometry import ground_truth_poses, pose_from_vector, vector_from_pose
-    from ..simulate import add_noise, get_preset, noise_sigma, stage_pattern, truth_calibration
+    from ..geometry import pose_from_vector, vector_from_pose
+    from ..simulate import add_noise, get_preset, noise_sigma, truth_calibration, working_volume
     from ..solve import solve
     from ._markups import write_markups
-    from ._steps import NavigationRun, _checked
+    from ._steps import NavigationRun, _checked, _text
 
     o = options
     if o.motion not in MOTIONS:
@@ -163,13 +157,9 @@ def simulate_tool_session(options: MotionOptions):
         raise InputError(f"expected --tip-mm as 3 numbers, a tip 10 to 500 mm from the sensor, "
                          f"got {o.tip_mm!r}")
     rng = np.random.default_rng(o.seed)
-    P = ground_truth_poses(p.source_fixture, p.stage_fixture, p.sensor_fixture,
-                           p.source_fixtures[0], stage_pattern("md"), p.sensor_fixtures[0])
-    centre = 0.5 * (P[:, :3, 3].min(axis=0) + P[:, :3, 3].max(axis=0))
-    half = 0.5 * (P[:, :3, 3].max(axis=0) - P[:, :3, 3].min(axis=0))
-    home = Rotation.from_matrix(ground_truth_poses(
-        p.source_fixture, p.stage_fixture, p.sensor_fixture, p.source_fixtures[0],
-        np.zeros((1, 6)), p.sensor_fixtures[0])[0, :3, :3])
+    lo, hi, R0 = working_volume(p)
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    home = Rotation.from_matrix(R0)
     pivot = centre + home.apply(tip)            # the sensor at the centre at home
     truth = {"motion": o.motion, "preset": p.name, "seed": o.seed, "tip_mm": 1e3 * tip,
              "poses_from": "finite-coil couplings at the true poses, noise at snr_db, solved "

@@ -79,11 +79,16 @@ class NavigationRun(Result):
         return {**self.summary, "warnings": list(self.warnings)}
 
 
-def _write_json(path, doc: dict) -> None:
+def _text(path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically."""
     from .._atomic import atomic_path
 
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(json_ready(doc), indent=1) + "\n")
+        Path(tmp).write_text(text)
+
+
+def _write_json(path, doc: dict) -> None:
+    _text(path, json.dumps(json_ready(doc), indent=1) + "\n")
 
 
 def _checked(output, *inputs):

@@ -21,7 +21,7 @@ _SOURCES = {
     "._patterns": ("GRID_PITCH", "PATTERNS", "STAGE_Z_LIMIT", "stage_pattern"),
     "._presets": ("PRESETS", "Preset", "get_preset"),
     "._reference": ("REFERENCE_KINDS", "ReferenceKind", "nominal_calibration",
-                    "reference_truth_calibration", "simulate_reference"),
+                    "reference_truth_calibration", "simulate_reference", "working_volume"),
     "._workflow": ("SimulateOptions", "SimulateResult", "parse_distortion", "write_simulation"),
 }
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _SOURCES)

@@ -36,6 +36,7 @@ __all__ = [
     "nominal_calibration",
     "reference_truth_calibration",
     "simulate_reference",
+    "working_volume",
 ]
 
 
@@ -97,8 +98,11 @@ def _pose(v, name) -> np.ndarray:
     return a
 
 
-def _volume(p):
-    """Box of positions and home orientation of a preset's md pattern (source frame)."""
+def working_volume(preset):
+    """The working volume of a preset (a name or a :class:`Preset`): the corners ``lo, hi``
+    (m, source frame) of the box of its ``md`` pattern's sensor positions, and the sensor's
+    home orientation ``R0`` (3, 3), both with the home fixtures."""
+    p = get_preset(preset)
     stage = stage_pattern("md")
     home = (p.source_fixtures[0], p.sensor_fixtures[0])
     P = ground_truth_poses(p.source_fixture, p.stage_fixture, p.sensor_fixture, home[0], stage,
@@ -230,7 +234,7 @@ def simulate_reference(preset="concentric", reference="robot", n_poses: int = 30
                          f"and noise_abs={noise_abs!r}")
 
     pose_rng, ref_rng, noise_rng = np.random.default_rng(seed).spawn(3)
-    lo, hi, R0 = _volume(p)
+    lo, hi, R0 = working_volume(p)
     t = lo + (hi - lo) * pose_rng.random((n, 3))
     R = pose_from_vector(np.column_stack([np.zeros((n, 3)), _ball(pose_rng, n, rr)]))[:, :3, :3]
     P = pose_from_rt(R @ R0, t)
