@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import InputError
+from .._errors import InputError, check_nonnegative
 from .._options import option as _opt
 from .._result import Result, json_ready
 from ._inputs import ToolPoses, read_tool_poses
@@ -99,6 +99,13 @@ def _checked(output, *inputs):
     return output
 
 
+def _limit(o, name: str):
+    """Option ``name`` of ``o``, refused unless finite and >= 0 (naming ``--name``); None
+    stays None."""
+    v = getattr(o, name)
+    return None if v is None else check_nonnegative(v, "--" + name.replace("_", "-"))
+
+
 def _oriented(t: ToolPoses, path) -> np.ndarray:
     if not t.has_orientation:
         raise InputError(f"expected tool poses with orientations in {path}, got positions only")
@@ -141,18 +148,13 @@ class PivotOptions(_Inputs):
 
 def pivot(options: PivotOptions) -> NavigationRun:
     """Run a pivot calibration on a pose file (:class:`PivotOptions`)."""
-    from .._errors import check_nonnegative
     from ._pivot import pivot_calibration
 
     o = options
     _checked(o.output, o.poses)
     t = o.read(o.poses)
-    res = pivot_calibration(
-        _oriented(t, o.poses), o.method, max_rms_mm=check_nonnegative(o.max_rms_mm,
-                                                                      "--max-rms-mm"),
-        threshold_mm=None if o.threshold_mm is None else check_nonnegative(o.threshold_mm,
-                                                                           "--threshold-mm"),
-        seed=o.seed)
+    res = pivot_calibration(_oriented(t, o.poses), o.method, max_rms_mm=_limit(o, "max_rms_mm"),
+                            threshold_mm=_limit(o, "threshold_mm"), seed=o.seed)
     s = {"output": o.output, "input": str(o.poses), **res.to_dict(), "dropped": t.dropped}
     if o.output:
         _write_json(o.output, {"format": TOOL_FORMAT, "version": 1, "kind": "pivot",
@@ -188,7 +190,6 @@ class SpinOptions(_Inputs):
 
 def spin(options: SpinOptions) -> NavigationRun:
     """Run a spin calibration on a pose file (:class:`SpinOptions`)."""
-    from .._errors import check_nonnegative
     from ._pivot import read_tip_transform, spin_calibration
 
     o = options
@@ -196,12 +197,9 @@ def spin(options: SpinOptions) -> NavigationRun:
     tip = None if o.tip is None else read_tip_transform(o.tip)[:3, 3]
     t = o.read(o.poses)
     res = spin_calibration(
-        _oriented(t, o.poses), o.method, tip=tip,
-        max_rms_deg=check_nonnegative(o.max_rms_deg, "--max-rms-deg"),
-        max_rms_mm=None if o.max_rms_mm is None else check_nonnegative(o.max_rms_mm,
-                                                                       "--max-rms-mm"),
-        threshold_deg=None if o.threshold_deg is None
-        else check_nonnegative(o.threshold_deg, "--threshold-deg"), seed=o.seed)
+        _oriented(t, o.poses), o.method, tip=tip, max_rms_deg=_limit(o, "max_rms_deg"),
+        max_rms_mm=_limit(o, "max_rms_mm"), threshold_deg=_limit(o, "threshold_deg"),
+        seed=o.seed)
     s = {"output": o.output, "input": str(o.poses), **res.to_dict(), "dropped": t.dropped}
     if o.output:
         _write_json(o.output, {"format": TOOL_FORMAT, "version": 1, "kind": "spin", **s,
@@ -282,7 +280,6 @@ def _pair(o, fixed, fl, moving, ml):
 def register(options: RegisterOptions) -> NavigationRun:
     """Register two point files (:class:`RegisterOptions`); writes the registration file
     (:func:`read_registration`) and optionally the 3D Slicer transform."""
-    from .._errors import check_nonnegative
     from ._register import register_points
 
     o = options
@@ -300,9 +297,9 @@ def register(options: RegisterOptions) -> NavigationRun:
         except ValueError:
             raise InputError(f"expected --weights like 1,1,0.5, got {o.weights!r}") from None
     targets = None if o.targets is None else _points(o, o.targets)[0]
-    fle = None if o.fle_mm is None else 1e-3 * check_nonnegative(o.fle_mm, "--fle-mm")
+    fle = None if o.fle_mm is None else 1e-3 * _limit(o, "fle_mm")
     reg = register_points(fixed, moving, weights, scale=o.scale, targets=targets, fle_rms=fle,
-                          max_fre_mm=check_nonnegative(o.max_fre_mm, "--max-fre-mm"))
+                          max_fre_mm=_limit(o, "max_fre_mm"))
     s = {"output": o.output, "slicer_transform": o.slicer_transform, "fixed": str(o.fixed),
          "moving": str(o.moving), "paired_by": how, "similarity": bool(o.scale),
          **reg.to_dict()}
@@ -392,8 +389,6 @@ def write_slicer_transform(path, transform) -> Path:
     ``F inv(T_mm) F`` with ``F = diag(-1, -1, 1)`` (LPS <-> RAS), ``T_mm`` the transform with
     its translation in mm; Slicer inverts it and flips it back to RAS on loading.
     """
-    from .._atomic import atomic_path
-
     T = np.array(transform, dtype=np.float64)
     T[:3, 3] *= 1e3
     M = _LPS @ np.linalg.inv(T) @ _LPS
@@ -401,8 +396,7 @@ def write_slicer_transform(path, transform) -> Path:
     text = ("#Insight Transform File V1.0\n#Transform 0\n"
             "Transform: AffineTransform_double_3_3\n"
             f"Parameters: {params}\nFixedParameters: 0 0 0\n")
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text)
+    _text(path, text)
     return Path(path)
 
 
@@ -463,13 +457,12 @@ def _nominal(o):
 def assess(options: AssessOptions) -> NavigationRun:
     """Assess measured grid points (:class:`AssessOptions`); ``output`` (the HTML report) is
     written by the caller from ``run.result`` (``openemt.report.assessment_document``)."""
-    from .._errors import check_nonnegative
     from ._assess import assess_grid
 
     o = options
     _checked(o.output, o.measured, o.nominal)
     nominal, nominal_name = _nominal(o)
-    tol = 1e-3 * check_nonnegative(o.class_tolerance_mm, "--class-tolerance-mm")
+    tol = 1e-3 * _limit(o, "class_tolerance_mm")
     t = o.read(o.measured)
     res = assess_grid(t.poses, nominal, match=o.match, groups=t.groups,
                       has_orientation=t.has_orientation, class_tolerance=tol)
@@ -518,7 +511,6 @@ class PointsOptions(_Inputs):
 
 def points(options: PointsOptions) -> NavigationRun:
     """Dwell points of a recorded log (:class:`PointsOptions`), written as Slicer markups."""
-    from .._errors import check_nonnegative
     from ..align import find_dwells, mean_pose, pose_motion
     from ._markups import write_markups
     from ._pivot import read_tip_transform
@@ -541,10 +533,10 @@ def points(options: PointsOptions) -> NavigationRun:
                          f"in seconds), got {times[-1] - times[0]:.6g} s: times in ms, or a "
                          f"glitch in the time column?")
     g, v, w = pose_motion(times, P)
-    still = (v < 1e-3 * check_nonnegative(o.max_speed_mm_s, "--max-speed-mm-s")) & (
-        w < np.deg2rad(check_nonnegative(o.max_rotation_deg_s, "--max-rotation-deg-s")))
-    iv = find_dwells(g, still, margin=check_nonnegative(o.margin_s, "--margin-s"),
-                     min_duration=check_nonnegative(o.min_dwell_s, "--min-dwell-s"))
+    still = (v < 1e-3 * _limit(o, "max_speed_mm_s")) & (
+        w < np.deg2rad(_limit(o, "max_rotation_deg_s")))
+    iv = find_dwells(g, still, margin=_limit(o, "margin_s"),
+                     min_duration=_limit(o, "min_dwell_s"))
     means = [mean_pose(P[(times >= a) & (times <= b)]) for a, b in iv
              if np.any((times >= a) & (times <= b))]
     if not means:
