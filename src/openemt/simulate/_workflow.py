@@ -155,18 +155,6 @@ def _codes(text: str):
     return "all" if text.strip() == "all" else [c.strip() for c in text.split(",") if c.strip()]
 
 
-def _check_outputs(o: SimulateOptions) -> None:
-    for path in [o.output] + ([o.truth_calibration] if o.truth_calibration else []):
-        folder = Path(path).parent if str(Path(path).parent) else Path(".")
-        if not folder.is_dir():
-            raise FileNotFoundError(f"expected an existing folder for output {str(path)!r}, got "
-                                    f"missing folder {str(folder)!r}")
-    if o.truth_calibration is not None and \
-            Path(o.truth_calibration).resolve() == Path(o.output).resolve():
-        raise InputError(f"expected different paths for -o and --truth-calibration, got "
-                         f"{str(o.output)!r} twice")
-
-
 def write_simulation(o: SimulateOptions, say=None) -> SimulateResult:
     """Simulate what ``o`` describes and write it (the dataset, and the truth calibration with
     ``truth_calibration``; nothing is left behind on failure). ``say`` is unused (the
@@ -183,7 +171,9 @@ def write_simulation(o: SimulateOptions, say=None) -> SimulateResult:
         d = _floats(o.drift, "--drift")
         drift = float(d[0]) if d.size == 1 else d
     distortion = [parse_distortion(s) for s in o.distortion or []]
-    _check_outputs(o)
+    from .._atomic import check_outputs
+
+    check_outputs({"-o": o.output, "--truth-calibration": o.truth_calibration})
     if o.format == "ndi":
         return _write_ndi(o)
     if o.reference is not None:
