@@ -190,7 +190,6 @@ class Collector:
         self._rt = _Grow()
         self._rB = _Grow((4, 4))
         self._pa, self._pb = _Profile("coupling"), _Profile("pose")
-        self.n_frames = 0
         self.n_reference = 0
         self.n_reference_out_of_order = 0
         self.offset: OffsetEstimate | None = None       # the latest estimate
@@ -209,7 +208,6 @@ class Collector:
         C = d.in_phase
         if self.columns is not None:
             C = C[:, :, self.columns]
-        self.n_frames += len(d.times)
         t = np.concatenate([self._rest_t, d.times])
         C = C if self._rest_C is None else np.concatenate([self._rest_C, C])
         m = len(t) // self.decimate * self.decimate
@@ -246,11 +244,6 @@ class Collector:
     def tracker_time(self) -> float | None:
         """Tracker clock of the latest averaged sample (s)."""
         return float(self._t.v[-1]) if len(self._t) else None
-
-    @property
-    def reference_time(self) -> float | None:
-        """Reference clock of the latest reference pose (s)."""
-        return float(self._rt.v[-1]) if len(self._rt) else None
 
     def streams(self):
         """``(t_tracker, couplings, t_reference, reference_poses)`` so far (views)."""

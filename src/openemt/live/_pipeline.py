@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import itertools
 import time
 from dataclasses import dataclass, field, replace
@@ -209,12 +210,8 @@ class TrackSummary(Result):
     extra: dict = field(default_factory=dict)
 
     def _items(self) -> dict:
-        d = {"n_samples": self.n_samples, "signal_seconds": self.signal_seconds,
-             "wall_seconds": self.wall_seconds, "status_counts": self.status_counts,
-             "distorted_fraction": self.distorted_fraction,
-             "latency_ms_p50": self.latency_ms_p50, "latency_ms_p99": self.latency_ms_p99,
-             "igtl": self.igtl, "truth": self.truth}
-        d.update(self.extra)
+        d = super()._items()
+        d.update(d.pop("extra"))                # extra's keys at the top level, after the fields
         return d
 
 
@@ -1193,12 +1190,7 @@ class TrackingPipeline:
             out["truth"] = {"position_error_mm_rms": 1e3 * float(np.sqrt(st.err_ss / st.err_n)),
                             "position_error_mm_max": 1e3 * st.err_max}
         if st.filter is not None:
-            f = st.filter
-            out["filter"] = {"kind": f.kind, "process_noise": f.process_noise,
-                             "measurement_noise": f.measurement_noise,
-                             "rotation_process_noise": f.rotation_process_noise,
-                             "rotation_measurement_noise": f.rotation_measurement_noise,
-                             "max_gap": f.max_gap,
+            out["filter"] = {**dataclasses.asdict(st.filter),      # a FilterSpec's fields
                              "restarts_after_loss": 0 if st.filter_state is None
                              else filter_restarts(st.filter_state)}
         return out
