@@ -9,9 +9,10 @@ openemt needs from each (channels and rate of the tracker's ADC).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
+from .._options import option
 from .._result import Result
 
 __all__ = ["DevicesOptions", "DevicesResult", "list_devices"]
@@ -21,14 +22,12 @@ __all__ = ["DevicesOptions", "DevicesResult", "list_devices"]
 class DevicesOptions:
     """Options of ``openemt devices`` (one field per command-line option)."""
 
-    tracker: Path | None = field(default=None, metadata={
-        "help": "tracker description file: check its [adc] source (serial port or network "
-                "ADC) and say what its ADC needs (channels, sample rate)"})
-    serial: tuple[str, ...] = field(default=(), metadata={
-        "help": "also check these serial ports (paths pyserial does not list, e.g. a "
-                "pseudo-terminal)", "metavar": "PORT"})
-    timeout: float = field(default=1.0, metadata={
-        "help": "seconds to wait for a network source to answer (default 1)"})
+    tracker: Path | None = option(None, "tracker description file: check its [adc] source "
+                                  "(serial port or network ADC) and say what its ADC needs "
+                                  "(channels, sample rate)")
+    serial: tuple[str, ...] = option((), "also check these serial ports (paths pyserial does "
+                                     "not list, e.g. a pseudo-terminal)", metavar="PORT")
+    timeout: float = option(1.0, "seconds to wait for a network source to answer (default 1)")
 
 
 @dataclass(frozen=True)
@@ -44,9 +43,8 @@ class DevicesResult(Result):
     needs: dict
 
     def _items(self) -> dict:
-        return {"devices": self.devices, "n_devices": len(self.devices), "sound": self.sound,
-                "serial_ports": self.serial_ports, "network": self.network,
-                "needs": self.needs}
+        d = super()._items()
+        return {"devices": d.pop("devices"), "n_devices": len(self.devices), **d}
 
     def human(self) -> list:
         n = self.needs
@@ -77,16 +75,11 @@ def list_devices(options: DevicesOptions | None = None) -> DevicesResult:
     """The devices a session could read from (see the module docstring)."""
     from ._acquire import list_serial_ports, parse_source, probe_serial, probe_tcp
     from ._backends import list_audio_inputs
+    from ._session import TrackOptions, default_tracker
     from ._tracker_file import read_tracker
 
     o = DevicesOptions() if options is None else options
-    spec = None
-    if o.tracker is not None:
-        spec = read_tracker(o.tracker)
-    if spec is None:
-        from ._session import TrackOptions, default_tracker
-
-        spec = default_tracker(TrackOptions())
+    spec = read_tracker(o.tracker) if o.tracker is not None else default_tracker(TrackOptions())
     needs = {"channels": spec.n_channels, "sample_rate": spec.sample_rate,
              "what": (f"tracker {o.tracker}" if o.tracker is not None
                       else "the default simulated tracker; --tracker FILE for yours") +

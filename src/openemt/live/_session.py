@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -135,7 +135,7 @@ class TrackOptions:
                              "low-pass), eddy-free, auto (fuse where the tracker has bands; "
                              "default: the tracker file's [solve] bands, else auto)",
                              choices=BAND_METHODS)
-    quiet: bool = field(default=False, metadata={"cli": False})
+    quiet: bool = _opt(False, "", cli=False)
 
     def __post_init__(self):
         for name in ("tracker", "file", "calibration", "registration", "tip", "log", "save_raw"):
