@@ -687,7 +687,7 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
     boards: dict = {}
     for s, cols, cal in zip(spec.sensors, spec.sensor_columns(), cals):
         common = dict(name=s.name, columns=cols, device_name=s.device_name, tip=s.tip,
-                      filter=s.filter_or(spec.filter) if filter is None else filter)
+                      filter=(s.filter or spec.filter) if filter is None else filter)
         if cal is not None and getattr(cal.model, "cold_start", None) != "kim18":
             from ._board import board_solver
 

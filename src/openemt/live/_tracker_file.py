@@ -284,9 +284,6 @@ class SensorSpec:
     tip: object = None
     device_given: bool = False
 
-    def filter_or(self, default: FilterSpec) -> FilterSpec:
-        return default if self.filter is None else self.filter
-
 
 @dataclass(frozen=True)
 class TrackerSpec:
