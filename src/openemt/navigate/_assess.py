@@ -38,7 +38,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import Result
-from ..geometry import check_points
+from ..geometry import check_points, pose_from_rt
 from ._register import register_points
 
 __all__ = ["DISTANCE_CLASSES_MM", "MAX_ASSESS_POINTS", "MAX_STORED_PAIRS", "GridAssessment",
@@ -320,8 +320,7 @@ def assess_grid(measured, nominal, *, match: str = "order", groups=None,
         if pts.ndim != 2:
             raise InputError(f"expected measured points (N, 3) or poses (N, 4, 4), got "
                              f"{a.shape}")
-        P = np.tile(np.eye(4), (len(pts), 1, 1))
-        P[:, :3, 3] = pts
+        P = pose_from_rt(np.eye(3), pts)
         rot = False
     nom = check_points(nominal, "nominal")
     if nom.ndim != 2 or len(nom) < 3 or not np.all(np.isfinite(nom)):

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from ..geometry import pose_from_rt
 
 __all__ = ["MAX_POSE_FILE_BYTES", "MAX_POSE_ROWS", "MAX_POSITION", "ROTATION_TOLERANCE",
            "ToolPoses", "check_rotations", "read_points_csv", "read_tool_poses"]
@@ -226,8 +227,7 @@ def read_tool_poses(path, *, length_unit: str = "m", angle_unit: str = "rad",
                              f"got {path.name} of {st.st_size >> 20} MiB")
         if is_markups_path(path):
             m = read_markups(path)
-            P = np.tile(np.eye(4), (len(m.points), 1, 1))
-            P[:, :3, 3] = m.points
+            P = pose_from_rt(np.eye(3), m.points)
             repeated = len(np.unique(m.labels)) < len(m.labels)
             t = ToolPoses(P, False, m.labels if repeated else None, "markups",
                           {"undefined": m.n_undefined}, labels=m.labels)

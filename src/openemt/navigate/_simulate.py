@@ -208,9 +208,7 @@ def simulate_tool_session(options: MotionOptions):
                          grid_tracker_mm=1e3 * targets)
         t, R, tips = _visits(home, targets, rng, 10.0 if o.motion == "fiducials" else 0.0,
                              rate)
-    true = np.tile(np.eye(4), (len(t), 1, 1))
-    true[:, :3, :3] = R.as_matrix()
-    true[:, :3, 3] = tips - R.apply(tip)
+    true = pose_from_rt(R.as_matrix(), tips - R.apply(tip))
     C = p.model.coupling(true)
     C = add_noise(C, noise_sigma(C, snr_db=70.0 if o.snr_db is None else o.snr_db), rng)
     res = solve(C, truth_calibration(p), hemisphere=tuple(centre / np.linalg.norm(centre)))

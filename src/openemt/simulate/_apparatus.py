@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError, check_nonnegative
-from ..geometry import ground_truth_poses, pose_from_vector, source_fixture_rotation
+from ..geometry import ground_truth_poses, pose_from_rt, pose_from_vector, source_fixture_rotation
 from ..io import Calibration, Dataset
 from ._errors import (
     Distortion,
@@ -208,10 +208,7 @@ def simulate(preset, pattern=None, *, source_fixtures="all", sensor_fixtures="al
         # bench (source-fixture base) frame -> source frame: F_so . so_J
         M = np.stack([so_J[c] for c in so_codes])                   # (N, 3, 3)
         A = np.einsum("ab,kbc->kac", F_so[:3, :3], M)                # rotation of F_so so_J
-        frame = np.zeros((n_rows, 4, 4))
-        frame[:, :3, :3] = A
-        frame[:, :3, 3] = F_so[:3, 3]
-        frame[:, 3, 3] = 1.0
+        frame = pose_from_rt(A, F_so[:3, 3])
     scene = None
     if metal is not None:           # a named scene is placed about the simulated volume
         bench = np.einsum("kba,kb->ka", A, poses[:, :3, 3] - F_so[:3, 3])

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..field import DipoleModel, coupling
+from ..geometry import pose_from_rt
 from ._metal_physics import MU0, sphere_polarizability
 
 __all__ = [
@@ -184,10 +185,7 @@ def distortion_coupling(model: DipoleModel, poses, position, kappa, radius) -> n
     q = np.broadcast_to(np.asarray(position, dtype=np.float64), (n, 3))
     kappa = np.asarray(kappa, dtype=np.complex128)
     unit = np.eye(3)
-    at_object = np.zeros((n, 4, 4))
-    at_object[:, :3, :3] = unit
-    at_object[:, :3, 3] = q
-    at_object[:, 3, 3] = 1.0
+    at_object = pose_from_rt(unit, q)
     # field of each source coil at the object, B[k, i, a] (N, n_so, 3)
     B = coupling(DipoleModel(model.L_so, model.M_so, np.zeros((3, 3)), unit, 1.0), at_object)
     m_ind = kappa[None, :, None] * radius**3 * B

@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
+from ..geometry import pose_from_rt
 from ._metal_physics import (
     Material,
     coaxial_mutual_inductance,
@@ -267,11 +268,7 @@ class _Coils:
 
 
 def _at_points(pts) -> np.ndarray:
-    P = np.zeros((len(pts), 4, 4))
-    P[:, :3, :3] = np.eye(3)
-    P[:, :3, 3] = pts
-    P[:, 3, 3] = 1.0
-    return P
+    return pose_from_rt(np.eye(3), pts)
 
 
 def dipole_fields(pos, mom, pts, chunk: int = 1_000_000) -> np.ndarray:
@@ -398,11 +395,8 @@ class MetalObject:
     def transforms(self, t) -> np.ndarray:
         """Object -> scene transforms ``(N, 4, 4)`` at times ``t`` (N,)."""
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
-        T = np.zeros((len(t), 4, 4))
-        T[:, :3, :3] = _rotation(self.rotation)
-        T[:, :3, 3] = np.asarray(self.position) + self.motion.offset(t)
-        T[:, 3, 3] = 1.0
-        return T
+        return pose_from_rt(_rotation(self.rotation),
+                            np.asarray(self.position) + self.motion.offset(t))
 
     # -- local geometry ----------------------------------------------------------------------
     def _polygon(self) -> np.ndarray:
