@@ -30,7 +30,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._result import Result
-from ..geometry import check_points, skew
+from ..geometry import check_points, pose_from_rt, skew
 from ._robust import linear_covariance
 
 __all__ = ["BatchRegistration", "Registration", "predicted_tre", "register_points",
@@ -86,11 +86,7 @@ def rigid_fit(fixed, moving, weights=None, *, scale: bool = False):
 
 
 def _transform(R, t, s):
-    T = np.zeros(R.shape[:-2] + (4, 4))
-    T[..., :3, :3] = s[..., None, None] * R
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
+    return pose_from_rt(s[..., None, None] * R, t)
 
 
 def _principal(moving):
