@@ -207,8 +207,6 @@ def write_markups(path, points, labels) -> Path:
     4.11 columns) by that suffix, else ``.mrk.json`` (one fiducial node, RAS, mm)."""
     import json
 
-    from .._atomic import atomic_path
-
     P = 1e3 * np.asarray(points, dtype=np.float64).reshape(-1, 3)
     labels = [str(v) for v in labels]
     if str(path).lower().endswith(".fcsv"):
@@ -225,6 +223,13 @@ def write_markups(path, points, labels) -> Path:
                            "markups": [{"type": "Fiducial", "coordinateSystem": "RAS",
                                         "coordinateUnits": "mm", "controlPoints": cps}]},
                           indent=1) + "\n"
+    _text(path, text)
+    return Path(path)
+
+
+def _text(path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (the navigation steps' text outputs)."""
+    from .._atomic import atomic_path
+
     with atomic_path(path) as tmp:
         Path(tmp).write_text(text)
-    return Path(path)

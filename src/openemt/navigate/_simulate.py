@@ -133,8 +133,8 @@ def simulate_tool_session(options: MotionOptions):
     from ..geometry import pose_from_vector, vector_from_pose
     from ..simulate import add_noise, get_preset, noise_sigma, truth_calibration, working_volume
     from ..solve import solve
-    from ._markups import write_markups
-    from ._steps import NavigationRun, _checked, _text
+    from ._markups import _text, write_markups
+    from ._steps import NavigationRun, _checked
 
     o = options
     if o.motion not in MOTIONS:

@@ -18,6 +18,7 @@ from .._errors import InputError, check_nonnegative
 from .._options import option as _opt
 from .._result import Result, json_ready
 from ._inputs import ToolPoses, read_tool_poses
+from ._markups import _text
 from ._pivot import MAX_PIVOT_RMS_MM, MAX_SPIN_RMS_DEG, PIVOT_METHODS, TOOL_FORMAT
 from ._register import MAX_FRE_MM
 
@@ -77,14 +78,6 @@ class NavigationRun(Result):
 
     def _items(self) -> dict:
         return {**self.summary, "warnings": list(self.warnings)}
-
-
-def _text(path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically."""
-    from .._atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text)
 
 
 def _write_json(path, doc: dict) -> None:
