@@ -145,11 +145,6 @@ class TrackOptions:
 
     def check(self) -> None:
         """Refuse values no session can use (one line naming the option)."""
-        def positive(name, v):
-            if v is not None and not 0 < v < math.inf:
-                raise InputError(f"expected a positive, finite --{name.replace('_', '-')} in "
-                                 f"seconds, got {v}")
-
         from ._acquire import parse_source
 
         kind = "sim" if self.source is None else parse_source(self.source)[0]
@@ -157,7 +152,10 @@ class TrackOptions:
             raise InputError(f"expected a positive, finite --duration in seconds (leave it out "
                              f"to run until Ctrl-C), got {self.duration}")
         for name in ("stall_warn", "stall_timeout", "stale_after"):
-            positive(name, getattr(self, name))
+            v = getattr(self, name)
+            if v is not None and not 0 < v < math.inf:
+                raise InputError(f"expected a positive, finite --{name.replace('_', '-')} in "
+                                 f"seconds, got {v}")
         for name in ("distortion_threshold", "noise", "eddy"):
             v = getattr(self, name)
             if v is not None and not 0 <= v < math.inf:
@@ -742,11 +740,8 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
         if not match_layout:
             return b
         got = b.layout
-        same = (got.sample_rate == layout.sample_rate
-                and got.frequencies == layout.frequencies
-                and got.sensor_channels == layout.sensor_channels
-                and got.reference_channels == layout.reference_channels)
-        if not same:
+        if any(getattr(got, k) != getattr(layout, k) for k in (
+                "sample_rate", "frequencies", "sensor_channels", "reference_channels")):
             raise InputError(f"expected a recording with the channel layout of "
                              f"{spec._where()} (sensor channels {layout.sensor_channels}, "
                              f"references {layout.reference_channels}, "
