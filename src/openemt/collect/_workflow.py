@@ -313,11 +313,8 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
                 backend = tracker_backend(spec, "sim", realtime=False, seed=o.seed,
                                           trajectory=motion.sensor_poses)
             else:
-                device = o.device
-                if isinstance(device, str) and device.isdigit():
-                    device = int(device)
                 try:
-                    backend = tracker_backend(spec, o.source, file=o.file, device=device,
+                    backend = tracker_backend(spec, o.source, file=o.file, device=o.device,
                                               realtime=o.source == "replay" and csv is None,
                                               match_layout=o.tracker is not None)
                 except ImportError as exc:

@@ -534,9 +534,6 @@ class TrackingSession:
         from ._record import RawRecorder, TrackLogWriter
 
         o, spec = self.options, self.spec
-        device = o.device
-        if isinstance(device, str) and device.isdigit():
-            device = int(device)
         try:
             sensors = tracker_sensors(spec) if self._sensors is None else self._sensors
             # before the backend: a simulated one computes couplings with the sensors' models
@@ -545,7 +542,7 @@ class TrackingSession:
                 self.log = TrackLogWriter(o.log, [s.name for s in sensors])
             try:
                 self.backend = self._backend or tracker_backend(
-                    spec, o.source, file=o.file, device=device, realtime=not o.fast,
+                    spec, o.source, file=o.file, device=o.device, realtime=not o.fast,
                     duration=o.duration, seed=o.seed, noise_rms=o.noise, eddy_strength=o.eddy,
                     match_layout=self._match_layout, chunk=self._chunk)
             except ImportError as exc:                  # the optional sound-card package
@@ -719,9 +716,9 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
     shifted by its ``simulation_offset``; truth model from ``[simulation] preset``);
     ``replay`` reads a raw recording whose channel layout must match the tracker's
     (``match_layout=False``: the recording's own layout is used); ``sound`` opens the audio
-    input ``device`` with ``adc.channels`` channels at ``adc.sample_rate``; ``serial:`` and
-    ``tcp://`` read frames of ``adc.channels`` channels at ``adc.sample_rate``
-    (:mod:`openemt.live._framing`).
+    input ``device`` (an index, also as digits, or a name) with ``adc.channels`` channels at
+    ``adc.sample_rate``; ``serial:`` and ``tcp://`` read frames of ``adc.channels`` channels
+    at ``adc.sample_rate`` (:mod:`openemt.live._framing`).
     """
     from ._acquire import SerialBackend, TcpBackend, parse_source
     from ._backends import ReplayBackend, SimulatedBackend, SoundDeviceBackend
@@ -732,7 +729,8 @@ def tracker_backend(spec: TrackerSpec, source: str, *, file=None, device=None,
         return SerialBackend(where[0], layout, spec.n_channels, baud=where[1], chunk=chunk)
     if kind == "tcp":
         return TcpBackend(where[0], where[1], layout, spec.n_channels, chunk=chunk)
-    if source == "sound":
+    if source == "sound":                              # a device index may come as text
+        device = int(device) if isinstance(device, str) and device.isdigit() else device
         return SoundDeviceBackend(layout, device=device, channels=spec.n_channels,
                                   chunk=chunk)
     if source == "replay":
