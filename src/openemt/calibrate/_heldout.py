@@ -89,13 +89,9 @@ TERM_MIN_GAIN = 0.01
 TERM_MAX_CONDITION = 1e6
 
 
-def transfer(prob: ImprovedProblem, x, rows) -> tuple[ImprovedProblem, np.ndarray]:
-    """The problem of other ``rows`` (a Dataset) with the fitted parameters ``x`` of ``prob``.
-
-    Fixture-code corrections are carried over by code; codes the fit did not see get none
-    (:func:`openemt.calibrate.carry_parameters`).
-    """
-    return carry_parameters(prob, x, rows)
+#: ``transfer(prob, x, rows)``: the problem of other ``rows`` with the fitted parameters ``x``
+#: of ``prob`` (:func:`openemt.calibrate.carry_parameters`)
+transfer = carry_parameters
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,7 +252,7 @@ def _cross_validate(md, start, options, concentric_model, folds, seed=0, initial
         f = _fit(train, start, options, start_k)
         prob, x = f.problem, f.x
         fits.append((prob, x))
-        tp, xt = transfer(prob, x, test)
+        tp, xt = carry_parameters(prob, x, test)
         s = solve_and_score(tp, xt, test, concentric_model)
         trans.append(s.trans)
         rot.append(s.rot)
@@ -307,10 +303,6 @@ class TermDecision(Result):
     n_free: int
     condition: float | None
     parameters: dict
-
-
-_TERM_KEYS = {"rz_error_motion": "rz_error_motion", "induced_dipole": "induced_dipole",
-              "gain_nonlinearity": "gain_nonlinearity", "coupling_offset": "coupling_offset"}
 
 
 def _flat(v) -> np.ndarray:
@@ -388,11 +380,10 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
               f"({-100 * gain:+.1f} %, needs <= {-100 * TERM_MIN_GAIN:.0f} %), rank "
               f"{ident.rank} of {ident.n_free}, condition "
               + (f"{cond:.3g}" if cond is not None else "inf"))
-        key = _TERM_KEYS.get(name)
         params = {}
-        if key is not None:
-            params = {"value": prob.rig(x).to_dict()[key],
-                      "standard_error": prob.rig(se).to_dict()[key]}
+        if name in TERMS:           # the RigModel.to_dict entry of a term is named as it is
+            params = {"value": prob.rig(x).to_dict()[name],
+                      "standard_error": prob.rig(se).to_dict()[name]}
             v, e_ = _flat(params["value"]), _flat(params["standard_error"])
             weak = int(np.sum(np.abs(v) < 2 * e_))
             if weak:
@@ -492,7 +483,7 @@ class ImprovedCalibration:
         if i.size == 0:
             return repeat_scatter(np.zeros((0, 4, 4)), np.zeros((0, 4, 4)))
         sub = rows.select(j)
-        tp, xt = transfer(self.problem, self.x, sub)
+        tp, xt = carry_parameters(self.problem, self.x, sub)
         s = solve_and_score(tp, xt, sub, cm)
         return repeat_scatter(self.md_scored.poses[i], s.poses)
 
@@ -504,7 +495,7 @@ class ImprovedCalibration:
         kept = {d.term: d.kept for d in self.terms}
         out = {}
         for label, (prob, x) in self.steps.items():
-            tp, xt = transfer(prob, x, rows)
+            tp, xt = carry_parameters(prob, x, rows)
             s = solve_and_score(tp, xt, rows, cm)
             out[label] = {"kept": kept.get(label.rsplit("+", 1)[-1], True),
                           "summary": {k: s.summary[k] for k in ("trans_rms_mm", "rot_rms_deg")},
@@ -521,7 +512,7 @@ class ImprovedCalibration:
         solved with the model of the calibration :meth:`to_calibration` writes (its
         ``coupling_model``: octupole and environment terms) and its output correction."""
         cm = self.concentric_model if concentric_model is None else concentric_model
-        tp, xt = transfer(self.problem, self.x, rows)
+        tp, xt = carry_parameters(self.problem, self.x, rows)
         cal = self.to_calibration()
         out = {}
         # one solve: the corrected row applies the output correction to the same poses

@@ -330,13 +330,10 @@ def _rig(o, say, compile_) -> CalibrateResult:
     from ._sequence import fit_output_correction
 
     dataset = load_dataset(o.dataset)
-    start_path = o.start
+    start_path = _start_file(o)
     if start_path is None:
-        cand = Path(o.dataset) / "base_calibration.mat"
-        if not cand.is_file():
-            raise InputError("expected --from CAL (no base_calibration.mat in the dataset "
-                             "folder), got none")
-        start_path = cand
+        raise InputError("expected --from CAL (no base_calibration.mat in the dataset "
+                         "folder), got none")
     start = read_calibration(start_path)
     if solver_family(start.model) != "dipole":       # the rig's modes name dipole groups
         what = "finite-coil board" if start.model.kind == "finite" else \
@@ -436,14 +433,20 @@ def _rig(o, say, compile_) -> CalibrateResult:
                            cal, tuple(human))
 
 
+def _start_file(o):
+    """``--from``, else the dataset folder's ``base_calibration.mat``, else None."""
+    if o.start is not None:
+        return o.start
+    cand = Path(o.dataset) / "base_calibration.mat"
+    return cand if cand.is_file() else None
+
+
 def _reference_start(o, dataset, nominal):
     from ..io import read_calibration
 
-    if o.start is not None:
-        return read_calibration(o.start), str(o.start)
-    cand = Path(o.dataset) / "base_calibration.mat"
-    if cand.is_file():
-        return read_calibration(cand), str(cand)
+    path = _start_file(o)
+    if path is not None:
+        return read_calibration(path), str(path)
     preset = dataset.meta.get("preset")
     if preset is None or nominal is None:
         raise InputError("expected --from CAL (the dataset names no simulated preset and has "
@@ -455,7 +458,6 @@ def _reference(o, nominal) -> CalibrateResult:
     from ._reference import fit_reference, reference_poses
 
     dataset = load_dataset(o.dataset)
-    note = None
     reference_poses(dataset)                  # none: one error line, exit 2
     start, start_path = _reference_start(o, dataset, nominal)
     with warnings.catch_warnings(record=True) as caught:
@@ -477,7 +479,7 @@ def _reference(o, nominal) -> CalibrateResult:
         "se_units": "m, m, m, rad, rad, rad (translation; left rotation about parent axes)",
         "reference": {k: v for k, v in ref.items()
                       if k in ("kind", "noise_trans_m", "noise_rot_rad")},
-        "note": note}
+        "note": None}
     human = [(f"reference: rms_residue {f.rms_residue:.7g} over {f.n_train} poses, "
               f"{f.free.size} free parameters (rank {ident['rank']}), X/Y condition "
               f"{ident['xy_condition'] or float('inf'):.3g}")]
@@ -492,8 +494,6 @@ def _reference(o, nominal) -> CalibrateResult:
         h = f.holdout
         human.append(f"held out {h['n']} poses: {h['trans_rms_mm']:.4f} mm RMS "
                      f"({h['trans_max_mm']:.4f} max), {h['rot_rms_deg']:.4f} deg RMS")
-    if note:
-        human.append(f"note: {note}")
     warns = [str(x.message) for x in caught]
     if not f.holdout:
         warns.append("no held-out score: give --holdout FRACTION (or location) to score the "
