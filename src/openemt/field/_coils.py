@@ -86,6 +86,14 @@ def _count(n, name: str, minimum: int = 1) -> int:
     return int(n)
 
 
+def _gain(g) -> float:
+    """A coil's or a coil model's ``gain``: a finite non-zero number (not a bool)."""
+    if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(g) or g == 0:
+        raise InputError(f"expected a finite non-zero `gain`, got {g!r}")
+    return float(g)
+
+
 def _frame(axis, angle: float = 0.0) -> np.ndarray:
     """Right-handed rotation whose third column is ``axis``; the first column is the global
     axis least aligned with ``axis`` (x, then y, then z on ties) projected into the coil plane,
@@ -190,11 +198,7 @@ class Coil:
         object.__setattr__(self, "size", _nonneg(self.size, "size", positive=True))
         object.__setattr__(self, "turns", _count(self.turns, "turns"))
         object.__setattr__(self, "layers", _count(self.layers, "layers"))
-        g = self.gain
-        if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) \
-                or not np.isfinite(g) or g == 0:
-            raise InputError(f"expected a finite non-zero `gain`, got {g!r}")
-        object.__setattr__(self, "gain", float(g))
+        object.__setattr__(self, "gain", _gain(self.gain))
         order = tuple(self.order) if np.ndim(self.order) == 1 else ()
         if len(order) != 3:
             raise InputError(f"expected `order` = (n_depth, n_length, n_area), got {self.order!r}")
