@@ -9,20 +9,17 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option as _opt
 from .._result import Result
 from ._modes import MODES
 
 __all__ = ["CalibrateOptions", "CalibrateResult", "calibrate_dataset", "load_dataset"]
-
-
-def _opt(default, help, **meta):
-    return field(default=default, metadata={"help": help, **meta})
 
 
 @dataclass(frozen=True)

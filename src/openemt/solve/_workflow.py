@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option as _opt
 from .._result import Result
 from ._bands import BAND_METHODS, DEFAULT_BAND_TIME_CONSTANT_S
 from ._factory import SOLVERS
@@ -22,10 +23,6 @@ from ._validity import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 
 __all__ = ["RowFixtures", "SolveFileOptions", "SolveFileResult", "failure_reasons",
            "solve_file"]
-
-
-def _opt(default, help, **meta):
-    return field(default=default, metadata={"help": help, **meta})
 
 
 @dataclass(frozen=True)
