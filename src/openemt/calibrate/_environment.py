@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import InputError
+from ..field._environment import axis_poses
 
 __all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "BoardEnvironmentFit", "EnvironmentChoice",
            "EnvironmentFit", "fit_board_environment", "known_pose_errors",
@@ -116,17 +117,6 @@ PLANAR_CANDIDATES = {"none": {}, "tilt": {"tilt": True}, "dipoles:1": {"dipoles"
                      "tilt,dipoles:1": {"tilt": True, "dipoles": 1}}
 
 
-def _grid_poses(points, axes) -> np.ndarray:
-    """Poses ``(N, 4, 4)`` at ``points`` whose z axis is ``axes`` (the smallest rotation
-    from z)."""
-    from ..geometry import pose_from_vector, rotvec_between
-
-    u = np.asarray(axes, dtype=np.float64)
-    u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    return pose_from_vector(np.c_[np.asarray(points, dtype=np.float64),
-                                  rotvec_between(np.array([0.0, 0.0, 1.0]), u)])
-
-
 def known_pose_errors(model, points, axes, couplings, iterations: int = 8) -> np.ndarray:
     """Position errors (m) of single-coil samples solved from their known poses: each
     sample's couplings ``(N, n_source)`` fitted by batched Gauss-Newton started at the known
@@ -138,7 +128,7 @@ def known_pose_errors(model, points, axes, couplings, iterations: int = 8) -> np
     is a half turn)."""
     from scipy.spatial.transform import Rotation
 
-    P = _grid_poses(points, axes)
+    P = axis_poses(points, axes)
     C = np.asarray(couplings, dtype=np.float64).reshape(len(P), -1)
     for _ in range(int(iterations)):
         jac = model.jacobians(P, params=False)
@@ -224,7 +214,7 @@ def fit_board_environment(data, start_model, fit_board, *, tilt: bool = False,
     the board's sensor coil)."""
     from dataclasses import replace as _replace
 
-    P = _grid_poses(data.points, data.axes)
+    P = axis_poses(data.points, data.axes)
     C = np.asarray(data.couplings, dtype=np.float64)[:, :, None]
     bf = fit_board(data, start_model, tilt=tilt) if board is None else board
     if not dipoles:
@@ -258,7 +248,7 @@ def dipole_residual_gain(board_model, data) -> float:
     """The fraction of the board's residual sum of squares on grid ``data`` one induced
     dipole removes at the best of :func:`board_dipole_starts` (moments solved linearly,
     position not refined): the cheap evidence for :data:`DIPOLE_GATE`."""
-    P = _grid_poses(data.points, data.axes)
+    P = axis_poses(data.points, data.axes)
     r = np.asarray(data.couplings, dtype=np.float64)[:, :, None] - board_model.coupling(P)
     ss0 = float(np.sum(r ** 2))
     if not ss0 > 0:
