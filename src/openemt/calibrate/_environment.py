@@ -297,14 +297,8 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
     {"cv_position_rms_mm", "n"}}`` (with ``skipped``, the reason, where the dipole
     candidates were not tried: :data:`DIPOLE_GATE`).
     """
-    from ..solve import GridData
-
     cands = PLANAR_CANDIDATES if candidates is None else candidates
     fold = _folds(data.points, folds)
-
-    def subset(mask):
-        return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
-                        data.coil_names)
 
     boards, scores = {}, {}
     gate = None
@@ -317,8 +311,8 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
                 k0 = int(fold.min())
                 tr = fold != k0
                 if (k0, True) not in boards:
-                    boards[k0, True] = fit(subset(tr), start_model, tilt=True)
-                gate = dipole_residual_gain(boards[k0, True].model, subset(tr))
+                    boards[k0, True] = fit(data.subset(tr), start_model, tilt=True)
+                gate = dipole_residual_gain(boards[k0, True].model, data.subset(tr))
             if gate < DIPOLE_GATE:
                 scores[name] = {"cv_position_rms_mm": None, "n": 0,
                                 "skipped": f"one induced dipole takes {gate:.0%} of the "
@@ -330,9 +324,9 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
             if train.sum() < 7 or not test.any():
                 continue
             if (k, tilt) not in boards:
-                boards[k, tilt] = fit(subset(train), start_model, tilt=tilt)
+                boards[k, tilt] = fit(data.subset(train), start_model, tilt=tilt)
             m = boards[k, tilt].model if not k_dip else fit_board_environment(
-                subset(train), start_model, fit, tilt=tilt, dipoles=k_dip,
+                data.subset(train), start_model, fit, tilt=tilt, dipoles=k_dip,
                 board=boards[k, tilt]).model
             err.append(known_pose_errors(m, data.points[test], data.axes[test],
                                          data.couplings[test]))

@@ -211,7 +211,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
     """Planar mode: fit a finite-coil board to a grid CSV (docs/planar.md#calibration)."""
     from ..board import BoardModel
     from ..io import load_board, read_calibration
-    from ..solve import GridData, planar_accuracy
+    from ..solve import planar_accuracy
     from ._environment import (
         PLANAR_CANDIDATES,
         fit_board_environment,
@@ -250,10 +250,6 @@ def _planar(o, say, compile_) -> CalibrateResult:
                          f"{' and one to hold out' if o.holdout else ''}, got "
                          f"{len(data.points)} points")
 
-    def subset(mask):
-        return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
-                        data.coil_names)
-
     compile_()
     env = parse_environment(o.environment)
     tilt, dipoles, env_prov = bool(o.tilt or env.tilt), env.dipoles, None
@@ -261,7 +257,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
         say(f"choosing the environment terms by cross-validation on {int(fit_mask.sum())} "
             f"grid points ...")
         chosen, scores = planar_environment_cv(
-            subset(fit_mask), start_model,
+            data.subset(fit_mask), start_model,
             lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt, uncertainty=False))
         tilt = bool(PLANAR_CANDIDATES[chosen].get("tilt"))
         dipoles = int(PLANAR_CANDIDATES[chosen].get("dipoles", 0))
@@ -274,15 +270,15 @@ def _planar(o, say, compile_) -> CalibrateResult:
     say(f"fitting the gains and offsets{' and tilts' if tilt else ''} of "
         f"{data.couplings.shape[1]} coils{f' and {dipoles} induced dipole(s)' if dipoles else ''}"
         f" on {int(fit_mask.sum())} grid points ...")
-    both = fit_board_environment(subset(fit_mask), start_model,
+    both = fit_board_environment(data.subset(fit_mask), start_model,
                                  lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt),
                                  tilt=tilt, dipoles=dipoles)
     fit, model = both.board, both.model
     say("solving the grid points with the fitted board (5-DOF) to score it ...")
-    insample = planar_accuracy(model, subset(fit_mask))
+    insample = planar_accuracy(model, data.subset(fit_mask))
     holdout = None
     if o.holdout:
-        holdout = {**planar_accuracy(model, subset(~fit_mask)), "scheme": o.holdout}
+        holdout = {**planar_accuracy(model, data.subset(~fit_mask)), "scheme": o.holdout}
     warns = []
     if fit.status != "converged":
         warns.append(f"the planar fit ended with status {fit.status!r} after {fit.iterations} "
