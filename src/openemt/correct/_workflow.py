@@ -148,11 +148,10 @@ def _read_pairs(opts):
 
 def _method_options(opts, method) -> dict:
     out = {}
-    for name, key, methods in (("order", "order", "poly"), ("rot_order", "rot_order", "poly"),
-                               ("degree", "degree", "bernstein"),
-                               ("rot_degree", "rot_degree", "bernstein")):
-        if method == methods and getattr(opts, name) is not None:
-            out[key] = getattr(opts, name)
+    for name, for_method in (("order", "poly"), ("rot_order", "poly"), ("degree", "bernstein"),
+                             ("rot_degree", "bernstein")):
+        if method == for_method and getattr(opts, name) is not None:
+            out[name] = getattr(opts, name)
     if method in ("grid", "rbf") and opts.smoothing is not None:
         out["smoothing"] = check_nonnegative(opts.smoothing, "--smoothing")
     if method == "grid" and opts.grid_shape:
@@ -352,13 +351,10 @@ def apply_correction_file(options: ApplyOptions) -> ApplyResult:
     margin = check_margin(opts.extrapolate_margin)
     corr = read_correction(opts.correction)
     ds, poses, reference, has_rot, ref_rot, group, tm, frame = _read_poses(opts)
-    if has_rot:
-        res = corr.correct(poses, extrapolate_margin=margin,
-                           allow_unknown_box=opts.allow_unknown_box)
-        P = res.values
-    else:
-        res = corr.correct(poses[:, :3, 3], extrapolate_margin=margin,
-                           allow_unknown_box=opts.allow_unknown_box)
+    res = corr.correct(poses if has_rot else poses[:, :3, 3], extrapolate_margin=margin,
+                       allow_unknown_box=opts.allow_unknown_box)
+    P = res.values
+    if not has_rot:
         P = poses.copy()
         P[:, :3, 3] = res.values
     codes = {str(k): v for k, v in STATUS.items()}
