@@ -312,11 +312,6 @@ def _flat(v) -> np.ndarray:
     return np.ravel(np.asarray(v, dtype=np.float64))
 
 
-def _identify(md, start, options, initial=None):
-    """Fit on every md row; ``(prob, x, free, ident, se)``."""
-    return _identified(_fit(md, start, options, initial))
-
-
 def _identified(f):
     """``(prob, x, free, ident, se)`` of a fit: its identifiability at the solution."""
     prob, x, free = f.problem, f.x, f.free
@@ -351,7 +346,7 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
 
 def _select_terms(md, start, concentric_model, base, terms, folds):
     """:func:`select_terms`, and the chosen model's fit on every md row (an
-    :class:`~openemt.calibrate.ImprovedFit`, or the :func:`_identify` tuple of a term's).
+    :class:`~openemt.calibrate.ImprovedFit`, or the :func:`_identified` tuple of a term's).
 
     Each fit on every md row starts from the model kept so far (the base from ``start``);
     each cross-validation fold of a term from the same fold's fit of the model kept so far,
@@ -367,7 +362,7 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
     fits = {"base": warm}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
-        fit_t = _identify(md, start, trial, initial=warm)
+        fit_t = _identified(_fit(md, start, trial, warm))
         prob, x, free, ident, se = fit_t
         cv_t, folds_t = _cross_validate(md, start, trial, concentric_model, folds,
                                         initial=(prob, x), previous=folds_kept)
@@ -632,9 +627,8 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()
     if chosen is None:
-        prob, x, free, ident, se = _identify(md, start, options)
-    else:
-        prob, x, free, ident, se = chosen if isinstance(chosen, tuple) else _identified(chosen)
+        chosen = _fit(md, start, options)
+    prob, x, free, ident, se = chosen if isinstance(chosen, tuple) else _identified(chosen)
     r = prob.residuals(x)
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)
