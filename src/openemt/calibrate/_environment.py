@@ -18,6 +18,7 @@ model fits its coil moments' directions anyway). ``--environment`` takes
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,16 +153,9 @@ def board_dipole_starts(points, margins=(0.1, 0.25)) -> np.ndarray:
     pts = np.asarray(points, dtype=np.float64)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     mid = 0.5 * (lo + hi)
-    out = []
-    for m in margins:
-        for a in (-1, 0, 1):
-            for b in (-1, 0, 1):
-                for c in (-1, 0, 1):
-                    if a == b == c == 0:
-                        continue
-                    s = np.array([a, b, c])
-                    out.append(np.where(s < 0, lo - m, np.where(s > 0, hi + m, mid)))
-    return np.array(out)
+    signs = [np.array(s) for s in itertools.product((-1, 0, 1), repeat=3) if any(s)]
+    return np.array([np.where(s < 0, lo - m, np.where(s > 0, hi + m, mid))
+                     for m in margins for s in signs])
 
 
 @dataclass(frozen=True, eq=False)
