@@ -91,18 +91,6 @@ def _vec(v, what: str, src: str, *, limit=None) -> np.ndarray:
     return a
 
 
-def _frame(normal: np.ndarray, angle: float) -> np.ndarray:
-    """Columns: local x, y, z (= normal). Local x is the global axis least aligned with the
-    normal, projected into the coil plane and turned by ``angle`` about it (for normal +z:
-    global x turned by ``angle``)."""
-    a = normal / np.linalg.norm(normal)
-    e = np.eye(3)[int(np.argmin(np.abs(a)))]
-    x = e - (e @ a) * a
-    x /= np.linalg.norm(x)
-    x = math.cos(angle) * x + math.sin(angle) * np.cross(a, x)
-    return np.column_stack([x, np.cross(a, x), a])
-
-
 def _rect_spiral(hx: float, hy: float, pitch: float, n_seg: int) -> np.ndarray:
     """Vertices ``(n_seg + 1, 2)`` of an inward counter-clockwise rectangular spiral starting
     at the corner ``(hx, -hy)`` of the outer turn's centreline; a side shrinks by ``pitch``
@@ -142,8 +130,12 @@ class CoilSpec:
 
     @property
     def rotation(self) -> np.ndarray:
-        """Columns: the coil's local x, y and z (= normal) in the board frame."""
-        return _frame(self.normal, self.angle)
+        """Columns: the coil's local x, y and z (= normal) in the board frame: local x is the
+        global axis least aligned with the normal, projected into the coil plane and turned by
+        ``angle`` about it (for normal +z: global x turned by ``angle``)."""
+        from ..field._coils import coil_frame
+
+        return coil_frame(self.normal, self.angle)
 
     @property
     def pitch(self) -> float:

@@ -187,10 +187,7 @@ class BoardModel:
                                self.sensor_gains])
 
     def with_params(self, x) -> BoardModel:
-        x = np.asarray(x, dtype=np.float64)
-        sl = self._slices()
-        return BoardModel(self.board, x[sl["gains"]], x[sl["offsets"]].reshape(-1, 3),
-                           x[sl["tilts"]].reshape(-1, 3), x[sl["sensor_gains"]])
+        return BoardModel(self.board, **self.split_params(x))
 
     def split_params(self, x) -> dict:
         x = np.asarray(x, dtype=np.float64)

@@ -63,6 +63,31 @@ def held_out_rows(dataset):
                         sensor_fixture=SENSOR_FIXTURES)
 
 
+def truth_poses(data, cal) -> np.ndarray:
+    """Ground-truth poses ``(N, 4, 4)`` of ``data``'s rows under ``cal``'s fixtures."""
+    return ground_truth_poses(cal.source_fixture, cal.stage_fixture, cal.sensor_fixture,
+                              data.source_fixture, data.stage, data.sensor_fixture)
+
+
+def ilemt_solve(data, cal, solver: str, truth, *, initial="kim18", concentric_model=None):
+    """ILEMT's pose solution of ``data``'s rows with ``cal``'s model, in the hemisphere of
+    the ground truth ``truth (N, 4, 4)``: the Kim18 closed form (``solver='kim18'``), or the
+    LM (``'lm'``) from ``initial`` within ILEMT's position box and with its retry test
+    (docs/paper-procedure.md#iterative-solution). The complex couplings go to the solver so
+    that the validity residual is normalised by the complex spectral norm, as ILEMT's
+    resnorm is."""
+    from ..solve import hemisphere_from_positions, solve_kim18, solve_lm
+
+    hemi = hemisphere_from_positions(truth[:, :3, 3])
+    if solver == "kim18":
+        return solve_kim18(data.couplings, cal.model, hemisphere=hemi)
+    if solver == "lm":
+        return solve_lm(data.couplings, cal.model, initial=initial, hemisphere=hemi,
+                        bounds=ILEMT_POSITION_BOX_M, concentric_model=concentric_model,
+                        retry_resnorm=ILEMT_VALID_RESNORM)
+    raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
+
+
 def solve_held_out(data, cal, *, solver: str = "lm", concentric_model=None,
                    apply_correction: bool = False) -> HeldOutTest:
     """Solve and score test rows with a calibration (docs/paper-procedure.md#pose-solution, docs/paper-procedure.md#test-error).
@@ -100,19 +125,9 @@ def solve_held_out(data, cal, *, solver: str = "lm", concentric_model=None,
     (1896, 0.416, 0)
     """
     from ..correct import apply_linear_correction
-    from ..solve import hemisphere_from_positions, solve_kim18, solve_lm
 
-    F = (cal.source_fixture, cal.stage_fixture, cal.sensor_fixture)
-    D = ground_truth_poses(*F, data.source_fixture, data.stage, data.sensor_fixture)
-    hemi = hemisphere_from_positions(D[:, :3, 3])
-    if solver == "kim18":
-        res = solve_kim18(data.couplings, cal.model, hemisphere=hemi)
-    elif solver == "lm":
-        res = solve_lm(data.couplings, cal.model, initial="kim18", hemisphere=hemi,
-                       bounds=ILEMT_POSITION_BOX_M, concentric_model=concentric_model,
-                       retry_resnorm=ILEMT_VALID_RESNORM)
-    else:
-        raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
+    D = truth_poses(data, cal)
+    res = ilemt_solve(data, cal, solver, D, concentric_model=concentric_model)
     M = np.array(res.poses)
     if apply_correction:
         if cal.linear_correction is None:

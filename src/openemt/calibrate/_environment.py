@@ -18,11 +18,13 @@ model fits its coil moments' directions anyway). ``--environment`` takes
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._errors import InputError
+from ..field._environment import axis_poses
 
 __all__ = ["ENVIRONMENT_NAMES", "PLANAR_CANDIDATES", "BoardEnvironmentFit", "EnvironmentChoice",
            "EnvironmentFit", "fit_board_environment", "known_pose_errors",
@@ -116,17 +118,6 @@ PLANAR_CANDIDATES = {"none": {}, "tilt": {"tilt": True}, "dipoles:1": {"dipoles"
                      "tilt,dipoles:1": {"tilt": True, "dipoles": 1}}
 
 
-def _grid_poses(points, axes) -> np.ndarray:
-    """Poses ``(N, 4, 4)`` at ``points`` whose z axis is ``axes`` (the smallest rotation
-    from z)."""
-    from ..geometry import pose_from_vector, rotvec_between
-
-    u = np.asarray(axes, dtype=np.float64)
-    u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    return pose_from_vector(np.c_[np.asarray(points, dtype=np.float64),
-                                  rotvec_between(np.array([0.0, 0.0, 1.0]), u)])
-
-
 def known_pose_errors(model, points, axes, couplings, iterations: int = 8) -> np.ndarray:
     """Position errors (m) of single-coil samples solved from their known poses: each
     sample's couplings ``(N, n_source)`` fitted by batched Gauss-Newton started at the known
@@ -138,7 +129,7 @@ def known_pose_errors(model, points, axes, couplings, iterations: int = 8) -> np
     is a half turn)."""
     from scipy.spatial.transform import Rotation
 
-    P = _grid_poses(points, axes)
+    P = axis_poses(points, axes)
     C = np.asarray(couplings, dtype=np.float64).reshape(len(P), -1)
     for _ in range(int(iterations)):
         jac = model.jacobians(P, params=False)
@@ -162,16 +153,9 @@ def board_dipole_starts(points, margins=(0.1, 0.25)) -> np.ndarray:
     pts = np.asarray(points, dtype=np.float64)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     mid = 0.5 * (lo + hi)
-    out = []
-    for m in margins:
-        for a in (-1, 0, 1):
-            for b in (-1, 0, 1):
-                for c in (-1, 0, 1):
-                    if a == b == c == 0:
-                        continue
-                    s = np.array([a, b, c])
-                    out.append(np.where(s < 0, lo - m, np.where(s > 0, hi + m, mid)))
-    return np.array(out)
+    signs = [np.array(s) for s in itertools.product((-1, 0, 1), repeat=3) if any(s)]
+    return np.array([np.where(s < 0, lo - m, np.where(s > 0, hi + m, mid))
+                     for m in margins for s in signs])
 
 
 @dataclass(frozen=True, eq=False)
@@ -224,7 +208,7 @@ def fit_board_environment(data, start_model, fit_board, *, tilt: bool = False,
     the board's sensor coil)."""
     from dataclasses import replace as _replace
 
-    P = _grid_poses(data.points, data.axes)
+    P = axis_poses(data.points, data.axes)
     C = np.asarray(data.couplings, dtype=np.float64)[:, :, None]
     bf = fit_board(data, start_model, tilt=tilt) if board is None else board
     if not dipoles:
@@ -258,7 +242,7 @@ def dipole_residual_gain(board_model, data) -> float:
     """The fraction of the board's residual sum of squares on grid ``data`` one induced
     dipole removes at the best of :func:`board_dipole_starts` (moments solved linearly,
     position not refined): the cheap evidence for :data:`DIPOLE_GATE`."""
-    P = _grid_poses(data.points, data.axes)
+    P = axis_poses(data.points, data.axes)
     r = np.asarray(data.couplings, dtype=np.float64)[:, :, None] - board_model.coupling(P)
     ss0 = float(np.sum(r ** 2))
     if not ss0 > 0:
@@ -307,14 +291,8 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
     {"cv_position_rms_mm", "n"}}`` (with ``skipped``, the reason, where the dipole
     candidates were not tried: :data:`DIPOLE_GATE`).
     """
-    from ..solve import GridData
-
     cands = PLANAR_CANDIDATES if candidates is None else candidates
     fold = _folds(data.points, folds)
-
-    def subset(mask):
-        return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
-                        data.coil_names)
 
     boards, scores = {}, {}
     gate = None
@@ -327,8 +305,8 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
                 k0 = int(fold.min())
                 tr = fold != k0
                 if (k0, True) not in boards:
-                    boards[k0, True] = fit(subset(tr), start_model, tilt=True)
-                gate = dipole_residual_gain(boards[k0, True].model, subset(tr))
+                    boards[k0, True] = fit(data.subset(tr), start_model, tilt=True)
+                gate = dipole_residual_gain(boards[k0, True].model, data.subset(tr))
             if gate < DIPOLE_GATE:
                 scores[name] = {"cv_position_rms_mm": None, "n": 0,
                                 "skipped": f"one induced dipole takes {gate:.0%} of the "
@@ -340,9 +318,9 @@ def planar_environment_cv(data, start_model, fit, *, folds: int = PLANAR_FOLDS,
             if train.sum() < 7 or not test.any():
                 continue
             if (k, tilt) not in boards:
-                boards[k, tilt] = fit(subset(train), start_model, tilt=tilt)
+                boards[k, tilt] = fit(data.subset(train), start_model, tilt=tilt)
             m = boards[k, tilt].model if not k_dip else fit_board_environment(
-                subset(train), start_model, fit, tilt=tilt, dipoles=k_dip,
+                data.subset(train), start_model, fit, tilt=tilt, dipoles=k_dip,
                 board=boards[k, tilt]).model
             err.append(known_pose_errors(m, data.points[test], data.axes[test],
                                          data.couplings[test]))

@@ -74,7 +74,8 @@ class CalibrationFit:
     seconds: float
 
 
-def _check_inputs(dataset, start):
+def check_inputs(dataset, start):
+    """A Dataset and a start Calibration of its coil counts (TypeError, InputError)."""
     if not isinstance(dataset, Dataset):
         raise TypeError(f"expected `dataset` to be an openemt.io.Dataset, got "
                         f"{type(dataset).__name__}")
@@ -101,7 +102,7 @@ def _rows(dataset, mode, select):
 def _setup(dataset, start, mode, select, optimize, freeze):
     """The checked inputs of :func:`fit`: mode, groups, rows, layout, start vector, free
     indices (raises on inputs it cannot fit)."""
-    _check_inputs(dataset, start)
+    check_inputs(dataset, start)
     mode = get_mode(mode)
     opt = tuple(mode.optimize if optimize is None else optimize)
     frz = tuple(mode.freeze if freeze is None else freeze)
@@ -141,7 +142,7 @@ def residue_stats(dataset, calibration, mode="XYZ", *, select=True) -> ResidueSt
     >>> st.num_points, round(st.rms_residue, 6)
     (426, 0.004847)
     """
-    _check_inputs(dataset, calibration)
+    check_inputs(dataset, calibration)
     mode = get_mode(mode)
     data = _rows(dataset, mode, select)
     layout = ParameterLayout.for_model(calibration.model)

@@ -89,13 +89,9 @@ TERM_MIN_GAIN = 0.01
 TERM_MAX_CONDITION = 1e6
 
 
-def transfer(prob: ImprovedProblem, x, rows) -> tuple[ImprovedProblem, np.ndarray]:
-    """The problem of other ``rows`` (a Dataset) with the fitted parameters ``x`` of ``prob``.
-
-    Fixture-code corrections are carried over by code; codes the fit did not see get none
-    (:func:`openemt.calibrate.carry_parameters`).
-    """
-    return carry_parameters(prob, x, rows)
+#: ``transfer(prob, x, rows)``: the problem of other ``rows`` with the fitted parameters ``x``
+#: of ``prob`` (:func:`openemt.calibrate.carry_parameters`)
+transfer = carry_parameters
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,7 +252,7 @@ def _cross_validate(md, start, options, concentric_model, folds, seed=0, initial
         f = _fit(train, start, options, start_k)
         prob, x = f.problem, f.x
         fits.append((prob, x))
-        tp, xt = transfer(prob, x, test)
+        tp, xt = carry_parameters(prob, x, test)
         s = solve_and_score(tp, xt, test, concentric_model)
         trans.append(s.trans)
         rot.append(s.rot)
@@ -309,20 +305,11 @@ class TermDecision(Result):
     parameters: dict
 
 
-_TERM_KEYS = {"rz_error_motion": "rz_error_motion", "induced_dipole": "induced_dipole",
-              "gain_nonlinearity": "gain_nonlinearity", "coupling_offset": "coupling_offset"}
-
-
 def _flat(v) -> np.ndarray:
     """Numbers of a nested dict / list (a RigModel.to_dict entry), flattened."""
     if isinstance(v, dict):
         return np.concatenate([_flat(x) for x in v.values()] or [np.zeros(0)])
     return np.ravel(np.asarray(v, dtype=np.float64))
-
-
-def _identify(md, start, options, initial=None):
-    """Fit on every md row; ``(prob, x, free, ident, se)``."""
-    return _identified(_fit(md, start, options, initial))
 
 
 def _identified(f):
@@ -359,7 +346,7 @@ def select_terms(md, start, concentric_model, *, base: RigOptions = IMPROVED_OPT
 
 def _select_terms(md, start, concentric_model, base, terms, folds):
     """:func:`select_terms`, and the chosen model's fit on every md row (an
-    :class:`~openemt.calibrate.ImprovedFit`, or the :func:`_identify` tuple of a term's).
+    :class:`~openemt.calibrate.ImprovedFit`, or the :func:`_identified` tuple of a term's).
 
     Each fit on every md row starts from the model kept so far (the base from ``start``);
     each cross-validation fold of a term from the same fold's fit of the model kept so far,
@@ -375,7 +362,7 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
     fits = {"base": warm}
     for name, change in terms.items():
         trial = dataclasses.replace(options, **change)
-        fit_t = _identify(md, start, trial, initial=warm)
+        fit_t = _identified(_fit(md, start, trial, warm))
         prob, x, free, ident, se = fit_t
         cv_t, folds_t = _cross_validate(md, start, trial, concentric_model, folds,
                                         initial=(prob, x), previous=folds_kept)
@@ -388,11 +375,10 @@ def _select_terms(md, start, concentric_model, base, terms, folds):
               f"({-100 * gain:+.1f} %, needs <= {-100 * TERM_MIN_GAIN:.0f} %), rank "
               f"{ident.rank} of {ident.n_free}, condition "
               + (f"{cond:.3g}" if cond is not None else "inf"))
-        key = _TERM_KEYS.get(name)
         params = {}
-        if key is not None:
-            params = {"value": prob.rig(x).to_dict()[key],
-                      "standard_error": prob.rig(se).to_dict()[key]}
+        if name in TERMS:           # the RigModel.to_dict entry of a term is named as it is
+            params = {"value": prob.rig(x).to_dict()[name],
+                      "standard_error": prob.rig(se).to_dict()[name]}
             v, e_ = _flat(params["value"]), _flat(params["standard_error"])
             weak = int(np.sum(np.abs(v) < 2 * e_))
             if weak:
@@ -492,7 +478,7 @@ class ImprovedCalibration:
         if i.size == 0:
             return repeat_scatter(np.zeros((0, 4, 4)), np.zeros((0, 4, 4)))
         sub = rows.select(j)
-        tp, xt = transfer(self.problem, self.x, sub)
+        tp, xt = carry_parameters(self.problem, self.x, sub)
         s = solve_and_score(tp, xt, sub, cm)
         return repeat_scatter(self.md_scored.poses[i], s.poses)
 
@@ -504,7 +490,7 @@ class ImprovedCalibration:
         kept = {d.term: d.kept for d in self.terms}
         out = {}
         for label, (prob, x) in self.steps.items():
-            tp, xt = transfer(prob, x, rows)
+            tp, xt = carry_parameters(prob, x, rows)
             s = solve_and_score(tp, xt, rows, cm)
             out[label] = {"kept": kept.get(label.rsplit("+", 1)[-1], True),
                           "summary": {k: s.summary[k] for k in ("trans_rms_mm", "rot_rms_deg")},
@@ -521,7 +507,7 @@ class ImprovedCalibration:
         solved with the model of the calibration :meth:`to_calibration` writes (its
         ``coupling_model``: octupole and environment terms) and its output correction."""
         cm = self.concentric_model if concentric_model is None else concentric_model
-        tp, xt = transfer(self.problem, self.x, rows)
+        tp, xt = carry_parameters(self.problem, self.x, rows)
         cal = self.to_calibration()
         out = {}
         # one solve: the corrected row applies the output correction to the same poses
@@ -641,9 +627,8 @@ def improved_calibration(dataset, start, concentric_model, *, options=IMPROVED_O
     t_sel = time.perf_counter() - t0
     t0 = time.perf_counter()
     if chosen is None:
-        prob, x, free, ident, se = _identify(md, start, options)
-    else:
-        prob, x, free, ident, se = chosen if isinstance(chosen, tuple) else _identified(chosen)
+        chosen = _fit(md, start, options)
+    prob, x, free, ident, se = chosen if isinstance(chosen, tuple) else _identified(chosen)
     r = prob.residuals(x)
     # output correction on the calibration rows, solved from the truth (docs/paper-procedure.md#output-correction)
     D = prob.poses(x)

@@ -71,16 +71,6 @@ class CalibrationMode:
     patterns: tuple[str, ...] | None = ("md",)
     description: str = ""
 
-    def with_rows(self, *, source_fixtures=..., sensor_fixtures=..., patterns=...
-                  ) -> CalibrationMode:
-        """A copy with a different row selection (``...`` keeps the current value)."""
-        kw = {}
-        for k, v in (("source_fixtures", source_fixtures), ("sensor_fixtures", sensor_fixtures),
-                     ("patterns", patterns)):
-            if v is not ...:
-                kw[k] = None if v is None else tuple([v] if isinstance(v, str) else v)
-        return replace(self, **kw)
-
 
 _NO_POS = tuple(g for g in DEFAULT_OPTIMIZE if g not in ("d_so_pos", "d_se_pos"))
 

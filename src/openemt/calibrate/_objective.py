@@ -80,10 +80,6 @@ class CalibrationProblem:
     def n_rows(self) -> int:
         return self.C_meas.shape[0]
 
-    @property
-    def n_residuals(self) -> int:
-        return self.C_meas.size
-
     def poses(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Ground-truth poses ``P (N, 4, 4)`` plus the partial products needed by the Jacobian:
         ``A = F_so so_J`` (left of F_st), ``D = A F_st st_J`` (left of F_se), and ``F_se``."""

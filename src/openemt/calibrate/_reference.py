@@ -35,6 +35,7 @@ from .._errors import InputError
 from ..io import Calibration, Dataset
 from ..solve import spectral_norms
 from ._engine import fit_problem, fit_provenance, residue_block
+from ._fit import check_inputs
 from ._identifiability import IdentifiabilityWarning
 from ._layout import ParameterLayout
 from ._objective import CalibrationProblem
@@ -589,15 +590,9 @@ def fit_reference(dataset, start, *, hemisphere=None, freeze=(), holdout: float 
     """
     from ..geometry import vector_from_pose
 
-    if not isinstance(start, Calibration):
-        raise TypeError(f"expected `start` to be an openemt.io.Calibration, got "
-                        f"{type(start).__name__}")
+    check_inputs(dataset, start)
     B_all, info = reference_poses(dataset)
     method, S = _weighting(weighting, info)
-    if (dataset.n_source, dataset.n_sensor) != (start.model.n_source, start.model.n_sensor):
-        raise InputError(f"expected a dataset with {start.model.n_source} x "
-                         f"{start.model.n_sensor} coils like the start calibration, got "
-                         f"{dataset.n_source} x {dataset.n_sensor}")
     C_all = dataset.signed_real()
     ok = np.all(np.isfinite(B_all), axis=(1, 2)) & np.all(np.isfinite(C_all), axis=(1, 2))
     if not ok.all():

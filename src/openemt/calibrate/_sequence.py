@@ -20,10 +20,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._constants import ILEMT_POSITION_BOX_M
-from .._errors import InputError
-from ..geometry import ground_truth_poses, vector_from_pose
-from ._check import ILEMT_VALID_RESNORM
+from ..geometry import vector_from_pose
+from ._check import ILEMT_VALID_RESNORM, ilemt_solve, truth_poses
 from ._fit import CalibrationFit, fit
 from ._modes import get_mode, select_rows
 
@@ -94,26 +92,6 @@ class OutputCorrection:
     method: str
 
 
-def _solve_rows(data, cal, solver: str, truth_poses):
-    """Solve the calibration rows' poses; returns (positions (N, 3), resnorm (N,)).
-
-    The complex couplings go to the solver so that the validity residual is normalised by the
-    complex spectral norm, as ILEMT's resnorm is (docs/paper-procedure.md#iterative-solution).
-    """
-    from ..solve import hemisphere_from_positions, solve_kim18, solve_lm
-
-    hemi = hemisphere_from_positions(truth_poses[:, :3, 3])
-    if solver == "kim18":
-        res = solve_kim18(data.couplings, cal.model, hemisphere=hemi)
-    elif solver == "lm":
-        res = solve_lm(data.couplings, cal.model, initial=vector_from_pose(truth_poses),
-                       hemisphere=hemi, bounds=ILEMT_POSITION_BOX_M,
-                       retry_resnorm=ILEMT_VALID_RESNORM)
-    else:
-        raise InputError(f"expected solver 'lm' or 'kim18', got {solver!r}")
-    return res.poses[:, :3, 3], np.asarray(res.residual, dtype=np.float64)
-
-
 def fit_output_correction(data, cal, *, solver: str = "lm",
                           valid_threshold: float = ILEMT_VALID_RESNORM,
                           min_valid: float = 0.75) -> OutputCorrection:
@@ -126,9 +104,9 @@ def fit_output_correction(data, cal, *, solver: str = "lm",
     """
     from ..correct import fit_dlt
 
-    F = (cal.source_fixture, cal.stage_fixture, cal.sensor_fixture)
-    P = ground_truth_poses(*F, data.source_fixture, data.stage, data.sensor_fixture)
-    xyz, resnorm = _solve_rows(data, cal, solver, P)
+    P = truth_poses(data, cal)
+    res = ilemt_solve(data, cal, solver, P, initial=vector_from_pose(P))
+    xyz, resnorm = res.poses[:, :3, 3], np.asarray(res.residual, dtype=np.float64)
     ok = np.isfinite(resnorm) & (resnorm < valid_threshold) & np.all(np.isfinite(xyz), axis=1)
     n, n_ok = len(ok), int(ok.sum())
     if n_ok < min_valid * n:

@@ -9,20 +9,17 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option as _opt
 from .._result import Result
 from ._modes import MODES
 
 __all__ = ["CalibrateOptions", "CalibrateResult", "calibrate_dataset", "load_dataset"]
-
-
-def _opt(default, help, **meta):
-    return field(default=default, metadata={"help": help, **meta})
 
 
 @dataclass(frozen=True)
@@ -214,7 +211,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
     """Planar mode: fit a finite-coil board to a grid CSV (docs/planar.md#calibration)."""
     from ..board import BoardModel
     from ..io import load_board, read_calibration
-    from ..solve import GridData, planar_accuracy
+    from ..solve import planar_accuracy
     from ._environment import (
         PLANAR_CANDIDATES,
         fit_board_environment,
@@ -253,10 +250,6 @@ def _planar(o, say, compile_) -> CalibrateResult:
                          f"{' and one to hold out' if o.holdout else ''}, got "
                          f"{len(data.points)} points")
 
-    def subset(mask):
-        return GridData(data.points[mask], data.axes[mask], data.couplings[mask],
-                        data.coil_names)
-
     compile_()
     env = parse_environment(o.environment)
     tilt, dipoles, env_prov = bool(o.tilt or env.tilt), env.dipoles, None
@@ -264,7 +257,7 @@ def _planar(o, say, compile_) -> CalibrateResult:
         say(f"choosing the environment terms by cross-validation on {int(fit_mask.sum())} "
             f"grid points ...")
         chosen, scores = planar_environment_cv(
-            subset(fit_mask), start_model,
+            data.subset(fit_mask), start_model,
             lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt, uncertainty=False))
         tilt = bool(PLANAR_CANDIDATES[chosen].get("tilt"))
         dipoles = int(PLANAR_CANDIDATES[chosen].get("dipoles", 0))
@@ -277,15 +270,15 @@ def _planar(o, say, compile_) -> CalibrateResult:
     say(f"fitting the gains and offsets{' and tilts' if tilt else ''} of "
         f"{data.couplings.shape[1]} coils{f' and {dipoles} induced dipole(s)' if dipoles else ''}"
         f" on {int(fit_mask.sum())} grid points ...")
-    both = fit_board_environment(subset(fit_mask), start_model,
+    both = fit_board_environment(data.subset(fit_mask), start_model,
                                  lambda d, m, tilt=False: fit_planar(d, m, fit_tilt=tilt),
                                  tilt=tilt, dipoles=dipoles)
     fit, model = both.board, both.model
     say("solving the grid points with the fitted board (5-DOF) to score it ...")
-    insample = planar_accuracy(model, subset(fit_mask))
+    insample = planar_accuracy(model, data.subset(fit_mask))
     holdout = None
     if o.holdout:
-        holdout = {**planar_accuracy(model, subset(~fit_mask)), "scheme": o.holdout}
+        holdout = {**planar_accuracy(model, data.subset(~fit_mask)), "scheme": o.holdout}
     warns = []
     if fit.status != "converged":
         warns.append(f"the planar fit ended with status {fit.status!r} after {fit.iterations} "
@@ -330,13 +323,10 @@ def _rig(o, say, compile_) -> CalibrateResult:
     from ._sequence import fit_output_correction
 
     dataset = load_dataset(o.dataset)
-    start_path = o.start
+    start_path = _start_file(o)
     if start_path is None:
-        cand = Path(o.dataset) / "base_calibration.mat"
-        if not cand.is_file():
-            raise InputError("expected --from CAL (no base_calibration.mat in the dataset "
-                             "folder), got none")
-        start_path = cand
+        raise InputError("expected --from CAL (no base_calibration.mat in the dataset "
+                         "folder), got none")
     start = read_calibration(start_path)
     if solver_family(start.model) != "dipole":       # the rig's modes name dipole groups
         what = "finite-coil board" if start.model.kind == "finite" else \
@@ -436,14 +426,20 @@ def _rig(o, say, compile_) -> CalibrateResult:
                            cal, tuple(human))
 
 
+def _start_file(o):
+    """``--from``, else the dataset folder's ``base_calibration.mat``, else None."""
+    if o.start is not None:
+        return o.start
+    cand = Path(o.dataset) / "base_calibration.mat"
+    return cand if cand.is_file() else None
+
+
 def _reference_start(o, dataset, nominal):
     from ..io import read_calibration
 
-    if o.start is not None:
-        return read_calibration(o.start), str(o.start)
-    cand = Path(o.dataset) / "base_calibration.mat"
-    if cand.is_file():
-        return read_calibration(cand), str(cand)
+    path = _start_file(o)
+    if path is not None:
+        return read_calibration(path), str(path)
     preset = dataset.meta.get("preset")
     if preset is None or nominal is None:
         raise InputError("expected --from CAL (the dataset names no simulated preset and has "
@@ -455,7 +451,6 @@ def _reference(o, nominal) -> CalibrateResult:
     from ._reference import fit_reference, reference_poses
 
     dataset = load_dataset(o.dataset)
-    note = None
     reference_poses(dataset)                  # none: one error line, exit 2
     start, start_path = _reference_start(o, dataset, nominal)
     with warnings.catch_warnings(record=True) as caught:
@@ -477,7 +472,7 @@ def _reference(o, nominal) -> CalibrateResult:
         "se_units": "m, m, m, rad, rad, rad (translation; left rotation about parent axes)",
         "reference": {k: v for k, v in ref.items()
                       if k in ("kind", "noise_trans_m", "noise_rot_rad")},
-        "note": note}
+        "note": None}
     human = [(f"reference: rms_residue {f.rms_residue:.7g} over {f.n_train} poses, "
               f"{f.free.size} free parameters (rank {ident['rank']}), X/Y condition "
               f"{ident['xy_condition'] or float('inf'):.3g}")]
@@ -492,8 +487,6 @@ def _reference(o, nominal) -> CalibrateResult:
         h = f.holdout
         human.append(f"held out {h['n']} poses: {h['trans_rms_mm']:.4f} mm RMS "
                      f"({h['trans_max_mm']:.4f} max), {h['rot_rms_deg']:.4f} deg RMS")
-    if note:
-        human.append(f"note: {note}")
     warns = [str(x.message) for x in caught]
     if not f.holdout:
         warns.append("no held-out score: give --holdout FRACTION (or location) to score the "

@@ -30,6 +30,7 @@ __all__ = [
     "ROTATION_MOMENT_M",
     "apply_rotation_offsets",
     "check_folds",
+    "held_out_poses",
     "held_out_predictions",
     "kfold_splits",
     "location_groups",
@@ -37,6 +38,7 @@ __all__ = [
     "normalizer",
     "pair_errors",
     "rotation_offsets",
+    "take_rows",
 ]
 
 
@@ -133,6 +135,25 @@ def held_out_predictions(fit: Callable, predict: Callable, n: int, splits) -> li
     if not np.all(seen == 1):
         raise InputError("expected the test folds to partition the rows, got overlaps or gaps")
     return out
+
+
+def take_rows(rows, *arrays) -> tuple:
+    """The rows ``rows`` of each array (None, no rotations, stays None)."""
+    return tuple(None if a is None else np.asarray(a)[rows] for a in arrays)
+
+
+def held_out_poses(fit: Callable, m, Rm, splits) -> tuple[np.ndarray, np.ndarray | None]:
+    """Held-out predictions ``(xyz, R or None)`` of the measured positions ``m`` and
+    rotations ``Rm``: each test part predicted by ``fit(train)`` of its split
+    (:func:`held_out_predictions`)."""
+    xyz = np.empty_like(m)
+    R = None if Rm is None else np.empty_like(Rm)
+    for rows, (px, pR) in held_out_predictions(
+            fit, lambda model, rows: model.predict(*take_rows(rows, m, Rm)), len(m), splits):
+        xyz[rows] = px
+        if R is not None:
+            R[rows] = pR
+    return xyz, R
 
 
 def pair_errors(xyz, R, reference_xyz, reference_R) -> tuple[np.ndarray, np.ndarray | None]:

@@ -31,10 +31,12 @@ from .._errors import InputError, check_nonnegative
 from ._crossval import (
     ROTATION_MOMENT_M,
     apply_rotation_offsets,
+    held_out_poses,
     location_kfold,
     normalizer,
     pair_errors,
     rotation_offsets,
+    take_rows,
 )
 
 #: largest lookup grid (nodes) a fit may ask for: 46 x 46 x 46; a larger grid has more unknowns
@@ -102,15 +104,8 @@ def _choose_smoothing(fit_one, m, d, Rm, Rd, grid, k, seed, min_train: int = 1
                          f"smoothing selection, got {smallest} of {len(m)} pairs")
     scores = {}
     for s in grid:
-        xyz = np.empty_like(m)
-        R = None if Rm is None else np.empty_like(Rm)
-        for train, test in splits:
-            model = fit_one(train, s)
-            px, pR = model.predict(m[test], None if Rm is None else Rm[test])
-            xyz[test] = px
-            if R is not None:
-                R[test] = pR
-        scores[repr(float(s))] = _cv_score(m, d, Rm, Rd, (xyz, R))
+        held = held_out_poses(lambda train, s=s: fit_one(train, s), m, Rm, splits)
+        scores[repr(float(s))] = _cv_score(m, d, Rm, Rd, held)
     best = min(scores, key=scores.get)
     return float(best), {"held_out_score": scores}
 
@@ -266,8 +261,7 @@ def fit_grid(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *, 
     selection = {}
     if smoothing is None:
         def fit_one(rows, s):
-            yr = _targets(m[rows], d[rows], None if Rm is None else Rm[rows],
-                          None if Rd is None else Rd[rows])
+            yr = _targets(*take_rows(rows, m, d, Rm, Rd))
             return GridCorrection(lower, upper, shape,
                                   _fit_grid_once(m[rows], yr, shape, s, lower, upper), s)
         smoothing, selection = _choose_smoothing(fit_one, m, d, Rm, Rd, SMOOTHING_GRID, k, seed)
@@ -360,9 +354,7 @@ def fit_rbf(measured_xyz, reference_xyz, measured_R=None, reference_R=None, *,
     if n_all > max_centres:
         keep = np.sort(np.random.default_rng(seed).choice(n_all, int(max_centres),
                                                           replace=False))
-        m, d = m[keep], d[keep]
-        Rm = None if Rm is None else Rm[keep]
-        Rd = None if Rd is None else Rd[keep]
+        m, d, Rm, Rd = take_rows(keep, m, d, Rm, Rd)
     center, scale = normalizer(m)
     pts = (m - center) / scale
     y = _targets(m, d, Rm, Rd)

@@ -30,10 +30,11 @@ from ._bernstein import (
 from ._crossval import (
     ROTATION_MOMENT_M,
     check_folds,
-    held_out_predictions,
+    held_out_poses,
     kfold_splits,
     location_kfold,
     pair_errors,
+    take_rows,
 )
 from ._dlt import DltFit, fit_dlt
 from ._dof import pair_requirements
@@ -548,17 +549,11 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
         ok &= np.all(np.isfinite(Rm), axis=(1, 2)) & np.all(np.isfinite(Rd), axis=(1, 2))
     n_dropped = int((~ok).sum())
     if n_dropped:
-        m, d = m[ok], d[ok]
-        Rm = None if Rm is None else Rm[ok]
-        Rd = None if Rd is None else Rd[ok]
-        groups = None if groups is None else np.asarray(groups)[ok]
+        m, d, Rm, Rd, groups = take_rows(ok, m, d, Rm, Rd, groups)
     n_pairs = len(m)
     if n_pairs > MAX_FIT_PAIRS:
         keep = np.sort(np.random.default_rng(seed).choice(n_pairs, MAX_FIT_PAIRS, replace=False))
-        m, d = m[keep], d[keep]
-        Rm = None if Rm is None else Rm[keep]
-        Rd = None if Rd is None else Rd[keep]
-        groups = None if groups is None else np.asarray(groups)[keep]
+        m, d, Rm, Rd, groups = take_rows(keep, m, d, Rm, Rd, groups)
     if method != "dlt":  # inner selection (order / smoothing) uses the same folds setting
         options = {"k": k, "seed": seed, **options}
     if method == "bernstein" and options.get("box") is None:
@@ -578,19 +573,9 @@ def fit_correction(measured, reference, method: str = "poly", *, k: int = 5, see
             splits = location_kfold(m, k, seed=seed)
             scheme = f"{len(splits)}-fold by location"
 
-        def fit_rows(rows):
-            return _fit_model(method, m[rows], None if Rm is None else Rm[rows], d[rows],
-                              None if Rd is None else Rd[rows], options)
-
-        def predict_rows(mod, rows):
-            return mod.predict(m[rows], None if Rm is None else Rm[rows])
-
-        xyz_ho = np.empty_like(m)
-        R_ho = None if Rm is None else np.empty_like(Rm)
-        for rows, (px, pR) in held_out_predictions(fit_rows, predict_rows, len(m), splits):
-            xyz_ho[rows] = px
-            if R_ho is not None:
-                R_ho[rows] = pR
+        xyz_ho, R_ho = held_out_poses(
+            lambda rows: _fit_model(method, *take_rows(rows, m, Rm, d, Rd), options), m, Rm,
+            splits)
         stats["held_out"] = {
             "scheme": scheme,
             "n_folds": len(splits), "seed": int(seed),

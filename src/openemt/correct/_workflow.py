@@ -8,12 +8,13 @@ and writes them with a status per row (docs/correction.md#the-fitted-box).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError, check_nonnegative
+from .._options import option
 from .._result import Result
 from ._model import _summary, check_margin, read_correction, write_correction
 from ._region import STATUS
@@ -23,49 +24,42 @@ __all__ = ["ApplyOptions", "ApplyResult", "FitOptions", "FitResult", "apply_corr
 
 _METHODS = ("auto", "none", "dlt", "poly", "bernstein", "grid", "rbf")
 _UNITS = {
-    "length_unit": field(default="m", metadata={
-        "choices": ("m", "mm"), "help": "unit of position columns without a _m/_mm suffix"}),
-    "angle_unit": field(default="rad", metadata={
-        "choices": ("rad", "deg"),
-        "help": "unit of rotation-vector columns without a _rad/_deg suffix"}),
+    "length_unit": option("m", "unit of position columns without a _m/_mm suffix",
+                          choices=("m", "mm")),
+    "angle_unit": option("rad", "unit of rotation-vector columns without a _rad/_deg suffix",
+                         choices=("rad", "deg")),
 }
 
 
 def _out(help_text):
-    return field(default=None, metadata={"flag": ("-o", "--output"), "help": help_text})
+    return option(None, help_text, flag=("-o", "--output"))
 
 
 @dataclass(frozen=True)
 class FitOptions:
     """Options of :func:`fit_correction_files` (``openemt correct fit``)."""
 
-    pairs: tuple[str, ...] | None = field(default=None, metadata={
-        "positional": True, "help": "pose-pair CSV file(s) with ref_ columns (or pose "
-                                    "datasets with reference poses)"})
+    pairs: tuple[str, ...] | None = option(
+        None, "pose-pair CSV file(s) with ref_ columns (or pose datasets with reference poses)",
+        positional=True)
     output: str | None = _out("correction JSON to write (required)")
-    method: str = field(default="poly", metadata={
-        "choices": _METHODS,
-        "help": "correction method; auto: the lowest held-out error, none included"})
-    folds: int = field(default=5, metadata={"help": "k of the k-fold held-out errors (2 to 20)"})
-    seed: int = field(default=0, metadata={"help": "seed of the folds (and RBF subsample)"})
-    holdout_files: bool = field(default=False, metadata={
-        "help": "hold out one input file at a time instead of k random folds"})
-    order: int | None = field(default=None, metadata={
-        "help": "poly: position order (default: by CV, 1-5)"})
-    rot_order: int | None = field(default=None, metadata={
-        "help": "poly: orientation order (default: by CV)"})
-    degree: int | None = field(default=None, metadata={
-        "help": "bernstein: position degree per axis (default: by CV, 1-6)"})
-    rot_degree: int | None = field(default=None, metadata={
-        "help": "bernstein: orientation degree (default: by CV)"})
-    grid_shape: str | None = field(default=None, metadata={
-        "help": "grid: nodes per axis, e.g. 5,5,5"})
-    smoothing: float | None = field(default=None, metadata={
-        "help": "grid/rbf smoothing (default: by CV)"})
-    positions_only: bool = field(default=False, metadata={
-        "help": "correct positions only, even if orientations are given"})
-    average_static: bool = field(default=False, metadata={
-        "help": "average samples with the same pose_id before fitting"})
+    method: str = option("poly", "correction method; auto: the lowest held-out error, none "
+                         "included", choices=_METHODS)
+    folds: int = option(5, "k of the k-fold held-out errors (2 to 20)")
+    seed: int = option(0, "seed of the folds (and RBF subsample)")
+    holdout_files: bool = option(False, "hold out one input file at a time instead of k random "
+                                 "folds")
+    order: int | None = option(None, "poly: position order (default: by CV, 1-5)")
+    rot_order: int | None = option(None, "poly: orientation order (default: by CV)")
+    degree: int | None = option(None, "bernstein: position degree per axis (default: by CV, "
+                                "1-6)")
+    rot_degree: int | None = option(None, "bernstein: orientation degree (default: by CV)")
+    grid_shape: str | None = option(None, "grid: nodes per axis, e.g. 5,5,5")
+    smoothing: float | None = option(None, "grid/rbf smoothing (default: by CV)")
+    positions_only: bool = option(False, "correct positions only, even if orientations are "
+                                  "given")
+    average_static: bool = option(False, "average samples with the same pose_id before "
+                                  "fitting")
     length_unit: str = _UNITS["length_unit"]
     angle_unit: str = _UNITS["angle_unit"]
 
@@ -74,21 +68,20 @@ class FitOptions:
 class ApplyOptions:
     """Options of :func:`apply_correction_file` (``openemt correct apply``)."""
 
-    correction: str | None = field(default=None, metadata={
-        "positional": True, "help": "correction JSON written by 'correct fit'"})
-    poses: str | None = field(default=None, metadata={
-        "positional": True,
-        "help": "pose CSV or pose dataset (.h5) to correct (reference poses optional)"})
+    correction: str | None = option(None, "correction JSON written by 'correct fit'",
+                                    positional=True)
+    poses: str | None = option(
+        None, "pose CSV or pose dataset (.h5) to correct (reference poses optional)",
+        positional=True)
     output: str | None = _out("corrected poses to write: pose dataset if it ends in .h5, "
                               "else CSV (required); a status per row says what was corrected")
-    extrapolate_margin: float = field(default=0.0, metadata={
-        "metavar": "M",
-        "help": "also correct poses up to M metres outside the fitted box (flagged "
-                "'extrapolated'); default 0: poses outside the box are passed through "
-                "uncorrected and flagged 'outside_box'"})
-    allow_unknown_box: bool = field(default=False, metadata={
-        "help": "apply a version-1 DLT or polynomial file (no fitted box recorded) to every "
-                "pose, flagged 'unchecked' (refused otherwise)"})
+    extrapolate_margin: float = option(
+        0.0, "also correct poses up to M metres outside the fitted box (flagged "
+        "'extrapolated'); default 0: poses outside the box are passed through uncorrected "
+        "and flagged 'outside_box'", metavar="M")
+    allow_unknown_box: bool = option(
+        False, "apply a version-1 DLT or polynomial file (no fitted box recorded) to every "
+        "pose, flagged 'unchecked' (refused otherwise)")
     length_unit: str = _UNITS["length_unit"]
     angle_unit: str = _UNITS["angle_unit"]
 
@@ -155,11 +148,10 @@ def _read_pairs(opts):
 
 def _method_options(opts, method) -> dict:
     out = {}
-    for name, key, methods in (("order", "order", "poly"), ("rot_order", "rot_order", "poly"),
-                               ("degree", "degree", "bernstein"),
-                               ("rot_degree", "rot_degree", "bernstein")):
-        if method == methods and getattr(opts, name) is not None:
-            out[key] = getattr(opts, name)
+    for name, for_method in (("order", "poly"), ("rot_order", "poly"), ("degree", "bernstein"),
+                             ("rot_degree", "bernstein")):
+        if method == for_method and getattr(opts, name) is not None:
+            out[name] = getattr(opts, name)
     if method in ("grid", "rbf") and opts.smoothing is not None:
         out["smoothing"] = check_nonnegative(opts.smoothing, "--smoothing")
     if method == "grid" and opts.grid_shape:
@@ -359,13 +351,10 @@ def apply_correction_file(options: ApplyOptions) -> ApplyResult:
     margin = check_margin(opts.extrapolate_margin)
     corr = read_correction(opts.correction)
     ds, poses, reference, has_rot, ref_rot, group, tm, frame = _read_poses(opts)
-    if has_rot:
-        res = corr.correct(poses, extrapolate_margin=margin,
-                           allow_unknown_box=opts.allow_unknown_box)
-        P = res.values
-    else:
-        res = corr.correct(poses[:, :3, 3], extrapolate_margin=margin,
-                           allow_unknown_box=opts.allow_unknown_box)
+    res = corr.correct(poses if has_rot else poses[:, :3, 3], extrapolate_margin=margin,
+                       allow_unknown_box=opts.allow_unknown_box)
+    P = res.values
+    if not has_rot:
         P = poses.copy()
         P[:, :3, 3] = res.values
     codes = {str(k): v for k, v in STATUS.items()}

@@ -86,7 +86,15 @@ def _count(n, name: str, minimum: int = 1) -> int:
     return int(n)
 
 
-def _frame(axis, angle: float = 0.0) -> np.ndarray:
+def _gain(g) -> float:
+    """A coil's or a coil model's ``gain``: a finite non-zero number (not a bool)."""
+    if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(g) or g == 0:
+        raise InputError(f"expected a finite non-zero `gain`, got {g!r}")
+    return float(g)
+
+
+def coil_frame(axis, angle: float = 0.0) -> np.ndarray:
     """Right-handed rotation whose third column is ``axis``; the first column is the global
     axis least aligned with ``axis`` (x, then y, then z on ties) projected into the coil plane,
     then turned by ``angle`` (rad) about ``axis``."""
@@ -190,11 +198,7 @@ class Coil:
         object.__setattr__(self, "size", _nonneg(self.size, "size", positive=True))
         object.__setattr__(self, "turns", _count(self.turns, "turns"))
         object.__setattr__(self, "layers", _count(self.layers, "layers"))
-        g = self.gain
-        if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) \
-                or not np.isfinite(g) or g == 0:
-            raise InputError(f"expected a finite non-zero `gain`, got {g!r}")
-        object.__setattr__(self, "gain", float(g))
+        object.__setattr__(self, "gain", _gain(self.gain))
         order = tuple(self.order) if np.ndim(self.order) == 1 else ()
         if len(order) != 3:
             raise InputError(f"expected `order` = (n_depth, n_length, n_area), got {self.order!r}")
@@ -478,7 +482,7 @@ def circular_coil(center, axis, *, radius, length=0.0, turns=1, gain=1.0, depth=
         ``(n_depth, n_length, n_area)``; default: 2 across a depth (else 1), 2 along a length
         up to 10 mm, 3 beyond (else 1), and 1 (the 4-point area rule).
     """
-    return Coil("circular", center, _frame(axis), radius, length=length, depth=depth,
+    return Coil("circular", center, coil_frame(axis), radius, length=length, depth=depth,
                 turns=turns, gain=gain, order=_auto_order(order, depth, length))
 
 
@@ -492,7 +496,7 @@ def square_coil(center, axis, *, side, length=0.0, turns=1, gain=1.0, depth=0.0,
     from ``side - depth`` to ``side + depth``. Other parameters as :func:`circular_coil`.
     Corners are sharp; no core is modelled (air-core field).
     """
-    return Coil("square", center, _frame(axis, float(angle)), side, length=length, depth=depth,
+    return Coil("square", center, coil_frame(axis, float(angle)), side, length=length, depth=depth,
                 turns=turns, gain=gain, order=_auto_order(order, depth, length))
 
 
@@ -519,7 +523,7 @@ def square_spiral_coil(center, rotation=0.0, *, turns=25, outer_side=0.070, trac
         Coil normal when ``rotation`` is an angle.
     """
     if np.ndim(rotation) == 0:
-        R = _frame(axis, float(rotation))
+        R = coil_frame(axis, float(rotation))
     else:
         R = rotation
     return Coil("spiral", center, R, outer_side, length=layer_gap, turns=turns, gain=gain,

@@ -154,11 +154,7 @@ class DipoleModel:
     solver_family = "dipole"
 
     def with_params(self, x) -> DipoleModel:
-        x = np.asarray(x, dtype=np.float64)
-        sl = self.param_slices()
-        n = {"L_so": self.n_source, "M_so": self.n_source, "L_se": self.n_sensor,
-             "M_se": self.n_sensor}
-        return DipoleModel(gain=self.gain, **{k: x[sl[k]].reshape(n[k], 3).T for k in sl})
+        return DipoleModel(gain=self.gain, **self.split_params(x))
 
     def split_params(self, x) -> dict:
         """A parameter-length vector (e.g. standard errors) -> ``{'L_so': (3, n_so), ...}``."""

@@ -47,7 +47,7 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["EnvironmentModel", "EnvironmentTerms", "read_gain", "sensor_dipoles"]
+__all__ = ["EnvironmentModel", "EnvironmentTerms", "axis_poses", "read_gain", "sensor_dipoles"]
 
 
 #: Farthest induced dipole position a calibration may carry (m): an effective position, often
@@ -302,6 +302,17 @@ def sensor_dipoles(base) -> tuple[float, np.ndarray, np.ndarray]:
     return 1.0, np.asarray(sensor.coil_positions()).T, np.asarray(sensor.coil_axes()).T * g
 
 
+def axis_poses(points, axes) -> np.ndarray:
+    """Poses ``(N, 4, 4)`` of a single-coil sensor at ``points (N, 3)`` whose z axis is the
+    unit ``axes (N, 3)`` (the smallest rotation from z): grid data as poses."""
+    from ..geometry import pose_from_vector, rotvec_between
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    u = np.asarray(axes, dtype=np.float64).reshape(-1, 3)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    return pose_from_vector(np.c_[pts, rotvec_between(np.array([0.0, 0.0, 1.0]), u)])
+
+
 class EnvironmentModel:
     """A coupling model ``base`` plus environment terms ``terms`` (:class:`EnvironmentTerms`):
     ``C_read = h_beta(base.coupling(P) + C_ind(P) + C0)`` (module doc). Implements
@@ -368,16 +379,10 @@ class EnvironmentModel:
     def coupling_points(self, points, axes) -> np.ndarray:
         """Couplings ``(N, n_source)`` into a single-coil sensor at ``points (N, 3)`` with
         ``axes (N, 3)`` (a board's interface for grid data), environment terms included."""
-        from ..geometry import pose_from_vector, rotvec_between
-
         if self.n_sensor != 1:
             raise InputError(f"expected a model of a single-coil sensor for couplings at "
                              f"points and axes, got {self.n_sensor} sensor coils")
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        u = np.asarray(axes, dtype=np.float64).reshape(-1, 3)
-        u = u / np.linalg.norm(u, axis=1, keepdims=True)
-        rv = rotvec_between(np.array([0.0, 0.0, 1.0]), u)
-        return self.coupling(pose_from_vector(np.c_[pts, rv]))[:, :, 0]
+        return self.coupling(axis_poses(points, axes))[:, :, 0]
 
     def linear_coupling(self, poses) -> np.ndarray:
         """The couplings before the gain non-linearity: base, induced dipoles and offset."""

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import InputError
-from ._coils import _check_coils, _coil_fields
+from ._coils import _check_coils, _coil_fields, _gain
 from ._dipole import ILEMT_GAIN, DipoleModel, _split
 
 __all__ = ["FiniteCoilModel"]
@@ -47,11 +47,7 @@ class FiniteCoilModel:
     def __post_init__(self):
         object.__setattr__(self, "sources", _check_coils(self.sources, "sources"))
         object.__setattr__(self, "sensors", _check_coils(self.sensors, "sensors"))
-        g = self.gain
-        if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) \
-                or not np.isfinite(g) or g == 0:
-            raise InputError(f"expected a finite non-zero `gain`, got {g!r}")
-        object.__setattr__(self, "gain", float(g))
+        object.__setattr__(self, "gain", _gain(self.gain))
         if isinstance(self.chunk, bool) or not isinstance(self.chunk, (int, np.integer)) \
                 or self.chunk < 1:
             raise InputError(f"expected a positive integer `chunk`, got {self.chunk!r}")

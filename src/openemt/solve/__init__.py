@@ -20,7 +20,7 @@ _SOURCES = {
     "._lm_solver": ("solve_lm",),
     "._lm_starts": ("closed_form_start",),
     "._options": ("SolveOptions",),
-    "._output": ("POSES_SCHEMA", "PoseWriter", "read_poses"),
+    "._output": ("POSES_SCHEMA", "read_poses"),
     "._planar": ("pose_from_axis", "solve_planar"),
     "._refine": ("refine_poses",),
     "._result": ("SolveResult", "Status", "status_count_names"),

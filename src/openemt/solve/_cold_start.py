@@ -28,6 +28,7 @@ from numba import njit
 
 from ..field import DipoleModel
 from ..field._dipole_kernel import dipole_eval, pack_model, unpack_model
+from ..geometry import pose_from_rt
 from ._linalg import det33, exp_so3, rotvec_from_matrix, svd3
 
 __all__ = ["InvariantTable", "table_candidates", "table_for"]
@@ -96,11 +97,7 @@ class InvariantTable:
         self._tree = cKDTree(feats[good])
 
     def _fields(self, t):
-        P = np.zeros((t.shape[0], 4, 4))
-        P[:, :3, :3] = np.eye(3)
-        P[:, :3, 3] = t
-        P[:, 3, 3] = 1.0
-        return self._field.coupling(P)
+        return self._field.coupling(pose_from_rt(np.eye(3), t))
 
     def candidates(self, C, nvec, extra, k=4, away=None, far=16):
         """``(N, k + 1, 6)`` start pose vectors of real couplings ``C`` (N, 3, 3), ordered per

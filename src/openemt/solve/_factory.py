@@ -139,19 +139,7 @@ class PlanarSolver(_Shape):
             return res
         cold = self.prepared.solve(np.asarray(C)[again], "track")
         pick = cold.status == int(Status.CONVERGED)
-        take = np.flatnonzero(again)[pick]
-        if not len(take):
-            return res
-        fields = {}
-        for name in ("poses", "pose_vectors", "status", "residual", "iterations",
-                     "relative_residual"):
-            a = getattr(res, name, None)
-            if a is None:
-                continue
-            a = a.copy()
-            a[take] = getattr(cold, name)[pick]
-            fields[name] = a
-        return res.replace(**fields)
+        return res.with_rows(np.flatnonzero(again)[pick], cold, pick)
 
 
 _RETRY = np.array([int(Status.NOT_CONVERGED), int(Status.MAX_ITERATIONS),

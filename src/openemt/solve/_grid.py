@@ -57,6 +57,11 @@ class GridData:
         names = tuple(self.coil_names) or tuple(f"coil{i + 1}" for i in range(C.shape[1]))
         object.__setattr__(self, "coil_names", names)
 
+    def subset(self, rows) -> GridData:
+        """The grid points ``rows`` (a boolean mask or indices)."""
+        return GridData(self.points[rows], self.axes[rows], self.couplings[rows],
+                        self.coil_names)
+
 
 
 @dataclass(frozen=True, eq=False)

@@ -309,12 +309,7 @@ def _keep_better(result, rows, again):
         # better_run's rule, batched (a NaN residual is never better, nor replaced)
         same = np.abs(r - b) <= SAME_MINIMUM_RTOL * np.abs(b)
         better = np.where(same & (ok_new != ok_old), ok_new, r < b)
-    keep = rows[better]
-    fields = {f: getattr(result, f).copy() for f in
-              ("poses", "pose_vectors", "status", "residual", "iterations", "relative_residual")}
-    for f, arr in fields.items():
-        arr[keep] = getattr(again, f)[better]
-    return result.replace(**fields)
+    return result.with_rows(rows[better], again, better)
 
 
 def _first_start(C, cnorm, model, conc, mdl, nvec, box, opts, hemisphere):

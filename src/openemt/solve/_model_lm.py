@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import InputError
-from ..geometry import nearest_rotation, pose_from_vector, vector_from_pose
+from ..geometry import nearest_rotation, pose_from_rt, pose_from_vector, vector_from_pose
 from ._planar import _rule_options
 from ._result import SolveResult, Status
 from ._validity import check_validity_options, classify
@@ -36,7 +36,7 @@ N_ROLLS = 24
 def _align(a, u) -> np.ndarray:
     """Rotations ``(N, 3, 3)`` taking the unit vector ``a`` (3,) to each ``u`` (N, 3) by the
     smallest angle."""
-    from ..geometry import pose_from_vector, rotvec_between
+    from ..geometry import rotvec_between
 
     v = np.concatenate([np.zeros((len(u), 3)), rotvec_between(a, u)], axis=1)
     return pose_from_vector(v)[:, :3, :3]
@@ -45,8 +45,6 @@ def _align(a, u) -> np.ndarray:
 def _roll_starts(model, C, p, u, k):
     """Best of :data:`N_ROLLS` poses whose coil ``k`` sits at ``p`` (N, 3) with axis ``u``
     (N, 3), turned about that axis: the one whose couplings fit ``C`` best."""
-    from ..geometry import pose_from_vector
-
     a = model.board.sensor.coil_axes()[k]
     lk = model.board.sensor.coil_positions()[k]
     R0 = _align(a, u)
@@ -55,9 +53,8 @@ def _roll_starts(model, C, p, u, k):
     out = np.full((n, 4, 4), np.nan)
     for th in np.linspace(0.0, 2 * np.pi, N_ROLLS, endpoint=False):
         Rr = pose_from_vector(np.concatenate([np.zeros((n, 3)), u * th], axis=1))[:, :3, :3]
-        P = np.tile(np.eye(4), (n, 1, 1))
-        P[:, :3, :3] = Rr @ R0
-        P[:, :3, 3] = p - np.einsum("nab,b->na", P[:, :3, :3], lk)
+        R = Rr @ R0
+        P = pose_from_rt(R, p - np.einsum("nab,b->na", R, lk))
         r = np.linalg.norm((model.coupling(P) - C).reshape(n, -1), axis=1)
         take = r < best
         best[take], out[take] = r[take], P[take]
@@ -102,9 +99,7 @@ def sensor_coil_starts(model, couplings, options=None, solvers=None):
     # the rotations taking the body vectors closest to the measured ones
     R = nearest_rotation(np.einsum("nka,kb->nab", np.concatenate([u, x[:, None]], axis=1), body))
     t = (p - np.einsum("nab,kb->nka", R, L)).mean(axis=1)
-    P = np.tile(np.eye(4), (n, 1, 1))
-    P[:, :3, :3] = R
-    P[:, :3, 3] = t
+    P = pose_from_rt(R, t)
     P[~ok] = np.nan
     for k in range(ne):                       # some coils fitted: roll about the first one
         rows = np.flatnonzero(~ok & coil_ok[:, k] & ~coil_ok[:, :k].any(axis=1))

@@ -16,10 +16,9 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from ..io._h5write import raise_if_write_failed
-from ._result import SolveResult, Status, status_count_names
+from ._result import SolveResult, Status
 
-__all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseLayout", "PoseWriter", "read_poses"]
+__all__ = ["POSES_SCHEMA", "POSES_SCHEMA_VERSION", "PoseLayout", "read_poses"]
 
 POSES_SCHEMA = "openemt.poses"
 POSES_SCHEMA_VERSION = 1
@@ -34,38 +33,6 @@ _UNITS = {"poses": "homogeneous 4x4, translation in m (sensor frame -> source fr
           "relative_residual": "||C_pred - C_meas||_F / ||C_meas||_F (unit-free)"}
 
 
-class PoseWriter:
-    """Incremental writer: ``w = PoseWriter(h5file, n, solver)``; ``w.write(start, result)``.
-
-    ``h5file`` is an open, writable ``h5py.File`` (the caller owns it, typically from
-    :func:`openemt.io.atomic_h5`, in which case a full disk ends the write at the next block).
-    """
-
-    def __init__(self, h5file, n_samples: int, solver: str, meta: dict | None = None,
-                 chunk_rows: int = 65536):
-        f = self._file = h5file
-        _write_header(f, n_samples, solver, meta)
-        self._ds = {}
-        for name, (shape, dtype) in _FIELDS.items():
-            chunks = (max(1, min(int(n_samples), chunk_rows)),) + shape if n_samples else None
-            d = f.create_dataset(name, shape=(int(n_samples),) + shape, dtype=dtype,
-                                 chunks=chunks)
-            d.attrs["units"] = _UNITS[name]
-            self._ds[name] = d
-        self.counts = np.zeros(len(Status), dtype=np.int64)
-
-    def write(self, start: int, result: SolveResult) -> None:
-        stop = start + len(result)
-        for name, d in self._ds.items():
-            v = getattr(result, name)
-            d[start:stop] = np.nan if v is None else v
-        self.counts += np.bincount(result.status.astype(np.int64), minlength=len(Status))
-        raise_if_write_failed(self._file)
-
-    def status_counts(self) -> dict[str, int]:
-        return status_count_names(self.counts)
-
-
 def _write_header(f, n_samples: int, solver: str, meta: dict | None) -> None:
     f.attrs["schema"] = POSES_SCHEMA
     f.attrs["schema_version"] = POSES_SCHEMA_VERSION
@@ -77,10 +44,11 @@ def _write_header(f, n_samples: int, solver: str, meta: dict | None) -> None:
 
 
 class PoseLayout:
-    """The same file as :class:`PoseWriter`, laid out at once with contiguous datasets whose
-    storage is allocated up front, so that any process can write any block of rows
-    (:meth:`write`) into the closed file without the HDF5 library: what the Dask workers of
-    :func:`openemt.solve.solve_to_file` do. Picklable (offsets and dtypes only).
+    """The poses file (the layout of the module docstring), laid out at once with contiguous
+    datasets whose storage is allocated up front, so that any process can write any block of
+    rows (:meth:`write`) into the closed file without the HDF5 library: what
+    :func:`openemt.solve.solve_to_file` and its Dask workers do. Picklable (offsets and dtypes
+    only).
 
     ``PoseLayout.build(n, solver, meta)`` is the ``build`` callable of
     :func:`openemt.io._h5write.atomic_h5_layout`.

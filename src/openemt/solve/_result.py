@@ -48,6 +48,9 @@ def status_count_names(counts) -> dict[str, int]:
     return {s.name.lower(): int(counts[s.value]) for s in Status}
 
 
+#: the per-row fields a retry's rows replace (:meth:`SolveResult.with_rows`)
+ROW_FIELDS = ("poses", "pose_vectors", "status", "residual", "iterations", "relative_residual")
+
 # the codes as int8 module constants, usable inside compiled kernels
 ST_CONVERGED = np.int8(Status.CONVERGED)
 ST_MAX_ITERATIONS = np.int8(Status.MAX_ITERATIONS)
@@ -133,3 +136,16 @@ class SolveResult:
     def replace(self, **fields) -> SolveResult:
         """A copy with the given fields replaced."""
         return dataclasses.replace(self, **fields)
+
+    def with_rows(self, rows, other: SolveResult, picked=slice(None)) -> SolveResult:
+        """A copy whose rows ``rows`` are the rows ``picked`` of ``other`` (e.g. a retry's
+        better rows put into the first run; the fields of :data:`ROW_FIELDS` this result
+        has)."""
+        fields = {}
+        for name in ROW_FIELDS:
+            a = getattr(self, name)
+            if a is not None:
+                a = a.copy()
+                a[rows] = getattr(other, name)[picked]
+                fields[name] = a
+        return self.replace(**fields)

@@ -22,9 +22,6 @@ from ._result import SolveResult, Status
 
 __all__ = ["cold_start_name", "solve_series"]
 
-_FIELDS = ("poses", "pose_vectors", "status", "residual", "iterations", "relative_residual")
-
-
 def cold_start_name(solver) -> str:
     """The independent-row start of a prepared dipole LM solver: ``'kim18'`` where a
     concentric start model exists (a 3x3 model or ``concentric_model``), else
@@ -86,14 +83,5 @@ def solve_series(solver, couplings, *, for_rows=None) -> tuple[SolveResult, int]
     cold = (solver if for_rows is None else for_rows(rows))(C[rows], cold_start_name(solver))
     take = _better(result, rows, cold)
     if take.any():
-        keep = rows[take]
-        fields = {}
-        for name in _FIELDS:
-            a = getattr(result, name)
-            if a is None:
-                continue
-            a = a.copy()
-            a[keep] = getattr(cold, name)[take]
-            fields[name] = a
-        result = result.replace(**fields)
+        result = result.with_rows(rows[take], cold, take)
     return result, int(rows.size)

@@ -126,7 +126,7 @@ def solve_to_file(couplings, calibration, output, *, chunk_rows: int = 262144,
                   on_block=None, solver_name: str | None = None,
                   **options) -> FileSolveSummary:
     """Solve every row of ``couplings`` and write the poses file ``output`` (the layout of
-    :class:`~openemt.solve._output.PoseWriter`, docs/solve.md#command-line), block by block.
+    :class:`~openemt.solve._output.PoseLayout`, docs/solve.md#command-line), block by block.
 
     Parameters
     ----------

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option as _opt
 from .._result import Result
 from ._bands import BAND_METHODS, DEFAULT_BAND_TIME_CONSTANT_S
 from ._factory import SOLVERS
@@ -22,10 +23,6 @@ from ._validity import MAX_RANGE_M, MAX_RELATIVE_RESIDUAL
 
 __all__ = ["RowFixtures", "SolveFileOptions", "SolveFileResult", "failure_reasons",
            "solve_file"]
-
-
-def _opt(default, help, **meta):
-    return field(default=default, metadata={"help": help, **meta})
 
 
 @dataclass(frozen=True)
@@ -220,7 +217,7 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
         per_fixture = spec == "auto" and fixtures is not None and fixtures.usable
         if per_fixture:
             hemisphere = fixtures
-        recording = _is_recording(side, is_recording)
+        recording = is_recording(_meta(side))
         bands = _band_stage(o, side, dipole, recording)
         if bands is not None:
             from ._bands import BandReader
@@ -270,6 +267,8 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
 
 
 def _meta(side) -> dict:
+    """The open dataset's ``meta`` attribute as a dict ({} where it has none or no JSON
+    object)."""
     text = side.attrs.get("meta")
     if isinstance(text, bytes):
         text = text.decode("utf-8", "replace")
@@ -305,17 +304,6 @@ def _band_stage(o: SolveFileOptions, side, dipole: bool, recording: bool):
         raise InputError(f"{o.dataset}: expected the carriers of its bands (meta "
                          f"band_frequencies_hz) for --bands {o.bands}, got none")
     return BandStage(method, f, time_constant=o.band_time_constant, rate=rate, signed=True)
-
-
-def _is_recording(side, is_recording) -> bool:
-    """True if the open dataset's ``meta`` marks its rows as one recording in time order."""
-    text = side.attrs.get("meta")
-    if isinstance(text, bytes):
-        text = text.decode("utf-8", "replace")
-    try:
-        return is_recording(json.loads(text)) if isinstance(text, str) else False
-    except ValueError:
-        return False
 
 
 class _TruthScore:
@@ -477,6 +465,14 @@ def _span(values) -> str:
     return lo if lo == hi else f"{lo}-{hi}"
 
 
+def _by_source(fixtures, per_pair, mask) -> dict:
+    """Rows per source fixture code of the pairs in ``mask`` (``per_pair``: rows per pair)."""
+    by_code: dict = {}
+    for k in np.flatnonzero(mask & (per_pair > 0)):
+        by_code[fixtures.pairs[k][0]] = by_code.get(fixtures.pairs[k][0], 0) + int(per_pair[k])
+    return by_code
+
+
 def _residual_note(fixtures, status, mask) -> str:
     """'; mean relative residual 1.2 % on these rows, 0.1 % on the converged rows' and the
     source fixtures of these rows, from the per-pair sums of ``fixtures.tally``."""
@@ -490,10 +486,7 @@ def _residual_note(fixtures, status, mask) -> str:
     good = mean(np.ones(len(fixtures.pairs), bool), Status.CONVERGED)
     if bad is None:
         return ""
-    by_code: dict = {}
-    for k in np.flatnonzero(mask & (fixtures.counts[:, status] > 0)):
-        by_code[fixtures.pairs[k][0]] = by_code.get(fixtures.pairs[k][0], 0) + \
-            int(fixtures.counts[k, status])
+    by_code = _by_source(fixtures, fixtures.counts[:, status], mask)
     where = ", ".join(f"{c} {n}" for c, n in sorted(by_code.items()))
     return (f"; mean relative residual {100 * bad:.2f} % on these rows ({where})"
             + (f", {100 * good:.2f} % on the converged rows" if good is not None else ""))
@@ -544,11 +537,8 @@ def failure_reasons(counts, options, fixtures=None, hemisphere=None) -> list[dic
                                              if mask is None else mask)
             entry = {"status": status.name.lower(), "rows": rows, "reason": reason}
             if per_pair is not None:
-                sel = np.ones(len(fixtures.pairs), bool) if mask is None else mask
-                by_code: dict = {}
-                for k in np.flatnonzero(sel & (per_pair > 0)):
-                    code = fixtures.pairs[k][0]
-                    by_code[code] = by_code.get(code, 0) + int(per_pair[k])
-                entry["source_fixtures"] = by_code
+                entry["source_fixtures"] = _by_source(
+                    fixtures, per_pair, np.ones(len(fixtures.pairs), bool) if mask is None
+                    else mask)
             out.append(entry)
     return out
