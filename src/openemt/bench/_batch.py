@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -188,15 +187,10 @@ def _scaling(data, cal, ks, args, tmp) -> dict:
                                      hemisphere="+x", initial=args.workers_initial,
                                      chunk_rows=max(1, warm_rows // k), scheduler=client)
                 load0 = os.getloadavg()[0]
-                wall = np.inf
-                for _ in range(max(1, args.repeats)):      # best of the repeats
-                    t0 = time.perf_counter()
-                    run_ = solve_to_file(reader, cal, tmp / f"workers{k}.h5",
-                                         hemisphere="+x", initial=args.workers_initial,
-                                         chunk_rows=args.chunk_rows, scheduler=client)
-                    dt = time.perf_counter() - t0
-                    if dt < wall:
-                        wall, done = dt, run_
+                _, wall, done = best_time(lambda k=k, client=client: solve_to_file(
+                    reader, cal, tmp / f"workers{k}.h5", hemisphere="+x",
+                    initial=args.workers_initial, chunk_rows=args.chunk_rows, scheduler=client),
+                    args.repeats)
                 out["poses_per_s"][str(k)] = n / wall
                 out["worker_peak_rss_mb"][str(k)] = float(max(done.block_rss_mb))
                 out["block_cpu_s"][str(k)] = done.block_cpu_s

@@ -30,8 +30,6 @@ unit gains (couplings in tesla for 1 A, ~1e-8..1e-5), a smooth sensor path sampl
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from ._timing import best_time
@@ -234,9 +232,7 @@ def planar_live_speed(seconds: float = 3.0, seed: int = 0) -> dict:
         return pipe.run()
 
     run()                                               # warm-up: load the kernels
-    w0, c0 = time.perf_counter(), time.process_time()
-    s = run()
-    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    cpu, wall, s = best_time(run, 1)
     return {"planar_live_signal_seconds": s.signal_seconds,
             "planar_live_realtime_factor": s.signal_seconds / wall,
             "planar_live_realtime_factor_cpu": s.signal_seconds / cpu,
