@@ -94,15 +94,14 @@ _FLOOR = {"trans_rms_mm": 1e3 * NOISE_M * np.sqrt(3),
           "rot_rms_deg": float(np.rad2deg(NOISE_RAD) * np.sqrt(3))}
 
 
-def _row(stats):
-    keys = ("trans_rms_mm", "rot_rms_deg")
-    return _ratio({"in_sample": {k: stats["in_sample"]["corrected"][k] for k in keys},
-                   "held_out": {k: stats["held_out"]["corrected"][k] for k in keys}})
+def _pick(errors) -> dict:
+    return {k: errors[k] for k in ("trans_rms_mm", "rot_rms_deg")}
 
 
-def _ratio(row):
-    row["held_out_over_noise"] = row["held_out"]["trans_rms_mm"] / _FLOOR["trans_rms_mm"]
-    return row
+def _row(in_sample, held_out) -> dict:
+    """In-sample and held-out errors of a fit, and the held-out error over the noise floor."""
+    return {"in_sample": _pick(in_sample), "held_out": _pick(held_out),
+            "held_out_over_noise": held_out["trans_rms_mm"] / _FLOOR["trans_rms_mm"]}
 
 
 def _tensor_block(n, folds, seed) -> dict:
@@ -114,16 +113,14 @@ def _tensor_block(n, folds, seed) -> dict:
     corr = fit_auto_correction(meas, ref, k=folds, seed=seed)
     seconds = time.perf_counter() - t0
     st = corr.stats
-    keys = ("trans_rms_mm", "rot_rms_deg")
     methods = {}
     for m, c in st["auto"]["candidates"].items():
         if m == "none":
             continue
-        methods[m] = ({"skipped": c["skipped"]} if "skipped" in c else _ratio(
-            {"in_sample": {k: c["in_sample"][k] for k in keys},
-             "held_out": {k: c["held_out"][k] for k in keys}}))
-    u = st["held_out"]["uncorrected"]
-    return {"samples": n, "uncorrected": {k: u[k] for k in keys}, "noise_floor": _FLOOR,
+        methods[m] = ({"skipped": c["skipped"]} if "skipped" in c
+                      else _row(c["in_sample"], c["held_out"]))
+    return {"samples": n, "uncorrected": _pick(st["held_out"]["uncorrected"]),
+            "noise_floor": _FLOOR,
             "methods": methods, "auto_chosen": corr.method,
             "auto_selected": corr.params.get("pos_degree") if corr.method == "bernstein"
             else None, "seconds": seconds}
@@ -143,16 +140,15 @@ def run(args) -> dict:
         t0 = time.perf_counter()
         st = fit_correction(meas, ref, method, k=args.folds, seed=args.seed).stats
         seconds[method] = time.perf_counter() - t0
-        methods[method] = _row(st)
+        methods[method] = _row(st["in_sample"]["corrected"], st["held_out"]["corrected"])
         if uncorrected is None:
-            u = st["in_sample"]["uncorrected"]
-            uncorrected = {"trans_rms_mm": u["trans_rms_mm"], "rot_rms_deg": u["rot_rms_deg"]}
+            uncorrected = _pick(st["in_sample"]["uncorrected"])
     overfit = {}
     for name, method, opts in (("rbf_no_smoothing", "rbf", {"smoothing": 1e-8}),
                                ("grid_10_fine", "grid", {"shape": (10, 10, 10),
                                                          "smoothing": 1e-4})):
         st = fit_correction(meas, ref, method, k=args.folds, seed=args.seed, **opts).stats
-        overfit[name] = _row(st)
+        overfit[name] = _row(st["in_sample"]["corrected"], st["held_out"]["corrected"])
     return {"samples": n, "folds": args.folds, "seed": args.seed,
             "noise_floor": _FLOOR,
             "uncorrected": uncorrected, "methods": methods, "forced_overfit": overfit,
