@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 from .._atomic import atomic_path
 from .._errors import InputError
 from ..geometry import check_poses, pose_from_rt, vector_from_pose
-from ._safefile import MAX_TEXT_BYTES, read_limited
+from ._safefile import read_text
 
 __all__ = ["PoseTable", "StaticAverage", "average_static", "import_poses_csv", "read_poses_csv",
            "write_poses_csv"]
@@ -246,12 +246,7 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     if angle_unit not in _ANG:
         raise InputError(f"expected angle_unit in {sorted(_ANG)}, got {angle_unit!r}")
     path = Path(path)
-    data = read_limited(path, "a pose CSV file", MAX_TEXT_BYTES)
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"expected a pose CSV file (UTF-8 text), got a byte that is not UTF-8 "
-                         f"at offset {exc.start} in {path}") from None
+    text = read_text(path, "a pose CSV file")
     numbered = [(k, ln) for k, ln in enumerate(text.splitlines(), 1)
                 if ln.strip() and not ln.lstrip().startswith("#")]
     if not numbered:
