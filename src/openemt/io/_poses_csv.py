@@ -144,9 +144,7 @@ def average_static(poses, groups=None) -> StaticAverage:
     -------
     StaticAverage
     """
-    P = check_poses(poses, "poses")
-    if P.ndim != 3:
-        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+    P = check_poses(poses, "poses", batch=True)
     g = np.zeros(len(P), dtype=int) if groups is None else np.asarray(groups)
     if g.shape != (len(P),):
         raise InputError(f"expected `groups` of shape ({len(P)},), got {g.shape}")
@@ -319,9 +317,7 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None, frame=No
     ref_rz_rad]`` and then ``columns`` (name -> one value per row, written with ``str``);
     numbers use shortest round-trip precision. Returns the path.
     """
-    P = check_poses(poses, "poses")
-    if P.ndim != 3:
-        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+    P = check_poses(poses, "poses", batch=True)
     names = ["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"]
     blocks = [vector_from_pose(P)]
     header = list(names)
