@@ -5,7 +5,8 @@ Poses uniform in x 0.05-0.35 m, y and z +-0.15 m with random orientations, noise
 0.03 deg per axis (noise floor 0.173 mm / 0.052 deg). Two distortions of the measured poses:
 
 * ``smooth`` (the top-level ``methods``): quadratic, cubic and sine position terms, about 1 mm
-  RMS, and a rotation distortion of about 0.25 deg RMS (:func:`distortion`);
+  RMS, and a rotation distortion of about 0.25 deg RMS
+  (:func:`openemt.simulate.field_distortion` at scale 1);
 * ``tensor`` (``tensor_distortion``): low-order terms plus ``P2(x) P2(y) P2(z)`` (``P2`` the
   Legendre polynomial of degree 2, on coordinates scaled into [-1, 1]), about 1 mm RMS in
   all, 0.7 mm of it from the product: of degree 2 per axis but total degree 6, orthogonal over the volume to every polynomial
@@ -28,7 +29,7 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["add_arguments", "distorted_poses", "distortion", "run", "tensor_distortion"]
+__all__ = ["add_arguments", "distorted_poses", "run", "tensor_distortion"]
 
 METHODS = ("dlt", "poly", "bernstein", "grid", "rbf")
 NOISE_M, NOISE_RAD = 1e-4, np.deg2rad(0.03)
@@ -38,15 +39,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--samples", type=int, default=600, help="pose pairs (600)")
     parser.add_argument("--folds", type=int, default=5, help="cross-validation folds (5)")
     parser.add_argument("--seed", type=int, default=0)
-
-
-def distortion(p, scale: float = 1.0):
-    """The smooth distortion at true positions ``p`` (N, 3): position offsets (m) and rotation
-    offsets (rotation vectors, rad), about 1 mm and 0.25 deg RMS at ``scale`` 1 over the
-    volume described above (:func:`openemt.simulate.field_distortion`)."""
-    from ..simulate import field_distortion
-
-    return field_distortion(p, scale)
 
 
 def tensor_distortion(p):
@@ -73,6 +65,7 @@ def distorted_poses(n: int, rng, kind: str = "smooth"):
     from scipy.spatial.transform import Rotation
 
     from ..geometry import pose_from_rt
+    from ..simulate import field_distortion
 
     p = rng.uniform([0.05, -0.15, -0.15], [0.35, 0.15, 0.15], (n, 3))
     R = Rotation.random(n, random_state=rng).as_matrix()
@@ -83,7 +76,7 @@ def distorted_poses(n: int, rng, kind: str = "smooth"):
                             .as_matrix() @ R, p + NOISE_M * rng.standard_normal((n, 3)))
         return meas, ref
     ref = pose_from_rt(R, p)
-    dp, rho = distortion(p)
+    dp, rho = field_distortion(p)
     dp += NOISE_M * rng.standard_normal(dp.shape)
     rho += NOISE_RAD * rng.standard_normal(rho.shape)
     meas = pose_from_rt(Rotation.from_rotvec(rho).as_matrix() @ ref[:, :3, :3], p + dp)
