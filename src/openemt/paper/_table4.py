@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 from .._errors import InputError
 from .._result import DictResult
 from ..geometry import check_poses, invert, pose_from_vector, source_fixture_rotation, stage_joint
-from ._run import as_run
+from ._run import as_run, corrected_poses
 
 __all__ = [
     "FIXTURE_MOMENT_M",
@@ -288,7 +288,6 @@ def sweep_test(source, *, correction: bool = True, dataset=None) -> Table4Result
     Table4Result
     """
     from ..calibrate import solve_held_out
-    from ..correct import apply_linear_correction
 
     t_all = time.perf_counter()
     run = as_run(source, ["XYZ", "XYZ_concentric"], correction=True, dataset=dataset)
@@ -310,9 +309,7 @@ def sweep_test(source, *, correction: bool = True, dataset=None) -> Table4Result
     M_raw = solved.poses
     conditions = {"uncorrected": M_raw}
     if L is not None:
-        Mc = M_raw.copy()
-        Mc[:, :3, 3] = apply_linear_correction(L, Mc[:, :3, 3])
-        conditions["corrected"] = Mc
+        conditions["corrected"] = corrected_poses(M_raw, L)
     main = "corrected" if correction else "uncorrected"
     t0 = time.perf_counter()
     results = {}
