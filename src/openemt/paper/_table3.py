@@ -129,10 +129,8 @@ class Table3Reproduction(DictResult):
     seconds: dict
 
     def _items(self) -> dict:
-        return {**self.cells, "max_deviation": self.max_deviation,
-                "within_5_percent": self.within_5_percent, "calibrations": self.calibrations,
-                "calibration_residues": self.calibration_residues, "test_sets": self.test_sets,
-                "notes": self.notes, "seconds": self.seconds}
+        items = super()._items()            # the rows of ``cells`` first, then the fields
+        return {**items.pop("cells"), **items}
 
 
 def _cell(trans, rot, n_invalid):

@@ -261,12 +261,10 @@ class Table4Reproduction(DictResult):
     seconds: dict
 
     def _items(self) -> dict:
-        return {"direct": self.direct, "cross": self.cross, "n_curves": self.n_curves,
-                "paper": self.paper, "condition": self.condition, **self.other,
-                "without_fixture_refit": self.without_fixture_refit,
-                "fixture_refit": self.fixture_refit, "curves": self.curves,
-                "n_rows": self.n_rows, "n_invalid": self.n_invalid, "files": self.files,
-                "calibration": self.calibration, "notes": self.notes, "seconds": self.seconds}
+        out = {}
+        for k, v in super()._items().items():   # ``other``'s entries where it stands
+            out.update(self.other if k == "other" else {k: v})
+        return out
 
 
 def sweep_test(source, *, correction: bool = True, dataset=None) -> Table4Result:
