@@ -24,11 +24,12 @@ so that bad input stays one ``error:`` line and the compile has a line of its ow
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import sys
 
 __all__ = ["COLD_START_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
-           "announce_compile", "cold_kernels", "compile_kernels"]
+           "announce_compile", "cold_kernels", "compile_kernels", "serial_threads"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -223,3 +224,17 @@ def announce_compile(out=None, what: str = "solver kernels", *, kernels=SOLVER_K
         stream.flush()
     compile_kernels(cold)
     return said
+
+
+@contextlib.contextmanager
+def serial_threads():
+    """numba's parallel regions started from this thread on one thread meanwhile (a rate per
+    core in the benchmarks; a live chunk too small to wake a thread pool for)."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)

@@ -120,29 +120,25 @@ def _raw_residuals(A, B, X, Y) -> tuple[np.ndarray, np.ndarray]:
     return rt, rr
 
 
-def _refine(A, B, X0, Y0, sig_t, sig_r, loss="linear"):
+def _whitened(A, B, X0, Y0, sig_t, sig_r):
+    """Whitened residuals as a function of left perturbations ``p`` (12,) of ``(X0, Y0)``."""
     def fun(p):
         rt, rr = _raw_residuals(A, B, _perturb(X0, p[:6]), _perturb(Y0, p[6:]))
         return np.concatenate([(rt / sig_t).ravel(), (rr / sig_r).ravel()])
 
-    res = least_squares(fun, np.zeros(12), loss=loss, f_scale=3.0, x_scale="jac",
-                        method="trf")
+    return fun
+
+
+def _refine(A, B, X0, Y0, sig_t, sig_r, loss="linear"):
+    res = least_squares(_whitened(A, B, X0, Y0, sig_t, sig_r), np.zeros(12), loss=loss,
+                        f_scale=3.0, x_scale="jac", method="trf")
     return _perturb(X0, res.x[:6]), _perturb(Y0, res.x[6:])
 
 
-def _jacobian(A, B, X, Y, sig_t, sig_r) -> np.ndarray:
-    """Whitened residual Jacobian at (X, Y) w.r.t. left perturbations (central differences)."""
-    def fun(p):
-        rt, rr = _raw_residuals(A, B, _perturb(X, p[:6]), _perturb(Y, p[6:]))
-        return np.concatenate([(rt / sig_t).ravel(), (rr / sig_r).ravel()])
-
-    J = np.empty((6 * len(A), 12))
-    for j in range(12):
-        h = 1e-6
-        e = np.zeros(12)
-        e[j] = h
-        J[:, j] = (fun(e) - fun(-e)) / (2 * h)
-    return J
+def _jacobian(fun) -> np.ndarray:
+    """Jacobian of the :func:`_whitened` residuals ``fun`` at 0 (central differences, step
+    1e-6)."""
+    return np.stack([(fun(e) - fun(-e)) / 2e-6 for e in 1e-6 * np.eye(12)], axis=1)
 
 
 def _sigmas(rt, rr, dof_fraction=1.0) -> tuple[float, float]:
@@ -283,8 +279,9 @@ def fit_axyb(A, B, *, robust: bool = True, folds: int = HELD_OUT_FOLDS,
     dof = max(6 * m - 12, 1)
     # noise levels with the fitted parameters' share removed, then the residual variance s^2
     st, sr = _sigmas(rt, rr, dof_fraction=dof / (6 * m))
-    J = _jacobian(Ai, Bi, X, Y, st, sr)
-    r = np.concatenate([(rt / st).ravel(), (rr / sr).ravel()])
+    fun = _whitened(Ai, Bi, X, Y, st, sr)
+    J = _jacobian(fun)
+    r = fun(np.zeros(12))
     s2 = float(r @ r) / dof
     JtJ = J.T @ J
     cov = s2 * np.linalg.pinv(JtJ)

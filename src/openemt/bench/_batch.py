@@ -34,11 +34,11 @@ from __future__ import annotations
 
 import os
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
+from .._compile_notice import serial_threads
 from .._errors import InputError
 from ._timing import best_time
 
@@ -97,7 +97,6 @@ def simulated_recording(path, n: int, rate_hz: float, snr_db: float, seed: int):
 
 
 def run(args) -> dict:
-    import numba
 
     from ..io import open_dataset_couplings
     from ..solve import Status, read_poses, solve_to_file
@@ -109,50 +108,45 @@ def run(args) -> dict:
     if args.chunk_rows < 1:
         raise InputError(f"expected a positive --chunk-rows, got {args.chunk_rows}")
     ks = _worker_counts(args.workers)
-    threads_before = numba.get_num_threads()
-    numba.set_num_threads(1)
     summary: dict = {"samples": n, "rate_hz": args.rate_hz, "snr_db": args.snr_db,
                      "preset": "dipole-approx", "numba_threads": 1,
                      "load_average_start": list(os.getloadavg()), "cpu_count": os.cpu_count()}
-    try:
-        with tempfile.TemporaryDirectory(prefix="openemt-bench-batch-") as tmp:
-            tmp = Path(tmp)
-            data = tmp / "data.h5"
-            cal, truth = simulated_recording(data, n, args.rate_hz, args.snr_db, args.seed)
-            answers = {}
-            with open_dataset_couplings(data) as reader:
-                for name, initial in (("recording", "track"), ("cold", "kim18")):
-                    out = tmp / f"poses_{name}.h5"
-                    # warm-up on a few rows: loads (or compiles) the kernels
-                    solve_to_file(reader[:200], cal, tmp / "warm.h5", hemisphere="+x",
-                                  initial=initial)
-                    cpu, wall, done = best_time(lambda out=out, initial=initial: solve_to_file(
-                        reader, cal, out, hemisphere="+x", initial=initial), args.repeats)
-                    res = read_poses(out)
-                    answers[name] = res
-                    summary[f"{name}_poses_per_s"] = n / cpu
-                    summary[f"{name}_wall_poses_per_s"] = n / wall
-                    summary[f"{name}_status_counts"] = res.status_counts()
-                    summary[f"{name}_mean_iterations"] = float(res.iterations.mean())
-                    err = res.pose_vectors[:, :3] - truth[:, :3]
-                    summary[f"{name}_position_rms_error_m"] = float(np.sqrt(np.mean(err ** 2)
-                                                                            * 3))
-                    if name == "recording":
-                        summary["recording_cold_retries"] = done.cold_retries
-            a, b = answers["recording"], answers["cold"]
-            both = (a.status == Status.CONVERGED) & (b.status == Status.CONVERGED)
-            summary["recording_vs_cold_max_position_diff_m"] = float(
-                np.abs(a.pose_vectors[both, :3] - b.pose_vectors[both, :3]).max()) \
-                if both.any() else None
-            summary["recording_vs_cold_speedup"] = (summary["recording_poses_per_s"]
-                                                    / summary["cold_poses_per_s"])
-            if ks:
-                data = tmp / "workers.h5"
-                simulated_recording(data, int(args.worker_samples), args.rate_hz, args.snr_db,
-                                    args.seed)
-                summary["workers"] = _scaling(data, cal, ks, args, tmp)
-    finally:
-        numba.set_num_threads(threads_before)
+    with serial_threads(), tempfile.TemporaryDirectory(prefix="openemt-bench-batch-") as tmp:
+        tmp = Path(tmp)
+        data = tmp / "data.h5"
+        cal, truth = simulated_recording(data, n, args.rate_hz, args.snr_db, args.seed)
+        answers = {}
+        with open_dataset_couplings(data) as reader:
+            for name, initial in (("recording", "track"), ("cold", "kim18")):
+                out = tmp / f"poses_{name}.h5"
+                # warm-up on a few rows: loads (or compiles) the kernels
+                solve_to_file(reader[:200], cal, tmp / "warm.h5", hemisphere="+x",
+                              initial=initial)
+                cpu, wall, done = best_time(lambda out=out, initial=initial: solve_to_file(
+                    reader, cal, out, hemisphere="+x", initial=initial), args.repeats)
+                res = read_poses(out)
+                answers[name] = res
+                summary[f"{name}_poses_per_s"] = n / cpu
+                summary[f"{name}_wall_poses_per_s"] = n / wall
+                summary[f"{name}_status_counts"] = res.status_counts()
+                summary[f"{name}_mean_iterations"] = float(res.iterations.mean())
+                err = res.pose_vectors[:, :3] - truth[:, :3]
+                summary[f"{name}_position_rms_error_m"] = float(np.sqrt(np.mean(err ** 2)
+                                                                        * 3))
+                if name == "recording":
+                    summary["recording_cold_retries"] = done.cold_retries
+        a, b = answers["recording"], answers["cold"]
+        both = (a.status == Status.CONVERGED) & (b.status == Status.CONVERGED)
+        summary["recording_vs_cold_max_position_diff_m"] = float(
+            np.abs(a.pose_vectors[both, :3] - b.pose_vectors[both, :3]).max()) \
+            if both.any() else None
+        summary["recording_vs_cold_speedup"] = (summary["recording_poses_per_s"]
+                                                / summary["cold_poses_per_s"])
+        if ks:
+            data = tmp / "workers.h5"
+            simulated_recording(data, int(args.worker_samples), args.rate_hz, args.snr_db,
+                                args.seed)
+            summary["workers"] = _scaling(data, cal, ks, args, tmp)
     summary["load_average_end"] = list(os.getloadavg())
     targets = {"recording_poses_per_s >= 150000": summary["recording_poses_per_s"] >= 1.5e5}
     eff2 = summary.get("workers", {}).get("scaling_efficiency", {}).get("2")
@@ -188,15 +182,10 @@ def _scaling(data, cal, ks, args, tmp) -> dict:
                                      hemisphere="+x", initial=args.workers_initial,
                                      chunk_rows=max(1, warm_rows // k), scheduler=client)
                 load0 = os.getloadavg()[0]
-                wall = np.inf
-                for _ in range(max(1, args.repeats)):      # best of the repeats
-                    t0 = time.perf_counter()
-                    run_ = solve_to_file(reader, cal, tmp / f"workers{k}.h5",
-                                         hemisphere="+x", initial=args.workers_initial,
-                                         chunk_rows=args.chunk_rows, scheduler=client)
-                    dt = time.perf_counter() - t0
-                    if dt < wall:
-                        wall, done = dt, run_
+                _, wall, done = best_time(lambda k=k, client=client: solve_to_file(
+                    reader, cal, tmp / f"workers{k}.h5", hemisphere="+x",
+                    initial=args.workers_initial, chunk_rows=args.chunk_rows, scheduler=client),
+                    args.repeats)
                 out["poses_per_s"][str(k)] = n / wall
                 out["worker_peak_rss_mb"][str(k)] = float(max(done.block_rss_mb))
                 out["block_cpu_s"][str(k)] = done.block_cpu_s

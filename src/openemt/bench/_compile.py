@@ -38,6 +38,8 @@ import sys
 import tempfile
 import time
 
+from ._timing import best_time
+
 __all__ = ["KERNELS", "add_arguments", "run"]
 
 KERNELS = ("dipole_coupling", "dipole_jacobians", "closed_form", "lm_batch", "lm_track",
@@ -85,11 +87,7 @@ def _child() -> dict:
     times = {}
     cpu = {}
     for name in KERNELS:
-        t = time.perf_counter()
-        c = time.process_time()
-        calls[name]()
-        times[name] = time.perf_counter() - t
-        cpu[name] = time.process_time() - c
+        cpu[name], times[name], _ = best_time(calls[name], 1)
     return {"import_s": import_s, "kernels_s": times, "total_s": sum(times.values()),
             "kernels_cpu_s": cpu, "total_cpu_s": sum(cpu.values())}
 
@@ -107,23 +105,27 @@ def _child_per_kernel() -> dict:
     out = {}
     for spec in dict.fromkeys(SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS
                               + PLANAR_KERNELS):
-        t = time.perf_counter()
-        c = time.process_time()
-        compile_kernels([spec])
-        out[spec] = {"s": round(time.perf_counter() - t, 3),
-                     "cpu_s": round(time.process_time() - c, 3)}
+        cpu, wall, _ = best_time(lambda spec=spec: compile_kernels([spec]), 1)
+        out[spec] = {"s": round(wall, 3), "cpu_s": round(cpu, 3)}
     return out
 
 
-def _process(cache_dir: str, what: str = "kernels") -> dict:
+def _fresh(argv, cache_dir: str, what: str, cwd=None):
+    """Run ``argv`` in a fresh process on numba cache ``cache_dir``: (its completed process,
+    wall seconds); a failure is a RuntimeError naming ``what``."""
     env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
     t = time.perf_counter()
-    out = subprocess.run([sys.executable, "-m", "openemt.bench._compile", what], env=env,
-                         capture_output=True, text=True, check=False)
+    out = subprocess.run(argv, env=env, cwd=cwd, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t
     if out.returncode != 0:
         tail = " ".join(out.stderr.strip().splitlines()[-1:])
-        raise RuntimeError(f"the measuring process failed (exit {out.returncode}): {tail}")
+        raise RuntimeError(f"{what} failed (exit {out.returncode}): {tail}")
+    return out, wall
+
+
+def _process(cache_dir: str, what: str = "kernels") -> dict:
+    out, wall = _fresh([sys.executable, "-m", "openemt.bench._compile", what], cache_dir,
+                       "the measuring process")
     res = json.loads(out.stdout.strip().splitlines()[-1])
     res["process_wall_s"] = wall
     return res
@@ -132,18 +134,11 @@ def _process(cache_dir: str, what: str = "kernels") -> dict:
 def _command(argv, cache_dir: str, cwd: str) -> dict:
     """Run ``openemt *argv`` in a fresh process on numba cache ``cache_dir``: its CPU seconds
     (user + system, with its children), wall seconds and whether it printed a compile line."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
     code = "import sys; from openemt.cli import main; sys.exit(main(sys.argv[1:]))"
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t = time.perf_counter()
-    out = subprocess.run([sys.executable, "-c", code, *map(str, argv)], env=env, cwd=cwd,
-                         capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - t
+    out, wall = _fresh([sys.executable, "-c", code, *map(str, argv)], cache_dir,
+                       f"openemt {' '.join(map(str, argv[:2]))}", cwd)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if out.returncode != 0:
-        tail = " ".join(out.stderr.strip().splitlines()[-1:])
-        raise RuntimeError(f"openemt {' '.join(map(str, argv[:2]))} failed (exit "
-                           f"{out.returncode}): {tail}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
             "compile_notice": any(line.startswith("compiling ")

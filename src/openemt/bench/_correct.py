@@ -5,7 +5,8 @@ Poses uniform in x 0.05-0.35 m, y and z +-0.15 m with random orientations, noise
 0.03 deg per axis (noise floor 0.173 mm / 0.052 deg). Two distortions of the measured poses:
 
 * ``smooth`` (the top-level ``methods``): quadratic, cubic and sine position terms, about 1 mm
-  RMS, and a rotation distortion of about 0.25 deg RMS (:func:`distortion`);
+  RMS, and a rotation distortion of about 0.25 deg RMS
+  (:func:`openemt.simulate.field_distortion` at scale 1);
 * ``tensor`` (``tensor_distortion``): low-order terms plus ``P2(x) P2(y) P2(z)`` (``P2`` the
   Legendre polynomial of degree 2, on coordinates scaled into [-1, 1]), about 1 mm RMS in
   all, 0.7 mm of it from the product: of degree 2 per axis but total degree 6, orthogonal over the volume to every polynomial
@@ -28,7 +29,7 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["add_arguments", "distorted_poses", "distortion", "run", "tensor_distortion"]
+__all__ = ["add_arguments", "distorted_poses", "run", "tensor_distortion"]
 
 METHODS = ("dlt", "poly", "bernstein", "grid", "rbf")
 NOISE_M, NOISE_RAD = 1e-4, np.deg2rad(0.03)
@@ -38,15 +39,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--samples", type=int, default=600, help="pose pairs (600)")
     parser.add_argument("--folds", type=int, default=5, help="cross-validation folds (5)")
     parser.add_argument("--seed", type=int, default=0)
-
-
-def distortion(p, scale: float = 1.0):
-    """The smooth distortion at true positions ``p`` (N, 3): position offsets (m) and rotation
-    offsets (rotation vectors, rad), about 1 mm and 0.25 deg RMS at ``scale`` 1 over the
-    volume described above (:func:`openemt.simulate.field_distortion`)."""
-    from ..simulate import field_distortion
-
-    return field_distortion(p, scale)
 
 
 def tensor_distortion(p):
@@ -73,6 +65,7 @@ def distorted_poses(n: int, rng, kind: str = "smooth"):
     from scipy.spatial.transform import Rotation
 
     from ..geometry import pose_from_rt
+    from ..simulate import field_distortion
 
     p = rng.uniform([0.05, -0.15, -0.15], [0.35, 0.15, 0.15], (n, 3))
     R = Rotation.random(n, random_state=rng).as_matrix()
@@ -83,7 +76,7 @@ def distorted_poses(n: int, rng, kind: str = "smooth"):
                             .as_matrix() @ R, p + NOISE_M * rng.standard_normal((n, 3)))
         return meas, ref
     ref = pose_from_rt(R, p)
-    dp, rho = distortion(p)
+    dp, rho = field_distortion(p)
     dp += NOISE_M * rng.standard_normal(dp.shape)
     rho += NOISE_RAD * rng.standard_normal(rho.shape)
     meas = pose_from_rt(Rotation.from_rotvec(rho).as_matrix() @ ref[:, :3, :3], p + dp)
@@ -94,15 +87,14 @@ _FLOOR = {"trans_rms_mm": 1e3 * NOISE_M * np.sqrt(3),
           "rot_rms_deg": float(np.rad2deg(NOISE_RAD) * np.sqrt(3))}
 
 
-def _row(stats):
-    keys = ("trans_rms_mm", "rot_rms_deg")
-    return _ratio({"in_sample": {k: stats["in_sample"]["corrected"][k] for k in keys},
-                   "held_out": {k: stats["held_out"]["corrected"][k] for k in keys}})
+def _pick(errors) -> dict:
+    return {k: errors[k] for k in ("trans_rms_mm", "rot_rms_deg")}
 
 
-def _ratio(row):
-    row["held_out_over_noise"] = row["held_out"]["trans_rms_mm"] / _FLOOR["trans_rms_mm"]
-    return row
+def _row(in_sample, held_out) -> dict:
+    """In-sample and held-out errors of a fit, and the held-out error over the noise floor."""
+    return {"in_sample": _pick(in_sample), "held_out": _pick(held_out),
+            "held_out_over_noise": held_out["trans_rms_mm"] / _FLOOR["trans_rms_mm"]}
 
 
 def _tensor_block(n, folds, seed) -> dict:
@@ -114,16 +106,14 @@ def _tensor_block(n, folds, seed) -> dict:
     corr = fit_auto_correction(meas, ref, k=folds, seed=seed)
     seconds = time.perf_counter() - t0
     st = corr.stats
-    keys = ("trans_rms_mm", "rot_rms_deg")
     methods = {}
     for m, c in st["auto"]["candidates"].items():
         if m == "none":
             continue
-        methods[m] = ({"skipped": c["skipped"]} if "skipped" in c else _ratio(
-            {"in_sample": {k: c["in_sample"][k] for k in keys},
-             "held_out": {k: c["held_out"][k] for k in keys}}))
-    u = st["held_out"]["uncorrected"]
-    return {"samples": n, "uncorrected": {k: u[k] for k in keys}, "noise_floor": _FLOOR,
+        methods[m] = ({"skipped": c["skipped"]} if "skipped" in c
+                      else _row(c["in_sample"], c["held_out"]))
+    return {"samples": n, "uncorrected": _pick(st["held_out"]["uncorrected"]),
+            "noise_floor": _FLOOR,
             "methods": methods, "auto_chosen": corr.method,
             "auto_selected": corr.params.get("pos_degree") if corr.method == "bernstein"
             else None, "seconds": seconds}
@@ -143,16 +133,15 @@ def run(args) -> dict:
         t0 = time.perf_counter()
         st = fit_correction(meas, ref, method, k=args.folds, seed=args.seed).stats
         seconds[method] = time.perf_counter() - t0
-        methods[method] = _row(st)
+        methods[method] = _row(st["in_sample"]["corrected"], st["held_out"]["corrected"])
         if uncorrected is None:
-            u = st["in_sample"]["uncorrected"]
-            uncorrected = {"trans_rms_mm": u["trans_rms_mm"], "rot_rms_deg": u["rot_rms_deg"]}
+            uncorrected = _pick(st["in_sample"]["uncorrected"])
     overfit = {}
     for name, method, opts in (("rbf_no_smoothing", "rbf", {"smoothing": 1e-8}),
                                ("grid_10_fine", "grid", {"shape": (10, 10, 10),
                                                          "smoothing": 1e-4})):
         st = fit_correction(meas, ref, method, k=args.folds, seed=args.seed, **opts).stats
-        overfit[name] = _row(st)
+        overfit[name] = _row(st["in_sample"]["corrected"], st["held_out"]["corrected"])
     return {"samples": n, "folds": args.folds, "seed": args.seed,
             "noise_floor": _FLOOR,
             "uncorrected": uncorrected, "methods": methods, "forced_overfit": overfit,

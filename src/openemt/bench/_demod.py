@@ -26,12 +26,12 @@ noise_coupling_rms, noise_coupling_predicted
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
+from ._timing import best_time
 
 __all__ = ["add_arguments", "run"]
 
@@ -61,16 +61,6 @@ def _fft_baseline(samples, layout, hop, L, window):
         X = np.fft.rfft(samples[k * hop:k * hop + L] * w[:, None], axis=0) * scale
         out[k] = X[bins][:, se] / X[bins, ref][:, None]
     return out
-
-
-def _time(fn, repeats):
-    wall, cpu = [], []
-    for _ in range(max(1, repeats)):
-        t0, c0 = time.perf_counter(), time.process_time()
-        fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return float(np.median(wall)), float(np.median(cpu))
 
 
 def run(args) -> dict:
@@ -106,11 +96,11 @@ def run(args) -> dict:
             dem.process(x[a:a + chunk])
 
     stream()  # warm caches
-    wall, cpu = _time(stream, args.repeats)
+    cpu, wall, _ = best_time(stream, args.repeats, np.median)
     hop, L = frame_length(lay, OUTPUT_RATE_HZ, args.window)
     base_secs = min(seconds, 2.0)
     nb = int(base_secs * lay.sample_rate)
-    bwall, _ = _time(lambda: _fft_baseline(x[:nb], lay, hop, L, args.window), 1)
+    _, bwall, _ = best_time(lambda: _fft_baseline(x[:nb], lay, hop, L, args.window), 1)
     # the baseline and ours agree (same estimator)
     ours = demodulate(x[:nb], lay, window=args.window).couplings
     agree = float(np.abs(_fft_baseline(x[:nb], lay, hop, L, args.window) - ours).max())

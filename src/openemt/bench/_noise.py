@@ -195,12 +195,10 @@ def run(args) -> dict:
 def _figure(summary, path):
     from pathlib import Path
 
-    import matplotlib
-
     from ..io import atomic_path
+    from ..report import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(2, 3, figsize=(11, 6.5), sharex=True)
     snr = summary["snr_db"]

@@ -30,10 +30,9 @@ unit gains (couplings in tesla for 1 A, ~1e-8..1e-5), a smooth sensor path sampl
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
+from .._compile_notice import serial_threads
 from ._timing import best_time
 
 __all__ = ["board_6dof_speed", "planar_live_speed", "planar_speed", "planar_trajectory"]
@@ -52,16 +51,13 @@ def planar_trajectory(n, rate_hz=1000.0):
 
 def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, seed=0) -> dict:
     """Poses per second of the planar tracking solver and its ratio to per-pose scipy."""
-    import numba
     from scipy.optimize import least_squares
 
     from ..board import BoardModel
     from ..solve import Status, prepare
 
     n, nb = int(samples), int(baseline_samples)
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
+    with serial_threads():
         model = BoardModel.from_board("anser")
         P, U = planar_trajectory(n)
         C = model.coupling_points(P, U)
@@ -106,8 +102,6 @@ def planar_speed(samples=20000, baseline_samples=30, repeats=3, snr_db=80.0, see
                            / np.abs(C[0]).max())
         dt_b, _, base = best_time(lambda: baseline(coupling_ref), 1)
         dt_c, _, base_c = best_time(lambda: baseline(coupling_compiled), 1)
-    finally:
-        numba.set_num_threads(threads)
     live = planar_live_speed(seconds=min(3.0, n / 1500.0), seed=seed)
     six = board_6dof_speed(samples=min(n, 5000), repeats=repeats, snr_db=snr_db, seed=seed)
     rate = n / dt
@@ -148,8 +142,6 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
     interface-level LM (the registry's ``'model'`` entry) once on the same
     couplings: its rate, and the largest position and rotation differences of the samples
     both solvers call converged (and whether all statuses agree)."""
-    import numba
-
     from ..board import BoardModel
     from ..evaluate import error_summary, pose_error_magnitudes
     from ..geometry import pose_from_vector
@@ -157,9 +149,7 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
     from ..solve import SOLVER_FAMILIES, SolveOptions, Status, pose_from_axis, prepare
 
     n = int(samples)
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
+    with serial_threads():
         model = BoardModel.from_board("anser-6dof")
         pos, axes = planar_trajectory(n)
         roll = np.deg2rad(60.0) * np.sin(2 * np.pi * 0.4 * np.arange(n) / 1000.0)
@@ -173,8 +163,6 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
         # the interface-level LM: the registry's entry for models without a solver of their own
         interface = SOLVER_FAMILIES["model"](model, "lm", SolveOptions(initial="track"))[0]
         dt_i, _, res_i = best_time(lambda: interface(C), 1)
-    finally:
-        numba.set_num_threads(threads)
     both = (res.status == int(Status.CONVERGED)) & (res_i.status == int(Status.CONVERGED))
     dpos, drot = pose_error_magnitudes(res.poses[both], res_i.poses[both])
     ok = res.valid
@@ -234,9 +222,7 @@ def planar_live_speed(seconds: float = 3.0, seed: int = 0) -> dict:
         return pipe.run()
 
     run()                                               # warm-up: load the kernels
-    w0, c0 = time.perf_counter(), time.process_time()
-    s = run()
-    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    cpu, wall, s = best_time(run, 1)
     return {"planar_live_signal_seconds": s.signal_seconds,
             "planar_live_realtime_factor": s.signal_seconds / wall,
             "planar_live_realtime_factor_cpu": s.signal_seconds / cpu,

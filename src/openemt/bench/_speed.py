@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._compile_notice import serial_threads
 from .._errors import InputError
 from ._timing import best_time
 
@@ -211,9 +212,7 @@ def run(args) -> dict:
     nb = int(args.baseline_samples)
     if n < 10 or nb < 1:
         raise InputError(f"expected --samples >= 10 and --baseline-samples >= 1, got {n}, {nb}")
-    threads_before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
+    with serial_threads():
         rng = np.random.default_rng(args.seed)
         model = get_preset("dipole-approx").dipole
         conc = model.replace(L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))
@@ -320,6 +319,4 @@ def run(args) -> dict:
 
         summary.update(planar_speed(samples=min(n, 20000), baseline_samples=min(nb, 30),
                                     repeats=args.repeats, snr_db=args.snr_db, seed=args.seed))
-    finally:
-        numba.set_num_threads(threads_before)
     return summary

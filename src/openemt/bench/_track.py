@@ -107,6 +107,7 @@ import numpy as np
 
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
+from ._timing import best_time, cpu_us_per_item
 
 __all__ = ["add_arguments", "run"]
 
@@ -215,9 +216,8 @@ def _run_with_client(session):
         raise OSError("expected a loopback OpenIGTLink client to connect and announce header "
                       "version 2, got none in 30 s")
     session.backend.restart_clock()
-    t0 = time.perf_counter()
-    s = session.run().summary
-    return s, time.perf_counter() - t0
+    _, wall, s = best_time(lambda: session.run().summary, 1)
+    return s, wall
 
 
 def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
@@ -549,15 +549,9 @@ def _pack_per_sample(k: int) -> dict:
     valid = np.ones((10, k), bool)
     names = [f"S{j}" for j in range(k)]
 
-    def per_sample(fn, reps=200):
-        fn()
-        best = float("inf")
-        for _ in range(3):
-            c0 = time.process_time()
-            for _ in range(reps):
-                fn()
-            best = min(best, 1e6 * (time.process_time() - c0) / (reps * 10))
-        return best
+    def per_sample(fn):
+        fn()                                        # warm-up
+        return cpu_us_per_item(fn, 10, repeats=3)
 
     flat = np.concatenate([M] * k)
     devices = [n for n in names for _ in range(10)]
@@ -632,9 +626,8 @@ def _realtime_factor(spec, seconds, chunk, seed) -> dict:
             warm.run()
         with TrackingSession(spec, opts, sensors=sensors,
                              backend=_Memory(raw, layout, chunk)) as session:
-            c0, t0 = time.process_time(), time.perf_counter()
-            s = session.run().summary
-            return s, time.perf_counter() - t0, time.process_time() - c0
+            cpu, wall, s = best_time(lambda: session.run().summary, 1)
+            return s, wall, cpu
 
     s, wall, cpu = timed(shared)
     sb, wallb, cpub = timed(separate)
@@ -667,17 +660,10 @@ def _packing(k: int) -> dict:
     M[:, :3, 3] = [200.0, 10.0, -5.0]
     ts = time.time() + np.arange(10) / OUTPUT_RATE_HZ
     pack_transforms(M, ts, "S0")
-
-    def per_message(fn, reps=200):
-        c0 = time.process_time()
-        for _ in range(reps):
-            fn()
-        return 1e6 * (time.process_time() - c0) / (reps * 10)
-
-    ours = per_message(lambda: pack_transforms(M, ts, "S0"))
-    theirs = per_message(lambda: b"".join(
+    ours = cpu_us_per_item(lambda: pack_transforms(M, ts, "S0"), 10)
+    theirs = cpu_us_per_item(lambda: b"".join(
         pyigtl.TransformMessage(m, timestamp=t, device_name="S0").pack()
-        for m, t in zip(M, ts)))
+        for m, t in zip(M, ts)), 10)
     return {"igtl_pack_us_per_message": ours, "igtl_pack_us_per_message_pyigtl": theirs,
             "igtl_pack_speedup": theirs / ours if ours > 0 else None,
             "igtl_pack_us_per_chunk": 10 * k * ours}

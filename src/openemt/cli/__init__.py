@@ -69,11 +69,6 @@ def plain_text(text: str) -> str:
     return _MARKUP.sub(lambda m: next(g for g in m.groups() if g is not None), text)
 
 
-def command_help(name: str) -> str:
-    """The one-line help of command ``name`` (see :data:`COMMANDS`)."""
-    return COMMANDS[name][1]
-
-
 class _UsageError(Exception):
     """An argparse error, reported by :func:`main` (one line with the right usage, exit 2)."""
 

@@ -10,17 +10,13 @@ __all__ = ["register", "run"]
 
 def register(sub) -> None:
     from ..calibrate import CalibrateOptions
-    from . import command_help
-    from ._common import add_common, add_options
+    from ._common import add_command
 
-    p = sub.add_parser(
-        "calibrate", help=command_help("calibrate"),
+    add_command(
+        sub, "calibrate", run, CalibrateOptions,
         description="Fit a calibration (MacLachlan et al. 2025, §VI) to DATASET, starting from "
                     "--from CAL, and score it on rows it did not fit. DATASET is an ILEMT "
                     "folder, a dataset file (.h5) or a CSV export.")
-    add_options(p, CalibrateOptions)
-    add_common(p)
-    p.set_defaults(func=run)
 
 
 def run(args) -> int:

@@ -12,11 +12,10 @@ __all__ = ["register", "run"]
 def register(subparsers) -> None:
     from ..collect import CollectOptions
     from ..view import ViewOptions
-    from . import command_help
-    from ._common import add_common, add_options
+    from ._common import add_command
 
-    p = subparsers.add_parser(
-        "collect", help=command_help("collect"),
+    add_command(
+        subparsers, "collect", run, (CollectOptions, ViewOptions),
         description="Acquire couplings from a tracker source while reference poses arrive "
                     "(an OpenIGTLink server such as PLUS or 3D Slicer, a CSV with time stamps, "
                     "or a simulated robot / optical tracker served over OpenIGTLink); estimate "
@@ -25,10 +24,6 @@ def register(subparsers) -> None:
                     "'openemt calibrate --mode reference' (docs/reference-calibration.md"
                     "#collecting). Stops at --n-poses, --duration, the end of the source or "
                     "reference, or on Ctrl-C, writing what it has.")
-    add_options(p, CollectOptions)
-    add_options(p, ViewOptions)
-    add_common(p)
-    p.set_defaults(func=run)
 
 
 def run(args) -> int:

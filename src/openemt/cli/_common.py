@@ -12,14 +12,15 @@ __all__ = ["add_actions", "add_command", "add_common", "add_options", "emit", "o
 
 def add_command(sub, name: str, func=None, options=None, only=None, **kwargs):
     """Add command (or sub-command) ``name`` to ``sub`` with its one-line help, the options of
-    the dataclass ``options`` (:func:`add_options`; ``only`` these fields), ``--json`` /
-    ``--quiet`` and ``func``."""
+    the dataclass ``options`` or of each of a tuple of them (:func:`add_options`; ``only``
+    these fields), ``--json`` / ``--quiet`` and ``func``."""
     from . import COMMANDS
 
     kwargs.setdefault("help", COMMANDS[name][1] if name in COMMANDS else None)
     p = sub.add_parser(name, **kwargs)
-    if options is not None:
-        add_options(p, options, only=only)
+    for cls in options if isinstance(options, tuple) else (options,):
+        if cls is not None:
+            add_options(p, cls, only=only)
     if func is not None:
         add_common(p)
         p.set_defaults(func=func)

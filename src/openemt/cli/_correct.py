@@ -11,16 +11,13 @@ row. The workflows are :func:`openemt.correct.fit_correction_files` and
 from __future__ import annotations
 
 from ..correct import ApplyOptions, FitOptions, apply_correction_file, fit_correction_files
-from . import command_help
-from ._common import add_actions
+from ._common import add_actions, add_command
 
 __all__ = ["register"]
 
 
 def register(sub) -> None:
-    p = sub.add_parser("correct", help=command_help("correct"),
-                       description=__doc__.splitlines()[0])
-    add_actions(p, (
+    add_actions(add_command(sub, "correct", description=__doc__.splitlines()[0]), (
         ("fit", "fit a correction to pose pairs (CSV)", FitOptions, fit_correction_files),
         ("apply", "apply a correction to poses inside its fitted box", ApplyOptions,
          apply_correction_file)))

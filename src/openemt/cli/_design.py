@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from . import command_help
-from ._common import add_actions
+from ._common import add_actions, add_command
 
 __all__ = ["register"]
 
@@ -11,9 +10,9 @@ __all__ = ["register"]
 def register(sub) -> None:
     from .. import design
 
-    p = sub.add_parser("design", help=command_help("design"),
-                       description="Design a tracker before building it: accuracy maps, board "
-                                   "layout optimisation and carrier plans (docs/design.md).")
+    p = add_command(sub, "design",
+                    description="Design a tracker before building it: accuracy maps, board "
+                                "layout optimisation and carrier plans (docs/design.md).")
     add_actions(p, (
         ("map", "the Cramer-Rao bound of the pose over a volume, beside Monte Carlo solves",
          design.MapOptions, design.design_map),

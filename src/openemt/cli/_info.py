@@ -6,18 +6,15 @@ __all__ = ["register", "run"]
 
 
 def register(sub) -> None:
-    from . import command_help
-    from ._common import add_common
+    from ._common import add_command
 
-    p = sub.add_parser("info", help=command_help("info"),
-                       description="Summarise any file openemt writes: datasets, poses, "
-                                   "calibrations, corrections, raw recordings, live logs, pose "
-                                   "(pair) CSV files and NDI exports.")
+    p = add_command(sub, "info", run,
+                    description="Summarise any file openemt writes: datasets, poses, "
+                                "calibrations, corrections, raw recordings, live logs, pose "
+                                "(pair) CSV files and NDI exports.")
     p.add_argument("path", help="dataset or poses .h5, raw recording or track log (.h5/.csv), "
                                 "calibration or correction .json, ILEMT calibration .mat, "
                                 "pose or pairs .csv, NDI export .tsv")
-    add_common(p)
-    p.set_defaults(func=run)
 
 
 def run(args) -> int:

@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import sys
 
-from . import command_help
-from ._common import add_common, add_options, emit, options_from
+from ._common import add_command, emit, options_from
 
 __all__ = ["add_step", "run_step", "step"]
 
@@ -15,12 +14,8 @@ __all__ = ["add_step", "run_step", "step"]
 def add_step(sub, name: str, options_cls, workflow, after=None):
     """Add command ``name``: the fields of ``options_cls`` as options; running it calls
     ``workflow(options)`` and then ``after(args, run)`` if given."""
-    p = sub.add_parser(name, help=command_help(name),
-                       description=" ".join(options_cls.__doc__.split()))
-    add_options(p, options_cls)
-    add_common(p)
-    p.set_defaults(func=lambda args: run_step(args, options_cls, workflow, after))
-    return p
+    return add_command(sub, name, lambda args: run_step(args, options_cls, workflow, after),
+                       options_cls, description=" ".join(options_cls.__doc__.split()))
 
 
 def run_step(args, options_cls, workflow, after=None) -> int:

@@ -11,20 +11,16 @@ __all__ = ["register", "run"]
 
 def register(subparsers) -> None:
     from ..solve import SolveFileOptions
-    from . import command_help
-    from ._common import add_common, add_options
+    from ._common import add_command
 
-    p = subparsers.add_parser(
-        "solve", help=command_help("solve"),
+    p = add_command(
+        subparsers, "solve", run, SolveFileOptions,
         description="Solve sensor poses for every row of an openemt HDF5 dataset with a "
                     "calibration's model and write them to an HDF5 poses file. Large files are "
                     "streamed in blocks (Dask; local by default, --scheduler for a cluster).")
-    add_options(p, SolveFileOptions)
     p.add_argument("--progress", action="store_true",
                    help="a line on stderr about every second: rows done, rate and time left "
                         "(across the cluster with --scheduler)")
-    add_common(p)
-    p.set_defaults(func=run)
 
 
 def run(args) -> int:

@@ -12,11 +12,10 @@ __all__ = ["register", "run"]
 def register(subparsers) -> None:
     from ..live import TrackOptions
     from ..view import ViewOptions
-    from . import command_help
-    from ._common import add_common, add_options
+    from ._common import add_command
 
-    p = subparsers.add_parser(
-        "track", help=command_help("track"),
+    add_command(
+        subparsers, "track", run, (TrackOptions, ViewOptions),
         description="Demodulate raw samples (simulated device, an HDF5 recording, a sound "
                     "card, or an ADC streaming openemt frames over a serial port or TCP), solve every sensor's pose with a warm-started LM solver, optionally "
                     "filter it and map it into an image through a registration, and serve each "
@@ -26,10 +25,6 @@ def register(subparsers) -> None:
                     "devices <Sensor>ToTracker, <Sensor>TipToTracker, <Sensor>To<Reference>, "
                     "<Sensor>ToImage with a registration (docs/live.md#what-track-streams). "
                     "Stops at --duration, at the end of a recording, or on Ctrl-C.")
-    add_options(p, TrackOptions)
-    add_options(p, ViewOptions)
-    add_common(p)
-    p.set_defaults(func=run)
 
 
 def run(args) -> int:

@@ -11,17 +11,13 @@ __all__ = ["register", "run"]
 
 def register(subparsers) -> None:
     from ..view import ViewRecordingOptions
-    from . import command_help
-    from ._common import add_common, add_options
+    from ._common import add_command
 
-    p = subparsers.add_parser(
-        "view", help=command_help("view"),
+    add_command(
+        subparsers, "view", run, ViewRecordingOptions,
         description="Serve the live view (carriers, spectra, coupling matrix, sensors, "
                     "trail; docs/live.md#live-view) of a session log or a raw recording on "
                     "http://127.0.0.1:PORT/ (printed on stderr).")
-    add_options(p, ViewRecordingOptions)
-    add_common(p)
-    p.set_defaults(func=run)
 
 
 def run(args) -> int:

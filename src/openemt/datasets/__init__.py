@@ -17,7 +17,7 @@ True
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .._errors import InputError
@@ -62,8 +62,7 @@ class DatasetInfo:
         return _HERE / f"{self.name}.sha256"
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "description": self.description, "citation": self.citation,
-                "license": self.license, "path": str(self.path)}
+        return {**asdict(self), "path": str(self.path)}
 
 
 _REGISTRY = {

@@ -27,11 +27,12 @@ backtracking search finds at most 5), so third-order mixes that land on carriers
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 
 __all__ = ["CarrierOptions", "CarrierReport", "carrier_plan", "plan_leakage"]
@@ -41,25 +42,21 @@ __all__ = ["CarrierOptions", "CarrierReport", "carrier_plan", "plan_leakage"]
 class CarrierOptions:
     """The options of :func:`carrier_plan`."""
 
-    trackers: tuple[str, ...] = field(default=(), metadata={
-        "positional": True, "optional": True, "help": "tracker files whose plans to report "
-        "(default: every shipped tracker file)"})
-    sample_rate: float = field(default=96000.0, metadata={"help": "ADC rate (samples/s)"})
-    output_rate: float = field(default=1500.0, metadata={"help": "couplings per second"})
-    window: str = field(default="hann", metadata={"choices": ("hann", "rect"),
-                                                  "help": "demodulation window"})
-    n_carriers: int = field(default=8, metadata={"help": "carriers of the chosen plan"})
-    min_frequency: float = field(default=5000.0, metadata={"help": "lowest carrier (Hz)"})
-    max_frequency: float = field(default=43000.0, metadata={"help": "highest carrier (Hz)"})
-    min_gap_bins: int = field(default=2, metadata={
-        "help": "least spacing of two carriers, in frame bins"})
-    mains_frequency: float = field(default=50.0, metadata={"help": "50 or 60 Hz"})
-    mains_harmonics: int = field(default=40, metadata={
-        "help": "mains harmonics considered (1 V each)"})
-    distortion_db: float = field(default=-100.0, metadata={
-        "help": "second- and third-order front-end distortion against full scale (dB)"})
-    max_level_db: float = field(default=-80.0, metadata={
-        "help": "the stated level every leakage of the chosen plan must stay below (dB)"})
+    trackers: tuple[str, ...] = option((), "tracker files whose plans to report (default: every "
+                                       "shipped tracker file)", positional=True, optional=True)
+    sample_rate: float = option(96000.0, "ADC rate (samples/s)")
+    output_rate: float = option(1500.0, "couplings per second")
+    window: str = option("hann", "demodulation window", choices=("hann", "rect"))
+    n_carriers: int = option(8, "carriers of the chosen plan")
+    min_frequency: float = option(5000.0, "lowest carrier (Hz)")
+    max_frequency: float = option(43000.0, "highest carrier (Hz)")
+    min_gap_bins: int = option(2, "least spacing of two carriers, in frame bins")
+    mains_frequency: float = option(50.0, "50 or 60 Hz")
+    mains_harmonics: int = option(40, "mains harmonics considered (1 V each)")
+    distortion_db: float = option(-100.0, "second- and third-order front-end distortion against "
+                                  "full scale (dB)")
+    max_level_db: float = option(-80.0, "the stated level every leakage of the chosen plan must "
+                                 "stay below (dB)")
 
 
 def _db(x: float) -> float:

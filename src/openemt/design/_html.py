@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..report._figures import pyplot
+from ..report import pyplot
 
 __all__ = ["map_document", "optimize_document"]
 

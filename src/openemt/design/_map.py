@@ -3,11 +3,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 from ._crb import pose_bound
 from ._orient import ORIENTATIONS, map_poses, orientation_set
@@ -21,43 +22,37 @@ __all__ = ["BoundMap", "DesignMap", "MapOptions", "bound_map", "design_map", "ma
 class MapOptions:
     """The options of :func:`design_map` (and the map part of ``optimize``)."""
 
-    target: str = field(default="anser", metadata={
-        "positional": True, "help": "built-in board (anser, anser-6dof), rig preset "
-        "(concentric, dipole-approx), board file, calibration or tracker file"})
-    x_mm: tuple[float, ...] | None = field(default=None, metadata={
-        "metavar": "MM", "help": "x range of the volume (mm; default: the target's, "
-        "docs/design.md#volumes)"})
-    y_mm: tuple[float, ...] | None = field(default=None, metadata={
-        "metavar": "MM", "help": "y range of the volume (mm)"})
-    z_mm: tuple[float, ...] | None = field(default=None, metadata={
-        "metavar": "MM", "help": "z range of the volume (mm)"})
-    grid: tuple[int, ...] | None = field(default=None, metadata={
-        "metavar": "N", "help": "grid points along x, y, z (default 7 7 5 for "
-        "a board, 5 5 5 for a rig)"})
-    orientations: str = field(default="axes", metadata={
-        "choices": ORIENTATIONS, "help": "sensor orientations at each point: down (sensor z "
-        "along -z), axes (+-x, +-y, +-z) or sphere (--n-orientations directions)"})
-    n_orientations: int = field(default=12, metadata={
-        "help": "directions of --orientations sphere"})
-    noise_sigma: float | None = field(default=None, metadata={
-        "help": "white noise standard deviation of each coupling (the couplings' units)"})
-    snr_db: float | None = field(default=None, metadata={
-        "help": "noise from an SNR (dB) against the RMS noise-free coupling over the volume "
-                "(default 80 dB when no --noise-sigma)"})
-    target_mm: float = field(default=0.1, metadata={
-        "help": "report the fraction of the volume whose position bound is below this (mm)"})
-    montecarlo: int = field(default=20, metadata={
-        "help": "sampled (point, orientation) pairs solved in Monte Carlo (0: none)"})
-    montecarlo_noise: str = field(default="raw", metadata={
-        "choices": ("raw", "coupling"), "help": "Monte Carlo on raw ADC samples through the "
-        "signal simulator and demodulator, or white noise added to the couplings"})
-    montecarlo_start: str = field(default="truth", metadata={
-        "choices": ("truth", "cold"), "help": "solve each Monte Carlo draw from the true pose, "
-        "or cold (the solver's start with no prior pose)"})
-    trials: int = field(default=200, metadata={"help": "noise draws per Monte Carlo point"})
-    seed: int = field(default=0, metadata={"help": "seed of the Monte Carlo draws"})
-    output: str | None = field(default=None, metadata={
-        "flag": ("-o", "--output"), "help": "write a self-contained HTML page here"})
+    target: str = option("anser", "built-in board (anser, anser-6dof), rig preset (concentric, "
+                         "dipole-approx), board file, calibration or tracker file",
+                         positional=True)
+    x_mm: tuple[float, ...] | None = option(None, "x range of the volume (mm; default: the "
+                                            "target's, docs/design.md#volumes)", metavar="MM")
+    y_mm: tuple[float, ...] | None = option(None, "y range of the volume (mm)", metavar="MM")
+    z_mm: tuple[float, ...] | None = option(None, "z range of the volume (mm)", metavar="MM")
+    grid: tuple[int, ...] | None = option(None, "grid points along x, y, z (default 7 7 5 for a "
+                                          "board, 5 5 5 for a rig)", metavar="N")
+    orientations: str = option("axes", "sensor orientations at each point: down (sensor z along "
+                               "-z), axes (+-x, +-y, +-z) or sphere (--n-orientations directions)",
+                               choices=ORIENTATIONS)
+    n_orientations: int = option(12, "directions of --orientations sphere")
+    noise_sigma: float | None = option(None, "white noise standard deviation of each coupling "
+                                       "(the couplings' units)")
+    snr_db: float | None = option(None, "noise from an SNR (dB) against the RMS noise-free "
+                                  "coupling over the volume (default 80 dB when no --noise-sigma)")
+    target_mm: float = option(0.1, "report the fraction of the volume whose position bound is "
+                              "below this (mm)")
+    montecarlo: int = option(20, "sampled (point, orientation) pairs solved in Monte Carlo (0: "
+                             "none)")
+    montecarlo_noise: str = option("raw", "Monte Carlo on raw ADC samples through the signal "
+                                   "simulator and demodulator, or white noise added to the "
+                                   "couplings", choices=("raw", "coupling"))
+    montecarlo_start: str = option("truth", "solve each Monte Carlo draw from the true pose, or "
+                                   "cold (the solver's start with no prior pose)",
+                                   choices=("truth", "cold"))
+    trials: int = option(200, "noise draws per Monte Carlo point")
+    seed: int = option(0, "seed of the Monte Carlo draws")
+    output: str | None = option(None, "write a self-contained HTML page here",
+                                flag=("-o", "--output"))
 
     def volume(self, default: Volume | None) -> Volume:
         ranges = []

@@ -21,11 +21,12 @@ within ``max_evaluations`` objective evaluations in all.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option
 from .._result import Result
 from ._map import MapOptions, _scaled, bound_map, map_of, map_summary
 from ._orient import orientation_set
@@ -41,26 +42,22 @@ _STATISTICS = ("median", "p95", "max")
 class OptimizeOptions(MapOptions):
     """The options of :func:`optimize_layout`: a map's, and the search's."""
 
-    statistic: str = field(default="p95", metadata={
-        "choices": _STATISTICS, "help": "statistic of the position bound to minimise"})
-    min_spacing_mm: float = field(default=2.0, metadata={
-        "help": "least gap between two coils' outlines (mm)"})
-    max_evaluations: int = field(default=3000, metadata={
-        "help": "objective evaluations of the search in all"})
-    starts: int = field(default=1, metadata={
-        "help": "searches: from the start layout and from perturbed copies of it"})
-    vary: str = field(default="placement", metadata={
-        "choices": ("placement", "all"), "help": "board coils: centres and angles "
-        "(placement), or also sizes and turns (all) within the start's drive power"})
-    min_size_mm: float = field(default=20.0, metadata={
-        "help": "least coil size (outer side or diameter, mm) with --vary all"})
-    offset_mm: float = field(default=20.0, metadata={
-        "help": "rig sources: each coil's position within +- this of its start (mm)"})
-    output: str | None = field(default=None, metadata={
-        "flag": ("-o", "--output"), "help": "write the optimised board file here (.toml, or "
-        ".json; a rig: a calibration .json): every command that takes one reads it"})
-    html: str | None = field(default=None, metadata={
-        "help": "write a self-contained HTML page with both maps here"})
+    statistic: str = option("p95", "statistic of the position bound to minimise",
+                            choices=_STATISTICS)
+    min_spacing_mm: float = option(2.0, "least gap between two coils' outlines (mm)")
+    max_evaluations: int = option(3000, "objective evaluations of the search in all")
+    starts: int = option(1, "searches: from the start layout and from perturbed copies of it")
+    vary: str = option("placement", "board coils: centres and angles (placement), or also sizes "
+                       "and turns (all) within the start's drive power",
+                       choices=("placement", "all"))
+    min_size_mm: float = option(20.0, "least coil size (outer side or diameter, mm) with --vary "
+                                "all")
+    offset_mm: float = option(20.0, "rig sources: each coil's position within +- this of its "
+                              "start (mm)")
+    output: str | None = option(None, "write the optimised board file here (.toml, or .json; a "
+                                "rig: a calibration .json): every command that takes one reads it",
+                                flag=("-o", "--output"))
+    html: str | None = option(None, "write a self-contained HTML page with both maps here")
 
 
 def _corners(centers, angles, half):

@@ -10,7 +10,7 @@ and the tracker's ADC figures for the noise). See docs/design.md#targets.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -105,7 +105,6 @@ def carrier_plan(target):
     source coils and as many channels in its first sensor as the model has sensor coils;
     None when none fits."""
     from ..live import example_tracker, read_tracker
-    from ..signal import ChannelLayout
 
     model = target.model
     specs = [target.tracker] if target.tracker is not None else \
@@ -113,11 +112,8 @@ def carrier_plan(target):
     for spec in specs:
         s0 = spec.sensors[0]
         if len(spec.frequencies) == model.n_source and len(s0.channels) == model.n_sensor:
-            layout = ChannelLayout(frequencies=spec.frequencies, sample_rate=spec.sample_rate,
-                                   sensor_channels=s0.channels,
-                                   reference_channels=spec.reference_channels,
-                                   sensor_gain=spec.sensor_gain,
-                                   reference_gain=spec.reference_gain)
+            # the tracker's layout with the first sensor's channels, one carrier band
+            layout = replace(spec.layout(), sensor_channels=s0.channels, bands=())
             return layout, spec.output_rate, spec.window
     return None
 

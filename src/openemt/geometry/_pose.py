@@ -53,13 +53,15 @@ def check_points(xyz, name: str = "xyz") -> np.ndarray:
     return _check_last_axis(xyz, 3, name)
 
 
-def check_poses(P, name: str = "poses") -> np.ndarray:
-    """Validate homogeneous poses and return them as float64, shape ``(..., 4, 4)``."""
+def check_poses(P, name: str = "poses", *, batch: bool = False) -> np.ndarray:
+    """Validate homogeneous poses and return them as float64, shape ``(..., 4, 4)`` (with
+    ``batch``: ``(N, 4, 4)``)."""
     arr = np.asarray(P)
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"expected `{name}` to be real numbers, got dtype {arr.dtype}")
-    if arr.ndim < 2 or arr.shape[-2:] != (4, 4):
-        raise InputError(f"expected `{name}` to have shape (..., 4, 4), got {arr.shape}")
+    if arr.ndim < 2 or arr.shape[-2:] != (4, 4) or (batch and arr.ndim != 3):
+        raise InputError(f"expected `{name}` to have shape {'(N' if batch else '(...'}, 4, 4), "
+                         f"got {arr.shape}")
     return arr.astype(np.float64, copy=False)
 
 

@@ -48,9 +48,7 @@ _UNITS = {
     "model.M_so": "gain units (coil moment relative to model.gain)",
     "model.M_se": "gain units (coil moment relative to model.gain)",
     "model.gain": "coupling scale (ILEMT: 1/250)",
-    "fixtures": "pose vector [x, y, z, rx, ry, rz]: m and rotation vector in rad",
-    "linear_correction": "homogeneous 4x4 acting on positions [x, y, z, 1] in m",
-    "stats": "SI (m, rad) unless the key says otherwise",
+    **_UNITS_COMMON,
 }
 
 

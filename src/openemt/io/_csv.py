@@ -22,7 +22,7 @@ from .._atomic import atomic_path
 from .._errors import InputError
 from ..geometry import pose_from_vector, stage_transform, vector_from_pose
 from ._dataset import Dataset
-from ._safefile import MAX_TEXT_BYTES, read_limited
+from ._safefile import read_text
 
 __all__ = ["export_csv", "import_csv"]
 
@@ -81,12 +81,7 @@ def import_csv(path) -> Dataset:
     string columns become empty strings.
     """
     path = Path(path)
-    data = read_limited(path, "a couplings CSV file", MAX_TEXT_BYTES)
-    try:
-        lines = data.decode("utf-8-sig").splitlines()
-    except UnicodeDecodeError as exc:
-        raise InputError(f"expected a couplings CSV file (UTF-8 text), got a byte that is not "
-                         f"UTF-8 at offset {exc.start} in {path.name}") from None
+    lines = read_text(path, "a couplings CSV file").splitlines()
     kind = "truth"
     comments = [ln for ln in lines if ln.lstrip().startswith("#")]
     numbered = [(k, ln) for k, ln in enumerate(lines, 1)

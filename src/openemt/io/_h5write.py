@@ -38,15 +38,6 @@ class GuardedFile:
         self._kept: list[tuple[int, bytes]] = []  # (offset, bytes) written after a failure
 
     # the subset of the io API that h5py's fileobj driver uses
-    def readable(self) -> bool:
-        return True
-
-    def writable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
     def tell(self) -> int:
         return self._pos
 
@@ -133,6 +124,27 @@ def raise_if_write_failed(h5file) -> None:
 
 
 @contextlib.contextmanager
+def _guarded_h5(tmp, path, **h5_options):
+    """A new ``h5py.File`` at ``tmp`` written through a :class:`GuardedFile` (errors named after
+    ``path``): closed at the end of the block, then its first write error raised."""
+    import h5py
+
+    fd = os.open(tmp, os.O_RDWR)
+    try:
+        guard = GuardedFile(fd, str(path))
+        f = h5py.File(guard, "w", **h5_options)
+        _GUARDS[id(f)] = guard
+        try:
+            yield f
+        finally:
+            _GUARDS.pop(id(f), None)
+            f.close()  # cannot fail on I/O: the guard keeps the error
+        guard.check()
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
 def atomic_h5(path, *, seal: bool = False, **h5_options):
     """Yield a new ``h5py.File`` that becomes ``path`` on success (see :func:`atomic_path`).
 
@@ -142,22 +154,9 @@ def atomic_h5(path, *, seal: bool = False, **h5_options):
     ``userblock_size=SEAL_SIZE``, see :mod:`openemt.io._h5safe`). ``h5_options`` go to
     ``h5py.File`` (``libver``, ``userblock_size``, ...).
     """
-    import h5py
-
     with atomic_path(path, suffix=".h5") as tmp:
-        fd = os.open(tmp, os.O_RDWR)
-        try:
-            guard = GuardedFile(fd, str(path))
-            f = h5py.File(guard, "w", **h5_options)
-            _GUARDS[id(f)] = guard
-            try:
-                yield f
-            finally:
-                _GUARDS.pop(id(f), None)
-                f.close()  # cannot fail on I/O: the guard keeps the error
-            guard.check()
-        finally:
-            os.close(fd)
+        with _guarded_h5(tmp, path, **h5_options) as f:
+            yield f
         if seal:
             from ._h5safe import seal as write_seal
             write_seal(tmp)
@@ -194,20 +193,9 @@ def atomic_h5_layout(path, build, **h5_options):
     :func:`write_at`. The file becomes ``path`` when the block ends without an exception
     (:func:`openemt._atomic.atomic_path`: no partial file otherwise). The layout itself is
     written through a :class:`GuardedFile` as in :func:`atomic_h5`."""
-    import h5py
-
     with atomic_path(path, suffix=".h5") as tmp:
-        fd = os.open(tmp, os.O_RDWR)
-        try:
-            guard = GuardedFile(fd, str(path))
-            f = h5py.File(guard, "w", **h5_options)
-            try:
-                layout = build(f)
-            finally:
-                f.close()
-            guard.check()
-        finally:
-            os.close(fd)
+        with _guarded_h5(tmp, path, **h5_options) as f:
+            layout = build(f)
         yield tmp, layout
 
 

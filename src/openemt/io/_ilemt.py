@@ -182,11 +182,13 @@ def _one_line(text: str, limit: int = 40) -> str:
 def _parse_sign_cell(body: str, what: str, path) -> list[tuple[str, tuple[float, ...]]]:
     entries = []
     pos = 0
-    for m in _ENTRY_RE.finditer(body):
-        gap = body[pos:m.start()]
+    for m in [*_ENTRY_RE.finditer(body), None]:     # None: the text after the last entry
+        gap = body[pos:m.start() if m else None]
         if gap.replace("...", "").strip(" \t\r\n,;"):
             raise InputError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
                              f"got unparsable text {gap.strip()[:40]!r}")
+        if m is None:
+            return entries
         pos = m.end()
         regex = m.group(1).replace("''", "'")
         try:
@@ -202,11 +204,6 @@ def _parse_sign_cell(body: str, what: str, path) -> list[tuple[str, tuple[float,
             raise InputError(f"{path}: expected signs of +1/-1 in `options.{what}`, "
                              f"got [{_one_line(m.group(2))}]")
         entries.append((regex, signs))
-    tail = body[pos:]
-    if tail.replace("...", "").strip(" \t\r\n,;"):
-        raise InputError(f"{path}: expected `options.{what} = {{ 'regex' [s s s] ... }}`, "
-                         f"got unparsable text {tail.strip()[:40]!r}")
-    return entries
 
 
 def parse_sign_options(path) -> tuple[list[tuple[str, tuple[float, ...]]],

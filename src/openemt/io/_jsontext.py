@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._safefile import MAX_JSON_BYTES, read_limited
+from ._safefile import MAX_JSON_BYTES, read_text
 
 __all__ = ["MAX_JSON_DEPTH", "MAX_JSON_ITEMS", "free_to_json", "json_depth", "load_json_file",
            "loads_json"]
@@ -72,16 +72,9 @@ def loads_json(text: str, what: str, where: str):
 
 def load_json_file(path, what: str, max_bytes: int = MAX_JSON_BYTES):
     """Read and parse a JSON file (a regular file of at most ``max_bytes``,
-    :func:`~openemt.io._safefile.read_limited`); the errors name the file and say what was
+    :func:`~openemt.io._safefile.read_text`); the errors name the file and say what was
     expected."""
-    path = Path(path)
-    data = read_limited(path, what, max_bytes)
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"expected {what} (UTF-8 JSON text), got a byte that is not UTF-8 at "
-                         f"offset {exc.start} in {path.name}") from None
-    return loads_json(text, what, path.name)
+    return loads_json(read_text(path, what, max_bytes), what, Path(path).name)
 
 
 def free_to_json(v):

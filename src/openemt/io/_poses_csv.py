@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 from .._atomic import atomic_path
 from .._errors import InputError
 from ..geometry import check_poses, pose_from_rt, vector_from_pose
-from ._safefile import MAX_TEXT_BYTES, read_limited
+from ._safefile import read_text
 
 __all__ = ["PoseTable", "StaticAverage", "average_static", "import_poses_csv", "read_poses_csv",
            "write_poses_csv"]
@@ -144,9 +144,7 @@ def average_static(poses, groups=None) -> StaticAverage:
     -------
     StaticAverage
     """
-    P = check_poses(poses, "poses")
-    if P.ndim != 3:
-        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+    P = check_poses(poses, "poses", batch=True)
     g = np.zeros(len(P), dtype=int) if groups is None else np.asarray(groups)
     if g.shape != (len(P),):
         raise InputError(f"expected `groups` of shape ({len(P)},), got {g.shape}")
@@ -246,12 +244,7 @@ def read_poses_csv(path, *, length_unit: str = "m", angle_unit: str = "rad") -> 
     if angle_unit not in _ANG:
         raise InputError(f"expected angle_unit in {sorted(_ANG)}, got {angle_unit!r}")
     path = Path(path)
-    data = read_limited(path, "a pose CSV file", MAX_TEXT_BYTES)
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"expected a pose CSV file (UTF-8 text), got a byte that is not UTF-8 "
-                         f"at offset {exc.start} in {path}") from None
+    text = read_text(path, "a pose CSV file")
     numbered = [(k, ln) for k, ln in enumerate(text.splitlines(), 1)
                 if ln.strip() and not ln.lstrip().startswith("#")]
     if not numbered:
@@ -324,9 +317,7 @@ def write_poses_csv(path, poses, reference=None, group=None, time=None, frame=No
     ref_rz_rad]`` and then ``columns`` (name -> one value per row, written with ``str``);
     numbers use shortest round-trip precision. Returns the path.
     """
-    P = check_poses(poses, "poses")
-    if P.ndim != 3:
-        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+    P = check_poses(poses, "poses", batch=True)
     names = ["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"]
     blocks = [vector_from_pose(P)]
     header = list(names)

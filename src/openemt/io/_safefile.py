@@ -7,7 +7,7 @@ Every reader of openemt goes through here before it reads a byte:
   until a writer appears, and a device can deliver without end;
 * :func:`read_limited` opens with ``O_NONBLOCK`` (so a FIFO swapped in after the check cannot
   block the open), checks the opened file again (``fstat``), refuses a file larger than the
-  limit of its format and returns its bytes;
+  limit of its format and returns its bytes (:func:`read_text`: decoded as UTF-8);
 * :func:`check_text_nesting` bounds the nesting of TOML text before ``tomllib`` parses it
   (the parser recurses once per level of inline arrays and tables; JSON has its own check in
   :mod:`openemt.io._jsontext`).
@@ -25,7 +25,7 @@ from .._atomic import file_kind
 from .._errors import InputError
 
 __all__ = ["MAX_CONFIG_BYTES", "MAX_JSON_BYTES", "MAX_TEXT_BYTES", "MAX_TOML_DEPTH",
-           "check_regular", "check_text_nesting", "read_limited", "read_toml"]
+           "check_regular", "check_text_nesting", "read_limited", "read_text", "read_toml"]
 
 #: largest tracker description or board file (TOML/JSON) read (a shipped one is ~2 KB)
 MAX_CONFIG_BYTES = 1 << 20
@@ -90,6 +90,16 @@ def read_limited(path, what: str, max_bytes: int) -> bytes:
         raise InputError(f"expected {what} of at most {_size_text(max_bytes)}, got "
                          f"{path.name} of more")
     return data
+
+
+def read_text(path, what: str, max_bytes: int = MAX_TEXT_BYTES) -> str:
+    """The text of :func:`read_limited` decoded as UTF-8 (a byte-order mark dropped); a byte
+    that is not UTF-8 is one line naming its offset and the file."""
+    try:
+        return read_limited(path, what, max_bytes).decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"expected {what} (UTF-8 text), got a byte that is not UTF-8 at "
+                         f"offset {exc.start} in {Path(path).name}") from None
 
 
 def check_text_nesting(text: str, what: str, where: str, limit: int = MAX_TOML_DEPTH) -> None:

@@ -27,6 +27,7 @@ from ..evaluate import (
     combined_uncertainty,
 )
 from ._reasons import explain_rows
+from ._run import corrected_poses
 
 __all__ = [
     "CalibrationCharacterization",
@@ -50,15 +51,6 @@ def accuracy_row(name: str, test, paper=None) -> dict:
     if paper is not None:
         row["paper"] = dict(paper)
     return row
-
-
-def corrected_poses(P, L):
-    """Poses with the linear output correction ``L`` (4, 4) applied to their positions."""
-    from ..correct import apply_linear_correction
-
-    out = np.array(P, dtype=np.float64)
-    out[:, :3, 3] = apply_linear_correction(L, out[:, :3, 3])
-    return out
 
 
 @dataclass(frozen=True, eq=False)

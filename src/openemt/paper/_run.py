@@ -8,6 +8,8 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from .._errors import InputError
 
 __all__ = ["PaperRun", "load_paper_run", "sequence_steps"]
@@ -80,6 +82,15 @@ class PaperRun:
 
     def has(self, *names: str) -> bool:
         return all(n in self.fits for n in names)
+
+
+def corrected_poses(P, L):
+    """Poses with the linear output correction ``L`` (4, 4) applied to their positions."""
+    from ..correct import apply_linear_correction
+
+    out = np.array(P, dtype=np.float64)
+    out[:, :3, 3] = apply_linear_correction(L, out[:, :3, 3])
+    return out
 
 
 def check_paper_folder(folder) -> Path:

@@ -26,7 +26,6 @@ from ..calibrate import (
 )
 from ..evaluate import ACCURACY_KEYS, error_summary, pose_error_magnitudes
 from ..geometry import SOURCE_FIXTURES
-from ..io import Calibration
 from ..simulate import STAGE_SIGMA, get_preset, simulate, truth_calibration
 
 __all__ = ["DipoleCost", "ParameterRecovery", "dipole_cost", "parameter_recovery"]
@@ -97,11 +96,6 @@ class DipoleCost(Result):
     seconds: float
 
 
-def _truth(preset) -> Calibration:
-
-    return truth_calibration(preset)
-
-
 def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed=0
                        ) -> ParameterRecovery:
     """Fit simulated exact-dipole data and compare with the truth in standard errors.
@@ -117,7 +111,7 @@ def parameter_recovery(preset="concentric", *, mode="XYZ_all", snr_db=60.0, seed
     p = get_preset(preset)
     exact = replace(p, model=p.dipole)
     ds = simulate(exact, "md", snr_db=snr_db, stage_sigma=0.0, seed=seed)
-    truth = _truth(preset)
+    truth = truth_calibration(preset)
     start = perturb_calibration(truth, np.random.default_rng(seed), mode=mode)
     f = fit(ds, start, mode)
     lay = f.layout
@@ -166,7 +160,7 @@ def dipole_cost(preset="concentric", *, snr_db=70.0, stage_sigma=None, seed=0) -
     md = simulate(p, "md", snr_db=snr_db, stage_sigma=sigma, seed=seed)
     test = simulate(p, "ld", source_fixtures=SOURCE_FIXTURES[0], snr_db=snr_db,
                     stage_sigma=sigma, seed=seed + 1)
-    truth = _truth(p)
+    truth = truth_calibration(p)
     start = perturb_calibration(truth, np.random.default_rng(seed))
     f = fit(md, start, "XYZ_all", warn=False)
     opts = RigOptions(sensor_code_fix=False, rz_poly=0, rz_tilt=False, octupole_source=True,

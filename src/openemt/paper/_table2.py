@@ -244,16 +244,11 @@ class Table2Reproduction(DictResult):
     noise_floor: dict | None = None
 
     def _items(self) -> dict:
-        out = {"default": self.default, "corrected": self.corrected,
-               "concentric": self.concentric}
-        if self.improved_model is not None:
-            out.update(improved=self.improved, improved_corrected=self.improved_corrected,
-                       improved_model=self.improved_model, breakdown=self.breakdown,
-                       noise_floor=self.noise_floor)
-        return {**out, "n_test": self.n_test, "calibration_residues": self.calibration_residues,
-                "calibration_stats": self.calibration_stats,
-                "skipped_steps": self.skipped_steps, "paper": self.paper,
-                "paper_column": self.paper_column, "seconds": self.seconds}
+        items = super()._items()        # the rows first, then the improved entries if run
+        rows = {k: items.pop(k) for k in ("default", "corrected", "concentric")}
+        improved = {k: items.pop(k) for k in ("improved", "improved_corrected",
+                                              "improved_model", "breakdown", "noise_floor")}
+        return {**rows, **(improved if self.improved_model is not None else {}), **items}
 
 
 def reproduce_table2(source, *, improved: bool = False, cross_validation: bool = False

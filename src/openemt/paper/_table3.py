@@ -50,6 +50,9 @@ __all__ = [
 TABLE3_ROWS = {"translation_only": "trans_only", "sensor_fixture": "XYZ",
                "both_fixtures": "XYZ_all"}
 TABLE3_COLUMNS = ("translation_only", "sensor_fixtures", "source_and_sensor_fixtures")
+#: Table III column -> the test sets (:func:`table3_test_masks`) it joins.
+_COLUMN_SETS = dict(zip(TABLE3_COLUMNS, (("translation_only",), ("sensor_fixtures",),
+                                         ("sensor_fixtures", "source_only"))))
 
 
 def _cells(*rows):
@@ -126,10 +129,8 @@ class Table3Reproduction(DictResult):
     seconds: dict
 
     def _items(self) -> dict:
-        return {**self.cells, "max_deviation": self.max_deviation,
-                "within_5_percent": self.within_5_percent, "calibrations": self.calibrations,
-                "calibration_residues": self.calibration_residues, "test_sets": self.test_sets,
-                "notes": self.notes, "seconds": self.seconds}
+        items = super()._items()            # the rows of ``cells`` first, then the fields
+        return {**items.pop("cells"), **items}
 
 
 def _cell(trans, rot, n_invalid):
@@ -174,15 +175,9 @@ def reproduce_table3(source, *, dataset=None) -> Table3Reproduction:
     for row, step in TABLE3_ROWS.items():
         cal = run.calibration(step)
         r = {k: solve_held_out(d, cal, concentric_model=conc) for k, d in sets.items()}
-        both = r["sensor_fixtures"], r["source_only"]
-        trans_only = r["translation_only"]
-        cells = {
-            "translation_only": _cell(trans_only.trans, trans_only.rot, trans_only.n_invalid),
-            "sensor_fixtures": _cell(both[0].trans, both[0].rot, both[0].n_invalid),
-            "source_and_sensor_fixtures": _cell(
-                np.concatenate([b.trans for b in both]),
-                np.concatenate([b.rot for b in both]), sum(b.n_invalid for b in both)),
-        }
+        cells = {col: _cell(np.concatenate([r[k].trans for k in ks]),
+                            np.concatenate([r[k].rot for k in ks]),
+                            sum(r[k].n_invalid for k in ks)) for col, ks in _COLUMN_SETS.items()}
         for col, cell in cells.items():
             paper = TABLE3_PAPER[row][col]
             cell["paper"] = dict(paper)
@@ -192,12 +187,8 @@ def reproduce_table3(source, *, dataset=None) -> Table3Reproduction:
     seconds = dict(run.seconds)
     seconds["test_solves"] = time.perf_counter() - t0
     files = ds.file_names()
-    test_sets = {
-        "translation_only": sorted(set(files[masks["translation_only"]])),
-        "sensor_fixtures": sorted(set(files[masks["sensor_fixtures"]])),
-        "source_and_sensor_fixtures": sorted(
-            set(files[masks["sensor_fixtures"] | masks["source_only"]])),
-    }
+    test_sets = {col: sorted(set(files[np.logical_or.reduce([masks[k] for k in ks])]))
+                 for col, ks in _COLUMN_SETS.items()}
     notes = ("Uncorrected; LM solution started from the Kim18 closed form of "
              "XYZ_concentric_hr_cal, hemisphere from the ground truth, invalid solutions "
              "kept (docs/paper-procedure.md#test-error). Paper values: MacLachlan et al. 2025, "

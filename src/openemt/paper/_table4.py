@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 from .._errors import InputError
 from .._result import DictResult
 from ..geometry import check_poses, invert, pose_from_vector, source_fixture_rotation, stage_joint
-from ._run import as_run
+from ._run import as_run, corrected_poses
 
 __all__ = [
     "FIXTURE_MOMENT_M",
@@ -261,12 +261,10 @@ class Table4Reproduction(DictResult):
     seconds: dict
 
     def _items(self) -> dict:
-        return {"direct": self.direct, "cross": self.cross, "n_curves": self.n_curves,
-                "paper": self.paper, "condition": self.condition, **self.other,
-                "without_fixture_refit": self.without_fixture_refit,
-                "fixture_refit": self.fixture_refit, "curves": self.curves,
-                "n_rows": self.n_rows, "n_invalid": self.n_invalid, "files": self.files,
-                "calibration": self.calibration, "notes": self.notes, "seconds": self.seconds}
+        out = {}
+        for k, v in super()._items().items():   # ``other``'s entries where it stands
+            out.update(self.other if k == "other" else {k: v})
+        return out
 
 
 def sweep_test(source, *, correction: bool = True, dataset=None) -> Table4Result:
@@ -288,7 +286,6 @@ def sweep_test(source, *, correction: bool = True, dataset=None) -> Table4Result
     Table4Result
     """
     from ..calibrate import solve_held_out
-    from ..correct import apply_linear_correction
 
     t_all = time.perf_counter()
     run = as_run(source, ["XYZ", "XYZ_concentric"], correction=True, dataset=dataset)
@@ -310,9 +307,7 @@ def sweep_test(source, *, correction: bool = True, dataset=None) -> Table4Result
     M_raw = solved.poses
     conditions = {"uncorrected": M_raw}
     if L is not None:
-        Mc = M_raw.copy()
-        Mc[:, :3, 3] = apply_linear_correction(L, Mc[:, :3, 3])
-        conditions["corrected"] = Mc
+        conditions["corrected"] = corrected_poses(M_raw, L)
     main = "corrected" if correction else "uncorrected"
     t0 = time.perf_counter()
     results = {}

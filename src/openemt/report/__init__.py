@@ -10,7 +10,7 @@ _SOURCES = {
     "._demo": ("DemoOptions", "DemoResult", "run_demo"),
     "._describe": ("FileInfo", "describe"),
     "._figures": ("error_histogram_figure", "error_map_figure", "error_vector_figure",
-                  "sweep_figure"),
+                  "pyplot", "sweep_figure"),
     "._glossary": ("GLOSSARY", "glossary_section"),
     "._html": ("Report", "figure_png"),
     "._navigation": ("assessment_document", "distance_error_figure"),

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["error_histogram_figure", "error_map_figure", "error_vector_figure", "sweep_figure"]
+__all__ = ["error_histogram_figure", "error_map_figure", "error_vector_figure", "pyplot",
+           "sweep_figure"]
 
 
 def pyplot():

@@ -200,14 +200,12 @@ class Demodulator:
                                  f"{nso}, {nse}), got {ph.shape}")
             self._rot = np.broadcast_to(np.exp(-1j * ph), (nb, nso, nse)).reshape(nb * nso, nse)
         self._scale = layout.reference_gain / layout.sensor_gain
-        self._buf = np.empty((len(self._cols), 0))
-        self._start = 0  # absolute sample index of self._buf[0]
-        self.t0 = float(t0)
+        self.reset(t0)
 
     def reset(self, t0: float = 0.0) -> None:
         """Forget buffered samples and restart the clock at ``t0``."""
         self._buf = np.empty((len(self._cols), 0))
-        self._start = 0
+        self._start = 0  # absolute sample index of self._buf[0]
         self.t0 = float(t0)
 
     def process(self, chunk) -> Demodulated:
