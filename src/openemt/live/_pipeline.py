@@ -13,7 +13,6 @@ for an injected solver). The default is :func:`openemt.solve.prepare`'s solver o
 from __future__ import annotations
 
 import collections
-import contextlib
 import dataclasses
 import itertools
 import time
@@ -21,6 +20,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .._compile_notice import serial_threads
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
 from .._result import Result
@@ -112,26 +112,6 @@ def lm_solver(model, *, hemisphere="+x", **kwargs):
     from ..solve import prepare
 
     return prepare(model, hemisphere=hemisphere, **kwargs)
-
-
-@contextlib.contextmanager
-def _serial_threads():
-    """Limit numba's parallel regions started from this thread to one thread meanwhile.
-
-    A live chunk holds a handful of samples; waking a thread pool for them costs far more
-    (milliseconds on a busy machine) than the solve itself (~0.1 ms per sample).
-    """
-    try:
-        import numba
-    except ImportError:  # pragma: no cover
-        yield
-        return
-    before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
 
 
 @dataclass(frozen=True, eq=False)
@@ -826,7 +806,7 @@ class TrackingPipeline:
         # distorted samples are not sent: their solve skips the extra starts (bounded cost)
         quick = None if self.send_distorted else flags
         if self.serial_small_batches and n * len(self.sensors) < 256:
-            with _serial_threads():
+            with serial_threads():
                 solved = self._solve_all(Cs, quick)
         else:
             solved = self._solve_all(Cs, quick)
