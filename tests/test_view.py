@@ -220,6 +220,14 @@ def test_view_of_a_simulated_session_in_chromium(tmp_path):
         log = read_track_log(tmp_path / "log.h5")
         shown = _shown_sensor(browser, log.rows)
         _check_against_log(shown, browser, log.arrays[log.sensors[0]])
+        # the trail: a line ending at the latest position and a dot there (one glyph)
+        trail = source_data(browser, "trail")
+        assert trail["kind"] == ["trail", "latest"] and trail["width"] == [1.0, 10.0]
+        latest = [np.mean(trail[a][1]) for a in "xyz"]
+        pose = [shown[f"{a}_mm"][0] for a in "xyz"]
+        assert np.allclose(latest, pose, rtol=0, atol=1e-3), (latest, pose)
+        assert [trail[a][0][-1] for a in "xyz"] == pytest.approx(pose, abs=1e-3)
+        assert len(trail["x"][0]) > 10
         carriers = source_data(browser, "carriers")
         assert len(carriers["snr_db"]) == 3 and min(carriers["snr_db"]) > 60
         spectrum = source_data(browser, "spectrum")
