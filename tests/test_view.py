@@ -241,6 +241,12 @@ def test_view_of_a_simulated_session_in_chromium(tmp_path):
         n = source_data(browser, "header")["n_updates"][0]
         time.sleep(0.5)
         assert source_data(browser, "header")["n_updates"][0] == n
+        # a plot whose range moves is laid out again (its layout check runs only then):
+        # wider tick labels make the frame narrower
+        plot = "Bokeh.documents[0].get_model_by_name('spectrum_plot')"
+        width = browser.evaluate(f"{plot}.inner_width")
+        browser.evaluate(f"{plot}.y_range.setv({{start: -1e9, end: 1e9}})")
+        browser.wait_for(f"{plot}.inner_width < {width}", timeout=10)
         # nothing was requested from another machine
         hosts = {re.sub(r"^\w+://([^/:]+).*", r"\1", u) for u in browser.requests
                  if not u.startswith("data:")}
