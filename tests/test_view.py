@@ -100,6 +100,51 @@ def test_the_feed_holds_the_logged_values(tmp_path):
     assert np.array_equal(s["trail"][-1], a["pose_vectors"][ok][-1, :3])
 
 
+class _Block:
+    """A processed block as the feed reads it (two outputs), ending at time ``t``."""
+
+    def __init__(self, t, rng):
+        self.times = np.array([t - 1e-3, t])
+        self.pose_vectors = rng.standard_normal((2, 6))
+        self.status = rng.choice(np.array([0, 0, 0, 3], dtype=np.int8), 2)
+        self.residual = self.distortion = rng.random(2)
+        self.distorted = np.zeros(2, dtype=bool)
+
+    def __len__(self):
+        return 2
+
+
+def _trail_over_every_block(blocks, seconds, most):
+    """The trail as defined (docs/live.md), from every block held."""
+    t_end = blocks[-1].times[-1] - seconds
+    recent = [b for b in blocks if b.times[-1] >= t_end]
+    stride = max(1, -(-len(recent) // most))
+    pick = [b.pose_vectors[-1, :3] for b in recent[::-1][::stride] if b.status[-1] == 0]
+    return np.array(pick[::-1]).reshape(-1, 3)
+
+
+def test_the_trail_kept_incrementally_is_the_trail_of_every_block():
+    """Each snapshot reads only the blocks published since the last one: bursts of 1 to 90
+    blocks (more than the 40 held), a new session, two sensors; the trail is the one
+    computed from every block held, every time."""
+    rng = np.random.default_rng(4)
+    feed = LiveFeed(history_seconds=0.25, history_blocks=40, window_samples=8,
+                    trail_points=7)
+    t = 0.0
+    for names in (("a",), ("a", "b")):
+        feed.sensors(names)
+        for burst in (*rng.integers(1, 30, 40), 90, 1, 41, 40, 3):
+            for _ in range(burst):
+                t += 0.01
+                for k in range(len(names)):
+                    feed.step(_Block(t, rng), k)
+            snap = feed.snapshot()
+            for k, q in enumerate(feed._steps):
+                want = _trail_over_every_block(list(q), 0.25, 7)
+                assert np.array_equal(snap["sensors"][k]["trail"], want)
+    assert 0 < len(want) <= 7
+
+
 def _shown_sensor(browser, rows):
     """The sensors table's values once the page shows ``rows`` samples."""
     browser.wait_for(
@@ -175,6 +220,14 @@ def test_view_of_a_simulated_session_in_chromium(tmp_path):
         log = read_track_log(tmp_path / "log.h5")
         shown = _shown_sensor(browser, log.rows)
         _check_against_log(shown, browser, log.arrays[log.sensors[0]])
+        # the trail: a line ending at the latest position and a dot there (one glyph)
+        trail = source_data(browser, "trail")
+        assert trail["kind"] == ["trail", "latest"] and trail["width"] == [1.0, 10.0]
+        latest = [np.mean(trail[a][1]) for a in "xyz"]
+        pose = [shown[f"{a}_mm"][0] for a in "xyz"]
+        assert np.allclose(latest, pose, rtol=0, atol=1e-3), (latest, pose)
+        assert [trail[a][0][-1] for a in "xyz"] == pytest.approx(pose, abs=1e-3)
+        assert len(trail["x"][0]) > 10
         carriers = source_data(browser, "carriers")
         assert len(carriers["snr_db"]) == 3 and min(carriers["snr_db"]) > 60
         spectrum = source_data(browser, "spectrum")
@@ -188,6 +241,12 @@ def test_view_of_a_simulated_session_in_chromium(tmp_path):
         n = source_data(browser, "header")["n_updates"][0]
         time.sleep(0.5)
         assert source_data(browser, "header")["n_updates"][0] == n
+        # a plot whose range moves is laid out again (its layout check runs only then):
+        # wider tick labels make the frame narrower
+        plot = "Bokeh.documents[0].get_model_by_name('spectrum_plot')"
+        width = browser.evaluate(f"{plot}.inner_width")
+        browser.evaluate(f"{plot}.y_range.setv({{start: -1e9, end: 1e9}})")
+        browser.wait_for(f"{plot}.inner_width < {width}", timeout=10)
         # nothing was requested from another machine
         hosts = {re.sub(r"^\w+://([^/:]+).*", r"\1", u) for u in browser.requests
                  if not u.startswith("data:")}

@@ -18,7 +18,11 @@ due for an update: :class:`~openemt.view.ViewProcess`'s thread, or the server's 
 - the latest coupling matrix (every sensor's columns);
 - per sensor: the latest status, quadrature ratio, residual and pose, and its trail (the
   converged last pose of each block of the last ``history_seconds``, at most
-  ``trail_points`` blocks evenly spaced).
+  ``trail_points`` blocks evenly spaced). The trail is kept incrementally: each snapshot
+  reads only the blocks published since the one before (found from the newest block back to
+  the newest one it had seen; each block is a fresh object) into small per-sensor arrays of
+  every held block's last time, position and convergence, so the snapshot's thread holds
+  the interpreter lock for the few blocks of one view period, not for all 1024 held.
 
 SNR: the coupling noise of each entry is estimated from second differences of outputs two
 output periods apart, ``d = C[k+4] - 2 C[k+2] + C[k]`` (outputs two periods apart share no
@@ -141,6 +145,7 @@ class LiveFeed:
         self.n_samples: list = []
         self._cache = (None, None)
         self._collect = None          # the latest state of a collection (``collect``)
+        self._trails: list = []       # per sensor: a _Trail (updated under the lock)
 
     # -- the observer protocol (the session's thread: as little as possible). Each call only
     # appends a reference to a bounded deque (and counts the samples): a deque's append is
@@ -210,11 +215,17 @@ class LiveFeed:
             layout, names = self.layout, self.names
             counts = list(self.n_samples)
             collecting = self._collect
+            if len(self._trails) != len(steps):
+                self._trails = [_Trail(self.blocks) for _ in steps]
+            trails = []
+            for tr, q in zip(self._trails, steps):
+                tr.update(q)
+                trails.append(tr.points(float(q[-1].times[-1]) - self.history_seconds,
+                                        self.trail_points) if q else None)
         raw = None
         if chunks and layout is not None:
             raw = np.concatenate(chunks)[-self.raw_samples:, :layout.n_channels]
-        snap = _compute(layout, names, steps, raw, counts, self.window,
-                        self.trail_points, self.history_seconds)
+        snap = _compute(layout, names, steps, raw, counts, self.window, trails)
         if collecting is not None:
             snap["collect"] = collect_panel(collecting)
         snap["version"] = version
@@ -222,6 +233,59 @@ class LiveFeed:
         with self._lock:
             self._cache = (version, snap)
         return snap
+
+
+class _Trail:
+    """One sensor's blocks as the trail needs them: the last time, position and convergence
+    of each block held (the same blocks as the feed's deque, oldest first), appended to with
+    only the blocks not seen before (:meth:`update`)."""
+
+    def __init__(self, held: int):
+        self.held = int(held)
+        self.last = None                  # the newest block seen
+        self.t = np.empty(2 * self.held)
+        self.p = np.empty((2 * self.held, 3))
+        self.ok = np.zeros(2 * self.held, dtype=bool)
+        self.n = 0                        # rows filled
+        self.rows = 0                     # rows for the blocks now held (the last ones)
+
+    def update(self, blocks) -> None:
+        """``blocks``: a copy of the deque (oldest first)."""
+        from ..solve import Status
+
+        new = []
+        for b in reversed(blocks):
+            if b is self.last:
+                break
+            new.append(b)
+        if new:
+            self.last = new[0]
+            if self.n + len(new) > len(self.t):          # keep the newest rows, in front
+                keep = min(self.n, self.held)
+                for a in (self.t, self.p, self.ok):
+                    a[:keep] = a[self.n - keep:self.n]
+                self.n = keep
+            converged = int(Status.CONVERGED)
+            for i, b in enumerate(reversed(new), self.n):
+                if len(b):
+                    self.t[i] = b.times[-1]
+                    self.p[i] = b.pose_vectors[-1, :3]
+                    self.ok[i] = b.status[-1] == converged
+                else:
+                    self.t[i], self.ok[i] = np.nan, False
+            self.n += len(new)
+        self.rows = len(blocks)
+
+    def points(self, t_end: float, most: int) -> np.ndarray:
+        """The converged positions of the blocks held that end at or after ``t_end``, at
+        most ``most`` blocks evenly spaced (counted back from the newest, which is always
+        in), oldest first: ``(K, 3)``."""
+        a = self.n - self.rows
+        recent = np.flatnonzero(self.t[a:self.n] >= t_end) + a
+        stride = max(1, -(-len(recent) // most))
+        pick = recent[::-1][::stride]
+        pick = pick[self.ok[pick]][::-1]
+        return self.p[pick].copy()
 
 
 def _cat(steps, key, last: int | None = None):
@@ -238,16 +302,14 @@ def _cat(steps, key, last: int | None = None):
     return out if last is None or out is None else out[-last:]
 
 
-def _compute(layout, names, steps, raw, counts, window, trail_points,
-             history_seconds) -> dict:
+def _compute(layout, names, steps, raw, counts, window, trails) -> dict:
     from ..solve import Status
 
     t = time.time()
     snap: dict = {"wall_time": t, "sensors": [],
                   "frequencies": None if layout is None else list(layout.frequencies)}
     blocks = []                       # per sensor: the recent couplings (window, n_so, k)
-    converged = int(Status.CONVERGED)
-    for name, q, count in zip(names, steps, counts):
+    for name, q, count, trail in zip(names, steps, counts, trails):
         if not q:
             snap["sensors"].append({"name": name, "n_samples": 0})
             blocks.append(None)
@@ -260,14 +322,6 @@ def _compute(layout, names, steps, raw, counts, window, trail_points,
         except ValueError:
             status = str(code)
         rel = getattr(last, "relative_residual", None)
-        # the trail: the last sample of every block (blocks evenly skipped beyond
-        # ``trail_points``), where it converged; the latest block always in
-        t_end = float(last.times[k]) - history_seconds
-        recent = [b for b in q if b.times[-1] >= t_end]
-        stride = max(1, -(-len(recent) // trail_points))
-        pick = [b.pose_vectors[-1, :3] for b in recent[::-1][::stride]
-                if b.status[-1] == converged][::-1]
-        trail = np.array(pick, dtype=np.float64) if pick else np.empty((0, 3))
         C = _cat(q, "couplings", window)
         blocks.append(C)
         snap["sensors"].append({
