@@ -16,7 +16,9 @@ went: the session thread's own realtime factor per CPU second with and without t
 process's other threads, by the view's server process and by the browser),
 ``updates_per_s`` (updates the server sent the page per second during the runs with the
 view; it waits for the page's acknowledgement before sending more than two ahead),
-``updates_applied`` and ``updates_applied_per_s`` (the updates the page itself counted as
+``updates_in_flight_at_starts`` (sent but not yet acknowledged when each run with the view
+began, summed: the page may apply those during the run), ``updates_applied`` and
+``updates_applied_per_s`` (the updates the page itself counted as
 applied over those runs, from its acknowledgements: what the browser drew), ``browser`` (the
 Chromium used, or the reason there was none: then the factors are not measured).
 """
@@ -141,6 +143,7 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
             cpu[True].clear()
             cpu[False].clear()
             with_, without, updates, applied, wall = [], [], 0, 0, 0.0
+            in_flight = 0
             for k in range(pairs):
                 order = (False, True) if k % 2 == 0 else (True, False)
                 for on in order:
@@ -150,6 +153,7 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                         s1 = server.stats()
                         updates += s1["updates_pushed"] - s0["updates_pushed"]
                         applied += s1["updates_applied"] - s0["updates_applied"]
+                        in_flight += s0["updates_pushed"] - s0["updates_applied"]
                         wall += time.perf_counter() - t0
                     else:
                         without.append(run(None))
@@ -180,7 +184,8 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
                ratio_target=0.9, with_view_runs=with_, without_view_runs=without,
                updates_per_s=updates / wall if wall > 0 else None,
                updates_applied_per_s=applied / wall if wall > 0 else None,
-               updates_pushed=updates, updates_applied=applied, pages_opened=pages,
+               updates_pushed=updates, updates_applied=applied,
+               updates_in_flight_at_starts=in_flight, pages_opened=pages,
                view_rate_hz=server.rate_hz, load_average=list(os.getloadavg()),
                cpu_count=os.cpu_count())
     return out
