@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _numdiff import central_differences
 from test_calibrate import truth_model
 from test_environment import _poses, _terms
 
@@ -32,16 +33,9 @@ def test_complex_environment_model_jacobians_are_analytic():
     # the quadrature's gradient in the terms, against central differences
     Q, dQ = m.quadrature_jacobians(P)
     np.testing.assert_allclose(Q, m.complex_coupling(P).imag, rtol=0, atol=1e-15)
-    v = m.terms.vector()
-    num = np.empty_like(dQ)
-    for i in range(v.size):
-        h = 1e-7 * max(1.0, abs(v[i]))
-        up, dn = v.copy(), v.copy()
-        up[i] += h
-        dn[i] -= h
-        qu = EnvironmentModel(base, m.terms.with_vector(up)).complex_coupling(P).imag
-        qd = EnvironmentModel(base, m.terms.with_vector(dn)).complex_coupling(P).imag
-        num[..., i] = (qu - qd) / (2 * h)
+    num = central_differences(
+        lambda v: EnvironmentModel(base, m.terms.with_vector(v)).complex_coupling(P).imag,
+        m.terms.vector(), rel_step=1e-7)
     assert np.abs(dQ - num).max() < 1e-6 * np.abs(num).max()
     # the real part is the in-phase model: moments times cos(phase)
     inph = EnvironmentTerms(m.terms.positions, m.terms.in_phase_moments(), m.terms.gain_beta,
