@@ -50,15 +50,10 @@ _POS = ("x", "y", "z", "ux", "uy", "uz")
 
 def read_grid_csv(path) -> GridData:
     """Read grid data: columns ``x, y, z, ux, uy, uz`` and one column per source coil."""
-    from ..io._safefile import MAX_TEXT_BYTES, read_limited
+    from ..io._safefile import read_text
 
     path = Path(path)
-    data = read_limited(path, "a grid CSV file", MAX_TEXT_BYTES)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path.name}: expected a grid CSV file (UTF-8 text), got a byte that "
-                         f"is not UTF-8 at offset {exc.start}") from None
+    text = read_text(path, "a grid CSV file")
     rows = [r for r in csv.reader(io.StringIO(text, newline=""))
             if r and not r[0].lstrip().startswith("#")]
     if not rows:

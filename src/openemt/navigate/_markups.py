@@ -83,13 +83,9 @@ def _ras(points: np.ndarray, system: str) -> np.ndarray:
 
 
 def _read_fcsv(path: Path) -> MarkupPoints:
-    from ..io._safefile import read_limited
+    from ..io._safefile import read_text
 
-    try:
-        text = read_limited(path, "a markups .fcsv file", MAX_MARKUPS_BYTES).decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"expected a markups .fcsv file (UTF-8 text), got a byte that is not "
-                         f"UTF-8 at offset {exc.start} in {path}") from None
+    text = read_text(path, "a markups .fcsv file", MAX_MARKUPS_BYTES)
     kind, version, system, columns = None, "", "RAS", None
     data_lines = []
     for k, line in enumerate(text.splitlines(), 1):
