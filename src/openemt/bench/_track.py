@@ -570,30 +570,6 @@ def _pack_per_sample(k: int) -> dict:
         "tdata": per_sample(lambda: pack_tdata(MK, valid, names, ts))}}
 
 
-class _Memory:
-    """Backend over raw samples held in memory (the realtime factor excludes simulation)."""
-
-    realtime = False        # read as fast as possible: no end-to-end latency
-
-    def __init__(self, samples, layout, chunk):
-        self.samples, self.layout, self.chunk = samples, layout, int(chunk)
-        self.t0_epoch = 0.0
-        self._i = 0
-
-    def read(self):
-        i = self._i
-        if i >= len(self.samples):
-            return None
-        self._i = i + self.chunk
-        return self.samples[i:i + self.chunk]
-
-    def truth_poses(self, times):
-        return None
-
-    def close(self):
-        pass
-
-
 def _raw(spec, seconds, seed):
     """``seconds`` of the simulated raw samples of ``spec`` and their channel layout."""
     from ..live import tracker_backend
@@ -608,6 +584,7 @@ def _raw(spec, seconds, seed):
 
 def _realtime_factor(spec, seconds, chunk, seed) -> dict:
     from ..live import TrackingSession, TrackOptions, tracker_sensors
+    from ._memory import Memory
 
     raw, layout = _raw(spec, seconds, seed)
     import copy
@@ -622,10 +599,10 @@ def _realtime_factor(spec, seconds, chunk, seed) -> dict:
 
     def timed(sensors):
         with TrackingSession(spec, opts, sensors=sensors,
-                             backend=_Memory(raw[:6400], layout, chunk)) as warm:
+                             backend=Memory(raw[:6400], layout, chunk)) as warm:
             warm.run()
         with TrackingSession(spec, opts, sensors=sensors,
-                             backend=_Memory(raw, layout, chunk)) as session:
+                             backend=Memory(raw, layout, chunk)) as session:
             cpu, wall, s = best_time(lambda: session.run().summary, 1)
             return s, wall, cpu
 

@@ -63,29 +63,6 @@ _FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no
           "--disable-extensions", "--mute-audio", "--window-size=1300,1400"]
 
 
-class _Loop:
-    """Backend over raw samples held in memory, repeated up to ``n`` samples."""
-
-    def __init__(self, samples, layout, chunk, n):
-        self.samples, self.layout, self.chunk, self.n = samples, layout, int(chunk), int(n)
-        self.t0_epoch = 0.0
-        self._i = 0
-
-    def read(self):
-        i = self._i
-        if i >= self.n:
-            return None
-        k = i % len(self.samples)
-        m = min(self.chunk, len(self.samples) - k, self.n - i)
-        self._i = i + m
-        return self.samples[k:k + m]
-
-    def truth_poses(self, times):
-        return None
-
-    def close(self):
-        pass
-
 
 def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
               pairs: int = 5) -> dict:
@@ -93,6 +70,7 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
     the module docstring)."""
     from ..live import TrackingSession, TrackOptions, tracker_sensors
     from ..view import LiveFeed, ViewProcess
+    from ._memory import Memory
 
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     out = {"what": "realtime factor with the live view open in headless Chromium against "
@@ -110,7 +88,7 @@ def view_cost(spec, raw, layout, *, chunk: int = 640, seconds: float = 30.0,
 
     def run(feed):
         with TrackingSession(spec, opts, sensors=sensors, observer=feed,
-                             backend=_Loop(raw, layout, chunk, n)) as session:
+                             backend=Memory(raw, layout, chunk, n)) as session:
             t0, c0, p0 = time.perf_counter(), time.thread_time(), time.process_time()
             b0 = _tree_cpu(browser.pid) if feed is not None else 0.0
             v0 = _tree_cpu(server._proc.pid) if feed is not None else 0.0
