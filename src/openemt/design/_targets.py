@@ -73,14 +73,9 @@ def board_volume(n=(7, 7, 5)) -> Volume:
 def rig_volume(preset: str, n=(5, 5, 5)) -> Volume:
     """The box of the sensor positions of the rig's ``md`` calibration pattern (home
     fixtures) of a simulator preset, in the source frame."""
-    from ..geometry import ground_truth_poses
-    from ..simulate import get_preset, stage_pattern
+    from ..simulate import working_volume
 
-    p = get_preset(preset)
-    P = ground_truth_poses(p.source_fixture, p.stage_fixture, p.sensor_fixture,
-                           p.source_fixtures[0], stage_pattern("md"), p.sensor_fixtures[0])
-    t = P[:, :3, 3]
-    lo, hi = t.min(axis=0), t.max(axis=0)
+    lo, hi, _ = working_volume(preset)
     return Volume(*[(float(a), float(b)) for a, b in zip(lo, hi)], tuple(n))
 
 
