@@ -282,9 +282,7 @@ class CouplingJacobians:
 
 
 def _split(poses):
-    P = check_poses(poses)
-    if P.ndim != 3:
-        raise InputError(f"expected `poses` to have shape (N, 4, 4), got {P.shape}")
+    P = check_poses(poses, batch=True)
     if not np.all(np.isfinite(P)):
         raise InputError("expected finite `poses`, got NaN or inf")
     return np.ascontiguousarray(P[:, :3, :3]), np.ascontiguousarray(P[:, :3, 3])

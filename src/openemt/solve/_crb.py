@@ -59,9 +59,7 @@ def cramer_rao(model: DipoleModel, poses, noise_sigma, *, parametrization: str =
     check_dipole_model(model)
     if parametrization not in ("vector", "local"):
         raise InputError(f"expected parametrization 'vector' or 'local', got {parametrization!r}")
-    P = check_poses(poses)
-    if P.ndim != 3:
-        raise InputError(f"expected `poses` of shape (N, 4, 4), got {P.shape}")
+    P = check_poses(poses, batch=True)
     n = P.shape[0]
     m = model.n_source * model.n_sensor
     jac = coupling_jacobians(model, P)
