@@ -7,20 +7,17 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InputError
+from .._options import option as _opt
 from .._result import Result
 
 __all__ = ["ViewOptions", "ViewRecordingOptions", "ViewResult", "collect_with_view",
            "replay_log", "track_with_view", "view_recording"]
-
-
-def _opt(default, help: str, **meta):
-    return field(default=default, metadata={"help": help, **meta})
 
 
 @dataclass(frozen=True)
@@ -59,7 +56,7 @@ class ViewRecordingOptions:
     view_port: int = _opt(0, "port of the live view (default 0: a free one)")
     view_rate: float = _opt(12.0, "live view updates per second per open page (default 12)",
                             metavar="HZ")
-    quiet: bool = field(default=False, metadata={"cli": False})
+    quiet: bool = _opt(False, "", cli=False)
 
     def check(self) -> None:
         if (self.log is None) == (self.raw is None):
