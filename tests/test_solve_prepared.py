@@ -9,7 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from openemt.bench._track import _Memory, _spec
+from openemt.bench._memory import Memory
+from openemt.bench._track import _spec
 from openemt.geometry import pose_from_vector
 from openemt.live import TrackingPipeline, TrackLog
 from openemt.live._session import tracker_backend, tracker_sensors
@@ -115,7 +116,7 @@ def test_pipeline_output_unchanged(k):
 
             sensors = [replace(s, solver=solver) for s in sensors]
         log = TrackLog()
-        TrackingPipeline(_Memory(raw, layout, 640), sensors=sensors, log=log).run()
+        TrackingPipeline(Memory(raw, layout, 640), sensors=sensors, log=log).run()
         logs.append(log)
     lost = 0
     for j in range(k):
