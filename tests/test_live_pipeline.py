@@ -11,6 +11,7 @@ import pytest
 from _counts import converged_only
 from _igtl_listener import Listener
 
+from openemt._errors import InputError
 from openemt.geometry import vector_from_pose
 from openemt.live import (
     IgtlServer,
@@ -200,3 +201,21 @@ def test_drive_dropout_is_flagged_and_tracking_recovers():
     assert s.status_counts["invalid_input"] >= 60
     assert np.all(a["status"][-50:] == 0)                    # re-acquired after the drop-out
     assert s.truth["position_error_mm_rms"] < 0.05
+
+
+def test_simulate_ahead_hands_over_the_same_samples():
+    """A simulated device whose samples are all simulated before the first read (the latency
+    bench) delivers exactly what one simulating as it goes delivers; an endless one refuses."""
+    def chunks(ahead):
+        b = SimulatedBackend(seed=4, duration=0.03, chunk=640)
+        if ahead:
+            b.simulate_ahead()
+        out = []
+        while (x := b.read()) is not None:
+            out.append(x)
+        return out
+
+    a, b = chunks(False), chunks(True)
+    assert len(a) == len(b) == 5 and all(np.array_equal(x, y) for x, y in zip(a, b))
+    with pytest.raises(InputError, match="finite `duration`"):
+        SimulatedBackend(seed=4, chunk=640).simulate_ahead()

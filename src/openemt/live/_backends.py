@@ -234,6 +234,18 @@ class SimulatedBackend(Backend):
         self._i = i + n
         return out
 
+    def simulate_ahead(self) -> None:
+        """Simulate every remaining sample of a finite ``duration`` now, so that reads only
+        hand samples over, as a device's samples exist before they are read (the simulation
+        in blocks of 0.1 s otherwise runs inside the reading thread, a burst of CPU every
+        0.1 s that a latency measurement would count against the pipeline)."""
+        if self._end is None:
+            raise InputError("expected a backend with a finite `duration` to simulate ahead, "
+                             "got an endless one")
+        more = self._end - self._sim.sample_index
+        if more > 0:
+            self._buf = np.concatenate([self._buf, self._sim.read(more)])
+
     def restart_clock(self) -> None:
         """Make "now" the wall-clock time of the next sample (for real-time pacing and the
         IGTL timestamps), e.g. after waiting for a viewer to connect."""
