@@ -78,6 +78,46 @@ def test_v2_metadata_bytes_equal_pyigtl():
         pack_transforms(P, ts, "S", {"Status": ["OK"]})
 
 
+def test_v2_packing_of_the_pipeline_metadata_equals_pyigtl():
+    """The live stream's metadata (bytes arrays, numbers, per-message device names) packed in
+    one compiled pass, byte for byte what pyigtl packs; values of one key with different
+    lengths (a NUL-padded bytes array among them) take the general path, with the same
+    result."""
+    from openemt.geometry import pose_from_vector
+    from openemt.live._igtl_meta import transform_metadata
+    from openemt.live._igtl_wire import pack_transforms_v2
+
+    rng = np.random.default_rng(5)
+    P = pose_from_vector(rng.normal(size=(9, 6)))
+    P[:, :3, 3] *= 150.0
+    ts = rng.uniform(0, 4e9, 9)
+    resid, quad = rng.uniform(1e-9, 1e-2, 9), rng.uniform(0.0, 1e-2, 9)
+
+    def want(names, meta):
+        out = []
+        for i, name in enumerate(names):
+            m = pyigtl.TransformMessage(P[i], timestamp=ts[i], device_name=name)
+            m.header_version = 2
+            m.metadata = {k: (v[i].decode() if isinstance(v[i], bytes)
+                              else v[i] if isinstance(v[i], str) else f"{v[i]:.3e}")
+                          for k, v in meta.items()}
+            out.append(m.pack())
+        return b"".join(out)
+
+    for n in (1, 2, 9):
+        names = [("S0", "Probe", "x" * 20)[i % 3] for i in range(n)]
+        for distorted in (np.zeros(n, bool), np.arange(n) % 2 == 1):
+            meta = transform_metadata(distorted, resid[:n], quad[:n],
+                                      distortion_threshold=1e-3,
+                                      level=np.arange(n, dtype=np.uint8) * 30)
+            assert pack_transforms_v2(P[:n], ts[:n], names, meta) == want(names, meta)
+            assert pack_transforms_v2(P[:n], ts[:n], "S0", meta) == want(["S0"] * n, meta)
+    ragged = {"Status": np.array([b"OK", b"INVALID", b"OK"]), "Level": np.array([b"7"] * 3)}
+    assert pack_transforms_v2(P[:3], ts[:3], "S", ragged) == want(["S"] * 3, ragged)
+    with pytest.raises(InputError, match="3 device names"):
+        pack_transforms_v2(P[:3], ts[:3], ["a", "b"], ragged)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

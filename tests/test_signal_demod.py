@@ -93,6 +93,32 @@ def test_eddy_current_shows_as_quadrature():
     assert np.all(clean.distortion_ratio() < 1e-10)
 
 
+def test_distortion_ratio_per_column_group():
+    """The compiled ratio over each group's columns equals ``||Im C|| / ||C||`` of those
+    columns, groups may overlap, an all-zero sample gives 0 and NaN stays NaN."""
+    from openemt.signal import distortion_ratio
+
+    rng = np.random.default_rng(11)
+    C = rng.normal(size=(7, 3, 6)) + 1j * rng.normal(size=(7, 3, 6)) * 0.1
+    C[2] = 0.0
+    C[4, 1, 5] = complex(np.nan, np.nan)
+    mask = np.zeros((3, 6), bool)
+    mask[0, :3], mask[1, 3:], mask[2, [0, 4, 5]] = True, True, True
+    got = distortion_ratio(C, mask)
+    assert got.shape == (3, 7)
+    for g in range(3):
+        sub = C[:, :, mask[g]]
+        num = np.sqrt(np.sum(sub.imag ** 2, axis=(1, 2)))
+        den = np.sqrt(np.sum(np.abs(sub) ** 2, axis=(1, 2)))
+        want = num / np.where(den > 0, den, np.inf)
+        np.testing.assert_allclose(got[g], want, rtol=1e-14, atol=0)
+    assert got[0, 2] == 0.0 and np.isnan(got[1, 4]) and not np.isnan(got[0, 4])
+    np.testing.assert_allclose(distortion_ratio(C), distortion_ratio(C, np.ones((1, 6), bool))[0])
+    assert distortion_ratio(C.real).max() == 0.0
+    with pytest.raises(ValueError, match=r"column mask of shape \(K, 6\), got \(2, 5\)"):
+        distortion_ratio(C, np.ones((2, 5), bool))
+
+
 @pytest.mark.parametrize("mains", [50.0, 60.0])
 def test_mains_rejection(mains):
     amps = (0.1, 0.05, 0.03, 0.02, 0.01)      # harmonics 1..5, volts, >> the carriers' noise

@@ -62,7 +62,10 @@ LIVE_KERNELS = (
     "openemt.live._filter:_kalman_kernel",
     "openemt.live._igtl_wire:_pack_kernel",
     "openemt.live._igtl_wire:_frame_kernel",
+    "openemt.live._igtl_wire:packable",
+    "openemt.live._igtl_wire:_v2_kernel",
     "openemt.live._igtl_meta:_levels",
+    "openemt.signal._demod:_ratios",
 )
 
 

@@ -51,12 +51,14 @@ from ._igtl_wire import (  # noqa: F401 - _VECTOR_BODIES, _metadata_columns: use
     _EXT_HEADER,
     _HEADER,
     _VECTOR_BODIES,
+    MM_SCALE,
     _crc64_small,
     _metadata_columns,
     _split,
     frame_messages,
     pack_message,
     pack_transforms,
+    packable,
     status_content,
     to_version_1,
     transform_bodies,
@@ -443,11 +445,10 @@ class IgtlServer:
             with self._lock:
                 self.n_no_client += n
             return False
-        M = P.copy()
-        M[:, :3, 3] *= 1000.0                    # metres -> millimetres (Slicer convention)
+        M = P * MM_SCALE                         # metres -> millimetres (Slicer convention)
         if timestamps is None:
             stamps = np.full(n, time.time())
-        if np.isfinite(M).all() and (stamps >= 0).all() and (stamps < 2.0 ** 32).all():
+        if packable(M, stamps):
             if names is None:
                 data = pack_transforms(M, stamps, name, metadata)
             else:

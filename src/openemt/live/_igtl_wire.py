@@ -24,6 +24,25 @@ __all__ = ["frame_messages", "pack_message", "pack_transforms", "status_content"
 _MSG = 58 + 48
 
 
+#: Multiplies a pose in metres into the matrix OpenIGTLink carries (translation in mm, as 3D
+#: Slicer reads it; the rotation unchanged, bit for bit).
+MM_SCALE = np.ones((4, 4))
+MM_SCALE[:3, 3] = 1000.0
+
+
+@njit(cache=True)
+def packable(matrices, timestamps) -> bool:
+    """Whether the compiled packers take these messages: every matrix entry finite and every
+    time stamp in [0, 2**32) (else pyigtl's own checks apply, message by message)."""
+    for x in matrices.ravel():
+        if not np.isfinite(x):
+            return False
+    for t in timestamps:
+        if not (0.0 <= t < 4294967296.0):
+            return False
+    return True
+
+
 def _crc64_table() -> np.ndarray:
     """Table of the CRC-64 of OpenIGTLink (ECMA-182 polynomial, MSB first, no reflection)."""
     poly, top, mask = 0x42F0E1EBA9EA3693, 1 << 63, (1 << 64) - 1
@@ -136,6 +155,17 @@ def _frame_kernel(body, offsets, version, tname, devices, ts, table, bases, out)
         o += 58 + (b1 - b0)
 
 
+@functools.lru_cache(maxsize=64)
+def _names_matrix(names: tuple) -> np.ndarray:
+    """One 20-byte device name per message, ``(N, 20)`` (read-only, cached: a live stream
+    sends the same sequence of devices block after block)."""
+    out = (np.frombuffer(b"".join([_name_bytes(n, 20).tobytes() for n in names]),
+                         np.uint8).reshape(len(names), 20) if names
+           else np.zeros((1, 20), np.uint8))
+    out.flags.writeable = False
+    return out
+
+
 @functools.lru_cache(maxsize=1024)
 def _name_bytes(name: str, size: int) -> np.ndarray:
     out = np.zeros(size, np.uint8)
@@ -172,10 +202,9 @@ def frame_messages(bodies, offsets, message_type: str, device_names, timestamps,
     if isinstance(device_names, str):
         dev = _name_bytes(device_names, 20)[None]
     else:
-        names = list(device_names)
-        dev = (np.frombuffer(b"".join([_name_bytes(n, 20).tobytes() for n in names]),
-                             np.uint8).reshape(len(names), 20) if names
-               else np.zeros((1, 20), np.uint8))
+        dev = _names_matrix(tuple(device_names))
+        if dev.shape[0] not in (1, ts.size) and ts.size:
+            raise InputError(f"expected {ts.size} device names, got {dev.shape[0]}")
     body = np.frombuffer(bodies, np.uint8) if len(bodies) else np.zeros(1, np.uint8)
     out = np.empty(58 * ts.size + int(off[-1] - off[0]) if ts.size else 0, np.uint8)
     _frame_kernel(body, off - off[0] if off[0] else off, int(header_version),
@@ -270,6 +299,114 @@ def transform_bodies(matrices, metadata=None) -> tuple:
     return b"".join(parts), offsets
 
 
+def _value_matrix(values, n: int):
+    """The N values of one metadata key as an ``(N, w)`` uint8 matrix when they all have the
+    same byte length w (the usual case: a bytes array of full-width values, or numbers whose
+    ``.3e`` form has one length); None otherwise."""
+    if type(values) is np.ndarray and values.dtype.kind == "S":
+        # the kernel refuses a NUL byte in a value: a shorter value of the array (NUL-padded)
+        return (np.ascontiguousarray(values).view(np.uint8).reshape(n, values.dtype.itemsize)
+                if values.shape == (n,) and values.dtype.itemsize else None)
+    if type(values) is np.ndarray and values.dtype.kind in "fiu":
+        vals = [b"%.3e" % v for v in values.tolist()]
+    else:
+        vals = [(v if isinstance(v, str) else format(v, ".3e")).encode("ascii")
+                for v in values]
+    if len(vals) != n or not n:
+        return None
+    w = len(vals[0])
+    joined = b"".join(vals)
+    if len(joined) != n * w or any(len(v) != w for v in vals):
+        return None
+    return np.frombuffer(joined, np.uint8).reshape(n, w)
+
+
+@functools.lru_cache(maxsize=64)
+def _v2_template(keys: tuple, widths: tuple) -> tuple:
+    """The body of a version-2 TRANSFORM whose metadata values have these byte widths, with
+    zeros where the matrix and the values go, and the position in it of every value byte."""
+    ext, index, size = _v2_head(tuple(map(len, keys)), widths)
+    body, slots = bytearray(ext + bytes(48) + index), []
+    for k, w in zip(keys, widths):
+        body += k
+        slots += range(len(body), len(body) + w)
+        body += bytes(w)
+    assert len(body) == size
+    return np.frombuffer(bytes(body), np.uint8), np.array(slots, np.int64)
+
+
+@njit(cache=True)
+def _v2_kernel(M, ts, devices, template, slots, values, table, bases, out):
+    """Version-2 TRANSFORM messages of one body layout: message k is the 58-byte header
+    (device ``devices[k]`` or ``devices[0]``), then ``template`` with the matrix (big-endian
+    float32, column by column) at bytes 12-59 and ``values[k]`` at ``slots``; CRC-64 of the
+    body in the header. False, with ``out`` unfinished, where a value has a NUL byte (a
+    shorter value of a NUL-padded bytes array: not of this layout)."""
+    for k in range(values.shape[0]):
+        for j in range(values.shape[1]):
+            if values[k, j] == 0:
+                return False
+    f = np.empty(12, np.float32)
+    u = f.view(np.uint32)
+    size = template.shape[0]
+    name = "TRANSFORM"
+    for k in range(M.shape[0]):
+        o = k * (58 + size)
+        out[o] = 0
+        out[o + 1] = 2                                   # header version 2
+        for i in range(12):
+            out[o + 2 + i] = ord(name[i]) if i < 9 else 0
+        d = k if devices.shape[0] > 1 else 0
+        for i in range(20):
+            out[o + 14 + i] = devices[d, i]
+        sec, ns = _split_stamp(ts[k])
+        _put_stamp(out, o, sec, ns, bases)
+        for i in range(8):
+            out[o + 42 + i] = (np.uint64(size) >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
+        b = o + 58
+        for i in range(size):
+            out[b + i] = template[i]
+        for c in range(4):
+            for r in range(3):
+                f[3 * c + r] = M[k, r, c]
+        for i in range(12):
+            w = u[i]
+            for j in range(4):
+                out[b + 12 + 4 * i + j] = (w >> np.uint32(8 * (3 - j))) & np.uint32(0xFF)
+        for j in range(slots.shape[0]):
+            out[b + slots[j]] = values[k, j]
+        crc = np.uint64(0)
+        for i in range(size):
+            idx = ((crc >> np.uint64(56)) ^ np.uint64(out[b + i])) & np.uint64(0xFF)
+            crc = table[idx] ^ (crc << np.uint64(8))
+        for i in range(8):
+            out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
+    return True
+
+
+def pack_transforms_v2(matrices, timestamps, device_names, metadata) -> bytes:
+    """:func:`pack_transforms` with ``metadata`` (header version 2) for one device name or one
+    per message (``str`` or a sequence of N): in one compiled pass when every key's values
+    have one byte length (the live stream's blocks), else through :func:`transform_bodies`
+    and :func:`frame_messages`; the same bytes either way."""
+    M = np.ascontiguousarray(matrices, dtype=np.float64)
+    ts = np.ascontiguousarray(timestamps, dtype=np.float64)
+    n = M.shape[0]
+    cols = [_value_matrix(v, n) for v in metadata.values()]
+    if n and ts.shape == (n,) and not any(c is None for c in cols):
+        keys = tuple(_key_bytes(k) for k in metadata)
+        template, slots = _v2_template(keys, tuple(c.shape[1] for c in cols))
+        devices = _names_matrix((device_names,) if isinstance(device_names, str)
+                                else tuple(device_names))
+        if devices.shape[0] in (1, n):
+            out = np.empty(n * (58 + template.shape[0]), np.uint8)
+            if _v2_kernel(M, ts, devices, template, slots, np.concatenate(cols, axis=1),
+                          _CRC_TABLE, _FRAC_BASES, out):
+                return out.tobytes()
+    body, off = transform_bodies(M, metadata)       # ragged values; the errors of bad input
+    return frame_messages(body, off, "TRANSFORM", device_names, ts, header_version=2)
+
+
 def pack_transforms(matrices, timestamps, device_name: str, metadata=None) -> bytes:
     """Pack N TRANSFORM messages at once, byte for byte what pyigtl's
     ``TransformMessage.pack`` gives, in a compiled loop (a block of poses costs about as much
@@ -289,9 +426,7 @@ def pack_transforms(matrices, timestamps, device_name: str, metadata=None) -> by
         ``header_version = 2`` and the same ``metadata`` dict); without it, version 1.
     """
     if metadata is not None:
-        body, off = transform_bodies(matrices, metadata)
-        return frame_messages(body, off, "TRANSFORM", device_name, timestamps,
-                              header_version=2)
+        return pack_transforms_v2(matrices, timestamps, device_name, metadata)
     M = np.ascontiguousarray(matrices, dtype=np.float64)
     ts = np.ascontiguousarray(timestamps, dtype=np.float64)
     out = np.empty(M.shape[0] * _MSG, np.uint8)
@@ -425,9 +560,12 @@ def status_content(code: int = 1, text: str = "", *, subcode: int = 0,
 
 
 def _warm_up():
+    packable(np.eye(4)[None], np.array([1.5]))
     pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor")
     pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor", {"Status": ["OK"]})
 
 
 warm_up_with("openemt.live._igtl_wire:_pack_kernel", _warm_up)
 warm_up_with("openemt.live._igtl_wire:_frame_kernel", _warm_up)
+warm_up_with("openemt.live._igtl_wire:packable", _warm_up)
+warm_up_with("openemt.live._igtl_wire:_v2_kernel", _warm_up)

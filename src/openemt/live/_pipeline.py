@@ -24,7 +24,7 @@ from .._compile_notice import serial_threads
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError, check_nonnegative
 from .._result import Result
-from ..signal import Demodulator
+from ..signal import Demodulator, distortion_ratio
 from ..solve import DEFAULT_BAND_TIME_CONSTANT_S, BandStage, Status, resolve_bands
 from ..solve._result import status_count_names
 from ..solve._validity import MAX_RELATIVE_RESIDUAL
@@ -350,9 +350,7 @@ class _SensorState:
         self._levels: list = []      # the levels of recent chunks, counted in batches
         self._n_levels = 0
         self.n_not_sent = 0          # converged but distorted, not sent
-        self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0
-        self.pending: list = []
-        self.n_pending = 0
+        self.err_n, self.err_ss, self.err_max = 0, 0.0, 0.0   # against the truth (simulated)
         self.state = None            # "OK", "DISTORTED", "LOST" or "STALE" (stream state)
         self.last_valid = None       # time.monotonic() of the last valid (sendable) pose
         self.bad_since = None        # time.monotonic() when the state left "OK"
@@ -556,10 +554,10 @@ class TrackingPipeline:
                                  f"0..{n_se - 1} (the layout's sensor channels), got {cols}")
             if cols is not None and cols == list(range(n_se)):
                 st.set_columns(None)
-        # sensors on consecutive, equally wide column blocks in order (the tracker-file layout)
-        w = n_se // len(self.sensors)
-        self._blocks = len(self.sensors) > 1 and w * len(self.sensors) == n_se and all(
-            st.columns == list(range(i * w, (i + 1) * w)) for i, st in enumerate(self.sensors))
+        # each sensor's columns, for its quadrature ratio (one compiled pass for all sensors)
+        self._column_mask = np.zeros((len(self.sensors), n_se), bool)
+        for st in self.sensors:
+            self._column_mask[st.index, st.index_of_columns] = True
         self.demod = Demodulator(backend.layout, output_rate=cfg.output_rate,
                                  window=cfg.window, phase=cfg.phase)
         self.distortion_threshold = check_nonnegative(cfg.distortion_threshold,
@@ -630,6 +628,8 @@ class TrackingPipeline:
         self._clocked = bool(getattr(backend, "realtime", True))
         self.demod_restarts = 0
         self._truth_known = backend.truth_poses(np.zeros(1)) is not None
+        self._truth_pending: list = []     # (times, [(positions, converged) per sensor])
+        self._n_truth_pending = 0
 
     @property
     def sensor_names(self) -> list:
@@ -787,22 +787,9 @@ class TrackingPipeline:
                 C, st.band_state = self.bands(b, st.band_state)
                 Cs.append(C)
             quad = d.bands[:, self.bands.quadrature_band]
-        # quadrature ratio ||Im C|| / ||C|| per sensor, from per-column sums (one pass)
-        im2 = (quad.imag ** 2).sum(axis=1)
-        ab2 = (quad.real ** 2).sum(axis=1) + im2
-        if self._blocks:                        # equal consecutive blocks: one pass
-            k = len(self.sensors)
-            num = np.sqrt(im2.reshape(n, k, -1).sum(axis=2))
-            den = np.sqrt(ab2.reshape(n, k, -1).sum(axis=2))
-            ratios = list((num / np.where(den > 0, den, np.inf)).T)
-        else:
-            ratios = []
-            for st in self.sensors:
-                cols = st.index_of_columns
-                num = np.sqrt(im2[:, cols].sum(axis=1))
-                den = np.sqrt(ab2[:, cols].sum(axis=1))
-                ratios.append(num / np.where(den > 0, den, np.inf))
-        flags = [r > self.distortion_threshold for r in ratios]
+        # quadrature ratio ||Im C|| / ||C|| per sensor over its columns, (k, n) in one pass
+        ratios = distortion_ratio(quad, self._column_mask)
+        flags = ratios > self.distortion_threshold
         # distorted samples are not sent: their solve skips the extra starts (bounded cost)
         quick = None if self.send_distorted else flags
         if self.serial_small_batches and n * len(self.sensors) < 256:
@@ -866,6 +853,12 @@ class TrackingPipeline:
             self._watch(st, step, valid, now, stamps[-1])
         for st, step, ok in zip(self.sensors, steps, oks):   # after every sensor's poses are sent
             self._account(st, step, ok)
+        if self._truth_known:              # compared with the truth in batches (cheaper)
+            self._truth_pending.append((d.times, [(s.poses[:, :3, 3], ok)
+                                                  for s, ok in zip(steps, oks)]))
+            self._n_truth_pending += n
+            if self._n_truth_pending >= 1500:
+                self._flush_truth()
         self._latency.extend([time.perf_counter() - t_ready] * n)
         self._n_out += n
         return steps[0] if len(steps) == 1 else tuple(steps)
@@ -984,6 +977,8 @@ class TrackingPipeline:
             sel = [s[2] for s in streams]
 
         def joined(j):                          # field j of every stream's picked samples
+            if len(streams) == 1:
+                return streams[0][j][sel[0]]
             return np.concatenate([s[j][k] for s, k in zip(streams, sel)])
 
         poses = joined(1)
@@ -997,7 +992,8 @@ class TrackingPipeline:
             kw["metadata"] = transform_metadata(
                 joined(3), joined(4), joined(5), distortion_threshold=self.distortion_threshold,
                 level=joined(6))
-        self.igtl.send_poses(poses, np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
+        self.igtl.send_poses(poses, stamps[sel[0]] if len(sel) == 1 else
+                             np.concatenate([stamps[k] for k in sel]), t_ready=t_ready,
                              device_name=devices, **kw)
 
     def _watch(self, st: _SensorState, step: TrackStep, valid, now: float, stamp) -> None:
@@ -1068,36 +1064,33 @@ class TrackingPipeline:
             st.n_not_sent += int(np.count_nonzero(ok & step.distorted))
         if self.log is not None:
             self.log.append(step, st.index)
-        if self._truth_known and n_ok:
-            if n_ok == len(step):
-                st.pending.append((step.times, step.poses[:, :3, 3]))
-            else:
-                st.pending.append((step.times[ok], step.poses[ok, :3, 3]))
-            st.n_pending += n_ok
-            if st.n_pending >= 1500:       # compare with the truth in batches (cheaper)
-                self._flush_truth(st)
 
-    def _flush_truth(self, st: _SensorState):
-        if not st.pending:
+    def _flush_truth(self):
+        """Compare every sensor's converged positions since the last call with the backend's
+        truth: one truth evaluation for all sensors (a simulator computes every sensor's pose
+        at once), every 1500 samples rather than on every chunk."""
+        pending, self._truth_pending, self._n_truth_pending = self._truth_pending, [], 0
+        if not pending or not self._truth_known:
             return
-        t = np.concatenate([p[0] for p in st.pending])
-        xyz = np.concatenate([p[1] for p in st.pending])
-        st.pending, st.n_pending = [], 0
-        truth = self.backend.truth_poses(t)
+        truth = self.backend.truth_poses(np.concatenate([t for t, _ in pending]))
         if truth is None:
             self._truth_known = False
             return
         truth = np.asarray(truth)
-        if truth.ndim == 4:                # (N, n_sensors, 4, 4): one pose per sensor
-            truth = truth[:, st.index]
-        if self.registration is not None:
-            truth = self.registration @ truth
-        if st.tip is not None:
-            truth = truth @ st.tip
-        err = np.linalg.norm(xyz - truth[:, :3, 3], axis=1)
-        st.err_n += err.size
-        st.err_ss += float(np.sum(err ** 2))
-        st.err_max = max(st.err_max, float(err.max()))
+        for st in self.sensors:
+            ok = np.concatenate([chunk[st.index][1] for _, chunk in pending])
+            if not ok.any():
+                continue
+            xyz = np.concatenate([chunk[st.index][0] for _, chunk in pending])[ok]
+            T = (truth[:, st.index] if truth.ndim == 4 else truth)[ok]   # (N, n_sensors, 4, 4)
+            if self.registration is not None:
+                T = self.registration @ T
+            if st.tip is not None:
+                T = T @ st.tip
+            err = np.linalg.norm(xyz - T[:, :3, 3], axis=1)
+            st.err_n += err.size
+            st.err_ss += float(np.sum(err ** 2))
+            st.err_max = max(st.err_max, float(err.max()))
 
     def run(self, duration: float | None = None, *, max_steps: int | None = None,
             stop=None, monitor=None) -> TrackSummary:
@@ -1158,7 +1151,7 @@ class TrackingPipeline:
 
     def _sensor_summary(self, st: _SensorState) -> dict:
         counts = status_count_names(st.status_counts)
-        self._flush_truth(st)
+        self._flush_truth()
         n = self._n_out
         out = {"status_counts": counts,
                "distorted_fraction": (st.n_distorted / n) if n else 0.0,

@@ -30,7 +30,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
+from .._compile_notice import warm_up_with
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 from ._rawsim import ChannelLayout
@@ -82,14 +84,53 @@ class Demodulated:
         return distortion_ratio(self.couplings)
 
 
-def distortion_ratio(C) -> np.ndarray:
+def distortion_ratio(C, columns=None) -> np.ndarray:
     """The quadrature ratio ``||Im C||_F / ||C||_F`` of each sample of complex couplings
     ``(N, n_source, n_sensor)``, shape ``(N,)`` (0 for an all-zero sample): the eddy-current
-    (metal) indicator."""
-    C = np.asarray(C)
-    num = np.sqrt(np.sum(C.imag ** 2, axis=(1, 2)))
-    den = np.sqrt(np.sum(np.abs(C) ** 2, axis=(1, 2)))
-    return num / np.where(den > 0, den, np.inf)
+    (metal) indicator.
+
+    ``columns``: a boolean mask ``(K, n_sensor)``, row k the sensor columns of group k (e.g.
+    the coils of one of several sensors read together); the ratio of each group over its own
+    columns is then returned, shape ``(K, N)``, in one pass over the couplings."""
+    C = np.ascontiguousarray(C, dtype=np.complex128)
+    if C.ndim != 3:
+        raise InputError(f"expected couplings of shape (N, n_source, n_sensor), got {C.shape}")
+    mask = (np.ones((1, C.shape[2]), bool) if columns is None
+            else np.ascontiguousarray(columns, dtype=bool))
+    if mask.ndim != 2 or mask.shape[1] != C.shape[2]:
+        raise InputError(f"expected a column mask of shape (K, {C.shape[2]}), got "
+                         f"{mask.shape}")
+    out = np.empty((mask.shape[0], C.shape[0]))
+    _ratios(C, mask, out)
+    return out[0] if columns is None else out
+
+
+@njit(cache=True)
+def _ratios(C, mask, out):
+    """:func:`distortion_ratio` of every sample and column group in one compiled loop (it runs
+    on every chunk of the live pipeline)."""
+    n, n_so, n_se = C.shape
+    im2 = np.empty(n_se)
+    ab2 = np.empty(n_se)
+    for i in range(n):
+        for j in range(n_se):
+            a = 0.0
+            b = 0.0
+            for r in range(n_so):
+                re = C[i, r, j].real
+                im = C[i, r, j].imag
+                a += im * im
+                b += re * re + im * im
+            im2[j] = a
+            ab2[j] = b
+        for g in range(mask.shape[0]):
+            a = 0.0
+            b = 0.0
+            for j in range(n_se):
+                if mask[g, j]:
+                    a += im2[j]
+                    b += ab2[j]
+            out[g, i] = np.sqrt(a) / (np.sqrt(b) if b > 0.0 else np.inf)
 
 
 def frame_length(layout: ChannelLayout, output_rate: float = OUTPUT_RATE_HZ,
@@ -343,3 +384,7 @@ def phase_calibration(couplings) -> np.ndarray:
         raise InputError(f"expected complex couplings of shape (N, n_source, n_sensor), got "
                          f"{C.dtype} {C.shape}")
     return 0.5 * np.angle(np.sum(C * C, axis=0))
+
+
+warm_up_with("openemt.signal._demod:_ratios",
+             lambda: distortion_ratio(np.ones((1, 1, 1), np.complex128)))
