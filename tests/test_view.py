@@ -109,6 +109,7 @@ class _Block:
         self.status = rng.choice(np.array([0, 0, 0, 3], dtype=np.int8), 2)
         self.residual = self.distortion = rng.random(2)
         self.distorted = np.zeros(2, dtype=bool)
+        self.couplings = None
 
     def __len__(self):
         return 2
@@ -123,26 +124,49 @@ def _trail_over_every_block(blocks, seconds, most):
     return np.array(pick[::-1]).reshape(-1, 3)
 
 
-def test_the_trail_kept_incrementally_is_the_trail_of_every_block():
-    """Each snapshot reads only the blocks published since the last one: bursts of 1 to 90
-    blocks (more than the 40 held), a new session, two sensors; the trail is the one
-    computed from every block held, every time."""
+def test_the_trail_is_the_trail_of_the_last_blocks_published():
+    """The trail ring, written as each block is published, gives the trail computed from the
+    sensor's last ``history_blocks`` blocks (40 here), whatever the bursts between snapshots
+    (1 to 90 blocks), a new session, two sensors."""
     rng = np.random.default_rng(4)
     feed = LiveFeed(history_seconds=0.25, history_blocks=40, window_samples=8,
                     trail_points=7)
     t = 0.0
     for names in (("a",), ("a", "b")):
         feed.sensors(names)
+        published = [[] for _ in names]
         for burst in (*rng.integers(1, 30, 40), 90, 1, 41, 40, 3):
             for _ in range(burst):
                 t += 0.01
                 for k in range(len(names)):
-                    feed.step(_Block(t, rng), k)
+                    published[k].append(_Block(t, rng))
+                    feed.step(published[k][-1], k)
             snap = feed.snapshot()
-            for k, q in enumerate(feed._steps):
-                want = _trail_over_every_block(list(q), 0.25, 7)
+            for k in range(len(names)):
+                want = _trail_over_every_block(published[k][-40:], 0.25, 7)
                 assert np.array_equal(snap["sensors"][k]["trail"], want)
     assert 0 < len(want) <= 7
+
+
+def test_the_couplings_window_is_the_last_outputs_published():
+    """The couplings window (the SNR's and quadrature's) is the last ``window_samples``
+    outputs published, across blocks of any length (longer than the window too)."""
+    rng = np.random.default_rng(2)
+    feed = LiveFeed(window_samples=50)
+    feed.sensors(("a",))
+    published, t = [], 0.0
+    for n in (*rng.integers(1, 12, 60), 70, 3, 49, 50, 51):
+        t += 0.01
+        b = _Block(t, rng)
+        b.couplings = rng.standard_normal((n, 3, 2)) + 1j * rng.standard_normal((n, 3, 2))
+        feed.step(b, 0)
+        published.append(b.couplings)
+        want = np.concatenate(published)[-50:]
+        got = feed.gather()["sensors"][0]["window"]
+        assert np.array_equal(got, want)
+    snap = feed.snapshot()
+    assert snap["carriers"]["window"] == 50
+    assert np.array_equal(snap["sensors"][0]["couplings"], published[-1][-1])
 
 
 def _shown_sensor(browser, rows):

@@ -54,5 +54,5 @@ class ObservedLog:
     def append(self, step, sensor: int = 0) -> None:
         if self.log is not None:
             self.log.append(step, sensor)
-        if len(step):
+        if step.times.shape[0]:             # (no Python-level len(): once per block)
             self.observer.step(step, sensor)

@@ -18,11 +18,18 @@ due for an update: :class:`~openemt.view.ViewProcess`'s thread, or the server's 
 - the latest coupling matrix (every sensor's columns);
 - per sensor: the latest status, quadrature ratio, residual and pose, and its trail (the
   converged last pose of each block of the last ``history_seconds``, at most
-  ``trail_points`` blocks evenly spaced). The trail is kept incrementally: each snapshot
-  reads only the blocks published since the one before (found from the newest block back to
-  the newest one it had seen; each block is a fresh object) into small per-sensor arrays of
-  every held block's last time, position and convergence, so the snapshot's thread holds
-  the interpreter lock for the few blocks of one view period, not for all 1024 held.
+  ``trail_points`` blocks evenly spaced, of its last ``history_blocks`` blocks). The
+  session's thread writes each block's last time, position and convergence into a small
+  per-sensor ring as it publishes the block (three small writes); a snapshot reads the ring
+  and holds no block for the trail. Blocks themselves are held only as far back as the
+  couplings window needs (a block held costs the session's caches; a walk over the blocks
+  of a view period cost the snapshot's thread the interpreter lock for a millisecond and
+  more at 50x real time).
+
+:meth:`LiveFeed.gather` collects these inputs in the session's process (references, the
+ring, one concatenation of the raw chunks); :func:`compute_snapshot` turns them into the
+panels' numbers, in the view's own process when :class:`~openemt.view.ViewProcess` serves
+the page (the spectra, carrier levels and SNR then cost the session's interpreter nothing).
 
 SNR: the coupling noise of each entry is estimated from second differences of outputs two
 output periods apart, ``d = C[k+4] - 2 C[k+2] + C[k]`` (outputs two periods apart share no
@@ -118,8 +125,8 @@ class LiveFeed:
         Raw samples kept per channel for the spectrum and the carrier levels (default 4096:
         43 ms at 96 kS/s, bins of 23 Hz).
     history_seconds, history_blocks : float, int
-        The trail covers the last ``history_seconds`` of each sensor, within the last
-        ``history_blocks`` processed blocks kept (5 s and 1024: 6.8 s of 640-sample reads).
+        The trail covers the last ``history_seconds`` of each sensor, within its last
+        ``history_blocks`` processed blocks (5 s and 1024: 6.8 s of 640-sample reads).
     window_samples : int
         Outputs over which the SNR and the quadrature ratio per carrier are computed
         (default 300: 0.2 s at 1500/s).
@@ -133,7 +140,7 @@ class LiveFeed:
         self.raw_samples = int(raw_samples)
         self.history_seconds = float(history_seconds)
         self.window = max(int(window_samples), 8)
-        self.blocks = max(int(history_blocks), self.window)
+        self.blocks = max(int(history_blocks), 1)
         self.trail_points = int(trail_points)
         self.layout = None
         self.names: tuple = ()
@@ -141,17 +148,20 @@ class LiveFeed:
         self._lock = threading.Lock()
         self._raw: collections.deque = collections.deque(maxlen=8)
         self._n_chunks = 0
-        self._steps: list = []
+        self._last: list = []         # per sensor: its newest block
+        self._windows: list = []      # per sensor: a _Rows ring of its recent couplings
         self.n_samples: list = []
         self._cache = (None, None)
         self._collect = None          # the latest state of a collection (``collect``)
-        self._trails: list = []       # per sensor: a _Trail (updated under the lock)
+        self._trails: list = []       # per sensor: a _Trail
 
-    # -- the observer protocol (the session's thread: as little as possible). Each call only
-    # appends a reference to a bounded deque (and counts the samples): a deque's append is
-    # atomic under the interpreter lock and ``list(deque)`` copies it whole under it, so the
-    # session never waits for the view; keeping the recent blocks costs the session's caches
-    # enough already (docs/live.md#what-the-view-costs-the-acquisition-openemt-bench-track---view---json)
+    # -- the observer protocol (the session's thread: as little as possible). A block is
+    # kept as the sensor's newest (one reference), counted, and copied into two small rings
+    # of fixed memory: its couplings (the couplings window) and its last time, position and
+    # convergence (the trail); no older block is held (holding blocks costs the session's
+    # caches: docs/live.md#what-the-view-costs-the-acquisition-openemt-bench-track---view---json).
+    # A ring row is complete before the count that makes it visible is raised, and the view
+    # reads rows in one copy under the interpreter lock, so the session never waits for it.
     def start(self, layout) -> None:
         with self._lock:
             self.layout = layout
@@ -160,7 +170,9 @@ class LiveFeed:
     def sensors(self, names) -> None:
         with self._lock:
             self.names = tuple(names)
-            self._steps = [collections.deque(maxlen=self.blocks) for _ in self.names]
+            self._last = [None] * len(self.names)
+            self._windows = [_Rows(self.window) for _ in self.names]
+            self._trails = [_Trail(self.blocks) for _ in self.names]
             self.n_samples = [0] * len(self.names)
 
     def raw(self, chunk) -> None:
@@ -168,8 +180,11 @@ class LiveFeed:
         self._n_chunks += 1
 
     def step(self, step, sensor: int = 0) -> None:
-        self._steps[sensor].append(step)          # a bounded deque: the oldest drops out
-        self.n_samples[sensor] += len(step)
+        if step.couplings is not None:             # (a log without couplings has none)
+            self._windows[sensor].append(step.couplings)
+        self._trails[sensor].append(step)
+        self._last[sensor] = step
+        self.n_samples[sensor] += step.times.shape[0]
 
     def collect(self, state: dict) -> None:
         """A collection's state (``openemt collect``, once per analysis and at the end): a
@@ -205,116 +220,125 @@ class LiveFeed:
 
     def snapshot(self) -> dict:
         """Every number the panels show, from the blocks published so far (cached until the
-        next block arrives)."""
+        next block arrives): :func:`compute_snapshot` of :meth:`gather`."""
+        with self._lock:
+            if self._cache[0] == self.version:
+                return self._cache[1]
+        snap = compute_snapshot(self.gather())
+        with self._lock:
+            self._cache = (snap["version"], snap)
+        return snap
+
+    def gather(self) -> dict:
+        """What the panels are computed from, as plain arrays (:func:`compute_snapshot`
+        turns it into the snapshot; :class:`~openemt.view.ViewProcess` sends it to the
+        view's process, which does that there, off this interpreter): the version, the
+        layout and sensor names, each sensor's latest state, trail and recent couplings
+        (``window`` outputs), the last ``raw_samples`` raw samples and a collection's
+        state."""
         with self._lock:
             version = self.version
-            if self._cache[0] == version:
-                return self._cache[1]
-            steps = [list(q) for q in self._steps]
+            last = list(self._last)
+            windows = [w.last() for w in self._windows]
             chunks = self._raw_chunks()
             layout, names = self.layout, self.names
             counts = list(self.n_samples)
             collecting = self._collect
-            if len(self._trails) != len(steps):
-                self._trails = [_Trail(self.blocks) for _ in steps]
-            trails = []
-            for tr, q in zip(self._trails, steps):
-                tr.update(q)
-                trails.append(tr.points(float(q[-1].times[-1]) - self.history_seconds,
-                                        self.trail_points) if q else None)
+            trails = [tr.points(self.history_seconds, self.trail_points)
+                      for tr in self._trails]
         raw = None
         if chunks and layout is not None:
             raw = np.concatenate(chunks)[-self.raw_samples:, :layout.n_channels]
-        snap = _compute(layout, names, steps, raw, counts, self.window, trails)
-        if collecting is not None:
-            snap["collect"] = collect_panel(collecting)
-        snap["version"] = version
-        snap["source"] = self.source
-        with self._lock:
-            self._cache = (version, snap)
-        return snap
+        return {"version": version, "source": self.source, "layout": layout, "names": names,
+                "wall_time": time.time(), "raw": raw, "collect": collecting,
+                "sensors": _sensor_states(names, last, windows, counts, trails)}
+
+
+class _Rows:
+    """The last ``n`` rows appended (arrays of rows, e.g. a block's couplings), in a ring of
+    fixed memory written by the session's thread (:meth:`append`) and read by the view's
+    (:meth:`last`); twice the rows read, so the writer never reaches the rows a reader
+    copies, and a row is written before the count that makes it visible is raised."""
+
+    def __init__(self, n: int):
+        self.n = int(n)
+        self.cap = 2 * self.n
+        self.rows = None                  # allocated with the first block (its row shape)
+        self.count = 0
+
+    def append(self, block) -> None:
+        k = block.shape[0]
+        if k > self.n:                    # only the last n rows can be read
+            block, k = block[-self.n:], self.n
+        if self.rows is None or self.rows.shape[1:] != block.shape[1:]:
+            self.rows = np.zeros((self.cap,) + block.shape[1:], block.dtype)
+            self.count = 0
+        j = self.count % self.cap
+        m = min(k, self.cap - j)
+        self.rows[j:j + m] = block[:m]
+        if m < k:                         # wrapped around
+            self.rows[:k - m] = block[m:]
+        self.count += k
+
+    def last(self):
+        """A copy of the last ``n`` rows (fewer before that many were appended), oldest
+        first; None before the first."""
+        n, rows = self.count, self.rows
+        if not n or rows is None:
+            return None
+        return rows[np.arange(n - min(n, self.n), n) % self.cap]
 
 
 class _Trail:
-    """One sensor's blocks as the trail needs them: the last time, position and convergence
-    of each block held (the same blocks as the feed's deque, oldest first), appended to with
-    only the blocks not seen before (:meth:`update`)."""
+    """One sensor's trail: the last time, position and convergence of each of its last
+    ``held`` blocks, in a ring written by the session's thread as each block is published
+    (:meth:`append`, three small writes) and read by the view's (:meth:`points`). A row is
+    complete before the count that makes it visible is raised; the ring holds twice the rows
+    read, so the writer never reaches the rows a reader is copying."""
 
     def __init__(self, held: int):
         self.held = int(held)
-        self.last = None                  # the newest block seen
-        self.t = np.empty(2 * self.held)
-        self.p = np.empty((2 * self.held, 3))
-        self.ok = np.zeros(2 * self.held, dtype=bool)
-        self.n = 0                        # rows filled
-        self.rows = 0                     # rows for the blocks now held (the last ones)
-
-    def update(self, blocks) -> None:
-        """``blocks``: a copy of the deque (oldest first)."""
+        self.cap = 2 * self.held
+        self.t = np.full(self.cap, np.nan)
+        self.p = np.zeros((self.cap, 3))
+        self.ok = np.zeros(self.cap, dtype=bool)
+        self.count = 0                    # blocks appended so far
         from ..solve import Status
 
-        new = []
-        for b in reversed(blocks):
-            if b is self.last:
-                break
-            new.append(b)
-        if new:
-            self.last = new[0]
-            if self.n + len(new) > len(self.t):          # keep the newest rows, in front
-                keep = min(self.n, self.held)
-                for a in (self.t, self.p, self.ok):
-                    a[:keep] = a[self.n - keep:self.n]
-                self.n = keep
-            converged = int(Status.CONVERGED)
-            for i, b in enumerate(reversed(new), self.n):
-                if len(b):
-                    self.t[i] = b.times[-1]
-                    self.p[i] = b.pose_vectors[-1, :3]
-                    self.ok[i] = b.status[-1] == converged
-                else:
-                    self.t[i], self.ok[i] = np.nan, False
-            self.n += len(new)
-        self.rows = len(blocks)
+        self.converged = int(Status.CONVERGED)
 
-    def points(self, t_end: float, most: int) -> np.ndarray:
-        """The converged positions of the blocks held that end at or after ``t_end``, at
-        most ``most`` blocks evenly spaced (counted back from the newest, which is always
-        in), oldest first: ``(K, 3)``."""
-        a = self.n - self.rows
-        recent = np.flatnonzero(self.t[a:self.n] >= t_end) + a
+    def append(self, block) -> None:
+        j = self.count % self.cap
+        self.t[j] = block.times[-1]
+        self.p[j] = block.pose_vectors[-1, :3]
+        self.ok[j] = block.status[-1] == self.converged
+        self.count += 1
+
+    def points(self, seconds: float, most: int):
+        """The converged positions of the blocks held that end at most ``seconds`` before
+        the newest one, at most ``most`` blocks evenly spaced (counted back from the newest,
+        which is always in), oldest first: ``(K, 3)``; None before the first block."""
+        n = self.count
+        if not n:
+            return None
+        rows = np.arange(n - min(n, self.held), n) % self.cap
+        t = self.t[rows]
+        recent = rows[t >= t[-1] - seconds]
         stride = max(1, -(-len(recent) // most))
         pick = recent[::-1][::stride]
         pick = pick[self.ok[pick]][::-1]
         return self.p[pick].copy()
 
 
-def _cat(steps, key, last: int | None = None):
-    parts, n = [], 0
-    for s in reversed(steps):
-        a = getattr(s, key, None)
-        if a is None:
-            return None
-        parts.append(a)
-        n += len(a)
-        if last is not None and n >= last:
-            break
-    out = np.concatenate(parts[::-1]) if parts else None
-    return out if last is None or out is None else out[-last:]
-
-
-def _compute(layout, names, steps, raw, counts, window, trails) -> dict:
+def _sensor_states(names, lasts, windows, counts, trails) -> list:
+    """Each sensor's latest state, its trail and (``"window"``) its recent couplings."""
     from ..solve import Status
 
-    t = time.time()
-    snap: dict = {"wall_time": t, "sensors": [],
-                  "frequencies": None if layout is None else list(layout.frequencies)}
-    blocks = []                       # per sensor: the recent couplings (window, n_so, k)
-    for name, q, count, trail in zip(names, steps, counts, trails):
-        if not q:
-            snap["sensors"].append({"name": name, "n_samples": 0})
-            blocks.append(None)
+    out = []
+    for name, last, C, count, trail in zip(names, lasts, windows, counts, trails):
+        if last is None:
+            out.append({"name": name, "n_samples": 0, "window": None})
             continue
-        last = q[-1]
         k = len(last) - 1
         code = int(last.status[k])
         try:
@@ -322,9 +346,7 @@ def _compute(layout, names, steps, raw, counts, window, trails) -> dict:
         except ValueError:
             status = str(code)
         rel = getattr(last, "relative_residual", None)
-        C = _cat(q, "couplings", window)
-        blocks.append(C)
-        snap["sensors"].append({
+        out.append({
             "name": name, "n_samples": count, "time": float(last.times[k]),
             "status": status, "status_code": code,
             "distortion": float(last.distortion[k]), "distorted": bool(last.distorted[k]),
@@ -332,7 +354,18 @@ def _compute(layout, names, steps, raw, counts, window, trails) -> dict:
             "relative_residual": float("nan") if rel is None else float(rel[k]),
             "pose_vector": np.array(last.pose_vectors[k], dtype=np.float64),
             "trail": trail,
-            "couplings": None if C is None else C[-1].copy()})
+            "couplings": None if C is None else C[-1].copy(), "window": C})
+    return out
+
+
+def compute_snapshot(inputs: dict) -> dict:
+    """The numbers the panels show from :meth:`LiveFeed.gather`'s ``inputs`` (a pure
+    function of them: it may run in another process)."""
+    layout, raw = inputs["layout"], inputs["raw"]
+    sensors = [dict(s) for s in inputs["sensors"]]
+    blocks = [s.pop("window", None) for s in sensors]   # per sensor: (window, n_so, k)
+    snap: dict = {"wall_time": inputs["wall_time"], "sensors": sensors,
+                  "frequencies": None if layout is None else list(layout.frequencies)}
     # per carrier, over every sensor's columns
     have = [b for b in blocks if b is not None]
     if have:
@@ -355,6 +388,9 @@ def _compute(layout, names, steps, raw, counts, window, trails) -> dict:
                                                 "levels": lv})
         f, db = spectrum_db(raw, fs, max_points=512)
         snap["spectrum"] = {"frequencies": f, "db": db, "samples": len(raw)}
+    if inputs["collect"] is not None:
+        snap["collect"] = collect_panel(inputs["collect"])
+    snap["version"], snap["source"] = inputs["version"], inputs["source"]
     return snap
 
 

@@ -7,7 +7,8 @@ while the acquisition waits for it. :class:`ViewProcess` runs the :class:`ViewSe
 child process (a fresh interpreter, ``python -m openemt.view._child``, talking over two
 socket pairs); the session's process keeps only the
 :class:`LiveFeed` and one thread that, when a page asks (at most the view rate, per open
-page), computes a snapshot and sends it down a pipe: one short hand-over per update instead
+page), gathers the inputs of a snapshot (``LiveFeed.gather``: the recent arrays) and sends them
+down a pipe, the child computes the panels from them: one short hand-over per update instead
 of dozens, and no Bokeh code in the session's interpreter.
 """
 
@@ -21,8 +22,9 @@ __all__ = ["ViewProcess"]
 
 
 class _RemoteFeed:
-    """The child's feed: each :meth:`snapshot` asks the session's process for a fresh one
-    (the last one again when none arrives within ``timeout``)."""
+    """The child's feed: each :meth:`snapshot` asks the session's process for fresh inputs
+    (:meth:`LiveFeed.gather`) and computes the snapshot from them here (the last one again
+    when none arrives within ``timeout``)."""
 
     def __init__(self, conn, timeout: float = 1.0):
         self.conn, self.timeout = conn, float(timeout)
@@ -37,10 +39,13 @@ class _RemoteFeed:
         try:
             self.conn.send(self.version)              # the version it has: None if unchanged
             if self.conn.poll(self.timeout):
-                snap = self.conn.recv()
-                if snap is not None:
-                    self.last = snap
-                    self.layout, self.names = snap.get("layout"), snap.get("names", ())
+                inputs = self.conn.recv()
+                if inputs is not None:
+                    from ._feed import compute_snapshot
+
+                    self.layout, self.names = inputs["layout"], inputs["names"]
+                    self.last = dict(compute_snapshot(inputs), layout=self.layout,
+                                     names=self.names)
         except (EOFError, OSError):        # the session ended: keep showing the last state
             pass
         if self.last is None:
@@ -111,7 +116,8 @@ class ViewProcess:
         return self
 
     def _publish(self) -> None:
-        """Answer the child's requests with snapshots (blocked in ``recv`` otherwise)."""
+        """Answer the child's requests with the feed's inputs of a snapshot (blocked in
+        ``recv`` otherwise): gathered here, computed in the child."""
         conn = self._snap
         try:
             while True:
@@ -119,9 +125,7 @@ class ViewProcess:
                 if have is not None and have == self.feed.version:
                     conn.send(None)                   # nothing new
                     continue
-                snap = dict(self.feed.snapshot(), layout=self.feed.layout,
-                            names=self.feed.names)
-                conn.send(snap)
+                conn.send(self.feed.gather())
         except (EOFError, OSError):
             return
 
