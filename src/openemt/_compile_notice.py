@@ -154,6 +154,14 @@ def _warm_planar():
     solve_planar(model.coupling(P), model)
 
 
+def _warm_ratios():
+    import numpy as np
+
+    from .signal import distortion_ratio
+
+    distortion_ratio(np.ones((1, 1, 1), np.complex128))
+
+
 #: How each kernel is compiled: one small call through the public function that runs it
 #: (the live kernels' modules add theirs, :func:`warm_up_with`).
 _WARM_UP = {
@@ -167,6 +175,7 @@ _WARM_UP = {
     "openemt.solve._cold_start:table_candidates": lambda: _warm_dipole("table"),
     "openemt.field._segments:_coupling_batch_impl": _warm_planar,
     "openemt.solve._planar:_batch": _warm_planar,
+    "openemt.signal._demod:_ratios": _warm_ratios,
 }
 
 

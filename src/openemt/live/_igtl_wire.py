@@ -563,6 +563,9 @@ def _warm_up():
     packable(np.eye(4)[None], np.array([1.5]))
     pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor")
     pack_transforms(np.eye(4)[None], np.array([1.5]), "Sensor", {"Status": ["OK"]})
+    # values of different lengths: the general path (bodies, then frame_messages)
+    pack_transforms(np.repeat(np.eye(4)[None], 2, axis=0), np.array([1.5, 1.5]), "Sensor",
+                    {"Status": ["OK", "INVALID"]})
 
 
 warm_up_with("openemt.live._igtl_wire:_pack_kernel", _warm_up)

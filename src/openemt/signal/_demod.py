@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .._compile_notice import warm_up_with
 from .._constants import OUTPUT_RATE_HZ
 from .._errors import InputError
 from ._rawsim import ChannelLayout
@@ -384,7 +383,3 @@ def phase_calibration(couplings) -> np.ndarray:
         raise InputError(f"expected complex couplings of shape (N, n_source, n_sensor), got "
                          f"{C.dtype} {C.shape}")
     return 0.5 * np.angle(np.sum(C * C, axis=0))
-
-
-warm_up_with("openemt.signal._demod:_ratios",
-             lambda: distortion_ratio(np.ones((1, 1, 1), np.complex128)))
