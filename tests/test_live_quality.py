@@ -114,6 +114,9 @@ def test_v2_packing_of_the_pipeline_metadata_equals_pyigtl():
             assert pack_transforms_v2(P[:n], ts[:n], "S0", meta) == want(["S0"] * n, meta)
     ragged = {"Status": np.array([b"OK", b"INVALID", b"OK"]), "Level": np.array([b"7"] * 3)}
     assert pack_transforms_v2(P[:3], ts[:3], "S", ragged) == want(["S"] * 3, ragged)
+    assert pack_transforms_v2(P[:3], ts[:3], "S", {}) == want(["S"] * 3, {})
+    nan = {"RelativeResidual": np.array([1e-3, np.nan, 2e-3])}      # "nan": ragged
+    assert pack_transforms_v2(P[:3], ts[:3], "S", nan) == want(["S"] * 3, nan)
     with pytest.raises(InputError, match="3 device names"):
         pack_transforms_v2(P[:3], ts[:3], ["a", "b"], ragged)
 

@@ -290,7 +290,7 @@ def transform_bodies(matrices, metadata=None) -> tuple:
             o += w
         return body.tobytes(), size * np.arange(n + 1)
     parts, offsets = [], [0]
-    for i, vals in enumerate(zip(*cols)):
+    for i, vals in enumerate(zip(*cols) if cols else [()] * n):   # (no keys: empty metadata)
         h = _v2_head(key_sizes, tuple(map(len, vals)))
         parts += [h[0], content[48 * i:48 * i + 48], h[1]]
         for k, v in zip(keys, vals):
@@ -393,7 +393,7 @@ def pack_transforms_v2(matrices, timestamps, device_names, metadata) -> bytes:
     ts = np.ascontiguousarray(timestamps, dtype=np.float64)
     n = M.shape[0]
     cols = [_value_matrix(v, n) for v in metadata.values()]
-    if n and ts.shape == (n,) and not any(c is None for c in cols):
+    if n and cols and ts.shape == (n,) and not any(c is None for c in cols):
         keys = tuple(_key_bytes(k) for k in metadata)
         template, slots = _v2_template(keys, tuple(c.shape[1] for c in cols))
         devices = _names_matrix((device_names,) if isinstance(device_names, str)
