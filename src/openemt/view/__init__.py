@@ -13,7 +13,8 @@ from .._lazy import lazy_exports
 
 #: where each public name lives; a module is imported on first use of one of its names
 _SOURCES = {
-    "._feed": ("LiveFeed", "carrier_levels", "collect_panel", "coupling_snr_db", "spectrum_db"),
+    "._feed": ("LiveFeed", "carrier_levels", "collect_panel", "compute_snapshot", "coupling_snr_db",
+               "spectrum_db"),
     "._process": ("ViewProcess",),
     "._server": ("ViewServer",),
     "._workflow": ("ViewOptions", "ViewRecordingOptions", "ViewResult", "collect_with_view",

@@ -48,7 +48,8 @@ import time
 
 import numpy as np
 
-__all__ = ["LiveFeed", "carrier_levels", "collect_panel", "coupling_snr_db", "spectrum_db"]
+__all__ = ["LiveFeed", "carrier_levels", "collect_panel", "compute_snapshot", "coupling_snr_db",
+           "spectrum_db"]
 
 
 def carrier_levels(x, frequencies, sample_rate) -> np.ndarray:
