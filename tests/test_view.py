@@ -436,3 +436,28 @@ def test_collect_with_view_reports_the_view(tmp_path):
     assert r.n_poses == 4 and d["view"]["url"].startswith("http://127.0.0.1:")
     assert d["view"]["pages_opened"] == 0 and d["view"]["updates_pushed"] == 0
     assert "view" not in replace(r, view=None).to_dict()
+
+
+def test_a_ring_reader_overtaken_by_the_writer_reads_again():
+    """The couplings ring's reader copies again when the session's thread appended more rows
+    than the ring's spare half between the reader's count and its copy (a lapped copy would
+    mix old and new rows)."""
+    from openemt.view._feed import _Rows
+
+    ring = _Rows(4)
+    for k in range(6):
+        ring.append(np.full((1, 2), float(k)))
+
+    class Overtaking(np.ndarray):
+        laps = 0
+
+        def __getitem__(self, idx):
+            out = np.ndarray.__getitem__(self, idx)
+            if Overtaking.laps == 0:             # the writer runs during the first copy
+                Overtaking.laps += 1
+                for k in range(6, 12):
+                    ring.append(np.full((1, 2), float(k)))
+            return out
+
+    ring.rows = ring.rows.view(Overtaking)
+    assert np.asarray(ring.last())[:, 0].tolist() == [8.0, 9.0, 10.0, 11.0]

@@ -258,8 +258,9 @@ class LiveFeed:
 class _Rows:
     """The last ``n`` rows appended (arrays of rows, e.g. a block's couplings), in a ring of
     fixed memory written by the session's thread (:meth:`append`) and read by the view's
-    (:meth:`last`); twice the rows read, so the writer never reaches the rows a reader
-    copies, and a row is written before the count that makes it visible is raised."""
+    (:meth:`last`). A row is written before the count that makes it visible is raised; the
+    ring holds twice the rows read, and a reader whose rows the writer may have reached
+    meanwhile (more than ``n`` rows appended since it read the count) copies again."""
 
     def __init__(self, n: int):
         self.n = int(n)
@@ -284,10 +285,13 @@ class _Rows:
     def last(self):
         """A copy of the last ``n`` rows (fewer before that many were appended), oldest
         first; None before the first."""
-        n, rows = self.count, self.rows
-        if not n or rows is None:
-            return None
-        return rows[np.arange(n - min(n, self.n), n) % self.cap]
+        while True:
+            n, rows = self.count, self.rows
+            if not n or rows is None:
+                return None
+            out = rows[np.arange(n - min(n, self.n), n) % self.cap]
+            if self.count - n <= self.cap - self.n and rows is self.rows:
+                return out
 
 
 class _Trail:
@@ -295,7 +299,7 @@ class _Trail:
     ``held`` blocks, in a ring written by the session's thread as each block is published
     (:meth:`append`, three small writes) and read by the view's (:meth:`points`). A row is
     complete before the count that makes it visible is raised; the ring holds twice the rows
-    read, so the writer never reaches the rows a reader is copying."""
+    read, and a reader whose rows the writer may have reached meanwhile reads again."""
 
     def __init__(self, held: int):
         self.held = int(held)
@@ -319,16 +323,19 @@ class _Trail:
         """The converged positions of the blocks held that end at most ``seconds`` before
         the newest one, at most ``most`` blocks evenly spaced (counted back from the newest,
         which is always in), oldest first: ``(K, 3)``; None before the first block."""
-        n = self.count
-        if not n:
-            return None
-        rows = np.arange(n - min(n, self.held), n) % self.cap
-        t = self.t[rows]
-        recent = rows[t >= t[-1] - seconds]
-        stride = max(1, -(-len(recent) // most))
-        pick = recent[::-1][::stride]
-        pick = pick[self.ok[pick]][::-1]
-        return self.p[pick].copy()
+        while True:
+            n = self.count
+            if not n:
+                return None
+            rows = np.arange(n - min(n, self.held), n) % self.cap
+            t = self.t[rows]
+            recent = rows[t >= t[-1] - seconds]
+            stride = max(1, -(-len(recent) // most))
+            pick = recent[::-1][::stride]
+            pick = pick[self.ok[pick]][::-1]
+            out = self.p[pick]                      # a copy (fancy indexing)
+            if self.count - n <= self.cap - self.held:
+                return out
 
 
 def _sensor_states(names, lasts, windows, counts, trails) -> list:
