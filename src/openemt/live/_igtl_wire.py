@@ -92,23 +92,10 @@ def _split_stamp(t):
     return sec, np.int64((t - np.float64(sec)) * 1e9)
 
 
-@njit(cache=True, inline="always")
-def _put_matrix(M, k, f, out, o):
-    """The upper 3x4 of ``M[k]``, column by column, as big-endian float32 at
-    ``out[o:o + 48]`` (``f``: float32 scratch of 12)."""
-    u = f.view(np.uint32)
-    for c in range(4):
-        for r in range(3):
-            f[3 * c + r] = M[k, r, c]
-    for i in range(12):
-        w = u[i]
-        for j in range(4):
-            out[o + 4 * i + j] = (w >> np.uint32(8 * (3 - j))) & np.uint32(0xFF)
-
-
 @njit(cache=True)
 def _pack_kernel(M, ts, device, table, bases, out):
     f = np.empty(12, np.float32)
+    u = f.view(np.uint32)
     for k in range(M.shape[0]):
         o = k * 106
         out[o] = 0
@@ -122,8 +109,17 @@ def _pack_kernel(M, ts, device, table, bases, out):
         _put_stamp(out, o, sec, ns, bases)
         for i in range(8):
             out[o + 42 + i] = 48 if i == 7 else 0          # body size
-        _put_matrix(M, k, f, out, o + 58)
-        crc = _crc64(out[o + 58:o + 106], table)
+        for c in range(4):
+            for r in range(3):
+                f[3 * c + r] = M[k, r, c]
+        crc = np.uint64(0)
+        for i in range(12):
+            w = u[i]
+            for j in range(4):
+                byte = (w >> np.uint32(8 * (3 - j))) & np.uint32(0xFF)
+                out[o + 58 + 4 * i + j] = byte
+                idx = ((crc >> np.uint64(56)) ^ np.uint64(byte)) & np.uint64(0xFF)
+                crc = table[idx] ^ (crc << np.uint64(8))
         for i in range(8):
             out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
 
@@ -227,25 +223,20 @@ def _metadata_columns(metadata, n: int) -> tuple:
     written as ``format(x, ".3e")``, a bytes array (dtype ``S``) as it is."""
     keys, cols = [], []
     for key, values in metadata.items():
-        vals = _value_bytes(values)
+        array = type(values) is np.ndarray
+        vals = values.tolist() if array else list(values)
         if len(vals) != n:
             raise InputError(f"expected {n} values of metadata {key!r}, got {len(vals)}")
         keys.append(_key_bytes(key))
-        cols.append(vals)
+        kind = values.dtype.kind if array else ""
+        if kind == "S":
+            cols.append(vals)                                   # already ASCII bytes
+        elif kind in ("f", "i", "u"):
+            cols.append([b"%.3e" % v for v in vals])           # one kind: no test per value
+        else:
+            cols.append([(v if isinstance(v, str) else format(v, ".3e")).encode("ascii")
+                         for v in vals])
     return keys, cols
-
-
-def _value_bytes(values) -> list:
-    """The values of one metadata key as ASCII bytes: numbers as ``format(x, ".3e")``, a
-    bytes array as it is."""
-    array = type(values) is np.ndarray
-    vals = values.tolist() if array else list(values)
-    kind = values.dtype.kind if array else ""
-    if kind == "S":
-        return vals                                             # already ASCII bytes
-    if kind in ("f", "i", "u"):
-        return [b"%.3e" % v for v in vals]                      # one kind: no test per value
-    return [(v if isinstance(v, str) else format(v, ".3e")).encode("ascii") for v in vals]
 
 
 @functools.lru_cache(maxsize=256)
@@ -316,7 +307,11 @@ def _value_matrix(values, n: int):
         # the kernel refuses a NUL byte in a value: a shorter value of the array (NUL-padded)
         return (np.ascontiguousarray(values).view(np.uint8).reshape(n, values.dtype.itemsize)
                 if values.shape == (n,) and values.dtype.itemsize else None)
-    vals = _value_bytes(values)
+    if type(values) is np.ndarray and values.dtype.kind in "fiu":
+        vals = [b"%.3e" % v for v in values.tolist()]
+    else:
+        vals = [(v if isinstance(v, str) else format(v, ".3e")).encode("ascii")
+                for v in values]
     if len(vals) != n or not n:
         return None
     w = len(vals[0])
@@ -341,26 +336,51 @@ def _v2_template(keys: tuple, widths: tuple) -> tuple:
 
 
 @njit(cache=True)
-def _v2_kernel(M, ts, devices, template, slots, values, tname, table, bases, out):
-    """Version-2 TRANSFORM messages of one body layout: body k is ``template`` with the
-    matrix ``M[k]`` (:func:`_put_matrix`) at bytes 12-59 and ``values[k]`` at ``slots``,
-    framed by :func:`_frame_kernel`. False, with ``out`` unwritten, where a value has a NUL byte (a
+def _v2_kernel(M, ts, devices, template, slots, values, table, bases, out):
+    """Version-2 TRANSFORM messages of one body layout: message k is the 58-byte header
+    (device ``devices[k]`` or ``devices[0]``), then ``template`` with the matrix (big-endian
+    float32, column by column) at bytes 12-59 and ``values[k]`` at ``slots``; CRC-64 of the
+    body in the header. False, with ``out`` unfinished, where a value has a NUL byte (a
     shorter value of a NUL-padded bytes array: not of this layout)."""
     for k in range(values.shape[0]):
         for j in range(values.shape[1]):
             if values[k, j] == 0:
                 return False
-    n, size = M.shape[0], template.shape[0]
-    body = np.empty(n * size, np.uint8)
     f = np.empty(12, np.float32)
-    for k in range(n):
-        b = k * size
+    u = f.view(np.uint32)
+    size = template.shape[0]
+    name = "TRANSFORM"
+    for k in range(M.shape[0]):
+        o = k * (58 + size)
+        out[o] = 0
+        out[o + 1] = 2                                   # header version 2
+        for i in range(12):
+            out[o + 2 + i] = ord(name[i]) if i < 9 else 0
+        d = k if devices.shape[0] > 1 else 0
+        for i in range(20):
+            out[o + 14 + i] = devices[d, i]
+        sec, ns = _split_stamp(ts[k])
+        _put_stamp(out, o, sec, ns, bases)
+        for i in range(8):
+            out[o + 42 + i] = (np.uint64(size) >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
+        b = o + 58
         for i in range(size):
-            body[b + i] = template[i]
-        _put_matrix(M, k, f, body, b + 12)
+            out[b + i] = template[i]
+        for c in range(4):
+            for r in range(3):
+                f[3 * c + r] = M[k, r, c]
+        for i in range(12):
+            w = u[i]
+            for j in range(4):
+                out[b + 12 + 4 * i + j] = (w >> np.uint32(8 * (3 - j))) & np.uint32(0xFF)
         for j in range(slots.shape[0]):
-            body[b + slots[j]] = values[k, j]
-    _frame_kernel(body, size * np.arange(n + 1), 2, tname, devices, ts, table, bases, out)
+            out[b + slots[j]] = values[k, j]
+        crc = np.uint64(0)
+        for i in range(size):
+            idx = ((crc >> np.uint64(56)) ^ np.uint64(out[b + i])) & np.uint64(0xFF)
+            crc = table[idx] ^ (crc << np.uint64(8))
+        for i in range(8):
+            out[o + 50 + i] = (crc >> np.uint64(8 * (7 - i))) & np.uint64(0xFF)
     return True
 
 
@@ -380,8 +400,7 @@ def pack_transforms_v2(matrices, timestamps, device_names, metadata) -> bytes:
                                 else tuple(device_names))
         if devices.shape[0] in (1, n):
             out = np.empty(n * (58 + template.shape[0]), np.uint8)
-            if _v2_kernel(M, ts, devices, template, slots,
-                          np.concatenate(cols, axis=1), _name_bytes("TRANSFORM", 12),
+            if _v2_kernel(M, ts, devices, template, slots, np.concatenate(cols, axis=1),
                           _CRC_TABLE, _FRAC_BASES, out):
                 return out.tobytes()
     body, off = transform_bodies(M, metadata)       # ragged values; the errors of bad input
