@@ -19,11 +19,12 @@ due for an update: :class:`~openemt.view.ViewProcess`'s thread, or the server's 
 - per sensor: the latest status, quadrature ratio, residual and pose, and its trail (the
   converged last pose of each block of the last ``history_seconds``, at most
   ``trail_points`` blocks evenly spaced, of its last ``history_blocks`` blocks). The
-  session's thread writes each block's last time, position and convergence, and its
-  couplings, into two small per-sensor rings as it publishes the block; a snapshot reads the
-  rings. No block is held but each sensor's newest (a block held costs the session's caches;
-  a walk over the blocks of a view period cost the snapshot's thread the interpreter lock
-  for a millisecond and more at 50x real time).
+  session's thread writes each block's last time, position and convergence into a small
+  per-sensor ring as it publishes the block (three small writes); a snapshot reads the ring
+  and holds no block for the trail. Blocks themselves are held only as far back as the
+  couplings window needs (a block held costs the session's caches; a walk over the blocks
+  of a view period cost the snapshot's thread the interpreter lock for a millisecond and
+  more at 50x real time).
 
 :meth:`LiveFeed.gather` collects these inputs in the session's process (references, the
 ring, one concatenation of the raw chunks); :func:`compute_snapshot` turns them into the
@@ -254,39 +255,23 @@ class LiveFeed:
                 "sensors": _sensor_states(names, last, windows, counts, trails)}
 
 
-class _Ring:
-    """Rows written by the session's thread and read by the view's: the last ``held`` of
-    them are read, in a ring of twice that. A row is written before the count that makes it
-    visible is raised, and a reader whose rows the writer may have reached meanwhile reads
-    again (:meth:`_consistent`)."""
+class _Rows:
+    """The last ``n`` rows appended (arrays of rows, e.g. a block's couplings), in a ring of
+    fixed memory written by the session's thread (:meth:`append`) and read by the view's
+    (:meth:`last`). A row is written before the count that makes it visible is raised; the
+    ring holds twice the rows read, and a reader whose rows the writer may have reached
+    meanwhile (more than ``n`` rows appended since it read the count) copies again."""
 
-    def __init__(self, held: int):
-        self.held = int(held)
-        self.cap = 2 * self.held
-        self.count = 0                    # rows appended so far
-
-    def _consistent(self, read):
-        """``read(count)`` of the count now, taken again while more than ``cap - held`` rows
-        were appended during it (the writer may then have overwritten rows it read)."""
-        while True:
-            n = self.count
-            out = read(n)
-            if self.count - n <= self.cap - self.held:
-                return out
-
-
-class _Rows(_Ring):
-    """The last ``held`` rows appended (arrays of rows, e.g. a block's couplings), in a
-    :class:`_Ring` of fixed memory allocated with the first block (its row shape)."""
-
-    def __init__(self, held: int):
-        super().__init__(held)
-        self.rows = None
+    def __init__(self, n: int):
+        self.n = int(n)
+        self.cap = 2 * self.n
+        self.rows = None                  # allocated with the first block (its row shape)
+        self.count = 0
 
     def append(self, block) -> None:
         k = block.shape[0]
-        if k > self.held:                 # only the last held rows can be read
-            block, k = block[-self.held:], self.held
+        if k > self.n:                    # only the last n rows can be read
+            block, k = block[-self.n:], self.n
         if self.rows is None or self.rows.shape[1:] != block.shape[1:]:
             self.rows = np.zeros((self.cap,) + block.shape[1:], block.dtype)
             self.count = 0
@@ -298,27 +283,31 @@ class _Rows(_Ring):
         self.count += k
 
     def last(self):
-        """A copy of the last ``held`` rows (fewer before that many were appended), oldest
+        """A copy of the last ``n`` rows (fewer before that many were appended), oldest
         first; None before the first."""
-        def read(n):
-            rows = self.rows
+        while True:
+            n, rows = self.count, self.rows
             if not n or rows is None:
                 return None
-            return rows[np.arange(n - min(n, self.held), n) % self.cap]
+            out = rows[np.arange(n - min(n, self.n), n) % self.cap]
+            if self.count - n <= self.cap - self.n and rows is self.rows:
+                return out
 
-        return self._consistent(read)
 
-
-class _Trail(_Ring):
+class _Trail:
     """One sensor's trail: the last time, position and convergence of each of its last
-    ``held`` blocks, a :class:`_Ring` row per block written as the block is published
-    (:meth:`append`, three small writes) and read by :meth:`points`."""
+    ``held`` blocks, in a ring written by the session's thread as each block is published
+    (:meth:`append`, three small writes) and read by the view's (:meth:`points`). A row is
+    complete before the count that makes it visible is raised; the ring holds twice the rows
+    read, and a reader whose rows the writer may have reached meanwhile reads again."""
 
     def __init__(self, held: int):
-        super().__init__(held)
+        self.held = int(held)
+        self.cap = 2 * self.held
         self.t = np.full(self.cap, np.nan)
         self.p = np.zeros((self.cap, 3))
         self.ok = np.zeros(self.cap, dtype=bool)
+        self.count = 0                    # blocks appended so far
         from ..solve import Status
 
         self.converged = int(Status.CONVERGED)
@@ -334,7 +323,8 @@ class _Trail(_Ring):
         """The converged positions of the blocks held that end at most ``seconds`` before
         the newest one, at most ``most`` blocks evenly spaced (counted back from the newest,
         which is always in), oldest first: ``(K, 3)``; None before the first block."""
-        def read(n):
+        while True:
+            n = self.count
             if not n:
                 return None
             rows = np.arange(n - min(n, self.held), n) % self.cap
@@ -342,9 +332,10 @@ class _Trail(_Ring):
             recent = rows[t >= t[-1] - seconds]
             stride = max(1, -(-len(recent) // most))
             pick = recent[::-1][::stride]
-            return self.p[pick[self.ok[pick]][::-1]]        # a copy (fancy indexing)
-
-        return self._consistent(read)
+            pick = pick[self.ok[pick]][::-1]
+            out = self.p[pick]                      # a copy (fancy indexing)
+            if self.count - n <= self.cap - self.held:
+                return out
 
 
 def _sensor_states(names, lasts, windows, counts, trails) -> list:
