@@ -225,28 +225,29 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
                     A[p, q] = JtJ[p, q]
                 A[p, p] = JtJ[p, p] * (1.0 + lam) + 1e-300
             ok = cholesky_solve(A, g, npar, delta, Lc)
-            if ok and lam <= lam_small:
-                # converged: the Gauss-Newton step is below tolerance; apply it without a new
-                # evaluation (the cost changes by O(step^2), far below rounding of the test)
-                st2 = delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]
-                sr2 = 0.0
-                for c in range(nr):
-                    sr2 += delta[3 + c] * delta[3 + c]
-                tn = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-                if np.sqrt(st2) <= xtol * (tn + xtol) and np.sqrt(sr2) <= xtol:
-                    _trial(R, t, delta, basis, nr, n, lo, hi, free, t2, phi, dR, R2)
-                    _copy_pose(R2, t2, R, t)
-                    return cost, it, STOP_CONVERGED
             if ok:
-                # trust limit: one step moves the sensor by at most half its distance (keeps
-                # an unconstrained solve from running off to infinity, where C -> 0)
                 st2 = delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]
                 tn2 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2]
-                if st2 > 0.25 * tn2 and tn2 > 0.0 and not free:
+                # converged: the Gauss-Newton step is below tolerance; apply it without a new
+                # evaluation (the cost changes by O(step^2), far below rounding of the test)
+                converged = False
+                if lam <= lam_small:
+                    sr2 = 0.0
+                    for c in range(nr):
+                        sr2 += delta[3 + c] * delta[3 + c]
+                    converged = (np.sqrt(st2) <= xtol * (np.sqrt(tn2) + xtol)
+                                 and np.sqrt(sr2) <= xtol)
+                # trust limit: one step moves the sensor by at most half its distance (keeps
+                # an unconstrained solve from running off to infinity, where C -> 0)
+                if not converged and st2 > 0.25 * tn2 and tn2 > 0.0 and not free:
                     f = np.sqrt(0.25 * tn2 / st2)
                     for a in range(npar):
                         delta[a] *= f
+                # one trial-pose site for both (the step's code is inlined once, not twice)
                 _trial(R, t, delta, basis, nr, n, lo, hi, free, t2, phi, dR, R2)
+                if converged:
+                    _copy_pose(R2, t2, R, t)
+                    return cost, it, STOP_CONVERGED
                 # linear-rate prediction: if this step is much smaller than the previous
                 # accepted one and the step after it would be below tolerance, this is the
                 # last step; its Jacobian is not needed
