@@ -95,6 +95,14 @@ def test_ndi_comma_separated_and_bad_header(tmp_path):
     h.write_text("Port\tFrame\tState\tQ0\tQx\tQy\tQz\tTx\tTy\tTz\n1\t1\tOK\t0\t0\t0\t0\t1\t1\t1\n")
     with pytest.raises(ValueError, match="quaternion"):
         read_ndi_tsv(h)
+    # a frame number that is no integer (a fraction, or beyond int64) is refused by line,
+    # not cast to garbage
+    for frame in ("5.5", "1e30"):
+        k = tmp_path / "frame.csv"
+        k.write_text("Port,Frame,Face,State,Q0,Qx,Qy,Qz,Tx,Ty,Tz,Error,Markers\n"
+                     f"1,{frame},1,OK,1,0,0,0,1,2,3,0.1,0\n")
+        with pytest.raises(ValueError, match=r"expected an integer frame on line 2 .* got"):
+            read_ndi_tsv(k)
 
 
 def test_average_static_groups_and_jitter():

@@ -283,8 +283,15 @@ def read_ndi_tsv(path) -> NdiRecording:
         R = (Rotation.from_quat(q / norm[:, None], scalar_first=True).as_matrix() if n
              else np.zeros((0, 3, 3)))
 
-        def icol(name, col=col):
+        def icol(name, col=col, rows=rows):
             v = col(name)
+            # a count or a number: an integer (missing or non-finite: -1); another number
+            # (a fraction, or beyond int64) is refused rather than cast to garbage
+            bad = np.isfinite(v) & ((v != np.round(v)) | (np.abs(v) >= 2.0 ** 63))
+            if bad.any():
+                k = int(np.flatnonzero(bad)[0])
+                raise InputError(f"expected an integer {name} on line {rows[k][0]} of {path}, "
+                                 f"got {v[k]!r}")
             return np.where(np.isfinite(v), v, -1).astype(np.int64)
 
         tools.append(NdiTool(port=port, frame=icol("frame"), face=icol("face"),
