@@ -958,12 +958,13 @@ class TrackingPipeline:
             return
         streams = self._streams(steps, picks)
         if self.tdata:
+            from ._igtl_wire import MM_SCALE
             from ._tdata import pack_tdata
 
             M = np.stack([s[1] for s in streams], axis=1)          # (n, streams, 4, 4)
             valid = np.stack([s[2] for s in streams], axis=1)
-            M = np.where(valid[:, :, None, None], M, np.eye(4))    # unsent slots: finite
-            M[:, :, :3, 3] *= 1000.0                               # m -> mm (Slicer)
+            # unsent slots: finite; m -> mm (Slicer)
+            M = np.where(valid[:, :, None, None], M, np.eye(4)) * MM_SCALE
             data, count = pack_tdata(M, valid, [s[0] for s in streams], stamps,
                                      self.tdata_device)
             if count:
