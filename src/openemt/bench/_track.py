@@ -229,16 +229,15 @@ def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True):
     import subprocess
     import sys
 
-    from ..live import SimulatedBackend, tracker_sensors
+    from ..live import tracker_sensors
 
     names = [st.device for st in spec.streams()]
     sensors = None if prepared else [_unprepared(st) for st in tracker_sensors(spec)]
     with _session(spec, seconds, seed, chunk=chunk, sensors=sensors, max_queue=64,
                   metadata=metadata) as session:
-        backend = session.backend
-        while not isinstance(backend, SimulatedBackend):         # under the session's wrappers
-            backend = backend.backend
-        backend.simulate_ahead()           # the device's samples exist before they are read
+        # the device's samples exist before they are read (session.backend: the simulator
+        # itself, the session's wrappers are around it in session.source)
+        session.backend.simulate_ahead()
         srv = session.server
         client = subprocess.Popen([sys.executable, "-c", _CLIENT, str(srv.port),
                                    str(seconds * 20 + 30), ",".join(names)],
