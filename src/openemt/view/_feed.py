@@ -19,12 +19,11 @@ due for an update: :class:`~openemt.view.ViewProcess`'s thread, or the server's 
 - per sensor: the latest status, quadrature ratio, residual and pose, and its trail (the
   converged last pose of each block of the last ``history_seconds``, at most
   ``trail_points`` blocks evenly spaced, of its last ``history_blocks`` blocks). The
-  session's thread writes each block's last time, position and convergence into a small
-  per-sensor ring as it publishes the block (three small writes); a snapshot reads the ring
-  and holds no block for the trail. Blocks themselves are held only as far back as the
-  couplings window needs (a block held costs the session's caches; a walk over the blocks
-  of a view period cost the snapshot's thread the interpreter lock for a millisecond and
-  more at 50x real time).
+  session's thread writes each block's last time, position and convergence, and its
+  couplings, into two small per-sensor rings as it publishes the block; a snapshot reads the
+  rings. No block is held but each sensor's newest (a block held costs the session's caches;
+  a walk over the blocks of a view period cost the snapshot's thread the interpreter lock
+  for a millisecond and more at 50x real time).
 
 :meth:`LiveFeed.gather` collects these inputs in the session's process (references, the
 ring, one concatenation of the raw chunks); :func:`compute_snapshot` turns them into the
