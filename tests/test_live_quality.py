@@ -504,3 +504,31 @@ def test_v2_packing_equals_pyigtl_for_any_metadata(meta, n, per_message_names):
                       for k, v in meta.items()}
         want.append(m.pack())
     assert pack_transforms_v2(P, ts, names, meta) == b"".join(want)
+
+
+def test_bench_track_pin_moves_the_viewer_and_refuses_one_cpu(monkeypatch, capsys):
+    """``bench track --pin``: the viewer process is put on its own CPU; with fewer than two
+    CPUs the option is refused (exit 2, one line naming what arrived)."""
+    import os
+
+    import openemt.bench._track as bt
+    import openemt.cli as cli_mod
+
+    if len(os.sched_getaffinity(0)) >= 2:
+        calls, real = [], os.sched_setaffinity
+
+        def spy(pid, cpus):
+            calls.append((pid, set(cpus)))
+            return real(pid, cpus)
+
+        monkeypatch.setattr(os, "sched_setaffinity", spy)
+        spec = bt._spec("concentric", 1)
+        cpu = sorted(os.sched_getaffinity(0))[1]
+        s, send, _, _ = bt._latency_run(spec, 0.2, 640, 0, viewer_cpu=cpu)
+        assert len(send) > 0
+        assert len(calls) == 1 and calls[0][0] != 0 and calls[0][1] == {cpu}
+        monkeypatch.setattr(os, "sched_setaffinity", real)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
+    code = cli_mod.main(["bench", "track", "--pin", "--json", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "expected 2 CPUs or more for --pin" in err and "got 1" in err
