@@ -82,8 +82,11 @@ def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol, C, dp, du, fresh):
     Cn = np.empty(nc)
     dpn = np.empty((nc, 3))
     dun = np.empty((nc, 3))
+    # True at run time, typed bool: the one coupling_point specialisation every kernel calls
+    # (a literal True compiles a second, about 1.2 s of CPU on an empty cache)
+    grad = nc >= 0
     if not fresh:
-        coupling_point(S, off, g, p, u, nodes, wts, C, dp, du, True)
+        coupling_point(S, off, g, p, u, nodes, wts, C, dp, du, grad)
     cost = 0.0
     for i in range(nc):
         cost += ((c[i] - C[i]) * inv) ** 2
@@ -140,7 +143,7 @@ def _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol, C, dp, du, fresh):
             small = step <= xtol and ang <= xtol
             if small:
                 break               # the current point is within xtol of the minimum
-            coupling_point(S, off, g, pn, un, nodes, wts, Cn, dpn, dun, True)
+            coupling_point(S, off, g, pn, un, nodes, wts, Cn, dpn, dun, grad)
             cn2 = 0.0
             for i in range(nc):
                 cn2 += ((c[i] - Cn[i]) * inv) ** 2
@@ -247,6 +250,10 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
     model_ok = False
     order = np.empty(min(n_tries, F.shape[0]), dtype=np.int64)
     prev_ok = False
+    # False at run time, typed bool: a literal False given to _lm (or a variable that starts
+    # as one) would compile a second specialisation of it, numba trying the literal type
+    # first (about 2.5 s of CPU on an empty cache)
+    not_fresh = N < 0
     for k in range(N):
         c = Cm[k]
         ok = True
@@ -271,7 +278,7 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
         warm = mode == 0 or (mode == 2 and prev_ok)
         kept_last = False            # pos[k] is where the last LM run ended (C, dp, du valid)
         if warm:
-            fresh = False
+            fresh = not_fresh
             if mode == 0:
                 p[:] = P0[k]
                 u[:] = U0[k]
@@ -297,7 +304,7 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
                 p[:] = Pg[j]
                 u[:] = cand[j]
                 it, hit = _lm(S, off, g, nodes, wts, c, p, u, probe_iter, xtol, C, dp, du,
-                              False)
+                              not_fresh)
                 total += it
                 for i in range(nc):
                     Cp[i, 0] = C[i]
@@ -310,7 +317,8 @@ def _batch(S, off, g, nodes, wts, Cm, P0, U0, mode, F, Pg, min_sep, n_tries, max
             if brho < np.inf:
                 p[:] = bp
                 u[:] = bu
-                it, hit = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol, C, dp, du, False)
+                it, hit = _lm(S, off, g, nodes, wts, c, p, u, max_iter, xtol, C, dp, du,
+                              not_fresh)
                 total += it
                 for i in range(nc):
                     Cp[i, 0] = C[i]
