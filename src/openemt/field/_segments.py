@@ -186,7 +186,16 @@ def coupling_point(S, offsets, gains, p, u, s_nodes, s_weights, C, dCdp, dCdu, g
                 C[i] += w * (b[0] * u[0] + b[1] * u[1] + b[2] * u[2])
 
 
+def _readonly(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``: the kernels then see one array type whatever the caller
+    passed (a writable and a read-only array would each compile a specialisation)."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 def _check_segments(segments, offsets):
+    """Checked segments and offsets, read-only views (:func:`_readonly`)."""
     S = np.ascontiguousarray(segments, dtype=np.float64)
     if S.ndim != 3 or S.shape[1:] != (2, 3) or not np.all(np.isfinite(S)):
         raise InputError(f"expected finite segments of shape (S, 2, 3), got {S.shape}")
@@ -195,7 +204,7 @@ def _check_segments(segments, offsets):
             or np.any(np.diff(off) < 0):
         raise InputError(f"expected coil offsets from 0 to {len(S)} (non-decreasing), got "
                          f"{off.tolist()[:10]}")
-    return S, off
+    return _readonly(S), _readonly(off)
 
 
 def segment_fields(segments, offsets, points, *, gradient=False):
@@ -231,7 +240,8 @@ def segment_coupling(segments, offsets, gains, points, axes, *, sensor_length=0.
     P = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     U = np.asarray(axes, dtype=np.float64).reshape(-1, 3)
     U = np.ascontiguousarray(U / np.linalg.norm(U, axis=1, keepdims=True))
-    g = np.ascontiguousarray(np.broadcast_to(np.asarray(gains, np.float64), (len(off) - 1,)))
+    g = _readonly(np.ascontiguousarray(np.broadcast_to(np.asarray(gains, np.float64),
+                                                       (len(off) - 1,))))
     nodes, weights = sensor_rule(float(sensor_length))
     return _coupling_batch(S, off, g, P, U, nodes, weights, gradient, gradient)
 

@@ -171,6 +171,9 @@ def _name_bytes(name: str, size: int) -> np.ndarray:
     out = np.zeros(size, np.uint8)
     raw = name.encode("ascii")[:size]
     out[:len(raw)] = np.frombuffer(raw, np.uint8)
+    # cached, so read-only; and one array type for the kernels, as _names_matrix's (a
+    # writable and a read-only name matrix each compiled a _frame_kernel)
+    out.flags.writeable = False
     return out
 
 
