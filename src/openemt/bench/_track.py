@@ -110,6 +110,8 @@ baseline
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import os
 import time
 
@@ -234,6 +236,25 @@ def _run_with_client(session):
     return s, wall
 
 
+@contextlib.contextmanager
+def _pinned(pin: bool):
+    """With ``pin``: this process on its first allowed CPU for the block (the threads and
+    processes started in it inherit that; :func:`_latency_run` moves the viewer), yielding
+    ``{"tracker_cpu", "viewer_cpu"}``; the CPUs it was allowed restored after. Without:
+    None."""
+    if not pin:
+        yield None
+        return
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if len(cpus) < 2:
+        raise InputError(f"expected 2 CPUs or more for --pin (Linux), got {len(cpus)}")
+    os.sched_setaffinity(0, {cpus[0]})
+    try:
+        yield {"tracker_cpu": cpus[0], "viewer_cpu": cpus[1]}
+    finally:
+        os.sched_setaffinity(0, set(cpus))
+
+
 def _latency_run(spec, seconds, chunk, seed, prepared=True, metadata=True, viewer_cpu=None):
     import subprocess
     import sys
@@ -281,30 +302,15 @@ def run(args) -> dict:
                          f"got {seconds}, {args.noise_seconds} and {args.rate_seconds}")
     spec = _spec(args.preset, int(args.sensors))
 
-    pinned, allowed = None, None
-    if args.pin:
-        cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-        if len(cpus) < 2:
-            raise InputError(f"expected 2 CPUs or more for --pin (Linux), got {len(cpus)}")
-        allowed = set(cpus)
-        pinned = {"tracker_cpu": cpus[0], "viewer_cpu": cpus[1]}
-        # the threads and processes started from here on inherit it (the viewer is moved)
-        os.sched_setaffinity(0, {cpus[0]})
-    viewer = None if pinned is None else pinned["viewer_cpu"]
-    try:
+    with _pinned(args.pin) as pinned:
+        run_ = functools.partial(_latency_run, spec, seed=args.seed,
+                                 viewer_cpu=None if pinned is None else pinned["viewer_cpu"])
         # compile / load every numba kernel the pipeline uses before anything is timed
-        _latency_run(spec, 0.05, args.chunk, args.seed, viewer_cpu=viewer)
-        s, send, wall, stats = _latency_run(spec, seconds, args.chunk, args.seed,
-                                            viewer_cpu=viewer)
-        s1, send1, wall1, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed,
-                                           viewer_cpu=viewer)
-        _, sendb, _, _ = _latency_run(spec, min(seconds, 1.0), 64, args.seed, prepared=False,
-                                      viewer_cpu=viewer)
-        _, sendv1, _, _ = _latency_run(spec, seconds, args.chunk, args.seed, metadata=False,
-                                       viewer_cpu=viewer)
-    finally:
-        if allowed is not None:
-            os.sched_setaffinity(0, allowed)
+        run_(0.05, args.chunk)
+        s, send, wall, stats = run_(seconds, args.chunk)
+        s1, send1, wall1, _ = run_(min(seconds, 1.0), 64)
+        _, sendb, _, _ = run_(min(seconds, 1.0), 64, prepared=False)
+        _, sendv1, _, _ = run_(seconds, args.chunk, metadata=False)
 
     def pct(a, q):
         return float(np.percentile(a, q)) if len(a) else None
