@@ -291,7 +291,7 @@ def read_ndi_tsv(path) -> NdiRecording:
             if bad.any():
                 k = int(np.flatnonzero(bad)[0])
                 raise InputError(f"expected an integer {name} on line {rows[k][0]} of {path}, "
-                                 f"got {v[k]!r}")
+                                 f"got {float(v[k])!r}")
             return np.where(np.isfinite(v), v, -1).astype(np.int64)
 
         tools.append(NdiTool(port=port, frame=icol("frame"), face=icol("face"),
