@@ -304,7 +304,7 @@ def _acceptable(cost, res_fac, fn, opts):
             and np.sqrt(cost) <= opts[O_RETRY_RELATIVE] * fn)
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
     """Solve one sample from the pose vector ``start``, with ILEMT's sign-flip retries if
     ``opts[O_RETRIES]``; the best pose goes to ``sw``'s ``Rb, tb`` (NaN if no run gave a
@@ -340,7 +340,7 @@ def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
     return best, total_it, best_stop
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _workspace(n_so, n_se):
     """Scratch of one solve: ``(lmw, sw, Cn, G)`` -- the LM run's arrays, the sample's poses
     ``(R, t, Rb, tb, v0, rv)``, the normalised coupling and spectral-norm scratch."""
@@ -358,7 +358,7 @@ def _workspace(n_so, n_se):
     return lmw, sw, np.empty((n_so, n_se)), np.empty((n_se, n_se))
 
 
-@njit(cache=True)
+@njit(inline="always")
 def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, sw, lmw, out):
     """Store sample ``k``'s best pose (in ``sw``) and judge it by the validity rule, with the
     residuals evaluated at the pose stored and the couplings' own scale."""
@@ -458,27 +458,37 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
             if dt2 < 1e-4 and dr2 < 1e-2:
                 for a in range(6):
                     guess[a] = 2.0 * prev[a] - prev2[a]
-        cost, it, stop = _solve_sample(geo, Cn, res_fac, fn, guess, nvec[k], box, plain, sw,
-                                       lmw)
-        if not _acceptable(cost, res_fac, fn, opts) and (use_cf or retries):
-            for a in range(6):  # element by element: a slice copy compiles a shape check
-                start[a] = prev[a]
-            if use_cf:
-                for a in range(3):
-                    ncf[a] = nvec[k, a]
-                if ncf[0] == 0.0 and ncf[1] == 0.0 and ncf[2] == 0.0:
-                    ncf[0] = 1.0
-                if closed_form_start(mdl, kim18, Cn, W, opts[O_CF_GAIN] / s, ncf,
-                                     opts[O_RANK_TOL], R, t, cws) != ST_INVALID_INPUT:
-                    rotvec_from_matrix(R, rv)
+        # the plain try from the guess, then (if it fails the retry test) the restart: one
+        # _solve_sample call site, so that its code is compiled once into this kernel
+        cost = np.inf
+        it = 0
+        stop = STOP_ITERATION_LIMIT
+        run_opts = plain
+        run_start = guess
+        for attempt in range(2):
+            if attempt == 1:
+                if _acceptable(cost, res_fac, fn, opts) or not (use_cf or retries):
+                    break
+                for a in range(6):  # element by element: a slice copy compiles a shape check
+                    start[a] = prev[a]
+                if use_cf:
                     for a in range(3):
-                        start[a] = t[a]
-                        start[3 + a] = rv[a]
-            _copy_pose(Rb, tb, Rsave, tsave)
-            cost2, it2, stop2 = _solve_sample(geo, Cn, res_fac, fn, start, nvec[k], box, opts,
-                                              sw, lmw)
+                        ncf[a] = nvec[k, a]
+                    if ncf[0] == 0.0 and ncf[1] == 0.0 and ncf[2] == 0.0:
+                        ncf[0] = 1.0
+                    if closed_form_start(mdl, kim18, Cn, W, opts[O_CF_GAIN] / s, ncf,
+                                         opts[O_RANK_TOL], R, t, cws) != ST_INVALID_INPUT:
+                        rotvec_from_matrix(R, rv)
+                        for a in range(3):
+                            start[a] = t[a]
+                            start[3 + a] = rv[a]
+                _copy_pose(Rb, tb, Rsave, tsave)
+                run_opts = opts
+                run_start = start
+            cost2, it2, stop2 = _solve_sample(geo, Cn, res_fac, fn, run_start, nvec[k], box,
+                                              run_opts, sw, lmw)
             it += it2
-            if cost2 < cost:
+            if attempt == 0 or cost2 < cost:
                 cost = cost2
                 stop = stop2
             else:
