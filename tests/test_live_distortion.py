@@ -110,9 +110,11 @@ def test_status_line_on_a_terminal_and_not(monkeypatch):
         assert text.endswith("\n")
 
 
-def test_track_announces_the_compile_before_tracking(monkeypatch, capsys):
+@pytest.mark.parametrize("filtered", [False, True])
+def test_track_announces_the_compile_before_tracking(monkeypatch, capsys, filtered):
     """``track`` calls the shared compile notice (openemt._compile_notice) with the solver and
-    live kernels before its first chunk; a stand-in module records the call."""
+    live kernels before its first chunk, less those it never runs (the check of complex
+    couplings; the filter's kernel without a filter); a stand-in module records the call."""
     import openemt.cli as cli_mod
 
     calls = []
@@ -122,14 +124,16 @@ def test_track_announces_the_compile_before_tracking(monkeypatch, capsys):
         print(f"compiling {what} (first run only, about {seconds:g} s)", file=sys.stderr)
         return True
 
-    fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k",), COLD_START_KERNELS=("c:k",),
-                                 LIVE_KERNELS=("l:k",), PLANAR_KERNELS=("p:k",),
+    fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k", "x:k"), COLD_START_KERNELS=("c:k",),
+                                 LIVE_KERNELS=("f:k", "l:k"), PLANAR_KERNELS=("p:k",),
+                                 COMPLEX_KERNELS=("x:k",), FILTER_KERNELS=("f:k",),
                                  announce_compile=announce_compile)
     monkeypatch.setitem(sys.modules, "openemt._compile_notice", fake)
     assert cli_mod.main(["track", "--source", "sim", "--no-igtl", "--duration", "0.05",
-                         "--fast"]) == 0
+                         "--fast"] + (["--filter", "kalman"] if filtered else [])) == 0
     err = capsys.readouterr().err.splitlines()
-    assert calls == [("solver kernels", ("s:k", "c:k", "l:k"))]
+    expected = ("s:k", "c:k", "f:k", "l:k") if filtered else ("s:k", "c:k", "l:k")
+    assert calls == [("solver kernels", expected)]
     i = err.index("compiling solver kernels (first run only, about 30 s)")
     assert err[i + 1].startswith("tracking 1 sensor(s)")
     assert err[i + 2].startswith("tracked 74 samples")

@@ -28,8 +28,9 @@ import contextlib
 import importlib
 import sys
 
-__all__ = ["COLD_START_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
-           "announce_compile", "cold_kernels", "compile_kernels", "serial_threads"]
+__all__ = ["COLD_START_KERNELS", "COMPLEX_KERNELS", "FILTER_KERNELS", "LIVE_KERNELS",
+           "PLANAR_KERNELS", "SOLVER_KERNELS", "announce_compile", "cold_kernels",
+           "compile_kernels", "serial_threads"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -41,6 +42,12 @@ SOLVER_KERNELS = (
     "openemt.solve._closed_form:_closed_form_batch",
     "openemt.solve._lm:lm_batch",
 )
+
+#: The closed forms' check of complex couplings (ILEMT's recordings are complex): in
+#: :data:`SOLVER_KERNELS` for the commands that read recordings; a command whose couplings are
+#: real by construction (``demo``: simulated; ``track``: the live pipeline solves the real
+#: or signed parts) leaves it out, as it never runs it.
+COMPLEX_KERNELS = ("openemt.solve._closed_form:_complex_norms",)
 
 #: The finite-coil (board) model and its 5-DOF solver (``calibrate --mode planar``, board
 #: ``solve``, ``report`` and ``track``).
@@ -55,9 +62,10 @@ COLD_START_KERNELS = ("openemt.solve._cold_start:table_candidates",)
 
 #: The live path beside the solvers' kernels: the tracking filter, the per-pose distortion
 #: levels and OpenIGTLink packing (``track`` calls ``SOLVER_KERNELS + COLD_START_KERNELS +
-#: LIVE_KERNELS`` for dipole sensors, ``LIVE_KERNELS + PLANAR_KERNELS`` for board sensors; the
-#: packing kernels run when the first client connects, so they are compiled before the stream
-#: starts rather than during it).
+#: LIVE_KERNELS`` for dipole sensors, ``LIVE_KERNELS + PLANAR_KERNELS`` for board sensors, less
+#: :data:`COMPLEX_KERNELS` and, without a filter, :data:`FILTER_KERNELS`; the packing kernels
+#: run when the first client connects, so they are compiled before the stream starts rather
+#: than during it).
 LIVE_KERNELS = (
     "openemt.live._filter:_kalman_kernel",
     "openemt.live._igtl_wire:_pack_kernel",
@@ -67,6 +75,10 @@ LIVE_KERNELS = (
     "openemt.live._igtl_meta:_levels",
     "openemt.signal._demod:_ratios",
 )
+
+#: The tracking filter's kernel, in :data:`LIVE_KERNELS`: ``track`` compiles it only when a
+#: sensor has a filter.
+FILTER_KERNELS = ("openemt.live._filter:_kalman_kernel",)
 
 
 def _is_cached(dispatcher) -> bool | None:

@@ -375,6 +375,8 @@ def announce_compile_for(out, sensors) -> None:
     (:class:`~openemt.live.SensorSetup`) compile: the first run after installation."""
     from .._compile_notice import (
         COLD_START_KERNELS,
+        COMPLEX_KERNELS,
+        FILTER_KERNELS,
         LIVE_KERNELS,
         PLANAR_KERNELS,
         SOLVER_KERNELS,
@@ -386,6 +388,12 @@ def announce_compile_for(out, sensors) -> None:
     kernels = (SOLVER_KERNELS + COLD_START_KERNELS if dipole else ()) + LIVE_KERNELS
     if any(s.solver is not None for s in sensors):      # a board sensor
         kernels += PLANAR_KERNELS
+    # not those it never runs: the check of complex couplings (it solves real ones), and the
+    # filter's kernel when no sensor has a filter
+    skip = set(COMPLEX_KERNELS)
+    if not any(getattr(s.filter, "enabled", False) for s in sensors):
+        skip.update(FILTER_KERNELS)
+    kernels = tuple(k for k in kernels if k not in skip)
     announce_compile(out, "solver kernels", kernels=kernels)
 
 
