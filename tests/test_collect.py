@@ -172,6 +172,29 @@ def _collect(run_cli, tmp_path, *extra, n=4):
     return code, (json.loads(stdout) if stdout else None), err, out
 
 
+def test_collect_announces_the_kernels_it_compiles(run_cli, tmp_path, monkeypatch):
+    """The compile step names the cold start's kernel, which collect's first solve runs (it
+    compiled after the notice before), and not the check of complex couplings (the pipeline
+    solves real ones)."""
+    import openemt._compile_notice as notice
+
+    calls = []
+    real = notice.announce_compile
+
+    def announce(out=None, what="solver kernels", *, kernels=(), seconds=None):
+        calls.append(tuple(kernels))
+        return real(out, what, kernels=kernels, seconds=seconds)
+
+    monkeypatch.setattr(notice, "announce_compile", announce)
+    code, _, err, _ = _collect(run_cli, tmp_path, "--simulate-reference", "robot")
+    assert code == 0, err
+    assert len(calls) == 1
+    assert set(notice.COLD_START_KERNELS) <= set(calls[0])
+    assert not set(notice.COMPLEX_KERNELS) & set(calls[0])
+    assert set(calls[0]) == (set(notice.SOLVER_KERNELS + notice.COLD_START_KERNELS)
+                             - set(notice.COMPLEX_KERNELS))
+
+
 def test_collect_simulated_robot_end_to_end(run_cli, tmp_path):
     code, s, err, out = _collect(run_cli, tmp_path, "--simulate-reference", "robot")
     assert code == 0, err
