@@ -79,3 +79,32 @@ def test_quiet_says_nothing(argv, sim, tmp_path, capsys):
     argv = [a.format(tmp=tmp_path, sim=sim) for a in argv]
     assert main([*argv, "--quiet"]) == 0
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("given", [False, True])
+def test_solve_announces_the_kernels_it_runs(given, tmp_path, capsys, monkeypatch):
+    """``solve``'s compile step names the cold start's kernel where its Kim18 start is the
+    invariant table's (a source with coil offsets, no concentric calibration given), which
+    compiled after the notice before; not where a concentric calibration starts it."""
+    import openemt._compile_notice as notice
+
+    assert main(["simulate", "--preset", "dipole-approx", "--pattern", "ld", "--seed", "3",
+                 "-o", str(tmp_path / "d.h5"), "--truth-calibration", str(tmp_path / "t.json"),
+                 "--quiet"]) == 0
+    calls = []
+    monkeypatch.setattr(notice, "announce_compile",
+                        lambda out, what, *, kernels: calls.append((what, tuple(kernels))))
+    start = []
+    if given:                               # the same source with its coil offsets dropped
+        import numpy as np
+
+        from openemt.io import read_calibration, write_calibration
+
+        cal = read_calibration(tmp_path / "t.json")
+        write_calibration(cal.replace(model=cal.model.replace(
+            L_so=np.zeros((3, 3)), L_se=np.zeros((3, 3)))), tmp_path / "c.json")
+        start = ["--concentric-calibration", str(tmp_path / "c.json")]
+    assert main(["solve", str(tmp_path / "d.h5"), "--calibration", str(tmp_path / "t.json"),
+                 "-o", str(tmp_path / "p.h5"), "--quiet", *start]) == 0
+    table = () if given else notice.COLD_START_KERNELS
+    assert calls == [("solver kernels", notice.SOLVER_KERNELS + table)]

@@ -24,15 +24,14 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from .._compile_notice import PLANAR_KERNELS, announce_compile
+    from .._compile_notice import announce_compile
     from ..solve import SolveFileOptions, solve_file
     from ._common import emit, options_from
 
     progress = _Progress(args)
 
-    def start(n, kind):
-        announce_compile(args, f"{kind} kernels",
-                         **({"kernels": PLANAR_KERNELS} if kind != "solver" else {}))
+    def start(n, what, kernels):
+        announce_compile(args, what, kernels=kernels)
         progress.start(n)
 
     try:

@@ -70,6 +70,15 @@ def _uniform(hemisphere) -> bool:
     return a.dtype.kind in "iuf" and a.shape == (3,)
 
 
+def uses_invariant_table(model, concentric_given: bool, retry_resnorm=None) -> bool:
+    """Whether the LM solver's Kim18 start of ``model`` is the cold start of the invariant
+    table (``_table_solve``, the ``table_candidates`` kernel): a 3x3 dipole model with coil
+    offsets, no concentric model given, and not the paper's procedure (``retry_resnorm``: its
+    Kim18 start and retries are kept as ILEMT has them)."""
+    return (not concentric_given and not model.is_concentric and model.n_source == 3
+            and model.n_sensor == 3 and retry_resnorm is None)
+
+
 class PreparedLM:
     """:func:`openemt.solve.solve_lm` for one model and one set of options, prepared once.
 
@@ -167,11 +176,9 @@ class PreparedLM:
         return cold_start_name(self)
 
     def _use_table(self) -> bool:
-        """The Kim18 start is the cold start of the invariant table (``_table_solve``): a 3x3
-        model with coil offsets, no concentric model given, and not the paper's procedure
-        (``retry_resnorm``: its Kim18 start and retries are kept as ILEMT has them)."""
-        return (not self.concentric_given and not self.model.is_concentric
-                and self.n_source == 3 and self.n_sensor == 3 and self.retry_resnorm is None)
+        """The Kim18 start is the cold start of the invariant table (``_table_solve``):
+        :func:`uses_invariant_table`."""
+        return uses_invariant_table(self.model, self.concentric_given, self.retry_resnorm)
 
     def _constants(self, n: int):
         if self._neg.shape[0] < n:
