@@ -74,6 +74,8 @@ def _doc(tmp_path):
     (lambda d: d["model"].update(L_so=[[1, 2], [3, 4]]), r"`model.L_so` of shape \(3, n\)"),
     (lambda d: d["model"].update(L_so="abc"), r"expected `model.L_so` to be list"),
     (lambda d: d["model"].update(n_source=5), r"expected `model.n_source` = 3"),
+    (lambda d: d["model"].update(kind=[None]),
+     r"expected `model.kind` in \['dipole', 'finite', 'octupole'\], got \[None\]"),
     (lambda d: d.update(schema="other"), r"expected schema 'openemt.calibration', got 'other'"),
     (lambda d: d.update(schema_version=7), r"expected schema_version 1..1, got 7"),
     (lambda d: d.update(linear_correction=[[1, 0], [0, 1]]), r"`linear_correction` of shape"),

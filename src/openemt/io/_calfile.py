@@ -167,7 +167,7 @@ def calibration_from_dict(doc, source: str = "") -> Calibration:
                          f"got {version!r}")
     model = _get(doc, "model", src, dict)
     kind = model.get("kind", "dipole")
-    if kind not in MODEL_CODECS:
+    if not isinstance(kind, str) or kind not in MODEL_CODECS:
         raise InputError(f"{_where(src)}expected `model.kind` in {sorted(MODEL_CODECS)}, got "
                          f"{kind!r}")
     dm = MODEL_CODECS[kind][1](model, src)
