@@ -50,6 +50,32 @@ def test_fusion_streamed_block_by_block_equals_the_batch():
     np.testing.assert_allclose(stage(B[50:60])[0][0], B[50, 1].real, atol=1e-12)
 
 
+@pytest.mark.parametrize("tc", [0.0, 0.05])
+def test_fusion_of_extreme_values_streamed_equals_the_batch(tc):
+    """Differences near the largest double (a 1e300 sample beside ordinary ones): the live
+    path (short blocks, a sample with a non-finite band) and the filter path compute the same
+    recursion, so a stream cut into blocks gives the batch result (with ``tc = 0`` the
+    low-pass is the difference itself; its old form y + (d - y) lost it)."""
+    rng = np.random.default_rng(5)
+    fast = rng.standard_normal((30, 2, 2))
+    slow = fast + 0.01 * rng.standard_normal(fast.shape)
+    slow[4, 0, 0] = 1e300
+    slow[9, 1, 1] = -1e300
+    slow[20, 0, 1] = np.nan
+    whole = fuse_bands(fast, slow, time_constant=tc, rate=150.0)
+    parts, state = [], None
+    for a, b in ((0, 5), (5, 11), (11, 30)):
+        out, state = fuse_bands(fast[a:b], slow[a:b], time_constant=tc, rate=150.0,
+                                state=state, return_state=True)
+        parts.append(out)
+    streamed = np.concatenate(parts)
+    assert np.isfinite(whole).all() and np.isfinite(streamed).all()
+    np.testing.assert_allclose(streamed, whole, rtol=1e-12, atol=0)
+    if tc == 0.0:                       # no low-pass: the slow band where its sample is finite
+        good = np.isfinite(slow).all(axis=(1, 2))
+        np.testing.assert_allclose(whole[good], slow[good], rtol=1e-15, atol=0)
+
+
 def test_band_stage_methods():
     rng = np.random.default_rng(4)
     B = _random_bands(20, rng)

@@ -221,7 +221,10 @@ def fuse_bands(fast, slow, *, time_constant: float, rate: float, state=None,
         y = state
         for k in range(len(d)):
             if good[k]:
-                y = d[k] if y is None else y + alpha * (d[k] - y)
+                # lfilter's recursion below, term for term (alpha = 1: the difference itself;
+                # y + alpha (d - y) overflowed where |d - y| exceeds the largest double, and
+                # rounded differently: a stream cut into blocks gave another result)
+                y = d[k] if y is None else alpha * d[k] + (1.0 - alpha) * y
             low[k] = np.nan if y is None else y
         out = a + low
         return (out, None if y is None else np.array(y)) if return_state else out
