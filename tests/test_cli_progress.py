@@ -108,3 +108,20 @@ def test_solve_announces_the_kernels_it_runs(given, tmp_path, capsys, monkeypatc
                  "-o", str(tmp_path / "p.h5"), "--quiet", *start]) == 0
     table = () if given else notice.COLD_START_KERNELS
     assert calls == [("solver kernels", notice.SOLVER_KERNELS + table)]
+
+
+def test_solve_of_a_6dof_board_announces_the_lm_kernels_board_form(tmp_path, monkeypatch):
+    """A board read by a two-coil sensor is solved by the LM kernels' board specialisation:
+    the notice names it (it named the 5-DOF solver's kernels, and the LM's compiled in the
+    first block)."""
+    import openemt._compile_notice as notice
+
+    assert main(["simulate", "--preset", "anser-6dof", "--reference", "robot", "--n-poses",
+                 "30", "--seed", "1", "-o", str(tmp_path / "b.h5"), "--truth-calibration",
+                 str(tmp_path / "t.json"), "--quiet"]) == 0
+    calls = []
+    monkeypatch.setattr(notice, "announce_compile",
+                        lambda out, what, *, kernels: calls.append((what, tuple(kernels))))
+    assert main(["solve", str(tmp_path / "b.h5"), "--calibration", str(tmp_path / "t.json"),
+                 "-o", str(tmp_path / "p.h5"), "--quiet"]) == 0
+    assert calls == [("finite-coil kernels", notice.BOARD_LM_KERNELS)]

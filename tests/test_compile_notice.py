@@ -8,10 +8,12 @@ import io
 import os
 import subprocess
 import sys
+import types
 
 import pytest
 
 from openemt._compile_notice import (
+    BOARD_LM_KERNELS,
     COLD_START_KERNELS,
     LIVE_KERNELS,
     PLANAR_KERNELS,
@@ -82,25 +84,26 @@ def test_uninspectable_function_counts_as_cold(tmp_path, monkeypatch):
 def test_real_kernels_are_cold_with_an_empty_cache(tmp_path):
     probe = ("from openemt._compile_notice import *; "
              "print(len(cold_kernels(SOLVER_KERNELS + COLD_START_KERNELS + PLANAR_KERNELS "
-             "+ LIVE_KERNELS)))")
+             "+ LIVE_KERNELS + BOARD_LM_KERNELS)))")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
                          timeout=120, check=True)
     assert int(out.stdout) == len(SOLVER_KERNELS + COLD_START_KERNELS + PLANAR_KERNELS
-                                  + LIVE_KERNELS)
+                                  + LIVE_KERNELS + BOARD_LM_KERNELS)
     # looking compiled nothing: no cache index or data file was written
     assert [p.name for p in tmp_path.rglob("*.nb[ic]")] == []
 
 
 def _dispatcher(spec):
-    module, _, name = spec.partition(":")
+    module, _, name = spec.partition("@")[0].partition(":")
     return getattr(importlib.import_module(module), name)
 
 
 def test_every_announced_kernel_is_compiled_by_its_warm_up():
     from openemt._compile_notice import _WARM_UP
 
-    specs = SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS + PLANAR_KERNELS
+    specs = SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS + PLANAR_KERNELS \
+        + BOARD_LM_KERNELS
     for spec in specs:               # a kernel's module registers its warm-up when imported
         _dispatcher(spec)            # (as cold_kernels imports it); the packages load lazily
     assert set(specs) <= set(_WARM_UP)
@@ -108,6 +111,50 @@ def test_every_announced_kernel_is_compiled_by_its_warm_up():
         _WARM_UP[spec]()                         # compiles, or loads from the cache
         assert len(_dispatcher(spec).signatures) >= 1, spec
     assert cold_kernels(specs) == []
+    # the board variant's warm-up compiled the board specialisation of the LM kernels
+    from openemt.solve._model_kernels import is_board
+
+    for spec in ("openemt.solve._lm:lm_batch@board", "openemt.solve._lm:lm_track@board"):
+        assert any(is_board(sig[0]) for sig in _dispatcher(spec).signatures), spec
+
+
+class _FakeIndex:
+    """A dispatcher whose numba cache index holds entries of the given signatures."""
+
+    def __init__(self, *sigs):
+        index = {(sig, ("magic",), ("hash",)): None for sig in sigs}
+        self._cache = types.SimpleNamespace(
+            _cache_file=types.SimpleNamespace(_load_index=lambda: index))
+
+
+def test_a_variant_is_cached_only_with_its_own_specialisation():
+    """``lm_batch`` cached for a dipole model is cold for a board (``@board``), and the
+    reverse: each specialisation compiles on its own."""
+    from numba import types as nt
+
+    from openemt._compile_notice import _is_cached
+
+    array = nt.float64[:, ::1]
+    board = nt.Tuple((nt.float64[:, :, ::1], nt.int64[::1]) + (nt.float64[:, ::1],) * 6)
+    dipole_only, board_only = _FakeIndex((array, array)), _FakeIndex((board, array))
+    assert _is_cached(dipole_only) is True and _is_cached(dipole_only, "board") is False
+    assert _is_cached(board_only) is False and _is_cached(board_only, "board") is True
+    both = _FakeIndex((array, array), (board, array))
+    assert _is_cached(both) is True and _is_cached(both, "board") is True
+    assert _is_cached(_FakeIndex()) is False and _is_cached(_FakeIndex(), "board") is False
+    with pytest.raises(ValueError, match="expected a kernel variant in"):
+        cold_kernels(["openemt.solve._lm:lm_batch@other"])
+
+
+def test_model_kernels_name_each_models_solver():
+    from openemt._compile_notice import model_kernels
+    from openemt.board import BoardModel
+    from openemt.simulate import get_preset
+
+    assert model_kernels(get_preset("dipole-approx").dipole) == SOLVER_KERNELS
+    assert model_kernels(BoardModel.from_board("anser")) == PLANAR_KERNELS
+    assert model_kernels(BoardModel.from_board("anser-6dof")) == BOARD_LM_KERNELS
+    assert model_kernels(object()) == ()
 
 
 def test_after_the_warm_up_track_compiles_nothing_more(capsys):

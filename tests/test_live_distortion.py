@@ -127,6 +127,7 @@ def test_track_announces_the_compile_before_tracking(monkeypatch, capsys, filter
     fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k", "x:k"), COLD_START_KERNELS=("c:k",),
                                  LIVE_KERNELS=("f:k", "l:k"), PLANAR_KERNELS=("p:k",),
                                  COMPLEX_KERNELS=("x:k",), FILTER_KERNELS=("f:k",),
+                                 model_kernels=lambda model: ("b:k",),
                                  announce_compile=announce_compile)
     monkeypatch.setitem(sys.modules, "openemt._compile_notice", fake)
     assert cli_mod.main(["track", "--source", "sim", "--no-igtl", "--duration", "0.05",

@@ -157,3 +157,17 @@ def test_planar_live_bench_small():
     assert out["planar_live_status_counts"] == converged_only(299)
     assert out["planar_live_realtime_factor"] > 0 and out["planar_live_latency_ms_p50"] > 0
     assert out["planar_live_position_error_mm_rms"] < 0.1
+
+
+def test_default_board_tracker_says_what_compiles_before_its_gain_fit(board_cal, monkeypatch):
+    """The default board tracker fits its sensor gain with the board's compiled coupling: the
+    compile notice comes first, with the board's kernels (they compiled before any notice)."""
+    import openemt.live._board as board_mod
+    from openemt._compile_notice import PLANAR_KERNELS
+
+    events = []
+    real_fit = board_mod.fit_sensor_gain
+    monkeypatch.setattr(board_mod, "fit_sensor_gain",
+                        lambda *a, **k: events.append("fit") or real_fit(*a, **k))
+    board_default_spec(board_cal, "Needle", compiling=lambda k: events.append(tuple(k)))
+    assert events == [PLANAR_KERNELS, "fit"]

@@ -28,9 +28,9 @@ import contextlib
 import importlib
 import sys
 
-__all__ = ["COLD_START_KERNELS", "COMPLEX_KERNELS", "FILTER_KERNELS", "LIVE_KERNELS",
-           "PLANAR_KERNELS", "SOLVER_KERNELS", "announce_compile", "cold_kernels",
-           "compile_kernels", "serial_threads"]
+__all__ = ["BOARD_LM_KERNELS", "COLD_START_KERNELS", "COMPLEX_KERNELS", "FILTER_KERNELS",
+           "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS", "announce_compile",
+           "cold_kernels", "compile_kernels", "model_kernels", "serial_threads"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -54,6 +54,16 @@ COMPLEX_KERNELS = ("openemt.solve._closed_form:_complex_norms",)
 PLANAR_KERNELS = (
     "openemt.field._segments:_coupling_batch_impl",
     "openemt.solve._planar:_batch",
+)
+
+#: The compiled LM kernels specialised for a board read by a sensor of 2 or 3 coils (6 DOF:
+#: ``solve`` and ``track`` of such a board), beside the board's coupling. ``@board`` names
+#: the specialisation: numba caches one entry per argument types, and the board's packed model
+#: is another type than a dipole model's.
+BOARD_LM_KERNELS = (
+    "openemt.field._segments:_coupling_batch_impl",
+    "openemt.solve._lm:lm_batch@board",
+    "openemt.solve._lm:lm_track@board",
 )
 
 #: The dipole solver's cold start from its invariant table (``track`` of a dipole sensor, the
@@ -81,8 +91,28 @@ LIVE_KERNELS = (
 FILTER_KERNELS = ("openemt.live._filter:_kalman_kernel",)
 
 
-def _is_cached(dispatcher) -> bool | None:
-    """True if numba's cache index of ``dispatcher`` holds an entry for its current source,
+def _board_signature(sig) -> bool:
+    from .solve._model_kernels import is_board
+
+    return bool(sig) and is_board(sig[0])
+
+
+#: Specialisations a kernel name may carry after ``@``: which cached signatures count.
+_VARIANTS = {"board": _board_signature}
+
+
+def _split(spec: str):
+    """``"module:function@variant"`` -> ``(dispatcher, variant or None)``."""
+    target, _, variant = str(spec).partition("@")
+    module, _, name = target.partition(":")
+    if variant and variant not in _VARIANTS:
+        raise ValueError(f"expected a kernel variant in {sorted(_VARIANTS)}, got {variant!r}")
+    return getattr(importlib.import_module(module), name), variant or None
+
+
+def _is_cached(dispatcher, variant=None) -> bool | None:
+    """True if numba's cache index of ``dispatcher`` holds an entry for its current source
+    whose signature is the ``variant``'s specialisation (without: one that is no variant's),
     False if it holds none (missing, stale or another numba version), None if this cannot be
     told (not a caching dispatcher, or numba's cache layout changed)."""
     cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
@@ -90,7 +120,10 @@ def _is_cached(dispatcher) -> bool | None:
     if load is None:
         return None
     try:
-        return bool(load())  # {} when missing, stale (source stamp) or of another version
+        index = load()  # {} when missing, stale (source stamp) or of another version
+        if variant is not None:
+            return any(_VARIANTS[variant](key[0]) for key in index)
+        return any(not any(v(key[0]) for v in _VARIANTS.values()) for key in index)
     except Exception:  # noqa: BLE001 - an unreadable index is a cold cache to numba as well
         return False
 
@@ -110,11 +143,20 @@ def cold_kernels(kernels=SOLVER_KERNELS) -> list[str]:
     """
     cold = []
     for spec in kernels:
-        module, _, name = str(spec).partition(":")
-        dispatcher = getattr(importlib.import_module(module), name)
-        if not _is_cached(dispatcher):
+        if not _is_cached(*_split(spec)):
             cold.append(spec)
     return cold
+
+
+def model_kernels(model) -> tuple:
+    """The compiled kernels that solve with ``model``: a dipole-family model's
+    (:data:`SOLVER_KERNELS`), a board's with a single-coil sensor (:data:`PLANAR_KERNELS`) or
+    with a sensor of 2 or 3 coils (:data:`BOARD_LM_KERNELS`); none for another model."""
+    if getattr(model, "solver_family", None) in ("dipole", "dipole-refined"):
+        return SOLVER_KERNELS
+    if hasattr(model, "board"):
+        return PLANAR_KERNELS if model.dof == 5 else BOARD_LM_KERNELS
+    return ()
 
 
 def _dipole_case():
@@ -166,6 +208,23 @@ def _warm_planar():
     solve_planar(model.coupling(P), model)
 
 
+def _warm_board_lm():
+    """The LM kernels' board specialisation: a 6-DOF board sensor tracked (``lm_track``) and
+    solved from given starts (``lm_batch``), as ``solve`` and ``track`` call them."""
+    import numpy as np
+
+    from .board import BoardModel
+    from .geometry import vector_from_pose
+    from .solve import prepare
+
+    model = BoardModel.from_board("anser-6dof")
+    P = np.repeat(np.eye(4)[None], 2, axis=0)
+    P[:, :3, 3] = [[0.0, 0.0, 0.12], [0.02, 0.01, 0.15]]
+    C = model.coupling(P)
+    prepare(model, initial="track")(C)
+    prepare(model)(C, vector_from_pose(P))
+
+
 def _warm_ratios():
     import numpy as np
 
@@ -187,6 +246,8 @@ _WARM_UP = {
     "openemt.solve._cold_start:table_candidates": lambda: _warm_dipole("table"),
     "openemt.field._segments:_coupling_batch_impl": _warm_planar,
     "openemt.solve._planar:_batch": _warm_planar,
+    "openemt.solve._lm:lm_batch@board": _warm_board_lm,
+    "openemt.solve._lm:lm_track@board": _warm_board_lm,
     "openemt.signal._demod:_ratios": _warm_ratios,
 }
 

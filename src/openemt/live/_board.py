@@ -101,12 +101,13 @@ def board_solver(model, **options):
 
 
 def board_default_spec(calibration, name: str = "Sensor", device_name: str | None = None, *,
-                       preset=None):
+                       preset=None, compiling=None):
     """The tracker of ``openemt track --calibration CAL`` without a tracker file when ``CAL``
     is a board calibration (else None): the shipped ``anser`` tracker (one sensor channel,
     one carrier and reference channel per coil) with that calibration, the sensor ``name``
     and device name (default ``<name>ToTracker``), and a sensor gain that puts the simulated
-    path's largest coupling at :data:`BOARD_PEAK_VOLTS`."""
+    path's largest coupling at :data:`BOARD_PEAK_VOLTS`. ``compiling(kernels)`` is told the
+    board's compiled kernels before that first runs them (a compile notice)."""
     from dataclasses import replace
     from pathlib import Path
 
@@ -126,6 +127,10 @@ def board_default_spec(calibration, name: str = "Sensor", device_name: str | Non
     if n > 27:
         raise InputError(f"expected a board of at most 27 coils for the default tracker (one "
                          f"carrier each below 48 kHz), got {n}: describe it in a tracker file")
+    if compiling is not None:
+        from .._compile_notice import model_kernels
+
+        compiling(model_kernels(cal.model))
     spec = read_tracker(example_tracker("anser"))
     freqs = board_frequencies(n)
     sensor = SensorSpec(name=name, channels=(0,), calibration=Path(calibration),

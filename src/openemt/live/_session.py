@@ -370,31 +370,35 @@ class _Console(StopSignals):
             self._width = 0
 
 
-def announce_compile_for(out, sensors) -> None:
-    """Say so (on stderr unless ``out.quiet``) before the solver kernels of ``sensors``
-    (:class:`~openemt.live.SensorSetup`) compile: the first run after installation."""
+def announce_compile_for(out, spec: TrackerSpec) -> None:
+    """Say so (on stderr unless ``out.quiet``) before the compiled kernels that tracking with
+    ``spec`` runs compile (the first run after installation), before its sensors' solvers are
+    prepared: the dipole solver's and its cold start's for a dipole sensor, a board's
+    (:func:`~openemt._compile_notice.model_kernels`) for a board sensor, and the live path's;
+    not the check of complex couplings (it solves real ones), nor the filter's kernel when no
+    sensor has a filter."""
     from .._compile_notice import (
         COLD_START_KERNELS,
         COMPLEX_KERNELS,
         FILTER_KERNELS,
         LIVE_KERNELS,
-        PLANAR_KERNELS,
         SOLVER_KERNELS,
         announce_compile,
+        model_kernels,
     )
 
-    # the dipole solver's kernels for dipole sensors, the finite-coil ones for board sensors
-    dipole = any(s.solver is None for s in sensors)
-    kernels = (SOLVER_KERNELS + COLD_START_KERNELS if dipole else ()) + LIVE_KERNELS
-    if any(s.solver is not None for s in sensors):      # a board sensor
-        kernels += PLANAR_KERNELS
-    # not those it never runs: the check of complex couplings (it solves real ones), and the
-    # filter's kernel when no sensor has a filter
+    kernels: tuple = ()
+    for cal in spec.calibrations():
+        model = None if cal is None else cal.model
+        if model is None or getattr(model, "cold_start", None) == "kim18":     # a dipole
+            kernels += SOLVER_KERNELS + COLD_START_KERNELS
+        else:                                                               # a board
+            kernels += model_kernels(model)
+    kernels = tuple(dict.fromkeys(kernels + LIVE_KERNELS))
     skip = set(COMPLEX_KERNELS)
-    if not any(getattr(s.filter, "enabled", False) for s in sensors):
+    if not any(getattr(s.filter or spec.filter, "enabled", False) for s in spec.sensors):
         skip.update(FILTER_KERNELS)
-    kernels = tuple(k for k in kernels if k not in skip)
-    announce_compile(out, "solver kernels", kernels=kernels)
+    announce_compile(out, "solver kernels", kernels=tuple(k for k in kernels if k not in skip))
 
 
 def default_tracker(options: TrackOptions) -> TrackerSpec:
@@ -414,7 +418,12 @@ def default_tracker(options: TrackOptions) -> TrackerSpec:
     given = options.device_name
     name = "Sensor" if given is None else device_from(given)
     if options.calibration is not None:          # a board calibration: docs/planar.md
-        board = board_default_spec(options.calibration, name, given, preset=options.preset)
+        from .._compile_notice import announce_compile
+
+        board = board_default_spec(
+            options.calibration, name, given, preset=options.preset,
+            compiling=lambda kernels: announce_compile(options, "finite-coil kernels",
+                                                       kernels=kernels))
         if board is not None:
             return board
     spec = read_tracker(example_tracker("simulated"))
@@ -543,9 +552,10 @@ class TrackingSession:
 
         o, spec = self.options, self.spec
         try:
+            # before the sensors' solvers are prepared (a board's solver computes its seed
+            # grid's fields) and the backend (a simulated one computes couplings)
+            announce_compile_for(o, spec)
             sensors = tracker_sensors(spec) if self._sensors is None else self._sensors
-            # before the backend: a simulated one computes couplings with the sensors' models
-            announce_compile_for(o, sensors)
             if o.log is not None:
                 self.log = TrackLogWriter(o.log, [s.name for s in sensors])
             try:

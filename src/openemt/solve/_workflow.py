@@ -158,11 +158,11 @@ def _compile_set(model, dipole: bool, initial, options) -> tuple[str, tuple]:
     """``(what, kernels)``: the compiled kernels a solve of ``model`` runs, named for the
     compile notice; the dipole solver's with its cold start's where the Kim18 start (also of
     the first and the lost samples of a tracked recording) is the invariant table's."""
-    from .._compile_notice import COLD_START_KERNELS, PLANAR_KERNELS, SOLVER_KERNELS
+    from .._compile_notice import COLD_START_KERNELS, SOLVER_KERNELS, model_kernels
     from ._prepared import uses_invariant_table
 
-    if not dipole:
-        return "finite-coil kernels", PLANAR_KERNELS
+    if not dipole:                  # a board: its 5-DOF solver, or the LM kernels' board form
+        return "finite-coil kernels", model_kernels(model)
     kernels = SOLVER_KERNELS
     if initial in ("kim18", "track") and uses_invariant_table(
             model, options.concentric_model is not None, options.retry_resnorm):
