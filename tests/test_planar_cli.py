@@ -248,3 +248,26 @@ def test_holdout_scheme_is_checked(tmp_path, capsys):
     write_grid_csv(GridData(pts, u, BoardModel.from_board("anser").coupling_points(pts, u)), grid)
     rc, _, err = _run(["calibrate", str(grid), "--mode", "planar", "--holdout", "0.3"], capsys)
     assert rc == 2 and "--holdout checkerboard" in err
+
+
+@pytest.mark.parametrize("environment", ["auto", "none"])
+def test_planar_calibrate_announces_the_induced_dipoles_kernel(environment, truth, tmp_path,
+                                                               capsys, monkeypatch):
+    """The environment terms' cross-validation tries induced dipoles, whose fields come from
+    the dipole model's Jacobian kernel: the compile notice names it (it compiled after the
+    notice before); without environment terms it is not compiled."""
+    import openemt._compile_notice as notice
+
+    pts, u = _grid()
+    C0 = truth.coupling_points(pts, u)
+    write_grid_csv(GridData(pts, u, _noisy(truth, pts, u, 1e-4 * np.abs(C0).max(), 3)),
+                   tmp_path / "grid.csv")
+    calls = []
+    real = notice.announce_compile
+    monkeypatch.setattr(notice, "announce_compile", lambda out, what, *, kernels, **kw: (
+        calls.append(tuple(kernels)), real(out, what, kernels=kernels, **kw))[1])
+    rc, _, err = _run(["calibrate", str(tmp_path / "grid.csv"), "--mode", "planar",
+                       "--environment", environment, "-o", str(tmp_path / "c.json")], capsys)
+    assert rc == 0, err
+    extra = notice.INDUCED_DIPOLE_KERNELS if environment == "auto" else ()
+    assert calls == [notice.PLANAR_KERNELS + extra]

@@ -29,8 +29,9 @@ import importlib
 import sys
 
 __all__ = ["BOARD_LM_KERNELS", "COLD_START_KERNELS", "COMPLEX_KERNELS", "FILTER_KERNELS",
-           "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS", "announce_compile",
-           "cold_kernels", "compile_kernels", "model_kernels", "serial_threads"]
+           "INDUCED_DIPOLE_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
+           "announce_compile", "cold_kernels", "compile_kernels", "model_kernels",
+           "serial_threads"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -55,6 +56,10 @@ PLANAR_KERNELS = (
     "openemt.field._segments:_coupling_batch_impl",
     "openemt.solve._planar:_batch",
 )
+
+#: The dipole model's Jacobian, which gives a board's induced dipoles (environment terms:
+#: ``calibrate --mode planar`` with ``--environment auto`` or dipoles).
+INDUCED_DIPOLE_KERNELS = ("openemt.field._dipole_kernel:dipole_batch_jac",)
 
 #: The compiled LM kernels specialised for a board read by a sensor of 2 or 3 coils (6 DOF:
 #: ``solve`` and ``track`` of such a board), beside the board's coupling. ``@board`` names

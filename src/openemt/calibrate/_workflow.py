@@ -179,7 +179,8 @@ def calibrate_dataset(options: CalibrateOptions, *, stage=None, compiling=None,
 
     t0 = time.perf_counter()
     if options.mode == "planar":
-        run = _planar(options, say, lambda: compile_("finite-coil kernels", PLANAR_KERNELS))
+        run = _planar(options, say,
+                      lambda extra=(): compile_("finite-coil kernels", PLANAR_KERNELS + extra))
     elif options.mode == "reference":
         run = _reference(options, nominal)
     else:
@@ -250,8 +251,13 @@ def _planar(o, say, compile_) -> CalibrateResult:
                          f"{' and one to hold out' if o.holdout else ''}, got "
                          f"{len(data.points)} points")
 
-    compile_()
     env = parse_environment(o.environment)
+    # the induced dipoles' fields (the cross-validated choice tries them) come from the dipole
+    # model's Jacobian kernel
+    from .._compile_notice import INDUCED_DIPOLE_KERNELS
+
+    compile_(INDUCED_DIPOLE_KERNELS if (env.mode == "auto" and not o.tilt) or env.dipoles
+             else ())
     tilt, dipoles, env_prov = bool(o.tilt or env.tilt), env.dipoles, None
     if env.mode == "auto" and not o.tilt:
         say(f"choosing the environment terms by cross-validation on {int(fit_mask.sum())} "
