@@ -153,13 +153,21 @@ def _main(argv):
         return 2
 
 
-def test_calibrate_reference_command(tmp_path, capsys):
+def test_calibrate_reference_command(tmp_path, capsys, monkeypatch):
+    import openemt._compile_notice as notice
+
     data = tmp_path / "robot.h5"
     write_dataset(simulate_reference(_exact(), "robot", 150, snr_db=80, seed=2), data)
     out = tmp_path / "cal.json"
+    calls = []
+    monkeypatch.setattr(notice, "announce_compile",
+                        lambda out, what, *, kernels: calls.append((what, tuple(kernels))))
     rc = _main(["calibrate", str(data), "--mode", "reference", "--holdout", "0.2", "--seed",
                 "3", "-o", str(out), "--json", "--quiet"])
     assert rc == 0
+    # the kernels it runs are compiled under the notice (this mode had none before)
+    assert calls == [("solver kernels", notice.SOLVER_KERNELS + notice.COLD_START_KERNELS)]
+    monkeypatch.undo()
     s = json.loads(capsys.readouterr().out)
     assert s["mode"] == "reference" and s["num_points"] == 120
     assert s["start"].startswith("nominal model") and s["start_xy"]["method"] == "hand-eye"

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import types
 
+import numpy as np
 import pytest
 
 from openemt._compile_notice import (
@@ -60,6 +61,39 @@ def test_cold_then_warm_then_stale(kernel_module):
     os.utime(path, (path.stat().st_atime, path.stat().st_mtime + 5))
     importlib.reload(mod)
     assert cold_kernels([spec]) == [spec]
+
+
+def test_watch_says_an_unannounced_compile_once(kernel_module):
+    """A compile that no notice announced (a set-up step's, on the side) is said once within
+    the watch; a compile under announce_compile is not said again; with --quiet nothing."""
+    from openemt._compile_notice import watch_compiles
+
+    mod, _, spec = kernel_module
+    out = io.StringIO()
+    with watch_compiles(out, "probe kernels") as seen:
+        assert mod.add_one(1) == 2                          # compiles: said
+        assert mod.add_one(2.5) == 3.5                      # another specialisation: not again
+    assert out.getvalue() == "compiling probe kernels (first run only) ...\n"
+    assert seen == [spec, spec]
+    with watch_compiles(out) as seen:                       # cached now: nothing compiles
+        mod.add_one(1)
+    assert seen == [] and out.getvalue().count("\n") == 1
+    quiet = argparse.Namespace(quiet=True)
+    with watch_compiles(quiet) as seen:
+        mod.add_one(np.int32(3))                            # compiles, said to no one
+    assert len(seen) == 1
+
+
+def test_watch_leaves_announced_compiles_to_their_notice(kernel_module, monkeypatch):
+    from openemt import _compile_notice as notice
+
+    mod, _, spec = kernel_module
+    monkeypatch.setitem(notice._WARM_UP, spec, lambda: mod.add_one(1))
+    out, said = io.StringIO(), io.StringIO()
+    with notice.watch_compiles(said) as seen:
+        assert notice.announce_compile(out, "probe kernels", kernels=[spec]) is True
+    assert out.getvalue() == "compiling 1 probe kernel (first run only) ...\n"
+    assert said.getvalue() == "" and seen == []
 
 
 def test_quiet_and_namespace(kernel_module, capsys):

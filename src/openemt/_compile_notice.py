@@ -31,7 +31,7 @@ import sys
 __all__ = ["BOARD_LM_KERNELS", "COLD_START_KERNELS", "COMPLEX_KERNELS", "FILTER_KERNELS",
            "INDUCED_DIPOLE_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
            "announce_compile", "cold_kernels", "compile_kernels", "model_kernels",
-           "serial_threads"]
+           "serial_threads", "watch_compiles"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -269,11 +269,63 @@ def compile_kernels(kernels) -> list[str]:
     cold before (:func:`cold_kernels`). A kernel without a warm-up call compiles on its first
     call, as before."""
     cold = cold_kernels(kernels)
-    for spec in cold:
-        warm = _WARM_UP.get(spec)
-        if warm is not None and spec in cold_kernels([spec]):   # one call may serve several
-            warm()
+    _ANNOUNCED[0] += 1
+    try:
+        for spec in cold:
+            warm = _WARM_UP.get(spec)
+            if warm is not None and spec in cold_kernels([spec]):   # one call may serve several
+                warm()
+    finally:
+        _ANNOUNCED[0] -= 1
     return cold
+
+
+#: Depth of :func:`compile_kernels` calls running: their compiles were announced.
+_ANNOUNCED = [0]
+
+
+def _say(out, line: str) -> bool:
+    """Print ``line`` as :func:`announce_compile` does; whether it was said."""
+    if callable(out) and not hasattr(out, "write"):
+        out(line)
+    elif getattr(out, "quiet", False):
+        return False
+    else:
+        stream = out if hasattr(out, "write") else sys.stderr
+        stream.write(line + "\n")
+        stream.flush()
+    return True
+
+
+@contextlib.contextmanager
+def watch_compiles(out=None, what: str = "kernels"):
+    """Within the block, the first numba compile that no :func:`announce_compile` announced
+    (one that a set-up step runs on the side, e.g. a simulated board preset's gain scale)
+    prints ``compiling {what} (first run only) ...`` (``out`` as for
+    :func:`announce_compile`), so that such a first run is not silent; nothing when nothing
+    compiles. Yields a list that collects the ``"module:function"`` of each such compile."""
+    from numba.core import event
+
+    seen: list = []
+
+    class _Watch(event.Listener):
+        def on_start(self, ev):
+            d = ev.data.get("dispatcher")
+            if _ANNOUNCED[0] or d is None:
+                return
+            if not seen:
+                _say(out, f"compiling {what} (first run only) ...")
+            seen.append(f"{d.py_func.__module__}:{d.py_func.__qualname__}")
+
+        def on_end(self, ev):
+            pass
+
+    watch = _Watch()
+    event.register("numba:compile", watch)
+    try:
+        yield seen
+    finally:
+        event.unregister("numba:compile", watch)
 
 
 def announce_compile(out=None, what: str = "solver kernels", *, kernels=SOLVER_KERNELS,
@@ -303,15 +355,7 @@ def announce_compile(out=None, what: str = "solver kernels", *, kernels=SOLVER_K
              else " ".join(["1", *noun[:-1], noun[-1].removesuffix("s")]))
     line = (f"compiling {label} (first run only"
             + (f", about {seconds:g} s" if seconds is not None else "") + ") ...")
-    said = True
-    if callable(out) and not hasattr(out, "write"):
-        out(line)
-    elif getattr(out, "quiet", False):
-        said = False
-    else:
-        stream = out if hasattr(out, "write") else sys.stderr
-        stream.write(line + "\n")
-        stream.flush()
+    said = _say(out, line)
     compile_kernels(cold)
     return said
 

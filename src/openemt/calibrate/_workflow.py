@@ -182,7 +182,7 @@ def calibrate_dataset(options: CalibrateOptions, *, stage=None, compiling=None,
         run = _planar(options, say,
                       lambda extra=(): compile_("finite-coil kernels", PLANAR_KERNELS + extra))
     elif options.mode == "reference":
-        run = _reference(options, nominal)
+        run = _reference(options, nominal, say, compile_)
     else:
         run = _rig(options, say, lambda: compile_("solver kernels"))
     total = time.perf_counter() - t0
@@ -453,13 +453,32 @@ def _reference_start(o, dataset, nominal):
     return nominal(preset), f"nominal model of preset {preset}"
 
 
-def _reference(o, nominal) -> CalibrateResult:
+def reference_kernels(model) -> tuple[str, tuple]:
+    """``(what, kernels)``: the compiled kernels a reference calibration of ``model`` runs
+    (its solves of the training and held-out rows; a board's per-coil cold starts run the
+    5-DOF solver), named for the compile notice."""
+    from .._compile_notice import COLD_START_KERNELS, PLANAR_KERNELS, model_kernels
+
+    kernels = model_kernels(model)
+    if hasattr(model, "board"):             # and the couplings' spectral norms (weights)
+        return "finite-coil kernels", tuple(dict.fromkeys(
+            kernels + PLANAR_KERNELS + ("openemt.solve._closed_form:_spectral_norms",)))
+    return "solver kernels", kernels + COLD_START_KERNELS
+
+
+def _reference(o, nominal, say, compile_) -> CalibrateResult:
+    from .._compile_notice import watch_compiles
     from ._reference import fit_reference, reference_poses
 
     dataset = load_dataset(o.dataset)
     reference_poses(dataset)                  # none: one error line, exit 2
-    start, start_path = _reference_start(o, dataset, nominal)
-    with warnings.catch_warnings(record=True) as caught:
+    # a simulated board preset's nominal start computes its gain scale with the board's
+    # compiled coupling: said when that compiles
+    with watch_compiles(say, "finite-coil kernels"):
+        start, start_path = _reference_start(o, dataset, nominal)
+    kind, kernels = reference_kernels(start.model)
+    compile_(kind, kernels)
+    with warnings.catch_warnings(record=True) as caught, watch_compiles(say):
         warnings.simplefilter("always")
         f = fit_reference(dataset, start, hemisphere=o.hemisphere,
                           freeze=_groups(o.freeze) or (), holdout=_fraction(o.holdout),
