@@ -51,7 +51,9 @@ def test_run_reports_first_use_and_cached(monkeypatch, tmp_path):
 
 def test_per_kernel_child_lists_every_announced_kernel():
     from openemt._compile_notice import (
+        BOARD_LM_KERNELS,
         COLD_START_KERNELS,
+        INDUCED_DIPOLE_KERNELS,
         LIVE_KERNELS,
         PLANAR_KERNELS,
         SOLVER_KERNELS,
@@ -59,7 +61,8 @@ def test_per_kernel_child_lists_every_announced_kernel():
 
     out = _compile._child_per_kernel()
     assert list(out) == list(dict.fromkeys(SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS
-                                           + PLANAR_KERNELS))
+                                           + PLANAR_KERNELS + INDUCED_DIPOLE_KERNELS
+                                           + BOARD_LM_KERNELS))
     assert all(v["s"] >= 0 and v["cpu_s"] >= 0 for v in out.values())
 
 

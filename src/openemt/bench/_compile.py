@@ -14,7 +14,8 @@ kernel), ``lm_batch`` (``solve_lm`` from given starts), ``lm_track`` (``solve_lm
 ``lm_5dof`` (``solve_lm`` with a single-coil sensor: the same compiled kernel, so near zero).
 
 ``per_kernel`` lists every kernel the commands announce (``openemt._compile_notice``: solver,
-live and finite-coil groups), each compiled by the commands' own warm-up call in list order,
+live and finite-coil groups, the induced dipoles' and the LM kernels' board specialisation,
+``lm_batch@board``), each compiled by the commands' own warm-up call in list order,
 with its compile seconds in the empty cache (helpers shared with an earlier kernel are counted
 there) and its load seconds from the filled one.
 
@@ -95,7 +96,9 @@ def _child() -> dict:
 def _child_per_kernel() -> dict:
     """Every announced kernel compiled (or loaded) through the commands' warm-up, one by one."""
     from openemt._compile_notice import (
+        BOARD_LM_KERNELS,
         COLD_START_KERNELS,
+        INDUCED_DIPOLE_KERNELS,
         LIVE_KERNELS,
         PLANAR_KERNELS,
         SOLVER_KERNELS,
@@ -104,7 +107,7 @@ def _child_per_kernel() -> dict:
 
     out = {}
     for spec in dict.fromkeys(SOLVER_KERNELS + COLD_START_KERNELS + LIVE_KERNELS
-                              + PLANAR_KERNELS):
+                              + PLANAR_KERNELS + INDUCED_DIPOLE_KERNELS + BOARD_LM_KERNELS):
         cpu, wall, _ = best_time(lambda spec=spec: compile_kernels([spec]), 1)
         out[spec] = {"s": round(wall, 3), "cpu_s": round(cpu, 3)}
     return out
