@@ -31,7 +31,7 @@ import sys
 __all__ = ["BOARD_LM_KERNELS", "COLD_START_KERNELS", "COMPLEX_KERNELS", "FILTER_KERNELS",
            "INDUCED_DIPOLE_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
            "announce_compile", "cold_kernels", "compile_kernels", "model_kernels",
-           "serial_threads", "watch_compiles"]
+           "serial_threads", "solve_kernels", "watch_compiles"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
 #: ``reproduce``, ``demo``).
@@ -162,6 +162,16 @@ def model_kernels(model) -> tuple:
     if hasattr(model, "board"):
         return PLANAR_KERNELS if model.dof == 5 else BOARD_LM_KERNELS
     return ()
+
+
+def solve_kernels(model, cold_start_table: bool = False) -> tuple[str, tuple]:
+    """``(what, kernels)`` of a solve with ``model`` for the compile notice: its kernels
+    (:func:`model_kernels`) named ``"solver kernels"`` (a dipole model, with the cold start's
+    table kernel when ``cold_start_table``) or ``"finite-coil kernels"`` (a board)."""
+    kernels = model_kernels(model)
+    if hasattr(model, "board"):
+        return "finite-coil kernels", kernels
+    return "solver kernels", kernels + (COLD_START_KERNELS if cold_start_table else ())
 
 
 def _dipole_case():

@@ -24,13 +24,14 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from .._compile_notice import announce_compile
+    from .._compile_notice import announce_compile, solve_kernels
     from ..solve import SolveFileOptions, solve_file
     from ._common import emit, options_from
 
     progress = _Progress(args)
 
-    def start(n, what, kernels):
+    def start(n, model, cold_start_table):
+        what, kernels = solve_kernels(model, cold_start_table)
         announce_compile(args, what, kernels=kernels)
         progress.start(n)
 

@@ -154,20 +154,13 @@ class SolveFileResult(Result):
         return out
 
 
-def _compile_set(model, dipole: bool, initial, options) -> tuple[str, tuple]:
-    """``(what, kernels)``: the compiled kernels a solve of ``model`` runs, named for the
-    compile notice; the dipole solver's with its cold start's where the Kim18 start (also of
-    the first and the lost samples of a tracked recording) is the invariant table's."""
-    from .._compile_notice import COLD_START_KERNELS, SOLVER_KERNELS, model_kernels
+def _cold_start_table(model, dipole: bool, initial, options) -> bool:
+    """Whether the solve's Kim18 start (also of the first and the lost samples of a tracked
+    recording) is the invariant table's: its cold-start kernel then runs."""
     from ._prepared import uses_invariant_table
 
-    if not dipole:                  # a board: its 5-DOF solver, or the LM kernels' board form
-        return "finite-coil kernels", model_kernels(model)
-    kernels = SOLVER_KERNELS
-    if initial in ("kim18", "track") and uses_invariant_table(
-            model, options.concentric_model is not None, options.retry_resnorm):
-        kernels += COLD_START_KERNELS
-    return "solver kernels", kernels
+    return dipole and initial in ("kim18", "track") and uses_invariant_table(
+        model, options.concentric_model is not None, options.retry_resnorm)
 
 
 def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> SolveFileResult:
@@ -178,11 +171,10 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
     a dipole model's (LM or a closed form; per-source-fixture hemispheres, time-series
     tracking of recordings) or a finite-coil board's (tracked from sample to sample; the
     sensor on the board's front side, ``hemisphere`` and ``initial`` do not apply).
-    ``on_start(n_rows, what, kernels)`` is called once the inputs are checked, before the
-    first block, with the compiled kernels the solve runs (``"module:function"``; ``what``
-    names them, e.g. ``"solver kernels"``: for a compile notice,
-    :func:`openemt._compile_notice.announce_compile`); ``on_block(rows, summary)`` after each
-    block.
+    ``on_start(n_rows, model, cold_start_table)`` is called once the inputs are checked,
+    before the first block, with the model solved with and whether its cold start's table runs
+    (for a compile notice: :func:`openemt._compile_notice.solve_kernels`);
+    ``on_block(rows, summary)`` after each block.
     """
     from ..io import is_recording, open_dataset_couplings, read_calibration
     from ..io._h5safe import open_h5
@@ -259,7 +251,7 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
                 **({"initial": initial} if initial is not None else {}),
                 **({"bands": bands.method} if bands is not None else {})}
         if on_start is not None:
-            on_start(n, *_compile_set(model, dipole, initial, checked))
+            on_start(n, model, _cold_start_table(model, dipole, initial, checked))
         done = solve_to_file(solved_rows, cal, o.output, chunk_rows=o.chunk_rows,
                              scheduler=o.scheduler, solver=o.solver, hemisphere=hemisphere,
                              apply_correction=not o.no_correction, meta=meta,
