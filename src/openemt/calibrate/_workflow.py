@@ -457,13 +457,13 @@ def reference_kernels(model) -> tuple[str, tuple]:
     """``(what, kernels)``: the compiled kernels a reference calibration of ``model`` runs
     (its solves of the training and held-out rows; a board's per-coil cold starts run the
     5-DOF solver), named for the compile notice."""
-    from .._compile_notice import COLD_START_KERNELS, PLANAR_KERNELS, model_kernels
+    from .._compile_notice import PLANAR_KERNELS, solve_kernels
 
-    kernels = model_kernels(model)
+    what, kernels = solve_kernels(model, cold_start_table=True)
     if hasattr(model, "board"):             # and the couplings' spectral norms (weights)
-        return "finite-coil kernels", tuple(dict.fromkeys(
+        kernels = tuple(dict.fromkeys(
             kernels + PLANAR_KERNELS + ("openemt.solve._closed_form:_spectral_norms",)))
-    return "solver kernels", kernels + COLD_START_KERNELS
+    return what, kernels
 
 
 def _reference(o, nominal, say, compile_) -> CalibrateResult:
