@@ -321,3 +321,24 @@ def test_map_page_renders_in_chromium(tmp_path):
     n_images, n_decoded, dom = render(page, tmp_path)
     assert (n_images, n_decoded) == (4, 4), f"images total/decoded = {n_images}/{n_decoded}"
     assert "Optimised source coils" in dom
+
+
+def test_design_actions_say_a_first_run_compile(monkeypatch, capsys):
+    """The design actions run their models' and solvers' kernels inside the workflows: the
+    CLI watches numba's compiles, so a first run says 'compiling kernels (first run only)'."""
+    import contextlib
+
+    import openemt._compile_notice as notice
+    from openemt.cli import main
+
+    watched = []
+
+    @contextlib.contextmanager
+    def watch(out=None, what="kernels"):
+        watched.append((getattr(out, "quiet", None), what))
+        yield []
+
+    monkeypatch.setattr(notice, "watch_compiles", watch)
+    assert main(["design", "carriers", "--json"]) == 0
+    capsys.readouterr()
+    assert watched == [(False, "kernels")]

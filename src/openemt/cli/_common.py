@@ -68,20 +68,32 @@ def workflow_command(name: str, package: str, options: str, workflow: str):
     return register
 
 
-def add_actions(parser, actions) -> None:
+def add_actions(parser, actions, *, watch_compiles: bool = False) -> None:
     """Sub-commands ``ACTION`` of ``parser``, one per ``(name, help, options record,
     workflow)``: the record's fields as options; running one calls ``workflow(options)`` and
-    prints its result (:func:`emit`) and, unless ``--quiet``, its ``warnings``."""
+    prints its result (:func:`emit`) and, unless ``--quiet``, its ``warnings``. With
+    ``watch_compiles`` a first run's numba compile is said on stderr when it starts
+    (:func:`openemt._compile_notice.watch_compiles`)."""
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     for name, help_, options, workflow in actions:
         a = sub.add_parser(name, help=help_)
         add_options(a, options)
         add_common(a)
-        a.set_defaults(func=lambda args, o=options, w=workflow: _run_action(args, o, w))
+        a.set_defaults(func=lambda args, o=options, w=workflow: _run_action(
+            args, o, w, watch_compiles))
 
 
-def _run_action(args, options, workflow) -> int:
-    result = workflow(options_from(options, args))
+def _run_action(args, options, workflow, watch: bool = False) -> int:
+    import contextlib
+
+    if watch:
+        from .._compile_notice import watch_compiles
+
+        context = watch_compiles(args, "kernels")
+    else:
+        context = contextlib.nullcontext()
+    with context:
+        result = workflow(options_from(options, args))
     emit(args, result.to_dict(), result.lines())
     if not getattr(args, "quiet", False):
         for w in getattr(result, "warnings", ()):

@@ -19,4 +19,7 @@ def register(sub) -> None:
         ("optimize", "optimise a board's coil layout (or a rig source) for its position bound",
          design.OptimizeOptions, design.optimize_layout),
         ("carriers", "carrier plans: crosstalk, mains and intermodulation in the demodulator",
-         design.CarrierOptions, design.carrier_plan)))
+         design.CarrierOptions, design.carrier_plan)),
+        # its models' and solvers' kernels compile inside the workflows (no list names them
+        # all): a first run says so when the first one starts
+        watch_compiles=True)
