@@ -180,6 +180,17 @@ def test_a_variant_is_cached_only_with_its_own_specialisation():
         cold_kernels(["openemt.solve._lm:lm_batch@other"])
 
 
+def test_dipole_kernels_with_and_without_the_cold_start_and_the_complex_check():
+    from openemt._compile_notice import COMPLEX_KERNELS, dipole_kernels
+
+    assert dipole_kernels() == SOLVER_KERNELS
+    assert dipole_kernels(cold_start_table=True) == SOLVER_KERNELS + COLD_START_KERNELS
+    real = dipole_kernels(cold_start_table=True, complex_couplings=False)
+    assert real == tuple(k for k in SOLVER_KERNELS + COLD_START_KERNELS
+                         if k not in COMPLEX_KERNELS)
+    assert COMPLEX_KERNELS and not set(COMPLEX_KERNELS) & set(real)
+
+
 def test_model_kernels_name_each_models_solver():
     from openemt._compile_notice import model_kernels
     from openemt.board import BoardModel

@@ -124,9 +124,13 @@ def test_track_announces_the_compile_before_tracking(monkeypatch, capsys, filter
         print(f"compiling {what} (first run only, about {seconds:g} s)", file=sys.stderr)
         return True
 
-    fake = types.SimpleNamespace(SOLVER_KERNELS=("s:k", "x:k"), COLD_START_KERNELS=("c:k",),
-                                 LIVE_KERNELS=("f:k", "l:k"), PLANAR_KERNELS=("p:k",),
-                                 COMPLEX_KERNELS=("x:k",), FILTER_KERNELS=("f:k",),
+    def dipole_kernels(cold_start_table=False, complex_couplings=True):
+        # the real one's rule on this module's names: solver s:k, complex check x:k, cold c:k
+        kernels = ("s:k", "x:k") + (("c:k",) if cold_start_table else ())
+        return kernels if complex_couplings else tuple(k for k in kernels if k != "x:k")
+
+    fake = types.SimpleNamespace(LIVE_KERNELS=("f:k", "l:k"), FILTER_KERNELS=("f:k",),
+                                 dipole_kernels=dipole_kernels,
                                  model_kernels=lambda model: ("b:k",),
                                  announce_compile=announce_compile)
     monkeypatch.setitem(sys.modules, "openemt._compile_notice", fake)

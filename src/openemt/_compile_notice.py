@@ -30,7 +30,8 @@ import sys
 
 __all__ = ["BOARD_LM_KERNELS", "COLD_START_KERNELS", "COMPLEX_KERNELS", "FILTER_KERNELS",
            "INDUCED_DIPOLE_KERNELS", "LIVE_KERNELS", "PLANAR_KERNELS", "SOLVER_KERNELS",
-           "announce_compile", "cold_kernels", "compile_kernels", "model_kernels",
+           "announce_compile", "cold_kernels", "compile_kernels", "dipole_kernels",
+           "model_kernels",
            "serial_threads", "solve_kernels", "watch_compiles"]
 
 #: The dipole model, closed forms and batch LM solver (``solve``, ``calibrate``, ``report``,
@@ -153,12 +154,22 @@ def cold_kernels(kernels=SOLVER_KERNELS) -> list[str]:
     return cold
 
 
+def dipole_kernels(*, cold_start_table: bool = False, complex_couplings: bool = True) -> tuple:
+    """The dipole solver's compiled kernels (:data:`SOLVER_KERNELS`), with its cold start's
+    table kernel when ``cold_start_table``, without the check of complex couplings when the
+    couplings solved are real by construction (``complex_couplings=False``: the demo's
+    simulated ones, the live pipeline's)."""
+    kernels = SOLVER_KERNELS + (COLD_START_KERNELS if cold_start_table else ())
+    return kernels if complex_couplings else tuple(k for k in kernels
+                                                   if k not in COMPLEX_KERNELS)
+
+
 def model_kernels(model) -> tuple:
     """The compiled kernels that solve with ``model``: a dipole-family model's
-    (:data:`SOLVER_KERNELS`), a board's with a single-coil sensor (:data:`PLANAR_KERNELS`) or
+    (:func:`dipole_kernels`), a board's with a single-coil sensor (:data:`PLANAR_KERNELS`) or
     with a sensor of 2 or 3 coils (:data:`BOARD_LM_KERNELS`); none for another model."""
     if getattr(model, "solver_family", None) in ("dipole", "dipole-refined"):
-        return SOLVER_KERNELS
+        return dipole_kernels()
     if hasattr(model, "board"):
         return PLANAR_KERNELS if model.dof == 5 else BOARD_LM_KERNELS
     return ()
@@ -168,10 +179,9 @@ def solve_kernels(model, cold_start_table: bool = False) -> tuple[str, tuple]:
     """``(what, kernels)`` of a solve with ``model`` for the compile notice: its kernels
     (:func:`model_kernels`) named ``"solver kernels"`` (a dipole model, with the cold start's
     table kernel when ``cold_start_table``) or ``"finite-coil kernels"`` (a board)."""
-    kernels = model_kernels(model)
     if hasattr(model, "board"):
-        return "finite-coil kernels", kernels
-    return "solver kernels", kernels + (COLD_START_KERNELS if cold_start_table else ())
+        return "finite-coil kernels", model_kernels(model)
+    return "solver kernels", dipole_kernels(cold_start_table=cold_start_table)
 
 
 def _dipole_case():

@@ -282,18 +282,13 @@ def collect(options: CollectOptions, *, progress=None, handle_signals: bool = Fa
         warn(f"--n-poses {o.n_poses} is below the {MIN_REFERENCE_POSES} training poses that "
              f"'openemt calibrate --mode reference' needs")
 
-    from .._compile_notice import (
-        COLD_START_KERNELS,
-        COMPLEX_KERNELS,
-        SOLVER_KERNELS,
-        announce_compile,
-    )
+    from .._compile_notice import announce_compile, dipole_kernels
 
     # the solver's kernels and its cold start (the solve below), less the check of complex
     # couplings: the pipeline solves real ones
-    kernels = tuple(k for k in SOLVER_KERNELS + COLD_START_KERNELS if k not in COMPLEX_KERNELS)
     if progress is not None:
-        announce_compile(progress, "solver kernels", kernels=kernels)
+        announce_compile(progress, "solver kernels",
+                         kernels=dipole_kernels(cold_start_table=True, complex_couplings=False))
     cover = _Coverage(setup.model, hemisphere, box)
     P = np.eye(4)[None].copy()
     P[0, :3, 3] = [0.25, 0.02, 0.01]          # compile before the streams start

@@ -370,35 +370,36 @@ class _Console(StopSignals):
             self._width = 0
 
 
-def announce_compile_for(out, spec: TrackerSpec) -> None:
+def _board_calibration(cal) -> bool:
+    """Whether a sensor's calibration ``cal`` (None: the preset's dipole model) is a board's,
+    whose model has a solver of its own: its cold start is not the dipole family's closed
+    form (``cold_start == "kim18"``)."""
+    return cal is not None and getattr(cal.model, "cold_start", None) != "kim18"
+
+
+def announce_compile_for(out, spec: TrackerSpec, calibrations=None) -> None:
     """Say so (on stderr unless ``out.quiet``) before the compiled kernels that tracking with
     ``spec`` runs compile (the first run after installation), before its sensors' solvers are
     prepared: the dipole solver's and its cold start's for a dipole sensor, a board's
     (:func:`~openemt._compile_notice.model_kernels`) for a board sensor, and the live path's;
     not the check of complex couplings (it solves real ones), nor the filter's kernel when no
-    sensor has a filter."""
+    sensor has a filter. ``calibrations``: ``spec.calibrations()`` when already read."""
     from .._compile_notice import (
-        COLD_START_KERNELS,
-        COMPLEX_KERNELS,
         FILTER_KERNELS,
         LIVE_KERNELS,
-        SOLVER_KERNELS,
         announce_compile,
+        dipole_kernels,
         model_kernels,
     )
 
     kernels: tuple = ()
-    for cal in spec.calibrations():
-        model = None if cal is None else cal.model
-        if model is None or getattr(model, "cold_start", None) == "kim18":     # a dipole
-            kernels += SOLVER_KERNELS + COLD_START_KERNELS
-        else:                                                               # a board
-            kernels += model_kernels(model)
+    for cal in spec.calibrations() if calibrations is None else calibrations:
+        kernels += (model_kernels(cal.model) if _board_calibration(cal)
+                    else dipole_kernels(cold_start_table=True, complex_couplings=False))
     kernels = tuple(dict.fromkeys(kernels + LIVE_KERNELS))
-    skip = set(COMPLEX_KERNELS)
     if not any(getattr(s.filter or spec.filter, "enabled", False) for s in spec.sensors):
-        skip.update(FILTER_KERNELS)
-    announce_compile(out, "solver kernels", kernels=tuple(k for k in kernels if k not in skip))
+        kernels = tuple(k for k in kernels if k not in FILTER_KERNELS)
+    announce_compile(out, "solver kernels", kernels=kernels)
 
 
 def default_tracker(options: TrackOptions) -> TrackerSpec:
@@ -553,9 +554,12 @@ class TrackingSession:
         o, spec = self.options, self.spec
         try:
             # before the sensors' solvers are prepared (a board's solver computes its seed
-            # grid's fields) and the backend (a simulated one computes couplings)
-            announce_compile_for(o, spec)
-            sensors = tracker_sensors(spec) if self._sensors is None else self._sensors
+            # grid's fields) and the backend (a simulated one computes couplings); the
+            # calibration files are read once for both
+            cals = spec.calibrations()
+            announce_compile_for(o, spec, cals)
+            sensors = (tracker_sensors(spec, calibrations=cals) if self._sensors is None
+                       else self._sensors)
             if o.log is not None:
                 self.log = TrackLogWriter(o.log, [s.name for s in sensors])
             try:
@@ -676,7 +680,7 @@ class TrackingSession:
         return TrackResult(summary=summary, session=out, stopped_signal=stopped)
 
 
-def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
+def tracker_sensors(spec: TrackerSpec, *, filter=None, calibrations=None) -> list:
     """One :class:`~openemt.live.SensorSetup` per sensor of ``spec``: its coupling columns,
     the model and linear correction of its calibration (the simulated preset's model when it
     names none), its OpenIGTLink device name, tip and filter (the file's
@@ -685,10 +689,11 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
     A model whose solver starts cold from the closed form (``cold_start == "kim18"``: the
     dipole family) gets the pipeline's warm-started LM with the sensor's hemisphere and the
     calibration's linear correction; any other model (a finite-coil board) gets its own
-    solver from :func:`openemt.solve.prepare`."""
+    solver from :func:`openemt.solve.prepare`. ``calibrations``: ``spec.calibrations()`` when
+    already read."""
     from ._pipeline import SensorSetup
 
-    cals = spec.calibrations()
+    cals = list(spec.calibrations() if calibrations is None else calibrations)
     # sensors calibrated by one file share its model (and so one batched solver call)
     first: dict = {}
     for i, s in enumerate(spec.sensors):
@@ -701,7 +706,7 @@ def tracker_sensors(spec: TrackerSpec, *, filter=None) -> list:
     for s, cols, cal in zip(spec.sensors, spec.sensor_columns(), cals):
         common = dict(name=s.name, columns=cols, device_name=s.device_name, tip=s.tip,
                       filter=(s.filter or spec.filter) if filter is None else filter)
-        if cal is not None and getattr(cal.model, "cold_start", None) != "kim18":
+        if _board_calibration(cal):
             from ._board import board_solver
 
             solver = boards.setdefault(id(cal), board_solver(cal.coupling_model))

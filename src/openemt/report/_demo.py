@@ -84,20 +84,12 @@ class DemoResult(Result):
                         *NEXT_STEPS.format(out=self.output_dir, preset=self.preset).splitlines()]
 
 
-def demo_kernels() -> tuple:
-    """The compiled kernels ``openemt demo`` runs (``"module:function"``): the solver kernels
-    but the closed forms' check of complex couplings, as its simulated couplings are real."""
-    from .._compile_notice import COMPLEX_KERNELS, SOLVER_KERNELS
-
-    return tuple(k for k in SOLVER_KERNELS if k not in COMPLEX_KERNELS)
-
-
 def run_demo(o: DemoOptions, say=None) -> DemoResult:
     """Simulate, calibrate, correct, solve, score and report (module docstring); ``say`` hears
     each step before it runs."""
     from pathlib import Path
 
-    from .._compile_notice import announce_compile
+    from .._compile_notice import announce_compile, dipole_kernels
 
     if not np.isfinite(o.snr_db) or o.snr_db <= 0:
         raise InputError(f"expected --snr-db > 0, got {o.snr_db}")
@@ -132,7 +124,8 @@ def run_demo(o: DemoOptions, say=None) -> DemoResult:
 
     # the first run compiles the solver kernels here, under a line of its own, not inside the
     # steps that use them (those it runs: its simulated couplings are real)
-    if announce_compile(say, "solver kernels", kernels=demo_kernels()):
+    if announce_compile(say, "solver kernels",
+                        kernels=dipole_kernels(complex_couplings=False)):
         step("compile")
 
     preset = get_preset(o.preset)
