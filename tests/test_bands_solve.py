@@ -351,3 +351,17 @@ def test_a_bad_sample_does_not_end_the_fusion():
     np.testing.assert_allclose(np.delete(out, [10, 20], axis=0), fused, atol=1e-12)
     np.testing.assert_allclose(out[10], B[10, 0].real + fused[9] - skip[9, 0].real,
                                atol=1e-12)
+
+
+def test_track_refuses_the_sheet_band_method(tmp_path):
+    """``sheet`` is a per-sample fit (tens of milliseconds a sample): ``solve``'s, on a
+    dataset; a live stream is refused it in one line before it starts."""
+    from openemt.cli import main
+    from openemt.live import read_tracker
+
+    path = _tracker(tmp_path, None)
+    with pytest.raises(InputError, match="got sheet"):
+        _track(path, "sheet")
+    with pytest.raises(InputError, match="solve.bands"):
+        read_tracker(_tracker(tmp_path, None, bands="sheet"))
+    assert main(["track", str(path), "--bands", "sheet", "--duration", "0.1"]) == 2

@@ -566,6 +566,11 @@ class TrackingPipeline:
         method = resolve_bands(cfg.bands, lay.n_bands, ordered=True,
                                rate=self.demod.output_rate,
                                where="--bands or the tracker file's [solve] bands")
+        if method == "sheet":
+            raise InputError("expected a band method for a live stream in fast, slow, fuse, "
+                             "eddy-free (--bands or the tracker file's [solve] bands), got "
+                             "sheet: its per-sample fit (tens of milliseconds a sample) is "
+                             "solve's, on a dataset")
         self.bands = None if method is None else BandStage(
             method, lay.band_frequencies, time_constant=cfg.band_time_constant,
             rate=self.demod.output_rate, quadrature_threshold=self.distortion_threshold)

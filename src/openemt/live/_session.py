@@ -22,7 +22,7 @@ from .._constants import SIMULATED_MAINS_AMPLITUDES_V
 from .._errors import InputError
 from .._options import option as _opt
 from .._result import Result
-from ..solve import BAND_METHODS
+from ..solve import LIVE_BAND_METHODS
 from ._tracker_file import TrackerSpec
 
 __all__ = ["StopSignals", "TrackOptions", "TrackResult", "TrackingSession", "tracker_backend",
@@ -134,7 +134,7 @@ class TrackOptions:
                              "fuse (the fast band corrected from the slow one through a "
                              "low-pass), eddy-free, auto (fuse where the tracker has bands; "
                              "default: the tracker file's [solve] bands, else auto)",
-                             choices=BAND_METHODS)
+                             choices=LIVE_BAND_METHODS)
     quiet: bool = _opt(False, "", cli=False)
 
     def __post_init__(self):

@@ -821,9 +821,10 @@ def _carriers(r, src) -> tuple[list, list]:
 
 def _solve_section(r, doc, bands) -> tuple[str, float]:
     """``[solve]``: ``bands`` (the couplings each sensor solves from the carrier bands,
-    :data:`openemt.solve.BAND_METHODS`) and ``band_time_constant`` (s, the fusion's
+    :data:`openemt.solve.LIVE_BAND_METHODS`) and ``band_time_constant`` (s, the fusion's
     low-pass)."""
-    from ..solve import BAND_METHODS, DEFAULT_BAND_TIME_CONSTANT_S
+    from ..solve import DEFAULT_BAND_TIME_CONSTANT_S
+    from ..solve import LIVE_BAND_METHODS as BAND_METHODS
 
     sol = r.get(doc, "", "solve", "table", {})
     _unknown_keys(r, sol, "solve", ("bands", "band_time_constant"))

@@ -10,7 +10,9 @@ from .._lazy import lazy_exports
 
 #: where each public name lives; a module is imported on first use of one of its names
 _SOURCES = {
-    "._bands": ("BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "BandReader", "BandStage",
+    "._sheet": ("SHEET_GOOD_RESIDUAL", "SheetFit", "fit_sheet", "sheet_couplings"),
+    "._bands": ("BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "LIVE_BAND_METHODS",
+                "BandReader", "BandStage",
                 "cole_cole_couplings", "eddy_free_couplings", "fuse_bands", "resolve_bands"),
     "._closed_form": ("solve_kim18", "solve_kuipers", "solve_svd", "spectral_norms"),
     "._crb": ("cramer_rao", "solver_covariance"),

@@ -39,8 +39,12 @@ The couplings to solve
 :class:`BandStage` is the one place where ``solve`` and ``track`` turn a sample's band
 couplings into the real couplings the pose solver takes (``bands`` = :data:`BAND_METHODS`):
 ``fast`` (the highest band), ``slow`` (the lowest), ``fuse`` (above; rows in time order only)
-or ``eddy-free`` (:func:`eddy_free_couplings` on the samples whose fast-band quadrature ratio
-exceeds the distortion threshold, the fast band elsewhere). ``auto`` (the default):
+``eddy-free`` (:func:`eddy_free_couplings` on the samples whose fast-band quadrature ratio
+exceeds the distortion threshold, the fast band elsewhere) or ``sheet`` (on those samples, the
+pose and a conducting sheet fitted together and the sheet's part taken out,
+:func:`openemt.solve.fit_sheet`; ``eddy-free`` where no sheet explains the sample; dipole
+calibrations), on the samples whose fast or slow band's quadrature ratio exceeds the
+threshold. ``auto`` (the default):
 ``fuse`` where the rows are a time series at a known rate (``track``, a recording), else
 band 0 as without bands (docs/live.md#carrier-bands gives the reasons).
 """
@@ -51,11 +55,14 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "BandReader", "BandStage",
-           "band_dataset_shape", "cole_cole_couplings", "eddy_free_couplings", "fuse_bands", "resolve_bands"]
+__all__ = ["BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "LIVE_BAND_METHODS", "BandReader",
+           "BandStage", "band_dataset_shape", "cole_cole_couplings", "eddy_free_couplings", "fuse_bands", "resolve_bands"]
 
-#: The choices of ``bands`` (``--bands``, the tracker file's ``[solve] bands``).
-BAND_METHODS = ("auto", "fast", "slow", "fuse", "eddy-free")
+#: The choices of a live stream's ``bands`` (``track --bands``, the tracker file's ``[solve]
+#: bands``).
+LIVE_BAND_METHODS = ("auto", "fast", "slow", "fuse", "eddy-free")
+#: The choices of ``bands`` (``solve --bands``): the live ones and ``sheet``.
+BAND_METHODS = LIVE_BAND_METHODS + ("sheet",)
 #: Default time constant (s) of the low-pass of ``fuse``: about 15 samples at the default
 #: output rate; a slower one lags the eddy change of a moving sensor, a faster one passes more
 #: of the slow band's noise.
@@ -270,7 +277,8 @@ class BandStage:
     Parameters
     ----------
     method : str
-        ``fast``, ``slow``, ``fuse`` or ``eddy-free`` (resolved: :func:`resolve_bands`).
+        ``fast``, ``slow``, ``fuse``, ``eddy-free`` or ``sheet`` (resolved:
+        :func:`resolve_bands`).
     frequencies : array (n_bands, n_source)
         The carriers (Hz) of the bands.
     time_constant, rate : float
@@ -282,11 +290,16 @@ class BandStage:
         complex couplings as they are (the solver takes ``sign(Re z)|z|`` and normalises its
         residual by the complex norm, as for band 0 without bands) and ``fuse`` fuses
         ``sign(Re z)|z|``; else the in-phase part ``Re z`` throughout (the live pipeline's).
+    model, hemisphere, sheet_searches :
+        ``sheet``: the dipole calibration, the hemisphere of the pose that starts each
+        sample's fit (the fast band solved as it is), and ``max_searches`` of
+        :func:`openemt.solve.fit_sheet`.
     """
 
     def __init__(self, method: str, frequencies, *, time_constant: float =
                  DEFAULT_BAND_TIME_CONSTANT_S, rate: float | None = None,
-                 quadrature_threshold: float = 1e-3, signed: bool = False):
+                 quadrature_threshold: float = 1e-3, signed: bool = False, model=None,
+                 hemisphere=None, sheet_searches: int = 2):
         if method not in BAND_METHODS[1:]:
             raise InputError(f"expected a band method in {', '.join(BAND_METHODS[1:])}, got "
                              f"{method!r}")
@@ -303,6 +316,19 @@ class BandStage:
         self.rate = None if rate is None else float(rate)
         self.quadrature_threshold = float(quadrature_threshold)
         self.signed = bool(signed)
+        if method == "sheet":
+            from ..field import DipoleModel
+
+            if not isinstance(model, DipoleModel):
+                raise InputError(f"expected a dipole calibration for the sheet band method (a "
+                                 f"source coil's image in a sheet is a dipole), got "
+                                 f"{type(model).__name__}")
+        self.model, self.hemisphere = model, hemisphere
+        self.sheet_searches = int(sheet_searches)
+        self._solver = None
+        #: ``sheet``: the fits of the last block (:class:`openemt.solve.SheetFit`, flagged
+        #: samples only) and their rows in it
+        self.last_sheet = None
         mean = f.mean(axis=1)
         self.fast, self.slow = int(np.argmax(mean)), int(np.argmin(mean))
         #: the band whose quadrature ratio flags a sample: the slow band where its couplings
@@ -338,11 +364,38 @@ class BandStage:
         fast = B[:, self.fast]
         out = self._real(fast)
         hit = distortion_ratio(fast) > self.quadrature_threshold
+        if m == "sheet":
+            # a good conductor is nearly in phase at the fast band: its slow band's
+            # quadrature flags it
+            hit |= distortion_ratio(B[:, self.slow]) > self.quadrature_threshold
         if hit.any():
             out = out.copy()
-            out[hit] = eddy_free_couplings(B[hit], self.frequencies, slow=self.slow,
-                                           fast=self.fast)
+            eddy = eddy_free_couplings(B[hit], self.frequencies, slow=self.slow, fast=self.fast)
+            if m == "sheet":
+                return self._sheet(B, out, hit, eddy, state)
+            out[hit] = eddy
         return out, state
+
+    def _sheet(self, B, out, hit, eddy, state):
+        """``sheet`` on the flagged rows ``hit``: the fitted sheet's part taken out, the
+        eddy-free couplings ``eddy`` where no sheet fits; ``state`` the last fitted sheet."""
+        from ._sheet import fit_sheet
+
+        if self._solver is None:
+            from ._factory import prepare
+            from ._hemisphere import DEFAULT_HEMISPHERE
+
+            self._solver = prepare(self.model, hemisphere=self.hemisphere or
+                                   DEFAULT_HEMISPHERE)
+        solve = self._solver
+        start = solve(np.ascontiguousarray(B[hit, self.fast].real)).poses
+        fit, last = fit_sheet(self.model, B[hit], self.frequencies, start, fast=self.fast,
+                              start=state, solve=lambda C: solve(C).poses,
+                              max_searches=self.sheet_searches)
+        rows = np.flatnonzero(hit)
+        out[rows] = np.where(fit.fitted[:, None, None], fit.couplings, eddy)
+        self.last_sheet = (fit, rows)
+        return out, last
 
 
 #: Where a dataset file keeps its band couplings: ``extra/couplings_bands`` as two parts

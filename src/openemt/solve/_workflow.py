@@ -62,7 +62,9 @@ class SolveFileOptions:
     bands: str = _opt(
         "auto", "carrier bands of a dataset with band couplings: fast, slow, fuse (the fast "
         "band corrected from the slow one through a low-pass; rows in time order), eddy-free "
-        "(extrapolated to zero frequency where the quadrature flags eddy currents); 'auto' "
+        "(extrapolated to zero frequency where the quadrature flags eddy currents), sheet "
+        "(where it flags them, the pose and a conducting sheet fitted together and the "
+        "sheet's part taken out; dipole calibrations); 'auto' "
         "(default): fuse on a recording with a sample rate, else band 0 as without bands",
         choices=BAND_METHODS)
     band_time_constant: float = _opt(
@@ -229,7 +231,8 @@ def solve_file(options: SolveFileOptions, *, on_block=None, on_start=None) -> So
         if per_fixture:
             hemisphere = fixtures
         recording = is_recording(_meta(side))
-        bands = _band_stage(o, side, dipole, recording)
+        bands = _band_stage(o, side, dipole, recording, model,
+                            hemisphere if isinstance(hemisphere, str) else None)
         if bands is not None:
             from ._bands import BandReader
 
@@ -290,7 +293,8 @@ def _meta(side) -> dict:
     return d if isinstance(d, dict) else {}
 
 
-def _band_stage(o: SolveFileOptions, side, dipole: bool, recording: bool):
+def _band_stage(o: SolveFileOptions, side, dipole: bool, recording: bool, model=None,
+                hemisphere=None):
     """The :class:`~openemt.solve.BandStage` of ``--bands`` for the open dataset ``side``, or
     None where band 0 is solved as it is."""
     from ._bands import BandStage, band_dataset_shape, resolve_bands
@@ -314,7 +318,8 @@ def _band_stage(o: SolveFileOptions, side, dipole: bool, recording: bool):
     if f is None:
         raise InputError(f"{o.dataset}: expected the carriers of its bands (meta "
                          f"band_frequencies_hz) for --bands {o.bands}, got none")
-    return BandStage(method, f, time_constant=o.band_time_constant, rate=rate, signed=True)
+    return BandStage(method, f, time_constant=o.band_time_constant, rate=rate, signed=True,
+                     model=model, hemisphere=hemisphere)
 
 
 class _TruthScore:
