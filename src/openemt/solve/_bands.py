@@ -335,6 +335,11 @@ class BandStage:
         #: are what is solved (slow, fuse), else the fast band
         self.quadrature_band = self.slow if method in ("slow", "fuse") else self.fast
 
+    def __getstate__(self):
+        # a stage travels to cluster workers by pickle (BandReader): without its solver and
+        # its last block's fits, which a worker makes again
+        return {**self.__dict__, "_solver": None, "last_sheet": None}
+
     def _real(self, C):
         if not self.signed:
             return np.ascontiguousarray(C.real)
