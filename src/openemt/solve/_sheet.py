@@ -6,7 +6,7 @@ Why
 A good conductor (2 mm of aluminium: a table top, a tray, a shield) is in the inductive limit
 at both of ILEMT's bands: its response is nearly the same at 274 Hz and at 7.5 kHz, so no
 per-entry relaxation (:func:`openemt.solve.eddy_free_couplings`) can extrapolate it away
-(docs/solve.md#carrier-bands). Its *shape* can: an infinite thin sheet answers a source coil
+(docs/simulator.md#carrier-bands). Its *shape* can: an infinite thin sheet answers a source coil
 with a known field, the mirror image of the coil receding into the sheet (Maxwell's receding
 image), and that field has only four unknowns: the sheet's plane (a unit normal ``n`` and an
 offset ``d``, the plane ``n . y + d = 0`` with the tracker on its ``+n`` side) and its
@@ -27,17 +27,19 @@ where ``B_image(r; depth)`` is the field of the perfect conductor's image dipole
 mirrored in the plane, moment ``m - 2 (m . n) n``), moved ``depth`` along ``-n`` - here a
 complex depth, the dipole field continued analytically (``|r|^2 = r . r``, no singularity for
 points above the sheet). The integral is a Gauss-Legendre rule of :data:`SHEET_NODES` nodes in
-``log u`` over ``u a / 2`` in ``[1e-4, 40]`` and one of 4 nodes in ``u`` below. Independent of the simulator's slab physics (a
-least-squares image series fitted to the full slab reflection factor): the tests compare the
-two. Dipole models only (a source's image is a dipole).
+``log u`` over ``u a / 2`` in ``[1e-4, 40]`` and one of 4 nodes in ``u`` below. Independent of
+the simulator's slab physics (a least-squares image series fitted to the full slab reflection
+factor): the tests compare the two. Dipole models only (a source's image is a dipole).
 
 The fit
 -------
 Per sample, Levenberg-Marquardt (``scipy.optimize.least_squares``) on the complex residual of
 every band, relative to the fast band's coupling norm, from:
 
-1. the previous sample's sheet (a stream: the sheet seldom moves) and the pose solved from
-   the fast band as it is;
+1. the previous sample's sheet (a stream: the sheet seldom moves), the pose under it found
+   first from the fast band's own pose: straight (through a fixed point of the pose solver,
+   where one is given), by continuation in the sheet's strength, or from the last fitted
+   pose;
 2. where that does not reach :data:`SHEET_GOOD_RESIDUAL`: a search over sheet normals (the
    6 axes and 8 diagonals of the source frame, the tracker on the ``+n`` side), offsets and
    conductances, stopping at the first start that does. After ``max_searches`` fruitless
@@ -146,11 +148,13 @@ class SheetFit:
     """The per-sample sheet fits of :func:`fit_sheet` (``N`` samples)."""
 
     #: the couplings to solve ``(N, n_source, n_sensor)``: the fast band's in-phase part less
-    #: the fitted sheet's (the eddy-free couplings where no sheet fits)
+    #: the fitted sheet's (as it is where no sheet fits; :class:`BandStage` puts the
+    #: eddy-free couplings there)
     couplings: np.ndarray
     #: the fitted poses ``(N, 4, 4)`` (NaN where no sheet fits)
     poses: np.ndarray
-    #: the sheet's unit normal ``(N, 3)``, offset ``(N,)`` (m) and conductance ``(N,)`` (S)
+    #: the sheet's plane ``n . y + d = 0`` in the source frame, the source coils on its ``+n``
+    #: side: unit normal ``n (N, 3)``, offset ``d (N,)`` (m); its conductance ``(N,)`` (S)
     normal: np.ndarray
     offset: np.ndarray
     conductance: np.ndarray
@@ -303,15 +307,19 @@ def fit_sheet(model, bands, frequencies, initial, *, fast: int = 0,
     ok = res < good
     out = np.ascontiguousarray(B[:, fast].real).copy()
     normal = np.full((n, 3), np.nan)
+    offset = np.full(n, np.nan)
+    centre = model.L_so.mean(axis=1)
     for i in np.flatnonzero(ok):
         _, sheet = sheet_couplings(model, x_out[i], f[fast:fast + 1])
         out[i] = B[i, fast].real - sheet[0].real
-        normal[i] = _normal(x_out[i, 6], x_out[i, 7])
+        nrm, d = _normal(x_out[i, 6], x_out[i, 7]), x_out[i, 8]
+        sign = 1.0 if nrm @ centre + d >= 0 else -1.0    # the same plane, sources on +n
+        normal[i], offset[i] = sign * nrm, sign * d
     poses = np.full((n, 4, 4), np.nan)
     if ok.any():
         poses[ok] = pose_from_vector(x_out[ok, :6])
     fit = SheetFit(couplings=out, poses=poses, normal=normal,
-                   offset=np.where(ok, x_out[:, 8], np.nan),
+                   offset=offset,
                    conductance=np.where(ok, np.exp(x_out[:, 9]), np.nan),
                    relative_residual=res, fitted=ok, starts=tried)
     return fit, last
