@@ -20,7 +20,12 @@ def _args(**kw):
 def test_bench_metal_small():
     out = _metal.run(_args())
     clean, sheet = out["scenes"]["clean"], out["scenes"]["aluminium_sheet"]
-    assert set(sheet["compensated_rms_mm"]) == {"environment", "two_band", "two_band_cole_cole"}
+    assert set(sheet["compensated_rms_mm"]) == {"environment", "two_band", "two_band_cole_cole",
+                                                "two_band_sheet"}
+    # two bands, no calibration of the object: the sheet fitted with each sample's pose
+    assert sheet["uncompensated_rms_mm"] > 5 * sheet["compensated_rms_mm"]["two_band_sheet"]
+    assert out["targets"]["aluminium_sheet_two_band_sheet_5x"] is True
+    assert clean["sheet_fit"] == {"n_flagged": 0, "n_fitted": 0}
     # one induced dipole already takes out most of the sheet's image field
     assert sheet["environment"]["dipoles"] == 1
     assert sheet["uncompensated_rms_mm"] > 10 * sheet["compensated_rms_mm"]["environment"]

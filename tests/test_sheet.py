@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from openemt._errors import InputError
 from openemt.solve import BandStage, fit_sheet, sheet_couplings
@@ -185,3 +188,35 @@ def test_solve_command_with_bands_sheet(tmp_path, capsys):
         t, _ = pose_error_magnitudes(poses.poses, data.poses)
         err[bands] = float(np.sqrt(np.mean(t ** 2)))
     assert err["fast"] > 0.02 and err["sheet"] < 1e-3, err
+
+
+_values = st.one_of(st.floats(-1e3, 1e3, width=64), st.sampled_from(
+    [0.0, 1e-300, -1e-300, 1e300, -1e300, float("nan"), float("inf"), -float("inf")]))
+
+
+@settings(max_examples=25, deadline=None)
+@given(re=arrays(np.float64, (3, 2, 3, 3), elements=_values),
+       im=arrays(np.float64, (3, 2, 3, 3), elements=_values),
+       scale=st.sampled_from([1e-9, 1e-3, 1.0, 1e6]))
+def test_sheet_stage_on_any_input(rig, re, im, scale):
+    """Whatever the band couplings (garbage, extremes, non-finite), the sheet stage returns
+    couplings of the right shape, finite where the sample is finite and unflagged, never
+    raising; a sample it did not fit keeps the eddy-free couplings (the warm start given, no
+    search: a few least-squares runs a sample)."""
+    from openemt.solve import eddy_free_couplings
+
+    model, _ = rig
+    with np.errstate(all="ignore"):
+        B = (re + 1j * im) * scale
+    stage = BandStage("sheet", BANDS, model=model, hemisphere="+y", sheet_searches=0)
+    out, state = stage(B, np.array([0.0, 0.0, 0.13, np.log(5e4)]))
+    assert out.shape == (3, 3, 3) and out.dtype == np.float64
+    fits = stage.last_sheet
+    if fits is None:
+        return
+    fit, rows = fits
+    for k, i in enumerate(rows):
+        if not fit.fitted[k]:
+            np.testing.assert_array_equal(out[i], eddy_free_couplings(B[i:i + 1], BANDS)[0])
+        else:
+            assert np.isfinite(out[i]).all() and fit.relative_residual[k] < 5e-3
