@@ -317,12 +317,9 @@ class BandStage:
         self.quadrature_threshold = float(quadrature_threshold)
         self.signed = bool(signed)
         if method == "sheet":
-            from ..field import DipoleModel
+            from ._sheet import check_sheet_model
 
-            if not isinstance(model, DipoleModel):
-                raise InputError(f"expected a dipole calibration for the sheet band method (a "
-                                 f"source coil's image in a sheet is a dipole), got "
-                                 f"{type(model).__name__}")
+            check_sheet_model(model)
         self.model, self.hemisphere = model, hemisphere
         self.sheet_searches = int(sheet_searches)
         self._solver = None

@@ -185,6 +185,15 @@ def _search_starts(p):
     return out
 
 
+def check_sheet_model(model):
+    """``model`` if the sheet fit can take it (a dipole model: a source coil's image in a
+    sheet is a dipole), else an InputError naming what arrived."""
+    if getattr(model, "kind", None) != "dipole":
+        raise InputError(f"expected a dipole calibration for --bands sheet (a source coil's "
+                         f"image in a sheet is a dipole), got a {type(model).__name__}")
+    return model
+
+
 def fit_sheet(model, bands, frequencies, initial, *, fast: int = 0,
               good: float = SHEET_GOOD_RESIDUAL, start=None, solve=None,
               max_searches: int = 2, max_nfev: int = 200):
@@ -219,12 +228,9 @@ def fit_sheet(model, bands, frequencies, initial, *, fast: int = 0,
     from scipy.optimize import least_squares
     from scipy.spatial.transform import Rotation
 
-    from ..field import DipoleModel
     from ..geometry import pose_from_vector
 
-    if not isinstance(model, DipoleModel):
-        raise InputError(f"expected a dipole calibration for --bands sheet (a source coil's "
-                         f"image in a sheet is a dipole), got a {type(model).__name__}")
+    check_sheet_model(model)
     B = np.asarray(bands)
     f = np.asarray(frequencies, dtype=np.float64)
     if B.ndim != 4 or B.shape[1] != len(f) or B.shape[2:] != (model.n_source, model.n_sensor):
