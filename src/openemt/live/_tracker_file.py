@@ -823,14 +823,14 @@ def _solve_section(r, doc, bands) -> tuple[str, float]:
     """``[solve]``: ``bands`` (the couplings each sensor solves from the carrier bands,
     :data:`openemt.solve.LIVE_BAND_METHODS`) and ``band_time_constant`` (s, the fusion's
     low-pass)."""
-    from ..solve import DEFAULT_BAND_TIME_CONSTANT_S
-    from ..solve import LIVE_BAND_METHODS as BAND_METHODS
+    from ..solve import DEFAULT_BAND_TIME_CONSTANT_S, LIVE_BAND_METHODS
 
     sol = r.get(doc, "", "solve", "table", {})
     _unknown_keys(r, sol, "solve", ("bands", "band_time_constant"))
     method = r.get(sol, "solve", "bands", "string", "auto")
-    if method not in BAND_METHODS:
-        raise r.fail("solve.bands", " or ".join(repr(m) for m in BAND_METHODS), repr(method))
+    if method not in LIVE_BAND_METHODS:
+        raise r.fail("solve.bands", " or ".join(repr(m) for m in LIVE_BAND_METHODS),
+                     repr(method))
     if not bands and method not in ("auto", "fast"):
         raise r.fail("solve.bands", "'auto' or 'fast' for carriers of one band (several bands: "
                      "source.frequencies as [[fast, slow], ...] per coil)", repr(method))

@@ -38,13 +38,13 @@ The couplings to solve
 ----------------------
 :class:`BandStage` is the one place where ``solve`` and ``track`` turn a sample's band
 couplings into the real couplings the pose solver takes (``bands`` = :data:`BAND_METHODS`):
-``fast`` (the highest band), ``slow`` (the lowest), ``fuse`` (above; rows in time order only)
+``fast`` (the highest band), ``slow`` (the lowest), ``fuse`` (above; rows in time order only),
 ``eddy-free`` (:func:`eddy_free_couplings` on the samples whose fast-band quadrature ratio
-exceeds the distortion threshold, the fast band elsewhere) or ``sheet`` (on those samples, the
-pose and a conducting sheet fitted together and the sheet's part taken out,
-:func:`openemt.solve.fit_sheet`; ``eddy-free`` where no sheet explains the sample; dipole
-calibrations), on the samples whose fast or slow band's quadrature ratio exceeds the
-threshold. ``auto`` (the default):
+exceeds the distortion threshold, the fast band elsewhere) or ``sheet`` (``solve`` only, dipole
+calibrations: on the samples whose fast or slow band's quadrature ratio exceeds the threshold,
+the pose and a conducting sheet fitted together and the sheet's part taken out,
+:func:`openemt.solve.fit_sheet`; ``eddy-free`` where no sheet explains a sample). ``auto``
+(the default):
 ``fuse`` where the rows are a time series at a known rate (``track``, a recording), else
 band 0 as without bands (docs/live.md#carrier-bands gives the reasons).
 """
@@ -56,7 +56,8 @@ import numpy as np
 from .._errors import InputError
 
 __all__ = ["BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "LIVE_BAND_METHODS", "BandReader",
-           "BandStage", "band_dataset_shape", "cole_cole_couplings", "eddy_free_couplings", "fuse_bands", "resolve_bands"]
+           "BandStage", "band_dataset_shape", "cole_cole_couplings", "eddy_free_couplings",
+           "fuse_bands", "resolve_bands"]
 
 #: The choices of a live stream's ``bands`` (``track --bands``, the tracker file's ``[solve]
 #: bands``).
