@@ -25,6 +25,7 @@ def test_bench_metal_small():
     # two bands, no calibration of the object: the sheet fitted with each sample's pose
     assert sheet["uncompensated_rms_mm"] > 5 * sheet["compensated_rms_mm"]["two_band_sheet"]
     assert out["targets"]["aluminium_sheet_two_band_sheet_5x"] is True
+    assert sheet["sheet_fit"] == {"n_flagged": 16, "n_fitted": 16}
     assert clean["sheet_fit"] == {"n_flagged": 0, "n_fitted": 0}
     # one induced dipole already takes out most of the sheet's image field
     assert sheet["environment"]["dipoles"] == 1

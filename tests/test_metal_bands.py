@@ -10,7 +10,7 @@ from openemt.bench import _metal
 def _args(**kw):
     base = dict(train=20, test=24, noise=1e-4, max_dipoles=0, witnesses=4, period=120.0,
                 scenes="stainless_ring,titanium_disk,aluminium_sheet", seed=2,
-                sheet_searches=1)
+                sheet_searches=0)
     return argparse.Namespace(**{**base, **kw})
 
 
@@ -30,7 +30,8 @@ def test_two_bands_on_conductive_scenes():
     assert 5 < note["slow_band_hz_for_parameter_0.25"] < 50
     assert "inductive" in note["text"]
     assert out["targets"]["aluminium_sheet_two_band_5x"] is False
-    # the sheet fitted with each sample's pose (no calibration of the object) takes it out
-    assert out["targets"]["aluminium_sheet_two_band_sheet_5x"] is True
-    assert sheet["compensated_rms_mm"]["two_band_sheet"] < 1.0, sheet
-    assert sheet["sheet_fit"]["n_fitted"] == sheet["sheet_fit"]["n_flagged"] == 24
+    # no search allowed here (tests/test_bench_metal.py runs the sheet fit on this scene): every
+    # flagged sample keeps the eddy-free couplings
+    assert sheet["sheet_fit"] == {"n_flagged": 24, "n_fitted": 0}
+    assert sheet["compensated_rms_mm"]["two_band_sheet"] == \
+        sheet["compensated_rms_mm"]["two_band"]
