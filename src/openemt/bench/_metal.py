@@ -100,10 +100,12 @@ def add_arguments(parser) -> None:
                         help="moving ring: seconds of samples (one period of its motion)")
     parser.add_argument("--scenes", default=",".join(SCENES),
                         help=f"comma-separated scenes (default all: {','.join(SCENES)})")
-    parser.add_argument("--sheet-searches", type=int, default=2,
+    from ..solve import SHEET_SEARCHES
+
+    parser.add_argument("--sheet-searches", type=int, default=SHEET_SEARCHES,
                         help="two_band_sheet: fruitless searches for a sheet in a row before "
-                             "only warm starts are tried (2; each a few seconds near metal "
-                             "that is no sheet)")
+                             f"only warm starts are tried ({SHEET_SEARCHES}; each a few "
+                             "seconds near metal that is no sheet)")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -234,7 +236,7 @@ def _scene(name, args, model, rng) -> dict:
     from ..live import distortion_level
     from ..signal import distortion_ratio
     from ..simulate import metal_scene, rig_volume
-    from ..solve import BandStage, cole_cole_couplings
+    from ..solve import SHEET_SEARCHES, BandStage, cole_cole_couplings
 
     t0 = time.perf_counter()
     lo, hi = rig_volume()
@@ -274,7 +276,7 @@ def _scene(name, args, model, rng) -> dict:
     eddy_free = _summary(_errors(_solve(model, C0).poses, Pte))
     sheet_stage = BandStage("sheet", f, quadrature_threshold=QUADRATURE_THRESHOLD,
                             model=model, hemisphere="+y",
-                            sheet_searches=getattr(args, "sheet_searches", 2))
+                            sheet_searches=getattr(args, "sheet_searches", SHEET_SEARCHES))
     sheet = _summary(_errors(_solve(model, sheet_stage(Cte)[0]).poses, Pte))
     fits = sheet_stage.last_sheet
     out["sheet_fit"] = {"n_flagged": 0 if fits is None else len(fits[1]),

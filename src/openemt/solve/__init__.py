@@ -10,7 +10,8 @@ from .._lazy import lazy_exports
 
 #: where each public name lives; a module is imported on first use of one of its names
 _SOURCES = {
-    "._sheet": ("SHEET_GOOD_RESIDUAL", "SheetFit", "fit_sheet", "sheet_couplings"),
+    "._sheet": ("SHEET_GOOD_RESIDUAL", "SHEET_SEARCHES", "SheetFit", "fit_sheet",
+                "sheet_couplings"),
     "._bands": ("BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "LIVE_BAND_METHODS",
                 "BandReader", "BandStage",
                 "cole_cole_couplings", "eddy_free_couplings", "fuse_bands", "resolve_bands"),

@@ -54,6 +54,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import InputError
+from ._sheet import SHEET_SEARCHES
 
 __all__ = ["BAND_METHODS", "DEFAULT_BAND_TIME_CONSTANT_S", "LIVE_BAND_METHODS", "BandReader",
            "BandStage", "band_dataset_shape", "cole_cole_couplings", "eddy_free_couplings",
@@ -300,7 +301,7 @@ class BandStage:
     def __init__(self, method: str, frequencies, *, time_constant: float =
                  DEFAULT_BAND_TIME_CONSTANT_S, rate: float | None = None,
                  quadrature_threshold: float = 1e-3, signed: bool = False, model=None,
-                 hemisphere=None, sheet_searches: int = 2):
+                 hemisphere=None, sheet_searches: int = SHEET_SEARCHES):
         if method not in BAND_METHODS[1:]:
             raise InputError(f"expected a band method in {', '.join(BAND_METHODS[1:])}, got "
                              f"{method!r}")

@@ -61,13 +61,17 @@ import numpy as np
 
 from .._errors import InputError
 
-__all__ = ["SHEET_GOOD_RESIDUAL", "SHEET_NODES", "SheetFit", "fit_sheet", "sheet_couplings"]
+__all__ = ["SHEET_GOOD_RESIDUAL", "SHEET_NODES", "SHEET_SEARCHES", "SheetFit", "fit_sheet",
+           "sheet_couplings"]
 
 #: Gauss-Legendre nodes of the receding-image integral (in log u).
 SHEET_NODES = 40
 #: Relative residual (complex, all bands, over the fast band's coupling norm) below which a
 #: sample's sheet fit is taken; above it the sample is not explained by a sheet.
 SHEET_GOOD_RESIDUAL = 5e-3
+#: Fruitless searches for a sheet in a row before only warm starts are tried (``fit_sheet``'s
+#: ``max_searches``, ``BandStage``'s ``sheet_searches``, ``bench metal --sheet-searches``).
+SHEET_SEARCHES = 2
 _MU0 = 4e-7 * np.pi
 #: Strengths of the last sheet's part through which the pose is followed when it does not
 #: converge straight from the fast band's pose (a continuation from the uncompensated pose).
@@ -106,16 +110,16 @@ def sheet_couplings(model, x, frequencies) -> tuple[np.ndarray, np.ndarray]:
     y, z, rx, ry, rz, theta, phi, d, log S]`` (pose vector; the normal's polar angles in the
     source frame; offset (m); log conductance (S)) and carriers ``frequencies (n_bands,
     n_source)`` (Hz)."""
-    from scipy.spatial.transform import Rotation
+    from ..geometry import pose_from_vector
 
     x = np.asarray(x, dtype=np.float64)
     n = _normal(x[6], x[7])
-    R = Rotation.from_rotvec(x[3:6]).as_matrix()
+    P = pose_from_vector(x[:6])
+    clean = model.coupling(P[None])[0]
+    R = P[:3, :3]
     pk = (R @ model.L_se).T + x[:3]                                  # sensor coils (n_se, 3)
     mk = (R @ model.M_se).T
     Ls, Ms = model.L_so.T, model.M_so.T                              # source coils (n_so, 3)
-    clean = model.gain * np.einsum("jka,ka->jk", _field(pk[None] - Ls[:, None], Ms[:, None]),
-                                   mk)
     Lm = Ls - 2.0 * (Ls @ n + x[8])[:, None] * n                     # mirrored positions
     Mm = Ms - 2.0 * (Ms @ n)[:, None] * n                            # the images' moments
     S = np.exp(x[9])
@@ -132,14 +136,14 @@ def sheet_couplings(model, x, frequencies) -> tuple[np.ndarray, np.ndarray]:
 def _fixed_point(model, sheet, C_fast, f_fast, pv, solve, steps: int = 6):
     """Pose vector from the fast band less the part of ``sheet`` at the current pose, solved
     ``steps`` times from ``pv`` (stops where the solver returns no finite pose)."""
-    from scipy.spatial.transform import Rotation
+    from ..geometry import vector_from_pose
 
     for _ in range(steps):
         _, part = sheet_couplings(model, np.r_[pv, sheet], f_fast[None])
         P = np.asarray(solve((C_fast.real - part[0].real)[None]))[0]
         if not np.all(np.isfinite(P)):
             break
-        pv = np.r_[P[:3, 3], Rotation.from_matrix(P[:3, :3]).as_rotvec()]
+        pv = vector_from_pose(P)
     return pv
 
 
@@ -196,7 +200,7 @@ def check_sheet_model(model):
 
 def fit_sheet(model, bands, frequencies, initial, *, fast: int = 0,
               good: float = SHEET_GOOD_RESIDUAL, start=None, solve=None,
-              max_searches: int = 2, max_nfev: int = 200):
+              max_searches: int = SHEET_SEARCHES, max_nfev: int = 200):
     """Fit each sample's pose and sheet (module docstring).
 
     Parameters
@@ -226,9 +230,8 @@ def fit_sheet(model, bands, frequencies, initial, *, fast: int = 0,
     none fitted), the ``start`` of the next block.
     """
     from scipy.optimize import least_squares
-    from scipy.spatial.transform import Rotation
 
-    from ..geometry import pose_from_vector
+    from ..geometry import pose_from_vector, vector_from_pose
 
     check_sheet_model(model)
     B = np.asarray(bands)
@@ -260,7 +263,7 @@ def fit_sheet(model, bands, frequencies, initial, *, fast: int = 0,
             if not (np.isfinite(scale) and scale > 0 and np.all(np.isfinite(C))):
                 continue
             if np.all(np.isfinite(P0[i])):
-                pv = np.r_[P0[i, :3, 3], Rotation.from_matrix(P0[i, :3, :3]).as_rotvec()]
+                pv = vector_from_pose(P0[i])
             elif prev_pose is not None:
                 pv = prev_pose
             else:
