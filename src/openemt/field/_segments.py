@@ -10,9 +10,14 @@ scalar factor ``f = N / (P Q)`` (``N = |A| + |B|``, ``P = |A| |B|``, ``Q = P + A
 ``df = f (dN/N - dP/P - dQ/Q)``. A coil is a run of segments (a board's spiral trace, see
 :mod:`openemt.board`); fields are in tesla for 1 A.
 
-The kernels are the inner loop of the 5-DOF finite-coil solver (:mod:`openemt.solve._planar`)
-and of the planar calibration (:mod:`openemt.calibrate._planar`); magpylib remains the
-reference they are tested against.
+The kernels are the inner loop of the 5-DOF finite-coil solver (:mod:`openemt.solve._planar`),
+of the LM kernels' board specialisation (:mod:`openemt.solve._model_kernels`) and of the planar
+calibration (:mod:`openemt.calibrate._planar`); magpylib remains the reference they are tested
+against. Each sum over a coil's segments is written for the processor's vector units: no branch
+in the loop, one division per segment (the inverses of ``N``, ``P`` and ``Q`` all come from
+``1 / (N P Q)``) and sums that the ``fastmath`` flags :data:`_VECTOR` let LLVM reorder into
+vector lanes (on the 2-core development machine 5.6 ns per segment and point with the
+directional gradient, 4.2 ns without; 15.1 and 7.8 ns for the sequential loop before).
 """
 
 from __future__ import annotations
@@ -28,11 +33,22 @@ __all__ = ["MU0_OVER_4PI", "segment_coupling", "segment_fields"]
 #: mu0 / (4 pi) in T m / A.
 MU0_OVER_4PI = mu_0 / (4.0 * np.pi)
 
+#: The ``fastmath`` flags of the kernels around the segment sums (:func:`_accumulate_along`,
+#: :func:`_accumulate_field`, :func:`_accumulate_gradient`): reassociation (the sums over
+#: segments run in vector lanes, in another order: results differ from the sequential sum in
+#: the last bits, about 1e-15 relative), contraction into fused multiply-adds, and no signed
+#: zeros. Not ``nnan``/``ninf``: the comparison that finds a point on a segment keeps its
+#: meaning.
+_VECTOR = {"reassoc", "contract", "nsz"}
+
 
 @njit(cache=True, inline="always")
-def _accumulate(S, lo, hi, rx, ry, rz, out_b, out_g, grad):
-    """Add the field (and with ``grad`` its gradient ``out_g[a, j] = dB_a/dr_j``) of segments
-    ``lo:hi`` of ``S`` (S, 2, 3) at ``r`` to ``out_b`` (3,), ``out_g`` (3, 3); unit prefactor."""
+def _accumulate_gradient(S, lo, hi, rx, ry, rz, out_b, out_g):
+    """Add the field and its gradient ``out_g[a, j] = dB_a/dr_j`` of segments ``lo:hi`` of
+    ``S`` (S, 2, 3) at ``r`` to ``out_b`` (3,), ``out_g`` (3, 3); unit prefactor. Branch-free,
+    with one division per segment, as :func:`_accumulate_along`."""
+    b0 = b1 = b2 = 0.0
+    g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
     for s in range(lo, hi):
         ax = S[s, 0, 0] - rx
         ay = S[s, 0, 1] - ry
@@ -44,51 +60,55 @@ def _accumulate(S, lo, hi, rx, ry, rz, out_b, out_g, grad):
         nb = np.sqrt(bx * bx + by * by + bz * bz)
         P = na * nb
         Q = P + ax * bx + ay * by + az * bz
-        if not (P * Q > 0.0):
-            continue                     # on the segment itself: no finite field
         N = na + nb
-        f = N / (P * Q)
+        den = N * P * Q
+        inv = 1.0 / den if den > 0.0 else 0.0      # on the segment itself: no finite field
+        iN = P * Q * inv
+        iQ = N * P * inv
+        iP = N * Q * inv
+        ia = nb * iP
+        ib = na * iP
+        f = N * iP * iQ
         cx = ay * bz - az * by
         cy = az * bx - ax * bz
         cz = ax * by - ay * bx
-        out_b[0] += f * cx
-        out_b[1] += f * cy
-        out_b[2] += f * cz
-        if grad:
-            dx = S[s, 0, 0] - S[s, 1, 0]
-            dy = S[s, 0, 1] - S[s, 1, 1]
-            dz = S[s, 0, 2] - S[s, 1, 2]
-            ia = 1.0 / na
-            ib = 1.0 / nb
-            iN = 1.0 / N
-            iP = 1.0 / P
-            iQ = 1.0 / Q
-            # d/dr_j of |A|, |B|: -A_j/|A|, -B_j/|B|; df = f (dN/N - dP/P - dQ/Q)
-            dna = -ax * ia
-            dnb = -bx * ib
-            dP = dna * nb + na * dnb
-            df0 = f * ((dna + dnb) * iN - dP * iP - (dP - ax - bx) * iQ)
-            dna = -ay * ia
-            dnb = -by * ib
-            dP = dna * nb + na * dnb
-            df1 = f * ((dna + dnb) * iN - dP * iP - (dP - ay - by) * iQ)
-            dna = -az * ia
-            dnb = -bz * ib
-            dP = dna * nb + na * dnb
-            df2 = f * ((dna + dnb) * iN - dP * iP - (dP - az - bz) * iQ)
-            # d(A x B)/dr_j = e_j x (a - b)
-            out_g[0, 0] += cx * df0
-            out_g[0, 1] += dz * f + cx * df1
-            out_g[0, 2] += -dy * f + cx * df2
-            out_g[1, 0] += -dz * f + cy * df0
-            out_g[1, 1] += cy * df1
-            out_g[1, 2] += dx * f + cy * df2
-            out_g[2, 0] += dy * f + cz * df0
-            out_g[2, 1] += -dx * f + cz * df1
-            out_g[2, 2] += cz * df2
+        b0 += f * cx
+        b1 += f * cy
+        b2 += f * cz
+        dx = ax - bx
+        dy = ay - by
+        dz = az - bz
+        # df/dr_j = kA A_j + kB B_j: from d|A|/dr_j = -A_j/|A|, d|B|/dr_j = -B_j/|B|
+        kA = f * (ia * (ia - iN + nb * iQ) + iQ)
+        kB = f * (ib * (ib - iN + na * iQ) + iQ)
+        df0 = kA * ax + kB * bx
+        df1 = kA * ay + kB * by
+        df2 = kA * az + kB * bz
+        # d(A x B)/dr_j = e_j x (a - b)
+        g00 += cx * df0
+        g01 += dz * f + cx * df1
+        g02 += -dy * f + cx * df2
+        g10 += -dz * f + cy * df0
+        g11 += cy * df1
+        g12 += dx * f + cy * df2
+        g20 += dy * f + cz * df0
+        g21 += -dx * f + cz * df1
+        g22 += cz * df2
+    out_b[0] += b0
+    out_b[1] += b1
+    out_b[2] += b2
+    out_g[0, 0] += g00
+    out_g[0, 1] += g01
+    out_g[0, 2] += g02
+    out_g[1, 0] += g10
+    out_g[1, 1] += g11
+    out_g[1, 2] += g12
+    out_g[2, 0] += g20
+    out_g[2, 1] += g21
+    out_g[2, 2] += g22
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_VECTOR)
 def _fields(S, offsets, points, grad):
     nc = offsets.shape[0] - 1
     n = points.shape[0]
@@ -96,8 +116,15 @@ def _fields(S, offsets, points, grad):
     G = np.zeros((nc, n, 3, 3))
     for i in range(nc):
         for k in range(n):
-            _accumulate(S, offsets[i], offsets[i + 1], points[k, 0], points[k, 1],
-                        points[k, 2], B[i, k], G[i, k], grad)
+            if grad:
+                _accumulate_gradient(S, offsets[i], offsets[i + 1], points[k, 0], points[k, 1],
+                                     points[k, 2], B[i, k], G[i, k])
+            else:
+                b0, b1, b2 = _accumulate_field(S, offsets[i], offsets[i + 1], points[k, 0],
+                                               points[k, 1], points[k, 2])
+                B[i, k, 0] = b0
+                B[i, k, 1] = b1
+                B[i, k, 2] = b2
     return B * MU0_OVER_4PI, G * MU0_OVER_4PI
 
 
@@ -181,14 +208,6 @@ def _accumulate_field(S, lo, hi, rx, ry, rz):
         o1 += f * (az * bx - ax * bz)
         o2 += f * (ax * by - ay * bx)
     return o0, o1, o2
-
-
-#: The ``fastmath`` flags of the kernels around :func:`_accumulate_along` and
-#: :func:`_accumulate_field`: reassociation (sums over segments in vector lanes, in another
-#: order: results differ from the sequential sum in the last bits, about 1e-15 relative),
-#: contraction into fused multiply-adds, and no signed zeros. Not ``nnan``/``ninf``: the
-#: comparison that finds a point on a segment keeps its meaning.
-_VECTOR = {"reassoc", "contract", "nsz"}
 
 
 @njit(cache=True, fastmath=_VECTOR)
