@@ -134,16 +134,20 @@ def eddy_free_couplings(band_couplings, band_frequencies, *, slow=None, fast=Non
     ws = 2 * np.pi * f[s][None, :, None]
     wf = 2 * np.pi * f[q][None, :, None]
     Cs, Cf = C[:, s], C[:, q]
-    d_re = Cf.real - Cs.real
-    d_q = wf * Cf.imag - ws * Cs.imag
-    num = np.sum(d_re * d_q, axis=(1, 2))
-    den = np.sum(d_q * d_q, axis=(1, 2))
-    tau = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
-    # each entry its own time constant where its eddy signal is strong, shrunk towards the
-    # sample's where it is weak (a ridge of weight `shrink` x the mean eddy signal)
-    mu = float(shrink) * den[:, None, None] / d_q[0].size
-    t_ij = (d_re * d_q + mu * tau[:, None, None]) / np.where(d_q**2 + mu > 0, d_q**2 + mu, 1.0)
-    C0 = Cs.real - ws * t_ij * Cs.imag
+    # a sample whose values overflow here gets non-finite couplings, which the solvers flag
+    # as invalid input: no warning for it
+    with np.errstate(over="ignore", invalid="ignore"):
+        d_re = Cf.real - Cs.real
+        d_q = wf * Cf.imag - ws * Cs.imag
+        num = np.sum(d_re * d_q, axis=(1, 2))
+        den = np.sum(d_q * d_q, axis=(1, 2))
+        tau = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+        # each entry its own time constant where its eddy signal is strong, shrunk towards the
+        # sample's where it is weak (a ridge of weight `shrink` x the mean eddy signal)
+        mu = float(shrink) * den[:, None, None] / d_q[0].size
+        t_ij = (d_re * d_q + mu * tau[:, None, None]) / np.where(d_q**2 + mu > 0,
+                                                                  d_q**2 + mu, 1.0)
+        C0 = Cs.real - ws * t_ij * Cs.imag
     return (C0, tau) if return_tau else C0
 
 
