@@ -119,6 +119,33 @@ def test_segment_gradient_matches_differences(anser):
     assert np.abs(G - np.swapaxes(G, 2, 3)).max() < 1e-9 * np.abs(G).max()
 
 
+def test_point_on_a_segment_adds_nothing_from_it(anser):
+    """A point on a trace (inside a segment, or on a vertex) gets no finite field from the
+    segments it lies on: they add exactly nothing (the branch-free kernels zero their factor
+    instead of skipping them), and the field, gradient and coupling there are finite and those
+    of the other segments."""
+    S, off = anser.segments()
+    S0 = S[off[0]:off[1]]
+    mid = 0.5 * (S0[10, 0] + S0[10, 1])            # inside segment 10 of coil 0
+    vertex = S0[20, 0]                              # the end of segment 19, start of 20
+    for point, own in ((mid, [10]), (vertex, [19, 20])):
+        rest = np.delete(S0, own, axis=0)
+        B, G = segment_fields(S0, [0, len(S0)], point[None], gradient=True)
+        Br, Gr = segment_fields(rest, [0, len(rest)], point[None], gradient=True)
+        assert np.isfinite(B).all() and np.isfinite(G).all()
+        np.testing.assert_allclose(B, Br, rtol=1e-12, atol=1e-12 * np.abs(Br).max())
+        np.testing.assert_allclose(G, Gr, rtol=1e-12, atol=1e-12 * np.abs(Gr).max())
+        assert np.allclose(segment_fields(S0, [0, len(S0)], point[None]), B, rtol=1e-12)
+        u = np.array([[0.0, 0.6, 0.8]])
+        C, dp, du = segment_coupling(S0, [0, len(S0)], 1.0, point[None], u, gradient=True)
+        Cr, dpr, dur = segment_coupling(rest, [0, len(rest)], 1.0, point[None], u,
+                                        gradient=True)
+        assert np.isfinite(C).all() and np.isfinite(dp).all() and np.isfinite(du).all()
+        np.testing.assert_allclose(C, Cr, rtol=1e-12)
+        np.testing.assert_allclose(dp, dpr, rtol=1e-12, atol=1e-12 * np.abs(dpr).max())
+        np.testing.assert_allclose(du, dur, rtol=1e-12, atol=1e-12 * np.abs(dur).max())
+
+
 def test_coupling_derivatives(anser):
     m = BoardModel.from_board(anser, gains=2.0)
     p = np.array([[0.02, 0.03, 0.09]])
