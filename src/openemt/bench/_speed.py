@@ -23,7 +23,8 @@ at 80 dB SNR on the couplings.
 - ``svd_complex``, ``kuipers_complex``, ``kim18_complex``: the closed forms on the same
   couplings as complex phasors (quadrature noise at the same SNR added: ``sign(Re z) |z|`` and
   the complex spectral norm enter); ``closed_form_complex_ratios`` gives each one's
-  real-input rate over its complex-input rate, ``closed_form_complex_ratio`` the largest;
+  real-input rate over its complex-input rate (the two timed in alternation, best of
+  ``--repeats`` each), ``closed_form_complex_ratio`` the largest;
 - baseline: ``scipy.optimize.least_squares`` (default 'trf', finite-difference Jacobian) called
   once per pose on the same model from the same Kim18 start, as the peer trackers do, with
   tolerances 1e-12 so that its answer can be compared at the 1e-9 m level.
@@ -253,11 +254,19 @@ def run(args) -> dict:
         for name in ("svd", "kuipers", "kim18"):
             f = closed[name]
             f(Cc[:50])
-            dt, wall, res = best_time(lambda f=f: f(Cc), args.repeats)
-            summary[f"{name}_complex_poses_per_s"] = n / dt
+            # real and complex input timed in alternation, so that both see the machine in
+            # the same state (timed minutes apart, one slow phase decided the ratio)
+            real_cpu, cpu, wall, res = np.inf, np.inf, np.inf, None
+            for _ in range(max(1, args.repeats)):
+                real_cpu = min(real_cpu, best_time(lambda f=f: f(C), 1)[0])
+                dt_r, wall_r, out = best_time(lambda f=f: f(Cc), 1)
+                cpu = min(cpu, dt_r)
+                if wall_r < wall:
+                    wall, res = wall_r, out
+            summary[f"{name}_complex_poses_per_s"] = n / cpu
             summary[f"{name}_complex_wall_poses_per_s"] = n / wall
             summary[f"{name}_complex_status_counts"] = res.status_counts()
-            ratios[name] = summary[f"{name}_poses_per_s"] * dt / n
+            ratios[name] = cpu / real_cpu
         summary["closed_form_complex_ratios"] = ratios
         summary["closed_form_complex_ratio"] = max(ratios.values())
         for name in ("lm_tracking", "lm_cold_trajectory"):
