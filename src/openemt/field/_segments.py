@@ -53,35 +53,51 @@ _VECTOR = {"reassoc", "contract", "nsz"}
 
 
 @njit(cache=True, inline="always")
+def _segment(S, s, rx, ry, rz):
+    """Segment ``s`` of ``S`` seen from ``r``: ``A = a - r``, ``B = b - r``, ``|A|``, ``|B|``,
+    ``P = |A| |B|`` and ``Q = P + A . B``, which is set to zero for a point on the segment
+    (:data:`ON_TRACE`). Written as a select that LLVM's loop vectoriser accepts (the same
+    test as one condition of the callers' division stopped it vectorising the loop)."""
+    ax = S[s, 0, 0] - rx
+    ay = S[s, 0, 1] - ry
+    az = S[s, 0, 2] - rz
+    bx = S[s, 1, 0] - rx
+    by = S[s, 1, 1] - ry
+    bz = S[s, 1, 2] - rz
+    na = np.sqrt(ax * ax + ay * ay + az * az)
+    nb = np.sqrt(bx * bx + by * by + bz * bz)
+    P = na * nb
+    Q = P + ax * bx + ay * by + az * bz
+    Q = Q if Q > ON_TRACE * P else 0.0
+    return ax, ay, az, bx, by, bz, na, nb, P, Q
+
+
+@njit(cache=True, inline="always")
+def _factors(na, nb, P, Q):
+    """``f = N / (P Q)`` and ``kA``, ``kB`` with ``df/dr_j = f (kA A_j + kB B_j)`` (from
+    ``d|A|/dr_j = -A_j / |A|``, ``d|B|/dr_j = -B_j / |B|``), with one division: the inverses
+    of ``N``, ``P`` and ``Q`` all come from ``1 / (N P Q)``; all zero on the segment."""
+    N = na + nb
+    den = N * P * Q
+    inv = 1.0 / den if den > 0.0 else 0.0
+    iN = P * Q * inv
+    iQ = N * P * inv
+    iP = N * Q * inv
+    ia = nb * iP
+    ib = na * iP
+    return N * iP * iQ, ia * (ia - iN + nb * iQ) + iQ, ib * (ib - iN + na * iQ) + iQ
+
+
+@njit(cache=True, inline="always")
 def _accumulate_gradient(S, lo, hi, rx, ry, rz, out_b, out_g):
     """Add the field and its gradient ``out_g[a, j] = dB_a/dr_j`` of segments ``lo:hi`` of
     ``S`` (S, 2, 3) at ``r`` to ``out_b`` (3,), ``out_g`` (3, 3); unit prefactor. Branch-free,
-    with one division per segment, as :func:`_accumulate_along`."""
+    as :func:`_accumulate_along`."""
     b0 = b1 = b2 = 0.0
     g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
     for s in range(lo, hi):
-        ax = S[s, 0, 0] - rx
-        ay = S[s, 0, 1] - ry
-        az = S[s, 0, 2] - rz
-        bx = S[s, 1, 0] - rx
-        by = S[s, 1, 1] - ry
-        bz = S[s, 1, 2] - rz
-        na = np.sqrt(ax * ax + ay * ay + az * az)
-        nb = np.sqrt(bx * bx + by * by + bz * bz)
-        P = na * nb
-        Q = P + ax * bx + ay * by + az * bz
-        N = na + nb
-        # on the segment: no finite field (Q = 0 there; written as two selects on purpose,
-        # the one form of this test that LLVM's loop vectoriser accepted)
-        Q = Q if Q > ON_TRACE * P else 0.0
-        den = N * P * Q
-        inv = 1.0 / den if den > 0.0 else 0.0
-        iN = P * Q * inv
-        iQ = N * P * inv
-        iP = N * Q * inv
-        ia = nb * iP
-        ib = na * iP
-        f = N * iP * iQ
+        ax, ay, az, bx, by, bz, na, nb, P, Q = _segment(S, s, rx, ry, rz)
+        f, kA, kB = _factors(na, nb, P, Q)
         cx = ay * bz - az * by
         cy = az * bx - ax * bz
         cz = ax * by - ay * bx
@@ -91,12 +107,11 @@ def _accumulate_gradient(S, lo, hi, rx, ry, rz, out_b, out_g):
         dx = ax - bx
         dy = ay - by
         dz = az - bz
-        # df/dr_j = kA A_j + kB B_j: from d|A|/dr_j = -A_j/|A|, d|B|/dr_j = -B_j/|B|
-        kA = f * (ia * (ia - iN + nb * iQ) + iQ)
-        kB = f * (ib * (ib - iN + na * iQ) + iQ)
-        df0 = kA * ax + kB * bx
-        df1 = kA * ay + kB * by
-        df2 = kA * az + kB * bz
+        fa = f * kA
+        fb = f * kB
+        df0 = fa * ax + fb * bx
+        df1 = fa * ay + fb * by
+        df2 = fa * az + fb * bz
         # d(A x B)/dr_j = e_j x (a - b)
         g00 += cx * df0
         g01 += dz * f + cx * df1
@@ -147,34 +162,13 @@ def _accumulate_along(S, lo, hi, rx, ry, rz, ux, uy, uz, out):
     ``r``: the directional gradient a single-coil coupling needs, without the full 3x3.
 
     Written for the processor's vector units: no branch in the loop (a point on a segment adds
-    nothing through a zero factor instead of a ``continue``), one division per segment (the
-    inverses of ``N``, ``P`` and ``Q`` all come from ``1 / (N P Q)``) and the sums in
-    registers, which the caller's ``fastmath`` flags (:data:`_VECTOR`) let LLVM reorder into
-    vector lanes."""
+    nothing through a zero factor instead of a ``continue``), one division per segment
+    (:func:`_factors`) and the sums in registers, which the caller's ``fastmath`` flags
+    (:data:`_VECTOR`) let LLVM reorder into vector lanes."""
     o0 = o1 = o2 = o3 = o4 = o5 = 0.0
     for s in range(lo, hi):
-        ax = S[s, 0, 0] - rx
-        ay = S[s, 0, 1] - ry
-        az = S[s, 0, 2] - rz
-        bx = S[s, 1, 0] - rx
-        by = S[s, 1, 1] - ry
-        bz = S[s, 1, 2] - rz
-        na = np.sqrt(ax * ax + ay * ay + az * az)
-        nb = np.sqrt(bx * bx + by * by + bz * bz)
-        P = na * nb
-        Q = P + ax * bx + ay * by + az * bz
-        N = na + nb
-        # on the segment: no finite field (Q = 0 there; written as two selects on purpose,
-        # the one form of this test that LLVM's loop vectoriser accepted)
-        Q = Q if Q > ON_TRACE * P else 0.0
-        den = N * P * Q
-        inv = 1.0 / den if den > 0.0 else 0.0
-        iN = P * Q * inv
-        iQ = N * P * inv
-        iP = N * Q * inv
-        ia = nb * iP
-        ib = na * iP
-        f = N * iP * iQ
+        ax, ay, az, bx, by, bz, na, nb, P, Q = _segment(S, s, rx, ry, rz)
+        f, kA, kB = _factors(na, nb, P, Q)
         cx = ay * bz - az * by
         cy = az * bx - ax * bz
         cz = ax * by - ay * bx
@@ -185,9 +179,6 @@ def _accumulate_along(S, lo, hi, rx, ry, rz, ux, uy, uz, out):
         dy = ay - by
         dz = az - bz
         uc = ux * cx + uy * cy + uz * cz
-        # df/dr_j = f (kA A_j + kB B_j): from d|A|/dr_j = -A_j/|A|, d|B|/dr_j = -B_j/|B|
-        kA = ia * (ia - iN + nb * iQ) + iQ
-        kB = ib * (ib - iN + na * iQ) + iQ
         fa = uc * f * kA
         fb = uc * f * kB
         # u . d(A x B)/dr_j = u . (e_j x (a - b)) = ((a - b) x u)_j
@@ -208,17 +199,7 @@ def _accumulate_field(S, lo, hi, rx, ry, rz):
     :func:`_accumulate_along`: the coupling without derivatives."""
     o0 = o1 = o2 = 0.0
     for s in range(lo, hi):
-        ax = S[s, 0, 0] - rx
-        ay = S[s, 0, 1] - ry
-        az = S[s, 0, 2] - rz
-        bx = S[s, 1, 0] - rx
-        by = S[s, 1, 1] - ry
-        bz = S[s, 1, 2] - rz
-        na = np.sqrt(ax * ax + ay * ay + az * az)
-        nb = np.sqrt(bx * bx + by * by + bz * bz)
-        P = na * nb
-        Q = P + ax * bx + ay * by + az * bz
-        Q = Q if Q > ON_TRACE * P else 0.0          # on the segment (see _accumulate_along)
+        ax, ay, az, bx, by, bz, na, nb, P, Q = _segment(S, s, rx, ry, rz)
         den = P * Q
         f = (na + nb) / den if den > 0.0 else 0.0
         o0 += f * (ay * bz - az * by)
