@@ -196,7 +196,8 @@ def _accumulate_along(S, lo, hi, rx, ry, rz, ux, uy, uz, out):
 @njit(cache=True, inline="always")
 def _accumulate_field(S, lo, hi, rx, ry, rz):
     """``B`` of segments ``lo:hi`` at ``r`` (unit prefactor), branch-free as
-    :func:`_accumulate_along`: the coupling without derivatives."""
+    :func:`_accumulate_along`: the field without derivatives (of a coupling, and of
+    :func:`segment_fields`)."""
     o0 = o1 = o2 = 0.0
     for s in range(lo, hi):
         ax, ay, az, bx, by, bz, na, nb, P, Q = _segment(S, s, rx, ry, rz)
