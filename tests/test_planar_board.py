@@ -232,6 +232,16 @@ def test_planar_speed_bench_small():
     assert out["planar_lm_tracking_status_counts"]["converged"] == 300
     assert out["planar_max_position_diff_m"] < 1e-6
     assert out["planar_reference_model_relative_diff"] < 1e-9
+    # what bounds the 6-DOF board: 2 sensor coils x 2 quadrature nodes x 816 segments an
+    # evaluation, each evaluation and the floor measured, the ceilings derived from them
+    assert out["board_6dof_segment_points_per_evaluation"] == 2 * 2 * 816
+    ev = out["board_6dof_evaluation_us"]
+    assert out["board_6dof_ceiling_poses_per_s"] == pytest.approx(
+        1e6 / (ev["with_derivatives"] + ev["without_derivatives"]))
+    for kind, ns in out["board_6dof_floor_ns_per_segment_point"].items():
+        assert np.isfinite(ns) and ns > 0
+        assert out["board_6dof_floor_poses_per_s"][kind] == pytest.approx(
+            1e9 / (2 * 3264 * ns))
 
 
 #: points near a segment's line where magpylib loses digits (see the property test below)

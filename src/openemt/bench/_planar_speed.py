@@ -19,7 +19,13 @@ unit gains (couplings in tesla for 1 A, ~1e-8..1e-5), a smooth sensor path sampl
   :func:`board_6dof_speed`); ``board_6dof_vs_5dof_tracking_ratio`` compares it with
   ``planar_lm_tracking`` in the same run, ``board_6dof_interface_lm_*`` gives the
   interface-level LM on the same couplings (the solver it replaced) and how far the answers of
-  the two are apart.
+  the two are apart. What bounds the rate, measured in the same run
+  (:func:`board_6dof_ceiling`): one evaluation of the sensor by the segment kernel with and
+  without derivatives (``board_6dof_evaluation_us``), the rate if a pose cost only the two
+  evaluations a tracked pose needs at least (``board_6dof_ceiling_poses_per_s``), and the rate
+  if those two evaluations did nothing but read the segments and take the square roots and the
+  division of the exact formula (``board_6dof_floor_*``, two roots per segment as the kernel,
+  or one if each vertex's distance were shared by its two segments).
 - ``planar_live_*``: the live pipeline of ``openemt track`` with a board calibration
   (:func:`planar_live_speed`; docs/planar.md#tracking-live): the shipped ``anser`` tracker's raw
   samples simulated beforehand, then demodulated and solved chunk by chunk (640 samples = 10
@@ -31,11 +37,14 @@ unit gains (couplings in tesla for 1 A, ~1e-8..1e-5), a smooth sensor path sampl
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .._compile_notice import serial_threads
+from ..field._segments import _VECTOR
 from ._timing import best_time
 
-__all__ = ["board_6dof_speed", "planar_live_speed", "planar_speed", "planar_trajectory"]
+__all__ = ["board_6dof_ceiling", "board_6dof_speed", "planar_live_speed", "planar_speed",
+           "planar_trajectory"]
 
 
 def planar_trajectory(n, rate_hz=1000.0):
@@ -182,7 +191,96 @@ def board_6dof_speed(samples=5000, repeats=3, snr_db=80.0, seed=0) -> dict:
             "board_6dof_vs_interface_lm_max_rotation_diff_deg": float(np.degrees(
                 drot.max(initial=0.0))),
             "board_6dof_position_rms_error_mm": e["trans_rms_mm"],
-            "board_6dof_rotation_rms_error_deg": e["rot_rms_deg"]}
+            "board_6dof_rotation_rms_error_deg": e["rot_rms_deg"],
+            **board_6dof_ceiling(model, P, repeats=repeats)}
+
+
+@njit(cache=True, fastmath=_VECTOR)
+def _roots_and_division(S, off, points, shared):
+    """For each point, the sum over every coil's segments of ``1 / (|A| |B|)`` (two square
+    roots and one division a segment, as the segment kernel), or with ``shared`` of
+    ``1 / |A|`` over the segments' starts (one root and one division a segment, as if each
+    vertex's distance served both its segments): the part of the exact segment formula no
+    rewriting of its other operations removes, in the kernel's loop form (branch-free,
+    the sums in vector lanes under the same ``fastmath`` flags)."""
+    out = np.empty(points.shape[0])
+    for p in range(points.shape[0]):
+        rx, ry, rz = points[p, 0], points[p, 1], points[p, 2]
+        acc = 0.0
+        for i in range(off.shape[0] - 1):
+            o = 0.0
+            if shared:
+                for s in range(off[i], off[i + 1]):
+                    ax = S[s, 0, 0] - rx
+                    ay = S[s, 0, 1] - ry
+                    az = S[s, 0, 2] - rz
+                    na = np.sqrt(ax * ax + ay * ay + az * az)
+                    o += 1.0 / na if na > 0.0 else 0.0
+            else:
+                for s in range(off[i], off[i + 1]):
+                    ax = S[s, 0, 0] - rx
+                    ay = S[s, 0, 1] - ry
+                    az = S[s, 0, 2] - rz
+                    bx = S[s, 1, 0] - rx
+                    by = S[s, 1, 1] - ry
+                    bz = S[s, 1, 2] - rz
+                    P = np.sqrt(ax * ax + ay * ay + az * az) * np.sqrt(bx * bx + by * by
+                                                                       + bz * bz)
+                    o += 1.0 / P if P > 0.0 else 0.0
+            acc += o
+        out[p] = acc
+    return out
+
+
+def board_6dof_ceiling(model, P, repeats=3) -> dict:
+    """What bounds the 6-DOF board solver's rate on this machine, at the poses ``P`` of
+    ``model`` (a :class:`~openemt.board.BoardModel`): the process CPU time of one evaluation
+    of the sensor (its coils at every quadrature node, every segment) by the segment kernel the
+    solvers run, with the derivatives a step needs and without (the residual the validity rule
+    judges at the pose returned); the rate if each pose cost just one of each
+    (``board_6dof_ceiling_poses_per_s``); and the same two evaluations reduced to reading the
+    segments and taking the square roots and the division of the exact formula
+    (:func:`_roots_and_division`, ``board_6dof_floor_*``). One numba thread, best of
+    ``repeats``."""
+    from ..field._segments import segment_coupling, sensor_rule
+
+    S, off, g = model.packed()
+    sensor = model.board.sensor
+    R = P[:, :3, :3]
+    pts = (np.einsum("nab,kb->nka", R, np.asarray(sensor.coil_positions(), float))
+           + P[:, None, :3, 3]).reshape(-1, 3)
+    axes = np.einsum("nab,kb->nka", R, np.asarray(sensor.coil_axes(), float)).reshape(-1, 3)
+    nodes, _ = sensor_rule(model.sensor_length)
+    n = len(P)
+    n_se = pts.shape[0] // n
+    per_eval = n_se * len(nodes) * S.shape[0]        # segment-points of one evaluation
+    # every quadrature node's point: what the kernel evaluates
+    q = (pts[:, None, :] + nodes[None, :, None] * axes[:, None, :]).reshape(-1, 3)
+    with serial_threads():
+        times = {}
+        for grad in (True, False):
+            segment_coupling(S, off, g, pts[:2], axes[:2], sensor_length=model.sensor_length,
+                             gradient=grad)
+            times[grad] = best_time(lambda grad=grad: segment_coupling(
+                S, off, g, pts, axes, sensor_length=model.sensor_length, gradient=grad),
+                repeats)[0] / n
+        floor = {}
+        for shared in (False, True):
+            _roots_and_division(S, off, q[:2], shared)
+            floor[shared] = best_time(lambda shared=shared: _roots_and_division(
+                S, off, q, shared), repeats)[0] / (len(q) * S.shape[0])
+    two = times[True] + times[False]
+    return {
+        "board_6dof_segment_points_per_evaluation": int(per_eval),
+        "board_6dof_evaluation_us": {"with_derivatives": 1e6 * times[True],
+                                     "without_derivatives": 1e6 * times[False]},
+        "board_6dof_ceiling_poses_per_s": 1.0 / two,
+        "board_6dof_floor_ns_per_segment_point": {"two_roots_one_division": 1e9 * floor[False],
+                                                  "one_root_one_division": 1e9 * floor[True]},
+        "board_6dof_floor_poses_per_s": {
+            "two_roots_one_division": 1.0 / (2 * per_eval * floor[False]),
+            "one_root_one_division": 1.0 / (2 * per_eval * floor[True])},
+    }
 
 
 def planar_live_speed(seconds: float = 3.0, seed: int = 0) -> dict:
