@@ -164,6 +164,44 @@ def test_relative_residual_is_reported_and_matches_the_definition():
                   > MAX_RELATIVE_RESIDUAL)
 
 
+@pytest.mark.parametrize("which", ["dipole", "board"])
+def test_tracked_residuals_are_those_of_the_poses_returned(which):
+    """The LM kernels judge a pose by the couplings they last predicted there where the solve
+    ended on an evaluation (no second one): residuals must still be those of the pose returned,
+    through retries, restarts from the closed form and failed samples between good ones."""
+    from openemt.board import BoardModel
+    from openemt.solve import prepare
+
+    rng = np.random.default_rng(11)
+    n = 400
+    tt = np.linspace(0.0, 4.0, n)
+    if which == "dipole":
+        model = dipole_approx_model()
+        v = np.column_stack([0.2 + 0.05 * np.sin(tt), 0.05 * np.cos(1.3 * tt),
+                             0.03 * np.sin(0.7 * tt), 0.5 * np.sin(0.3 * tt),
+                             0.4 * np.cos(0.5 * tt), tt])
+    else:
+        model = BoardModel.from_board("anser-6dof")
+        v = np.column_stack([0.05 * np.sin(tt), 0.04 * np.cos(1.3 * tt),
+                             0.12 + 0.03 * np.sin(0.7 * tt), 0.3 * np.sin(0.3 * tt),
+                             0.2 * np.cos(0.5 * tt), tt])
+    C = model.coupling(pose_from_vector(v))
+    C = C + 1e-4 * np.abs(C).max(axis=(1, 2))[:, None, None] * rng.normal(size=C.shape)
+    C[40:45] *= -1.0                                    # failures, then a recovery
+    C[90] = rng.normal(size=C.shape[1:]) * np.abs(C[90]).max()
+    C[200:203] = C[200:203] * 0.5                       # samples that need a restart
+    res = prepare(model, initial="track")(C)
+    ok = np.all(np.isfinite(res.pose_vectors), axis=1)
+    assert ok.sum() > n - 20 and (res.status != Status.CONVERGED).any()
+    Cp = model.coupling(res.poses[ok])
+    rho = relative_residuals(Cp, C[ok])
+    np.testing.assert_allclose(res.relative_residual[ok], rho, rtol=1e-9)
+    # ILEMT's resnorm for a dipole model; rho^2 ||C||_F for a board, as its interface LM
+    expect = (np.sum((Cp - C[ok]) ** 2, axis=(1, 2)) / np.linalg.norm(C[ok], 2, axis=(1, 2))
+              if which == "dipole" else rho ** 2 * np.linalg.norm(C[ok], axis=(1, 2)))
+    np.testing.assert_allclose(res.residual[ok], expect, rtol=1e-9)
+
+
 def test_threshold_is_a_keyword_of_every_solver():
     rng = np.random.default_rng(8)
     model = DipoleModel.concentric()

@@ -164,8 +164,10 @@ def _copy_pose(R_from, t_from, R_to, t_to):
 @njit(cache=True)
 def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
     """Levenberg-Marquardt from ``(R, t)`` (updated in place). Returns ``(cost, iterations,
-    stop)`` with ``stop`` = ``STOP_CONVERGED`` (converged, or stalled at a minimum) or
-    ``STOP_ITERATION_LIMIT``."""
+    stop, fresh)`` with ``stop`` = ``STOP_CONVERGED`` (converged, or stalled at a minimum) or
+    ``STOP_ITERATION_LIMIT``, and ``fresh`` whether ``lmw[0]`` holds the model's couplings at
+    the pose returned (every way out but the converged step applied without an evaluation), so
+    that the validity rule's residual there needs no second evaluation (:func:`_finish`)."""
     Cp, jac, Cp2, jac2, Jb, JtJ, A, Lc, g, delta, basis, R2, t2, dR, phi = lmw
     dt = jac[0]
     dphi = jac[1]
@@ -247,7 +249,7 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
                 _trial(R, t, delta, basis, nr, n, lo, hi, free, t2, phi, dR, R2)
                 if converged:
                     _copy_pose(R2, t2, R, t)
-                    return cost, it, STOP_CONVERGED
+                    return cost, it, STOP_CONVERGED, False
                 # linear-rate prediction: if this step is much smaller than the previous
                 # accepted one and the step after it would be below tolerance, this is the
                 # last step; its Jacobian is not needed
@@ -260,7 +262,10 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
                 if cost2 <= cost:
                     if final:
                         _copy_pose(R2, t2, R, t)
-                        return cost2, it, STOP_CONVERGED
+                        for i in range(n_so):
+                            for j in range(n_se):
+                                Cp[i, j] = Cp2[i, j]
+                        return cost2, it, STOP_CONVERGED, True
                     accepted = True
                     prev_rel = rel
                     break
@@ -292,7 +297,7 @@ def _lm_one(geo, Cm, R, t, n, box, opts, lmw):
                           and np.sqrt(step_r) <= xtol):
             stop = STOP_CONVERGED
             break
-    return cost, it, stop
+    return cost, it, stop, True
 
 
 @njit(inline="always")
@@ -308,10 +313,13 @@ def _acceptable(cost, res_fac, fn, opts):
 def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
     """Solve one sample from the pose vector ``start``, with ILEMT's sign-flip retries if
     ``opts[O_RETRIES]``; the best pose goes to ``sw``'s ``Rb, tb`` (NaN if no run gave a
-    finite cost). Returns ``(cost, iterations, stop)`` of the best run."""
+    finite cost). Returns ``(cost, iterations, stop, fresh)`` of the best run, ``fresh``
+    whether ``lmw[0]`` still holds the couplings it predicts there (normalised, as ``Cm``:
+    the best run was the last and ended on an evaluation, :func:`_lm_one`)."""
     R, t, Rb, tb, v0, rv = sw
     best = np.inf
     best_stop = STOP_ITERATION_LIMIT
+    best_fresh = False
     total_it = 0
     tb[:] = np.nan
     Rb[:, :] = np.nan
@@ -329,15 +337,18 @@ def _solve_sample(geo, Cm, res_fac, fn, start, n, box, opts, sw, lmw):
             t[a] = v0[a]
             rv[a] = v0[3 + a]
         exp_so3(rv, R)
-        cost, it, stop = _lm_one(geo, Cm, R, t, n, box, opts, lmw)
+        cost, it, stop, fresh = _lm_one(geo, Cm, R, t, n, box, opts, lmw)
         total_it += it
         if better_run(cost, stop == STOP_CONVERGED, best, best_stop == STOP_CONVERGED):
             best = cost
             best_stop = stop
+            best_fresh = fresh
             _copy_pose(R, t, Rb, tb)
+        else:
+            best_fresh = False      # this run's evaluations overwrote the best one's
         if _acceptable(best, res_fac, fn, opts):
             break
-    return best, total_it, best_stop
+    return best, total_it, best_stop, best_fresh
 
 
 @njit(inline="always")
@@ -359,9 +370,10 @@ def _workspace(n_so, n_se):
 
 
 @njit(inline="always")
-def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, sw, lmw, out):
+def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, fresh, sw, lmw, out):
     """Store sample ``k``'s best pose (in ``sw``) and judge it by the validity rule, with the
-    residuals evaluated at the pose stored and the couplings' own scale."""
+    residuals at the pose stored and the couplings' own scale (from the couplings its solve
+    last predicted, still in ``lmw[0]``, when ``fresh``; else evaluated)."""
     Rb = sw[2]
     tb = sw[3]
     rv = sw[5]
@@ -377,7 +389,7 @@ def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, sw, lmw, out):
     residual[k] = np.nan
     if finite:
         residual[k], rho = residuals_at(unpack_any(mdl, 1.0), Rb, tb, Ck, s, cn, fn, lmw[0],
-                                        lmw[1])
+                                        lmw[1], lmw[0], fresh)
     relres[k] = rho
     iterations[k] = it
     status[k] = classify(stop == STOP_ITERATION_LIMIT, rho, tb, n, box, opts)
@@ -405,9 +417,9 @@ def lm_batch(mdl, C, cnorm, init, nvec, box, opts, out):
             continue
         geo = unpack_any(mdl, s)
         res_fac = s * (s / cn)  # normalised sum of squares -> resnorm
-        it, stop = _solve_sample(geo, Cn, res_fac, fn, init[k], nvec[k], box, opts, sw,
-                                 lmw)[1:]
-        _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, sw, lmw, out)
+        it, stop, fresh = _solve_sample(geo, Cn, res_fac, fn, init[k], nvec[k], box, opts, sw,
+                                        lmw)[1:]
+        _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, fresh, sw, lmw, out)
 
 
 @njit(cache=True, nogil=True)
@@ -463,6 +475,7 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
         cost = np.inf
         it = 0
         stop = STOP_ITERATION_LIMIT
+        fresh = False
         run_opts = plain
         run_start = guess
         for attempt in range(2):
@@ -485,15 +498,17 @@ def lm_track(mdl, C, cnorm, first, W, nvec, box, opts, out):
                 _copy_pose(Rb, tb, Rsave, tsave)
                 run_opts = opts
                 run_start = start
-            cost2, it2, stop2 = _solve_sample(geo, Cn, res_fac, fn, run_start, nvec[k], box,
-                                              run_opts, sw, lmw)
+            cost2, it2, stop2, fresh2 = _solve_sample(geo, Cn, res_fac, fn, run_start,
+                                                      nvec[k], box, run_opts, sw, lmw)
             it += it2
             if attempt == 0 or cost2 < cost:
                 cost = cost2
                 stop = stop2
-            else:
+                fresh = fresh2
+            else:                    # the restart did no better: the first try's pose,
                 _copy_pose(Rsave, tsave, Rb, tb)
-        _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, sw, lmw, out)
+                fresh = False        # whose couplings the restart's evaluations overwrote
+        _finish(k, mdl, C[k], s, cn, fn, nvec[k], box, opts, it, stop, fresh, sw, lmw, out)
         if status[k] == ST_CONVERGED:
             for a in range(6):
                 prev2[a] = prev[a]
