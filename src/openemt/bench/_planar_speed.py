@@ -242,14 +242,12 @@ def board_6dof_ceiling(model, P, repeats=3) -> dict:
     segments and taking the square roots and the division of the exact formula
     (:func:`_roots_and_division`, ``board_6dof_floor_*``). One numba thread, best of
     ``repeats``."""
-    from ..field._segments import segment_coupling, sensor_rule
+    from ..field._segments import sensor_rule
 
-    S, off, g = model.packed()
-    sensor = model.board.sensor
-    R = P[:, :3, :3]
-    pts = (np.einsum("nab,kb->nka", R, np.asarray(sensor.coil_positions(), float))
-           + P[:, None, :3, 3]).reshape(-1, 3)
-    axes = np.einsum("nab,kb->nka", R, np.asarray(sensor.coil_axes(), float)).reshape(-1, 3)
+    S, off, _ = model.packed()
+    p, _, u = model._sensor_coils(P)                  # each sensor coil's centre and axis
+    pts = p.reshape(-1, 3)
+    axes = u.reshape(-1, 3)
     nodes, _ = sensor_rule(model.sensor_length)
     n = len(P)
     n_se = pts.shape[0] // n
@@ -259,11 +257,9 @@ def board_6dof_ceiling(model, P, repeats=3) -> dict:
     with serial_threads():
         times = {}
         for grad in (True, False):
-            segment_coupling(S, off, g, pts[:2], axes[:2], sensor_length=model.sensor_length,
-                             gradient=grad)
-            times[grad] = best_time(lambda grad=grad: segment_coupling(
-                S, off, g, pts, axes, sensor_length=model.sensor_length, gradient=grad),
-                repeats)[0] / n
+            model.coupling_points(pts[:2], axes[:2], gradient=grad)
+            times[grad] = best_time(lambda grad=grad: model.coupling_points(
+                pts, axes, gradient=grad), repeats)[0] / n
         floor = {}
         for shared in (False, True):
             _roots_and_division(S, off, q[:2], shared)
