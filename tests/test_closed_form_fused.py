@@ -65,7 +65,7 @@ def _per_sample_path(method, C, cnorm, W, mdl, nvec, opts, out):
         else:
             rotvec_from_matrix(R, rv)
         store_pose(k, R, t, rv, poses, vecs)
-        residual[k], rho = residuals_at(geo, R, t, C[k], s, cn, fn, Cp, jac, Cp, False)
+        residual[k], rho = residuals_at(geo, R, t, C[k], s, cn, fn, Cp, jac, False)
         relres[k] = rho
         status[k] = classify(False, rho, t, n, box, opts)
 

@@ -525,20 +525,20 @@ EXACT_SCALE_MAX = 2.0 ** 256
 
 
 @njit(inline="always")
-def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac, Cs, known):
+def residuals_at(geo, R, t, Ck, s, cn, fn, Cp, jac, known):
     """``(resnorm, relative residual)`` of the pose ``(R, t)`` for the measured coupling ``Ck``
     (scale ``s``, spectral norm ``cn``, normalised Frobenius norm ``fn``, from
     :func:`normalise_coupling`) under the unpacked model ``geo``, evaluated at the couplings'
     own scale. ``Cp`` receives the predicted coupling; ``jac`` (the derivative arrays of
-    ``dipole_eval``, unused) is scratch. With ``known``, ``Cs`` (may be ``Cp`` itself) already
-    holds the coupling of ``(R, t)`` predicted at the scale ``s`` (a solve's last evaluation,
-    where it ended there): times ``s`` it is the coupling at their own scale bit for bit (``s``
-    a power of two that divides only the model's gain, :data:`EXACT_SCALE_MIN` ..
+    ``dipole_eval``, unused) is scratch. With ``known``, ``Cp`` already holds the coupling of
+    ``(R, t)`` predicted at the scale ``s`` (a solve's last evaluation, where it ended there):
+    times ``s`` (in place) it is the coupling at their own scale bit for bit (``s`` a power of
+    two that divides only the model's gain, :data:`EXACT_SCALE_MIN` ..
     :data:`EXACT_SCALE_MAX`), so the model is not evaluated again."""
     if known and EXACT_SCALE_MIN <= s <= EXACT_SCALE_MAX:
         for i in range(Ck.shape[0]):
             for j in range(Ck.shape[1]):
-                Cp[i, j] = Cs[i, j] * s
+                Cp[i, j] *= s
     else:
         no_jac = Ck.shape[0] < 0  # False at run time: one model_eval specialisation for all
         model_eval(geo, R, t, Cp, jac, no_jac)

@@ -389,7 +389,7 @@ def _finish(k, mdl, Ck, s, cn, fn, n, box, opts, it, stop, fresh, sw, lmw, out):
     residual[k] = np.nan
     if finite:
         residual[k], rho = residuals_at(unpack_any(mdl, 1.0), Rb, tb, Ck, s, cn, fn, lmw[0],
-                                        lmw[1], lmw[0], fresh)
+                                        lmw[1], fresh)
     relres[k] = rho
     iterations[k] = it
     status[k] = classify(stop == STOP_ITERATION_LIMIT, rho, tb, n, box, opts)
